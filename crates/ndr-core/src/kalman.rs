@@ -1,0 +1,323 @@
+//! The paper's discrete Kalman filter on a triple-integrator model (§4.2.4.1).
+//!
+//! State `x = [value, rate, acceleration]`, sampled every `T`:
+//!
+//! ```text
+//!     ┌ 1  T  T²/2 ┐                      ┌ 0 0 0  ┐
+//! A = │ 0  1  T    │   H = [1 0 0]   Q =  │ 0 0 0  │   R = σQ²   P0 = σQ²·I   B = 0
+//!     └ 0  0  1    ┘                      └ 0 0 σQ²┘
+//! ```
+//!
+//! `A^l` is `A` with `T` replaced by `l·T` (the model is exact for a parabola),
+//! so the `l`-step prediction costs one matrix–vector product.
+//!
+//! Q, R and P0 all scale with σQ², so the gains — and hence the estimates — do
+//! not depend on σQ; only the reported covariance does.
+
+use core::fmt;
+
+use nalgebra::{Matrix3, RowVector3, Vector3};
+
+use crate::time::Duration;
+
+/// The paper's prediction horizon in periods: 50 (10 s at 200 ms).
+pub const DEFAULT_HORIZON: u32 = 50;
+
+/// Errors of [`Kalman3`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum KalmanError {
+    /// σQ must be finite and positive.
+    BadSigma(f64),
+    /// The period must be positive.
+    ZeroPeriod,
+    /// A measurement or state was NaN or infinite; the filter is unchanged.
+    NonFinite(f64),
+}
+
+impl fmt::Display for KalmanError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            KalmanError::BadSigma(s) => write!(f, "sigma_q {s} must be finite and positive"),
+            KalmanError::ZeroPeriod => f.write_str("the Kalman filter's period must be positive"),
+            KalmanError::NonFinite(z) => {
+                write!(f, "Kalman input {z} is not finite; the filter is unchanged")
+            }
+        }
+    }
+}
+
+impl core::error::Error for KalmanError {}
+
+/// Triple-integrator Kalman filter with an `l`-step-ahead prediction.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Kalman3 {
+    x: Vector3<f64>,
+    p: Matrix3<f64>,
+    a: Matrix3<f64>,
+    a_ahead: Matrix3<f64>,
+    sigma_q2: f64,
+    period: Duration,
+    horizon: u32,
+}
+
+/// `A` for a step of `dt` seconds.
+fn transition(dt: f64) -> Matrix3<f64> {
+    Matrix3::new(1.0, dt, 0.5 * dt * dt, 0.0, 1.0, dt, 0.0, 0.0, 1.0)
+}
+
+impl Kalman3 {
+    /// A filter with noise level `sigma_q`, period `period` and prediction
+    /// horizon `horizon` periods; state zero, `P0 = σQ²·I`.
+    pub fn new(sigma_q: f64, period: Duration, horizon: u32) -> Result<Self, KalmanError> {
+        if !(sigma_q.is_finite() && sigma_q > 0.0) {
+            return Err(KalmanError::BadSigma(sigma_q));
+        }
+        if period.is_zero() {
+            return Err(KalmanError::ZeroPeriod);
+        }
+        let sigma_q2 = sigma_q * sigma_q;
+        let dt = period.as_secs_f64();
+        Ok(Kalman3 {
+            x: Vector3::zeros(),
+            p: Matrix3::identity() * sigma_q2,
+            a: transition(dt),
+            a_ahead: transition(dt * f64::from(horizon)),
+            sigma_q2,
+            period,
+            horizon,
+        })
+    }
+
+    /// Time update: `x ← A·x`, `P ← A·P·Aᵀ + Q`.
+    pub fn predict(&mut self) {
+        self.x = self.a * self.x;
+        self.p = self.a * self.p * self.a.transpose();
+        self.p[(2, 2)] += self.sigma_q2;
+    }
+
+    /// Measurement update with `z`; returns the innovation `z − H·x`.
+    pub fn update(&mut self, z: f64) -> Result<f64, KalmanError> {
+        if !z.is_finite() {
+            return Err(KalmanError::NonFinite(z));
+        }
+        // H = [1 0 0]: S is a scalar and P·Hᵀ the first column of P.
+        let innovation = z - self.x[0];
+        let ph: Vector3<f64> = self.p.column(0).into();
+        let gain = ph / (ph[0] + self.sigma_q2);
+        self.x += gain * innovation;
+        self.p -= gain * ph.transpose();
+        // Keep P symmetric against rounding.
+        self.p = (self.p + self.p.transpose()) * 0.5;
+        Ok(innovation)
+    }
+
+    /// [`predict`](Self::predict) then [`update`](Self::update); returns the filtered value.
+    pub fn step(&mut self, z: f64) -> Result<f64, KalmanError> {
+        if !z.is_finite() {
+            return Err(KalmanError::NonFinite(z));
+        }
+        self.predict();
+        self.update(z)?;
+        Ok(self.x[0])
+    }
+
+    /// The value predicted `horizon` periods ahead, `H·A^l·x`.
+    #[must_use]
+    pub fn predict_ahead(&self) -> f64 {
+        (self.a_ahead.row(0) * self.x)[0]
+    }
+
+    /// The whole state predicted `horizon` periods ahead, `A^l·x`.
+    #[must_use]
+    pub fn predict_ahead_state(&self) -> Vector3<f64> {
+        self.a_ahead * self.x
+    }
+
+    /// The state estimate `[value, rate, acceleration]`.
+    #[must_use]
+    pub fn x(&self) -> &Vector3<f64> {
+        &self.x
+    }
+
+    /// The filtered value, `H·x`.
+    #[must_use]
+    pub fn value(&self) -> f64 {
+        self.x[0]
+    }
+
+    /// Sets the state, e.g. `[first measurement, 0, 0]` to start without a transient.
+    pub fn set_x(&mut self, x: Vector3<f64>) -> Result<(), KalmanError> {
+        if let Some(&bad) = x.iter().find(|v| !v.is_finite()) {
+            return Err(KalmanError::NonFinite(bad));
+        }
+        self.x = x;
+        Ok(())
+    }
+
+    /// The state covariance `P`.
+    #[must_use]
+    pub fn p(&self) -> &Matrix3<f64> {
+        &self.p
+    }
+
+    /// The transition matrix `A` (filterpy's `F`).
+    #[must_use]
+    pub fn a(&self) -> &Matrix3<f64> {
+        &self.a
+    }
+
+    /// `A^l`, the horizon transition.
+    #[must_use]
+    pub fn a_ahead(&self) -> &Matrix3<f64> {
+        &self.a_ahead
+    }
+
+    /// The measurement matrix `H = [1 0 0]`.
+    #[must_use]
+    pub fn h(&self) -> RowVector3<f64> {
+        RowVector3::new(1.0, 0.0, 0.0)
+    }
+
+    /// The process noise `Q = diag(0, 0, σQ²)`.
+    #[must_use]
+    pub fn q(&self) -> Matrix3<f64> {
+        Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, self.sigma_q2))
+    }
+
+    /// The measurement noise `R = σQ²`.
+    #[must_use]
+    pub fn r(&self) -> f64 {
+        self.sigma_q2
+    }
+
+    /// The sampling period `T`.
+    #[must_use]
+    pub fn period(&self) -> Duration {
+        self.period
+    }
+
+    /// The prediction horizon `l`, in periods.
+    #[must_use]
+    pub fn horizon(&self) -> u32 {
+        self.horizon
+    }
+
+    /// Changes `T` (the horizon stays `l` periods) keeping the estimate: the
+    /// state is in units per second, so it stays valid.
+    pub fn set_period(&mut self, period: Duration) -> Result<(), KalmanError> {
+        if period.is_zero() {
+            return Err(KalmanError::ZeroPeriod);
+        }
+        let dt = period.as_secs_f64();
+        self.period = period;
+        self.a = transition(dt);
+        self.a_ahead = transition(dt * f64::from(self.horizon));
+        Ok(())
+    }
+
+    /// Back to state zero and `P0 = σQ²·I`.
+    pub fn reset(&mut self) {
+        self.x = Vector3::zeros();
+        self.p = Matrix3::identity() * self.sigma_q2;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const T: Duration = Duration::from_millis(200);
+
+    fn run(k: &mut Kalman3, f: impl Fn(f64) -> f64, steps: u32) {
+        for i in 1..=steps {
+            k.step(f(f64::from(i) * 0.2)).unwrap();
+        }
+    }
+
+    #[test]
+    fn tracks_a_constant() {
+        let mut k = Kalman3::new(1.0, T, DEFAULT_HORIZON).unwrap();
+        run(&mut k, |_| 0.61, 400);
+        assert!((k.value() - 0.61).abs() < 1e-9, "{}", k.value());
+        assert!(k.x()[1].abs() < 1e-9 && k.x()[2].abs() < 1e-9);
+        assert!((k.predict_ahead() - 0.61).abs() < 1e-9);
+    }
+
+    #[test]
+    fn tracks_a_ramp_and_predicts_it_exactly() {
+        let mut k = Kalman3::new(1.0, T, DEFAULT_HORIZON).unwrap();
+        let ramp = |t: f64| 0.5 + 0.03 * t;
+        run(&mut k, ramp, 600);
+        let t_now = 600.0 * 0.2;
+        assert!((k.value() - ramp(t_now)).abs() < 1e-9);
+        assert!((k.x()[1] - 0.03).abs() < 1e-9);
+        // 50 steps of 200 ms ahead.
+        assert!(
+            (k.predict_ahead() - ramp(t_now + 10.0)).abs() < 1e-8,
+            "{}",
+            k.predict_ahead()
+        );
+    }
+
+    #[test]
+    fn tracks_a_parabola() {
+        let mut k = Kalman3::new(0.1, T, DEFAULT_HORIZON).unwrap();
+        let parabola = |t: f64| 1.0 + 0.2 * t - 0.004 * t * t;
+        run(&mut k, parabola, 800);
+        let t_now = 800.0 * 0.2;
+        assert!((k.value() - parabola(t_now)).abs() < 1e-7, "{}", k.value());
+        assert!((k.x()[2] - (-0.008)).abs() < 1e-8);
+        assert!((k.predict_ahead() - parabola(t_now + 10.0)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_horizon_matrix_is_a_to_the_l() {
+        let k = Kalman3::new(1.0, T, 50).unwrap();
+        let mut pow = Matrix3::identity();
+        for _ in 0..50 {
+            pow *= k.a();
+        }
+        assert!((pow - k.a_ahead()).abs().max() < 1e-9);
+    }
+
+    #[test]
+    fn estimates_do_not_depend_on_sigma_q() {
+        let mut a = Kalman3::new(1.0, T, 50).unwrap();
+        let mut b = Kalman3::new(0.01, T, 50).unwrap();
+        for i in 0..200 {
+            let z = libm::sin(f64::from(i) * 0.1) + 0.2;
+            a.step(z).unwrap();
+            b.step(z).unwrap();
+        }
+        assert!((a.x() - b.x()).abs().max() < 1e-9);
+        assert!((a.p() - b.p() * 1e4).abs().max() < 1e-6 * a.p().abs().max());
+    }
+
+    #[test]
+    fn rejects_bad_input_without_changing() {
+        assert!(Kalman3::new(0.0, T, 50).is_err());
+        assert!(Kalman3::new(f64::NAN, T, 50).is_err());
+        assert_eq!(
+            Kalman3::new(1.0, Duration::ZERO, 50),
+            Err(KalmanError::ZeroPeriod)
+        );
+        let mut k = Kalman3::new(1.0, T, 50).unwrap();
+        k.step(1.0).unwrap();
+        let before = k.clone();
+        assert!(k.step(f64::NAN).is_err());
+        assert!(k.update(f64::INFINITY).is_err());
+        assert!(k.set_x(Vector3::new(0.0, f64::NAN, 0.0)).is_err());
+        assert_eq!(k, before);
+    }
+
+    #[test]
+    fn period_change_keeps_the_estimate() {
+        let mut k = Kalman3::new(1.0, T, 50).unwrap();
+        run(&mut k, |t| 2.0 * t, 400);
+        let x = *k.x();
+        k.set_period(Duration::from_millis(50)).unwrap();
+        assert_eq!(*k.x(), x);
+        // Horizon now 50 · 50 ms = 2.5 s.
+        assert!((k.predict_ahead() - (x[0] + 2.0 * 2.5)).abs() < 1e-8);
+    }
+}

@@ -1,0 +1,88 @@
+//! # ndr-core
+//!
+//! The building blocks of a regulated teleoperation link, after Lelevé,
+//! Fraisse and Dauchez, *Telerobotics over IP networks: towards a low-level
+//! real-time architecture* (IROS 2001): plain, deterministic Rust that runs
+//! without `std` and without an allocator, so the same code can run on the
+//! robot's control board, in a simulator, and behind a tokio driver.
+//!
+//! ## The pieces and how they fit
+//!
+//! A base (operator) and a remote (robot) exchange one frame per period `T`
+//! each way. At each input a **Network Delay Regulator** turns the network's
+//! jittery arrivals into releases at a constant period:
+//!
+//! ```text
+//!  frames from the peer ──► wire::Frame::new_checked ──► Regulator::push
+//!                                                          │ (FIFO, ns samples of stock)
+//!  release clock, every T ─────────────────────────► Regulator::tick ──► application
+//! ```
+//!
+//! - [`time`]: integer-nanosecond [`Instant`] and [`Duration`]; nothing here
+//!   reads a clock, time is always an argument.
+//! - [`regulator`]: the NDR queue, [`Regulator<T, N>`](Regulator): capacity
+//!   `N` fixed at compile time, nominal size `ns` at run time, pre-fill,
+//!   release per tick, underflow and overflow counted, never a silent drop.
+//! - [`sizing`]: the initialization pattern ([`InitPattern`], 10 round trips)
+//!   gives `mt`, and [`Sizing`] applies `ns = 2 + floor(η·mt/T)` and
+//!   `T = max(T_min, NRTT/3)`.
+//! - [`filters`], [`kalman`], [`predictor`]: the paper's dynamic adaptation.
+//!   [`NetworkPredictor`] low-passes the NRTT samples and the [`Envelope`] of
+//!   the reception gaps, tracks both with a triple-integrator [`Kalman3`],
+//!   forecasts them 50 periods ahead, and says which `(T, ns)` the laws
+//!   would choose.
+//! - [`rls`], [`arx`], [`estimator`]: the remote system's model. An
+//!   [`Arx2`] identifies each axis's second-order transfer function with
+//!   recursive least squares ([`Rls`]); because the regulated delays are
+//!   constant and known in samples, an [`Estimator`] can replay the commands
+//!   in flight through that model to give `x3e` (the remote's state now) and
+//!   `x3p` (its state when the command sent now takes effect).
+//! - [`wire`]: the frame codec (spec and test vectors in `docs/wire.md`):
+//!   checked views over `&[u8]`, encoding into `&mut [u8]`; decoding is total.
+//!
+//! ## Drive loop
+//!
+//! Each peer runs the same loop, with `now` taken from its own clock:
+//!
+//! 1. on bytes from the network: deframe, [`wire::Frame::new_checked`], push
+//!    the samples into the [`Regulator`], feed NRTT (from the echo) and the
+//!    reception gap to the [`NetworkPredictor`];
+//! 2. on each tick `t0 + k·T`: [`Regulator::tick`] releases one sample to the
+//!    application (or reports pre-fill or underflow), the predictor steps, the
+//!    estimator steps with the command sent and the state released;
+//! 3. on each send tick: [`wire::encode`] the latest sample with the echo of
+//!    the newest frame received.
+//!
+//! The link endpoint that packages this loop as a sans-IO state machine
+//! builds on these types.
+//!
+//! ## Features
+//!
+//! - `std` (default): conversions between [`Instant`]/[`Duration`] and
+//!   `std::time`. Without it the crate is `#![no_std]` and uses no `alloc`.
+#![no_std]
+#![forbid(unsafe_code)]
+
+#[cfg(any(feature = "std", test))]
+extern crate std;
+
+pub mod arx;
+pub mod estimator;
+pub mod filters;
+pub mod kalman;
+pub mod predictor;
+pub mod regulator;
+pub mod rls;
+pub mod sizing;
+pub mod time;
+pub mod wire;
+
+pub use arx::{Arx2, Tf2};
+pub use estimator::{Estimate, Estimator};
+pub use filters::{Envelope, LowPass};
+pub use kalman::Kalman3;
+pub use predictor::{NetworkPredictor, Prediction, PredictorConfig};
+pub use regulator::{Regulator, Tick};
+pub use rls::Rls;
+pub use sizing::{InitPattern, InitStats, Sizing};
+pub use time::{Duration, Instant};

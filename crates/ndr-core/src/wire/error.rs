@@ -1,0 +1,176 @@
+//! The one error type of the codec.
+
+use core::fmt;
+
+use super::{HEADER_LEN, Kind, MAX_CHANNELS, MAX_FRAME_LEN, VERSION, close_reason, field};
+
+/// Why a byte string is not a valid frame, or why a frame cannot be encoded.
+///
+/// Every variant is a distinct rule of `docs/wire.md`; offsets are counted
+/// from the first byte of the frame (the length prefix).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum WireError {
+    /// Fewer bytes than the frame needs: `needed` in all, `got` available.
+    Truncated {
+        /// Bytes the frame needs.
+        needed: usize,
+        /// Bytes available.
+        got: usize,
+    },
+    /// The length field is below [`HEADER_LEN`] or above [`MAX_FRAME_LEN`].
+    LengthOutOfRange(u32),
+    /// The buffer holds more bytes than the length field announces.
+    LengthMismatch {
+        /// Frame length announced by the length field.
+        field: usize,
+        /// Bytes in the buffer.
+        actual: usize,
+    },
+    /// The version byte is not [`VERSION`].
+    UnsupportedVersion(u8),
+    /// The kind byte names no known frame kind.
+    UnknownKind(u8),
+    /// Header flags are set; version 1 defines none.
+    UnsupportedFlags(u16),
+    /// A reserved byte (at `offset` in the frame) is not zero.
+    ReservedNotZero {
+        /// Offset of the first non-zero reserved byte.
+        offset: usize,
+    },
+    /// The payload size does not fit the frame kind.
+    BadPayloadLength {
+        /// Kind of the frame.
+        kind: Kind,
+        /// Payload size in bytes.
+        len: usize,
+    },
+    /// More than [`MAX_CHANNELS`] values in a Data message.
+    TooManyChannels(usize),
+    /// Channel `index` is NaN or infinite.
+    NonFinite {
+        /// Index of the first offending channel.
+        index: usize,
+    },
+    /// The role byte of a Hello is neither 0 (base) nor 1 (remote).
+    BadRole(u8),
+    /// A Hello announces a zero period.
+    ZeroPeriod,
+    /// A Control frame has op code 0.
+    ZeroControlOp,
+    /// `echo_hold` is non-zero although `echo` says nothing was received yet.
+    HoldWithoutEcho,
+    /// A header value equals `u64::MAX`, which the wire reserves for "none"
+    /// (field at `offset`: 24 echo, 40 released).
+    SentinelValue {
+        /// Offset of the field in the header.
+        offset: usize,
+    },
+    /// The output buffer of [`encode`](super::encode) is too small.
+    BufferTooSmall {
+        /// Bytes the frame needs.
+        needed: usize,
+        /// Bytes in the buffer.
+        got: usize,
+    },
+    /// The destination of [`Channels::copy_to`](super::Channels::copy_to) is too short.
+    DestinationTooSmall {
+        /// Channels in the frame.
+        needed: usize,
+        /// Slots in the destination.
+        got: usize,
+    },
+}
+
+impl WireError {
+    /// The [`close_reason`] a peer should send before hanging up on a frame
+    /// that failed with this error.
+    #[must_use]
+    pub const fn close_reason(&self) -> u16 {
+        match self {
+            WireError::UnsupportedVersion(_) => close_reason::VERSION_MISMATCH,
+            _ => close_reason::PROTOCOL_ERROR,
+        }
+    }
+}
+
+impl fmt::Display for WireError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            WireError::Truncated { needed, got } => write!(
+                f,
+                "truncated frame: {got} bytes, the frame needs {needed}; read the rest from the stream before decoding"
+            ),
+            WireError::LengthOutOfRange(len) => write!(
+                f,
+                "frame length field is {len}, valid is {HEADER_LEN}..={MAX_FRAME_LEN}; the stream is corrupt or not ndr, close the connection"
+            ),
+            WireError::LengthMismatch { field, actual } => write!(
+                f,
+                "frame length field says {field} bytes but the buffer holds {actual}; pass exactly one frame (split the stream with frame_len)"
+            ),
+            WireError::UnsupportedVersion(v) => write!(
+                f,
+                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side"
+            ),
+            WireError::UnknownKind(k) => write!(
+                f,
+                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close)"
+            ),
+            WireError::UnsupportedFlags(flags) => write!(
+                f,
+                "header flags {flags:#06x} set; wire version {VERSION} defines none, they must be 0"
+            ),
+            WireError::ReservedNotZero { offset } => {
+                write!(f, "reserved byte at offset {offset} is not zero")
+            }
+            WireError::BadPayloadLength { kind, len } => match kind {
+                Kind::Data => write!(
+                    f,
+                    "Data payload is {len} bytes, not a multiple of 8 (one f64 per channel)"
+                ),
+                _ => write!(
+                    f,
+                    "{kind:?} payload is {len} bytes, it must be exactly {}",
+                    kind.fixed_payload_len().unwrap_or(0)
+                ),
+            },
+            WireError::TooManyChannels(n) => write!(
+                f,
+                "{n} channels, a frame carries at most {MAX_CHANNELS}; split the sample"
+            ),
+            WireError::NonFinite { index } => write!(
+                f,
+                "channel {index} is NaN or infinite; only finite values may cross the link"
+            ),
+            WireError::BadRole(r) => {
+                write!(f, "Hello role {r} is neither 0 (base) nor 1 (remote)")
+            }
+            WireError::ZeroPeriod => write!(f, "Hello period is zero; it must be positive"),
+            WireError::ZeroControlOp => write!(f, "Control op code 0 is invalid"),
+            WireError::HoldWithoutEcho => write!(
+                f,
+                "echo_hold is non-zero but echo says nothing was received yet (u64::MAX)"
+            ),
+            WireError::SentinelValue { offset } => write!(
+                f,
+                "{} is u64::MAX, which the wire reserves for 'none'; use None instead",
+                if offset == field::ECHO {
+                    "echo sent_at"
+                } else {
+                    "released"
+                }
+            ),
+            WireError::BufferTooSmall { needed, got } => write!(
+                f,
+                "output buffer is {got} bytes, the frame needs {needed}; pass a buffer of MAX_FRAME_LEN bytes"
+            ),
+            WireError::DestinationTooSmall { needed, got } => write!(
+                f,
+                "destination holds {got} values, the frame carries {needed} channels"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for WireError {}

@@ -1,0 +1,441 @@
+//! Payloads: the decoded views of what follows the header, and the small
+//! fixed-size messages with their known codes.
+
+use core::fmt;
+use core::iter::FusedIterator;
+use core::slice::ChunksExact;
+
+use super::{HEADER_LEN, Kind, MAX_CHANNELS, WireError, bytes_at};
+use crate::time::Duration;
+
+/// The decoded payload of a valid [`Frame`](super::Frame).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Payload<'a> {
+    /// Channel values of one sample.
+    Data(Channels<'a>),
+    /// Handshake.
+    Hello(Hello),
+    /// Pause / resume negotiation.
+    Control(Control),
+    /// Goodbye.
+    Close(Close),
+}
+
+impl Payload<'_> {
+    /// The frame kind carrying this payload.
+    #[must_use]
+    pub const fn kind(&self) -> Kind {
+        match self {
+            Payload::Data(_) => Kind::Data,
+            Payload::Hello(_) => Kind::Hello,
+            Payload::Control(_) => Kind::Control,
+            Payload::Close(_) => Kind::Close,
+        }
+    }
+}
+
+/// Zero-copy view of the channel values of a Data frame (little-endian `f64`s,
+/// all finite once the frame has been checked).
+///
+/// Equality is bitwise: `0.0` and `-0.0` differ, as they do on the wire.
+#[derive(Clone, Copy, PartialEq, Eq, Default)]
+pub struct Channels<'a> {
+    bytes: &'a [u8],
+}
+
+impl<'a> Channels<'a> {
+    /// Validates a Data payload: whole `f64`s, at most [`MAX_CHANNELS`], all finite.
+    pub(super) fn check(bytes: &'a [u8]) -> Result<Self, WireError> {
+        if bytes.len() % 8 != 0 {
+            return Err(WireError::BadPayloadLength {
+                kind: Kind::Data,
+                len: bytes.len(),
+            });
+        }
+        let channels = Channels { bytes };
+        if channels.len() > MAX_CHANNELS {
+            return Err(WireError::TooManyChannels(channels.len()));
+        }
+        // One pass on the raw bits: a non-finite f64 has all exponent bits set.
+        const EXP: u64 = 0x7ff0_0000_0000_0000;
+        for (index, chunk) in bytes.chunks_exact(8).enumerate() {
+            if u64_of(chunk) & EXP == EXP {
+                return Err(WireError::NonFinite { index });
+            }
+        }
+        Ok(channels)
+    }
+
+    /// A view over bytes already checked (a trailing partial value is ignored).
+    pub(super) const fn from_checked(bytes: &'a [u8]) -> Self {
+        Channels { bytes }
+    }
+
+    /// Number of channels.
+    #[must_use]
+    pub const fn len(&self) -> usize {
+        self.bytes.len() / 8
+    }
+
+    /// Whether the frame carries no channel (a heartbeat).
+    #[must_use]
+    pub const fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Channel `i`, or `None` past the end.
+    #[must_use]
+    pub fn get(&self, i: usize) -> Option<f64> {
+        bytes_at::<8>(self.bytes, i.checked_mul(8)?).map(f64::from_le_bytes)
+    }
+
+    /// The values in channel order.
+    #[must_use]
+    pub fn iter(&self) -> ChannelsIter<'a> {
+        ChannelsIter {
+            chunks: self.bytes.chunks_exact(8),
+        }
+    }
+
+    /// Copies the values to the front of `dst` and returns how many there are.
+    ///
+    /// # Errors
+    /// [`WireError::DestinationTooSmall`] if `dst` is shorter than [`len`](Self::len);
+    /// `dst` is then left untouched.
+    pub fn copy_to(&self, dst: &mut [f64]) -> Result<usize, WireError> {
+        let n = self.len();
+        let got = dst.len();
+        let dst = dst
+            .get_mut(..n)
+            .ok_or(WireError::DestinationTooSmall { needed: n, got })?;
+        for (d, chunk) in dst.iter_mut().zip(self.bytes.chunks_exact(8)) {
+            *d = f64::from_bits(u64_of(chunk));
+        }
+        Ok(n)
+    }
+
+    /// The raw little-endian bytes of the values.
+    #[must_use]
+    pub const fn as_bytes(&self) -> &'a [u8] {
+        self.bytes
+    }
+}
+
+impl fmt::Debug for Channels<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_list().entries(self.iter()).finish()
+    }
+}
+
+impl<'a> IntoIterator for Channels<'a> {
+    type Item = f64;
+    type IntoIter = ChannelsIter<'a>;
+    fn into_iter(self) -> ChannelsIter<'a> {
+        self.iter()
+    }
+}
+
+impl<'a> IntoIterator for &Channels<'a> {
+    type Item = f64;
+    type IntoIter = ChannelsIter<'a>;
+    fn into_iter(self) -> ChannelsIter<'a> {
+        self.iter()
+    }
+}
+
+/// Iterator over the values of [`Channels`].
+#[derive(Debug, Clone)]
+pub struct ChannelsIter<'a> {
+    chunks: ChunksExact<'a, u8>,
+}
+
+impl Iterator for ChannelsIter<'_> {
+    type Item = f64;
+
+    fn next(&mut self) -> Option<f64> {
+        self.chunks.next().map(|c| f64::from_bits(u64_of(c)))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        self.chunks.size_hint()
+    }
+
+    fn nth(&mut self, n: usize) -> Option<f64> {
+        self.chunks.nth(n).map(|c| f64::from_bits(u64_of(c)))
+    }
+}
+
+impl DoubleEndedIterator for ChannelsIter<'_> {
+    fn next_back(&mut self) -> Option<f64> {
+        self.chunks.next_back().map(|c| f64::from_bits(u64_of(c)))
+    }
+}
+
+impl ExactSizeIterator for ChannelsIter<'_> {}
+
+impl FusedIterator for ChannelsIter<'_> {}
+
+/// An 8-byte chunk as a little-endian `u64` (chunks come from `chunks_exact(8)`,
+/// so the fallback never happens; it keeps the function panic-free).
+#[inline(always)]
+fn u64_of(chunk: &[u8]) -> u64 {
+    chunk
+        .first_chunk::<8>()
+        .map_or(0, |b| u64::from_le_bytes(*b))
+}
+
+/// Fails with the offset (in the frame) of the first non-zero byte of a reserved field.
+fn reserved_zero(bytes: &[u8], offset: usize) -> Result<(), WireError> {
+    match bytes.iter().position(|&b| b != 0) {
+        None => Ok(()),
+        Some(i) => Err(WireError::ReservedNotZero { offset: offset + i }),
+    }
+}
+
+/// The sender's side of the link, announced in [`Hello`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum Role {
+    /// Operator and controller side.
+    Base = 0,
+    /// Robot side.
+    Remote = 1,
+}
+
+impl Role {
+    /// The role at the other end of the link.
+    #[must_use]
+    pub const fn peer(self) -> Role {
+        match self {
+            Role::Base => Role::Remote,
+            Role::Remote => Role::Base,
+        }
+    }
+}
+
+impl TryFrom<u8> for Role {
+    type Error = WireError;
+    fn try_from(code: u8) -> Result<Role, WireError> {
+        match code {
+            0 => Ok(Role::Base),
+            1 => Ok(Role::Remote),
+            _ => Err(WireError::BadRole(code)),
+        }
+    }
+}
+
+impl From<Role> for u8 {
+    fn from(role: Role) -> u8 {
+        role as u8
+    }
+}
+
+/// Known [`Hello::mode`] codes (the endpoint gives them meaning; later versions add codes).
+pub mod mode {
+    /// The paper's static regulator: `T` and `ns` fixed after the handshake.
+    pub const PAPER_STATIC: u8 = 0;
+    /// The paper's dynamic regulator: `T` and `ns` re-sized from predicted delays.
+    pub const PAPER_DYNAMIC: u8 = 1;
+}
+
+/// Known [`Hello::underflow`] codes: what the regulator releases on an empty queue.
+pub mod underflow {
+    /// Release the last sample again.
+    pub const HOLD: u8 = 0;
+    /// Release nothing, and drop samples that arrive after their deadline.
+    pub const DROP_LATE: u8 = 1;
+}
+
+/// Known [`Control::op`] codes.
+pub mod control_op {
+    /// Ask the peer to pause teleoperation (to re-size the link).
+    pub const PAUSE_REQUEST: u8 = 1;
+    /// Agree to a pause request.
+    pub const PAUSE_ACK: u8 = 2;
+    /// Resume with the [`Control`](super::Control)'s `ns` and `period`.
+    pub const RESUME: u8 = 3;
+}
+
+/// Known [`Close::reason`] codes. Unknown codes are valid on the wire.
+pub mod close_reason {
+    /// Orderly end of the session.
+    pub const NORMAL: u16 = 0;
+    /// The peers speak different wire versions.
+    pub const VERSION_MISMATCH: u16 = 1;
+    /// Both peers claim the same role.
+    pub const ROLE_MISMATCH: u16 = 2;
+    /// The peers disagree on the number of axes.
+    pub const AXES_MISMATCH: u16 = 3;
+    /// The peers disagree on the period.
+    pub const PERIOD_MISMATCH: u16 = 4;
+    /// The peers disagree on the regulator mode.
+    pub const MODE_MISMATCH: u16 = 5;
+    /// The peer sent an invalid or unexpected frame.
+    pub const PROTOCOL_ERROR: u16 = 6;
+    /// The peer went silent for too long.
+    pub const TIMEOUT: u16 = 7;
+
+    /// A short name for `code`, `"unknown"` for codes this build does not know.
+    #[must_use]
+    pub const fn name(code: u16) -> &'static str {
+        match code {
+            NORMAL => "normal",
+            VERSION_MISMATCH => "version mismatch",
+            ROLE_MISMATCH => "role mismatch",
+            AXES_MISMATCH => "axes mismatch",
+            PERIOD_MISMATCH => "period mismatch",
+            MODE_MISMATCH => "mode mismatch",
+            PROTOCOL_ERROR => "protocol error",
+            TIMEOUT => "timeout",
+            _ => "unknown",
+        }
+    }
+}
+
+/// Handshake: what the sender is and how it wants the link run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Hello {
+    /// The sender's role.
+    pub role: Role,
+    /// Regulator mode code (see [`mode`]).
+    pub mode: u8,
+    /// Underflow policy code (see [`underflow`]).
+    pub underflow: u8,
+    /// Number of axes of the teleoperated system.
+    pub axes: u16,
+    /// Sampling period `T`; must be positive.
+    pub period: Duration,
+}
+
+impl Hello {
+    /// Payload size in bytes.
+    pub const LEN: usize = 16;
+
+    pub(super) fn parse(bytes: &[u8]) -> Result<Hello, WireError> {
+        let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
+            kind: Kind::Hello,
+            len: bytes.len(),
+        })?;
+        let [role, mode, underflow, r0, a0, a1, r1, r2, period @ ..] = *b;
+        let role = Role::try_from(role)?;
+        reserved_zero(&[r0], HEADER_LEN + 3)?;
+        reserved_zero(&[r1, r2], HEADER_LEN + 6)?;
+        let period = u64::from_le_bytes(period);
+        if period == 0 {
+            return Err(WireError::ZeroPeriod);
+        }
+        Ok(Hello {
+            role,
+            mode,
+            underflow,
+            axes: u16::from_le_bytes([a0, a1]),
+            period: Duration::from_nanos(period),
+        })
+    }
+
+    pub(super) fn to_bytes(self) -> Result<[u8; Self::LEN], WireError> {
+        if self.period.is_zero() {
+            return Err(WireError::ZeroPeriod);
+        }
+        let [a0, a1] = self.axes.to_le_bytes();
+        let [p0, p1, p2, p3, p4, p5, p6, p7] = self.period.as_nanos().to_le_bytes();
+        Ok([
+            self.role as u8,
+            self.mode,
+            self.underflow,
+            0,
+            a0,
+            a1,
+            0,
+            0,
+            p0,
+            p1,
+            p2,
+            p3,
+            p4,
+            p5,
+            p6,
+            p7,
+        ])
+    }
+}
+
+/// Pause / resume negotiation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Control {
+    /// Operation code (see [`control_op`]); never 0.
+    pub op: u8,
+    /// Nominal queue size to use after resume; 0 when irrelevant.
+    pub ns: u16,
+    /// Period to use after resume; zero when irrelevant.
+    pub period: Duration,
+}
+
+impl Control {
+    /// Payload size in bytes.
+    pub const LEN: usize = 16;
+
+    pub(super) fn parse(bytes: &[u8]) -> Result<Control, WireError> {
+        let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
+            kind: Kind::Control,
+            len: bytes.len(),
+        })?;
+        let [op, r0, n0, n1, r1, r2, r3, r4, period @ ..] = *b;
+        if op == 0 {
+            return Err(WireError::ZeroControlOp);
+        }
+        reserved_zero(&[r0], HEADER_LEN + 1)?;
+        reserved_zero(&[r1, r2, r3, r4], HEADER_LEN + 4)?;
+        Ok(Control {
+            op,
+            ns: u16::from_le_bytes([n0, n1]),
+            period: Duration::from_nanos(u64::from_le_bytes(period)),
+        })
+    }
+
+    pub(super) fn to_bytes(self) -> Result<[u8; Self::LEN], WireError> {
+        if self.op == 0 {
+            return Err(WireError::ZeroControlOp);
+        }
+        let [n0, n1] = self.ns.to_le_bytes();
+        let [p0, p1, p2, p3, p4, p5, p6, p7] = self.period.as_nanos().to_le_bytes();
+        Ok([
+            self.op, 0, n0, n1, 0, 0, 0, 0, p0, p1, p2, p3, p4, p5, p6, p7,
+        ])
+    }
+}
+
+/// Goodbye, with a reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Close {
+    /// Reason code (see [`close_reason`]); any value is valid.
+    pub reason: u16,
+}
+
+impl Close {
+    /// Payload size in bytes.
+    pub const LEN: usize = 8;
+
+    pub(super) fn parse(bytes: &[u8]) -> Result<Close, WireError> {
+        let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
+            kind: Kind::Close,
+            len: bytes.len(),
+        })?;
+        let [c0, c1, reserved @ ..] = *b;
+        reserved_zero(&reserved, HEADER_LEN + 2)?;
+        Ok(Close {
+            reason: u16::from_le_bytes([c0, c1]),
+        })
+    }
+
+    pub(super) fn to_bytes(self) -> [u8; Self::LEN] {
+        let [c0, c1] = self.reason.to_le_bytes();
+        [c0, c1, 0, 0, 0, 0, 0, 0]
+    }
+}
+
+impl fmt::Display for Close {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} ({})", close_reason::name(self.reason), self.reason)
+    }
+}

@@ -1,0 +1,524 @@
+use std::format;
+use std::string::ToString;
+use std::vec::Vec;
+
+use super::*;
+
+fn header() -> Header {
+    Header {
+        seq: 9,
+        sent_at: Instant::from_millis(3),
+        echo: Some(Echo {
+            sent_at: Instant::from_millis(2),
+            hold: Duration::from_micros(40),
+        }),
+        released: Some(8),
+    }
+}
+
+fn hello() -> Hello {
+    Hello {
+        role: Role::Remote,
+        mode: mode::PAPER_STATIC,
+        underflow: underflow::DROP_LATE,
+        axes: 2,
+        period: Duration::from_millis(200),
+    }
+}
+
+fn control() -> Control {
+    Control {
+        op: control_op::PAUSE_REQUEST,
+        ns: 0,
+        period: Duration::ZERO,
+    }
+}
+
+/// Encodes a valid frame into a vector.
+fn frame_bytes(msg: &Message<'_>) -> Vec<u8> {
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let n = encode(&header(), msg, &mut buf).unwrap();
+    buf[..n].to_vec()
+}
+
+fn data(values: &[f64]) -> Vec<u8> {
+    frame_bytes(&Message::Data(values))
+}
+
+fn decode(bytes: &[u8]) -> Result<Kind, WireError> {
+    Frame::new_checked(bytes).map(|f| f.kind())
+}
+
+fn with(mut bytes: Vec<u8>, at: usize, value: u8) -> Vec<u8> {
+    bytes[at] = value;
+    bytes
+}
+
+#[test]
+fn round_trip_every_kind() {
+    let values = [1.0, -0.0, f64::MIN_POSITIVE / 4.0, f64::MAX];
+    let close = Close {
+        reason: close_reason::TIMEOUT,
+    };
+    for msg in [
+        Message::Data(&values),
+        Message::Data(&[]),
+        Message::Hello(hello()),
+        Message::Control(control()),
+        Message::Close(close),
+    ] {
+        let bytes = frame_bytes(&msg);
+        assert_eq!(bytes.len(), encoded_len(&msg));
+        let frame = Frame::new_checked(&bytes[..]).unwrap();
+        assert_eq!(frame.kind(), msg.kind());
+        assert_eq!(frame.payload().kind(), msg.kind());
+        assert_eq!(frame.header(), header());
+        match (frame.payload(), msg) {
+            (Payload::Data(ch), Message::Data(v)) => {
+                let got: Vec<u64> = ch.iter().map(f64::to_bits).collect();
+                let want: Vec<u64> = v.iter().map(|x| x.to_bits()).collect();
+                assert_eq!(got, want);
+            }
+            (Payload::Hello(h), Message::Hello(m)) => assert_eq!(h, m),
+            (Payload::Control(c), Message::Control(m)) => assert_eq!(c, m),
+            (Payload::Close(c), Message::Close(m)) => assert_eq!(c, m),
+            (p, m) => panic!("{p:?} vs {m:?}"),
+        }
+        assert_eq!(frame.as_bytes(), &bytes[..]);
+        assert_eq!(frame.into_inner(), &bytes[..]);
+    }
+}
+
+#[test]
+fn none_fields_use_the_sentinel() {
+    let h = Header {
+        seq: 0,
+        sent_at: Instant::ZERO,
+        echo: None,
+        released: None,
+    };
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let n = encode(&h, &Message::Data(&[]), &mut buf).unwrap();
+    assert_eq!(&buf[24..32], &[0xff; 8]);
+    assert_eq!(&buf[32..40], &[0; 8]);
+    assert_eq!(&buf[40..48], &[0xff; 8]);
+    let frame = Frame::new_checked(&buf[..n]).unwrap();
+    assert_eq!(frame.echo(), None);
+    assert_eq!(frame.released(), None);
+    assert_eq!(frame.header(), h);
+}
+
+#[test]
+fn frame_len_reads_and_bounds_the_prefix() {
+    assert_eq!(frame_len(&[]), Ok(None));
+    assert_eq!(frame_len(&[48, 0, 0]), Ok(None));
+    assert_eq!(frame_len(&[48, 0, 0, 0]), Ok(Some(48)));
+    assert_eq!(frame_len(&[0x30, 0x08, 0, 0, 9]), Ok(Some(MAX_FRAME_LEN)));
+    assert_eq!(
+        frame_len(&[47, 0, 0, 0]),
+        Err(WireError::LengthOutOfRange(47))
+    );
+    assert_eq!(
+        frame_len(&[0x31, 0x08, 0, 0]),
+        Err(WireError::LengthOutOfRange(2097))
+    );
+    assert_eq!(
+        frame_len(&[0xff; 4]),
+        Err(WireError::LengthOutOfRange(u32::MAX))
+    );
+}
+
+#[test]
+fn error_truncated() {
+    assert_eq!(decode(&[]), Err(WireError::Truncated { needed: 4, got: 0 }));
+    assert_eq!(
+        decode(&[72, 0]),
+        Err(WireError::Truncated { needed: 4, got: 2 })
+    );
+    let bytes = data(&[1.0, 2.0, 3.0]);
+    for cut in 4..bytes.len() {
+        assert_eq!(
+            decode(&bytes[..cut]),
+            Err(WireError::Truncated {
+                needed: 72,
+                got: cut
+            })
+        );
+    }
+}
+
+#[test]
+fn error_length_out_of_range() {
+    let bytes = with(data(&[]), 0, 40);
+    assert_eq!(decode(&bytes), Err(WireError::LengthOutOfRange(40)));
+}
+
+#[test]
+fn error_length_mismatch() {
+    let mut bytes = data(&[1.0]);
+    bytes.extend_from_slice(&data(&[2.0]));
+    assert_eq!(
+        decode(&bytes),
+        Err(WireError::LengthMismatch {
+            field: 56,
+            actual: 112
+        })
+    );
+}
+
+#[test]
+fn error_unsupported_version() {
+    let bytes = with(frame_bytes(&Message::Hello(hello())), 4, 2);
+    let err = decode(&bytes).unwrap_err();
+    assert_eq!(err, WireError::UnsupportedVersion(2));
+    assert_eq!(err.close_reason(), close_reason::VERSION_MISMATCH);
+    assert_eq!(
+        err.to_string(),
+        "peer speaks ndr wire version 2, this build speaks 1; upgrade the older side"
+    );
+}
+
+#[test]
+fn error_unknown_kind() {
+    for kind in [0, 5, 255] {
+        let bytes = with(data(&[]), 5, kind);
+        assert_eq!(decode(&bytes), Err(WireError::UnknownKind(kind)));
+    }
+    assert_eq!(Kind::try_from(9), Err(WireError::UnknownKind(9)));
+    for kind in [Kind::Data, Kind::Hello, Kind::Control, Kind::Close] {
+        assert_eq!(Kind::try_from(u8::from(kind)), Ok(kind));
+    }
+}
+
+#[test]
+fn error_unsupported_flags() {
+    let bytes = with(data(&[]), 7, 0x80);
+    assert_eq!(decode(&bytes), Err(WireError::UnsupportedFlags(0x8000)));
+}
+
+#[test]
+fn error_hold_without_echo() {
+    let mut bytes = data(&[]);
+    bytes[24..32].copy_from_slice(&[0xff; 8]);
+    assert_eq!(decode(&bytes), Err(WireError::HoldWithoutEcho));
+    // With a zero hold, a NONE echo is fine.
+    bytes[32..40].copy_from_slice(&[0; 8]);
+    assert_eq!(decode(&bytes), Ok(Kind::Data));
+}
+
+#[test]
+fn error_bad_payload_length() {
+    // Data: not a whole number of f64.
+    let mut bytes = data(&[1.0]);
+    bytes.truncate(53);
+    bytes[0] = 53;
+    assert_eq!(
+        decode(&bytes),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Data,
+            len: 5
+        })
+    );
+    // Fixed-size kinds: one byte short and one byte long.
+    for msg in [
+        Message::Hello(hello()),
+        Message::Control(control()),
+        Message::Close(Close { reason: 0 }),
+    ] {
+        let good = frame_bytes(&msg);
+        let payload = good.len() - HEADER_LEN;
+        let mut short = good.clone();
+        short.pop();
+        short[0] -= 1;
+        let mut long = good.clone();
+        long.push(0);
+        long[0] += 1;
+        for (bytes, len) in [(short, payload - 1), (long, payload + 1)] {
+            assert_eq!(
+                decode(&bytes),
+                Err(WireError::BadPayloadLength {
+                    kind: msg.kind(),
+                    len
+                })
+            );
+        }
+    }
+}
+
+#[test]
+fn error_too_many_channels() {
+    let values = [0.0; MAX_CHANNELS + 1];
+    let mut buf = [0u8; 2 * MAX_FRAME_LEN];
+    assert_eq!(
+        encode(&header(), &Message::Data(&values), &mut buf),
+        Err(WireError::TooManyChannels(MAX_CHANNELS + 1))
+    );
+    assert_eq!(
+        encode(&header(), &Message::Data(&values[..MAX_CHANNELS]), &mut buf),
+        Ok(MAX_FRAME_LEN)
+    );
+    // A payload view that is too long (never reachable through a frame).
+    assert_eq!(
+        Channels::check(&[0; 8 * (MAX_CHANNELS + 1)]),
+        Err(WireError::TooManyChannels(MAX_CHANNELS + 1))
+    );
+}
+
+#[test]
+fn error_non_finite_on_decode_and_encode() {
+    let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -f64::NAN];
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    for v in bad {
+        assert_eq!(
+            encode(&header(), &Message::Data(&[0.0, 1.0, v]), &mut buf),
+            Err(WireError::NonFinite { index: 2 })
+        );
+        let mut bytes = data(&[0.0, 1.0, 2.0]);
+        bytes[56..64].copy_from_slice(&v.to_le_bytes());
+        assert_eq!(decode(&bytes), Err(WireError::NonFinite { index: 1 }));
+    }
+    // A signalling NaN and a NaN with payload bits are caught too.
+    let mut bytes = data(&[0.0]);
+    bytes[48..56].copy_from_slice(&0x7ff0_0000_0000_0001u64.to_le_bytes());
+    assert_eq!(decode(&bytes), Err(WireError::NonFinite { index: 0 }));
+    bytes[48..56].copy_from_slice(&0xfff8_dead_beef_0000u64.to_le_bytes());
+    assert_eq!(decode(&bytes), Err(WireError::NonFinite { index: 0 }));
+    // The largest finite values pass.
+    assert_eq!(decode(&data(&[f64::MAX, f64::MIN])), Ok(Kind::Data));
+}
+
+#[test]
+fn error_bad_role() {
+    let bytes = with(frame_bytes(&Message::Hello(hello())), 48, 7);
+    assert_eq!(decode(&bytes), Err(WireError::BadRole(7)));
+    assert_eq!(Role::try_from(2), Err(WireError::BadRole(2)));
+    assert_eq!(Role::try_from(0), Ok(Role::Base));
+    assert_eq!(u8::from(Role::Remote), 1);
+    assert_eq!(Role::Base.peer(), Role::Remote);
+}
+
+#[test]
+fn error_zero_period() {
+    let mut bytes = frame_bytes(&Message::Hello(hello()));
+    bytes[56..64].copy_from_slice(&[0; 8]);
+    assert_eq!(decode(&bytes), Err(WireError::ZeroPeriod));
+    let mut h = hello();
+    h.period = Duration::ZERO;
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    assert_eq!(
+        encode(&header(), &Message::Hello(h), &mut buf),
+        Err(WireError::ZeroPeriod)
+    );
+}
+
+#[test]
+fn error_zero_control_op() {
+    let bytes = with(frame_bytes(&Message::Control(control())), 48, 0);
+    assert_eq!(decode(&bytes), Err(WireError::ZeroControlOp));
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let c = Control { op: 0, ..control() };
+    assert_eq!(
+        encode(&header(), &Message::Control(c), &mut buf),
+        Err(WireError::ZeroControlOp)
+    );
+    // Unknown non-zero ops are the endpoint's business.
+    let bytes = with(frame_bytes(&Message::Control(control())), 48, 200);
+    assert_eq!(decode(&bytes), Ok(Kind::Control));
+}
+
+#[test]
+fn error_reserved_not_zero_at_every_reserved_byte() {
+    let cases = [
+        (frame_bytes(&Message::Hello(hello())), &[51, 54, 55][..]),
+        (
+            frame_bytes(&Message::Control(control())),
+            &[49, 52, 53, 54, 55][..],
+        ),
+        (
+            frame_bytes(&Message::Close(Close { reason: 1 })),
+            &[50, 51, 52, 53, 54, 55][..],
+        ),
+    ];
+    for (good, offsets) in cases {
+        assert!(decode(&good).is_ok());
+        for &offset in offsets {
+            let bytes = with(good.clone(), offset, 1);
+            assert_eq!(decode(&bytes), Err(WireError::ReservedNotZero { offset }));
+        }
+    }
+}
+
+#[test]
+fn error_sentinel_value_on_encode() {
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let mut h = header();
+    h.echo = Some(Echo {
+        sent_at: Instant::from_nanos(u64::MAX),
+        hold: Duration::ZERO,
+    });
+    assert_eq!(
+        encode(&h, &Message::Data(&[]), &mut buf),
+        Err(WireError::SentinelValue { offset: 24 })
+    );
+    let mut h = header();
+    h.released = Some(u64::MAX);
+    let err = encode(&h, &Message::Data(&[]), &mut buf).unwrap_err();
+    assert_eq!(err, WireError::SentinelValue { offset: 40 });
+    assert!(err.to_string().starts_with("released is u64::MAX"));
+}
+
+#[test]
+fn error_buffer_too_small() {
+    let msg = Message::Data(&[1.0, 2.0]);
+    let needed = encoded_len(&msg);
+    assert_eq!(needed, 64);
+    let mut buf = [0u8; 64];
+    for got in 0..needed {
+        assert_eq!(
+            encode(&header(), &msg, &mut buf[..got]),
+            Err(WireError::BufferTooSmall { needed, got })
+        );
+    }
+    assert_eq!(encode(&header(), &msg, &mut buf), Ok(64));
+}
+
+#[test]
+fn error_destination_too_small() {
+    let bytes = data(&[1.0, 2.0, 3.0]);
+    let frame = Frame::new_checked(&bytes[..]).unwrap();
+    let Payload::Data(ch) = frame.payload() else {
+        panic!("not data")
+    };
+    let mut small = [9.0; 2];
+    assert_eq!(
+        ch.copy_to(&mut small),
+        Err(WireError::DestinationTooSmall { needed: 3, got: 2 })
+    );
+    assert_eq!(small, [9.0; 2], "untouched on error");
+    let mut big = [9.0; 5];
+    assert_eq!(ch.copy_to(&mut big), Ok(3));
+    assert_eq!(big, [1.0, 2.0, 3.0, 9.0, 9.0]);
+}
+
+#[test]
+fn encode_reports_errors_in_the_documented_order() {
+    let mut tiny = [0u8; 4];
+    let mut h = header();
+    h.released = Some(u64::MAX);
+    // Too many channels beats everything.
+    assert_eq!(
+        encode(&h, &Message::Data(&[f64::NAN; 300]), &mut tiny),
+        Err(WireError::TooManyChannels(300))
+    );
+    // Then the sentinel, then the buffer, then the values.
+    assert_eq!(
+        encode(&h, &Message::Data(&[f64::NAN]), &mut tiny),
+        Err(WireError::SentinelValue { offset: 40 })
+    );
+    assert_eq!(
+        encode(&header(), &Message::Data(&[f64::NAN]), &mut tiny),
+        Err(WireError::BufferTooSmall { needed: 56, got: 4 })
+    );
+}
+
+#[test]
+fn channels_view() {
+    let bytes = data(&[1.5, -2.0, 0.25]);
+    let frame = Frame::new_checked(&bytes[..]).unwrap();
+    let Payload::Data(ch) = frame.payload() else {
+        panic!("not data")
+    };
+    assert_eq!(ch.len(), 3);
+    assert!(!ch.is_empty());
+    assert_eq!(ch.get(0), Some(1.5));
+    assert_eq!(ch.get(2), Some(0.25));
+    assert_eq!(ch.get(3), None);
+    assert_eq!(ch.get(usize::MAX), None);
+    assert_eq!(ch.iter().len(), 3);
+    assert_eq!(ch.iter().rev().collect::<Vec<_>>(), [0.25, -2.0, 1.5]);
+    assert_eq!(ch.iter().nth(1), Some(-2.0));
+    assert_eq!(ch.into_iter().sum::<f64>(), -0.25);
+    assert_eq!(ch.as_bytes(), &bytes[48..]);
+    assert_eq!(format!("{ch:?}"), "[1.5, -2.0, 0.25]");
+    assert!(Channels::default().is_empty());
+}
+
+#[test]
+fn unknown_close_reasons_are_valid() {
+    let bytes = frame_bytes(&Message::Close(Close { reason: 0xbeef }));
+    let frame = Frame::new_checked(&bytes[..]).unwrap();
+    assert_eq!(frame.payload(), Payload::Close(Close { reason: 0xbeef }));
+    assert_eq!(close_reason::name(0xbeef), "unknown");
+    assert_eq!(
+        Close {
+            reason: close_reason::AXES_MISMATCH
+        }
+        .to_string(),
+        "axes mismatch (3)"
+    );
+}
+
+#[test]
+fn frame_works_over_owned_and_borrowed_buffers() {
+    let bytes = frame_bytes(&Message::Hello(hello()));
+    let mut array = [0u8; 64];
+    array.copy_from_slice(&bytes);
+    let owned = Frame::new_checked(bytes.clone()).unwrap();
+    let arr = Frame::new_checked(array).unwrap();
+    assert_eq!(owned.payload(), arr.payload());
+    assert_eq!(owned.into_inner(), bytes);
+    let debug = format!("{arr:?}");
+    assert!(
+        debug.starts_with("Frame { header: Header { seq: 9"),
+        "{debug}"
+    );
+}
+
+#[test]
+fn every_error_has_a_message() {
+    let errors = [
+        WireError::Truncated { needed: 4, got: 1 },
+        WireError::LengthOutOfRange(3),
+        WireError::LengthMismatch {
+            field: 48,
+            actual: 50,
+        },
+        WireError::UnsupportedVersion(3),
+        WireError::UnknownKind(9),
+        WireError::UnsupportedFlags(2),
+        WireError::ReservedNotZero { offset: 51 },
+        WireError::BadPayloadLength {
+            kind: Kind::Data,
+            len: 3,
+        },
+        WireError::BadPayloadLength {
+            kind: Kind::Hello,
+            len: 3,
+        },
+        WireError::TooManyChannels(300),
+        WireError::NonFinite { index: 4 },
+        WireError::BadRole(5),
+        WireError::ZeroPeriod,
+        WireError::ZeroControlOp,
+        WireError::HoldWithoutEcho,
+        WireError::SentinelValue { offset: 24 },
+        WireError::BufferTooSmall { needed: 64, got: 8 },
+        WireError::DestinationTooSmall { needed: 8, got: 2 },
+    ];
+    for e in errors {
+        let msg = e.to_string();
+        assert!(!msg.is_empty());
+        let _: &dyn core::error::Error = &e;
+        if e != WireError::UnsupportedVersion(3) {
+            assert_eq!(e.close_reason(), close_reason::PROTOCOL_ERROR);
+        }
+    }
+    assert_eq!(
+        WireError::BadPayloadLength {
+            kind: Kind::Hello,
+            len: 3
+        }
+        .to_string(),
+        "Hello payload is 3 bytes, it must be exactly 16"
+    );
+}

@@ -1,0 +1,324 @@
+//! Checks the test vectors of `docs/wire.md` against the codec, byte for byte:
+//! editing a byte of the document (or the codec) fails this test.
+
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{
+    Close, Control, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN, Message, Payload, Role,
+    WireError, close_reason, control_op, encode, frame_len, mode, underflow,
+};
+
+const DOC: &str = include_str!("../../../docs/wire.md");
+
+/// A fenced block of the document: its info string, its bytes, and the prose before it.
+struct Block {
+    tag: &'static str,
+    bytes: Vec<u8>,
+    prose: String,
+}
+
+fn blocks() -> Vec<Block> {
+    let mut out = Vec::new();
+    let mut prose = String::new();
+    let mut lines = DOC.lines();
+    while let Some(line) = lines.next() {
+        let tag = match line.trim_end() {
+            "```hex" => "hex",
+            "```hex-invalid" => "hex-invalid",
+            other => {
+                // Skip other fenced blocks whole, so their content is not taken for prose.
+                if other.starts_with("```") {
+                    for inner in lines.by_ref() {
+                        if inner.trim_end() == "```" {
+                            break;
+                        }
+                    }
+                } else {
+                    prose.push_str(line);
+                    prose.push('\n');
+                }
+                continue;
+            }
+        };
+        let mut bytes = Vec::new();
+        let mut closed = false;
+        for inner in lines.by_ref() {
+            if inner.trim_end() == "```" {
+                closed = true;
+                break;
+            }
+            for token in inner.split_whitespace() {
+                assert_eq!(token.len(), 2, "hex token {token:?} is not one byte");
+                bytes.push(u8::from_str_radix(token, 16).expect("hex byte"));
+            }
+        }
+        assert!(closed, "unterminated ```{tag} block");
+        out.push(Block {
+            tag,
+            bytes,
+            prose: std::mem::take(&mut prose),
+        });
+    }
+    out
+}
+
+const NONE: Option<Echo> = None;
+
+fn echo(sent_at: u64, hold: u64) -> Option<Echo> {
+    Some(Echo {
+        sent_at: Instant::from_nanos(sent_at),
+        hold: Duration::from_nanos(hold),
+    })
+}
+
+fn header(seq: u64, sent_at: u64, echo: Option<Echo>, released: Option<u64>) -> Header {
+    Header {
+        seq,
+        sent_at: Instant::from_nanos(sent_at),
+        echo,
+        released,
+    }
+}
+
+/// The frames of §8.1, in document order.
+fn valid() -> Vec<(Header, Message<'static>)> {
+    vec![
+        (
+            header(42, 1_500_000_000, echo(1_300_000_000, 2_500_000), Some(40)),
+            Message::Data(&[1.5, -0.25, 100.0]),
+        ),
+        (header(0, 250_000, NONE, None), Message::Data(&[0.0, 3.25])),
+        (
+            header(7, 1_750_000_000, echo(1_700_000_000, 0), Some(0)),
+            Message::Data(&[]),
+        ),
+        (
+            header(0, 1_000, NONE, None),
+            Message::Hello(Hello {
+                role: Role::Base,
+                mode: mode::PAPER_DYNAMIC,
+                underflow: underflow::HOLD,
+                axes: 3,
+                period: Duration::from_millis(200),
+            }),
+        ),
+        (
+            header(0, 5_000_000, echo(1_000, 150_000), None),
+            Message::Hello(Hello {
+                role: Role::Remote,
+                mode: mode::PAPER_DYNAMIC,
+                underflow: underflow::HOLD,
+                axes: 3,
+                period: Duration::from_millis(200),
+            }),
+        ),
+        (
+            header(
+                1200,
+                240_000_000_000,
+                echo(239_800_000_000, 1_000_000),
+                Some(1195),
+            ),
+            Message::Control(Control {
+                op: control_op::RESUME,
+                ns: 4,
+                period: Duration::from_millis(50),
+            }),
+        ),
+        (
+            header(1, 2_000_000, echo(5_000_000, 500_000), None),
+            Message::Close(Close {
+                reason: close_reason::PERIOD_MISMATCH,
+            }),
+        ),
+    ]
+}
+
+/// Encodes with the codec under test.
+fn enc(header: &Header, msg: &Message<'_>) -> Vec<u8> {
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let n = encode(header, msg, &mut buf).expect("vector encodes");
+    buf[..n].to_vec()
+}
+
+/// `bytes` with `new` written at `at`.
+fn patch(bytes: &[u8], at: usize, new: &[u8]) -> Vec<u8> {
+    let mut out = bytes.to_vec();
+    out[at..at + new.len()].copy_from_slice(new);
+    out
+}
+
+/// `bytes` followed by `extra` zero bytes, with the length field fixed up.
+fn padded(bytes: &[u8], extra: usize) -> Vec<u8> {
+    let mut out = bytes.to_vec();
+    out.resize(bytes.len() + extra, 0);
+    let len = u32::try_from(out.len()).unwrap();
+    patch(&out, 0, &len.to_le_bytes())
+}
+
+/// The strings of §8.2 and their errors, in document order, built from the
+/// codec's own encoding of the §8.1 frames (not from the document's bytes).
+fn invalid() -> Vec<(Vec<u8>, WireError)> {
+    let v: Vec<Vec<u8>> = valid().iter().map(|(h, m)| enc(h, m)).collect();
+    let bare = enc(&header(0, 0, NONE, None), &Message::Data(&[]));
+    let nan = f64::NAN.to_bits().to_le_bytes();
+    assert_eq!(nan, [0, 0, 0, 0, 0, 0, 0xf8, 0x7f], "quiet NaN");
+    vec![
+        (
+            47u32.to_le_bytes().to_vec(),
+            WireError::LengthOutOfRange(47),
+        ),
+        (
+            2097u32.to_le_bytes().to_vec(),
+            WireError::LengthOutOfRange(2097),
+        ),
+        (
+            v[1][..56].to_vec(),
+            WireError::Truncated {
+                needed: 64,
+                got: 56,
+            },
+        ),
+        (
+            [&v[0][..], &[0]].concat(),
+            WireError::LengthMismatch {
+                field: 72,
+                actual: 73,
+            },
+        ),
+        (patch(&v[3], 4, &[2]), WireError::UnsupportedVersion(2)),
+        (patch(&bare, 5, &[5]), WireError::UnknownKind(5)),
+        (patch(&v[2], 6, &[1]), WireError::UnsupportedFlags(1)),
+        (patch(&v[1], 32, &[0x10]), WireError::HoldWithoutEcho),
+        (
+            padded(&enc(&header(3, 0, NONE, None), &Message::Data(&[1.0])), 4),
+            WireError::BadPayloadLength {
+                kind: Kind::Data,
+                len: 12,
+            },
+        ),
+        (patch(&v[0], 56, &nan), WireError::NonFinite { index: 1 }),
+        (patch(&v[3], 48, &[2]), WireError::BadRole(2)),
+        (
+            patch(&v[3], 51, &[1]),
+            WireError::ReservedNotZero { offset: 51 },
+        ),
+        (patch(&v[3], 56, &[0; 8]), WireError::ZeroPeriod),
+        (patch(&v[5], 48, &[0]), WireError::ZeroControlOp),
+        (
+            padded(
+                &enc(
+                    &header(2, 0, NONE, None),
+                    &Message::Close(Close {
+                        reason: close_reason::NORMAL,
+                    }),
+                ),
+                8,
+            ),
+            WireError::BadPayloadLength {
+                kind: Kind::Close,
+                len: 16,
+            },
+        ),
+        (
+            patch(&v[6], 50, &[0xff]),
+            WireError::ReservedNotZero { offset: 50 },
+        ),
+    ]
+}
+
+fn assert_payload_matches(payload: Payload<'_>, msg: &Message<'_>) {
+    match (payload, msg) {
+        (Payload::Data(ch), Message::Data(values)) => {
+            let got: Vec<f64> = ch.iter().collect();
+            assert_eq!(got.len(), values.len());
+            for (g, v) in got.iter().zip(values.iter()) {
+                assert_eq!(g.to_bits(), v.to_bits());
+            }
+        }
+        (Payload::Hello(h), Message::Hello(m)) => assert_eq!(h, *m),
+        (Payload::Control(c), Message::Control(m)) => assert_eq!(c, *m),
+        (Payload::Close(c), Message::Close(m)) => assert_eq!(c, *m),
+        (p, m) => panic!("decoded {p:?}, expected {m:?}"),
+    }
+}
+
+#[test]
+fn doc_has_the_expected_blocks() {
+    let blocks = blocks();
+    let n_valid = blocks.iter().filter(|b| b.tag == "hex").count();
+    let n_invalid = blocks.iter().filter(|b| b.tag == "hex-invalid").count();
+    assert_eq!(n_valid, valid().len(), "```hex blocks in docs/wire.md");
+    assert_eq!(
+        n_invalid,
+        invalid().len(),
+        "```hex-invalid blocks in docs/wire.md"
+    );
+}
+
+#[test]
+fn valid_vectors_encode_and_decode_exactly() {
+    let docs: Vec<Block> = blocks().into_iter().filter(|b| b.tag == "hex").collect();
+    assert_eq!(docs.len(), valid().len());
+    for (i, (block, (header, msg))) in docs.iter().zip(valid()).enumerate() {
+        let vector = i + 1;
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let n = encode(&header, &msg, &mut buf).expect("vector encodes");
+        assert_eq!(
+            &buf[..n],
+            &block.bytes[..],
+            "vector {vector}: encoding differs from docs/wire.md"
+        );
+
+        assert_eq!(frame_len(&block.bytes), Ok(Some(block.bytes.len())));
+        let frame = Frame::new_checked(&block.bytes[..]).expect("vector decodes");
+        assert_eq!(frame.kind(), msg.kind(), "vector {vector}");
+        assert_eq!(frame.header(), header, "vector {vector}");
+        assert_eq!(frame.seq(), header.seq);
+        assert_eq!(frame.sent_at(), header.sent_at);
+        assert_eq!(frame.echo(), header.echo);
+        assert_eq!(frame.released(), header.released);
+        assert_payload_matches(frame.payload(), &msg);
+    }
+}
+
+#[test]
+fn invalid_vectors_fail_with_the_documented_error() {
+    let docs: Vec<Block> = blocks()
+        .into_iter()
+        .filter(|b| b.tag == "hex-invalid")
+        .collect();
+    assert_eq!(docs.len(), invalid().len());
+    for (i, (block, (bytes, expected))) in docs.iter().zip(invalid()).enumerate() {
+        let vector = i + 1;
+        assert_eq!(
+            block.bytes, bytes,
+            "invalid vector {vector}: bytes differ from docs/wire.md"
+        );
+        assert_eq!(
+            Frame::new_checked(&block.bytes[..]).map(|f| f.header()),
+            Err(expected),
+            "invalid vector {vector}"
+        );
+        let named = format!("`{expected:?}`");
+        assert!(
+            block.prose.contains(&named),
+            "invalid vector {vector}: the text before it should name {named}"
+        );
+    }
+}
+
+#[test]
+fn invalid_length_prefixes_are_caught_by_frame_len() {
+    let docs: Vec<Block> = blocks()
+        .into_iter()
+        .filter(|b| b.tag == "hex-invalid")
+        .collect();
+    assert_eq!(
+        frame_len(&docs[0].bytes),
+        Err(WireError::LengthOutOfRange(47))
+    );
+    assert_eq!(
+        frame_len(&docs[1].bytes),
+        Err(WireError::LengthOutOfRange(2097))
+    );
+}

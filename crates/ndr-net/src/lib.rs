@@ -1,0 +1,12 @@
+//! ndr-net: the network side of the ndr link.
+//!
+//! `ndr-core` holds the link as a sans-IO state machine; this crate will own
+//! the sockets (tokio), the release-clock thread and the delay relay. Bytes
+//! from a TCP stream become frames through a [`Deframer`], which bounds its
+//! memory by the protocol's largest frame and refuses an absurd length prefix
+//! before buffering anything.
+#![forbid(unsafe_code)]
+
+pub mod framing;
+
+pub use framing::{Deframer, FramingError};

@@ -1,0 +1,76 @@
+//! `ndr._native`: the Python extension module of ndr.
+//!
+//! Thin by design: it converts Python values to `ndr-core` types, calls the
+//! core, and converts back; errors become `ValueError` with the core's
+//! message. The Pythonic surface (docstrings, keyword arguments, helpers)
+//! lives in the `ndr` package under `python/`.
+
+use ndr_core::sizing::{self, InitPattern, Sizing};
+use ndr_core::time::Duration;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+/// A duration in seconds from Python, refusing what cannot be one.
+fn seconds(name: &str, value: f64) -> PyResult<Duration> {
+    if !value.is_finite() || value < 0.0 {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a finite, non-negative number of seconds, got {value}"
+        )));
+    }
+    Ok(Duration::from_secs_f64(value))
+}
+
+fn sizing_law(eta: f64, min_period: f64) -> PyResult<Sizing> {
+    Sizing::new(eta, seconds("min_period", min_period)?)
+        .map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
+/// Nominal NDR queue size `ns = 2 + floor(eta * mt / period)` (never below 2).
+#[pyfunction]
+#[pyo3(signature = (mt, period, *, eta = sizing::DEFAULT_ETA))]
+fn nominal_size(mt: f64, period: f64, eta: f64) -> PyResult<usize> {
+    let period = seconds("period", period)?;
+    if period.is_zero() {
+        return Err(PyValueError::new_err("period must be positive"));
+    }
+    Ok(sizing_law(eta, 0.05)?.nominal_size(seconds("mt", mt)?, period))
+}
+
+/// The paper's period law `max(min_period, nrtt / 3)`, in seconds.
+#[pyfunction]
+#[pyo3(signature = (nrtt, *, min_period = 0.05))]
+fn period_law(nrtt: f64, min_period: f64) -> PyResult<f64> {
+    let law = sizing_law(sizing::DEFAULT_ETA, min_period)?;
+    Ok(law.period(seconds("nrtt", nrtt)?).as_secs_f64())
+}
+
+/// Statistics of an initialization pattern: `(nrtt_min, nrtt_max, nrtt_mean, mt)`.
+#[pyfunction]
+fn init_stats(nrtt: Vec<f64>) -> PyResult<(f64, f64, f64, f64)> {
+    let mut pattern: InitPattern<{ sizing::INIT_EXCHANGES }> = InitPattern::new();
+    for (i, &x) in nrtt.iter().enumerate() {
+        pattern
+            .record_nrtt(seconds(&format!("nrtt[{i}]"), x)?)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    }
+    let s = pattern
+        .stats()
+        .ok_or_else(|| PyValueError::new_err("init_stats needs at least one NRTT sample"))?;
+    Ok((
+        s.nrtt_min.as_secs_f64(),
+        s.nrtt_max.as_secs_f64(),
+        s.nrtt_mean.as_secs_f64(),
+        s.mt.as_secs_f64(),
+    ))
+}
+
+/// The extension module.
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("INIT_EXCHANGES", sizing::INIT_EXCHANGES)?;
+    m.add_function(wrap_pyfunction!(nominal_size, m)?)?;
+    m.add_function(wrap_pyfunction!(period_law, m)?)?;
+    m.add_function(wrap_pyfunction!(init_stats, m)?)?;
+    Ok(())
+}
