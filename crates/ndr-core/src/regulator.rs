@@ -2,9 +2,16 @@
 //!
 //! Samples are [pushed](Regulator::push) whenever the network delivers them;
 //! one is [released](Regulator::tick) per period on a clock common to both
-//! peers. Before the first release the queue is pre-filled to its nominal size
-//! `ns`, so that a late burst finds `ns` samples to live on: that stock is what
+//! peers. The nominal size `ns` is the stock the queue keeps between
+//! releases: the queue is pre-filled to `ns`, and releases start at the first
+//! tick that finds more than `ns` queued, so `ns` samples stay behind after
+//! each release. A late frame then finds `ns` samples to live on; that stock
 //! turns a jittery arrival process into a constant-delay one (paper §4.2.1).
+//!
+//! This reading of `ns` is the paper's: with `ns = 2` it reports "2 desired
+//! samples in each queue which size varied between 1 and 3" and a time of
+//! `3·T` spent in each regulator. Seen just before a release, the occupancy is
+//! `ns + 1` in steady state.
 //!
 //! Nothing is ever dropped silently. A push into a full queue hands the sample
 //! back; samples taken out other than by a release are counted as discarded; so
@@ -40,7 +47,7 @@ impl<T: fmt::Debug> core::error::Error for Full<T> {}
 /// Errors of configuring a [`Regulator`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RegulatorError {
-    /// The nominal size must be at least 1 and at most the capacity.
+    /// The nominal size must leave room for one more sample: `ns < N`.
     NominalSize {
         /// The size asked for.
         ns: usize,
@@ -54,8 +61,9 @@ impl fmt::Display for RegulatorError {
         match *self {
             RegulatorError::NominalSize { ns, capacity } => write!(
                 f,
-                "nominal queue size {ns} is outside 1..={capacity}; \
-                 use a regulator with a larger capacity N or a larger period"
+                "nominal queue size {ns} does not fit a queue of capacity {capacity} \
+                 (ns + 1 samples must fit); use a regulator with a larger capacity N \
+                 or a larger period"
             ),
         }
     }
@@ -66,7 +74,7 @@ impl core::error::Error for RegulatorError {}
 /// Whether the regulator is still building its stock or releasing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Phase {
-    /// Holding samples until `ns` are queued; ticks release nothing.
+    /// Building the stock: ticks release nothing until one finds more than `ns` queued.
     Prefilling,
     /// One release per tick.
     Running,
@@ -78,11 +86,12 @@ pub enum Phase {
 pub enum Tick<T> {
     /// The sample due at this tick.
     Released(T),
-    /// Pre-fill is not complete: `have` of the `need` samples are queued.
+    /// Pre-fill is not complete: `have` samples are queued, releases start
+    /// at a tick that finds `need = ns + 1`.
     Prefilling {
         /// Samples queued so far.
         have: usize,
-        /// The nominal size that starts the releases.
+        /// Samples a tick must find to start releasing: `ns + 1`.
         need: usize,
     },
     /// No sample was due and available at this tick (counted as an underflow).
@@ -144,7 +153,7 @@ impl OccupancyAcc {
     }
 }
 
-/// The NDR queue: capacity `N` fixed at compile time, nominal size `ns ≤ N`
+/// The NDR queue: capacity `N` fixed at compile time, nominal size `ns < N`
 /// chosen at run time.
 ///
 /// ```
@@ -152,10 +161,14 @@ impl OccupancyAcc {
 ///
 /// let mut ndr: Regulator<u32, 16> = Regulator::new(2).unwrap();
 /// ndr.push(1).unwrap();
-/// assert_eq!(ndr.tick(), Tick::Prefilling { have: 1, need: 2 });
 /// ndr.push(2).unwrap();
-/// assert_eq!(ndr.tick(), Tick::Released(1));
+/// assert_eq!(ndr.tick(), Tick::Prefilling { have: 2, need: 3 });
+/// ndr.push(3).unwrap();
+/// assert_eq!(ndr.tick(), Tick::Released(1)); // 2 and 3 stay as the stock
+/// ndr.push(4).unwrap();
 /// assert_eq!(ndr.tick(), Tick::Released(2));
+/// assert_eq!(ndr.tick(), Tick::Released(3));
+/// assert_eq!(ndr.tick(), Tick::Released(4));
 /// assert_eq!(ndr.tick(), Tick::Underflow);
 /// ```
 #[derive(Clone, Debug)]
@@ -168,7 +181,7 @@ pub struct Regulator<T, const N: usize> {
 }
 
 impl<T, const N: usize> Regulator<T, N> {
-    /// A regulator that pre-fills to `ns` samples before its first release.
+    /// A regulator that keeps a stock of `ns` samples (`ns < N`).
     pub fn new(ns: usize) -> Result<Self, RegulatorError> {
         check_nominal::<N>(ns)?;
         Ok(Regulator {
@@ -201,10 +214,10 @@ impl<T, const N: usize> Regulator<T, N> {
     /// tick must wait, and this tick's slot has nothing to give.
     pub fn tick_if(&mut self, due: impl FnOnce(&T) -> bool) -> Tick<T> {
         if self.phase == Phase::Prefilling {
-            if self.queue.len() < self.nominal {
+            if self.queue.len() <= self.nominal {
                 return Tick::Prefilling {
                     have: self.queue.len(),
-                    need: self.nominal,
+                    need: self.nominal + 1,
                 };
             }
             self.phase = Phase::Running;
@@ -251,7 +264,7 @@ impl<T, const N: usize> Regulator<T, N> {
     }
 
     /// Goes back to pre-filling (queued samples stay), as after the paper's pause:
-    /// releases resume once `ns` samples are queued.
+    /// releases resume at a tick that finds more than `ns` queued.
     pub fn restart_prefill(&mut self) {
         self.phase = Phase::Prefilling;
     }
@@ -279,7 +292,7 @@ impl<T, const N: usize> Regulator<T, N> {
         N
     }
 
-    /// The nominal size `ns`.
+    /// The nominal size `ns`: the stock kept between releases.
     #[must_use]
     pub fn nominal(&self) -> usize {
         self.nominal
@@ -322,7 +335,7 @@ impl<T, const N: usize> Regulator<T, N> {
 }
 
 fn check_nominal<const N: usize>(ns: usize) -> Result<(), RegulatorError> {
-    if ns == 0 || ns > N {
+    if ns >= N {
         Err(RegulatorError::NominalSize { ns, capacity: N })
     } else {
         Ok(())
@@ -335,12 +348,12 @@ mod tests {
 
     #[test]
     fn nominal_size_is_checked() {
-        assert!(Regulator::<u8, 4>::new(4).is_ok());
+        assert!(Regulator::<u8, 4>::new(3).is_ok());
+        assert!(Regulator::<u8, 4>::new(0).is_ok());
         assert_eq!(
-            Regulator::<u8, 4>::new(5).unwrap_err(),
-            RegulatorError::NominalSize { ns: 5, capacity: 4 }
+            Regulator::<u8, 4>::new(4).unwrap_err(),
+            RegulatorError::NominalSize { ns: 4, capacity: 4 }
         );
-        assert!(Regulator::<u8, 4>::new(0).is_err());
         let mut r = Regulator::<u8, 4>::new(2).unwrap();
         assert!(r.set_nominal(9).is_err());
         assert_eq!(r.nominal(), 2);
@@ -348,13 +361,14 @@ mod tests {
 
     #[test]
     fn prefills_then_releases_one_per_tick() {
-        let mut r = Regulator::<u32, 8>::new(3).unwrap();
+        let mut r = Regulator::<u32, 8>::new(2).unwrap();
         r.push(10).unwrap();
         r.push(11).unwrap();
         assert_eq!(r.tick(), Tick::Prefilling { have: 2, need: 3 });
         assert_eq!(r.phase(), Phase::Prefilling);
         r.push(12).unwrap();
         assert_eq!(r.tick(), Tick::Released(10));
+        assert_eq!(r.len(), 2);
         assert_eq!(r.phase(), Phase::Running);
         r.push(13).unwrap();
         assert_eq!(r.tick(), Tick::Released(11));
@@ -371,7 +385,7 @@ mod tests {
 
     #[test]
     fn full_queue_hands_the_sample_back_and_counts_it() {
-        let mut r = Regulator::<u32, 2>::new(2).unwrap();
+        let mut r = Regulator::<u32, 2>::new(1).unwrap();
         r.push(1).unwrap();
         r.push(2).unwrap();
         assert_eq!(r.push(3), Err(Full(3)));
@@ -381,7 +395,7 @@ mod tests {
 
     #[test]
     fn tick_if_keeps_a_sample_that_is_not_due() {
-        let mut r = Regulator::<u64, 8>::new(1).unwrap();
+        let mut r = Regulator::<u64, 8>::new(0).unwrap();
         r.push(5).unwrap();
         assert_eq!(r.tick_if(|&seq| seq <= 4), Tick::Underflow);
         assert_eq!(r.len(), 1);
@@ -390,10 +404,10 @@ mod tests {
 
     #[test]
     fn restart_prefill_waits_for_the_new_stock() {
-        let mut r = Regulator::<u32, 8>::new(1).unwrap();
+        let mut r = Regulator::<u32, 8>::new(0).unwrap();
         r.push(1).unwrap();
         assert_eq!(r.tick(), Tick::Released(1));
-        r.set_nominal(2).unwrap();
+        r.set_nominal(1).unwrap();
         r.restart_prefill();
         r.push(2).unwrap();
         assert_eq!(r.tick(), Tick::Prefilling { have: 1, need: 2 });

@@ -9,8 +9,9 @@
 //! ns = 2 + floor(η · mt / T)        η = 1.3, never below 2
 //! ```
 //!
-//! A queue of `ns` samples drains by one per period while nothing arrives, so
-//! it survives a reception lagging by `mt` with 2 samples to spare. `mt` is the
+//! `ns` is the stock a regulator keeps between releases. It drains by one per
+//! period while nothing arrives, so it survives a reception lagging by `mt`
+//! with 2 samples to spare. `mt` is the
 //! paper's "maximum time between two receptions (ie maximum difference between
 //! delays)": frames are sent on a fixed schedule, so a reception lags the
 //! schedule by its delay minus the smallest delay — `mt = max(NRTT) − min(NRTT)`.
