@@ -67,17 +67,21 @@
 extern crate std;
 
 pub mod arx;
+pub mod endpoint;
 pub mod estimator;
 pub mod filters;
 pub mod kalman;
 pub mod predictor;
 pub mod regulator;
 pub mod rls;
+#[cfg(feature = "sim")]
+pub mod sim;
 pub mod sizing;
 pub mod time;
 pub mod wire;
 
 pub use arx::{Arx2, Tf2};
+pub use endpoint::{Config, Endpoint, Event, LinkError, Mode, Underflow};
 pub use estimator::{Estimate, Estimator};
 pub use filters::{Envelope, LowPass};
 pub use kalman::Kalman3;

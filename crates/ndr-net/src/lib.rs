@@ -7,6 +7,8 @@
 //! before buffering anything.
 #![forbid(unsafe_code)]
 
+pub mod clock;
 pub mod framing;
 
+pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};

@@ -1,35 +1,11 @@
-//! The `ndr` command line.
-//!
-//! Today it sizes a regulator from an initialization pattern (`ndr size`);
-//! the simulator, the link, the relay and the demo join it as they land.
+//! `ndr size`: a regulator's nominal size from an initialization pattern.
 
-use std::process::ExitCode;
-
-use clap::{Parser, Subcommand};
 use ndr::core::sizing::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
 use ndr::core::time::Duration;
 use serde::Serialize;
 
-#[derive(Parser)]
-#[command(
-    name = "ndr",
-    version,
-    about = "Regulated teleoperation link: constant, known delay over IP"
-)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Subcommand)]
-enum Command {
-    /// Size an NDR queue from the round-trip times of an initialization
-    /// pattern, with the paper's laws (ns = 2 + floor(eta·mt/T), T = max(T_min, NRTT/3)).
-    Size(SizeArgs),
-}
-
 #[derive(clap::Args)]
-struct SizeArgs {
+pub struct SizeArgs {
     /// Round-trip times measured by the initialization pattern, in ms (1 to 10 values).
     #[arg(long, value_delimiter = ',', required = true, num_args = 1..)]
     nrtt_ms: Vec<f64>,
@@ -61,7 +37,7 @@ struct SizeReport {
     suggested_ns: usize,
 }
 
-fn millis(name: &str, ms: f64) -> Result<Duration, String> {
+pub fn millis(name: &str, ms: f64) -> Result<Duration, String> {
     if ms.is_finite() && ms >= 0.0 {
         Ok(Duration::from_secs_f64(ms / 1e3))
     } else {
@@ -71,7 +47,7 @@ fn millis(name: &str, ms: f64) -> Result<Duration, String> {
     }
 }
 
-fn size(args: &SizeArgs) -> Result<(), String> {
+pub fn run(args: &SizeArgs) -> Result<(), String> {
     let law = Sizing::new(args.eta, millis("--min-period-ms", args.min_period_ms)?)
         .map_err(|e| e.to_string())?;
     let period = millis("--period-ms", args.period_ms)?;
@@ -119,18 +95,4 @@ fn size(args: &SizeArgs) -> Result<(), String> {
         );
     }
     Ok(())
-}
-
-fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let result = match &cli.command {
-        Command::Size(args) => size(args),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(msg) => {
-            eprintln!("ndr: error: {msg}");
-            ExitCode::FAILURE
-        }
-    }
 }

@@ -1,0 +1,37 @@
+//! How fast the simulator runs the paper's 20-minute `paper-fig6` scenario:
+//! at T = 200 ms (6 000 ticks a side; target < 50 ms) and at T = 1 ms
+//! (1.2 million ticks a side; target < 5 s).
+
+use std::hint::black_box;
+use std::time::Duration as StdDuration;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use ndr::core::sim::delay::DelayModel;
+use ndr::core::sim::{SimConfig, run};
+use ndr::core::time::Duration;
+
+fn fig6(period: Duration) -> SimConfig {
+    let mut cfg = SimConfig::paper(DelayModel::PaperFig6);
+    cfg.duration = Duration::from_secs(1200);
+    cfg.period = period;
+    cfg
+}
+
+fn sim(c: &mut Criterion) {
+    let slow = fig6(Duration::from_millis(200));
+    c.bench_function("sim paper-fig6 20 min, T = 200 ms", |b| {
+        b.iter(|| black_box(run(black_box(&slow)).unwrap().report.grtt_count))
+    });
+    let mut group = c.benchmark_group("sim slow");
+    group
+        .sample_size(10)
+        .measurement_time(StdDuration::from_secs(30));
+    let fast = fig6(Duration::from_millis(1));
+    group.bench_function("sim paper-fig6 20 min, T = 1 ms", |b| {
+        b.iter(|| black_box(run(black_box(&fast)).unwrap().report.grtt_count))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, sim);
+criterion_main!(benches);

@@ -1,0 +1,295 @@
+//! What a link endpoint is configured with, and the checks on it.
+
+use core::fmt;
+use core::str::FromStr;
+
+use crate::predictor::PredictorConfig;
+use crate::sizing::Sizing;
+use crate::time::{Duration, Instant};
+use crate::wire::{self, MAX_CHANNELS, Role};
+
+/// How the regulators are sized and adapted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Mode {
+    /// The paper's static NDR: the initialization pattern sizes the queues once.
+    #[default]
+    PaperStatic,
+    /// The paper's dynamic NDR: the network predictor watches the link, and
+    /// when its forecast leaves a band around the current parameters the
+    /// peers pause, run a new initialization pattern with the new period and
+    /// queue size, and resume.
+    PaperDynamic,
+}
+
+impl Mode {
+    /// Every mode, for help texts.
+    pub const ALL: [Mode; 2] = [Mode::PaperStatic, Mode::PaperDynamic];
+
+    /// The name used on the command line and in reports.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Mode::PaperStatic => "paper-static",
+            Mode::PaperDynamic => "paper-dynamic",
+        }
+    }
+
+    /// The code in a Hello frame.
+    #[must_use]
+    pub const fn code(self) -> u8 {
+        match self {
+            Mode::PaperStatic => wire::mode::PAPER_STATIC,
+            Mode::PaperDynamic => wire::mode::PAPER_DYNAMIC,
+        }
+    }
+
+    /// The mode of a Hello code, `None` for a code this build does not know.
+    #[must_use]
+    pub const fn from_code(code: u8) -> Option<Mode> {
+        match code {
+            wire::mode::PAPER_STATIC => Some(Mode::PaperStatic),
+            wire::mode::PAPER_DYNAMIC => Some(Mode::PaperDynamic),
+            _ => None,
+        }
+    }
+}
+
+/// What a regulator does at a tick whose sample has not arrived.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Underflow {
+    /// The paper's FIFO: repeat the last sample and keep every sample, so a
+    /// late sample is released one tick later and the delay grows by one
+    /// period after each underflow.
+    #[default]
+    Hold,
+    /// Keep the end-to-end delay constant: each sample has a release slot; one
+    /// that arrives after its slot is counted late and discarded, and its
+    /// tick repeats the last sample.
+    DropLate,
+}
+
+impl Underflow {
+    /// The name used on the command line and in reports.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Underflow::Hold => "hold",
+            Underflow::DropLate => "drop-late",
+        }
+    }
+
+    /// The code in a Hello frame.
+    #[must_use]
+    pub const fn code(self) -> u8 {
+        match self {
+            Underflow::Hold => wire::underflow::HOLD,
+            Underflow::DropLate => wire::underflow::DROP_LATE,
+        }
+    }
+}
+
+/// A name that is not a known [`Mode`] or [`Underflow`] policy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnknownName {
+    /// What kind of name was expected.
+    pub what: &'static str,
+    /// The valid names.
+    pub valid: &'static str,
+}
+
+impl fmt::Display for UnknownName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "unknown {}; valid: {}", self.what, self.valid)
+    }
+}
+
+impl core::error::Error for UnknownName {}
+
+impl FromStr for Mode {
+    type Err = UnknownName;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Mode::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or(UnknownName {
+                what: "mode",
+                valid: "paper-static, paper-dynamic",
+            })
+    }
+}
+
+impl FromStr for Underflow {
+    type Err = UnknownName;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "hold" => Ok(Underflow::Hold),
+            "drop-late" => Ok(Underflow::DropLate),
+            _ => Err(UnknownName {
+                what: "underflow policy",
+                valid: "hold, drop-late",
+            }),
+        }
+    }
+}
+
+impl fmt::Display for Mode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl fmt::Display for Underflow {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// When the paper's dynamic mode decides to change the parameters.
+///
+/// The base pauses when the forecast period or queue size leaves a band of
+/// ±`band` around the current ones, or when the forecast `mt` would empty
+/// the queue (`mt ≥ ns·T`: a lag that long uses up the whole stock) —
+/// whichever comes first.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Adaptation {
+    /// Relative distance between forecast and current parameters that
+    /// triggers a resize (0.25: 25 %).
+    pub band: f64,
+    /// Periods the predictor runs after a start before it may trigger a
+    /// resize (its filters need to settle on the new regime).
+    pub settle_periods: u32,
+}
+
+impl Default for Adaptation {
+    fn default() -> Self {
+        Adaptation {
+            band: 0.25,
+            settle_periods: 100,
+        }
+    }
+}
+
+/// Everything an [`Endpoint`](super::Endpoint) needs to know before it starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Config {
+    /// Base (operator side, sends commands) or remote (robot side, sends states).
+    pub role: Role,
+    /// Channels per sample; both peers must agree.
+    pub axes: u16,
+    /// The sampling period `T`; both peers must agree at the handshake.
+    pub period: Duration,
+    /// Static or dynamic regulation; both peers must agree.
+    pub mode: Mode,
+    /// What this side's regulator does when a sample is missing at its tick.
+    pub underflow: Underflow,
+    /// The sizing laws (η, `T_min`).
+    pub sizing: Sizing,
+    /// Ticks fall on `tick_origin + k·T`. Peers whose clocks agree (a
+    /// simulation, or hosts synchronized by PTP or GPS) share one grid, the
+    /// paper's "clock common to the whole structure".
+    pub tick_origin: Instant,
+    /// How long the handshake and each initialization pattern may take.
+    pub handshake_timeout: Duration,
+    /// Dynamic mode's decision rule.
+    pub adaptation: Adaptation,
+    /// The network predictor's time constants, in periods, and horizon
+    /// (`period` and `sizing` in it are replaced by this config's).
+    pub predictor: PredictorConfig,
+}
+
+impl Config {
+    /// The paper's setup for `role`: 1 axis, `T = 200 ms`, static, hold.
+    #[must_use]
+    pub fn new(role: Role) -> Self {
+        let period = Duration::from_millis(200);
+        Config {
+            role,
+            axes: 1,
+            period,
+            mode: Mode::PaperStatic,
+            underflow: Underflow::Hold,
+            sizing: Sizing::default(),
+            tick_origin: Instant::ZERO,
+            handshake_timeout: Duration::from_secs(10),
+            adaptation: Adaptation::default(),
+            predictor: PredictorConfig::paper(period),
+        }
+    }
+
+    /// Checks the values that do not depend on the queue's capacity.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.axes == 0 || usize::from(self.axes) > MAX_CHANNELS {
+            return Err(ConfigError::Axes(self.axes));
+        }
+        if self.period < MIN_PERIOD {
+            return Err(ConfigError::Period(self.period));
+        }
+        let band = self.adaptation.band;
+        if !(band.is_finite() && band > 0.0) {
+            return Err(ConfigError::Band);
+        }
+        if self.handshake_timeout.is_zero() {
+            return Err(ConfigError::Timeout);
+        }
+        Ok(())
+    }
+
+    pub(crate) fn predictor_config(&self) -> PredictorConfig {
+        PredictorConfig {
+            period: self.period,
+            sizing: self.sizing,
+            ..self.predictor
+        }
+    }
+}
+
+/// The shortest period an endpoint accepts: 100 µs (10 kHz).
+pub const MIN_PERIOD: Duration = Duration::from_micros(100);
+
+/// A configuration that cannot run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ConfigError {
+    /// Axes must be in `1..=256`.
+    Axes(u16),
+    /// The endpoint's sample type holds fewer channels than `axes`.
+    Channels {
+        /// Axes asked for.
+        axes: u16,
+        /// Channels the endpoint's `C` holds.
+        capacity: usize,
+    },
+    /// The period is shorter than [`MIN_PERIOD`].
+    Period(Duration),
+    /// The adaptation band must be finite and positive.
+    Band,
+    /// The handshake timeout must be positive.
+    Timeout,
+    /// The predictor's constants are invalid.
+    Predictor(crate::predictor::PredictorError),
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            ConfigError::Axes(a) => {
+                write!(f, "axes = {a}: a link carries 1 to {MAX_CHANNELS} axes")
+            }
+            ConfigError::Channels { axes, capacity } => write!(
+                f,
+                "axes = {axes} but this endpoint's samples hold {capacity} channels; \
+                 use an Endpoint with C >= {axes}"
+            ),
+            ConfigError::Period(p) => write!(
+                f,
+                "period {p} is shorter than the minimum {MIN_PERIOD}; use a longer period"
+            ),
+            ConfigError::Band => {
+                f.write_str("the adaptation band must be finite and positive (e.g. 0.25)")
+            }
+            ConfigError::Timeout => f.write_str("the handshake timeout must be positive"),
+            ConfigError::Predictor(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl core::error::Error for ConfigError {}

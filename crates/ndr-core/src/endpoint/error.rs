@@ -1,0 +1,222 @@
+//! Why a link ends, or why a call on it is refused.
+
+use core::fmt;
+
+use crate::time::Duration;
+use crate::wire::{self, Kind, Role, WireError, close_reason};
+
+use super::config::Mode;
+
+/// An error of the link. The variants that end the link say so; the endpoint
+/// then sends a Close frame with [`LinkError::close_reason`] and stops.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LinkError {
+    /// The peer sent bytes that are not a valid frame (ends the link).
+    Wire(WireError),
+    /// The peer speaks another wire version (ends the link).
+    VersionMismatch {
+        /// The peer's version.
+        peer: u8,
+    },
+    /// The peer claims our role: two bases or two remotes (ends the link).
+    RoleMismatch {
+        /// The role both claim.
+        role: Role,
+    },
+    /// The peers disagree on the number of axes (ends the link).
+    AxesMismatch {
+        /// Ours.
+        ours: u16,
+        /// The peer's.
+        theirs: u16,
+    },
+    /// The peers disagree on the period (ends the link).
+    PeriodMismatch {
+        /// Ours.
+        ours: Duration,
+        /// The peer's.
+        theirs: Duration,
+    },
+    /// The peers disagree on the regulation mode (ends the link).
+    ModeMismatch {
+        /// Ours.
+        ours: Mode,
+        /// The peer's mode code (it may be one this build does not know).
+        theirs: u8,
+    },
+    /// A frame that is valid but makes no sense now (ends the link).
+    Unexpected {
+        /// Its kind.
+        kind: Kind,
+        /// What the endpoint was doing.
+        phase: &'static str,
+    },
+    /// A sample with the wrong number of channels (ends the link).
+    ChannelCount {
+        /// The agreed number of axes.
+        expected: u16,
+        /// What the frame carried.
+        got: usize,
+    },
+    /// The peer asked for parameters this endpoint cannot take (ends the link).
+    BadParameters {
+        /// The queue size asked for.
+        ns: u16,
+        /// The period asked for.
+        period: Duration,
+    },
+    /// The handshake or an initialization pattern did not finish in time (ends the link).
+    Timeout,
+    /// The peer closed the link, with its reason code.
+    PeerClosed {
+        /// The [`close_reason`] code.
+        reason: u16,
+    },
+    /// The link is closed; nothing more can be sent or received.
+    Closed,
+    /// The application's sample does not have `axes` channels (the call is refused).
+    SampleShape {
+        /// The agreed number of axes.
+        expected: u16,
+        /// What was given.
+        got: usize,
+    },
+    /// The application's sample holds NaN or infinity (the call is refused).
+    NonFinite {
+        /// The first bad channel.
+        index: usize,
+    },
+    /// The transmit buffer is too small (the frame stays queued).
+    BufferTooSmall {
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes given.
+        got: usize,
+    },
+}
+
+impl LinkError {
+    /// The reason code to send in a Close frame for this error.
+    #[must_use]
+    pub const fn close_reason(&self) -> u16 {
+        match self {
+            LinkError::Wire(e) => e.close_reason(),
+            LinkError::VersionMismatch { .. } => close_reason::VERSION_MISMATCH,
+            LinkError::RoleMismatch { .. } => close_reason::ROLE_MISMATCH,
+            LinkError::AxesMismatch { .. } => close_reason::AXES_MISMATCH,
+            LinkError::PeriodMismatch { .. } => close_reason::PERIOD_MISMATCH,
+            LinkError::ModeMismatch { .. } => close_reason::MODE_MISMATCH,
+            LinkError::Timeout => close_reason::TIMEOUT,
+            LinkError::PeerClosed { reason } => *reason,
+            LinkError::Closed => close_reason::NORMAL,
+            _ => close_reason::PROTOCOL_ERROR,
+        }
+    }
+
+    /// Whether the error ends the link (otherwise only the call was refused).
+    #[must_use]
+    pub const fn is_fatal(&self) -> bool {
+        !matches!(
+            self,
+            LinkError::SampleShape { .. }
+                | LinkError::NonFinite { .. }
+                | LinkError::BufferTooSmall { .. }
+        )
+    }
+
+    pub(crate) fn from_wire(e: WireError) -> Self {
+        match e {
+            WireError::UnsupportedVersion(peer) => LinkError::VersionMismatch { peer },
+            e => LinkError::Wire(e),
+        }
+    }
+}
+
+impl From<WireError> for LinkError {
+    fn from(e: WireError) -> Self {
+        LinkError::from_wire(e)
+    }
+}
+
+fn role_name(r: Role) -> &'static str {
+    match r {
+        Role::Base => "base",
+        Role::Remote => "remote",
+    }
+}
+
+impl fmt::Display for LinkError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            LinkError::Wire(e) => write!(f, "invalid frame from the peer: {e}"),
+            LinkError::VersionMismatch { peer } => write!(
+                f,
+                "the peer speaks ndr wire version {peer}, this build speaks {}; upgrade the older side",
+                wire::VERSION
+            ),
+            LinkError::RoleMismatch { role } => write!(
+                f,
+                "both peers are configured as {}; one side must be the base and the other the remote",
+                role_name(role)
+            ),
+            LinkError::AxesMismatch { ours, theirs } => write!(
+                f,
+                "axes mismatch: this side has {ours}, the peer {theirs}; configure both with the same number"
+            ),
+            LinkError::PeriodMismatch { ours, theirs } => write!(
+                f,
+                "period mismatch: this side runs at {ours}, the peer at {theirs}; configure both with the same period"
+            ),
+            LinkError::ModeMismatch { ours, theirs } => {
+                let theirs_name = Mode::from_code(theirs).map_or("an unknown mode", Mode::name);
+                write!(
+                    f,
+                    "mode mismatch: this side runs {ours}, the peer {theirs_name} (code {theirs}); configure both alike"
+                )
+            }
+            LinkError::Unexpected { kind, phase } => {
+                write!(f, "protocol error: the peer sent a {kind:?} frame during {phase}")
+            }
+            LinkError::ChannelCount { expected, got } => write!(
+                f,
+                "protocol error: a sample with {got} channels on a {expected}-axis link"
+            ),
+            LinkError::BadParameters { ns, period } => write!(
+                f,
+                "the peer asked for queue size {ns} at period {period}, which this endpoint cannot hold; \
+                 give it a larger queue capacity or bound the period"
+            ),
+            LinkError::Timeout => f.write_str(
+                "the handshake or initialization pattern timed out: the peer is unreachable or not an ndr peer",
+            ),
+            LinkError::PeerClosed { reason } => write!(
+                f,
+                "the peer closed the link: {} (code {reason})",
+                close_reason::name(reason)
+            ),
+            LinkError::Closed => f.write_str("the link is closed"),
+            LinkError::SampleShape { expected, got } => write!(
+                f,
+                "a sample must have {expected} values (one per axis), got {got}"
+            ),
+            LinkError::NonFinite { index } => write!(
+                f,
+                "sample value {index} is NaN or infinite; it was not sent (the previous sample stays)"
+            ),
+            LinkError::BufferTooSmall { needed, got } => write!(
+                f,
+                "transmit buffer of {got} bytes is too small for a {needed}-byte frame; use wire::MAX_FRAME_LEN"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for LinkError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            LinkError::Wire(e) => Some(e),
+            _ => None,
+        }
+    }
+}

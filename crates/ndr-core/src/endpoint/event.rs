@@ -1,0 +1,123 @@
+//! What the endpoint tells its application.
+
+use crate::time::{Duration, Instant};
+use crate::wire::Hello;
+
+use super::error::LinkError;
+
+/// Whether a released sample is new or a repeat.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Status {
+    /// The sample due at this tick.
+    Fresh,
+    /// The due sample had not arrived (an underflow): the last sample is repeated.
+    Held,
+}
+
+impl Status {
+    /// `"fresh"` or `"held"`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Status::Fresh => "fresh",
+            Status::Held => "held",
+        }
+    }
+}
+
+/// One sample released by the regulator at a tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Release<const C: usize> {
+    /// The sample's sequence number (the peer's Data frame count).
+    pub seq: u64,
+    /// When the peer sent it, on the peer's clock.
+    pub sent_at: Instant,
+    /// When it arrived, on this side's clock.
+    pub arrived_at: Instant,
+    /// The tick that released it, on this side's clock.
+    pub released_at: Instant,
+    /// Fresh, or a repeat because the due sample was missing.
+    pub status: Status,
+    /// The round trip as the application sees it, measured at this release:
+    /// from this side's sample that the peer had just released when it sent
+    /// this one, to now. `None` if this release closes no new round trip.
+    pub grtt: Option<Duration>,
+    len: u16,
+    values: [f64; C],
+}
+
+impl<const C: usize> Release<C> {
+    pub(crate) fn fresh(
+        head: Head,
+        values: [f64; C],
+        len: u16,
+        released_at: Instant,
+        grtt: Option<Duration>,
+    ) -> Self {
+        Release {
+            seq: head.seq,
+            sent_at: head.sent_at,
+            arrived_at: head.arrived_at,
+            released_at,
+            status: Status::Fresh,
+            grtt,
+            len,
+            values,
+        }
+    }
+
+    /// The sample's values, one per axis.
+    #[must_use]
+    pub fn values(&self) -> &[f64] {
+        self.values
+            .get(..usize::from(self.len))
+            .unwrap_or(&self.values)
+    }
+
+    /// Time spent in the regulator: release − arrival.
+    #[must_use]
+    pub fn added_delay(&self) -> Duration {
+        self.released_at - self.arrived_at
+    }
+}
+
+/// The timing part of a queued sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Head {
+    pub seq: u64,
+    pub sent_at: Instant,
+    pub arrived_at: Instant,
+}
+
+/// Something the application should know; drain with
+/// [`Endpoint::poll_event`](super::Endpoint::poll_event).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event<const C: usize> {
+    /// The handshake succeeded; the initialization pattern starts.
+    Connected {
+        /// The peer's Hello.
+        peer: Hello,
+    },
+    /// The initialization pattern is over: samples flow with these parameters.
+    Started {
+        /// The period.
+        period: Duration,
+        /// The regulators' nominal size.
+        ns: usize,
+    },
+    /// A tick released a sample (or repeated the last one).
+    Released(Release<C>),
+    /// Dynamic mode: the peers pause to change the parameters; a new
+    /// initialization pattern runs, then [`Event::Started`] follows.
+    Paused {
+        /// The period after the pause.
+        period: Duration,
+        /// The nominal size after the pause.
+        ns: usize,
+    },
+    /// The link ended.
+    Closed {
+        /// Why; `None` after a local [`close`](super::Endpoint::close).
+        error: Option<LinkError>,
+    },
+}

@@ -1,0 +1,875 @@
+//! The link endpoint: a sans-IO state machine for one side of the link.
+//!
+//! An [`Endpoint`] never reads a clock and never touches a socket. Its driver
+//! (the simulator, the tokio link, a test) passes time in and moves bytes:
+//!
+//! ```text
+//! loop {
+//!     bytes arrived  → endpoint.handle_frame(now, frame_bytes)
+//!     deadline hit   → endpoint.handle_timeout(now)
+//!     while let Some(event) = endpoint.poll_event() { app reacts; maybe endpoint.set_sample(..) }
+//!     while let Some(n) = endpoint.poll_transmit(now, &mut buf)? { send buf[..n] }
+//!     sleep until endpoint.poll_timeout()
+//! }
+//! ```
+//!
+//! Events are drained before transmits, so a sample the application sets in
+//! response to a release goes out in the same tick: the remote's state sent
+//! at tick `m` reflects the command released at tick `m`.
+//!
+//! # Protocol
+//!
+//! 1. **Handshake.** The base sends Hello (role, mode, axes, period); the
+//!    remote checks it against its own configuration and answers with its
+//!    Hello. Any mismatch ends the link with a specific [`LinkError`] and a
+//!    Close frame carrying its reason.
+//! 2. **Initialization pattern.** Both sides send a probe (a Data frame
+//!    without channels) every tick and echo the newest frame they received.
+//!    Once the base has measured [`INIT_EXCHANGES`] round trips it sets
+//!    `ns = 2 + floor(η·mt/T)` and sends Control RESUME(ns, T).
+//! 3. **Running.** One sample each way per tick; each side's regulator keeps
+//!    `ns` samples of stock and releases one per tick. Every frame echoes the
+//!    newest peer frame (NRTT) and names the newest peer sample released
+//!    (GRTT, measured when the base releases the state that carries it back).
+//! 4. **Dynamic mode** ([`Mode::PaperDynamic`]): the base's network predictor
+//!    runs on; when its forecast period or queue size leaves a band around
+//!    the current ones, or its forecast `mt` would empty the queue
+//!    ([`Adaptation`]), the base sends PAUSE_REQUEST(ns', T'), the remote answers PAUSE_ACK,
+//!    both run a new initialization pattern at `T'`, and the base resumes
+//!    with `ns'`. Samples queued when the pause starts are discarded (counted).
+//!
+//! Sequence numbers count Data frames (probes included), one per tick, so a
+//! sample's release slot follows from its sequence number.
+
+mod config;
+mod error;
+mod event;
+mod stats;
+
+use heapless::Deque;
+
+pub use config::{Adaptation, Config, ConfigError, MIN_PERIOD, Mode, Underflow, UnknownName};
+pub use error::LinkError;
+pub use event::{Event, Release, Status};
+pub use stats::{Running, Stats};
+
+use crate::predictor::{NetworkPredictor, Prediction};
+use crate::regulator::{Occupancy, Regulator, Tick};
+use crate::sizing::{INIT_EXCHANGES, InitPattern};
+use crate::time::{Duration, Instant};
+use crate::wire::{
+    self, Control, Echo, Frame, Header, Hello, Kind, Message, Payload, Role, control_op,
+};
+use event::Head;
+
+/// Where the endpoint is in the protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Waiting for the peer's Hello.
+    Handshake,
+    /// Running the initialization pattern (probes only).
+    Init,
+    /// Samples flow and the regulator releases them.
+    Running,
+    /// The base asked to pause and waits for the remote's acknowledgement.
+    Pausing,
+    /// The link is over.
+    Closed,
+}
+
+impl Phase {
+    /// A short name for messages and reports.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Phase::Handshake => "the handshake",
+            Phase::Init => "the initialization pattern",
+            Phase::Running => "running",
+            Phase::Pausing => "a pause",
+            Phase::Closed => "closed",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Slot<const C: usize> {
+    head: Head,
+    peer_released: Option<u64>,
+    len: u16,
+    values: [f64; C],
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Tx {
+    Hello,
+    Probe { seq: u64 },
+    Sample { seq: u64 },
+    Control { op: u8, ns: u16, period: Duration },
+    Close { reason: u16 },
+}
+
+/// Transmissions that may wait for the driver: a few ticks' worth.
+const TX_QUEUE: usize = 8;
+/// Events that may wait for the application.
+const EVENT_QUEUE: usize = 32;
+
+/// One side of a regulated link, with samples of up to `C` channels and a
+/// regulator of capacity `N`.
+///
+/// The endpoint holds `N` queued samples of `C` values inline (no heap):
+/// about `N·(8·C + 48)` bytes. Box it when `N` is large.
+#[derive(Clone, Debug)]
+pub struct Endpoint<const C: usize, const N: usize> {
+    config: Config,
+    phase: Phase,
+    period: Duration,
+    ns: usize,
+    regulator: Regulator<Slot<C>, N>,
+    predictor: NetworkPredictor,
+    pattern: InitPattern,
+    next_tick: Option<Instant>,
+    deadline: Option<Instant>,
+    ticks_running: u64,
+    started_once: bool,
+    /// Dynamic mode: the parameters the current pause will resume with.
+    pending: Option<(Duration, usize)>,
+    tx: Deque<Tx, TX_QUEUE>,
+    next_seq: u64,
+    sample: [f64; C],
+    sample_fresh: bool,
+    /// Tick time of each sample sent, by `seq mod N`, for GRTT.
+    sent_ticks: [(u64, Instant); N],
+    /// Newest frame received: (its `sent_at`, our arrival time), echoed back.
+    newest_rx: Option<(Instant, Instant)>,
+    /// Previous Data frame received, for the reception gap.
+    prev_data_rx: Option<(Instant, Instant)>,
+    /// Newest of our frames an NRTT was measured on.
+    newest_echo: Option<Instant>,
+    init_started: Instant,
+    last_nrtt: Option<Duration>,
+    released_seq: Option<u64>,
+    grtt_acked: Option<u64>,
+    due_seq: Option<u64>,
+    last_release: Option<Release<C>>,
+    peer: Option<Hello>,
+    events: Deque<Event<C>, EVENT_QUEUE>,
+    events_dropped: u64,
+    stats: Stats,
+}
+
+impl<const C: usize, const N: usize> Endpoint<C, N> {
+    /// An endpoint that starts at `now`. A base queues its Hello at once.
+    pub fn new(config: Config, now: Instant) -> Result<Self, ConfigError> {
+        config.validate()?;
+        if usize::from(config.axes) > C {
+            return Err(ConfigError::Channels {
+                axes: config.axes,
+                capacity: C,
+            });
+        }
+        let predictor =
+            NetworkPredictor::new(config.predictor_config()).map_err(ConfigError::Predictor)?;
+        let mut ep = Endpoint {
+            phase: Phase::Handshake,
+            period: config.period,
+            ns: 0,
+            regulator: Regulator::new(0).map_err(|_| ConfigError::Channels {
+                axes: config.axes,
+                capacity: N,
+            })?,
+            predictor,
+            pattern: InitPattern::new(),
+            next_tick: None,
+            deadline: Some(now + config.handshake_timeout),
+            ticks_running: 0,
+            started_once: false,
+            pending: None,
+            tx: Deque::new(),
+            next_seq: 0,
+            sample: [0.0; C],
+            sample_fresh: false,
+            sent_ticks: [(u64::MAX, Instant::ZERO); N],
+            newest_rx: None,
+            prev_data_rx: None,
+            newest_echo: None,
+            init_started: now,
+            last_nrtt: None,
+            released_seq: None,
+            grtt_acked: None,
+            due_seq: None,
+            last_release: None,
+            peer: None,
+            events: Deque::new(),
+            events_dropped: 0,
+            stats: Stats::default(),
+            config,
+        };
+        if config.role == Role::Base {
+            ep.queue_tx(Tx::Hello);
+        }
+        Ok(ep)
+    }
+
+    // ----- driver interface -------------------------------------------------
+
+    /// A frame arrived at `now`. An error ends the link (see
+    /// [`LinkError::is_fatal`]); a Close frame for the peer is then queued.
+    pub fn handle_frame(&mut self, now: Instant, bytes: &[u8]) -> Result<(), LinkError> {
+        if self.phase == Phase::Closed {
+            return Err(LinkError::Closed);
+        }
+        let frame = match Frame::new_checked(bytes) {
+            Ok(f) => f,
+            Err(e) => return Err(self.fail(LinkError::from_wire(e))),
+        };
+        self.stats.frames_received += 1;
+        match self.receive(now, &frame) {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.fail(e)),
+        }
+    }
+
+    /// A deadline from [`poll_timeout`](Self::poll_timeout) passed: runs every
+    /// tick due by `now`, in order, and checks the handshake timeout.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        if self.phase == Phase::Closed {
+            return;
+        }
+        while let Some(t) = self.next_tick.filter(|&t| t <= now) {
+            self.next_tick = Some(t + self.period);
+            self.tick(t);
+            if self.phase == Phase::Closed {
+                return;
+            }
+        }
+        if self.deadline.is_some_and(|d| d <= now) {
+            self.fail(LinkError::Timeout);
+        }
+    }
+
+    /// The next time [`handle_timeout`](Self::handle_timeout) must be called.
+    #[must_use]
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        match (self.next_tick, self.deadline) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Writes the next frame to send into `buf` (use [`wire::MAX_FRAME_LEN`]
+    /// bytes) and returns its length; `Ok(None)` when nothing is due.
+    #[must_use = "a frame written to the buffer must be sent"]
+    pub fn poll_transmit(
+        &mut self,
+        now: Instant,
+        buf: &mut [u8],
+    ) -> Result<Option<usize>, LinkError> {
+        let Some(&item) = self.tx.front() else {
+            return Ok(None);
+        };
+        let header = Header {
+            seq: match item {
+                Tx::Probe { seq } | Tx::Sample { seq } => seq,
+                _ => self.next_seq,
+            },
+            sent_at: now,
+            echo: self.newest_rx.map(|(sent_at, arrived)| Echo {
+                sent_at,
+                hold: now - arrived,
+            }),
+            released: self.released_seq,
+        };
+        let axes = usize::from(self.config.axes);
+        let msg = match item {
+            Tx::Hello => Message::Hello(self.hello()),
+            Tx::Probe { .. } => Message::Data(&[]),
+            Tx::Sample { .. } => Message::Data(self.sample.get(..axes).unwrap_or(&self.sample)),
+            Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
+            Tx::Close { reason } => Message::Close(wire::Close { reason }),
+        };
+        let n = match wire::encode(&header, &msg, buf) {
+            Ok(n) => n,
+            Err(wire::WireError::BufferTooSmall { needed, got }) => {
+                return Err(LinkError::BufferTooSmall { needed, got });
+            }
+            // Our own frames are valid by construction (samples are checked in
+            // `set_sample`); anything else is a bug worth surfacing, not a panic.
+            Err(e) => return Err(LinkError::Wire(e)),
+        };
+        let _ = self.tx.pop_front();
+        self.stats.frames_sent += 1;
+        if let Tx::Sample { .. } = item {
+            self.stats.samples_sent += 1;
+            if !self.sample_fresh {
+                self.stats.samples_repeated += 1;
+            }
+            self.sample_fresh = false;
+        }
+        Ok(Some(n))
+    }
+
+    /// The next event for the application.
+    #[must_use]
+    pub fn poll_event(&mut self) -> Option<Event<C>> {
+        self.events.pop_front()
+    }
+
+    // ----- application interface ---------------------------------------------
+
+    /// Sets the sample sent at the next tick (the latest one given wins; if
+    /// none is given before a tick, the previous one is sent again and
+    /// counted in [`Stats::samples_repeated`]). Before the first call the
+    /// sample is all zeros.
+    pub fn set_sample(&mut self, values: &[f64]) -> Result<(), LinkError> {
+        let axes = usize::from(self.config.axes);
+        if values.len() != axes {
+            return Err(LinkError::SampleShape {
+                expected: self.config.axes,
+                got: values.len(),
+            });
+        }
+        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+            return Err(LinkError::NonFinite { index });
+        }
+        if let Some(dst) = self.sample.get_mut(..axes) {
+            dst.copy_from_slice(values);
+        }
+        self.sample_fresh = true;
+        Ok(())
+    }
+
+    /// Ends the link: a Close frame is queued for the peer.
+    pub fn close(&mut self) {
+        if self.phase != Phase::Closed {
+            self.queue_tx(Tx::Close {
+                reason: wire::close_reason::NORMAL,
+            });
+            self.enter_closed(None);
+        }
+    }
+
+    // ----- observation -------------------------------------------------------
+
+    /// Where the protocol is.
+    #[must_use]
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Whether the link is over.
+    #[must_use]
+    pub fn is_closed(&self) -> bool {
+        self.phase == Phase::Closed
+    }
+
+    /// The configuration.
+    #[must_use]
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The current period.
+    #[must_use]
+    pub fn period(&self) -> Duration {
+        self.period
+    }
+
+    /// The regulator's current nominal size (0 before the first start).
+    #[must_use]
+    pub fn ns(&self) -> usize {
+        self.ns
+    }
+
+    /// Samples in the regulator now.
+    #[must_use]
+    pub fn queue_len(&self) -> usize {
+        self.regulator.len()
+    }
+
+    /// Occupancy before each release since the current parameters started.
+    #[must_use]
+    pub fn occupancy(&self) -> Option<Occupancy> {
+        self.regulator.occupancy()
+    }
+
+    /// The counters.
+    #[must_use]
+    pub fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    /// Events the application did not drain in time (the queue holds 32).
+    #[must_use]
+    pub fn events_dropped(&self) -> u64 {
+        self.events_dropped
+    }
+
+    /// The network predictor's latest forecast.
+    #[must_use]
+    pub fn prediction(&self) -> Option<Prediction> {
+        self.predictor.last()
+    }
+
+    /// The network predictor.
+    #[must_use]
+    pub fn predictor(&self) -> &NetworkPredictor {
+        &self.predictor
+    }
+
+    /// The latest network round trip measured.
+    #[must_use]
+    pub fn last_nrtt(&self) -> Option<Duration> {
+        self.last_nrtt
+    }
+
+    /// The peer's Hello, once the handshake is done.
+    #[must_use]
+    pub fn peer(&self) -> Option<Hello> {
+        self.peer
+    }
+
+    // ----- internals ---------------------------------------------------------
+
+    fn hello(&self) -> Hello {
+        Hello {
+            role: self.config.role,
+            mode: self.config.mode.code(),
+            underflow: self.config.underflow.code(),
+            axes: self.config.axes,
+            period: self.config.period,
+        }
+    }
+
+    fn queue_tx(&mut self, item: Tx) {
+        if self.tx.push_back(item).is_err() {
+            // The driver stopped draining: give up the oldest waiting frame
+            // rather than the newest, and count it.
+            let _ = self.tx.pop_front();
+            self.stats.tx_dropped += 1;
+            let _ = self.tx.push_back(item);
+        }
+    }
+
+    fn emit(&mut self, event: Event<C>) {
+        if self.events.push_back(event).is_err() {
+            self.events_dropped += 1;
+        }
+    }
+
+    /// Ends the link because of `error`; returns it for the caller.
+    fn fail(&mut self, error: LinkError) -> LinkError {
+        if self.phase != Phase::Closed {
+            if !matches!(error, LinkError::PeerClosed { .. }) {
+                self.queue_tx(Tx::Close {
+                    reason: error.close_reason(),
+                });
+            }
+            self.enter_closed(Some(error));
+        }
+        error
+    }
+
+    fn enter_closed(&mut self, error: Option<LinkError>) {
+        self.phase = Phase::Closed;
+        self.next_tick = None;
+        self.deadline = None;
+        self.emit(Event::Closed { error });
+    }
+
+    /// The first tick of the grid `tick_origin + k·T` at or after `now`.
+    fn next_grid_tick(&self, now: Instant) -> Instant {
+        let origin = self.config.tick_origin;
+        let Some(since) = now.checked_duration_since(origin) else {
+            return origin;
+        };
+        let t = self.period.as_nanos().max(1);
+        let k = since.as_nanos().div_ceil(t);
+        origin + Duration::from_nanos(k.saturating_mul(t))
+    }
+
+    fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
+        let sent_at = frame.sent_at();
+        if let Some(echo) = frame.echo() {
+            self.measure_nrtt(now, echo)?;
+        }
+        self.newest_rx = Some((sent_at, now));
+        match frame.payload() {
+            Payload::Hello(hello) => self.receive_hello(now, hello),
+            Payload::Data(channels) => {
+                if let Some((prev_sent, prev_arrived)) = self.prev_data_rx {
+                    // How much later than its schedule this frame came,
+                    // relative to the previous one (never negative).
+                    let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
+                    self.predictor.observe_gap(gap);
+                }
+                self.prev_data_rx = Some((sent_at, now));
+                if channels.is_empty() {
+                    self.stats.probes_received += 1;
+                    return match self.phase {
+                        Phase::Handshake => Err(self.unexpected(Kind::Data)),
+                        _ => Ok(()),
+                    };
+                }
+                let mut values = [0.0; C];
+                let axes = usize::from(self.config.axes);
+                if channels.len() != axes || channels.copy_to(&mut values).is_err() {
+                    return Err(LinkError::ChannelCount {
+                        expected: self.config.axes,
+                        got: channels.len(),
+                    });
+                }
+                let slot = Slot {
+                    head: Head {
+                        seq: frame.seq(),
+                        sent_at,
+                        arrived_at: now,
+                    },
+                    peer_released: frame.released(),
+                    len: self.config.axes,
+                    values,
+                };
+                self.receive_sample(slot)
+            }
+            Payload::Control(control) => self.receive_control(now, control),
+            Payload::Close(close) => Err(LinkError::PeerClosed {
+                reason: close.reason,
+            }),
+        }
+    }
+
+    fn unexpected(&self, kind: Kind) -> LinkError {
+        LinkError::Unexpected {
+            kind,
+            phase: self.phase.name(),
+        }
+    }
+
+    fn measure_nrtt(&mut self, now: Instant, echo: Echo) -> Result<(), LinkError> {
+        // Several peer frames can echo the same one of ours: measure once.
+        if self.newest_echo.is_some_and(|t| echo.sent_at <= t) {
+            return Ok(());
+        }
+        let Some(rtt) = now.checked_duration_since(echo.sent_at) else {
+            // An echo of a frame we have not sent yet: the peer is lying.
+            return Err(LinkError::Unexpected {
+                kind: Kind::Data,
+                phase: "an echo from the future",
+            });
+        };
+        self.newest_echo = Some(echo.sent_at);
+        let nrtt = rtt.saturating_sub(echo.hold);
+        self.last_nrtt = Some(nrtt);
+        self.stats.nrtt.push_duration(nrtt);
+        self.predictor.observe_nrtt(nrtt);
+        if self.phase == Phase::Init
+            && self.config.role == Role::Base
+            && echo.sent_at >= self.init_started
+        {
+            let _ = self.pattern.record_nrtt(nrtt);
+            if self.pattern.len() >= INIT_EXCHANGES {
+                self.finish_init(now)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn receive_hello(&mut self, now: Instant, hello: Hello) -> Result<(), LinkError> {
+        if self.phase != Phase::Handshake {
+            return Err(self.unexpected(Kind::Hello));
+        }
+        let ours = self.config;
+        if hello.role == ours.role {
+            return Err(LinkError::RoleMismatch { role: ours.role });
+        }
+        if hello.axes != ours.axes {
+            return Err(LinkError::AxesMismatch {
+                ours: ours.axes,
+                theirs: hello.axes,
+            });
+        }
+        if hello.period != ours.period {
+            return Err(LinkError::PeriodMismatch {
+                ours: ours.period,
+                theirs: hello.period,
+            });
+        }
+        if hello.mode != ours.mode.code() {
+            return Err(LinkError::ModeMismatch {
+                ours: ours.mode,
+                theirs: hello.mode,
+            });
+        }
+        self.peer = Some(hello);
+        if ours.role == Role::Remote {
+            self.queue_tx(Tx::Hello);
+        }
+        self.emit(Event::Connected { peer: hello });
+        self.enter_init(now);
+        Ok(())
+    }
+
+    fn receive_sample(&mut self, slot: Slot<C>) -> Result<(), LinkError> {
+        self.stats.samples_received += 1;
+        match self.phase {
+            Phase::Running => {}
+            Phase::Handshake => return Err(self.unexpected(Kind::Data)),
+            // A sample of the stream a pause ended, still in flight.
+            _ => {
+                self.stats.discarded += 1;
+                return Ok(());
+            }
+        }
+        if self.config.underflow == Underflow::DropLate
+            && self.due_seq.is_some_and(|due| slot.head.seq < due)
+        {
+            self.stats.late += 1;
+            return Ok(());
+        }
+        if self.regulator.push(slot).is_err() {
+            self.stats.rejected += 1;
+        }
+        Ok(())
+    }
+
+    fn receive_control(&mut self, now: Instant, control: Control) -> Result<(), LinkError> {
+        let role = self.config.role;
+        match (role, control.op, self.phase) {
+            (Role::Remote, control_op::PAUSE_REQUEST, Phase::Running) => {
+                let ns = self.checked_ns(control.ns, control.period)?;
+                self.queue_tx(Tx::Control {
+                    op: control_op::PAUSE_ACK,
+                    ns: control.ns,
+                    period: control.period,
+                });
+                self.stats.pauses += 1;
+                self.emit(Event::Paused {
+                    period: control.period,
+                    ns,
+                });
+                self.change_period(control.period)?;
+                self.enter_init(now);
+                Ok(())
+            }
+            (Role::Base, control_op::PAUSE_ACK, Phase::Pausing) => {
+                let (period, _) = self.pending.ok_or(self.unexpected(Kind::Control))?;
+                self.change_period(period)?;
+                self.enter_init(now);
+                Ok(())
+            }
+            (Role::Remote, control_op::RESUME, Phase::Init) => {
+                let ns = self.checked_ns(control.ns, control.period)?;
+                if control.period != self.period {
+                    return Err(LinkError::BadParameters {
+                        ns: control.ns,
+                        period: control.period,
+                    });
+                }
+                self.start_running(ns);
+                Ok(())
+            }
+            _ => Err(self.unexpected(Kind::Control)),
+        }
+    }
+
+    fn checked_ns(&self, ns: u16, period: Duration) -> Result<usize, LinkError> {
+        let fits = usize::from(ns) < N && period >= MIN_PERIOD;
+        fits.then_some(usize::from(ns))
+            .ok_or(LinkError::BadParameters { ns, period })
+    }
+
+    fn change_period(&mut self, period: Duration) -> Result<(), LinkError> {
+        self.period = period;
+        self.predictor
+            .set_period(period)
+            .map_err(|_| LinkError::BadParameters { ns: 0, period })
+    }
+
+    fn enter_init(&mut self, now: Instant) {
+        self.discard_queue();
+        self.phase = Phase::Init;
+        self.pattern.clear();
+        self.init_started = now;
+        self.deadline = Some(now + self.config.handshake_timeout);
+        self.next_tick = Some(self.next_grid_tick(now));
+    }
+
+    fn discard_queue(&mut self) {
+        self.stats.discarded += self.regulator.clear() as u64;
+    }
+
+    /// Base: the initialization pattern is complete.
+    fn finish_init(&mut self, _now: Instant) -> Result<(), LinkError> {
+        let ns = match self.pending.take() {
+            Some((_, ns)) => ns,
+            None => match self.pattern.stats() {
+                Some(s) => self.config.sizing.nominal_size_for(&s, self.period),
+                None => return Err(LinkError::Timeout),
+            },
+        };
+        let ns = self.clamp_ns(ns);
+        self.queue_tx(Tx::Control {
+            op: control_op::RESUME,
+            ns: u16::try_from(ns).unwrap_or(u16::MAX),
+            period: self.period,
+        });
+        self.start_running(ns);
+        Ok(())
+    }
+
+    fn clamp_ns(&mut self, ns: usize) -> usize {
+        let limit = (N - 1).min(usize::from(u16::MAX));
+        if ns > limit {
+            self.stats.clamped += 1;
+            limit
+        } else {
+            ns
+        }
+    }
+
+    fn start_running(&mut self, ns: usize) {
+        self.discard_queue();
+        // `ns < N` was checked by the caller.
+        let _ = self.regulator.set_nominal(ns);
+        self.regulator.restart_prefill();
+        // Occupancy statistics describe the current parameters.
+        self.regulator.reset_occupancy();
+        self.ns = ns;
+        // Round trips count from this regime's first sample: an echo of a
+        // sample sent before a pause would measure the pause.
+        self.grtt_acked = self.next_seq.checked_sub(1);
+        self.due_seq = None;
+        self.ticks_running = 0;
+        self.deadline = None;
+        self.phase = Phase::Running;
+        if self.started_once {
+            self.stats.resizes += 1;
+        }
+        self.started_once = true;
+        self.emit(Event::Started {
+            period: self.period,
+            ns,
+        });
+    }
+
+    fn tick(&mut self, t: Instant) {
+        match self.phase {
+            Phase::Init | Phase::Pausing => {
+                let seq = self.take_seq(t);
+                self.queue_tx(Tx::Probe { seq });
+            }
+            Phase::Running => {
+                self.release(t);
+                let seq = self.take_seq(t);
+                self.queue_tx(Tx::Sample { seq });
+                self.ticks_running += 1;
+            }
+            Phase::Handshake | Phase::Closed => return,
+        }
+        let prediction = self.predictor.step();
+        if let Some(p) = prediction {
+            self.maybe_adapt(t, p);
+        }
+    }
+
+    fn take_seq(&mut self, t: Instant) -> u64 {
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        if let Some(cell) = self.sent_ticks.get_mut((seq % N as u64) as usize) {
+            *cell = (seq, t);
+        }
+        seq
+    }
+
+    fn release(&mut self, t: Instant) {
+        let outcome = match (self.config.underflow, self.due_seq) {
+            (Underflow::DropLate, Some(due)) => {
+                while self.regulator.front().is_some_and(|s| s.head.seq < due) {
+                    let _ = self.regulator.discard_front();
+                    self.stats.late += 1;
+                }
+                self.regulator.tick_if(|s| s.head.seq == due)
+            }
+            _ => self.regulator.tick(),
+        };
+        match outcome {
+            Tick::Released(slot) => {
+                self.stats.released_fresh += 1;
+                self.released_seq = Some(slot.head.seq);
+                self.due_seq = Some(slot.head.seq + 1);
+                let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
+                let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
+                self.last_release = Some(release);
+                self.emit(Event::Released(release));
+            }
+            Tick::Underflow => {
+                self.stats.underflows += 1;
+                if self.config.underflow == Underflow::Hold {
+                    self.stats.late += 1;
+                }
+                self.due_seq = self.due_seq.map(|d| d + 1);
+                if let Some(mut held) = self.last_release {
+                    held.status = Status::Held;
+                    held.released_at = t;
+                    held.grtt = None;
+                    self.stats.released_held += 1;
+                    self.emit(Event::Released(held));
+                }
+            }
+            Tick::Prefilling { .. } => {}
+        }
+    }
+
+    /// The peer had released our sample `k` when it sent what we release now.
+    fn measure_grtt(&mut self, t: Instant, k: u64) -> Option<Duration> {
+        if self.grtt_acked.is_some_and(|a| k <= a) {
+            return None;
+        }
+        self.grtt_acked = Some(k);
+        match self.sent_ticks.get((k % N as u64) as usize) {
+            Some(&(seq, sent)) if seq == k => {
+                let grtt = t - sent;
+                self.stats.grtt.push_duration(grtt);
+                Some(grtt)
+            }
+            _ => {
+                self.stats.grtt_unmeasured += 1;
+                None
+            }
+        }
+    }
+
+    /// Dynamic mode, base side: pause and resize when the forecast says so.
+    fn maybe_adapt(&mut self, t: Instant, p: Prediction) {
+        let settle = u64::from(self.config.adaptation.settle_periods);
+        if self.config.mode != Mode::PaperDynamic
+            || self.config.role != Role::Base
+            || self.phase != Phase::Running
+            || self.ticks_running < settle
+        {
+            return;
+        }
+        let band = self.config.adaptation.band;
+        // Whole microseconds: a period both peers can state exactly.
+        let period = Duration::from_micros(p.period.as_micros()).max(MIN_PERIOD);
+        let current = self.period.as_secs_f64();
+        let off = |forecast: f64, now: f64| libm::fabs(forecast - now) > band * now;
+        let drift = off(period.as_secs_f64(), current) || off(p.ns as f64, self.ns as f64);
+        // The forecast lag would use up the whole stock: the queue would empty.
+        let drain = p.mt_ahead >= self.ns as f64 * current;
+        if !(drift || drain) {
+            return;
+        }
+        let ns = self.clamp_ns(p.ns);
+        self.discard_queue();
+        self.pending = Some((period, ns));
+        self.phase = Phase::Pausing;
+        self.deadline = Some(t + self.config.handshake_timeout);
+        self.stats.pauses += 1;
+        self.queue_tx(Tx::Control {
+            op: control_op::PAUSE_REQUEST,
+            ns: u16::try_from(ns).unwrap_or(u16::MAX),
+            period,
+        });
+        self.emit(Event::Paused { period, ns });
+    }
+}

@@ -1,0 +1,116 @@
+//! Counters and running statistics of a link endpoint.
+
+use crate::time::Duration;
+
+/// Mean, standard deviation and range of a series, in O(1) memory (Welford).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Running {
+    count: u64,
+    mean: f64,
+    m2: f64,
+    min: f64,
+    max: f64,
+}
+
+impl Running {
+    /// Adds one value.
+    pub fn push(&mut self, x: f64) {
+        self.count += 1;
+        if self.count == 1 {
+            self.min = x;
+            self.max = x;
+        } else {
+            self.min = self.min.min(x);
+            self.max = self.max.max(x);
+        }
+        let d = x - self.mean;
+        self.mean += d / self.count as f64;
+        self.m2 += d * (x - self.mean);
+    }
+
+    /// Adds a duration, in seconds.
+    pub fn push_duration(&mut self, d: Duration) {
+        self.push(d.as_secs_f64());
+    }
+
+    /// Values seen.
+    #[must_use]
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// Their mean (0 when empty).
+    #[must_use]
+    pub fn mean(&self) -> f64 {
+        self.mean
+    }
+
+    /// Their population standard deviation (0 when fewer than two).
+    #[must_use]
+    pub fn std(&self) -> f64 {
+        if self.count < 2 {
+            0.0
+        } else {
+            libm::sqrt(self.m2 / self.count as f64)
+        }
+    }
+
+    /// The smallest (0 when empty).
+    #[must_use]
+    pub fn min(&self) -> f64 {
+        self.min
+    }
+
+    /// The largest (0 when empty).
+    #[must_use]
+    pub fn max(&self) -> f64 {
+        self.max
+    }
+}
+
+/// Everything an endpoint counted. Invariant of the receive side:
+/// `samples_received = released_fresh + queued + late + rejected + discarded`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Stats {
+    /// Frames sent, of any kind.
+    pub frames_sent: u64,
+    /// Frames received, of any kind.
+    pub frames_received: u64,
+    /// Samples (Data frames with channels) sent.
+    pub samples_sent: u64,
+    /// Samples sent that repeated the previous one because the application
+    /// gave none since the last tick.
+    pub samples_repeated: u64,
+    /// Samples received from the peer.
+    pub samples_received: u64,
+    /// Samples released fresh to the application.
+    pub released_fresh: u64,
+    /// Ticks that repeated the last sample (underflows with a sample to repeat).
+    pub released_held: u64,
+    /// Running ticks whose due sample was missing.
+    pub underflows: u64,
+    /// Samples that arrived after their release slot. Under `drop-late` they
+    /// are discarded; under `hold` each underflow is one (the due sample came
+    /// late and was released at a later tick).
+    pub late: u64,
+    /// Samples refused because the regulator was full.
+    pub rejected: u64,
+    /// Samples discarded because they belonged to a stream that a pause ended.
+    pub discarded: u64,
+    /// Probe frames (Data without channels) of the initialization pattern received.
+    pub probes_received: u64,
+    /// Pauses of the dynamic mode.
+    pub pauses: u64,
+    /// Parameter changes (starts after a pause).
+    pub resizes: u64,
+    /// Parameter changes clamped to what the regulator can hold.
+    pub clamped: u64,
+    /// Frames given up because the driver did not drain `poll_transmit`.
+    pub tx_dropped: u64,
+    /// Round trips whose start had left the send-time history.
+    pub grtt_unmeasured: u64,
+    /// Network round-trip times, in seconds.
+    pub nrtt: Running,
+    /// Round trips as the application sees them, in seconds.
+    pub grtt: Running,
+}

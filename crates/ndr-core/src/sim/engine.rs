@@ -1,0 +1,402 @@
+//! The discrete-event loop: two endpoints, two in-order network paths, an
+//! operator and a plant. Time jumps from one deadline or arrival to the next.
+
+use std::boxed::Box;
+use std::collections::VecDeque;
+use std::fmt;
+use std::string::ToString;
+use std::vec::Vec;
+
+use crate::arx::{ArxError, Tf2, Tf2State};
+use crate::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Mode, Status, Underflow};
+use crate::time::{Duration, Instant};
+use crate::wire::{HEADER_LEN, Role};
+
+use super::delay::{DelayModel, DelaySampler, Direction, InOrderPath};
+use super::report::{Collector, Report, Row};
+use super::signal::Signal;
+
+/// Most axes a simulated link carries.
+pub const MAX_SIM_AXES: usize = 8;
+/// Capacity of the simulated regulators: room for `ns` up to 4095, enough
+/// for Paris–New York jitter at a 1 ms period.
+pub const SIM_QUEUE: usize = 4096;
+const FRAME_BUF: usize = HEADER_LEN + 8 * MAX_SIM_AXES + 16;
+
+type SimEndpoint = Endpoint<MAX_SIM_AXES, SIM_QUEUE>;
+
+/// The remote's plant: per axis, a second-order low-pass system discretized
+/// at the link's period by the bilinear transform.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlantConfig {
+    /// Natural frequency, Hz.
+    pub natural_hz: f64,
+    /// Damping ratio.
+    pub damping: f64,
+    /// Static gain.
+    pub gain: f64,
+}
+
+impl Default for PlantConfig {
+    /// 0.5 Hz, damping 0.7, unit gain: a slow arm axis.
+    fn default() -> Self {
+        PlantConfig {
+            natural_hz: 0.5,
+            damping: 0.7,
+            gain: 1.0,
+        }
+    }
+}
+
+impl PlantConfig {
+    fn discretize(&self, period: Duration) -> Result<Tf2, ArxError> {
+        Tf2::low_pass(
+            core::f64::consts::TAU * self.natural_hz,
+            self.damping,
+            self.gain,
+            period.as_secs_f64(),
+        )
+    }
+}
+
+/// One simulation run.
+#[derive(Clone, Debug)]
+pub struct SimConfig {
+    /// The network.
+    pub model: DelayModel,
+    /// Static or dynamic regulation.
+    pub mode: Mode,
+    /// Both regulators' underflow policy.
+    pub underflow: Underflow,
+    /// The initial period.
+    pub period: Duration,
+    /// Simulated time.
+    pub duration: Duration,
+    /// Seed of every random draw.
+    pub seed: u64,
+    /// Axes, `1..=MAX_SIM_AXES`.
+    pub axes: u16,
+    /// The operator's command.
+    pub signal: Signal,
+    /// The remote's plant.
+    pub plant: PlantConfig,
+    /// Keep one [`Row`] per base tick.
+    pub record_series: bool,
+}
+
+impl SimConfig {
+    /// The paper's setup on `model`: `T = 200 ms`, static, hold, one axis,
+    /// ten simulated minutes.
+    #[must_use]
+    pub fn paper(model: DelayModel) -> Self {
+        SimConfig {
+            model,
+            mode: Mode::PaperStatic,
+            underflow: Underflow::Hold,
+            period: Duration::from_millis(200),
+            duration: Duration::from_secs(600),
+            seed: 1,
+            axes: 1,
+            signal: Signal::default(),
+            plant: PlantConfig::default(),
+            record_series: false,
+        }
+    }
+}
+
+/// Why a simulation could not run or ended early.
+#[derive(Debug)]
+pub enum SimError {
+    /// More axes than the simulator carries.
+    Axes(u16),
+    /// An endpoint refused its configuration.
+    Config(ConfigError),
+    /// The plant parameters are invalid.
+    Plant(ArxError),
+    /// The simulation thread could not be started or did not finish.
+    Thread(std::string::String),
+    /// The link ended before the run did.
+    Link {
+        /// Which side saw it.
+        side: &'static str,
+        /// When, in seconds.
+        at_s: f64,
+        /// The error.
+        error: LinkError,
+    },
+}
+
+impl fmt::Display for SimError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SimError::Axes(a) => {
+                write!(f, "the simulator carries 1 to {MAX_SIM_AXES} axes, not {a}")
+            }
+            SimError::Config(e) => write!(f, "{e}"),
+            SimError::Plant(e) => write!(f, "plant: {e}"),
+            SimError::Thread(e) => write!(f, "simulation thread: {e}"),
+            SimError::Link { side, at_s, error } => {
+                write!(
+                    f,
+                    "the link failed at t = {at_s:.3} s on the {side} side: {error}"
+                )
+            }
+        }
+    }
+}
+
+impl std::error::Error for SimError {}
+
+/// What a run gives: the report, and the per-tick series if asked for.
+#[derive(Clone, Debug)]
+pub struct SimOutput {
+    /// Summary statistics.
+    pub report: Report,
+    /// One row per base tick, when [`SimConfig::record_series`] is set.
+    pub series: Vec<Row>,
+}
+
+struct Flight {
+    arrival: Instant,
+    len: usize,
+    bytes: [u8; FRAME_BUF],
+}
+
+struct Sim<'a> {
+    cfg: &'a SimConfig,
+    now: Instant,
+    base: Box<SimEndpoint>,
+    remote: Box<SimEndpoint>,
+    sampler: DelaySampler,
+    paths: [InOrderPath; 2],
+    flights: [VecDeque<Flight>; 2],
+    plants: Vec<Tf2State>,
+    plant_out: Vec<f64>,
+    operator: Vec<f64>,
+    collect: Collector,
+    buf: [u8; FRAME_BUF],
+}
+
+/// Stack for the simulation thread: the two endpoints hold their regulators
+/// inline (no heap in `ndr-core`), half a megabyte each, and unoptimized
+/// builds copy them on the way into their boxes.
+const SIM_STACK: usize = 64 << 20;
+
+/// Runs one simulation.
+///
+/// It runs on a thread of its own with a stack sized for the endpoints, so
+/// it is safe to call from any thread, whatever its stack size.
+pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
+    let cfg = cfg.clone();
+    std::thread::Builder::new()
+        .name(std::string::String::from("ndr-sim"))
+        .stack_size(SIM_STACK)
+        .spawn(move || run_here(&cfg))
+        .map_err(|e| SimError::Thread(e.to_string()))?
+        .join()
+        .map_err(|_| {
+            SimError::Thread(std::string::String::from("the simulation thread panicked"))
+        })?
+}
+
+fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
+    if cfg.axes == 0 || usize::from(cfg.axes) > MAX_SIM_AXES {
+        return Err(SimError::Axes(cfg.axes));
+    }
+    let endpoint = |role| -> Result<Box<SimEndpoint>, SimError> {
+        let mut c = Config::new(role);
+        c.axes = cfg.axes;
+        c.period = cfg.period;
+        c.mode = cfg.mode;
+        c.underflow = cfg.underflow;
+        // One clock for the whole structure, as in the paper.
+        c.tick_origin = Instant::ZERO;
+        Ok(Box::new(
+            SimEndpoint::new(c, Instant::ZERO).map_err(SimError::Config)?,
+        ))
+    };
+    let plant = cfg.plant.discretize(cfg.period).map_err(SimError::Plant)?;
+    let axes = usize::from(cfg.axes);
+    let mut sim = Sim {
+        cfg,
+        now: Instant::ZERO,
+        base: endpoint(Role::Base)?,
+        remote: endpoint(Role::Remote)?,
+        sampler: cfg.model.sampler(cfg.seed),
+        paths: [InOrderPath::default(), InOrderPath::default()],
+        flights: [VecDeque::new(), VecDeque::new()],
+        plants: (0..axes).map(|_| Tf2State::new(plant)).collect(),
+        plant_out: std::vec![0.0; axes],
+        operator: std::vec![0.0; axes],
+        collect: Collector::new(cfg),
+        buf: [0; FRAME_BUF],
+    };
+    sim.run()?;
+    let Sim {
+        collect,
+        base,
+        remote,
+        ..
+    } = sim;
+    Ok(collect.finish(cfg, &base, &remote))
+}
+
+impl Sim<'_> {
+    fn run(&mut self) -> Result<(), SimError> {
+        let end = Instant::ZERO + self.cfg.duration;
+        self.drain(Role::Base)?;
+        loop {
+            let next = [
+                self.flights[0].front().map(|f| f.arrival),
+                self.flights[1].front().map(|f| f.arrival),
+                self.base.poll_timeout(),
+                self.remote.poll_timeout(),
+            ]
+            .into_iter()
+            .flatten()
+            .min();
+            let Some(next) = next.filter(|&t| t <= end) else {
+                return Ok(());
+            };
+            self.now = next;
+            // Arrivals before deadlines at the same instant; forward first.
+            loop {
+                let due: Option<usize> = (0..2)
+                    .filter(|&d| self.flights[d].front().is_some_and(|f| f.arrival <= next))
+                    .min_by_key(|&d| self.flights[d].front().map(|f| f.arrival));
+                let Some(dir) = due else { break };
+                let Some(flight) = self.flights[dir].pop_front() else {
+                    break;
+                };
+                let (side, ep) = if dir == 0 {
+                    (Role::Remote, &mut self.remote)
+                } else {
+                    (Role::Base, &mut self.base)
+                };
+                if let Err(error) = ep.handle_frame(next, &flight.bytes[..flight.len]) {
+                    return Err(self.link_error(side, error));
+                }
+                self.drain(side)?;
+            }
+            for side in [Role::Base, Role::Remote] {
+                let ep = self.endpoint(side);
+                if ep.poll_timeout().is_some_and(|t| t <= next) {
+                    let steps = ep.predictor().steps();
+                    ep.handle_timeout(next);
+                    let ticked = ep.predictor().steps() != steps;
+                    self.drain(side)?;
+                    if side == Role::Base && ticked {
+                        self.collect.base_tick(next, &self.base, &self.remote);
+                    }
+                }
+            }
+        }
+    }
+
+    fn endpoint(&mut self, side: Role) -> &mut SimEndpoint {
+        match side {
+            Role::Base => &mut self.base,
+            Role::Remote => &mut self.remote,
+        }
+    }
+
+    fn link_error(&self, side: Role, error: LinkError) -> SimError {
+        SimError::Link {
+            side: if side == Role::Base { "base" } else { "remote" },
+            at_s: self.now.as_secs_f64(),
+            error,
+        }
+    }
+
+    /// The application's turn, then the transmissions.
+    fn drain(&mut self, side: Role) -> Result<(), SimError> {
+        let now = self.now;
+        while let Some(event) = self.endpoint(side).poll_event() {
+            match event {
+                Event::Released(r) => {
+                    if r.status == Status::Fresh {
+                        self.collect.fresh(side, &r);
+                    }
+                    if side == Role::Remote {
+                        // The plant takes the command released now; its
+                        // output is the state sent at this tick.
+                        for ((plant, out), &u) in self
+                            .plants
+                            .iter_mut()
+                            .zip(&mut self.plant_out)
+                            .zip(r.values())
+                        {
+                            *out = plant.step(u);
+                        }
+                        let out = self.plant_out.clone();
+                        self.set_sample(side, &out)?;
+                    }
+                }
+                Event::Started { period, ns } => {
+                    self.collect.started(side, now, period, ns);
+                    if side == Role::Remote {
+                        let model = self.cfg.plant.discretize(period).map_err(SimError::Plant)?;
+                        for p in &mut self.plants {
+                            p.set_model(model);
+                        }
+                    }
+                }
+                Event::Paused { .. } | Event::Connected { .. } => {}
+                Event::Closed { error } => {
+                    if let Some(e) = error {
+                        return Err(self.link_error(side, e));
+                    }
+                }
+            }
+        }
+        if side == Role::Base {
+            let t = now.as_secs_f64();
+            for (axis, v) in self.operator.iter_mut().enumerate() {
+                *v = self.cfg.signal.value(t, axis);
+            }
+            let cmd = self.operator.clone();
+            self.set_sample(side, &cmd)?;
+        }
+        let dir = if side == Role::Base { 0 } else { 1 };
+        loop {
+            let mut buf = self.buf;
+            let n = match self.endpoint(side).poll_transmit(now, &mut buf) {
+                Ok(Some(n)) => n,
+                Ok(None) => break,
+                Err(e) => return Err(self.link_error(side, e)),
+            };
+            let direction = if dir == 0 {
+                Direction::Forward
+            } else {
+                Direction::Backward
+            };
+            let delay = self.sampler.delay(direction, now);
+            let arrival = self.paths[dir].deliver(now, delay);
+            self.flights[dir].push_back(Flight {
+                arrival,
+                len: n,
+                bytes: buf,
+            });
+        }
+        Ok(())
+    }
+
+    fn set_sample(&mut self, side: Role, values: &[f64]) -> Result<(), SimError> {
+        match self.endpoint(side).set_sample(values) {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.link_error(side, e)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_axes_are_refused() {
+        let mut cfg = SimConfig::paper(DelayModel::Lan75km);
+        cfg.axes = 9;
+        assert!(matches!(run(&cfg), Err(SimError::Axes(9))));
+    }
+}

@@ -1,0 +1,519 @@
+//! The link endpoint driven by hand-advanced time: a pair of endpoints and a
+//! tiny network that jumps to the next deadline (quinn-proto's test `Pair`).
+
+use std::collections::BTreeMap;
+
+use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Status, Underflow};
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{self, MAX_FRAME_LEN, Role, close_reason};
+
+type Ep = Endpoint<4, 256>;
+
+const T: Duration = Duration::from_millis(200);
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Side {
+    Base,
+    Remote,
+}
+
+/// Delay of the n-th frame sent in a direction.
+type DelayFn = Box<dyn FnMut(u64) -> Duration>;
+
+struct Pair {
+    now: Instant,
+    base: Ep,
+    remote: Ep,
+    /// (arrival, order) → (destination, bytes); in-order per direction.
+    wire: BTreeMap<(Instant, u64), (Side, Vec<u8>)>,
+    order: u64,
+    sent: [u64; 2],
+    last_arrival: [Instant; 2],
+    delay: [DelayFn; 2],
+    base_events: Vec<Event<4>>,
+    remote_events: Vec<Event<4>>,
+    base_errors: Vec<LinkError>,
+    remote_errors: Vec<LinkError>,
+    tick: u64,
+    /// What each side actually sent, by sequence number.
+    sent_values: [BTreeMap<u64, Vec<f64>>; 2],
+}
+
+fn config(role: Role) -> Config {
+    let mut c = Config::new(role);
+    c.axes = 2;
+    c.period = T;
+    c
+}
+
+impl Pair {
+    fn new(base: Config, remote: Config, fwd: DelayFn, bwd: DelayFn) -> Pair {
+        let now = Instant::ZERO;
+        Pair {
+            now,
+            base: Ep::new(base, now).unwrap(),
+            remote: Ep::new(remote, now).unwrap(),
+            wire: BTreeMap::new(),
+            order: 0,
+            sent: [0; 2],
+            last_arrival: [Instant::ZERO; 2],
+            delay: [fwd, bwd],
+            base_events: Vec::new(),
+            remote_events: Vec::new(),
+            base_errors: Vec::new(),
+            remote_errors: Vec::new(),
+            tick: 0,
+            sent_values: [BTreeMap::new(), BTreeMap::new()],
+        }
+    }
+
+    fn constant(ms: u64) -> Pair {
+        let d = Duration::from_millis(ms);
+        Pair::new(
+            config(Role::Base),
+            config(Role::Remote),
+            Box::new(move |_| d),
+            Box::new(move |_| d),
+        )
+    }
+
+    fn ep(&mut self, side: Side) -> &mut Ep {
+        match side {
+            Side::Base => &mut self.base,
+            Side::Remote => &mut self.remote,
+        }
+    }
+
+    /// Drains events (the applications react) then transmits.
+    fn drain(&mut self, side: Side) {
+        while let Some(ev) = self.ep(side).poll_event() {
+            if let Event::Released(r) = ev {
+                // The remote's "plant" returns the command it was given; the
+                // base's operator sends its tick count.
+                if side == Side::Remote {
+                    let v = r.values().to_vec();
+                    self.remote.set_sample(&v).unwrap();
+                }
+            }
+            match side {
+                Side::Base => self.base_events.push(ev),
+                Side::Remote => self.remote_events.push(ev),
+            }
+        }
+        if side == Side::Base && self.base.phase() == Phase::Running {
+            self.tick += 1;
+            let k = self.tick as f64;
+            self.base.set_sample(&[k, -k]).unwrap();
+        }
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let dir = side as usize;
+        let now = self.now;
+        while let Some(n) = self.ep(side).poll_transmit(now, &mut buf).unwrap() {
+            let frame = wire::Frame::new_checked(&buf[..n]).unwrap();
+            if let wire::Payload::Data(ch) = frame.payload() {
+                if !ch.is_empty() {
+                    self.sent_values[dir].insert(frame.seq(), ch.iter().collect());
+                }
+            }
+            let d = (self.delay[dir])(self.sent[dir]);
+            self.sent[dir] += 1;
+            let arrival = (self.now + d).max(self.last_arrival[dir]);
+            self.last_arrival[dir] = arrival;
+            let dest = if side == Side::Base {
+                Side::Remote
+            } else {
+                Side::Base
+            };
+            self.order += 1;
+            self.wire
+                .insert((arrival, self.order), (dest, buf[..n].to_vec()));
+        }
+    }
+
+    /// Advances to the next deadline or arrival and handles it.
+    fn step(&mut self) -> bool {
+        let next_wire = self.wire.keys().next().map(|k| k.0);
+        let next = [
+            next_wire,
+            self.base.poll_timeout(),
+            self.remote.poll_timeout(),
+        ]
+        .into_iter()
+        .flatten()
+        .min();
+        let Some(next) = next else { return false };
+        self.now = next;
+        // Arrivals first, then deadlines, at equal times.
+        while let Some(entry) = self.wire.first_entry() {
+            if entry.key().0 > self.now {
+                break;
+            }
+            let (dest, bytes) = entry.remove();
+            let now = self.now;
+            if let Err(e) = self.ep(dest).handle_frame(now, &bytes) {
+                match dest {
+                    Side::Base => self.base_errors.push(e),
+                    Side::Remote => self.remote_errors.push(e),
+                }
+            }
+            self.drain(dest);
+        }
+        for side in [Side::Base, Side::Remote] {
+            if self.ep(side).poll_timeout().is_some_and(|t| t <= self.now) {
+                let now = self.now;
+                self.ep(side).handle_timeout(now);
+            }
+            self.drain(side);
+        }
+        true
+    }
+
+    fn run_until(&mut self, end: Instant) {
+        self.drain(Side::Base);
+        self.drain(Side::Remote);
+        while self.now < end && self.step() {}
+    }
+
+    fn releases(events: &[Event<4>]) -> Vec<ndr_core::endpoint::Release<4>> {
+        events
+            .iter()
+            .filter_map(|e| match e {
+                Event::Released(r) => Some(*r),
+                _ => None,
+            })
+            .collect()
+    }
+}
+
+fn secs(s: u64) -> Instant {
+    Instant::ZERO + Duration::from_secs(s)
+}
+
+#[test]
+fn lan_static_link_starts_with_ns_2_and_a_grtt_of_six_periods() {
+    let mut p = Pair::constant(10);
+    p.run_until(secs(60));
+    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    assert_eq!(p.base.phase(), Phase::Running);
+    assert_eq!((p.base.ns(), p.remote.ns()), (2, 2));
+    assert!(matches!(p.base_events[0], Event::Connected { .. }));
+    assert!(
+        p.base_events
+            .iter()
+            .any(|e| matches!(e, Event::Started { ns: 2, .. }))
+    );
+    // Ticks on one grid, 10 ms each way: each regulator holds a sample for
+    // 2·T plus the wait to the next tick, so GRTT = 6·T exactly (the paper's 1.2 s).
+    let grtt = p.base.stats().grtt;
+    assert!(grtt.count() > 200, "{grtt:?}");
+    assert!(
+        (grtt.mean() - 1.2).abs() < 1e-9 && grtt.std() < 1e-9,
+        "{grtt:?}"
+    );
+    let nrtt = p.base.stats().nrtt;
+    assert!((nrtt.mean() - 0.020).abs() < 1e-9, "{nrtt:?}");
+    // Occupancy before each release: ns + 1 = 3.
+    let occ = p.remote.occupancy().unwrap();
+    assert_eq!((occ.min, occ.max), (3, 3));
+}
+
+#[test]
+fn every_sample_is_released_once_in_order() {
+    // Jitter up to 150 ms on a 200 ms period, in order: nothing lost.
+    let jitter = |seed: u64| -> DelayFn {
+        let mut x = seed;
+        Box::new(move |_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            Duration::from_millis(5 + x % 150)
+        })
+    };
+    let mut p = Pair::new(
+        config(Role::Base),
+        config(Role::Remote),
+        jitter(7),
+        jitter(11),
+    );
+    p.run_until(secs(120));
+    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    for (ep, events) in [(&p.base, &p.base_events), (&p.remote, &p.remote_events)] {
+        let fresh: Vec<u64> = Pair::releases(events)
+            .iter()
+            .filter(|r| r.status == Status::Fresh)
+            .map(|r| r.seq)
+            .collect();
+        assert!(fresh.len() > 400);
+        assert!(
+            fresh.windows(2).all(|w| w[1] == w[0] + 1),
+            "gap or repeat in {fresh:?}"
+        );
+        let s = ep.stats();
+        assert_eq!(s.released_fresh, fresh.len() as u64);
+        assert_eq!(
+            s.samples_received,
+            s.released_fresh + ep.queue_len() as u64 + s.rejected + s.discarded
+        );
+    }
+    // What each side released is exactly what the other sent under that number.
+    for (events, sent) in [
+        (&p.remote_events, &p.sent_values[0]),
+        (&p.base_events, &p.sent_values[1]),
+    ] {
+        for r in Pair::releases(events) {
+            assert_eq!(
+                Some(&r.values().to_vec()),
+                sent.get(&r.seq),
+                "seq {}",
+                r.seq
+            );
+        }
+    }
+}
+
+fn spike_pair(underflow: Underflow) -> Pair {
+    // Forward frame 40 (a sample) is delayed by 900 ms: more than the stock of
+    // 2 periods. In order, the frames behind it wait too.
+    let mut base = config(Role::Base);
+    base.underflow = underflow;
+    let mut remote = config(Role::Remote);
+    remote.underflow = underflow;
+    Pair::new(
+        base,
+        remote,
+        Box::new(|n| Duration::from_millis(if n == 40 { 900 } else { 10 })),
+        Box::new(|_| Duration::from_millis(10)),
+    )
+}
+
+#[test]
+fn hold_repeats_and_then_carries_the_extra_delay() {
+    let mut p = spike_pair(Underflow::Hold);
+    p.run_until(secs(40));
+    let s = p.remote.stats();
+    assert!(s.underflows >= 1, "{s:?}");
+    assert_eq!(s.late, s.underflows);
+    assert_eq!(s.released_held, s.underflows);
+    let rel = Pair::releases(&p.remote_events);
+    let fresh: Vec<_> = rel.iter().filter(|r| r.status == Status::Fresh).collect();
+    // Nothing is lost: consecutive sequence numbers.
+    assert!(fresh.windows(2).all(|w| w[1].seq == w[0].seq + 1));
+    // After the spike every sample spends `underflows` more periods in the queue.
+    let before = fresh[5].released_at - fresh[5].sent_at;
+    let after = fresh[fresh.len() - 1].released_at - fresh[fresh.len() - 1].sent_at;
+    assert_eq!(after, before + T * s.underflows);
+}
+
+#[test]
+fn drop_late_keeps_the_delay_and_counts_what_it_discards() {
+    let mut p = spike_pair(Underflow::DropLate);
+    p.run_until(secs(40));
+    let s = p.remote.stats();
+    assert!(s.late >= 1 && s.underflows >= s.late, "{s:?}");
+    let rel = Pair::releases(&p.remote_events);
+    let fresh: Vec<_> = rel.iter().filter(|r| r.status == Status::Fresh).collect();
+    let first = fresh[2].released_at - fresh[2].sent_at;
+    assert!(
+        fresh
+            .iter()
+            .skip(2)
+            .all(|r| r.released_at - r.sent_at == first)
+    );
+    assert_eq!(
+        s.samples_received,
+        s.released_fresh + p.remote.queue_len() as u64 + s.late + s.rejected + s.discarded
+    );
+    // Every tick released something: fresh or held.
+    assert_eq!(s.released_held, s.underflows);
+}
+
+fn mismatch(edit: impl FnOnce(&mut Config)) -> (Vec<LinkError>, Vec<LinkError>) {
+    let mut remote = config(Role::Remote);
+    edit(&mut remote);
+    let d = Duration::from_millis(10);
+    let mut p = Pair::new(
+        config(Role::Base),
+        remote,
+        Box::new(move |_| d),
+        Box::new(move |_| d),
+    );
+    p.run_until(secs(5));
+    assert!(p.base.is_closed() && p.remote.is_closed());
+    (p.base_errors, p.remote_errors)
+}
+
+#[test]
+fn handshake_mismatches_end_the_link_with_their_error() {
+    let (b, r) = mismatch(|c| c.axes = 3);
+    assert_eq!(r, vec![LinkError::AxesMismatch { ours: 3, theirs: 2 }]);
+    assert_eq!(
+        b,
+        vec![LinkError::PeerClosed {
+            reason: close_reason::AXES_MISMATCH
+        }]
+    );
+
+    let (b, r) = mismatch(|c| c.period = Duration::from_millis(100));
+    assert!(matches!(r[0], LinkError::PeriodMismatch { .. }));
+    assert_eq!(
+        b,
+        vec![LinkError::PeerClosed {
+            reason: close_reason::PERIOD_MISMATCH
+        }]
+    );
+
+    let (b, r) = mismatch(|c| c.mode = Mode::PaperDynamic);
+    assert!(matches!(
+        r[0],
+        LinkError::ModeMismatch {
+            ours: Mode::PaperDynamic,
+            theirs: 0
+        }
+    ));
+    assert_eq!(
+        b,
+        vec![LinkError::PeerClosed {
+            reason: close_reason::MODE_MISMATCH
+        }]
+    );
+
+    let (_, r) = mismatch(|c| c.role = Role::Base);
+    assert_eq!(r[0], LinkError::RoleMismatch { role: Role::Base });
+    let msg = r[0].to_string();
+    assert!(msg.contains("one side must be the base"), "{msg}");
+}
+
+#[test]
+fn garbage_and_wrong_version_end_the_link_with_a_close() {
+    let now = Instant::from_millis(1);
+    let mut remote = Ep::new(config(Role::Remote), Instant::ZERO).unwrap();
+    let err = remote
+        .handle_frame(now, b"definitely not a frame at all...")
+        .unwrap_err();
+    assert!(matches!(err, LinkError::Wire(_)), "{err:?}");
+    assert!(remote.is_closed());
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let n = remote.poll_transmit(now, &mut buf).unwrap().unwrap();
+    let close = wire::Frame::new_checked(&buf[..n]).unwrap();
+    assert!(
+        matches!(close.payload(), wire::Payload::Close(c) if c.reason == close_reason::PROTOCOL_ERROR)
+    );
+    assert_eq!(remote.handle_frame(now, &buf[..n]), Err(LinkError::Closed));
+
+    // A valid Hello from a newer version.
+    let mut base = Ep::new(config(Role::Base), Instant::ZERO).unwrap();
+    let n = base.poll_transmit(now, &mut buf).unwrap().unwrap();
+    buf[4] = 2;
+    let mut remote = Ep::new(config(Role::Remote), Instant::ZERO).unwrap();
+    assert_eq!(
+        remote.handle_frame(now, &buf[..n]),
+        Err(LinkError::VersionMismatch { peer: 2 })
+    );
+    let n = remote.poll_transmit(now, &mut buf).unwrap().unwrap();
+    let close = wire::Frame::new_checked(&buf[..n]).unwrap();
+    assert!(
+        matches!(close.payload(), wire::Payload::Close(c) if c.reason == close_reason::VERSION_MISMATCH)
+    );
+}
+
+#[test]
+fn arbitrary_bytes_never_panic_the_endpoint() {
+    let mut x = 0x9e37_79b9_7f4a_7c15u64;
+    for len in 0..600usize {
+        let mut ep = Ep::new(config(Role::Remote), Instant::ZERO).unwrap();
+        let mut bytes: Vec<u8> = (0..len)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                x as u8
+            })
+            .collect();
+        if len >= 8 {
+            // A plausible prefix so that deeper checks run too.
+            bytes[..4].copy_from_slice(&(len as u32).to_le_bytes());
+            bytes[4] = 1;
+            bytes[5] = (x % 5) as u8;
+            bytes[6] = 0;
+            bytes[7] = 0;
+        }
+        let _ = ep.handle_frame(Instant::from_millis(1), &bytes);
+        ep.handle_timeout(Instant::from_secs_f64(100.0));
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        while let Ok(Some(_)) = ep.poll_transmit(Instant::from_secs_f64(100.0), &mut buf) {}
+    }
+}
+
+#[test]
+fn a_silent_peer_times_the_handshake_out() {
+    let mut base = Ep::new(config(Role::Base), Instant::ZERO).unwrap();
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    assert!(
+        base.poll_transmit(Instant::ZERO, &mut buf)
+            .unwrap()
+            .is_some()
+    );
+    let deadline = base.poll_timeout().unwrap();
+    assert_eq!(deadline, secs(10));
+    base.handle_timeout(deadline);
+    assert!(base.is_closed());
+    assert!(matches!(
+        base.poll_event(),
+        Some(Event::Closed {
+            error: Some(LinkError::Timeout)
+        })
+    ));
+}
+
+#[test]
+fn the_application_sample_is_checked() {
+    let mut base = Ep::new(config(Role::Base), Instant::ZERO).unwrap();
+    assert_eq!(
+        base.set_sample(&[1.0]),
+        Err(LinkError::SampleShape {
+            expected: 2,
+            got: 1
+        })
+    );
+    assert_eq!(
+        base.set_sample(&[1.0, f64::NAN]),
+        Err(LinkError::NonFinite { index: 1 })
+    );
+    assert!(!LinkError::NonFinite { index: 1 }.is_fatal());
+    assert!(!base.is_closed());
+}
+
+#[test]
+fn dynamic_mode_moves_a_lan_link_to_50_ms() {
+    let mut base = config(Role::Base);
+    base.mode = Mode::PaperDynamic;
+    let mut remote = config(Role::Remote);
+    remote.mode = Mode::PaperDynamic;
+    let d = Duration::from_millis(11);
+    let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
+    p.run_until(secs(120));
+    assert!(
+        p.base_errors.is_empty() && p.remote_errors.is_empty(),
+        "{:?}",
+        p.base_errors
+    );
+    // NRTT 22 ms: T = max(50 ms, 22/3 ms) = 50 ms; ns = 2.
+    assert_eq!(p.base.period(), Duration::from_millis(50));
+    assert_eq!(p.remote.period(), Duration::from_millis(50));
+    assert_eq!((p.base.ns(), p.remote.ns()), (2, 2));
+    let s = p.base.stats();
+    assert_eq!((s.pauses, s.resizes), (1, 1));
+    assert_eq!(p.remote.stats().pauses, 1);
+    // The settled GRTT: 6 periods of 50 ms.
+    let last = Pair::releases(&p.base_events)
+        .iter()
+        .rev()
+        .find_map(|r| r.grtt)
+        .unwrap();
+    assert_eq!(last, Duration::from_millis(300));
+    assert!(
+        p.base_events
+            .iter()
+            .any(|e| matches!(e, Event::Paused { .. }))
+    );
+}

@@ -1,0 +1,170 @@
+//! `ndr sim` as a user runs it: the binary, its JSON and its errors.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn ndr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ndr"))
+        .args(args)
+        .output()
+        .expect("the ndr binary runs")
+}
+
+fn temp_file(name: &str, contents: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("ndr-cli-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(name);
+    std::fs::write(&path, contents).unwrap();
+    path
+}
+
+const REQUIRED: [&str; 25] = [
+    "nrtt_mean_s",
+    "nrtt_std_s",
+    "grtt_mean_s",
+    "grtt_std_s",
+    "grtt_p99_s",
+    "e2e_fwd_mean_s",
+    "e2e_fwd_std_s",
+    "e2e_bwd_mean_s",
+    "e2e_bwd_std_s",
+    "late_rate_fwd",
+    "late_rate_bwd",
+    "ns",
+    "period_s",
+    "queue_base_min",
+    "queue_base_max",
+    "queue_remote_min",
+    "queue_remote_max",
+    "samples_sent",
+    "samples_released",
+    "late_samples",
+    "underflows",
+    "resizes",
+    "pauses",
+    "pred_nrtt_mae_s",
+    "pred_mt_mae_s",
+];
+
+#[test]
+fn json_is_complete_and_byte_identical_for_a_seed() {
+    let args = [
+        "sim",
+        "--profile",
+        "paris-newyork",
+        "--mode",
+        "paper-dynamic",
+        "--duration-s",
+        "120",
+        "--seed",
+        "9",
+        "--json",
+    ];
+    let a = ndr(&args);
+    assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    let b = ndr(&args);
+    assert_eq!(a.stdout, b.stdout);
+    let json: serde_json::Value = serde_json::from_slice(&a.stdout).unwrap();
+    for key in REQUIRED {
+        assert!(
+            json.get(key).is_some_and(|v| v.is_number()),
+            "missing {key}"
+        );
+    }
+    let other = ndr(&[
+        "sim",
+        "--profile",
+        "paris-newyork",
+        "--mode",
+        "paper-dynamic",
+        "--duration-s",
+        "120",
+        "--seed",
+        "10",
+        "--json",
+    ]);
+    assert_ne!(a.stdout, other.stdout);
+}
+
+#[test]
+fn a_bad_trace_gets_an_error_naming_its_line() {
+    let cases = [
+        (
+            "unsorted.csv",
+            "t_s,fwd_ms,bwd_ms\n0,10,10\n5,10,10\n2,10,10\n",
+            "line 4",
+        ),
+        ("negative.csv", "t_s,fwd_ms,bwd_ms\n0,10,-3\n", "line 2"),
+        (
+            "text.csv",
+            "t_s,fwd_ms,bwd_ms\n0,10,10\n1,abc,10\n",
+            "line 3",
+        ),
+        ("columns.csv", "t_s,fwd_ms\n0,10\n", "line 1"),
+    ];
+    for (name, contents, line) in cases {
+        let path = temp_file(name, contents);
+        let out = ndr(&[
+            "sim",
+            "--trace",
+            path.to_str().unwrap(),
+            "--duration-s",
+            "10",
+        ]);
+        assert!(!out.status.success(), "{name} was accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(line), "{name}: {err}");
+    }
+}
+
+#[test]
+fn a_trace_replays_and_the_series_is_written() {
+    let trace = temp_file("ok.csv", "t_s,fwd_ms,bwd_ms\n0,12,11\n30,40,35\n");
+    let csv = std::env::temp_dir().join(format!("ndr-cli-test-{}/series.csv", std::process::id()));
+    let out = ndr(&[
+        "sim",
+        "--trace",
+        trace.to_str().unwrap(),
+        "--duration-s",
+        "60",
+        "--period-ms",
+        "100",
+        "--out",
+        csv.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["profile"], "trace");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert!(lines.next().unwrap().starts_with("t_s,period_s,ns,"));
+    assert!(lines.count() > 500);
+}
+
+#[test]
+fn unknown_profile_and_conflicting_sources_are_refused() {
+    let out = ndr(&["sim", "--profile", "mars"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("paris-newyork"));
+    let out = ndr(&["sim", "--profile", "lan-75km", "--trace", "x.csv"]);
+    assert!(!out.status.success());
+    let out = ndr(&["sim", "--dist", "x.dist"]);
+    assert!(!out.status.success(), "--dist without --mean-ms/--std-ms");
+}
+
+#[test]
+fn the_paper_table_runs() {
+    let out = ndr(&["sim", "--paper", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["scenarios"].as_array().unwrap().len(), 5);
+}
