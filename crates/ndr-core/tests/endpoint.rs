@@ -517,3 +517,48 @@ fn dynamic_mode_moves_a_lan_link_to_50_ms() {
             .any(|e| matches!(e, Event::Paused { .. }))
     );
 }
+
+#[test]
+fn the_watchdog_raises_link_lost_once_and_then_restored() {
+    // Forward frames 60..=69 (2 s of samples) are held 2.5 s: the remote's
+    // regulator runs dry for well over its 1 s watchdog.
+    let mut p = Pair::new(
+        config(Role::Base),
+        config(Role::Remote),
+        Box::new(|n| Duration::from_millis(if (60..70).contains(&n) { 2500 } else { 10 })),
+        Box::new(|_| Duration::from_millis(10)),
+    );
+    p.run_until(secs(60));
+    let lost: Vec<_> = p
+        .remote_events
+        .iter()
+        .filter(|e| matches!(e, Event::LinkLost { .. }))
+        .collect();
+    assert_eq!(lost.len(), 1, "{lost:?}");
+    assert!(
+        matches!(lost[0], Event::LinkLost { silent_for } if *silent_for >= Duration::from_secs(1))
+    );
+    assert!(
+        p.remote_events
+            .iter()
+            .any(|e| matches!(e, Event::LinkRestored))
+    );
+    assert_eq!(p.remote.stats().link_lost, 1);
+    assert_eq!(p.base.stats().link_lost, 0);
+}
+
+#[test]
+fn abort_reports_the_drivers_error_and_sends_no_close_for_a_lost_connection() {
+    let mut ep = Ep::new(config(Role::Base), Instant::ZERO).unwrap();
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let _ = ep.poll_transmit(Instant::ZERO, &mut buf).unwrap();
+    ep.abort(LinkError::Disconnected);
+    assert!(ep.is_closed());
+    assert_eq!(ep.poll_transmit(Instant::ZERO, &mut buf).unwrap(), None);
+    assert!(matches!(
+        ep.poll_event(),
+        Some(Event::Closed {
+            error: Some(LinkError::Disconnected)
+        })
+    ));
+}

@@ -9,6 +9,8 @@
 
 pub mod clock;
 pub mod framing;
+pub mod link;
 
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
+pub use link::{Link, LinkConfig, LinkStats, Listener, NetError, Sample};

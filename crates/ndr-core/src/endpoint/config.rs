@@ -190,6 +190,9 @@ pub struct Config {
     pub tick_origin: Instant,
     /// How long the handshake and each initialization pattern may take.
     pub handshake_timeout: Duration,
+    /// While running, raise [`Event::LinkLost`](super::Event::LinkLost) when no
+    /// fresh sample has been released for this long; `None` disables it.
+    pub watchdog: Option<Duration>,
     /// Dynamic mode's decision rule.
     pub adaptation: Adaptation,
     /// The network predictor's time constants, in periods, and horizon
@@ -211,6 +214,7 @@ impl Config {
             sizing: Sizing::default(),
             tick_origin: Instant::ZERO,
             handshake_timeout: Duration::from_secs(10),
+            watchdog: Some(Duration::from_secs(1)),
             adaptation: Adaptation::default(),
             predictor: PredictorConfig::paper(period),
         }

@@ -73,6 +73,9 @@ pub enum LinkError {
         /// The [`close_reason`] code.
         reason: u16,
     },
+    /// The connection to the peer ended without a Close frame (reported by
+    /// the driver through [`Endpoint::abort`](super::Endpoint::abort)).
+    Disconnected,
     /// The link is closed; nothing more can be sent or received.
     Closed,
     /// The application's sample does not have `axes` channels (the call is refused).
@@ -194,6 +197,9 @@ impl fmt::Display for LinkError {
                 f,
                 "the peer closed the link: {} (code {reason})",
                 close_reason::name(reason)
+            ),
+            LinkError::Disconnected => f.write_str(
+                "the connection to the peer was lost (no Close frame): the peer or a relay on the path died",
             ),
             LinkError::Closed => f.write_str("the link is closed"),
             LinkError::SampleShape { expected, got } => write!(

@@ -115,6 +115,15 @@ pub enum Event<const C: usize> {
         /// The nominal size after the pause.
         ns: usize,
     },
+    /// No fresh sample has been released for the configured watchdog time
+    /// ([`Config::watchdog`](super::Config::watchdog)): hold the robot safely.
+    /// Emitted once per outage.
+    LinkLost {
+        /// How long since the last fresh sample.
+        silent_for: Duration,
+    },
+    /// Fresh samples flow again after a [`Event::LinkLost`].
+    LinkRestored,
     /// The link ended.
     Closed {
         /// Why; `None` after a local [`close`](super::Endpoint::close).

@@ -151,6 +151,9 @@ pub struct Endpoint<const C: usize, const N: usize> {
     grtt_acked: Option<u64>,
     due_seq: Option<u64>,
     last_release: Option<Release<C>>,
+    /// Last fresh release, or the start of the running phase, for the watchdog.
+    last_fresh: Instant,
+    lost: bool,
     peer: Option<Hello>,
     events: Deque<Event<C>, EVENT_QUEUE>,
     events_dropped: u64,
@@ -198,6 +201,8 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             grtt_acked: None,
             due_seq: None,
             last_release: None,
+            last_fresh: now,
+            lost: false,
             peer: None,
             events: Deque::new(),
             events_dropped: 0,
@@ -230,14 +235,17 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     }
 
     /// A deadline from [`poll_timeout`](Self::poll_timeout) passed: runs every
-    /// tick due by `now`, in order, and checks the handshake timeout.
+    /// tick due by `now`, in order, and checks the handshake timeout. Releases
+    /// and sends are stamped `now`, the time they really happen.
     pub fn handle_timeout(&mut self, now: Instant) {
         if self.phase == Phase::Closed {
             return;
         }
         while let Some(t) = self.next_tick.filter(|&t| t <= now) {
             self.next_tick = Some(t + self.period);
-            self.tick(t);
+            // Stamps are when things really happen: a late driver shows in the
+            // measured delays instead of hiding behind the deadline.
+            self.tick(now);
             if self.phase == Phase::Closed {
                 return;
             }
@@ -336,6 +344,14 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         }
         self.sample_fresh = true;
         Ok(())
+    }
+
+    /// Ends the link because the driver found it broken — the connection
+    /// dropped ([`LinkError::Disconnected`]) or the byte stream cannot be
+    /// deframed ([`LinkError::Wire`]). A Close frame is queued (the driver
+    /// may still be able to send it) and [`Event::Closed`] reports `error`.
+    pub fn abort(&mut self, error: LinkError) {
+        self.fail(error);
     }
 
     /// Ends the link: a Close frame is queued for the peer.
@@ -459,7 +475,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// Ends the link because of `error`; returns it for the caller.
     fn fail(&mut self, error: LinkError) -> LinkError {
         if self.phase != Phase::Closed {
-            if !matches!(error, LinkError::PeerClosed { .. }) {
+            if !matches!(
+                error,
+                LinkError::PeerClosed { .. } | LinkError::Disconnected
+            ) {
                 self.queue_tx(Tx::Close {
                     reason: error.close_reason(),
                 });
@@ -759,6 +778,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             }
             Phase::Running => {
                 self.release(t);
+                self.watch(t);
                 let seq = self.take_seq(t);
                 self.queue_tx(Tx::Sample { seq });
                 self.ticks_running += 1;
@@ -794,6 +814,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         match outcome {
             Tick::Released(slot) => {
                 self.stats.released_fresh += 1;
+                self.last_fresh = t;
                 self.released_seq = Some(slot.head.seq);
                 self.due_seq = Some(slot.head.seq + 1);
                 let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
@@ -816,6 +837,23 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 }
             }
             Tick::Prefilling { .. } => {}
+        }
+    }
+
+    /// The watchdog: an application must know when fresh samples stop.
+    fn watch(&mut self, t: Instant) {
+        // Armed from the first release of a regime: pre-fill is silent by design.
+        let (Some(limit), Some(_)) = (self.config.watchdog, self.due_seq) else {
+            return;
+        };
+        let silent_for = t - self.last_fresh;
+        if silent_for >= limit && !self.lost {
+            self.lost = true;
+            self.stats.link_lost += 1;
+            self.emit(Event::LinkLost { silent_for });
+        } else if silent_for.is_zero() && self.lost {
+            self.lost = false;
+            self.emit(Event::LinkRestored);
         }
     }
 

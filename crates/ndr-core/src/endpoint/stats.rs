@@ -103,6 +103,8 @@ pub struct Stats {
     pub pauses: u64,
     /// Parameter changes (starts after a pause).
     pub resizes: u64,
+    /// Watchdog alarms: times no fresh sample came for the watchdog time.
+    pub link_lost: u64,
     /// Parameter changes clamped to what the regulator can hold.
     pub clamped: u64,
     /// Frames given up because the driver did not drain `poll_transmit`.

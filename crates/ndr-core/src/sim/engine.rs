@@ -341,7 +341,11 @@ impl Sim<'_> {
                         }
                     }
                 }
-                Event::Paused { .. } | Event::Connected { .. } => {}
+                // Counted by the endpoints; the simulated operator carries on.
+                Event::Paused { .. }
+                | Event::Connected { .. }
+                | Event::LinkLost { .. }
+                | Event::LinkRestored => {}
                 Event::Closed { error } => {
                     if let Some(e) = error {
                         return Err(self.link_error(side, e));

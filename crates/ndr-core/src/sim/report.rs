@@ -88,6 +88,8 @@ pub struct Report {
     pub rejected: u64,
     /// Samples discarded by pauses, both directions.
     pub discarded: u64,
+    /// Watchdog alarms (no fresh sample for a second), both sides.
+    pub link_lost: u64,
     /// Parameter changes.
     pub resizes: u64,
     /// Pauses.
@@ -380,6 +382,7 @@ impl Collector {
             underflows: bs.underflows + rs.underflows,
             rejected: bs.rejected + rs.rejected,
             discarded: bs.discarded + rs.discarded,
+            link_lost: bs.link_lost + rs.link_lost,
             resizes: bs.resizes,
             pauses: bs.pauses,
             relation_grtt_s: relation,

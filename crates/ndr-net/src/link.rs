@@ -1,0 +1,617 @@
+//! A regulated link over TCP: the sans-IO [`Endpoint`] driven for real.
+//!
+//! Three parties per link:
+//!
+//! - a **reader** task (tokio) deframes the socket and stamps each frame with
+//!   its arrival time the moment it is read;
+//! - a **link thread** (an OS thread, `ndr-link`) owns the endpoint and keeps
+//!   its deadlines: it waits for frames until just before the next deadline,
+//!   then spins to it ([`ReleaseClock::wait_until`]), so ticks are kept to
+//!   microseconds rather than tokio's milliseconds;
+//! - a **writer** task (tokio) writes the frames the endpoint emits.
+//!
+//! The application holds a [`Link`]: [`Link::send`] sets the sample sent at
+//! the next tick, [`Link::recv`] / [`Link::recv_async`] give the next released
+//! sample, [`Link::stats`] a snapshot of everything counted.
+
+use std::collections::VecDeque;
+use std::fmt;
+use std::io;
+use std::net::SocketAddr;
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::thread::JoinHandle;
+use std::time::Instant as StdInstant;
+
+use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Phase, Release, Stats};
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{MAX_FRAME_LEN, Role, WireError};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::runtime::Handle;
+use tokio::sync::Notify;
+
+use crate::clock::{LatenessHistogram, LatenessStats, ReleaseClock};
+use crate::framing::{Deframer, FramingError};
+
+/// Most axes a link carries.
+pub const MAX_AXES: usize = 8;
+/// Capacity of a link's regulator: `ns` up to 255.
+pub const QUEUE: usize = 256;
+
+type LinkEndpoint = Endpoint<MAX_AXES, QUEUE>;
+
+/// A released sample, as the application receives it.
+pub type Sample = Release<MAX_AXES>;
+
+/// What a link is configured with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkConfig {
+    /// The endpoint's configuration; its `role` is set by
+    /// [`Link::connect`] (base) and [`Listener::accept`] (remote).
+    pub endpoint: Config,
+    /// How long before a deadline the link thread stops sleeping and spins.
+    pub spin_margin: Duration,
+    /// Released samples and events that may wait for the application; when
+    /// it does not read, the newest are dropped and counted.
+    pub app_queue: usize,
+}
+
+impl LinkConfig {
+    /// Defaults around an endpoint configuration.
+    #[must_use]
+    pub fn new(endpoint: Config) -> Self {
+        LinkConfig {
+            endpoint,
+            spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
+            app_queue: 1024,
+        }
+    }
+}
+
+/// Why a link could not be set up or used.
+#[derive(Debug)]
+pub enum NetError {
+    /// The socket failed (connection refused, address in use, …).
+    Io(io::Error),
+    /// The configuration cannot run.
+    Config(ConfigError),
+    /// The link ended, with the reason.
+    Link(LinkError),
+    /// No sample came within the timeout (the link is still up).
+    Timeout,
+}
+
+impl fmt::Display for NetError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NetError::Io(e) => write!(f, "network error: {e}"),
+            NetError::Config(e) => write!(f, "link configuration: {e}"),
+            NetError::Link(e) => write!(f, "{e}"),
+            NetError::Timeout => f.write_str("no sample within the timeout (the link is still up)"),
+        }
+    }
+}
+
+impl std::error::Error for NetError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            NetError::Io(e) => Some(e),
+            NetError::Config(e) => Some(e),
+            NetError::Link(e) => Some(e),
+            NetError::Timeout => None,
+        }
+    }
+}
+
+impl From<io::Error> for NetError {
+    fn from(e: io::Error) -> Self {
+        NetError::Io(e)
+    }
+}
+
+/// A snapshot of a link's state and counters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkStats {
+    /// Where the protocol is.
+    pub phase: Phase,
+    /// The current period.
+    pub period: Duration,
+    /// The regulator's nominal size.
+    pub ns: usize,
+    /// Samples in the regulator.
+    pub queue_len: usize,
+    /// Occupancy before a release in the current regime: (min, max).
+    pub queue_range: Option<(usize, usize)>,
+    /// The latest NRTT measured.
+    pub last_nrtt: Option<Duration>,
+    /// Everything the endpoint counted.
+    pub endpoint: Stats,
+    /// How late the link thread served its deadlines.
+    pub lateness: LatenessStats,
+    /// Samples and events dropped because the application did not read them.
+    pub app_dropped: u64,
+}
+
+enum Input {
+    Frame { at: StdInstant, bytes: Vec<u8> },
+    Bad(FramingError),
+    Eof,
+    Close,
+}
+
+enum Delivery {
+    Sample(Sample),
+    Event(Event<MAX_AXES>),
+}
+
+struct Shared {
+    /// The application's latest sample and whether it is new since the last tick.
+    sample: Mutex<(Vec<f64>, bool)>,
+    stats: Mutex<Option<LinkStats>>,
+    notify: Notify,
+}
+
+/// One side of a running link. Dropping it closes the link.
+pub struct Link {
+    input: Sender<Input>,
+    deliveries: Receiver<Delivery>,
+    shared: Arc<Shared>,
+    events: VecDeque<Event<MAX_AXES>>,
+    thread: Option<JoinHandle<()>>,
+    axes: usize,
+    closed: Option<LinkError>,
+    peer: SocketAddr,
+    _runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl fmt::Debug for Link {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Link")
+            .field("peer", &self.peer)
+            .field("axes", &self.axes)
+            .field("closed", &self.closed)
+            .finish()
+    }
+}
+
+impl Link {
+    /// Connects to a remote (this side is the base), on the current tokio runtime.
+    pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        let stream = TcpStream::connect(addr).await?;
+        Link::start(stream, Role::Base, config, Handle::current(), None)
+    }
+
+    /// [`connect`](Self::connect) for programs without a tokio runtime: the
+    /// link gets a small runtime of its own.
+    pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        let rt = own_runtime()?;
+        let stream = rt.block_on(TcpStream::connect(addr))?;
+        let handle = rt.handle().clone();
+        Link::start(stream, Role::Base, config, handle, Some(rt))
+    }
+
+    /// Drives an already connected stream in `role`.
+    pub fn from_stream(
+        stream: TcpStream,
+        role: Role,
+        config: LinkConfig,
+    ) -> Result<Link, NetError> {
+        Link::start(stream, role, config, Handle::current(), None)
+    }
+
+    fn start(
+        stream: TcpStream,
+        role: Role,
+        config: LinkConfig,
+        rt: Handle,
+        own: Option<tokio::runtime::Runtime>,
+    ) -> Result<Link, NetError> {
+        let mut cfg = config.endpoint;
+        cfg.role = role;
+        cfg.tick_origin = Instant::ZERO;
+        cfg.validate().map_err(NetError::Config)?;
+        if usize::from(cfg.axes) > MAX_AXES {
+            return Err(NetError::Config(ConfigError::Channels {
+                axes: cfg.axes,
+                capacity: MAX_AXES,
+            }));
+        }
+        stream.set_nodelay(true)?;
+        let peer = stream.peer_addr()?;
+        let (rd, wr) = stream.into_split();
+        let (in_tx, in_rx) = mpsc::channel::<Input>();
+        let (out_tx, out_rx) = tokio::sync::mpsc::unbounded_channel::<Vec<u8>>();
+        let (del_tx, del_rx) = mpsc::sync_channel::<Delivery>(config.app_queue.max(1));
+        let shared = Arc::new(Shared {
+            sample: Mutex::new((vec![0.0; usize::from(cfg.axes)], false)),
+            stats: Mutex::new(None),
+            notify: Notify::new(),
+        });
+        rt.spawn(read_frames(rd, in_tx.clone()));
+        rt.spawn(write_frames(wr, out_rx, in_tx.clone()));
+        let origin = StdInstant::now();
+        let endpoint = Box::new(LinkEndpoint::new(cfg, Instant::ZERO).map_err(NetError::Config)?);
+        let driver = Driver {
+            endpoint,
+            origin,
+            clock: ReleaseClock::new(origin, cfg.period)
+                .and_then(|c| c.with_spin_margin(config.spin_margin.min(cfg.period / 2)))
+                .map_err(|e| NetError::Io(io::Error::other(e.to_string())))?,
+            input: in_rx,
+            out: out_tx,
+            deliveries: del_tx,
+            shared: Arc::clone(&shared),
+            lateness: LatenessHistogram::new(cfg.period),
+            app_dropped: 0,
+            buf: vec![0; MAX_FRAME_LEN],
+        };
+        let thread = std::thread::Builder::new()
+            .name("ndr-link".into())
+            .stack_size(4 << 20)
+            .spawn(move || driver.run())?;
+        Ok(Link {
+            input: in_tx,
+            deliveries: del_rx,
+            shared,
+            events: VecDeque::new(),
+            thread: Some(thread),
+            axes: usize::from(cfg.axes),
+            closed: None,
+            peer,
+            _runtime: own,
+        })
+    }
+
+    /// The peer's address.
+    #[must_use]
+    pub fn peer_addr(&self) -> SocketAddr {
+        self.peer
+    }
+
+    /// Sets the sample sent at the next tick. If none is given before a tick,
+    /// the previous one is sent again (and counted).
+    pub fn send(&self, values: &[f64]) -> Result<(), NetError> {
+        if let Some(e) = self.closed {
+            return Err(NetError::Link(e));
+        }
+        if values.len() != self.axes {
+            return Err(NetError::Link(LinkError::SampleShape {
+                expected: self.axes as u16,
+                got: values.len(),
+            }));
+        }
+        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+            return Err(NetError::Link(LinkError::NonFinite { index }));
+        }
+        let mut slot = self
+            .shared
+            .sample
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        slot.0.copy_from_slice(values);
+        slot.1 = true;
+        Ok(())
+    }
+
+    /// The next released sample, waiting as long as it takes; an error once
+    /// the link has ended.
+    pub fn recv(&mut self) -> Result<Sample, NetError> {
+        loop {
+            let d = self.deliveries.recv().map_err(|_| self.ended())?;
+            if let Some(s) = self.accept(d)? {
+                return Ok(s);
+            }
+        }
+    }
+
+    /// [`recv`](Self::recv) waiting at most `timeout` ([`NetError::Timeout`] then).
+    pub fn recv_timeout(&mut self, timeout: std::time::Duration) -> Result<Sample, NetError> {
+        let end = StdInstant::now() + timeout;
+        loop {
+            let left = end.saturating_duration_since(StdInstant::now());
+            let d = match self.deliveries.recv_timeout(left) {
+                Ok(d) => d,
+                Err(RecvTimeoutError::Timeout) => return Err(NetError::Timeout),
+                Err(RecvTimeoutError::Disconnected) => return Err(self.ended()),
+            };
+            if let Some(s) = self.accept(d)? {
+                return Ok(s);
+            }
+        }
+    }
+
+    /// The next released sample, for async callers.
+    pub async fn recv_async(&mut self) -> Result<Sample, NetError> {
+        let shared = Arc::clone(&self.shared);
+        loop {
+            let notified = shared.notify.notified();
+            match self.deliveries.try_recv() {
+                Ok(d) => {
+                    if let Some(s) = self.accept(d)? {
+                        return Ok(s);
+                    }
+                }
+                Err(mpsc::TryRecvError::Empty) => notified.await,
+                Err(mpsc::TryRecvError::Disconnected) => return Err(self.ended()),
+            }
+        }
+    }
+
+    fn ended(&self) -> NetError {
+        NetError::Link(self.closed.unwrap_or(LinkError::Closed))
+    }
+
+    fn accept(&mut self, d: Delivery) -> Result<Option<Sample>, NetError> {
+        match d {
+            Delivery::Sample(s) => Ok(Some(s)),
+            Delivery::Event(Event::Closed { error }) => {
+                let e = error.unwrap_or(LinkError::Closed);
+                self.closed = Some(e);
+                self.push_event(Event::Closed { error });
+                Err(NetError::Link(e))
+            }
+            Delivery::Event(e) => {
+                self.push_event(e);
+                Ok(None)
+            }
+        }
+    }
+
+    fn push_event(&mut self, e: Event<MAX_AXES>) {
+        if self.events.len() >= 256 {
+            self.events.pop_front();
+        }
+        self.events.push_back(e);
+    }
+
+    /// Events seen while receiving (started, paused, link lost, …), oldest first.
+    pub fn drain_events(&mut self) -> impl Iterator<Item = Event<MAX_AXES>> + '_ {
+        self.events.drain(..)
+    }
+
+    /// A snapshot of the link's counters (`None` before the first tick).
+    #[must_use]
+    pub fn stats(&self) -> Option<LinkStats> {
+        *self
+            .shared
+            .stats
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Closes the link (a Close frame is sent) and waits for its thread.
+    pub fn close(mut self) -> Option<LinkStats> {
+        self.shutdown();
+        self.stats()
+    }
+
+    fn shutdown(&mut self) {
+        let _ = self.input.send(Input::Close);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Link {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("ndr-io")
+        .enable_io()
+        .enable_time()
+        .build()?)
+}
+
+/// Accepts links as the remote side, one per connecting base.
+pub struct Listener {
+    listener: TcpListener,
+    config: LinkConfig,
+}
+
+impl Listener {
+    /// Listens on `addr`.
+    pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        Ok(Listener {
+            listener: TcpListener::bind(addr).await?,
+            config,
+        })
+    }
+
+    /// The address it listens on.
+    pub fn local_addr(&self) -> Result<SocketAddr, NetError> {
+        Ok(self.listener.local_addr()?)
+    }
+
+    /// The next base that connects, as a running link (this side is the
+    /// remote). A failed link does not affect the listener.
+    pub async fn accept(&self) -> Result<Link, NetError> {
+        let (stream, _) = self.listener.accept().await?;
+        Link::start(stream, Role::Remote, self.config, Handle::current(), None)
+    }
+}
+
+async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, input: Sender<Input>) {
+    let mut deframer = Deframer::new();
+    loop {
+        let n = match rd.read(deframer.spare()).await {
+            Ok(0) | Err(_) => {
+                let _ = input.send(Input::Eof);
+                return;
+            }
+            Ok(n) => n,
+        };
+        let at = StdInstant::now();
+        deframer.filled(n);
+        loop {
+            match deframer.next_frame() {
+                Ok(Some(frame)) => {
+                    let bytes = frame.as_bytes().to_vec();
+                    if input.send(Input::Frame { at, bytes }).is_err() {
+                        return;
+                    }
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    let _ = input.send(Input::Bad(e));
+                    return;
+                }
+            }
+        }
+    }
+}
+
+async fn write_frames(
+    mut wr: tokio::net::tcp::OwnedWriteHalf,
+    mut out: tokio::sync::mpsc::UnboundedReceiver<Vec<u8>>,
+    input: Sender<Input>,
+) {
+    while let Some(frame) = out.recv().await {
+        if wr.write_all(&frame).await.is_err() {
+            let _ = input.send(Input::Eof);
+            return;
+        }
+    }
+    let _ = wr.shutdown().await;
+}
+
+struct Driver {
+    endpoint: Box<LinkEndpoint>,
+    origin: StdInstant,
+    clock: ReleaseClock,
+    input: Receiver<Input>,
+    out: tokio::sync::mpsc::UnboundedSender<Vec<u8>>,
+    deliveries: SyncSender<Delivery>,
+    shared: Arc<Shared>,
+    lateness: LatenessHistogram,
+    app_dropped: u64,
+    buf: Vec<u8>,
+}
+
+impl Driver {
+    fn local(&self, t: StdInstant) -> Instant {
+        Instant::from_std(self.origin, t)
+    }
+
+    fn run(mut self) {
+        self.flush();
+        while !self.endpoint.is_closed() {
+            let deadline = self
+                .endpoint
+                .poll_timeout()
+                .and_then(|t| t.to_std(self.origin));
+            let wait = deadline.map(|d| {
+                d.saturating_duration_since(StdInstant::now())
+                    .saturating_sub(self.clock.spin_margin().into())
+            });
+            let input = match wait {
+                Some(w) => self.input.recv_timeout(w),
+                None => self
+                    .input
+                    .recv()
+                    .map_err(|_| RecvTimeoutError::Disconnected),
+            };
+            match input {
+                Ok(i) => self.handle(i),
+                Err(RecvTimeoutError::Timeout) => {
+                    if let Some(d) = deadline {
+                        let late = self.clock.wait_until(d);
+                        // Frames that arrived before the deadline go first.
+                        while let Ok(i) = self.input.try_recv() {
+                            self.handle(i);
+                        }
+                        self.lateness.record(late);
+                        let now = self.local(StdInstant::now());
+                        self.take_sample();
+                        self.endpoint.handle_timeout(now);
+                    }
+                }
+                Err(RecvTimeoutError::Disconnected) => self.endpoint.abort(LinkError::Disconnected),
+            }
+            self.flush();
+        }
+        self.publish();
+    }
+
+    fn handle(&mut self, input: Input) {
+        match input {
+            Input::Frame { at, bytes } => {
+                let t = self.local(at);
+                // A fatal error closes the endpoint, which reports it as an event.
+                let _ = self.endpoint.handle_frame(t, &bytes);
+            }
+            Input::Bad(FramingError::Wire(e)) => self.endpoint.abort(wire_error(e)),
+            Input::Eof => self.endpoint.abort(LinkError::Disconnected),
+            Input::Close => self.endpoint.close(),
+        }
+    }
+
+    fn take_sample(&mut self) {
+        let mut slot = self
+            .shared
+            .sample
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if slot.1 {
+            slot.1 = false;
+            // Checked by `Link::send`.
+            let _ = self.endpoint.set_sample(&slot.0);
+        }
+    }
+
+    /// Events to the application, frames to the writer, stats to the snapshot.
+    fn flush(&mut self) {
+        let mut delivered = false;
+        while let Some(event) = self.endpoint.poll_event() {
+            let d = match event {
+                Event::Released(s) => Delivery::Sample(s),
+                e => Delivery::Event(e),
+            };
+            match self.deliveries.try_send(d) {
+                Ok(()) => delivered = true,
+                Err(TrySendError::Full(_)) => self.app_dropped += 1,
+                Err(TrySendError::Disconnected(_)) => {}
+            }
+        }
+        if delivered {
+            self.shared.notify.notify_one();
+        }
+        let now = self.local(StdInstant::now());
+        while let Ok(Some(n)) = self.endpoint.poll_transmit(now, &mut self.buf) {
+            if self.out.send(self.buf[..n].to_vec()).is_err() {
+                break;
+            }
+        }
+        self.publish();
+    }
+
+    fn publish(&self) {
+        let ep = &self.endpoint;
+        let stats = LinkStats {
+            phase: ep.phase(),
+            period: ep.period(),
+            ns: ep.ns(),
+            queue_len: ep.queue_len(),
+            queue_range: ep.occupancy().map(|o| (o.min, o.max)),
+            last_nrtt: ep.last_nrtt(),
+            endpoint: ep.stats(),
+            lateness: self.lateness.stats(),
+            app_dropped: self.app_dropped,
+        };
+        *self
+            .shared
+            .stats
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = Some(stats);
+    }
+}
+
+fn wire_error(e: WireError) -> LinkError {
+    LinkError::from(e)
+}

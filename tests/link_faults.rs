@@ -1,0 +1,167 @@
+//! Bad peers on a real listener: each is cut off with its own error, and the
+//! listener goes on serving.
+
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::time::Duration as StdDuration;
+
+use ndr::core::endpoint::{Config, LinkError};
+use ndr::core::time::{Duration, Instant};
+use ndr::core::wire::{
+    self, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, WireError, close_reason,
+};
+use ndr::net::{Link, LinkConfig, Listener, NetError};
+
+fn config() -> LinkConfig {
+    let mut c = Config::new(Role::Base);
+    c.axes = 1;
+    c.period = Duration::from_millis(10);
+    LinkConfig::new(c)
+}
+
+/// What the remote side of each accepted link ended with.
+fn serve(
+    rt: &tokio::runtime::Runtime,
+    n: usize,
+) -> (SocketAddr, std::sync::mpsc::Receiver<NetError>) {
+    let listener = rt
+        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    rt.spawn(async move {
+        for _ in 0..n {
+            let mut link = listener.accept().await.unwrap();
+            let tx = tx.clone();
+            std::thread::spawn(move || {
+                let err = loop {
+                    match link.recv_timeout(StdDuration::from_secs(5)) {
+                        Ok(s) => {
+                            let _ = link.send(s.values());
+                        }
+                        Err(e) => break e,
+                    }
+                };
+                let _ = tx.send(err);
+            });
+        }
+    });
+    (addr, rx)
+}
+
+fn hello_bytes(version: u8) -> Vec<u8> {
+    let header = Header {
+        seq: 0,
+        sent_at: Instant::ZERO,
+        echo: None,
+        released: None,
+    };
+    let hello = Hello {
+        role: Role::Base,
+        mode: 0,
+        underflow: 0,
+        axes: 1,
+        period: Duration::from_millis(10),
+    };
+    let mut buf = vec![0; MAX_FRAME_LEN];
+    let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap();
+    buf.truncate(n);
+    buf[4] = version;
+    buf
+}
+
+/// Sends `bytes`, then reads until the remote hangs up; returns what it sent back.
+fn poke(addr: SocketAddr, bytes: &[u8]) -> Vec<u8> {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(StdDuration::from_secs(2))).unwrap();
+    s.write_all(bytes).unwrap();
+    let mut got = Vec::new();
+    let _ = s.read_to_end(&mut got);
+    got
+}
+
+fn close_reason_of(bytes: &[u8]) -> Option<u16> {
+    let len = wire::frame_len(bytes).ok()??;
+    match wire::Frame::new_checked(bytes.get(..len)?).ok()?.payload() {
+        Payload::Close(c) => Some(c.reason),
+        _ => None,
+    }
+}
+
+#[test]
+fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let (addr, errors) = serve(&rt, 4);
+
+    // Garbage: not even a plausible length prefix.
+    let back = poke(addr, b"GET / HTTP/1.1\r\nHost: robot\r\n\r\n");
+    assert_eq!(close_reason_of(&back), Some(close_reason::PROTOCOL_ERROR));
+    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
+    assert!(
+        matches!(
+            e,
+            NetError::Link(LinkError::Wire(WireError::LengthOutOfRange(_)))
+        ),
+        "{e:?}"
+    );
+
+    // An absurd length: refused before anything is buffered.
+    let back = poke(addr, &u32::MAX.to_le_bytes());
+    assert_eq!(close_reason_of(&back), Some(close_reason::PROTOCOL_ERROR));
+    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
+    assert!(
+        matches!(
+            e,
+            NetError::Link(LinkError::Wire(WireError::LengthOutOfRange(u32::MAX)))
+        ),
+        "{e:?}"
+    );
+
+    // A Hello from a newer version of the protocol.
+    let back = poke(addr, &hello_bytes(2));
+    assert_eq!(close_reason_of(&back), Some(close_reason::VERSION_MISMATCH));
+    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
+    assert!(
+        matches!(e, NetError::Link(LinkError::VersionMismatch { peer: 2 })),
+        "{e:?}"
+    );
+
+    // The listener still serves a real base.
+    let mut base = rt.block_on(Link::connect(addr, config())).unwrap();
+    for k in 0..30 {
+        base.send(&[f64::from(k)]).unwrap();
+        base.recv_timeout(StdDuration::from_secs(3)).unwrap();
+    }
+    drop(base);
+    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
+    assert!(
+        matches!(e, NetError::Link(LinkError::PeerClosed { reason: 0 })),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn a_peer_that_vanishes_is_reported_within_a_second() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let (addr, errors) = serve(&rt, 1);
+    // A raw client that completes the handshake by hand, then drops the socket.
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.write_all(&hello_bytes(wire::VERSION)).unwrap();
+    std::thread::sleep(StdDuration::from_millis(200));
+    let start = std::time::Instant::now();
+    drop(s);
+    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
+    assert!(start.elapsed() < StdDuration::from_secs(1));
+    assert!(
+        matches!(e, NetError::Link(LinkError::Disconnected)),
+        "{e:?}"
+    );
+}
