@@ -10,7 +10,9 @@
 pub mod clock;
 pub mod framing;
 pub mod link;
+pub mod relay;
 
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use link::{Link, LinkConfig, LinkStats, Listener, NetError, Sample};
+pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};

@@ -1,6 +1,8 @@
 //! The `ndr` command line: one module per subcommand.
 
+mod demo;
 mod paper;
+mod relay;
 mod sim;
 mod size;
 
@@ -24,16 +26,25 @@ enum Command {
     /// Size an NDR queue from the round-trip times of an initialization
     /// pattern, with the paper's laws (ns = 2 + floor(eta·mt/T), T = max(T_min, NRTT/3)).
     Size(size::SizeArgs),
+    /// The main job: a remote robot (simulated plant), a delaying relay and a
+    /// base whose operator follows a signal, all in this process over loopback
+    /// TCP; a live status line, then NRTT beside GRTT and everything counted.
+    Demo(demo::DemoArgs),
     /// Simulate the link (base, remote with its plant, and the network) in
     /// deterministic simulated time, and report what a controller would see.
     Sim(sim::SimArgs),
+    /// Relay TCP connections to an upstream, delaying every frame (in order)
+    /// with a delay model, by default the paper's relay (paris-newyork).
+    Relay(relay::RelayArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Size(args) => size::run(args),
+        Command::Demo(args) => demo::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Relay(args) => relay::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

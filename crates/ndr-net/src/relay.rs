@@ -1,0 +1,501 @@
+//! The delay relay: a TCP proxy that gives every frame a network delay.
+//!
+//! The paper's long-distance runs went through "a relay \[that\] delayed
+//! network data with values corresponding to a transmission between Paris
+//! and New York". This is that relay, with any [`DelayModel`] of the
+//! simulator: a built-in profile, a netem table or a trace.
+//!
+//! Put it between the two peers: the base connects to the relay's listening
+//! address, and for each client the relay connects to `upstream` (the
+//! remote). Client → upstream is [`Direction::Forward`], upstream → client
+//! [`Direction::Backward`]. In each direction the relay:
+//!
+//! 1. reads whole frames by their 4-byte length prefix
+//!    ([`wire::frame_len`](ndr_core::wire::frame_len)); the rest of a frame
+//!    is not decoded, and the bytes go out unchanged;
+//! 2. gives each frame the delay `sampler.delay(dir, t)`, `t` being the time
+//!    the frame arrived, counted from the start of the relay;
+//! 3. keeps the stream in order as TCP does, with an
+//!    [`InOrderPath`](ndr_core::sim::delay::InOrderPath):
+//!    `release = max(previous release, t + delay)`;
+//! 4. writes the frame when its release time comes. tokio's timers round up
+//!    to the millisecond, so a frame leaves 0–1.5 ms after its release time
+//!    (more on a loaded machine); the regulators downstream absorb it.
+//!
+//! Each connection draws from a fresh
+//! [`DelaySampler`](ndr_core::sim::delay::DelaySampler) seeded with
+//! [`connection_seed`]`(seed, index)`, so a run is reproducible: the same
+//! seed and the same send times give the same delays.
+//!
+//! # Failures
+//!
+//! - An absurd length prefix in either direction, or a direction whose queue
+//!   goes over [`RelayConfig::max_queue_frames`] or
+//!   [`RelayConfig::max_queue_bytes`], cuts that connection (both sides),
+//!   dropping the frames in flight. An upstream that refuses the connection
+//!   (or does not answer within [`RelayConfig::connect_timeout`]) drops the
+//!   client. Each is counted in [`RelayStats`], reported as a
+//!   [`RelayEvent::Closed`] and logged through `tracing`; the relay keeps
+//!   serving other clients.
+//! - An end of stream on one side is passed on (as a half-close) once every
+//!   frame already in flight in that direction has been delivered; the
+//!   connection ends when both directions have ended. A partial frame at an
+//!   end of stream is dropped.
+//!
+//! # Example
+//!
+//! ```no_run
+//! # async fn run() -> std::io::Result<()> {
+//! use ndr_core::sim::delay::DelayModel;
+//! use ndr_net::relay::Relay;
+//!
+//! let listen = "127.0.0.1:7000".parse().unwrap();
+//! let remote = "127.0.0.1:7001".parse().unwrap();
+//! let relay = Relay::bind(listen, remote, DelayModel::ParisNewYork, 1).await?;
+//! let handle = relay.spawn()?;
+//! // ... the base connects to 127.0.0.1:7000 ...
+//! let stats = handle.shutdown().await;
+//! println!("{} frames forward", stats.forward.frames_delivered);
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! Without an async runtime of one's own, [`BlockingRelay`] runs the relay
+//! on its own until Ctrl-C or a time limit (this is `ndr relay`).
+
+mod blocking;
+mod conn;
+mod stats;
+
+use core::fmt;
+use std::io;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration as StdDuration;
+
+use ndr_core::sim::delay::{DelayModel, Direction};
+use ndr_core::wire::WireError;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio::task::{JoinHandle, JoinSet};
+
+pub use blocking::{BlockingRelay, StopWhen};
+pub use stats::{DirectionStats, RelayStats};
+
+/// Default bound on the frames waiting in one direction of one connection.
+pub const DEFAULT_MAX_QUEUE_FRAMES: usize = 65_536;
+/// Default bound on the bytes waiting in one direction of one connection (32 MiB).
+pub const DEFAULT_MAX_QUEUE_BYTES: usize = 32 << 20;
+/// Default time allowed to connect to the upstream.
+pub const DEFAULT_CONNECT_TIMEOUT: StdDuration = StdDuration::from_secs(5);
+
+/// Pause after a failed `accept` (e.g. out of file descriptors), so that a
+/// persistent failure does not spin.
+const ACCEPT_BACKOFF: StdDuration = StdDuration::from_millis(100);
+
+/// Limits of a [`Relay`].
+///
+/// The frames in flight in a direction are about its delay times its frame
+/// rate (a 1 s delay at 1 kHz holds 1 000 frames); the bounds only stop a
+/// connection from growing without limit when the receiving side stops
+/// reading or the delays are absurd.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RelayConfig {
+    /// Most frames waiting in one direction of one connection; one more cuts
+    /// the connection ([`ConnectionEnd::QueueFull`]). `0` counts as `1`.
+    pub max_queue_frames: usize,
+    /// Most bytes waiting in one direction of one connection; more cuts the
+    /// connection ([`ConnectionEnd::QueueFull`]).
+    pub max_queue_bytes: usize,
+    /// Time allowed to connect to the upstream for each client.
+    pub connect_timeout: StdDuration,
+}
+
+impl Default for RelayConfig {
+    fn default() -> Self {
+        RelayConfig {
+            max_queue_frames: DEFAULT_MAX_QUEUE_FRAMES,
+            max_queue_bytes: DEFAULT_MAX_QUEUE_BYTES,
+            connect_timeout: DEFAULT_CONNECT_TIMEOUT,
+        }
+    }
+}
+
+/// How a relayed connection ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ConnectionEnd {
+    /// Both directions reached their end of stream and delivered every
+    /// frame in flight.
+    Finished,
+    /// The upstream refused the connection or did not answer in time.
+    UpstreamFailed {
+        /// What went wrong, with the upstream's address.
+        error: String,
+    },
+    /// A side sent a length prefix out of the protocol's range: nothing
+    /// after it can be framed.
+    Framing {
+        /// The direction of the bad prefix (forward: from the client).
+        dir: Direction,
+        /// The refused prefix.
+        error: WireError,
+    },
+    /// A direction held more frames or bytes than [`RelayConfig`] allows.
+    QueueFull {
+        /// The direction that overflowed.
+        dir: Direction,
+        /// Frames waiting when it overflowed.
+        frames: usize,
+        /// Bytes waiting when it overflowed, the refused frame included.
+        bytes: usize,
+    },
+    /// A read or write failed (a reset, a peer gone).
+    Io {
+        /// The direction whose read or write failed.
+        dir: Direction,
+        /// The error.
+        error: String,
+    },
+    /// The relay was shut down.
+    Shutdown,
+}
+
+impl ConnectionEnd {
+    /// `true` for the ends that cut a connection because something went
+    /// wrong (not [`Finished`](Self::Finished) nor [`Shutdown`](Self::Shutdown)).
+    #[must_use]
+    pub const fn is_error(&self) -> bool {
+        !matches!(self, ConnectionEnd::Finished | ConnectionEnd::Shutdown)
+    }
+}
+
+fn dir_name(dir: Direction) -> &'static str {
+    match dir {
+        Direction::Forward => "forward (client → upstream)",
+        Direction::Backward => "backward (upstream → client)",
+    }
+}
+
+impl fmt::Display for ConnectionEnd {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ConnectionEnd::Finished => f.write_str("finished"),
+            ConnectionEnd::UpstreamFailed { error } => write!(f, "upstream failed: {error}"),
+            ConnectionEnd::Framing { dir, error } => {
+                write!(f, "bad framing {}: {error}", dir_name(*dir))
+            }
+            ConnectionEnd::QueueFull { dir, frames, bytes } => write!(
+                f,
+                "queue full {}: {frames} frames, {bytes} bytes waiting",
+                dir_name(*dir)
+            ),
+            ConnectionEnd::Io { dir, error } => write!(f, "{} {error}", dir_name(*dir)),
+            ConnectionEnd::Shutdown => f.write_str("relay shut down"),
+        }
+    }
+}
+
+/// What one connection did, reported when it ends.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConnectionSummary {
+    /// Index of the connection: 0 for the first client accepted, then 1, 2, …
+    pub conn: u64,
+    /// The client's address.
+    pub peer: SocketAddr,
+    /// Client → upstream counters of this connection.
+    pub forward: DirectionStats,
+    /// Upstream → client counters of this connection.
+    pub backward: DirectionStats,
+    /// Time from accepting the client to closing both sides.
+    pub duration: StdDuration,
+    /// How it ended.
+    pub end: ConnectionEnd,
+}
+
+/// What a relay reports to its observer (see [`Relay::on_event`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum RelayEvent {
+    /// A client was accepted; the relay now connects to the upstream for it.
+    Opened {
+        /// Index of the connection (see [`connection_seed`]).
+        conn: u64,
+        /// The client's address.
+        peer: SocketAddr,
+    },
+    /// A connection ended: both of its sockets are closed.
+    Closed(ConnectionSummary),
+}
+
+type Observer = Arc<dyn Fn(&RelayEvent) + Send + Sync>;
+
+/// The seed of the delay sampler of connection `index` of a relay seeded
+/// with `seed`: `seed` itself for the first connection (which so draws the
+/// same delays as `model.sampler(seed)`), a mix of both for the others.
+#[must_use]
+pub const fn connection_seed(seed: u64, index: u64) -> u64 {
+    if index == 0 {
+        seed
+    } else {
+        splitmix64(seed ^ splitmix64(index))
+    }
+}
+
+/// SplitMix64's output function: a bijective mix of 64 bits.
+const fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// What every connection task shares.
+struct Ctx {
+    upstream: SocketAddr,
+    model: DelayModel,
+    seed: u64,
+    /// `t = 0` of the delay models: when the relay started serving.
+    origin: std::time::Instant,
+    config: RelayConfig,
+    observer: Option<Observer>,
+    counters: stats::Counters,
+}
+
+impl Ctx {
+    fn emit(&self, event: &RelayEvent) {
+        if let Some(observer) = &self.observer {
+            observer(event);
+        }
+    }
+}
+
+/// A bound delay relay, not yet serving: [`spawn`](Relay::spawn) it.
+pub struct Relay {
+    listener: TcpListener,
+    local_addr: SocketAddr,
+    upstream: SocketAddr,
+    model: DelayModel,
+    seed: u64,
+    config: RelayConfig,
+    observer: Option<Observer>,
+}
+
+impl fmt::Debug for Relay {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Relay")
+            .field("local_addr", &self.local_addr)
+            .field("upstream", &self.upstream)
+            .field("model", &self.model.name())
+            .field("seed", &self.seed)
+            .field("config", &self.config)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Relay {
+    /// Listens on `listen` (port 0 picks a free port: see
+    /// [`local_addr`](Self::local_addr)); each client will be relayed to
+    /// `upstream` with the delays of `model`, drawn from `seed`.
+    ///
+    /// Must be called within a tokio runtime.
+    ///
+    /// # Errors
+    ///
+    /// The listening socket cannot be bound (address in use, no permission…).
+    pub async fn bind(
+        listen: SocketAddr,
+        upstream: SocketAddr,
+        model: DelayModel,
+        seed: u64,
+    ) -> io::Result<Relay> {
+        let listener = TcpListener::bind(listen).await.map_err(|e| {
+            io::Error::new(e.kind(), format!("relay: cannot listen on {listen}: {e}"))
+        })?;
+        let local_addr = listener.local_addr()?;
+        Ok(Relay {
+            listener,
+            local_addr,
+            upstream,
+            model,
+            seed,
+            config: RelayConfig::default(),
+            observer: None,
+        })
+    }
+
+    /// Replaces the limits (the default is [`RelayConfig::default`]).
+    #[must_use]
+    pub fn with_config(mut self, config: RelayConfig) -> Self {
+        self.config = config;
+        self
+    }
+
+    /// Calls `observer` on every [`RelayEvent`], from the relay's tasks: it
+    /// should return quickly (print a line, send on a channel).
+    #[must_use]
+    pub fn on_event(mut self, observer: impl Fn(&RelayEvent) + Send + Sync + 'static) -> Self {
+        self.observer = Some(Arc::new(observer));
+        self
+    }
+
+    /// The address the relay listens on.
+    #[must_use]
+    pub const fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// The address each client is relayed to.
+    #[must_use]
+    pub const fn upstream(&self) -> SocketAddr {
+        self.upstream
+    }
+
+    /// The limits in force.
+    #[must_use]
+    pub const fn config(&self) -> &RelayConfig {
+        &self.config
+    }
+
+    /// Starts serving on the current tokio runtime, as a task; the time
+    /// origin of the delay models is now. Dropping the returned handle stops
+    /// the relay as [`RelayHandle::shutdown`] does, without waiting.
+    ///
+    /// # Errors
+    ///
+    /// Called outside a tokio runtime.
+    pub fn spawn(self) -> io::Result<RelayHandle> {
+        let runtime = tokio::runtime::Handle::try_current()
+            .map_err(|e| io::Error::other(format!("relay: spawn needs a tokio runtime: {e}")))?;
+        let Relay {
+            listener,
+            local_addr,
+            upstream,
+            model,
+            seed,
+            config,
+            observer,
+        } = self;
+        let ctx = Arc::new(Ctx {
+            upstream,
+            model,
+            seed,
+            origin: std::time::Instant::now(),
+            config,
+            observer,
+            counters: stats::Counters::default(),
+        });
+        let (stop_tx, stop_rx) = watch::channel(false);
+        tracing::info!(%local_addr, %upstream, model = %ctx.model, seed, "relay: serving");
+        let task = runtime.spawn(accept_loop(listener, Arc::clone(&ctx), stop_rx));
+        Ok(RelayHandle {
+            local_addr,
+            ctx,
+            stop: stop_tx,
+            task,
+        })
+    }
+}
+
+/// A running relay: its counters, and the way to stop it.
+#[must_use = "dropping the handle stops the relay"]
+pub struct RelayHandle {
+    local_addr: SocketAddr,
+    ctx: Arc<Ctx>,
+    stop: watch::Sender<bool>,
+    task: JoinHandle<()>,
+}
+
+impl fmt::Debug for RelayHandle {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("RelayHandle")
+            .field("local_addr", &self.local_addr)
+            .field("upstream", &self.ctx.upstream)
+            .field("stats", &self.stats())
+            .finish_non_exhaustive()
+    }
+}
+
+impl RelayHandle {
+    /// The address the relay listens on.
+    #[must_use]
+    pub const fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// The counters so far.
+    #[must_use]
+    pub fn stats(&self) -> RelayStats {
+        self.ctx.counters.snapshot()
+    }
+
+    /// Time since the relay started serving: the `t` its delay models see.
+    #[must_use]
+    pub fn elapsed(&self) -> StdDuration {
+        self.ctx.origin.elapsed()
+    }
+
+    /// Stops the relay: closes the listening socket and every relayed
+    /// connection at once (both sides, dropping the frames in flight, as if
+    /// the relay were killed), waits until they are closed, and returns the
+    /// final counters.
+    pub async fn shutdown(self) -> RelayStats {
+        // An error means the task is gone already: nothing to stop.
+        let _ = self.stop.send(true);
+        if let Err(e) = self.task.await {
+            tracing::error!("relay: the accept task failed: {e}");
+        }
+        self.ctx.counters.snapshot()
+    }
+}
+
+/// Resolves once the relay is told to stop, or its handle is dropped.
+async fn stopped(stop: &mut watch::Receiver<bool>) {
+    // An error means the sender (the handle) was dropped: stop as well.
+    let _ = stop.wait_for(|&stop| stop).await;
+}
+
+async fn accept_loop(listener: TcpListener, ctx: Arc<Ctx>, mut stop: watch::Receiver<bool>) {
+    let mut conns = JoinSet::new();
+    let mut next_index = 0u64;
+    loop {
+        tokio::select! {
+            biased;
+            () = stopped(&mut stop) => break,
+            Some(done) = conns.join_next(), if !conns.is_empty() => {
+                if let Err(e) = done {
+                    tracing::error!("relay: a connection task failed: {e}");
+                }
+            }
+            accepted = listener.accept() => match accepted {
+                Ok((client, peer)) => {
+                    let index = next_index;
+                    next_index += 1;
+                    ctx.counters.connections.fetch_add(1, Ordering::Relaxed);
+                    ctx.counters.active.fetch_add(1, Ordering::Relaxed);
+                    conns.spawn(conn::connection(
+                        Arc::clone(&ctx),
+                        index,
+                        client,
+                        peer,
+                        stop.clone(),
+                    ));
+                }
+                Err(e) => {
+                    tracing::warn!("relay: accept failed: {e}");
+                    tokio::select! {
+                        () = stopped(&mut stop) => break,
+                        () = tokio::time::sleep(ACCEPT_BACKOFF) => {}
+                    }
+                }
+            },
+        }
+    }
+    drop(listener);
+    // Every connection task sees the same stop and closes its sockets.
+    while let Some(done) = conns.join_next().await {
+        if let Err(e) = done {
+            tracing::error!("relay: a connection task failed: {e}");
+        }
+    }
+    tracing::info!("relay: stopped");
+}

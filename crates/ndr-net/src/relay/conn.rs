@@ -1,0 +1,306 @@
+//! One relayed connection: connect upstream, then one pump per direction.
+//!
+//! A pump is two halves joined in the connection's task: the reader cuts
+//! the byte stream into frames by their length prefix, stamps each with its
+//! release time and queues it; the writer sleeps until the head of the queue
+//! is due and writes every frame due by then in one go. Release times never
+//! decrease within a direction ([`InOrderPath`]), so a FIFO is enough.
+
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use ndr_core::sim::delay::{DelaySampler, Direction, InOrderPath};
+use ndr_core::time::Instant;
+use ndr_core::wire::{self, PREFIX_LEN, WireError};
+use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::net::TcpStream;
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant as TokioInstant;
+
+use super::stats::{DirCounters, Tally};
+use super::{ConnectionEnd, ConnectionSummary, Ctx, RelayEvent, connection_seed, stopped};
+
+/// Read buffer of each pump.
+const READ_BUFFER: usize = 16 * 1024;
+/// Most bytes gathered into one write when several frames are due at once.
+const WRITE_BATCH: usize = 64 * 1024;
+/// Release times that cannot be represented are pushed this far away
+/// (tokio clamps its own deadlines at about two years anyway).
+const FAR_FUTURE: std::time::Duration = std::time::Duration::from_secs(365 * 24 * 3600);
+
+/// A frame waiting for its release time.
+struct Held {
+    at: TokioInstant,
+    bytes: Vec<u8>,
+}
+
+/// Serves one accepted client until it ends, is cut, or the relay stops;
+/// counts it and reports it.
+pub(super) async fn connection(
+    ctx: std::sync::Arc<Ctx>,
+    index: u64,
+    client: TcpStream,
+    peer: SocketAddr,
+    mut stop: watch::Receiver<bool>,
+) {
+    let started = std::time::Instant::now();
+    tracing::info!(conn = index, %peer, "relay: connection opened");
+    ctx.emit(&RelayEvent::Opened { conn: index, peer });
+    let local = [DirCounters::default(), DirCounters::default()];
+    let end = tokio::select! {
+        end = serve(&ctx, index, client, &local) => end,
+        () = stopped(&mut stop) => ConnectionEnd::Shutdown,
+    };
+    // Both sockets were owned by `serve`: they are closed by now.
+    ctx.counters.ended(&end);
+    let summary = ConnectionSummary {
+        conn: index,
+        peer,
+        forward: local[0].snapshot(),
+        backward: local[1].snapshot(),
+        duration: started.elapsed(),
+        end,
+    };
+    if summary.end.is_error() {
+        tracing::warn!(conn = index, %peer, "relay: connection cut: {}", summary.end);
+    } else {
+        tracing::info!(conn = index, %peer, "relay: connection closed: {}", summary.end);
+    }
+    ctx.emit(&RelayEvent::Closed(summary));
+}
+
+async fn serve(
+    ctx: &Ctx,
+    index: u64,
+    client: TcpStream,
+    local: &[DirCounters; 2],
+) -> ConnectionEnd {
+    let timeout = ctx.config.connect_timeout;
+    let upstream = match tokio::time::timeout(timeout, TcpStream::connect(ctx.upstream)).await {
+        Ok(Ok(stream)) => stream,
+        Ok(Err(e)) => {
+            return ConnectionEnd::UpstreamFailed {
+                error: format!("cannot connect to {}: {e}", ctx.upstream),
+            };
+        }
+        Err(_) => {
+            return ConnectionEnd::UpstreamFailed {
+                error: format!("{} did not answer within {timeout:?}", ctx.upstream),
+            };
+        }
+    };
+    // Frames are small and timed: Nagle's algorithm would hold them back.
+    for stream in [&client, &upstream] {
+        if let Err(e) = stream.set_nodelay(true) {
+            tracing::debug!(conn = index, "relay: cannot set TCP_NODELAY: {e}");
+        }
+    }
+    // Each direction draws from its own stream of the sampler, and the
+    // processes shared by both are functions of (seed, time): a clone per
+    // direction gives the same delays as one shared sampler.
+    let sampler = ctx.model.sampler(connection_seed(ctx.seed, index));
+    let (client_rx, client_tx) = client.into_split();
+    let (upstream_rx, upstream_tx) = upstream.into_split();
+    let tally = |dir: Direction| Tally {
+        global: &ctx.counters.dirs[dir.index()],
+        local: &local[dir.index()],
+    };
+    let forward = pump(
+        ctx,
+        Direction::Forward,
+        client_rx,
+        upstream_tx,
+        sampler.clone(),
+        tally(Direction::Forward),
+    );
+    let backward = pump(
+        ctx,
+        Direction::Backward,
+        upstream_rx,
+        client_tx,
+        sampler,
+        tally(Direction::Backward),
+    );
+    match tokio::try_join!(forward, backward) {
+        Ok(((), ())) => ConnectionEnd::Finished,
+        Err(end) => end,
+    }
+}
+
+/// Carries one direction until its source's end of stream has been passed
+/// on, or fails (which cuts the whole connection).
+async fn pump<R, W>(
+    ctx: &Ctx,
+    dir: Direction,
+    from: R,
+    to: W,
+    sampler: DelaySampler,
+    tally: Tally<'_>,
+) -> Result<(), ConnectionEnd>
+where
+    R: AsyncRead + Unpin,
+    W: AsyncWrite + Unpin,
+{
+    let (tx, rx) = mpsc::channel(ctx.config.max_queue_frames.max(1));
+    let queued_bytes = AtomicUsize::new(0);
+    tokio::try_join!(
+        read_side(ctx, dir, from, sampler, tx, &queued_bytes, tally),
+        write_side(dir, to, rx, &queued_bytes, tally),
+    )?;
+    Ok(())
+}
+
+async fn read_side<R: AsyncRead + Unpin>(
+    ctx: &Ctx,
+    dir: Direction,
+    from: R,
+    mut sampler: DelaySampler,
+    tx: mpsc::Sender<Held>,
+    queued_bytes: &AtomicUsize,
+    tally: Tally<'_>,
+) -> Result<(), ConnectionEnd> {
+    let mut from = BufReader::with_capacity(READ_BUFFER, from);
+    let mut path = InOrderPath::new();
+    loop {
+        let bytes = match read_frame(&mut from).await {
+            Ok(Some(bytes)) => bytes,
+            Ok(None) => return Ok(()),
+            Err(ReadError::Wire(error)) => return Err(ConnectionEnd::Framing { dir, error }),
+            Err(ReadError::Truncated(got)) => {
+                tracing::warn!(
+                    ?dir,
+                    "relay: stream ended inside a frame ({got} bytes of it dropped)"
+                );
+                return Ok(());
+            }
+            Err(ReadError::Io(e)) => {
+                return Err(ConnectionEnd::Io {
+                    dir,
+                    error: format!("read: {e}"),
+                });
+            }
+        };
+        let now = std::time::Instant::now();
+        let sent = Instant::from_std(ctx.origin, now);
+        let held_before = path.held_back();
+        let release = path.deliver(sent, sampler.delay(dir, sent));
+        tally.received(path.held_back() > held_before);
+        let at = release
+            .to_std(ctx.origin)
+            .map_or_else(|| TokioInstant::now() + FAR_FUTURE, TokioInstant::from_std);
+
+        let len = bytes.len();
+        let queued = queued_bytes.fetch_add(len, Ordering::Relaxed) + len;
+        let limit = &ctx.config;
+        if queued > limit.max_queue_bytes {
+            return Err(ConnectionEnd::QueueFull {
+                dir,
+                frames: limit.max_queue_frames.max(1) - tx.capacity(),
+                bytes: queued,
+            });
+        }
+        match tx.try_send(Held { at, bytes }) {
+            Ok(()) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                return Err(ConnectionEnd::QueueFull {
+                    dir,
+                    frames: limit.max_queue_frames.max(1),
+                    bytes: queued,
+                });
+            }
+            // The writer has stopped, with an error that ends the connection.
+            Err(mpsc::error::TrySendError::Closed(_)) => return Ok(()),
+        }
+    }
+}
+
+async fn write_side<W: AsyncWrite + Unpin>(
+    dir: Direction,
+    mut to: W,
+    mut rx: mpsc::Receiver<Held>,
+    queued_bytes: &AtomicUsize,
+    tally: Tally<'_>,
+) -> Result<(), ConnectionEnd> {
+    let mut batch = Vec::with_capacity(WRITE_BATCH);
+    let mut next: Option<Held> = None;
+    loop {
+        let head = match next.take() {
+            Some(held) => held,
+            None => match rx.recv().await {
+                Some(held) => held,
+                None => break,
+            },
+        };
+        tokio::time::sleep_until(head.at).await;
+        batch.clear();
+        batch.extend_from_slice(&head.bytes);
+        let mut frames = 1;
+        // Everything else already due goes in the same write.
+        while let Ok(held) = rx.try_recv() {
+            if held.at > TokioInstant::now() || batch.len() + held.bytes.len() > WRITE_BATCH {
+                next = Some(held);
+                break;
+            }
+            batch.extend_from_slice(&held.bytes);
+            frames += 1;
+        }
+        to.write_all(&batch).await.map_err(|e| ConnectionEnd::Io {
+            dir,
+            error: format!("write: {e}"),
+        })?;
+        queued_bytes.fetch_sub(batch.len(), Ordering::Relaxed);
+        tally.delivered(frames, batch.len() as u64);
+    }
+    // The source has closed and everything in flight is delivered: pass the
+    // end of stream on (a half-close; the other direction carries on).
+    if let Err(e) = to.shutdown().await {
+        tracing::debug!(?dir, "relay: half-close failed: {e}");
+    }
+    Ok(())
+}
+
+enum ReadError {
+    Wire(WireError),
+    /// End of stream after this many bytes of a frame.
+    Truncated(usize),
+    Io(std::io::Error),
+}
+
+/// The next whole frame, prefix included; `None` at a clean end of stream.
+/// Only the length prefix is checked: the rest is passed on as it is.
+async fn read_frame<R: AsyncRead + Unpin>(
+    from: &mut BufReader<R>,
+) -> Result<Option<Vec<u8>>, ReadError> {
+    if from.fill_buf().await.map_err(ReadError::Io)?.is_empty() {
+        return Ok(None);
+    }
+    let mut prefix = [0u8; PREFIX_LEN];
+    read_exact(from, &mut prefix, 0).await?;
+    let len = match wire::frame_len(&prefix) {
+        Ok(Some(len)) => len,
+        Ok(None) => return Err(ReadError::Truncated(PREFIX_LEN)),
+        Err(e) => return Err(ReadError::Wire(e)),
+    };
+    let mut bytes = vec![0u8; len];
+    let (head, rest) = bytes.split_at_mut(PREFIX_LEN.min(len));
+    head.copy_from_slice(&prefix[..head.len()]);
+    read_exact(from, rest, PREFIX_LEN).await?;
+    Ok(Some(bytes))
+}
+
+async fn read_exact<R: AsyncRead + Unpin>(
+    from: &mut BufReader<R>,
+    buf: &mut [u8],
+    already: usize,
+) -> Result<(), ReadError> {
+    let mut got = 0;
+    while got < buf.len() {
+        match from.read(&mut buf[got..]).await {
+            Ok(0) => return Err(ReadError::Truncated(already + got)),
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(ReadError::Io(e)),
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,155 @@
+//! The relay's counters: lock-free while it runs, a plain snapshot to read.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use ndr_core::sim::delay::Direction;
+
+use super::ConnectionEnd;
+
+/// Counters of one direction, for the whole relay or for one connection.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DirectionStats {
+    /// Whole frames read from the sending side.
+    pub frames_received: u64,
+    /// Frames written to the receiving side (after their delay).
+    pub frames_delivered: u64,
+    /// Bytes of the delivered frames, length prefixes included.
+    pub bytes_delivered: u64,
+    /// Frames that left later than their own delay said, held back behind an
+    /// earlier, slower frame to keep the stream in order.
+    pub held_back: u64,
+}
+
+/// A snapshot of a relay's counters (see [`RelayHandle::stats`](super::RelayHandle::stats)).
+///
+/// Each connection that ended is counted once in `finished` or in exactly
+/// one of the reasons it was cut.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RelayStats {
+    /// Client connections accepted.
+    pub connections: u64,
+    /// Connections open now.
+    pub active: u64,
+    /// Connections that ended normally: both sides closed after every frame
+    /// in flight was delivered.
+    pub finished: u64,
+    /// Connections dropped because the upstream refused them, or did not
+    /// answer within the connect timeout.
+    pub upstream_failures: u64,
+    /// Connections cut because a side sent an absurd length prefix.
+    pub framing_errors: u64,
+    /// Connections cut because a direction's queue went over its bound.
+    pub queue_overflows: u64,
+    /// Connections cut by a read or write error (a reset, a peer gone).
+    pub io_errors: u64,
+    /// Connections closed by [`RelayHandle::shutdown`](super::RelayHandle::shutdown)
+    /// (or by dropping the handle).
+    pub closed_by_shutdown: u64,
+    /// Client → upstream.
+    pub forward: DirectionStats,
+    /// Upstream → client.
+    pub backward: DirectionStats,
+}
+
+impl RelayStats {
+    /// The counters of one direction.
+    #[must_use]
+    pub const fn direction(&self, dir: Direction) -> &DirectionStats {
+        match dir {
+            Direction::Forward => &self.forward,
+            Direction::Backward => &self.backward,
+        }
+    }
+}
+
+/// Live counters of one direction.
+#[derive(Debug, Default)]
+pub(super) struct DirCounters {
+    received: AtomicU64,
+    delivered: AtomicU64,
+    bytes: AtomicU64,
+    held_back: AtomicU64,
+}
+
+impl DirCounters {
+    pub(super) fn snapshot(&self) -> DirectionStats {
+        DirectionStats {
+            frames_received: self.received.load(Ordering::Relaxed),
+            frames_delivered: self.delivered.load(Ordering::Relaxed),
+            bytes_delivered: self.bytes.load(Ordering::Relaxed),
+            held_back: self.held_back.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// Live counters of the relay.
+#[derive(Debug, Default)]
+pub(super) struct Counters {
+    pub(super) connections: AtomicU64,
+    pub(super) active: AtomicU64,
+    finished: AtomicU64,
+    upstream_failures: AtomicU64,
+    framing_errors: AtomicU64,
+    queue_overflows: AtomicU64,
+    io_errors: AtomicU64,
+    closed_by_shutdown: AtomicU64,
+    pub(super) dirs: [DirCounters; 2],
+}
+
+impl Counters {
+    pub(super) fn snapshot(&self) -> RelayStats {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        RelayStats {
+            connections: get(&self.connections),
+            active: get(&self.active),
+            finished: get(&self.finished),
+            upstream_failures: get(&self.upstream_failures),
+            framing_errors: get(&self.framing_errors),
+            queue_overflows: get(&self.queue_overflows),
+            io_errors: get(&self.io_errors),
+            closed_by_shutdown: get(&self.closed_by_shutdown),
+            forward: self.dirs[0].snapshot(),
+            backward: self.dirs[1].snapshot(),
+        }
+    }
+
+    /// Counts a connection that ended, by how it ended.
+    pub(super) fn ended(&self, end: &ConnectionEnd) {
+        let counter = match end {
+            ConnectionEnd::Finished => &self.finished,
+            ConnectionEnd::UpstreamFailed { .. } => &self.upstream_failures,
+            ConnectionEnd::Framing { .. } => &self.framing_errors,
+            ConnectionEnd::QueueFull { .. } => &self.queue_overflows,
+            ConnectionEnd::Io { .. } => &self.io_errors,
+            ConnectionEnd::Shutdown => &self.closed_by_shutdown,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+        self.active.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// Counts into the relay's counters and one connection's at once.
+#[derive(Clone, Copy)]
+pub(super) struct Tally<'a> {
+    pub(super) global: &'a DirCounters,
+    pub(super) local: &'a DirCounters,
+}
+
+impl Tally<'_> {
+    fn add(&self, field: impl Fn(&DirCounters) -> &AtomicU64, n: u64) {
+        field(self.global).fetch_add(n, Ordering::Relaxed);
+        field(self.local).fetch_add(n, Ordering::Relaxed);
+    }
+
+    pub(super) fn received(&self, held_back: bool) {
+        self.add(|c| &c.received, 1);
+        if held_back {
+            self.add(|c| &c.held_back, 1);
+        }
+    }
+
+    pub(super) fn delivered(&self, frames: u64, bytes: u64) {
+        self.add(|c| &c.delivered, frames);
+        self.add(|c| &c.bytes, bytes);
+    }
+}

@@ -1,0 +1,360 @@
+//! The delay relay over real loopback TCP: delays, order, bad framing,
+//! a refused upstream, and a relay killed mid-run.
+//!
+//! The machine may be loaded: timing assertions are bounds with margins,
+//! never exact timings.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr_core::sim::delay::{DelayModel, Trace};
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{self, Header, MAX_FRAME_LEN, Message, PREFIX_LEN};
+use ndr_net::relay::{ConnectionEnd, Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::mpsc;
+use tokio::time::timeout;
+
+const LOOPBACK: &str = "127.0.0.1:0";
+
+fn ms(n: u64) -> StdDuration {
+    StdDuration::from_millis(n)
+}
+
+/// A Data frame whose channels make its bytes depend on `seq`.
+fn data_frame(seq: u64) -> Vec<u8> {
+    let header = Header {
+        seq,
+        sent_at: Instant::from_millis(seq),
+        echo: None,
+        released: None,
+    };
+    let values = [seq as f64, -0.5 * seq as f64, 1.0 / (seq as f64 + 1.0)];
+    let mut buf = vec![0; MAX_FRAME_LEN];
+    let n = wire::encode(&header, &Message::Data(&values), &mut buf).expect("valid frame");
+    buf.truncate(n);
+    buf
+}
+
+fn seq_of(frame: &[u8]) -> u64 {
+    wire::Frame::new_checked(frame).expect("valid frame").seq()
+}
+
+/// The next whole frame, `None` at end of stream (or a reset).
+async fn read_frame<R: AsyncRead + Unpin>(r: &mut R) -> Option<Vec<u8>> {
+    let mut prefix = [0u8; PREFIX_LEN];
+    r.read_exact(&mut prefix).await.ok()?;
+    let len = wire::frame_len(&prefix).ok()??;
+    let mut frame = vec![0u8; len];
+    frame[..PREFIX_LEN].copy_from_slice(&prefix);
+    r.read_exact(&mut frame[PREFIX_LEN..]).await.ok()?;
+    Some(frame)
+}
+
+/// An upstream that echoes every frame back and reports when each arrived.
+async fn echo_server() -> (SocketAddr, mpsc::UnboundedReceiver<(u64, StdInstant)>) {
+    let listener = TcpListener::bind(LOOPBACK).await.expect("bind echo");
+    let addr = listener.local_addr().expect("echo address");
+    let (tx, rx) = mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while let Ok((stream, _)) = listener.accept().await {
+            let tx = tx.clone();
+            tokio::spawn(async move {
+                stream.set_nodelay(true).expect("nodelay");
+                let (mut r, mut w) = stream.into_split();
+                while let Some(frame) = read_frame(&mut r).await {
+                    let _ = tx.send((seq_of(&frame), StdInstant::now()));
+                    if w.write_all(&frame).await.is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+    });
+    (addr, rx)
+}
+
+async fn start(model: DelayModel, upstream: SocketAddr) -> RelayHandle {
+    Relay::bind(LOOPBACK.parse().unwrap(), upstream, model, 7)
+        .await
+        .expect("bind relay")
+        .spawn()
+        .expect("spawn relay")
+}
+
+async fn connect(addr: SocketAddr) -> TcpStream {
+    let stream = TcpStream::connect(addr).await.expect("connect to relay");
+    stream.set_nodelay(true).expect("nodelay");
+    stream
+}
+
+/// Waits (up to 1 s) until the relay's counters satisfy `ok`.
+async fn stats_until(handle: &RelayHandle, ok: impl Fn(&RelayStats) -> bool) -> RelayStats {
+    let deadline = StdInstant::now() + ms(1000);
+    loop {
+        let stats = handle.stats();
+        if ok(&stats) || StdInstant::now() > deadline {
+            return stats;
+        }
+        tokio::time::sleep(ms(5)).await;
+    }
+}
+
+/// `true` once the peer has closed or reset: a read returns 0 or fails.
+async fn sees_end(stream: &mut TcpStream) -> bool {
+    let mut buf = [0u8; 4096];
+    let deadline = tokio::time::Instant::now() + ms(1000);
+    loop {
+        match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
+            Err(_) => return false,
+            Ok(Ok(0) | Err(_)) => return true,
+            Ok(Ok(_)) => {} // echoes still in flight
+        }
+    }
+}
+
+/// Sends `n` frames every `gap`, half-closes, and reads until the end of
+/// stream; returns the send times, the frames echoed back and when each came
+/// back.
+async fn exchange(
+    relay: SocketAddr,
+    n: u64,
+    gap: StdDuration,
+) -> (Vec<StdInstant>, Vec<(Vec<u8>, StdInstant)>) {
+    let (mut r, mut w) = connect(relay).await.into_split();
+    // Reads to the end of stream: the relay passes the client's half-close
+    // on only after the frames in flight, and the echo server's close back.
+    let reader = tokio::spawn(async move {
+        let mut back = Vec::new();
+        while let Some(frame) = read_frame(&mut r).await {
+            back.push((frame, StdInstant::now()));
+        }
+        back
+    });
+    let mut sent = Vec::new();
+    let mut tick = tokio::time::interval(gap);
+    for seq in 0..n {
+        tick.tick().await;
+        sent.push(StdInstant::now());
+        w.write_all(&data_frame(seq)).await.expect("send");
+    }
+    w.shutdown().await.expect("half-close");
+    let back = timeout(ms(3000), reader)
+        .await
+        .expect("every echo within 3 s")
+        .expect("reader task");
+    (sent, back)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn constant_delays_each_way_and_bytes_unchanged() {
+    let (upstream, mut arrivals) = echo_server().await;
+    let model = DelayModel::Constant {
+        fwd: Duration::from_millis(40),
+        bwd: Duration::from_millis(60),
+    };
+    let relay = start(model, upstream).await;
+    let n = 30;
+    let (sent, back) = exchange(relay.local_addr(), n, ms(10)).await;
+
+    assert_eq!(back.len() as u64, n);
+    for (seq, (frame, at)) in back.iter().enumerate() {
+        assert_eq!(frame, &data_frame(seq as u64), "frame {seq} changed");
+        let rtt = at.duration_since(sent[seq]);
+        assert!(
+            rtt >= ms(100) && rtt < ms(150),
+            "frame {seq}: round trip {rtt:?}"
+        );
+    }
+    for seq in 0..n {
+        let (got, at) = arrivals.recv().await.expect("arrival at the echo server");
+        assert_eq!(got, seq, "forward order");
+        let fwd = at.duration_since(sent[seq as usize]);
+        assert!(
+            fwd >= ms(40) && fwd < ms(65),
+            "frame {seq}: forward delay {fwd:?}"
+        );
+    }
+
+    // Both ends closed after the last frame: the connection finished.
+    let stats = stats_until(&relay, |s| s.finished == 1).await;
+    assert_eq!((stats.connections, stats.finished, stats.active), (1, 1, 0));
+    for dir in [stats.forward, stats.backward] {
+        assert_eq!(dir.frames_received, n);
+        assert_eq!(dir.frames_delivered, n);
+        assert_eq!(
+            dir.bytes_delivered,
+            back.iter().map(|(f, _)| f.len() as u64).sum()
+        );
+        assert_eq!(dir.held_back, 0);
+    }
+    let _ = relay.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn order_is_kept_when_delays_fall_faster_than_time() {
+    // A sawtooth for 5 s: the forward delay falls by 40 ms every 20 ms
+    // (later frames would overtake), then jumps back up every 100 ms.
+    let mut csv = String::from("t_s,fwd_ms,bwd_ms\n");
+    for k in 0..250 {
+        csv += &format!("{},{},5\n", 0.02 * k as f64, 200 - 40 * (k % 5));
+    }
+    let model = DelayModel::Trace(Arc::new(Trace::parse(&csv).expect("trace")));
+    let (upstream, _arrivals) = echo_server().await;
+    let relay = start(model, upstream).await;
+    let (_, back) = exchange(relay.local_addr(), 40, ms(5)).await;
+    let seqs: Vec<u64> = back.iter().map(|(f, _)| seq_of(f)).collect();
+    assert_eq!(seqs, (0..40).collect::<Vec<_>>());
+    let stats = relay.shutdown().await;
+    assert!(stats.forward.held_back > 0, "{stats:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn order_is_kept_under_lan_jitter() {
+    let (upstream, _arrivals) = echo_server().await;
+    let relay = start(DelayModel::Lan75km, upstream).await;
+    // 1 ms apart: the 7–22 ms jitter would reorder them without the path.
+    let (_, back) = exchange(relay.local_addr(), 200, ms(1)).await;
+    let seqs: Vec<u64> = back.iter().map(|(f, _)| seq_of(f)).collect();
+    assert_eq!(seqs, (0..200).collect::<Vec<_>>());
+    let stats = relay.shutdown().await;
+    assert!(
+        stats.forward.held_back + stats.backward.held_back > 0,
+        "{stats:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_absurd_length_prefix_cuts_only_that_connection() {
+    let (upstream, _arrivals) = echo_server().await;
+    let ends = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let seen = Arc::clone(&ends);
+    let relay = Relay::bind(
+        LOOPBACK.parse().unwrap(),
+        upstream,
+        DelayModel::profile("constant:5").unwrap(),
+        1,
+    )
+    .await
+    .expect("bind relay")
+    .on_event(move |event| {
+        if let RelayEvent::Closed(summary) = event {
+            seen.lock().unwrap().push(summary.end.clone());
+        }
+    })
+    .spawn()
+    .expect("spawn relay");
+
+    let mut bad = connect(relay.local_addr()).await;
+    bad.write_all(&data_frame(0)).await.expect("send");
+    bad.write_all(&u32::MAX.to_le_bytes()).await.expect("send");
+    bad.write_all(&[0xAB; 64]).await.expect("send");
+    assert!(sees_end(&mut bad).await, "the bad client is cut within 1 s");
+    let stats = stats_until(&relay, |s| s.framing_errors == 1).await;
+    assert_eq!(stats.framing_errors, 1, "{stats:?}");
+    assert_eq!(stats.active, 0, "{stats:?}");
+    assert!(matches!(
+        ends.lock().unwrap().as_slice(),
+        [ConnectionEnd::Framing {
+            error: wire::WireError::LengthOutOfRange(u32::MAX),
+            ..
+        }]
+    ));
+
+    // The next client is served as usual.
+    let (_, back) = exchange(relay.local_addr(), 5, ms(2)).await;
+    assert_eq!(back.len(), 5);
+    let stats = relay.shutdown().await;
+    assert_eq!(
+        (stats.connections, stats.framing_errors),
+        (2, 1),
+        "{stats:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_upstream_drops_the_client_and_the_relay_goes_on() {
+    let closed = TcpListener::bind(LOOPBACK).await.expect("bind");
+    let nowhere = closed.local_addr().expect("address");
+    drop(closed);
+    let relay = start(DelayModel::profile("constant:1").unwrap(), nowhere).await;
+    for _ in 0..2 {
+        let mut client = connect(relay.local_addr()).await;
+        assert!(sees_end(&mut client).await, "dropped within 1 s");
+    }
+    let stats = stats_until(&relay, |s| s.upstream_failures == 2).await;
+    assert_eq!(
+        (stats.connections, stats.upstream_failures, stats.active),
+        (2, 2, 0)
+    );
+    let _ = relay.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_mid_run_closes_every_connection() {
+    let (upstream, _arrivals) = echo_server().await;
+    // Long delays: plenty of frames in flight when the relay is killed.
+    let relay = start(DelayModel::profile("constant:300").unwrap(), upstream).await;
+    let addr = relay.local_addr();
+    let mut clients = Vec::new();
+    for _ in 0..2 {
+        let mut client = connect(addr).await;
+        for seq in 0..10 {
+            client.write_all(&data_frame(seq)).await.expect("send");
+        }
+        clients.push(client);
+    }
+    stats_until(&relay, |s| s.forward.frames_received == 20).await;
+
+    let killed = StdInstant::now();
+    let stats = timeout(ms(1000), relay.shutdown())
+        .await
+        .expect("shutdown within 1 s");
+    for client in &mut clients {
+        assert!(sees_end(client).await, "client cut within 1 s");
+    }
+    assert!(killed.elapsed() < ms(1000));
+    assert_eq!(
+        (stats.closed_by_shutdown, stats.active),
+        (2, 0),
+        "{stats:?}"
+    );
+    assert_eq!(stats.forward.frames_delivered, 0, "{stats:?}");
+    // The listener is closed too.
+    assert!(TcpStream::connect(addr).await.is_err(), "still listening");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_queue_over_its_bound_cuts_the_connection() {
+    let (upstream, _arrivals) = echo_server().await;
+    let config = RelayConfig {
+        max_queue_frames: 4,
+        ..RelayConfig::default()
+    };
+    let relay = Relay::bind(
+        LOOPBACK.parse().unwrap(),
+        upstream,
+        DelayModel::profile("constant:1000").unwrap(),
+        1,
+    )
+    .await
+    .expect("bind relay")
+    .with_config(config)
+    .spawn()
+    .expect("spawn relay");
+    let mut client = connect(relay.local_addr()).await;
+    for seq in 0..10 {
+        // The relay may already have cut the connection.
+        let _ = client.write_all(&data_frame(seq)).await;
+    }
+    assert!(sees_end(&mut client).await, "cut within 1 s");
+    let stats = stats_until(&relay, |s| s.queue_overflows == 1).await;
+    assert_eq!((stats.queue_overflows, stats.active), (1, 0), "{stats:?}");
+    // 4 queued, maybe 1 more already taken by the writer, then 1 refused.
+    let received = stats.forward.frames_received;
+    assert!((5..=6).contains(&received), "{stats:?}");
+    assert_eq!(stats.forward.frames_delivered, 0, "{stats:?}");
+    let _ = relay.shutdown().await;
+}

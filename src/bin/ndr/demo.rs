@@ -1,0 +1,436 @@
+//! `ndr demo`: the whole link for real, in one process — a remote with the
+//! simulated plant, a delaying relay, and a base whose operator follows a
+//! signal — over loopback TCP.
+
+use std::fs::File;
+use std::io::{BufWriter, IsTerminal, Write};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr::core::arx::{Tf2, Tf2State};
+use ndr::core::endpoint::{Config, Event, Mode, Status, Underflow};
+use ndr::core::sim::PlantConfig;
+use ndr::core::sim::signal::Signal;
+use ndr::core::time::Duration;
+use ndr::core::wire::Role;
+use ndr::net::clock::LatenessStats;
+use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayStats};
+use serde::Serialize;
+
+use crate::sim::NetArgs;
+use crate::size::millis;
+
+#[derive(clap::Args)]
+pub struct DemoArgs {
+    #[command(flatten)]
+    pub net: NetArgs,
+    /// Regulation mode.
+    #[arg(long, default_value = "paper-static")]
+    pub mode: Mode,
+    /// Both regulators' policy when a sample is missing at its tick.
+    #[arg(long, default_value = "hold")]
+    pub underflow: Underflow,
+    /// Sampling period, in ms (50: the paper's choice for its LAN).
+    #[arg(long, default_value_t = 50.0)]
+    pub period_ms: f64,
+    /// How long to run, in seconds.
+    #[arg(long, default_value_t = 20.0)]
+    pub duration_s: f64,
+    /// Seed of the relay's delays.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Axes of the teleoperated system (1 to 8).
+    #[arg(long, default_value_t = 1)]
+    pub axes: u16,
+    /// The operator's command: sine[:amp=A,freq=F], steps[:low=L,high=H,period=P], constant:V.
+    #[arg(long, default_value = "sine")]
+    pub signal: Signal,
+    /// Where to write the base's per-tick series (CSV).
+    #[arg(long, value_name = "FILE.csv", default_value = "ndr-demo.csv")]
+    pub out: PathBuf,
+    /// Print one JSON object instead of the live line and the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What `ndr demo --json` prints. Times in seconds.
+#[derive(Serialize)]
+struct DemoReport {
+    profile: String,
+    mode: &'static str,
+    underflow: &'static str,
+    period_s: f64,
+    duration_s: f64,
+    axes: u16,
+    ns: usize,
+    nrtt_mean_s: f64,
+    nrtt_std_s: f64,
+    grtt_mean_s: f64,
+    grtt_std_s: f64,
+    grtt_p99_s: f64,
+    grtt_count: u64,
+    queue_base_min: usize,
+    queue_base_max: usize,
+    queue_remote_min: usize,
+    queue_remote_max: usize,
+    samples_sent: u64,
+    samples_released: u64,
+    late_samples: u64,
+    underflows: u64,
+    link_lost: u64,
+    pauses: u64,
+    clock_base_p50_s: f64,
+    clock_base_p99_s: f64,
+    clock_remote_p50_s: f64,
+    clock_remote_p99_s: f64,
+    relay_frames_fwd: u64,
+    relay_frames_bwd: u64,
+    csv: String,
+}
+
+struct Row {
+    t_s: f64,
+    seq: u64,
+    held: bool,
+    grtt_s: Option<f64>,
+    command: f64,
+    state: f64,
+}
+
+pub fn run(args: &DemoArgs) -> Result<(), String> {
+    let period = millis("--period-ms", args.period_ms)?;
+    if period.is_zero() {
+        return Err("--period-ms must be positive".into());
+    }
+    if !(args.duration_s.is_finite() && args.duration_s > 0.0) {
+        return Err(format!(
+            "--duration-s must be positive, got {}",
+            args.duration_s
+        ));
+    }
+    let model = args.net.model("lan-75km")?;
+    let profile = model.name();
+    let mut endpoint = Config::new(Role::Base);
+    endpoint.axes = args.axes;
+    endpoint.period = period;
+    endpoint.mode = args.mode;
+    endpoint.underflow = args.underflow;
+    let config = LinkConfig::new(endpoint);
+
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("ndr-io")
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start the I/O runtime: {e}"))?;
+    let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
+    let (base, remote, relay) = rt
+        .block_on(async {
+            let listener = Listener::bind(loopback, config).await?;
+            let relay = Relay::bind(loopback, listener.local_addr()?, model, args.seed)
+                .await?
+                .spawn()?;
+            let (remote, base) =
+                tokio::join!(listener.accept(), Link::connect(relay.local_addr(), config));
+            Ok::<_, NetError>((base?, remote?, relay))
+        })
+        .map_err(|e| format!("cannot set the demo up: {e}"))?;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let remote_stats = Arc::new(Mutex::new(None::<LinkStats>));
+    let robot = {
+        let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
+        let axes = usize::from(args.axes);
+        std::thread::Builder::new()
+            .name("ndr-demo-robot".into())
+            .spawn(move || robot(remote, axes, period, &stop, &remote_stats))
+            .map_err(|e| e.to_string())?
+    };
+
+    let (base_stats, rows) = operator(base, args, &remote_stats)?;
+    stop.store(true, Ordering::Relaxed);
+    let _ = robot.join();
+    let relay_stats = rt.block_on(relay.shutdown());
+    let remote_final = *remote_stats
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    write_csv(&args.out, &rows)?;
+    let report = report(
+        args,
+        profile,
+        &base_stats,
+        remote_final.as_ref(),
+        &relay_stats,
+        &rows,
+    );
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string(&report).map_err(|e| e.to_string())?
+        );
+    } else {
+        print_table(&report);
+    }
+    Ok(())
+}
+
+/// The remote: a second-order plant per axis driven by the released commands.
+fn robot(
+    mut link: Link,
+    axes: usize,
+    period: Duration,
+    stop: &AtomicBool,
+    stats: &Mutex<Option<LinkStats>>,
+) {
+    let discretize = |p: Duration| {
+        let c = PlantConfig::default();
+        Tf2::low_pass(
+            std::f64::consts::TAU * c.natural_hz,
+            c.damping,
+            c.gain,
+            p.as_secs_f64(),
+        )
+    };
+    let Ok(model) = discretize(period) else {
+        return;
+    };
+    let mut plants: Vec<Tf2State> = (0..axes).map(|_| Tf2State::new(model)).collect();
+    let mut state = vec![0.0; axes];
+    while !stop.load(Ordering::Relaxed) {
+        match link.recv_timeout(StdDuration::from_millis(200)) {
+            Ok(cmd) => {
+                for ((p, y), &u) in plants.iter_mut().zip(&mut state).zip(cmd.values()) {
+                    *y = p.step(u);
+                }
+                let _ = link.send(&state);
+            }
+            Err(NetError::Timeout) => {}
+            Err(_) => break,
+        }
+        for event in link.drain_events() {
+            match event {
+                Event::Started { period, .. } => {
+                    if let Ok(m) = discretize(period) {
+                        plants.iter_mut().for_each(|p| p.set_model(m));
+                    }
+                }
+                // A real robot would brake here; the plant simply holds its
+                // last command until fresh ones come back.
+                Event::LinkLost { .. } | Event::LinkRestored => {}
+                _ => {}
+            }
+        }
+        *stats
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = link.stats();
+    }
+    *stats
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = link.close();
+}
+
+type OperatorOutput = (Option<LinkStats>, Vec<Row>);
+
+/// The base: the operator follows the signal; one row per released state.
+fn operator(
+    mut link: Link,
+    args: &DemoArgs,
+    remote_stats: &Mutex<Option<LinkStats>>,
+) -> Result<OperatorOutput, String> {
+    let start = StdInstant::now();
+    let end = start + StdDuration::from_secs_f64(args.duration_s);
+    let live = !args.json && std::io::stderr().is_terminal();
+    let mut next_status = start;
+    let mut rows = Vec::new();
+    let mut command = vec![0.0; usize::from(args.axes)];
+    let mut last_grtt = f64::NAN;
+    while StdInstant::now() < end {
+        let t = start.elapsed().as_secs_f64();
+        for (axis, c) in command.iter_mut().enumerate() {
+            *c = args.signal.value(t, axis);
+        }
+        link.send(&command).map_err(|e| e.to_string())?;
+        match link.recv_timeout(StdDuration::from_millis(500)) {
+            Ok(s) => {
+                if let Some(g) = s.grtt {
+                    last_grtt = g.as_secs_f64();
+                }
+                rows.push(Row {
+                    t_s: t,
+                    seq: s.seq,
+                    held: s.status == Status::Held,
+                    grtt_s: s.grtt.map(Duration::as_secs_f64),
+                    command: command[0],
+                    state: s.values().first().copied().unwrap_or(f64::NAN),
+                });
+            }
+            Err(NetError::Timeout) => {}
+            Err(e) => return Err(format!("the link failed: {e}")),
+        }
+        let _ = link.drain_events().count();
+        if StdInstant::now() >= next_status {
+            next_status += StdDuration::from_millis(250);
+            if live {
+                status_line(t, link.stats().as_ref(), remote_stats, last_grtt);
+            }
+        }
+    }
+    if live {
+        eprintln!();
+    }
+    Ok((link.close(), rows))
+}
+
+fn status_line(t: f64, base: Option<&LinkStats>, remote: &Mutex<Option<LinkStats>>, grtt: f64) {
+    let remote = *remote
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let ms = |d: Option<Duration>| {
+        d.map_or("–".to_string(), |d| {
+            format!("{:.1} ms", d.as_secs_f64() * 1e3)
+        })
+    };
+    let (nrtt, qb, uf_b, phase) = base.map_or((String::from("–"), 0, 0, "starting"), |s| {
+        (
+            ms(s.last_nrtt),
+            s.queue_len,
+            s.endpoint.underflows,
+            s.phase.name(),
+        )
+    });
+    let (qr, uf_r) = remote.map_or((0, 0), |s| (s.queue_len, s.endpoint.underflows));
+    let grtt = if grtt.is_finite() {
+        format!("{:.1} ms", grtt * 1e3)
+    } else {
+        "–".into()
+    };
+    eprint!(
+        "\r  t {t:5.1} s · {phase:<12} · NRTT {nrtt:>9} · GRTT {grtt:>9} · queue base {qb:>3} remote {qr:>3} · underflows {} ",
+        uf_b + uf_r
+    );
+    let _ = std::io::stderr().flush();
+}
+
+fn write_csv(path: &PathBuf, rows: &[Row]) -> Result<(), String> {
+    let err = |e: std::io::Error| format!("cannot write {}: {e}", path.display());
+    let mut w = BufWriter::new(File::create(path).map_err(err)?);
+    writeln!(w, "t_s,seq,status,grtt_s,command,state").map_err(err)?;
+    for r in rows {
+        let grtt = r.grtt_s.map_or(String::new(), |g| format!("{g:.6}"));
+        let status = if r.held { "held" } else { "fresh" };
+        writeln!(
+            w,
+            "{:.6},{},{status},{grtt},{:.6},{:.6}",
+            r.t_s, r.seq, r.command, r.state
+        )
+        .map_err(err)?;
+    }
+    w.flush().map_err(err)
+}
+
+fn p99(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
+}
+
+fn report(
+    args: &DemoArgs,
+    profile: String,
+    base: &Option<LinkStats>,
+    remote: Option<&LinkStats>,
+    relay: &RelayStats,
+    rows: &[Row],
+) -> DemoReport {
+    let b = base.as_ref();
+    let eb = b.map(|s| s.endpoint).unwrap_or_default();
+    let er = remote.map(|s| s.endpoint).unwrap_or_default();
+    let range = |s: Option<&LinkStats>| s.and_then(|s| s.queue_range).unwrap_or((0, 0));
+    let clock = |s: Option<&LinkStats>, p: fn(&LatenessStats) -> Duration| {
+        s.map_or(0.0, |s| p(&s.lateness).as_secs_f64())
+    };
+    let grtts: Vec<f64> = rows.iter().filter_map(|r| r.grtt_s).collect();
+    DemoReport {
+        profile,
+        mode: args.mode.name(),
+        underflow: args.underflow.name(),
+        period_s: b.map_or(0.0, |s| s.period.as_secs_f64()),
+        duration_s: args.duration_s,
+        axes: args.axes,
+        ns: b.map_or(0, |s| s.ns),
+        nrtt_mean_s: eb.nrtt.mean(),
+        nrtt_std_s: eb.nrtt.std(),
+        grtt_mean_s: eb.grtt.mean(),
+        grtt_std_s: eb.grtt.std(),
+        grtt_p99_s: p99(grtts),
+        grtt_count: eb.grtt.count(),
+        queue_base_min: range(b).0,
+        queue_base_max: range(b).1,
+        queue_remote_min: range(remote).0,
+        queue_remote_max: range(remote).1,
+        samples_sent: eb.samples_sent + er.samples_sent,
+        samples_released: eb.released_fresh + er.released_fresh,
+        late_samples: eb.late + er.late,
+        underflows: eb.underflows + er.underflows,
+        link_lost: eb.link_lost + er.link_lost,
+        pauses: eb.pauses,
+        clock_base_p50_s: clock(b, |l| l.p50),
+        clock_base_p99_s: clock(b, |l| l.p99),
+        clock_remote_p50_s: clock(remote, |l| l.p50),
+        clock_remote_p99_s: clock(remote, |l| l.p99),
+        relay_frames_fwd: relay.forward.frames_delivered,
+        relay_frames_bwd: relay.backward.frames_delivered,
+        csv: args.out.display().to_string(),
+    }
+}
+
+fn print_table(r: &DemoReport) {
+    let ms = |s: f64| format!("{:.2} ms", s * 1e3);
+    println!(
+        "ndr demo · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        r.profile,
+        r.mode,
+        r.underflow,
+        ms(r.period_s),
+        r.duration_s,
+        r.axes
+    );
+    println!("                     mean          std");
+    println!(
+        "  NRTT       {:>12} {:>12}   (the network, both ways)",
+        ms(r.nrtt_mean_s),
+        ms(r.nrtt_std_s)
+    );
+    println!(
+        "  GRTT       {:>12} {:>12}   (as the controller sees it; p99 {}, {} round trips)",
+        ms(r.grtt_mean_s),
+        ms(r.grtt_std_s),
+        ms(r.grtt_p99_s),
+        r.grtt_count
+    );
+    println!(
+        "  queues     ns {} · base {}–{} · remote {}–{} (occupancy before a release)",
+        r.ns, r.queue_base_min, r.queue_base_max, r.queue_remote_min, r.queue_remote_max
+    );
+    println!(
+        "  samples    {} sent · {} released · {} late · {} underflows · {} link-lost alarms",
+        r.samples_sent, r.samples_released, r.late_samples, r.underflows, r.link_lost
+    );
+    let us = |s: f64| format!("{:.0} µs", s * 1e6);
+    println!(
+        "  clock      release lateness p50 / p99: base {} / {} · remote {} / {}",
+        us(r.clock_base_p50_s),
+        us(r.clock_base_p99_s),
+        us(r.clock_remote_p50_s),
+        us(r.clock_remote_p99_s)
+    );
+    println!(
+        "  relay      {} frames forward, {} back · series in {}",
+        r.relay_frames_fwd, r.relay_frames_bwd, r.csv
+    );
+}

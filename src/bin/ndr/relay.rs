@@ -1,0 +1,151 @@
+//! `ndr relay`: a TCP relay that delays the link's frames like a real network.
+
+use std::net::{SocketAddr, ToSocketAddrs};
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr::net::relay::{BlockingRelay, DirectionStats, RelayEvent, RelayStats, StopWhen};
+
+use crate::sim::NetArgs;
+
+#[derive(clap::Args)]
+pub struct RelayArgs {
+    /// Address to listen on for clients (the base connects here), e.g. 0.0.0.0:7000.
+    #[arg(long, value_name = "ADDR")]
+    pub listen: String,
+    /// Address each client is relayed to (the remote), e.g. 10.0.0.2:7000.
+    #[arg(long, value_name = "ADDR")]
+    pub upstream: String,
+    /// Delays (default: the paper's relay, --profile paris-newyork).
+    #[command(flatten)]
+    pub net: NetArgs,
+    /// Seed of the delays: the same seed and send times give the same delays.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Stop after this many seconds (default: run until Ctrl-C).
+    #[arg(long, value_name = "S")]
+    pub duration_s: Option<f64>,
+    /// Print one JSON object of the counters instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The first address `text` resolves to.
+fn resolve(flag: &str, text: &str) -> Result<SocketAddr, String> {
+    let mut addrs = text
+        .to_socket_addrs()
+        .map_err(|e| format!("{flag} {text}: not an address (HOST:PORT): {e}"))?;
+    addrs
+        .next()
+        .ok_or_else(|| format!("{flag} {text}: resolves to no address"))
+}
+
+pub fn run(args: &RelayArgs) -> Result<(), String> {
+    let model = args.net.model("paris-newyork")?;
+    let listen = resolve("--listen", &args.listen)?;
+    let upstream = resolve("--upstream", &args.upstream)?;
+    let after = match args.duration_s {
+        None => None,
+        Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => Some(StdDuration::from_secs_f64(s)),
+        Some(s) => {
+            return Err(format!(
+                "--duration-s must be a positive number of seconds, got {s}"
+            ));
+        }
+    };
+    let model_name = model.name();
+    let relay = BlockingRelay::bind(listen, upstream, model, args.seed)
+        .map_err(|e| e.to_string())?
+        .on_event(print_event);
+    let local = relay.local_addr();
+    eprintln!(
+        "ndr relay: {local} -> {upstream}, delays {model_name}, seed {}; {}",
+        args.seed,
+        match after {
+            Some(d) => format!("stopping after {:.1} s or on Ctrl-C", d.as_secs_f64()),
+            None => "stop with Ctrl-C".to_string(),
+        }
+    );
+    let started = StdInstant::now();
+    let stats = relay
+        .serve(StopWhen {
+            ctrl_c: true,
+            after,
+        })
+        .map_err(|e| e.to_string())?;
+    let ran = started.elapsed().as_secs_f64();
+
+    if args.json {
+        let value = serde_json::json!({
+            "listen": local.to_string(),
+            "upstream": upstream.to_string(),
+            "model": model_name,
+            "seed": args.seed,
+            "duration_s": ran,
+            "connections": stats.connections,
+            "finished": stats.finished,
+            "upstream_failures": stats.upstream_failures,
+            "framing_errors": stats.framing_errors,
+            "queue_overflows": stats.queue_overflows,
+            "io_errors": stats.io_errors,
+            "closed_by_shutdown": stats.closed_by_shutdown,
+            "forward": direction_json(&stats.forward),
+            "backward": direction_json(&stats.backward),
+        });
+        println!("{value}");
+    } else {
+        print_table(&stats, ran);
+    }
+    Ok(())
+}
+
+fn print_event(event: &RelayEvent) {
+    match event {
+        RelayEvent::Opened { conn, peer } => eprintln!("ndr relay: [{conn}] {peer} opened"),
+        RelayEvent::Closed(s) => eprintln!(
+            "ndr relay: [{}] {} closed after {:.1} s: {}; forward {} frames ({} held back), \
+             backward {} frames ({} held back)",
+            s.conn,
+            s.peer,
+            s.duration.as_secs_f64(),
+            s.end,
+            s.forward.frames_delivered,
+            s.forward.held_back,
+            s.backward.frames_delivered,
+            s.backward.held_back,
+        ),
+    }
+}
+
+fn direction_json(d: &DirectionStats) -> serde_json::Value {
+    serde_json::json!({
+        "frames_received": d.frames_received,
+        "frames_delivered": d.frames_delivered,
+        "bytes_delivered": d.bytes_delivered,
+        "held_back": d.held_back,
+    })
+}
+
+fn print_table(stats: &RelayStats, ran: f64) {
+    println!("ran {ran:.1} s, {} connections", stats.connections);
+    let ends = [
+        ("finished", stats.finished),
+        ("upstream failures", stats.upstream_failures),
+        ("bad framing", stats.framing_errors),
+        ("queue overflows", stats.queue_overflows),
+        ("i/o errors", stats.io_errors),
+        ("closed at shutdown", stats.closed_by_shutdown),
+    ];
+    for (name, n) in ends {
+        println!("  {name:<20} {n:>10}");
+    }
+    println!(
+        "{:<10} {:>12} {:>12} {:>14} {:>10}",
+        "direction", "frames in", "frames out", "bytes out", "held back"
+    );
+    for (name, d) in [("forward", &stats.forward), ("backward", &stats.backward)] {
+        println!(
+            "{name:<10} {:>12} {:>12} {:>14} {:>10}",
+            d.frames_received, d.frames_delivered, d.bytes_delivered, d.held_back
+        );
+    }
+}

@@ -1,0 +1,49 @@
+//! `ndr demo` as a user runs it: the whole link in one process.
+
+use std::process::Command;
+
+#[test]
+fn demo_runs_and_reports_in_json() {
+    let csv = std::env::temp_dir().join(format!("ndr-demo-test-{}.csv", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_ndr"))
+        .args([
+            "demo",
+            "--duration-s",
+            "3",
+            "--period-ms",
+            "20",
+            "--json",
+            "--out",
+        ])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "nrtt_mean_s",
+        "nrtt_std_s",
+        "grtt_mean_s",
+        "grtt_std_s",
+        "queue_base_min",
+        "queue_remote_max",
+        "late_samples",
+        "underflows",
+        "clock_base_p50_s",
+        "clock_base_p99_s",
+    ] {
+        assert!(r[key].is_number(), "missing {key}");
+    }
+    assert_eq!(r["profile"], "lan-75km");
+    assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");
+    // A regulated link: the round trip the controller sees barely moves.
+    assert!(r["grtt_std_s"].as_f64().unwrap() < 1e-3, "{r}");
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    assert!(rows.starts_with("t_s,seq,status,grtt_s,command,state"));
+    assert!(rows.lines().count() > 50);
+    let _ = std::fs::remove_file(csv);
+}
