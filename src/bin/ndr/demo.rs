@@ -23,28 +23,45 @@ use serde::Serialize;
 use crate::sim::NetArgs;
 use crate::size::millis;
 
-#[derive(clap::Args)]
-pub struct DemoArgs {
-    #[command(flatten)]
-    pub net: NetArgs,
+/// The link's settings, shared by `demo`, `base` and `remote`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct LinkArgs {
     /// Regulation mode.
     #[arg(long, default_value = "paper-static")]
     pub mode: Mode,
-    /// Both regulators' policy when a sample is missing at its tick.
+    /// The regulator's policy when a sample is missing at its tick.
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
     /// Sampling period, in ms (50: the paper's choice for its LAN).
     #[arg(long, default_value_t = 50.0)]
     pub period_ms: f64,
-    /// How long to run, in seconds.
-    #[arg(long, default_value_t = 20.0)]
-    pub duration_s: f64,
-    /// Seed of the relay's delays.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
     /// Axes of the teleoperated system (1 to 8).
     #[arg(long, default_value_t = 1)]
     pub axes: u16,
+}
+
+impl LinkArgs {
+    pub fn config(&self) -> Result<LinkConfig, String> {
+        let period = millis("--period-ms", self.period_ms)?;
+        if period.is_zero() {
+            return Err("--period-ms must be positive".into());
+        }
+        let mut endpoint = Config::new(Role::Base);
+        endpoint.axes = self.axes;
+        endpoint.period = period;
+        endpoint.mode = self.mode;
+        endpoint.underflow = self.underflow;
+        endpoint.validate().map_err(|e| e.to_string())?;
+        Ok(LinkConfig::new(endpoint))
+    }
+}
+
+/// The operator's run, shared by `demo` and `base`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RunArgs {
+    /// How long to run, in seconds.
+    #[arg(long, default_value_t = 20.0)]
+    pub duration_s: f64,
     /// The operator's command: sine[:amp=A,freq=F], steps[:low=L,high=H,period=P], constant:V.
     #[arg(long, default_value = "sine")]
     pub signal: Signal,
@@ -56,9 +73,23 @@ pub struct DemoArgs {
     pub json: bool,
 }
 
+#[derive(clap::Args)]
+pub struct DemoArgs {
+    #[command(flatten)]
+    pub net: NetArgs,
+    #[command(flatten)]
+    pub link: LinkArgs,
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Seed of the relay's delays.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
 /// What `ndr demo --json` prints. Times in seconds.
 #[derive(Serialize)]
 struct DemoReport {
+    command: &'static str,
     profile: String,
     mode: &'static str,
     underflow: &'static str,
@@ -74,8 +105,8 @@ struct DemoReport {
     grtt_count: u64,
     queue_base_min: usize,
     queue_base_max: usize,
-    queue_remote_min: usize,
-    queue_remote_max: usize,
+    queue_remote_min: Option<usize>,
+    queue_remote_max: Option<usize>,
     samples_sent: u64,
     samples_released: u64,
     late_samples: u64,
@@ -86,12 +117,12 @@ struct DemoReport {
     clock_base_p99_s: f64,
     clock_remote_p50_s: f64,
     clock_remote_p99_s: f64,
-    relay_frames_fwd: u64,
-    relay_frames_bwd: u64,
+    relay_frames_fwd: Option<u64>,
+    relay_frames_bwd: Option<u64>,
     csv: String,
 }
 
-struct Row {
+pub struct Row {
     t_s: f64,
     seq: u64,
     held: bool,
@@ -101,31 +132,11 @@ struct Row {
 }
 
 pub fn run(args: &DemoArgs) -> Result<(), String> {
-    let period = millis("--period-ms", args.period_ms)?;
-    if period.is_zero() {
-        return Err("--period-ms must be positive".into());
-    }
-    if !(args.duration_s.is_finite() && args.duration_s > 0.0) {
-        return Err(format!(
-            "--duration-s must be positive, got {}",
-            args.duration_s
-        ));
-    }
+    let config = args.link.config()?;
+    check_duration(&args.run)?;
     let model = args.net.model("lan-75km")?;
     let profile = model.name();
-    let mut endpoint = Config::new(Role::Base);
-    endpoint.axes = args.axes;
-    endpoint.period = period;
-    endpoint.mode = args.mode;
-    endpoint.underflow = args.underflow;
-    let config = LinkConfig::new(endpoint);
-
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("ndr-io")
-        .enable_all()
-        .build()
-        .map_err(|e| format!("cannot start the I/O runtime: {e}"))?;
+    let rt = runtime()?;
     let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
     let (base, remote, relay) = rt
         .block_on(async {
@@ -143,30 +154,65 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let remote_stats = Arc::new(Mutex::new(None::<LinkStats>));
     let robot = {
         let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
-        let axes = usize::from(args.axes);
+        let axes = usize::from(args.link.axes);
+        let period = config.endpoint.period;
         std::thread::Builder::new()
             .name("ndr-demo-robot".into())
             .spawn(move || robot(remote, axes, period, &stop, &remote_stats))
             .map_err(|e| e.to_string())?
     };
 
-    let (base_stats, rows) = operator(base, args, &remote_stats)?;
+    let (base_stats, rows) = operator(base, &args.run, args.link.axes, Some(&remote_stats))?;
     stop.store(true, Ordering::Relaxed);
     let _ = robot.join();
     let relay_stats = rt.block_on(relay.shutdown());
     let remote_final = *remote_stats
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
-    write_csv(&args.out, &rows)?;
-    let report = report(
-        args,
+    finish(
+        &args.link,
+        &args.run,
         profile,
         &base_stats,
         remote_final.as_ref(),
-        &relay_stats,
+        Some(&relay_stats),
         &rows,
-    );
-    if args.json {
+    )
+}
+
+pub fn check_duration(run: &RunArgs) -> Result<(), String> {
+    if run.duration_s.is_finite() && run.duration_s > 0.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "--duration-s must be positive, got {}",
+            run.duration_s
+        ))
+    }
+}
+
+pub fn runtime() -> Result<tokio::runtime::Runtime, String> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("ndr-io")
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start the I/O runtime: {e}"))
+}
+
+/// Writes the series and prints the report (table or JSON).
+pub fn finish(
+    link: &LinkArgs,
+    run: &RunArgs,
+    profile: String,
+    base: &Option<LinkStats>,
+    remote: Option<&LinkStats>,
+    relay: Option<&RelayStats>,
+    rows: &[Row],
+) -> Result<(), String> {
+    write_csv(&run.out, rows)?;
+    let report = report(link, run, profile, base, remote, relay, rows);
+    if run.json {
         println!(
             "{}",
             serde_json::to_string(&report).map_err(|e| e.to_string())?
@@ -178,7 +224,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
 }
 
 /// The remote: a second-order plant per axis driven by the released commands.
-fn robot(
+pub fn robot(
     mut link: Link,
     axes: usize,
     period: Duration,
@@ -232,25 +278,26 @@ fn robot(
         .unwrap_or_else(std::sync::PoisonError::into_inner) = link.close();
 }
 
-type OperatorOutput = (Option<LinkStats>, Vec<Row>);
+pub type OperatorOutput = (Option<LinkStats>, Vec<Row>);
 
 /// The base: the operator follows the signal; one row per released state.
-fn operator(
+pub fn operator(
     mut link: Link,
-    args: &DemoArgs,
-    remote_stats: &Mutex<Option<LinkStats>>,
+    run: &RunArgs,
+    axes: u16,
+    remote_stats: Option<&Mutex<Option<LinkStats>>>,
 ) -> Result<OperatorOutput, String> {
     let start = StdInstant::now();
-    let end = start + StdDuration::from_secs_f64(args.duration_s);
-    let live = !args.json && std::io::stderr().is_terminal();
+    let end = start + StdDuration::from_secs_f64(run.duration_s);
+    let live = !run.json && std::io::stderr().is_terminal();
     let mut next_status = start;
     let mut rows = Vec::new();
-    let mut command = vec![0.0; usize::from(args.axes)];
+    let mut command = vec![0.0; usize::from(axes)];
     let mut last_grtt = f64::NAN;
     while StdInstant::now() < end {
         let t = start.elapsed().as_secs_f64();
         for (axis, c) in command.iter_mut().enumerate() {
-            *c = args.signal.value(t, axis);
+            *c = run.signal.value(t, axis);
         }
         link.send(&command).map_err(|e| e.to_string())?;
         match link.recv_timeout(StdDuration::from_millis(500)) {
@@ -284,10 +331,13 @@ fn operator(
     Ok((link.close(), rows))
 }
 
-fn status_line(t: f64, base: Option<&LinkStats>, remote: &Mutex<Option<LinkStats>>, grtt: f64) {
-    let remote = *remote
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+fn status_line(
+    t: f64,
+    base: Option<&LinkStats>,
+    remote: Option<&Mutex<Option<LinkStats>>>,
+    grtt: f64,
+) {
+    let remote = remote.and_then(|r| *r.lock().unwrap_or_else(std::sync::PoisonError::into_inner));
     let ms = |d: Option<Duration>| {
         d.map_or("–".to_string(), |d| {
             format!("{:.1} ms", d.as_secs_f64() * 1e3)
@@ -308,7 +358,7 @@ fn status_line(t: f64, base: Option<&LinkStats>, remote: &Mutex<Option<LinkStats
         "–".into()
     };
     eprint!(
-        "\r  t {t:5.1} s · {phase:<12} · NRTT {nrtt:>9} · GRTT {grtt:>9} · queue base {qb:>3} remote {qr:>3} · underflows {} ",
+        "\r\x1b[2K  t {t:5.1} s · {phase:<12} · NRTT {nrtt:>9} · GRTT {grtt:>9} · queue base {qb:>3} remote {qr:>3} · underflows {} ",
         uf_b + uf_r
     );
     let _ = std::io::stderr().flush();
@@ -340,11 +390,12 @@ fn p99(mut v: Vec<f64>) -> f64 {
 }
 
 fn report(
-    args: &DemoArgs,
+    link: &LinkArgs,
+    run: &RunArgs,
     profile: String,
     base: &Option<LinkStats>,
     remote: Option<&LinkStats>,
-    relay: &RelayStats,
+    relay: Option<&RelayStats>,
     rows: &[Row],
 ) -> DemoReport {
     let b = base.as_ref();
@@ -356,12 +407,13 @@ fn report(
     };
     let grtts: Vec<f64> = rows.iter().filter_map(|r| r.grtt_s).collect();
     DemoReport {
+        command: if relay.is_some() { "demo" } else { "base" },
         profile,
-        mode: args.mode.name(),
-        underflow: args.underflow.name(),
+        mode: link.mode.name(),
+        underflow: link.underflow.name(),
         period_s: b.map_or(0.0, |s| s.period.as_secs_f64()),
-        duration_s: args.duration_s,
-        axes: args.axes,
+        duration_s: run.duration_s,
+        axes: link.axes,
         ns: b.map_or(0, |s| s.ns),
         nrtt_mean_s: eb.nrtt.mean(),
         nrtt_std_s: eb.nrtt.std(),
@@ -371,8 +423,8 @@ fn report(
         grtt_count: eb.grtt.count(),
         queue_base_min: range(b).0,
         queue_base_max: range(b).1,
-        queue_remote_min: range(remote).0,
-        queue_remote_max: range(remote).1,
+        queue_remote_min: remote.map(|_| range(remote).0),
+        queue_remote_max: remote.map(|_| range(remote).1),
         samples_sent: eb.samples_sent + er.samples_sent,
         samples_released: eb.released_fresh + er.released_fresh,
         late_samples: eb.late + er.late,
@@ -383,16 +435,17 @@ fn report(
         clock_base_p99_s: clock(b, |l| l.p99),
         clock_remote_p50_s: clock(remote, |l| l.p50),
         clock_remote_p99_s: clock(remote, |l| l.p99),
-        relay_frames_fwd: relay.forward.frames_delivered,
-        relay_frames_bwd: relay.backward.frames_delivered,
-        csv: args.out.display().to_string(),
+        relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
+        relay_frames_bwd: relay.map(|r| r.backward.frames_delivered),
+        csv: run.out.display().to_string(),
     }
 }
 
 fn print_table(r: &DemoReport) {
     let ms = |s: f64| format!("{:.2} ms", s * 1e3);
     println!(
-        "ndr demo · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        "ndr {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        r.command,
         r.profile,
         r.mode,
         r.underflow,
@@ -413,24 +466,35 @@ fn print_table(r: &DemoReport) {
         ms(r.grtt_p99_s),
         r.grtt_count
     );
+    let remote_queue = match (r.queue_remote_min, r.queue_remote_max) {
+        (Some(lo), Some(hi)) => format!(" · remote {lo}–{hi}"),
+        _ => String::new(),
+    };
     println!(
-        "  queues     ns {} · base {}–{} · remote {}–{} (occupancy before a release)",
-        r.ns, r.queue_base_min, r.queue_base_max, r.queue_remote_min, r.queue_remote_max
+        "  queues     ns {} · base {}–{}{remote_queue} (occupancy before a release)",
+        r.ns, r.queue_base_min, r.queue_base_max
     );
     println!(
         "  samples    {} sent · {} released · {} late · {} underflows · {} link-lost alarms",
         r.samples_sent, r.samples_released, r.late_samples, r.underflows, r.link_lost
     );
     let us = |s: f64| format!("{:.0} µs", s * 1e6);
+    let remote_clock = if r.queue_remote_max.is_some() {
+        format!(
+            " · remote {} / {}",
+            us(r.clock_remote_p50_s),
+            us(r.clock_remote_p99_s)
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "  clock      release lateness p50 / p99: base {} / {} · remote {} / {}",
+        "  clock      release lateness p50 / p99: base {} / {}{remote_clock}",
         us(r.clock_base_p50_s),
         us(r.clock_base_p99_s),
-        us(r.clock_remote_p50_s),
-        us(r.clock_remote_p99_s)
     );
-    println!(
-        "  relay      {} frames forward, {} back · series in {}",
-        r.relay_frames_fwd, r.relay_frames_bwd, r.csv
-    );
+    if let (Some(f), Some(b)) = (r.relay_frames_fwd, r.relay_frames_bwd) {
+        println!("  relay      {f} frames forward, {b} back");
+    }
+    println!("  series     {}", r.csv);
 }

@@ -2,6 +2,7 @@
 
 mod demo;
 mod paper;
+mod peers;
 mod relay;
 mod sim;
 mod size;
@@ -30,6 +31,12 @@ enum Command {
     /// base whose operator follows a signal, all in this process over loopback
     /// TCP; a live status line, then NRTT beside GRTT and everything counted.
     Demo(demo::DemoArgs),
+    /// The operator's side as its own process: connect to a remote (or a
+    /// relay), follow a signal, report like `ndr demo`.
+    Base(peers::BaseArgs),
+    /// The robot's side as its own process: serve bases one after another,
+    /// each driving the simulated plant.
+    Remote(peers::RemoteArgs),
     /// Simulate the link (base, remote with its plant, and the network) in
     /// deterministic simulated time, and report what a controller would see.
     Sim(sim::SimArgs),
@@ -43,6 +50,8 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Size(args) => size::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Base(args) => peers::base(args),
+        Command::Remote(args) => peers::remote(args),
         Command::Sim(args) => sim::run(args),
         Command::Relay(args) => relay::run(args),
     };
