@@ -8,7 +8,9 @@
 //!   its deadlines: it waits for frames until just before the next deadline,
 //!   then spins to it ([`ReleaseClock::wait_until`]), so ticks are kept to
 //!   microseconds rather than tokio's milliseconds;
-//! - a **writer** task (tokio) writes the frames the endpoint emits.
+//! - the link thread writes its frames to the socket itself (it is
+//!   non-blocking); a **writer** task (tokio) takes over only the frames
+//!   that find the socket buffer full, in order.
 //!
 //! The application holds a [`Link`]: [`Link::send`] sets the sample sent at
 //! the next tick, [`Link::recv`] / [`Link::recv_async`] give the next released
@@ -17,7 +19,9 @@
 use std::collections::VecDeque;
 use std::fmt;
 use std::io;
+use std::io::Write as _;
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
@@ -219,7 +223,15 @@ impl Link {
         }
         stream.set_nodelay(true)?;
         let peer = stream.peer_addr()?;
+        // The link thread writes frames itself, through a clone of the socket
+        // (non-blocking, like tokio's): handing each frame to a tokio task
+        // would cost a thread wake-up, tens of µs, on every frame.
+        let _guard = rt.enter();
+        let std_stream = stream.into_std()?;
+        let direct = std_stream.try_clone()?;
+        let stream = TcpStream::from_std(std_stream)?;
         let (rd, wr) = stream.into_split();
+        let queued = Arc::new(AtomicUsize::new(0));
         let (in_tx, in_rx) = mpsc::channel::<Input>();
         let (out_tx, out_rx) = tokio::sync::mpsc::unbounded_channel::<Vec<u8>>();
         let (del_tx, del_rx) = mpsc::sync_channel::<Delivery>(config.app_queue.max(1));
@@ -229,7 +241,7 @@ impl Link {
             notify: Notify::new(),
         });
         rt.spawn(read_frames(rd, in_tx.clone()));
-        rt.spawn(write_frames(wr, out_rx, in_tx.clone()));
+        rt.spawn(write_frames(wr, out_rx, in_tx.clone(), Arc::clone(&queued)));
         let origin = StdInstant::now();
         let endpoint = Box::new(LinkEndpoint::new(cfg, Instant::ZERO).map_err(NetError::Config)?);
         let driver = Driver {
@@ -240,6 +252,8 @@ impl Link {
                 .map_err(|e| NetError::Io(io::Error::other(e.to_string())))?,
             input: in_rx,
             out: out_tx,
+            direct: Some(direct),
+            queued,
             deliveries: del_tx,
             shared: Arc::clone(&shared),
             lateness: LatenessHistogram::new(cfg.period),
@@ -467,16 +481,21 @@ async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, input: Sender<Input
     }
 }
 
+/// Writes what the link thread could not write at once (a full socket
+/// buffer), in order; the link thread writes directly again once `queued`
+/// is back to zero.
 async fn write_frames(
     mut wr: tokio::net::tcp::OwnedWriteHalf,
     mut out: tokio::sync::mpsc::UnboundedReceiver<Vec<u8>>,
     input: Sender<Input>,
+    queued: Arc<AtomicUsize>,
 ) {
     while let Some(frame) = out.recv().await {
         if wr.write_all(&frame).await.is_err() {
             let _ = input.send(Input::Eof);
             return;
         }
+        queued.fetch_sub(1, AtomicOrdering::Release);
     }
     let _ = wr.shutdown().await;
 }
@@ -487,6 +506,8 @@ struct Driver {
     clock: ReleaseClock,
     input: Receiver<Input>,
     out: tokio::sync::mpsc::UnboundedSender<Vec<u8>>,
+    direct: Option<std::net::TcpStream>,
+    queued: Arc<AtomicUsize>,
     deliveries: SyncSender<Delivery>,
     shared: Arc<Shared>,
     lateness: LatenessHistogram,
@@ -584,11 +605,31 @@ impl Driver {
         }
         let now = self.local(StdInstant::now());
         while let Ok(Some(n)) = self.endpoint.poll_transmit(now, &mut self.buf) {
-            if self.out.send(self.buf[..n].to_vec()).is_err() {
-                break;
-            }
+            let frame = std::mem::take(&mut self.buf);
+            self.send_frame(&frame[..n]);
+            self.buf = frame;
         }
         self.publish();
+    }
+
+    /// Writes a frame on the socket now if nothing is waiting for the writer
+    /// task, else queues it behind what is waiting (frames stay in order).
+    fn send_frame(&mut self, bytes: &[u8]) {
+        let mut rest = bytes;
+        if self.queued.load(AtomicOrdering::Acquire) == 0 {
+            if let Some(socket) = &mut self.direct {
+                match socket.write(bytes) {
+                    Ok(n) if n == bytes.len() => return,
+                    Ok(n) => rest = &bytes[n..],
+                    // Full buffer, or a broken socket the writer will report.
+                    Err(_) => {}
+                }
+            }
+        }
+        self.queued.fetch_add(1, AtomicOrdering::AcqRel);
+        if self.out.send(rest.to_vec()).is_err() {
+            self.queued.fetch_sub(1, AtomicOrdering::AcqRel);
+        }
     }
 
     fn publish(&self) {

@@ -1,0 +1,159 @@
+//! One frame's round trip through two ndr links on loopback, beside a raw
+//! tokio TCP ping-pong of the same bytes, in one run (target: ratio ≤ 1.2).
+//!
+//! Ours is the NRTT the base measures: its frame out through the link's
+//! writer, across loopback, stamped on arrival by the remote's reader, echoed
+//! in the remote's next frame (its wait for that tick taken out), back across
+//! loopback and stamped by the base's reader.
+//!
+//! Both run at the same pace, one frame per link period (a thread woken from
+//! a longer sleep wakes more slowly, on either side).
+//!
+//! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
+//! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
+
+use std::net::SocketAddr;
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr::core::endpoint::Config;
+use ndr::core::time::Duration;
+use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
+use ndr::net::{Link, LinkConfig, Listener};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
+}
+
+fn frame() -> Vec<u8> {
+    let header = Header {
+        seq: 1,
+        sent_at: ndr::core::time::Instant::from_millis(1),
+        echo: None,
+        released: None,
+    };
+    let mut buf = vec![0; MAX_FRAME_LEN];
+    let n = wire::encode(&header, &Message::Data(&[0.5]), &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+async fn raw_ping_pong(seconds: f64, period_ms: u64) -> Vec<f64> {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let msg = frame();
+    let len = msg.len();
+    tokio::spawn(async move {
+        let (mut s, _) = listener.accept().await.unwrap();
+        s.set_nodelay(true).unwrap();
+        let mut buf = vec![0; len];
+        while s.read_exact(&mut buf).await.is_ok() {
+            if s.write_all(&buf).await.is_err() {
+                return;
+            }
+        }
+    });
+    let mut c = TcpStream::connect(addr).await.unwrap();
+    c.set_nodelay(true).unwrap();
+    let mut buf = vec![0; len];
+    let mut rtts = Vec::new();
+    let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
+    let mut i = 0u64;
+    while StdInstant::now() < end {
+        let t0 = StdInstant::now();
+        c.write_all(&msg).await.unwrap();
+        c.read_exact(&mut buf).await.unwrap();
+        if i >= 20 {
+            rtts.push(t0.elapsed().as_secs_f64());
+        }
+        i += 1;
+        // The link's pace: a thread woken from a longer sleep wakes slower.
+        tokio::time::sleep(StdDuration::from_millis(period_ms)).await;
+    }
+    rtts
+}
+
+fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> Vec<f64> {
+    let mut c = Config::new(Role::Base);
+    c.axes = 1;
+    c.period = Duration::from_millis(period_ms);
+    let config = LinkConfig::new(c);
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let (mut base, mut remote) = rt.block_on(async {
+        let listener = Listener::bind(any, config).await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (r, b) = tokio::join!(listener.accept(), Link::connect(addr, config));
+        (b.unwrap(), r.unwrap())
+    });
+    let robot = std::thread::spawn(move || {
+        while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
+            let _ = remote.send(s.values());
+        }
+    });
+    let mut nrtt = Vec::new();
+    let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
+    let mut last = None;
+    let mut ticks = 0u64;
+    while StdInstant::now() < end {
+        let _ = base.send(&[0.5]);
+        if base.recv_timeout(StdDuration::from_secs(2)).is_err() {
+            break;
+        }
+        ticks += 1;
+        let stats = base.stats().unwrap();
+        let count = stats.endpoint.nrtt.count();
+        // One new NRTT sample per new echo; skip the start-up.
+        if last != Some(count) && ticks > 20 {
+            if let Some(n) = stats.last_nrtt {
+                nrtt.push(n.as_secs_f64());
+            }
+        }
+        last = Some(count);
+    }
+    drop(base);
+    let _ = robot.join();
+    nrtt
+}
+
+fn main() {
+    let seconds: f64 = std::env::var("NDR_RTT_SECONDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5.0);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let period_ms: u64 = std::env::var("NDR_RTT_PERIOD_MS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10);
+    let mut raw = rt.block_on(raw_ping_pong(seconds, period_ms));
+    let mut ours = link_nrtt(&rt, seconds, period_ms);
+    let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
+    println!(
+        "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
+    );
+    println!(
+        "{:<34} {:>8} {:>10} {:>10} {:>10}",
+        "", "samples", "p50 µs", "p99 µs", "mean µs"
+    );
+    let row = |name: &str, v: &mut Vec<f64>| {
+        let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let (p50, p99) = (percentile(v, 0.5), percentile(v, 0.99));
+        println!(
+            "{name:<34} {:>8} {:>10.1} {:>10.1} {:>10.1}",
+            v.len(),
+            p50 * 1e6,
+            p99 * 1e6,
+            mean * 1e6
+        );
+        p50
+    };
+    let raw_p50 = row("raw tokio TCP ping-pong", &mut raw);
+    let ours_p50 = row("ndr link NRTT (two links)", &mut ours);
+    println!("ratio of medians (ours / raw): {:.2}", ours_p50 / raw_p50);
+}
