@@ -252,7 +252,7 @@ impl Link {
                 .map_err(|e| NetError::Io(io::Error::other(e.to_string())))?,
             input: in_rx,
             out: out_tx,
-            direct: Some(direct),
+            direct,
             queued,
             deliveries: del_tx,
             shared: Arc::clone(&shared),
@@ -506,7 +506,7 @@ struct Driver {
     clock: ReleaseClock,
     input: Receiver<Input>,
     out: tokio::sync::mpsc::UnboundedSender<Vec<u8>>,
-    direct: Option<std::net::TcpStream>,
+    direct: std::net::TcpStream,
     queued: Arc<AtomicUsize>,
     deliveries: SyncSender<Delivery>,
     shared: Arc<Shared>,
@@ -617,13 +617,11 @@ impl Driver {
     fn send_frame(&mut self, bytes: &[u8]) {
         let mut rest = bytes;
         if self.queued.load(AtomicOrdering::Acquire) == 0 {
-            if let Some(socket) = &mut self.direct {
-                match socket.write(bytes) {
-                    Ok(n) if n == bytes.len() => return,
-                    Ok(n) => rest = &bytes[n..],
-                    // Full buffer, or a broken socket the writer will report.
-                    Err(_) => {}
-                }
+            match self.direct.write(bytes) {
+                Ok(n) if n == bytes.len() => return,
+                Ok(n) => rest = &bytes[n..],
+                // Full buffer, or a broken socket the writer will report.
+                Err(_) => {}
             }
         }
         self.queued.fetch_add(1, AtomicOrdering::AcqRel);

@@ -169,15 +169,14 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let remote_final = *remote_stats
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
-    finish(
-        &args.link,
-        &args.run,
+    let outcome = Outcome {
         profile,
-        &base_stats,
-        remote_final.as_ref(),
-        Some(&relay_stats),
-        &rows,
-    )
+        base: base_stats,
+        remote: remote_final,
+        relay: Some(&relay_stats),
+        rows,
+    };
+    finish(&args.link, &args.run, &outcome)
 }
 
 pub fn check_duration(run: &RunArgs) -> Result<(), String> {
@@ -200,18 +199,24 @@ pub fn runtime() -> Result<tokio::runtime::Runtime, String> {
         .map_err(|e| format!("cannot start the I/O runtime: {e}"))
 }
 
+/// What a run of the operator ended with.
+pub struct Outcome<'a> {
+    /// Where the delays came from (a profile) or whom the base talked to.
+    pub profile: String,
+    /// The base's final counters.
+    pub base: Option<LinkStats>,
+    /// The remote's, when it ran in this process.
+    pub remote: Option<LinkStats>,
+    /// The relay's, when it ran in this process.
+    pub relay: Option<&'a RelayStats>,
+    /// One row per released state.
+    pub rows: Vec<Row>,
+}
+
 /// Writes the series and prints the report (table or JSON).
-pub fn finish(
-    link: &LinkArgs,
-    run: &RunArgs,
-    profile: String,
-    base: &Option<LinkStats>,
-    remote: Option<&LinkStats>,
-    relay: Option<&RelayStats>,
-    rows: &[Row],
-) -> Result<(), String> {
-    write_csv(&run.out, rows)?;
-    let report = report(link, run, profile, base, remote, relay, rows);
+pub fn finish(link: &LinkArgs, run: &RunArgs, outcome: &Outcome<'_>) -> Result<(), String> {
+    write_csv(&run.out, &outcome.rows)?;
+    let report = report(link, run, outcome);
     if run.json {
         println!(
             "{}",
@@ -389,16 +394,8 @@ fn p99(mut v: Vec<f64>) -> f64 {
     v[((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
 }
 
-fn report(
-    link: &LinkArgs,
-    run: &RunArgs,
-    profile: String,
-    base: &Option<LinkStats>,
-    remote: Option<&LinkStats>,
-    relay: Option<&RelayStats>,
-    rows: &[Row],
-) -> DemoReport {
-    let b = base.as_ref();
+fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
+    let (b, remote, relay, rows) = (o.base.as_ref(), o.remote.as_ref(), o.relay, &o.rows);
     let eb = b.map(|s| s.endpoint).unwrap_or_default();
     let er = remote.map(|s| s.endpoint).unwrap_or_default();
     let range = |s: Option<&LinkStats>| s.and_then(|s| s.queue_range).unwrap_or((0, 0));
@@ -408,7 +405,7 @@ fn report(
     let grtts: Vec<f64> = rows.iter().filter_map(|r| r.grtt_s).collect();
     DemoReport {
         command: if relay.is_some() { "demo" } else { "base" },
-        profile,
+        profile: o.profile.clone(),
         mode: link.mode.name(),
         underflow: link.underflow.name(),
         period_s: b.map_or(0.0, |s| s.period.as_secs_f64()),

@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use ndr::core::endpoint::LinkError;
 use ndr::net::{Link, LinkStats, Listener, NetError};
 
-use crate::demo::{LinkArgs, RunArgs, check_duration, finish, operator, robot, runtime};
+use crate::demo::{LinkArgs, Outcome, RunArgs, check_duration, finish, operator, robot, runtime};
 
 #[derive(clap::Args)]
 pub struct BaseArgs {
@@ -38,15 +38,14 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     let link = Link::connect_blocking(args.connect, config)
         .map_err(|e| format!("cannot connect to {}: {e}", args.connect))?;
     let (stats, rows) = operator(link, &args.run, args.link.axes, None)?;
-    finish(
-        &args.link,
-        &args.run,
-        format!("tcp {}", args.connect),
-        &stats,
-        None,
-        None,
-        &rows,
-    )
+    let outcome = Outcome {
+        profile: format!("tcp {}", args.connect),
+        base: stats,
+        remote: None,
+        relay: None,
+        rows,
+    };
+    finish(&args.link, &args.run, &outcome)
 }
 
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
