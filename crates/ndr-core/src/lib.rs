@@ -53,13 +53,26 @@
 //! 3. on each send tick: [`wire::encode`] the latest sample with the echo of
 //!    the newest frame received.
 //!
-//! The link endpoint that packages this loop as a sans-IO state machine
-//! builds on these types.
+//! [`endpoint::Endpoint`] packages this loop, with the handshake, the
+//! initialization pattern and the paper's dynamic pause-and-resize, as a
+//! sans-IO state machine: its driver passes time and bytes in and drains
+//! events and frames out —
+//!
+//! ```text
+//! handle_frame(now, bytes) · handle_timeout(now) · poll_timeout()
+//! poll_event() → Released / Started / Paused / LinkLost / Closed
+//! poll_transmit(now, buf) → the next frame to send
+//! ```
+//!
+//! — so the same code runs in the simulator ([`sim`], deterministic, seeded),
+//! behind tokio sockets (`ndr-net`) and from Python.
 //!
 //! ## Features
 //!
 //! - `std` (default): conversions between [`Instant`]/[`Duration`] and
 //!   `std::time`. Without it the crate is `#![no_std]` and uses no `alloc`.
+//! - `sim` (default, implies `std`): the discrete-event simulator and its
+//!   delay models (paper profiles, netem tables, trace replay).
 #![no_std]
 #![forbid(unsafe_code)]
 
