@@ -104,24 +104,35 @@ fn through_the_relay_every_sample_arrives_once_in_order_and_grtt_matches_the_sim
     let grtt = stats.endpoint.grtt;
     assert!(grtt.std() <= 1e-3, "GRTT std {} s", grtt.std());
 
-    // The simulator on the same profile and period. The real peers' tick grids
-    // have an arbitrary phase (the simulator's share one), which moves GRTT by
-    // at most one period.
-    let mut cfg = SimConfig::paper(DelayModel::Lan75km);
-    cfg.period = T;
-    cfg.duration = ndr::core::time::Duration::from_secs(10);
-    let sim = run(&cfg).unwrap().report;
-    assert_eq!(
-        stats.ns, sim.ns,
-        "ns: real {} vs simulated {}",
-        stats.ns, sim.ns
-    );
-    let diff = (grtt.mean() - sim.grtt_mean_s).abs();
+    // The simulator on the same profile and period, over seeds: the
+    // initialization pattern's 10 draws decide ns (2 or 3 here), and the real
+    // peers' tick grids have an arbitrary phase where the simulator's share
+    // one, which moves GRTT by up to one period.
+    let sims: Vec<_> = (1..=10)
+        .map(|seed| {
+            let mut cfg = SimConfig::paper(DelayModel::Lan75km);
+            cfg.period = T;
+            cfg.seed = seed;
+            cfg.duration = ndr::core::time::Duration::from_secs(10);
+            run(&cfg).unwrap().report
+        })
+        .collect();
+    let lo = sims
+        .iter()
+        .map(|r| r.grtt_mean_s)
+        .fold(f64::INFINITY, f64::min);
+    let hi = sims.iter().map(|r| r.grtt_mean_s).fold(0.0, f64::max);
+    let t = T.as_secs_f64();
     assert!(
-        diff <= T.as_secs_f64() + 0.002,
-        "GRTT real {} s vs simulated {} s",
+        grtt.mean() >= lo - t - 0.002 && grtt.mean() <= hi + t + 0.002,
+        "GRTT real {} s (ns {}) vs simulated {lo}..{hi} s",
         grtt.mean(),
-        sim.grtt_mean_s
+        stats.ns
+    );
+    assert!(
+        sims.iter().any(|r| r.ns == stats.ns),
+        "ns {} never simulated",
+        stats.ns
     );
 }
 

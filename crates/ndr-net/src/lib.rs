@@ -9,10 +9,12 @@
 
 pub mod clock;
 pub mod framing;
+pub mod hub;
 pub mod link;
 pub mod relay;
 
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
+pub use hub::Hub;
 pub use link::{Link, LinkConfig, LinkStats, Listener, NetError, Sample};
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};

@@ -4,11 +4,11 @@
 //!
 //! - a **reader** task (tokio) deframes the socket and stamps each frame with
 //!   its arrival time the moment it is read;
-//! - a **link thread** (an OS thread, `ndr-link`) owns the endpoint and keeps
-//!   its deadlines: it waits for frames until just before the next deadline,
-//!   then spins to it ([`ReleaseClock::wait_until`]), so ticks are kept to
-//!   microseconds rather than tokio's milliseconds;
-//! - the link thread writes its frames to the socket itself (it is
+//! - a **hub** thread ([`Hub`], `ndr-hub`) owns the endpoint and keeps its
+//!   deadlines: it waits for frames until just before the next deadline,
+//!   then spins to it, so ticks are kept to microseconds rather than tokio's
+//!   milliseconds; one hub can drive many links on one tick grid;
+//! - the hub writes the link's frames to the socket itself (it is
 //!   non-blocking); a **writer** task (tokio) takes over only the frames
 //!   that find the socket buffer full, in order.
 //!
@@ -19,31 +19,28 @@
 use std::collections::VecDeque;
 use std::fmt;
 use std::io;
-use std::io::Write as _;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::thread::JoinHandle;
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Phase, Release, Stats};
+use ndr_core::endpoint::{Config, ConfigError, Event, LinkError, Phase, Release, Stats};
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{MAX_FRAME_LEN, Role, WireError};
+use ndr_core::wire::Role;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
-use crate::clock::{LatenessHistogram, LatenessStats, ReleaseClock};
-use crate::framing::{Deframer, FramingError};
+use crate::clock::LatenessStats;
+use crate::framing::Deframer;
+use crate::hub::{Delivery, Entry, Hub, Input, LinkEndpoint, Msg, Shared};
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
 /// Capacity of a link's regulator: `ns` up to 255.
 pub const QUEUE: usize = 256;
-
-type LinkEndpoint = Endpoint<MAX_AXES, QUEUE>;
 
 /// A released sample, as the application receives it.
 pub type Sample = Release<MAX_AXES>;
@@ -137,35 +134,19 @@ pub struct LinkStats {
     pub app_dropped: u64,
 }
 
-enum Input {
-    Frame { at: StdInstant, bytes: Vec<u8> },
-    Bad(FramingError),
-    Eof,
-    Close,
-}
-
-enum Delivery {
-    Sample(Sample),
-    Event(Event<MAX_AXES>),
-}
-
-struct Shared {
-    /// The application's latest sample and whether it is new since the last tick.
-    sample: Mutex<(Vec<f64>, bool)>,
-    stats: Mutex<Option<LinkStats>>,
-    notify: Notify,
-}
-
 /// One side of a running link. Dropping it closes the link.
 pub struct Link {
-    input: Sender<Input>,
+    id: u64,
+    hub_tx: Sender<Msg>,
     deliveries: Receiver<Delivery>,
     shared: Arc<Shared>,
     events: VecDeque<Event<MAX_AXES>>,
-    thread: Option<JoinHandle<()>>,
     axes: usize,
     closed: Option<LinkError>,
+    shut: bool,
     peer: SocketAddr,
+    // Keeps a link's own hub (and runtime, for `connect_blocking`) alive.
+    _hub: Hub,
     _runtime: Option<tokio::runtime::Runtime>,
 }
 
@@ -182,8 +163,8 @@ impl fmt::Debug for Link {
 impl Link {
     /// Connects to a remote (this side is the base), on the current tokio runtime.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        let stream = TcpStream::connect(addr).await?;
-        Link::start(stream, Role::Base, config, Handle::current(), None)
+        let hub = Hub::new(config.spin_margin)?;
+        hub.connect(addr, config).await
     }
 
     /// [`connect`](Self::connect) for programs without a tokio runtime: the
@@ -192,7 +173,10 @@ impl Link {
         let rt = own_runtime()?;
         let stream = rt.block_on(TcpStream::connect(addr))?;
         let handle = rt.handle().clone();
-        Link::start(stream, Role::Base, config, handle, Some(rt))
+        let hub = Hub::new(config.spin_margin)?;
+        let mut link = Link::start(stream, Role::Base, config, handle, &hub)?;
+        link._runtime = Some(rt);
+        Ok(link)
     }
 
     /// Drives an already connected stream in `role`.
@@ -200,8 +184,9 @@ impl Link {
         stream: TcpStream,
         role: Role,
         config: LinkConfig,
+        hub: &Hub,
     ) -> Result<Link, NetError> {
-        Link::start(stream, role, config, Handle::current(), None)
+        Link::start(stream, role, config, Handle::current(), hub)
     }
 
     fn start(
@@ -209,7 +194,7 @@ impl Link {
         role: Role,
         config: LinkConfig,
         rt: Handle,
-        own: Option<tokio::runtime::Runtime>,
+        hub: &Hub,
     ) -> Result<Link, NetError> {
         let mut cfg = config.endpoint;
         cfg.role = role;
@@ -232,7 +217,7 @@ impl Link {
         let stream = TcpStream::from_std(std_stream)?;
         let (rd, wr) = stream.into_split();
         let queued = Arc::new(AtomicUsize::new(0));
-        let (in_tx, in_rx) = mpsc::channel::<Input>();
+        let (id, hub_tx) = hub.register();
         let (out_tx, out_rx) = tokio::sync::mpsc::unbounded_channel::<Vec<u8>>();
         let (del_tx, del_rx) = mpsc::sync_channel::<Delivery>(config.app_queue.max(1));
         let shared = Arc::new(Shared {
@@ -240,40 +225,36 @@ impl Link {
             stats: Mutex::new(None),
             notify: Notify::new(),
         });
-        rt.spawn(read_frames(rd, in_tx.clone()));
-        rt.spawn(write_frames(wr, out_rx, in_tx.clone(), Arc::clone(&queued)));
-        let origin = StdInstant::now();
-        let endpoint = Box::new(LinkEndpoint::new(cfg, Instant::ZERO).map_err(NetError::Config)?);
-        let driver = Driver {
+        // The endpoint's clock is the hub's: links on one hub share a tick grid.
+        let now = Instant::from_std(hub.origin(), StdInstant::now());
+        let endpoint = Box::new(LinkEndpoint::new(cfg, now).map_err(NetError::Config)?);
+        let entry = Entry {
             endpoint,
-            origin,
-            clock: ReleaseClock::new(origin, cfg.period)
-                .and_then(|c| c.with_spin_margin(config.spin_margin.min(cfg.period / 2)))
-                .map_err(|e| NetError::Io(io::Error::other(e.to_string())))?,
-            input: in_rx,
-            out: out_tx,
-            direct,
-            queued,
-            deliveries: del_tx,
             shared: Arc::clone(&shared),
-            lateness: LatenessHistogram::new(cfg.period),
+            deliveries: del_tx,
+            direct,
+            queued: Arc::clone(&queued),
+            out: out_tx,
             app_dropped: 0,
-            buf: vec![0; MAX_FRAME_LEN],
+            deadline: None,
         };
-        let thread = std::thread::Builder::new()
-            .name("ndr-link".into())
-            .stack_size(4 << 20)
-            .spawn(move || driver.run())?;
+        hub_tx
+            .send(Msg::Add(id, Box::new(entry)))
+            .map_err(|_| NetError::Io(io::Error::other("the link's hub thread has stopped")))?;
+        rt.spawn(read_frames(rd, id, hub_tx.clone()));
+        rt.spawn(write_frames(wr, out_rx, id, hub_tx.clone(), queued));
         Ok(Link {
-            input: in_tx,
+            id,
+            hub_tx,
             deliveries: del_rx,
             shared,
             events: VecDeque::new(),
-            thread: Some(thread),
             axes: usize::from(cfg.axes),
             closed: None,
+            shut: false,
             peer,
-            _runtime: own,
+            _hub: hub.clone(),
+            _runtime: None,
         })
     }
 
@@ -400,10 +381,21 @@ impl Link {
         self.stats()
     }
 
+    /// Asks the hub to close the link (a Close frame goes out), then waits —
+    /// two seconds at most — until the hub has let it go.
     fn shutdown(&mut self) {
-        let _ = self.input.send(Input::Close);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        if self.shut {
+            return;
+        }
+        self.shut = true;
+        let _ = self.hub_tx.send(Msg::Input(self.id, Input::Close));
+        let end = StdInstant::now() + std::time::Duration::from_secs(2);
+        loop {
+            let left = end.saturating_duration_since(StdInstant::now());
+            match self.deliveries.recv_timeout(left) {
+                Ok(_) => {}
+                Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return,
+            }
         }
     }
 }
@@ -427,15 +419,25 @@ fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
 pub struct Listener {
     listener: TcpListener,
     config: LinkConfig,
+    hub: Hub,
 }
 
 impl Listener {
-    /// Listens on `addr`.
+    /// Listens on `addr`; the links it accepts share one hub of their own.
     pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         Ok(Listener {
             listener: TcpListener::bind(addr).await?,
+            hub: Hub::new(config.spin_margin)?,
             config,
         })
+    }
+
+    /// Puts the links it accepts on `hub` (shared with other listeners or
+    /// connections) instead of a hub of its own.
+    #[must_use]
+    pub fn with_hub(mut self, hub: Hub) -> Listener {
+        self.hub = hub;
+        self
     }
 
     /// The address it listens on.
@@ -447,16 +449,32 @@ impl Listener {
     /// remote). A failed link does not affect the listener.
     pub async fn accept(&self) -> Result<Link, NetError> {
         let (stream, _) = self.listener.accept().await?;
-        Link::start(stream, Role::Remote, self.config, Handle::current(), None)
+        Link::start(
+            stream,
+            Role::Remote,
+            self.config,
+            Handle::current(),
+            &self.hub,
+        )
     }
 }
 
-async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, input: Sender<Input>) {
+impl Hub {
+    /// Connects to a remote (this side is the base) and drives the link on
+    /// this hub, on the current tokio runtime.
+    pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        let stream = TcpStream::connect(addr).await?;
+        Link::start(stream, Role::Base, config, Handle::current(), self)
+    }
+}
+
+async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, id: u64, hub: Sender<Msg>) {
     let mut deframer = Deframer::new();
+    let send = |input| hub.send(Msg::Input(id, input)).is_ok();
     loop {
         let n = match rd.read(deframer.spare()).await {
             Ok(0) | Err(_) => {
-                let _ = input.send(Input::Eof);
+                send(Input::Eof);
                 return;
             }
             Ok(n) => n,
@@ -467,13 +485,13 @@ async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, input: Sender<Input
             match deframer.next_frame() {
                 Ok(Some(frame)) => {
                     let bytes = frame.as_bytes().to_vec();
-                    if input.send(Input::Frame { at, bytes }).is_err() {
+                    if !send(Input::Frame { at, bytes }) {
                         return;
                     }
                 }
                 Ok(None) => break,
                 Err(e) => {
-                    let _ = input.send(Input::Bad(e));
+                    send(Input::Bad(e));
                     return;
                 }
             }
@@ -481,176 +499,21 @@ async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, input: Sender<Input
     }
 }
 
-/// Writes what the link thread could not write at once (a full socket
-/// buffer), in order; the link thread writes directly again once `queued`
-/// is back to zero.
+/// Writes what the hub could not write at once (a full socket buffer), in
+/// order; the hub writes directly again once `queued` is back to zero.
 async fn write_frames(
     mut wr: tokio::net::tcp::OwnedWriteHalf,
     mut out: tokio::sync::mpsc::UnboundedReceiver<Vec<u8>>,
-    input: Sender<Input>,
+    id: u64,
+    hub: Sender<Msg>,
     queued: Arc<AtomicUsize>,
 ) {
     while let Some(frame) = out.recv().await {
         if wr.write_all(&frame).await.is_err() {
-            let _ = input.send(Input::Eof);
+            let _ = hub.send(Msg::Input(id, Input::Eof));
             return;
         }
         queued.fetch_sub(1, AtomicOrdering::Release);
     }
     let _ = wr.shutdown().await;
-}
-
-struct Driver {
-    endpoint: Box<LinkEndpoint>,
-    origin: StdInstant,
-    clock: ReleaseClock,
-    input: Receiver<Input>,
-    out: tokio::sync::mpsc::UnboundedSender<Vec<u8>>,
-    direct: std::net::TcpStream,
-    queued: Arc<AtomicUsize>,
-    deliveries: SyncSender<Delivery>,
-    shared: Arc<Shared>,
-    lateness: LatenessHistogram,
-    app_dropped: u64,
-    buf: Vec<u8>,
-}
-
-impl Driver {
-    fn local(&self, t: StdInstant) -> Instant {
-        Instant::from_std(self.origin, t)
-    }
-
-    fn run(mut self) {
-        self.flush();
-        while !self.endpoint.is_closed() {
-            let deadline = self
-                .endpoint
-                .poll_timeout()
-                .and_then(|t| t.to_std(self.origin));
-            let wait = deadline.map(|d| {
-                d.saturating_duration_since(StdInstant::now())
-                    .saturating_sub(self.clock.spin_margin().into())
-            });
-            let input = match wait {
-                Some(w) => self.input.recv_timeout(w),
-                None => self
-                    .input
-                    .recv()
-                    .map_err(|_| RecvTimeoutError::Disconnected),
-            };
-            match input {
-                Ok(i) => self.handle(i),
-                Err(RecvTimeoutError::Timeout) => {
-                    if let Some(d) = deadline {
-                        let late = self.clock.wait_until(d);
-                        // Frames that arrived before the deadline go first.
-                        while let Ok(i) = self.input.try_recv() {
-                            self.handle(i);
-                        }
-                        self.lateness.record(late);
-                        let now = self.local(StdInstant::now());
-                        self.take_sample();
-                        self.endpoint.handle_timeout(now);
-                    }
-                }
-                Err(RecvTimeoutError::Disconnected) => self.endpoint.abort(LinkError::Disconnected),
-            }
-            self.flush();
-        }
-        self.publish();
-    }
-
-    fn handle(&mut self, input: Input) {
-        match input {
-            Input::Frame { at, bytes } => {
-                let t = self.local(at);
-                // A fatal error closes the endpoint, which reports it as an event.
-                let _ = self.endpoint.handle_frame(t, &bytes);
-            }
-            Input::Bad(FramingError::Wire(e)) => self.endpoint.abort(wire_error(e)),
-            Input::Eof => self.endpoint.abort(LinkError::Disconnected),
-            Input::Close => self.endpoint.close(),
-        }
-    }
-
-    fn take_sample(&mut self) {
-        let mut slot = self
-            .shared
-            .sample
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        if slot.1 {
-            slot.1 = false;
-            // Checked by `Link::send`.
-            let _ = self.endpoint.set_sample(&slot.0);
-        }
-    }
-
-    /// Events to the application, frames to the writer, stats to the snapshot.
-    fn flush(&mut self) {
-        let mut delivered = false;
-        while let Some(event) = self.endpoint.poll_event() {
-            let d = match event {
-                Event::Released(s) => Delivery::Sample(s),
-                e => Delivery::Event(e),
-            };
-            match self.deliveries.try_send(d) {
-                Ok(()) => delivered = true,
-                Err(TrySendError::Full(_)) => self.app_dropped += 1,
-                Err(TrySendError::Disconnected(_)) => {}
-            }
-        }
-        if delivered {
-            self.shared.notify.notify_one();
-        }
-        let now = self.local(StdInstant::now());
-        while let Ok(Some(n)) = self.endpoint.poll_transmit(now, &mut self.buf) {
-            let frame = std::mem::take(&mut self.buf);
-            self.send_frame(&frame[..n]);
-            self.buf = frame;
-        }
-        self.publish();
-    }
-
-    /// Writes a frame on the socket now if nothing is waiting for the writer
-    /// task, else queues it behind what is waiting (frames stay in order).
-    fn send_frame(&mut self, bytes: &[u8]) {
-        let mut rest = bytes;
-        if self.queued.load(AtomicOrdering::Acquire) == 0 {
-            match self.direct.write(bytes) {
-                Ok(n) if n == bytes.len() => return,
-                Ok(n) => rest = &bytes[n..],
-                // Full buffer, or a broken socket the writer will report.
-                Err(_) => {}
-            }
-        }
-        self.queued.fetch_add(1, AtomicOrdering::AcqRel);
-        if self.out.send(rest.to_vec()).is_err() {
-            self.queued.fetch_sub(1, AtomicOrdering::AcqRel);
-        }
-    }
-
-    fn publish(&self) {
-        let ep = &self.endpoint;
-        let stats = LinkStats {
-            phase: ep.phase(),
-            period: ep.period(),
-            ns: ep.ns(),
-            queue_len: ep.queue_len(),
-            queue_range: ep.occupancy().map(|o| (o.min, o.max)),
-            last_nrtt: ep.last_nrtt(),
-            endpoint: ep.stats(),
-            lateness: self.lateness.stats(),
-            app_dropped: self.app_dropped,
-        };
-        *self
-            .shared
-            .stats
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner) = Some(stats);
-    }
-}
-
-fn wire_error(e: WireError) -> LinkError {
-    LinkError::from(e)
 }
