@@ -300,6 +300,22 @@ impl Link {
         }
     }
 
+    /// The next released sample if one is waiting, without blocking
+    /// (`Ok(None)` if none is); for an application that serves many links
+    /// from one thread.
+    pub fn try_recv(&mut self) -> Result<Option<Sample>, NetError> {
+        loop {
+            let d = match self.deliveries.try_recv() {
+                Ok(d) => d,
+                Err(mpsc::TryRecvError::Empty) => return Ok(None),
+                Err(mpsc::TryRecvError::Disconnected) => return Err(self.ended()),
+            };
+            if let Some(s) = self.accept(d)? {
+                return Ok(Some(s));
+            }
+        }
+    }
+
     /// [`recv`](Self::recv) waiting at most `timeout` ([`NetError::Timeout`] then).
     pub fn recv_timeout(&mut self, timeout: std::time::Duration) -> Result<Sample, NetError> {
         let end = StdInstant::now() + timeout;

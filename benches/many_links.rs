@@ -1,0 +1,165 @@
+//! Many concurrent links on loopback at 100 Hz: CPU and memory per link.
+//!
+//! Both ends of every link run in this process: the bases on one hub, the
+//! remotes on another, one application thread echoing the remotes' commands
+//! and draining the bases' states, tokio (2 workers) moving the bytes.
+//! CPU is read from /proc/self/stat over a window after start-up, memory as
+//! the growth of the resident set from before the first link.
+//!
+//! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
+//! default 10; the process needs 2·NDR_LINKS + 50 file descriptors).
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr::core::endpoint::Config;
+use ndr::core::time::Duration;
+use ndr::core::wire::Role;
+use ndr::net::{Hub, Link, LinkConfig, Listener};
+
+fn env(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Resident set size, KiB.
+fn rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse().ok()))
+        })
+        .unwrap_or(0)
+}
+
+/// CPU time of this process (user + system), seconds (USER_HZ = 100).
+fn cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<u64> = after
+        .split_whitespace()
+        .filter_map(|x| x.parse().ok())
+        .collect();
+    // Fields 14 and 15 of the line are the 12th and 13th after the name.
+    (f.get(10).copied().unwrap_or(0) + f.get(11).copied().unwrap_or(0)) as f64 / 100.0
+}
+
+fn main() {
+    let n = env("NDR_LINKS", 1000.0) as usize;
+    let seconds = env("NDR_SECONDS", 10.0);
+    let cpus = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let mut c = Config::new(Role::Base);
+    c.axes = 1;
+    c.period = Duration::from_millis(10);
+    let mut config = LinkConfig::new(c);
+    config.app_queue = 16;
+    let rss0 = rss_kib();
+    let (bases, remotes) = rt.block_on(async {
+        let remote_hub = Hub::with_defaults().unwrap();
+        let base_hub = Hub::with_defaults().unwrap();
+        let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+        let listener = Listener::bind(any, config)
+            .await
+            .unwrap()
+            .with_hub(remote_hub);
+        let addr = listener.local_addr().unwrap();
+        let accept = tokio::spawn(async move {
+            let mut remotes = Vec::new();
+            for _ in 0..n {
+                remotes.push(listener.accept().await.unwrap());
+            }
+            remotes
+        });
+        let mut bases = Vec::new();
+        for _ in 0..n {
+            bases.push(base_hub.connect(addr, config).await.unwrap());
+        }
+        (bases, accept.await.unwrap())
+    });
+    let setup_rss = rss_kib();
+    let stop = Arc::new(AtomicBool::new(false));
+    let app = {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let (mut bases, mut remotes) = (bases, remotes);
+            let mut released = 0u64;
+            while !stop.load(Ordering::Relaxed) {
+                for r in &mut remotes {
+                    while let Ok(Some(s)) = r.try_recv() {
+                        let _ = r.send(s.values());
+                        released += 1;
+                    }
+                }
+                for b in &mut bases {
+                    while let Ok(Some(_)) = b.try_recv() {
+                        released += 1;
+                    }
+                }
+                std::thread::sleep(StdDuration::from_millis(5));
+            }
+            (bases, remotes, released)
+        })
+    };
+    // Start-up: handshake, 10-probe pattern and pre-fill, all under a second.
+    std::thread::sleep(StdDuration::from_secs(3));
+    let (cpu0, t0) = (cpu_s(), StdInstant::now());
+    std::thread::sleep(StdDuration::from_secs_f64(seconds));
+    let (cpu1, elapsed) = (cpu_s(), t0.elapsed().as_secs_f64());
+    let rss = rss_kib();
+    stop.store(true, Ordering::Relaxed);
+    let (bases, remotes, released) = app.join().unwrap();
+    let stats: Vec<_> = bases
+        .iter()
+        .chain(&remotes)
+        .filter_map(Link::stats)
+        .collect();
+    let running = stats.iter().filter(|s| s.ns > 0).count();
+    let underflows: u64 = stats.iter().map(|s| s.endpoint.underflows).sum();
+    let dropped: u64 = stats.iter().map(|s| s.app_dropped).sum();
+    let grtt_std_max = bases
+        .iter()
+        .filter_map(Link::stats)
+        .map(|s| s.endpoint.grtt.std())
+        .fold(0.0, f64::max);
+    let late = stats.first().map(|s| s.lateness).unwrap_or_default();
+    let machine = 100.0 * (cpu1 - cpu0) / elapsed / cpus as f64;
+    println!(
+        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs"
+    );
+    println!("  endpoints running            {running} of {}", 2 * n);
+    println!(
+        "  CPU                          {machine:.1} % of the machine ({:.1} µs per link per second)",
+        1e6 * (cpu1 - cpu0) / elapsed / n as f64
+    );
+    println!(
+        "  memory                       {:.1} KiB per link, both ends ({:.0} MiB resident after set-up, {:.0} MiB at the end)",
+        (rss.saturating_sub(rss0)) as f64 / n as f64,
+        setup_rss as f64 / 1024.0,
+        rss as f64 / 1024.0
+    );
+    println!(
+        "  samples released             {released} ({:.0} per second)",
+        released as f64 / (elapsed + 3.0)
+    );
+    println!("  underflows                   {underflows} · dropped by a slow app {dropped}");
+    println!(
+        "  worst GRTT std of a base     {:.3} ms",
+        grtt_std_max * 1e3
+    );
+    println!(
+        "  hub release lateness         p50 {} · p99 {} · max {}",
+        late.p50, late.p99, late.max
+    );
+    drop((bases, remotes));
+}
