@@ -1,7 +1,55 @@
-"""Type stubs of the extension module ``ndr._native``."""
+"""Type stubs of the extension module ``ndr._native``.
+
+Times are seconds (float). Arrays come out as float64 numpy arrays; anything
+numpy can read as real numbers goes in (lists, tuples, integer arrays).
+A wrong shape, dtype or number of axes, a NaN or an infinity raises
+``ValueError`` naming what was expected; an object of the wrong kind for a
+number raises ``TypeError``.
+"""
+
+from typing import Optional, Tuple, Union, final
+
+import numpy as np
+import numpy.typing as npt
+
+_Floats = npt.NDArray[np.float64]
+_ArrayLike = npt.ArrayLike
+_Tf = Tuple[_Floats, _Floats, float]
+
+__all__ = [
+    "ESTIMATOR_HISTORY",
+    "INIT_EXCHANGES",
+    "MAX_CAPACITY",
+    "__version__",
+    "Arx2",
+    "Envelope",
+    "Estimator",
+    "Kalman3",
+    "LowPass",
+    "NetworkPredictor",
+    "Prediction",
+    "Regulator",
+    "RegulatorFull",
+    "Rls",
+    "Tf2",
+    "Tf2State",
+    "envelope",
+    "init_stats",
+    "kalman3_filter",
+    "lowpass",
+    "nominal_size",
+    "period_law",
+    "rls_filter",
+]
 
 __version__: str
 INIT_EXCHANGES: int
+MAX_CAPACITY: int
+"""The largest ``capacity`` of a :class:`Regulator` (4096)."""
+ESTIMATOR_HISTORY: int
+"""An :class:`Estimator` needs ``delay_fwd + delay_bwd + 3 <= ESTIMATOR_HISTORY`` (4096)."""
+
+# ---------------------------------------------------------------- sizing
 
 def nominal_size(mt: float, period: float, *, eta: float = 1.3) -> int:
     """Nominal NDR queue size ``2 + floor(eta * mt / period)`` (never below 2).
@@ -19,3 +67,498 @@ def init_stats(nrtt: list[float]) -> tuple[float, float, float, float]:
     Takes 1 to ``INIT_EXCHANGES`` round-trip times in seconds; ``mt`` is the
     largest lag of a reception behind its schedule, ``max - min``.
     """
+
+# ---------------------------------------------------------------- regulator
+
+class RegulatorFull(OverflowError):
+    """Raised by :meth:`Regulator.push` when the queue is full.
+
+    Nothing is lost: the refused sample is in :attr:`sample`, and the
+    rejection is counted in :attr:`Regulator.rejected`.
+    """
+
+    sample: _Floats
+
+@final
+class Regulator:
+    """The Network Delay Regulator: a FIFO of float64 vectors of a fixed
+    ``width``, released one per :meth:`tick` at a constant period.
+
+    The queue is pre-filled: releases start at the first tick that finds more
+    than ``ns`` samples queued, so ``ns`` samples of stock stay behind each
+    release. Nothing is dropped silently; at every moment
+    ``arrived == released + len + rejected + discarded``.
+
+    ``Regulator(ns, width=1, *, capacity=64)``: ``0 <= ns < capacity <=
+    MAX_CAPACITY``.
+    """
+
+    def __new__(cls, ns: int, width: int = 1, *, capacity: int = 64) -> "Regulator": ...
+    def push(self, sample: Union[float, _ArrayLike]) -> None:
+        """Queues a sample that has just arrived: a float when ``width`` is 1,
+        else ``width`` floats. Raises :class:`RegulatorFull` when full."""
+    def tick(self) -> Optional[_Floats]:
+        """One tick of the release clock: the released sample, shape
+        ``(width,)``, or None while pre-filling or on an underflow (see
+        :attr:`last_tick`)."""
+    @property
+    def last_tick(self) -> Optional[str]:
+        """What the last tick did: ``"released"``, ``"prefilling"``,
+        ``"underflow"``, or None before the first tick."""
+    @property
+    def phase(self) -> str:
+        """``"prefilling"`` until a tick finds more than ``ns`` queued, then ``"running"``."""
+    def front(self) -> Optional[_Floats]:
+        """The oldest queued sample (the next released), not removed."""
+    def samples(self) -> _Floats:
+        """The queued samples, oldest first, shape ``(len, width)``."""
+    def discard_front(self) -> Optional[_Floats]:
+        """Removes the oldest sample without releasing it (counted as discarded)."""
+    def clear(self) -> int:
+        """Empties the queue (counted as discarded); returns how many were removed."""
+    def restart_prefill(self) -> None:
+        """Goes back to pre-filling, as after the paper's pause; queued samples stay."""
+    def reset_occupancy(self) -> None:
+        """Forgets the occupancy statistics; the counters stay."""
+    @property
+    def ns(self) -> int:
+        """The nominal size (assignable; must stay below ``capacity``)."""
+    @ns.setter
+    def ns(self, value: int) -> None: ...
+    @property
+    def capacity(self) -> int: ...
+    @property
+    def width(self) -> int: ...
+    def __len__(self) -> int: ...
+    @property
+    def arrived(self) -> int:
+        """Samples offered to :meth:`push`."""
+    @property
+    def released(self) -> int:
+        """Samples released by a tick."""
+    @property
+    def rejected(self) -> int:
+        """Samples refused because the queue was full."""
+    @property
+    def discarded(self) -> int:
+        """Samples removed other than by a release."""
+    @property
+    def underflows(self) -> int:
+        """Running ticks that released nothing."""
+    @property
+    def ticks(self) -> int:
+        """Running ticks (pre-fill ticks excluded)."""
+    @property
+    def counters(self) -> dict[str, int]:
+        """``arrived, released, rejected, discarded, underflows, ticks`` as a dict."""
+    @property
+    def occupancy(self) -> Optional[dict[str, float]]:
+        """``{min, max, mean, ticks}`` of the occupancy just before each
+        running tick (the paper's ``s(t)``), or None before the first one."""
+
+# ---------------------------------------------------------------- Kalman, predictor
+
+@final
+class Kalman3:
+    """The paper's triple-integrator Kalman filter, with filterpy's names.
+
+    State ``x = [value, rate, acceleration]``; ``F = [[1, T, T²/2], [0, 1, T],
+    [0, 0, 1]]``, ``H = [[1, 0, 0]]``, ``Q = diag(0, 0, sigma_q²)``,
+    ``R = [[sigma_q²]]``, ``P0 = sigma_q²·I``. ``predict()`` and ``update(z)``
+    are filterpy's equations; the estimates do not depend on ``sigma_q``.
+    ``x`` is 1-D (filterpy also accepts that); ``P``, ``F``, ``H``, ``Q``,
+    ``R`` are read-only copies (the model is the paper's).
+    """
+
+    def __new__(cls, period: float, *, sigma_q: float = 1.0, horizon: int = 50) -> "Kalman3": ...
+    def predict(self) -> None:
+        """Time update: ``x ← F·x``, ``P ← F·P·Fᵀ + Q``."""
+    def update(self, z: float) -> float:
+        """Measurement update; returns the innovation ``z − H·x`` (also ``y``).
+        A NaN or infinite ``z`` raises ValueError and changes nothing."""
+    def step(self, z: float) -> float:
+        """``predict()`` then ``update(z)``; returns the filtered value ``x[0]``."""
+    def run(self, z: _ArrayLike) -> Tuple[_Floats, _Floats]:
+        """A :meth:`step` per sample of ``z`` (shape ``(n,)``), without the GIL.
+        Returns ``(x, ahead)``: states ``(n, 3)`` and horizon predictions ``(n,)``."""
+    def predict_ahead(self) -> float:
+        """The value predicted ``horizon`` periods ahead, ``H·F^l·x``."""
+    def predict_ahead_state(self) -> _Floats:
+        """The state predicted ``horizon`` periods ahead, ``F^l·x``."""
+    def reset(self) -> None:
+        """Back to ``x = 0``, ``P = sigma_q²·I``."""
+    @property
+    def x(self) -> _Floats:
+        """The state, shape ``(3,)``; assign 3 finite floats to set it."""
+    @x.setter
+    def x(self, value: _ArrayLike) -> None: ...
+    @property
+    def value(self) -> float:
+        """The filtered value ``x[0]``."""
+    @property
+    def y(self) -> float:
+        """The last innovation (filterpy's ``y``); 0 before the first update."""
+    @property
+    def P(self) -> _Floats:
+        """The state covariance, shape ``(3, 3)``."""
+    @property
+    def F(self) -> _Floats:
+        """The transition matrix, shape ``(3, 3)``."""
+    @property
+    def A(self) -> _Floats:
+        """The paper's name for ``F``."""
+    @property
+    def F_ahead(self) -> _Floats:
+        """``F`` to the power ``horizon``."""
+    @property
+    def H(self) -> _Floats:
+        """``[[1, 0, 0]]``, shape ``(1, 3)``."""
+    @property
+    def Q(self) -> _Floats:
+        """``diag(0, 0, sigma_q²)``, shape ``(3, 3)``."""
+    @property
+    def R(self) -> _Floats:
+        """``[[sigma_q²]]``, shape ``(1, 1)``."""
+    @property
+    def sigma_q(self) -> float: ...
+    @property
+    def period(self) -> float:
+        """``T`` in seconds; assigning keeps the estimate (it is per second)."""
+    @period.setter
+    def period(self, value: float) -> None: ...
+    @property
+    def horizon(self) -> int:
+        """The prediction horizon ``l``, in periods."""
+    def __copy__(self) -> "Kalman3": ...
+    def __deepcopy__(self, memo: object) -> "Kalman3": ...
+
+def kalman3_filter(
+    z: _ArrayLike,
+    *,
+    period: float,
+    sigma_q: float = 1.0,
+    horizon: int = 50,
+    x0: Optional[_ArrayLike] = None,
+) -> Tuple[_Floats, _Floats]:
+    """Filters ``z`` (shape ``(n,)``) with a fresh :class:`Kalman3` (state
+    ``x0``, default zero), without the GIL. Returns ``(x, ahead)``: the states
+    after each step ``(n, 3)`` and the value predicted ``horizon`` periods
+    ahead after each step ``(n,)``."""
+
+@final
+class Prediction:
+    """One step of :class:`NetworkPredictor`; times in seconds."""
+
+    @property
+    def nrtt_mean(self) -> float:
+        """Measured mean NRTT (the low-passed samples)."""
+    @property
+    def mt(self) -> float:
+        """Measured ``mt`` (the low-passed envelope of the gaps)."""
+    @property
+    def nrtt_ahead(self) -> float:
+        """Mean NRTT predicted ``horizon`` periods ahead, smoothed, never negative."""
+    @property
+    def mt_ahead(self) -> float:
+        """``mt`` predicted ``horizon`` periods ahead, smoothed, never negative."""
+    @property
+    def period(self) -> float:
+        """The period the paper's law would choose: ``max(min_period, nrtt_ahead / 3)``."""
+    @property
+    def ns(self) -> int:
+        """The nominal size the paper's law would choose at that period."""
+
+@final
+class NetworkPredictor:
+    """The paper's network predictor: low-pass and envelope filters, two
+    :class:`Kalman3`, an ``horizon``-period forecast of the mean NRTT and
+    ``mt``, and the ``(period, ns)`` the laws would choose. Time constants are
+    in periods; the defaults are the paper's."""
+
+    def __new__(
+        cls,
+        period: float,
+        *,
+        horizon: int = 50,
+        nrtt_tau: float = 250.0,
+        mt_tau: float = 25.0,
+        ahead_tau: float = 50.0,
+        decay: float = 1.00005,
+        sigma_q: float = 1.0,
+        eta: float = 1.3,
+        min_period: float = 0.05,
+    ) -> "NetworkPredictor": ...
+    def observe_nrtt(self, nrtt: float) -> None:
+        """A round trip was measured (seconds)."""
+    def observe_gap(self, gap: float) -> None:
+        """A frame arrived ``gap`` seconds later than its schedule, relative to the previous one."""
+    def step(self) -> Optional[Prediction]:
+        """Runs the filters one period; None until one NRTT and one gap were observed."""
+    def update(
+        self, nrtt: Optional[float] = None, gap: Optional[float] = None
+    ) -> Optional[Prediction]:
+        """Observes what is given, then :meth:`step`."""
+    @property
+    def last(self) -> Optional[Prediction]: ...
+    @property
+    def steps(self) -> int: ...
+    @property
+    def period(self) -> float:
+        """The period in seconds; assigning keeps what was learnt."""
+    @period.setter
+    def period(self, value: float) -> None: ...
+    @property
+    def horizon(self) -> int: ...
+    @property
+    def nrtt_filter(self) -> Kalman3:
+        """A copy of the Kalman filter of the mean NRTT."""
+    @property
+    def mt_filter(self) -> Kalman3:
+        """A copy of the Kalman filter of ``mt``."""
+
+# ---------------------------------------------------------------- filters
+
+@final
+class LowPass:
+    """First-order low-pass ``y ← y + α·(x − y)``, ``α = 1 − exp(−period/tau)``,
+    starting at the first sample. ``tau`` and ``period`` in seconds."""
+
+    def __new__(cls, tau: float, period: float) -> "LowPass": ...
+    @staticmethod
+    def from_alpha(alpha: float) -> "LowPass":
+        """A low-pass with ``α`` in (0, 1] given directly."""
+    def update(self, x: float) -> float: ...
+    def run(self, x: _ArrayLike) -> _Floats:
+        """An :meth:`update` per sample, shape ``(n,)``, without the GIL."""
+    @property
+    def value(self) -> Optional[float]: ...
+    @property
+    def alpha(self) -> float: ...
+    def set_period(self, period: float) -> None:
+        """Changes the period, keeping the time constant in seconds."""
+    def reset(self) -> None: ...
+
+@final
+class Envelope:
+    """The paper's envelope: ``e ← x`` if ``x > e``, else ``e ← e / decay``."""
+
+    def __new__(cls, decay: float = 1.00005) -> "Envelope": ...
+    def update(self, x: float) -> float: ...
+    def run(self, x: _ArrayLike) -> _Floats:
+        """An :meth:`update` per sample, shape ``(n,)``, without the GIL."""
+    @property
+    def value(self) -> Optional[float]: ...
+    @property
+    def decay(self) -> float: ...
+    def reset(self) -> None: ...
+
+def lowpass(x: _ArrayLike, tau: float, period: float) -> _Floats:
+    """Low-passes ``x`` (shape ``(n,)``) with time constant ``tau`` at period ``period``."""
+
+def envelope(x: _ArrayLike, *, decay: float = 1.00005) -> _Floats:
+    """The envelope of ``x`` (shape ``(n,)``)."""
+
+# ---------------------------------------------------------------- identification
+
+@final
+class Rls:
+    """Recursive least squares with forgetting factor ``lam`` and initial
+    covariance ``delta·I``, ``n`` from 1 to 8 weights; padasip's names.
+
+    ``P`` is reset to ``delta·I`` when its trace exceeds ``trace_bound``
+    (default ``1e6·n·delta``): the guard against covariance wind-up.
+    """
+
+    def __new__(
+        cls,
+        n: int,
+        *,
+        lam: float = 0.99,
+        delta: float = 1000.0,
+        trace_bound: Optional[float] = None,
+    ) -> "Rls": ...
+    def adapt(self, d: float, x: Union[float, _ArrayLike]) -> float:
+        """Adapts to desired value ``d`` and regressor ``x`` (shape ``(n,)``);
+        returns the a-priori error ``d − w·x``. A failed update changes nothing."""
+    def predict(self, x: Union[float, _ArrayLike]) -> float:
+        """The output ``w·x``."""
+    def run(self, d: _ArrayLike, x: _ArrayLike) -> Tuple[_Floats, _Floats, _Floats]:
+        """padasip's ``run``, without the GIL: ``d`` shape ``(N,)``, ``x``
+        shape ``(N, n)``; returns ``(y, e, w)``, the outputs before each
+        adaptation, the errors, and the weights used ``(N, n)``."""
+    @property
+    def w(self) -> _Floats:
+        """The weights, shape ``(n,)``; assignable."""
+    @w.setter
+    def w(self, value: _ArrayLike) -> None: ...
+    @property
+    def P(self) -> _Floats:
+        """The covariance, shape ``(n, n)``."""
+    @property
+    def n(self) -> int: ...
+    @property
+    def lam(self) -> float:
+        """The forgetting factor, in (0, 1]; assignable."""
+    @lam.setter
+    def lam(self, value: float) -> None: ...
+    @property
+    def delta(self) -> float: ...
+    @property
+    def trace_bound(self) -> float: ...
+    @trace_bound.setter
+    def trace_bound(self, value: float) -> None: ...
+    @property
+    def updates(self) -> int: ...
+    @property
+    def covariance_resets(self) -> int:
+        """Automatic resets of ``P`` (wind-up guard or lost definiteness)."""
+    def reset_covariance(self) -> None:
+        """``P ← delta·I``, keeping the weights."""
+    def reset(self) -> None:
+        """Zero weights, ``P = delta·I``, counters at zero."""
+    def __copy__(self) -> "Rls": ...
+    def __deepcopy__(self, memo: object) -> "Rls": ...
+
+def rls_filter(
+    d: _ArrayLike, x: _ArrayLike, *, lam: float = 0.99, delta: float = 1000.0
+) -> Tuple[_Floats, _Floats, _Floats]:
+    """:meth:`Rls.run` with a fresh ``Rls(x.shape[1], lam=lam, delta=delta)``."""
+
+@final
+class Tf2:
+    """``H(z) = (b0 + b1 z⁻¹ + b2 z⁻²) / (1 + a1 z⁻¹ + a2 z⁻²)`` sampled every
+    ``dt`` seconds; ``num = [b0, b1, b2]``, ``den = [a0, a1, a2]`` as in
+    scipy.signal (``den`` is normalized so that ``a0 = 1``)."""
+
+    def __new__(cls, num: _ArrayLike, den: _ArrayLike, dt: float) -> "Tf2": ...
+    @staticmethod
+    def low_pass(wn: float, zeta: float, gain: float, dt: float) -> "Tf2":
+        """Bilinear discretization of ``gain·wn² / (s² + 2·zeta·wn·s + wn²)``, ``wn`` in rad/s."""
+    def to_tf(self) -> _Tf:
+        """``(num, den, dt)``, e.g. for ``scipy.signal.dlti(*tf.to_tf())``."""
+    @property
+    def num(self) -> _Floats: ...
+    @property
+    def den(self) -> _Floats: ...
+    @property
+    def dt(self) -> float: ...
+    @property
+    def dc_gain(self) -> float: ...
+    def is_stable(self) -> bool: ...
+    def simulate(
+        self,
+        u: _ArrayLike,
+        *,
+        u_past: Optional[_ArrayLike] = None,
+        y_past: Optional[_ArrayLike] = None,
+    ) -> _Floats:
+        """The response to ``u`` (shape ``(n,)``), from rest unless
+        ``u_past = [u[-1], u[-2]]``, ``y_past = [y[-1], y[-2]]``; equals
+        ``scipy.signal.lfilter(num, den, u)`` from rest."""
+
+@final
+class Tf2State:
+    """A :class:`Tf2` being simulated, one input at a time."""
+
+    def __new__(
+        cls,
+        model: Tf2,
+        *,
+        u_past: Optional[_ArrayLike] = None,
+        y_past: Optional[_ArrayLike] = None,
+    ) -> "Tf2State": ...
+    def step(self, u: float) -> float: ...
+    def run(self, u: _ArrayLike) -> _Floats: ...
+    @property
+    def output(self) -> float: ...
+    @property
+    def model(self) -> Tf2: ...
+    @model.setter
+    def model(self, value: Tf2) -> None: ...
+    def reset(self) -> None: ...
+
+@final
+class Arx2:
+    """Online identification of a :class:`Tf2` by RLS on
+    ``[u[k], u[k-1], u[k-2], -y[k-1], -y[k-2]]``; weights ``[b0, b1, b2, a1, a2]``."""
+
+    def __new__(cls, dt: float, *, lam: float = 1.0, delta: float = 1e6) -> "Arx2": ...
+    def update(self, u: float, y: float) -> Optional[float]:
+        """Records ``u[k]``, ``y[k]``; adapts once two earlier samples are
+        known and returns the a-priori error, else None."""
+    def fit(self, u: _ArrayLike, y: _ArrayLike) -> _Floats:
+        """An :meth:`update` per pair, without the GIL; errors ``(n,)``, NaN
+        where no adaptation happened."""
+    def record_substitute(self, u: float, y: float) -> None:
+        """Records a stand-in pair without adapting on it."""
+    def clear_history(self) -> None: ...
+    def predict(self, u: float) -> Optional[float]:
+        """The model's output for ``u``, or None until two samples are known."""
+    @property
+    def model(self) -> Tf2: ...
+    def to_tf(self) -> _Tf:
+        """``(num, den, dt)`` of the identified model, scipy.signal's convention."""
+    @property
+    def dt(self) -> float: ...
+    @property
+    def rls(self) -> Rls:
+        """A copy of the underlying 5-weight :class:`Rls`."""
+    @property
+    def updates(self) -> int: ...
+    def reset(self) -> None: ...
+
+@final
+class Estimator:
+    """The remote's state now (``x3e``) and when the command sent now takes
+    effect (``x3p``), from the commands in flight and the delayed feedback.
+
+    ``delay_fwd``, ``delay_bwd``: the regulated one-way delays, in ticks.
+    With ``model`` (a :class:`Tf2`) the model is fixed; otherwise it is
+    identified with an :class:`Arx2` (``lam``, ``delta``). ``dt`` is the
+    period in seconds (taken from ``model`` if not given).
+    """
+
+    def __new__(
+        cls,
+        delay_fwd: int,
+        delay_bwd: int,
+        *,
+        dt: Optional[float] = None,
+        model: Optional[Tf2] = None,
+        lam: float = 1.0,
+        delta: float = 1e6,
+    ) -> "Estimator": ...
+    def step(self, u: float, y: Optional[float] = None) -> Tuple[float, float, bool]:
+        """One tick: the command ``u`` sent now, the state sample ``y``
+        released now (None on an underflow). Returns ``(x3e, x3p, from_model)``;
+        before the model is usable both hold the last state received."""
+    def run(
+        self, u: _ArrayLike, y: _ArrayLike, received: Optional[_ArrayLike] = None
+    ) -> Tuple[_Floats, _Floats, npt.NDArray[np.bool_]]:
+        """A :meth:`step` per tick, without the GIL; ``received`` (bool,
+        default all True) marks the ticks with a sample, ``y`` is ignored where
+        it is False."""
+    @property
+    def model(self) -> Tf2: ...
+    def to_tf(self) -> _Tf:
+        """``(num, den, dt)`` of the model in use, scipy.signal's convention."""
+    @property
+    def arx(self) -> Optional[Arx2]:
+        """A copy of the identifier, or None with a fixed model."""
+    @property
+    def is_identifying(self) -> bool: ...
+    @property
+    def delays(self) -> Tuple[int, int]:
+        """``(delay_fwd, delay_bwd)`` in ticks; assignable."""
+    @delays.setter
+    def delays(self, value: Tuple[int, int]) -> None: ...
+    @property
+    def dt(self) -> float: ...
+    @property
+    def ticks(self) -> int: ...
+    @property
+    def last_received(self) -> Optional[float]: ...
+    def reset(self) -> None:
+        """Forgets the command history and anchors, keeping the model."""
+    def reset_identification(self) -> None:
+        """Restarts identification from a zero model."""

@@ -4,21 +4,29 @@
 //! core, and converts back; errors become `ValueError` with the core's
 //! message. The Pythonic surface (docstrings, keyword arguments, helpers)
 //! lives in the `ndr` package under `python/`.
+//!
+//! - [`convert`]: seconds, counts and arrays in, arrays out; every refusal
+//!   names what was expected;
+//! - [`regulator`]: `Regulator` and its `RegulatorFull` exception;
+//! - [`kalman`]: `Kalman3`, `NetworkPredictor`, `Prediction`, `kalman3_filter`;
+//! - [`rls`]: `Rls` (sizes 1 to 8), `rls_filter`;
+//! - [`arx`]: `Tf2`, `Tf2State`, `Arx2`, `Estimator`;
+//! - [`filters`]: `LowPass`, `Envelope`, `lowpass`, `envelope`.
+//!
+//! Batch functions copy their inputs, then run without the GIL.
+
+pub mod arx;
+pub mod convert;
+pub mod filters;
+pub mod kalman;
+pub mod regulator;
+pub mod rls;
 
 use ndr_core::sizing::{self, InitPattern, Sizing};
-use ndr_core::time::Duration;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-/// A duration in seconds from Python, refusing what cannot be one.
-fn seconds(name: &str, value: f64) -> PyResult<Duration> {
-    if !value.is_finite() || value < 0.0 {
-        return Err(PyValueError::new_err(format!(
-            "{name} must be a finite, non-negative number of seconds, got {value}"
-        )));
-    }
-    Ok(Duration::from_secs_f64(value))
-}
+use crate::convert::seconds;
 
 fn sizing_law(eta: f64, min_period: f64) -> PyResult<Sizing> {
     Sizing::new(eta, seconds("min_period", min_period)?)
@@ -27,7 +35,7 @@ fn sizing_law(eta: f64, min_period: f64) -> PyResult<Sizing> {
 
 /// Nominal NDR queue size `ns = 2 + floor(eta * mt / period)` (never below 2).
 #[pyfunction]
-#[pyo3(signature = (mt, period, *, eta = sizing::DEFAULT_ETA))]
+#[pyo3(signature = (mt, period, *, eta = sizing::DEFAULT_ETA), text_signature = "(mt, period, *, eta=1.3)")]
 fn nominal_size(mt: f64, period: f64, eta: f64) -> PyResult<usize> {
     let period = seconds("period", period)?;
     if period.is_zero() {
@@ -72,5 +80,26 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(nominal_size, m)?)?;
     m.add_function(wrap_pyfunction!(period_law, m)?)?;
     m.add_function(wrap_pyfunction!(init_stats, m)?)?;
+    m.add(
+        "RegulatorFull",
+        m.py().get_type::<regulator::RegulatorFull>(),
+    )?;
+    m.add_class::<regulator::PyRegulator>()?;
+    m.add_class::<kalman::PyKalman3>()?;
+    m.add_class::<kalman::PyPrediction>()?;
+    m.add_class::<kalman::PyNetworkPredictor>()?;
+    m.add_function(wrap_pyfunction!(kalman::kalman3_filter, m)?)?;
+    m.add_class::<rls::PyRls>()?;
+    m.add_function(wrap_pyfunction!(rls::rls_filter, m)?)?;
+    m.add_class::<arx::PyTf2>()?;
+    m.add_class::<arx::PyTf2State>()?;
+    m.add_class::<arx::PyArx2>()?;
+    m.add_class::<arx::PyEstimator>()?;
+    m.add_class::<filters::PyLowPass>()?;
+    m.add_class::<filters::PyEnvelope>()?;
+    m.add_function(wrap_pyfunction!(filters::lowpass, m)?)?;
+    m.add_function(wrap_pyfunction!(filters::envelope, m)?)?;
+    m.add("MAX_CAPACITY", regulator::MAX_CAPACITY)?;
+    m.add("ESTIMATOR_HISTORY", arx::ESTIMATOR_HISTORY)?;
     Ok(())
 }

@@ -1,0 +1,316 @@
+//! Conversions between Python values and the core's types, and error mapping.
+//!
+//! Every check names what was expected, so a wrong shape, dtype, number of
+//! axes, a NaN or an out-of-range count is a `ValueError` that says how to
+//! call the function, never a panic.
+
+use core::fmt::Display;
+
+use ndr_core::time::Duration;
+use numpy::ndarray::Array2;
+use numpy::{
+    PyArray1, PyArray2, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyUntypedArray,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+
+/// A `ValueError` carrying the core's message.
+pub fn value_error(e: impl Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// A duration in seconds from Python, refusing what cannot be one.
+pub fn seconds(name: &str, value: f64) -> PyResult<Duration> {
+    if !value.is_finite() || value < 0.0 {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a finite, non-negative number of seconds, got {value}"
+        )));
+    }
+    if value > u64::MAX as f64 / 1e9 {
+        return Err(PyValueError::new_err(format!(
+            "{name} = {value} s is too long: durations are integer nanoseconds up to about 584 years"
+        )));
+    }
+    Ok(Duration::from_secs_f64(value))
+}
+
+/// A positive duration in seconds (a period).
+pub fn period(name: &str, value: f64) -> PyResult<Duration> {
+    let d = seconds(name, value)?;
+    if d.is_zero() {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a positive number of seconds (at least 1 ns), got {value}"
+        )));
+    }
+    Ok(d)
+}
+
+/// A finite float.
+pub fn finite(name: &str, value: f64) -> PyResult<f64> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(PyValueError::new_err(format!(
+            "{name} must be a finite number, got {value}"
+        )))
+    }
+}
+
+/// An integer in `min..=max`, from any Python int; out of range (even beyond
+/// 64 bits) is a `ValueError`, a non-integer a `TypeError`.
+pub fn count(name: &str, obj: &Bound<'_, PyAny>, min: usize, max: usize) -> PyResult<usize> {
+    let expected = || format!("{name} must be an integer from {min} to {max}");
+    let v: i64 = match obj.extract::<i64>() {
+        Ok(v) => v,
+        Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => {
+            return Err(PyValueError::new_err(format!("{}, got {obj}", expected())));
+        }
+        Err(_) => {
+            let ty = obj.get_type().name()?;
+            return Err(PyTypeError::new_err(format!(
+                "{}, got an object of type {ty}",
+                expected()
+            )));
+        }
+    };
+    match usize::try_from(v) {
+        Ok(v) if (min..=max).contains(&v) => Ok(v),
+        _ => Err(PyValueError::new_err(format!("{}, got {v}", expected()))),
+    }
+}
+
+static ASARRAY: PyOnceLock<Py<PyAny>> = PyOnceLock::new();
+
+/// Any array-like as a float64 numpy array (no copy if it already is one).
+///
+/// Booleans and integers are converted; strings, objects, complex numbers and
+/// ragged sequences are refused with a `ValueError` naming `expected`.
+fn float_array<'py>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    expected: &str,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    if let Ok(a) = obj.cast::<PyArrayDyn<f64>>() {
+        return Ok(a.clone());
+    }
+    let py = obj.py();
+    let asarray = ASARRAY.import(py, "numpy", "asarray")?;
+    let array = if obj.cast::<PyUntypedArray>().is_ok() {
+        obj.clone()
+    } else {
+        asarray.call1((obj,)).map_err(|e| {
+            PyValueError::new_err(format!(
+                "{name}: expected {expected}, got something numpy cannot read as an array ({e})"
+            ))
+        })?
+    };
+    let untyped = array
+        .cast::<PyUntypedArray>()
+        .map_err(|_| PyValueError::new_err(format!("{name}: expected {expected}, got {obj}")))?;
+    let dtype = untyped.dtype();
+    if !matches!(dtype.kind(), b'b' | b'i' | b'u' | b'f') {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected {expected} of real numbers (float64), got dtype {dtype}"
+        )));
+    }
+    let converted = asarray.call1((untyped, numpy::dtype::<f64>(py)))?;
+    converted
+        .cast_into::<PyArrayDyn<f64>>()
+        .map_err(|_| PyValueError::new_err(format!("{name}: expected {expected} of float64")))
+}
+
+fn axes(n: usize) -> String {
+    if n == 1 {
+        "1 axis".to_owned()
+    } else {
+        format!("{n} axes")
+    }
+}
+
+fn shape_str(shape: &[usize]) -> String {
+    match shape {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// Copies the values out (C order).
+fn read_values(name: &str, array: &Bound<'_, PyArrayDyn<f64>>) -> PyResult<Vec<f64>> {
+    let ro = array.try_readonly().map_err(|e| {
+        PyValueError::new_err(format!("{name}: the array cannot be read now ({e})"))
+    })?;
+    // A contiguous array is one copy; iterating a dynamic-rank view costs far more.
+    match ro.as_slice() {
+        Ok(values) => Ok(values.to_vec()),
+        Err(_) => Ok(ro.as_array().iter().copied().collect()),
+    }
+}
+
+/// Copies the values out (C order) and refuses NaN and infinities.
+fn finite_values(name: &str, array: &Bound<'_, PyArrayDyn<f64>>) -> PyResult<Vec<f64>> {
+    let values = read_values(name, array)?;
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        let shape = array.shape();
+        let index = unravel(i, shape);
+        return Err(PyValueError::new_err(format!(
+            "{name}{index} is {}: expected finite numbers (no NaN or infinity)",
+            values[i]
+        )));
+    }
+    Ok(values)
+}
+
+fn unravel(mut i: usize, shape: &[usize]) -> String {
+    let mut idx = vec![0usize; shape.len()];
+    for (slot, &n) in idx.iter_mut().zip(shape).rev() {
+        if n > 0 {
+            *slot = i % n;
+            i /= n;
+        }
+    }
+    format!(
+        "[{}]",
+        idx.iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+/// A 1-D array of finite floats, of length `len` if given.
+pub fn vector(name: &str, obj: &Bound<'_, PyAny>, len: Option<usize>) -> PyResult<Vec<f64>> {
+    let v = vector_with_nan(name, obj, len)?;
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "{name}[{i}] is {}: expected finite numbers (no NaN or infinity)",
+            v[i]
+        )));
+    }
+    Ok(v)
+}
+
+/// A 1-D array of floats, of length `len` if given; NaN and infinities pass.
+pub fn vector_with_nan(
+    name: &str,
+    obj: &Bound<'_, PyAny>,
+    len: Option<usize>,
+) -> PyResult<Vec<f64>> {
+    let expected = match len {
+        Some(n) => format!("a 1-D array of shape ({n},)"),
+        None => "a 1-D array of shape (n,)".to_owned(),
+    };
+    let array = float_array(name, obj, &expected)?;
+    let shape = array.shape();
+    match (shape, len) {
+        ([_], None) => {}
+        ([n], Some(want)) if *n == want => {}
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "{name}: expected {expected}, got shape {} ({})",
+                shape_str(shape),
+                axes(shape.len())
+            )));
+        }
+    }
+    read_values(name, &array)
+}
+
+/// A fixed-size vector, e.g. a state.
+pub fn array_of<const N: usize>(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<[f64; N]> {
+    let v = vector(name, obj, Some(N))?;
+    let mut out = [0.0; N];
+    out.copy_from_slice(&v);
+    Ok(out)
+}
+
+/// A 2-D array of finite floats with `rows` rows if given and `cols` columns
+/// if given, in row-major order, with its shape.
+pub fn matrix(
+    name: &str,
+    obj: &Bound<'_, PyAny>,
+    rows: Option<usize>,
+    cols: Option<usize>,
+) -> PyResult<(Vec<f64>, usize, usize)> {
+    let dim = |d: Option<usize>, letter: &str| d.map_or(letter.to_owned(), |n| n.to_string());
+    let expected = format!(
+        "a 2-D array of shape ({}, {})",
+        dim(rows, "n"),
+        dim(cols, "m")
+    );
+    let array = float_array(name, obj, &expected)?;
+    let shape = array.shape();
+    let ok = match shape {
+        [r, c] => rows.is_none_or(|n| n == *r) && cols.is_none_or(|n| n == *c),
+        _ => false,
+    };
+    if !ok {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected {expected}, got shape {} ({})",
+            shape_str(shape),
+            axes(shape.len())
+        )));
+    }
+    let (r, c) = (shape[0], shape[1]);
+    Ok((finite_values(name, &array)?, r, c))
+}
+
+/// Two lengths that must agree.
+pub fn same_len(a: (&str, usize), b: (&str, usize)) -> PyResult<()> {
+    if a.1 == b.1 {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!(
+            "{} and {} must have the same number of samples, got {} and {}",
+            a.0, b.0, a.1, b.1
+        )))
+    }
+}
+
+/// A 1-D float64 array.
+pub fn array1<'py>(py: Python<'py>, v: Vec<f64>) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_vec(py, v)
+}
+
+/// A 2-D float64 array from row-major values.
+pub fn array2<'py>(
+    py: Python<'py>,
+    v: Vec<f64>,
+    rows: usize,
+    cols: usize,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let a = Array2::from_shape_vec((rows, cols), v).map_err(value_error)?;
+    Ok(PyArray2::from_owned_array(py, a))
+}
+
+/// A `(3, 3)` array from anything indexable by `(row, column)`.
+pub fn mat3<'py, M>(py: Python<'py>, m: &M) -> PyResult<Bound<'py, PyArray2<f64>>>
+where
+    M: core::ops::Index<(usize, usize), Output = f64>,
+{
+    let mut v = Vec::with_capacity(9);
+    for i in 0..3 {
+        for j in 0..3 {
+            v.push(m[(i, j)]);
+        }
+    }
+    array2(py, v, 3, 3)
+}
+
+/// A 1-D array of `len` finite floats, or a plain number when `len` is 1.
+pub fn sample(name: &str, obj: &Bound<'_, PyAny>, len: usize) -> PyResult<Vec<f64>> {
+    if len == 1 && obj.cast::<PyUntypedArray>().is_err() {
+        if let Ok(v) = obj.extract::<f64>() {
+            return Ok(vec![finite(name, v)?]);
+        }
+    }
+    vector(name, obj, Some(len))
+}
