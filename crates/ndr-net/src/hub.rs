@@ -257,10 +257,16 @@ impl Driver {
     /// Events to the application, frames to the socket, the deadline to the
     /// index; a closed link leaves the hub.
     fn flush(&mut self, id: u64) {
-        let now = self.local(StdInstant::now());
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
+        // Frames first: the application's answer to this tick's events
+        // cannot make this tick anyway (its sample was taken before), and
+        // waking its thread first would delay the frame by the wake-up.
+        let now = Instant::from_std(self.origin, StdInstant::now());
+        while let Ok(Some(n)) = e.endpoint.poll_transmit(now, &mut self.buf) {
+            send_frame(e, &self.buf[..n]);
+        }
         let mut delivered = false;
         while let Some(event) = e.endpoint.poll_event() {
             let d = match event {
@@ -275,9 +281,6 @@ impl Driver {
         }
         if delivered {
             e.shared.notify.notify_one();
-        }
-        while let Ok(Some(n)) = e.endpoint.poll_transmit(now, &mut self.buf) {
-            send_frame(e, &self.buf[..n]);
         }
         publish(e, self.lateness_stats);
         let next = e.endpoint.poll_timeout();
