@@ -15,7 +15,7 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, SyncSender, TryS
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{Endpoint, Event, LinkError};
+use ndr_core::endpoint::{Endpoint, Event, LinkError, Running};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::MAX_FRAME_LEN;
 use tokio::sync::Notify;
@@ -58,6 +58,8 @@ pub(crate) struct Entry {
     pub queued: Arc<AtomicUsize>,
     pub out: tokio::sync::mpsc::UnboundedSender<Vec<u8>>,
     pub app_dropped: u64,
+    /// From a frame's arrival (the kernel's stamp) to the hub handling it.
+    pub rx_lag: Running,
     /// The deadline this entry holds in the hub's index.
     pub deadline: Option<Instant>,
 }
@@ -209,6 +211,8 @@ impl Driver {
                 };
                 match input {
                     Input::Frame { at, bytes } => {
+                        e.rx_lag
+                            .push_duration(StdInstant::now().saturating_duration_since(at).into());
                         let t = Instant::from_std(self.origin, at);
                         // A fatal error closes the endpoint, which reports it as an event.
                         let _ = e.endpoint.handle_frame(t, &bytes);
@@ -349,6 +353,7 @@ fn publish(e: &Entry, lateness: LatenessStats) {
         endpoint: ep.stats(),
         lateness,
         app_dropped: e.app_dropped,
+        rx_lag: e.rx_lag,
     };
     *e.shared
         .stats

@@ -25,10 +25,10 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{Config, ConfigError, Event, LinkError, Phase, Release, Stats};
+use ndr_core::endpoint::{Config, ConfigError, Event, LinkError, Phase, Release, Running, Stats};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::Role;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
@@ -132,6 +132,9 @@ pub struct LinkStats {
     pub lateness: LatenessStats,
     /// Samples and events dropped because the application did not read them.
     pub app_dropped: u64,
+    /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
+    /// where there is one) to the hub handing it to the endpoint.
+    pub rx_lag: Running,
 }
 
 /// One side of a running link. Dropping it closes the link.
@@ -236,6 +239,7 @@ impl Link {
             queued: Arc::clone(&queued),
             out: out_tx,
             app_dropped: 0,
+            rx_lag: Running::default(),
             deadline: None,
         };
         hub_tx
@@ -484,18 +488,19 @@ impl Hub {
     }
 }
 
-async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, id: u64, hub: Sender<Msg>) {
+async fn read_frames(rd: tokio::net::tcp::OwnedReadHalf, id: u64, hub: Sender<Msg>) {
     let mut deframer = Deframer::new();
     let send = |input| hub.send(Msg::Input(id, input)).is_ok();
+    let stream: &TcpStream = rd.as_ref();
+    let kernel_stamps = arrival::enable(stream);
     loop {
-        let n = match rd.read(deframer.spare()).await {
-            Ok(0) | Err(_) => {
+        let (n, at) = match arrival::read(stream, deframer.spare(), kernel_stamps).await {
+            Ok((0, _)) | Err(_) => {
                 send(Input::Eof);
                 return;
             }
-            Ok(n) => n,
+            Ok(read) => read,
         };
-        let at = StdInstant::now();
         deframer.filled(n);
         loop {
             match deframer.next_frame() {
@@ -512,6 +517,94 @@ async fn read_frames(mut rd: tokio::net::tcp::OwnedReadHalf, id: u64, hub: Sende
                 }
             }
         }
+    }
+}
+
+/// When bytes arrived: the kernel's receive timestamp where the platform
+/// gives one, else the moment the reader got them. The kernel's stamp leaves
+/// out the reader's wake-up (tens of µs for a thread that slept a period),
+/// which would otherwise count as network delay.
+mod arrival {
+    use std::io;
+    use std::time::Instant as StdInstant;
+
+    use tokio::net::TcpStream;
+
+    /// Asks the kernel to stamp received data; `false` if it will not.
+    #[cfg(target_os = "linux")]
+    pub(super) fn enable(stream: &TcpStream) -> bool {
+        nix::sys::socket::setsockopt(stream, nix::sys::socket::sockopt::ReceiveTimestampns, &true)
+            .is_ok()
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    pub(super) fn enable(_: &TcpStream) -> bool {
+        false
+    }
+
+    /// Reads what is available into `buf`, with its arrival time.
+    pub(super) async fn read(
+        stream: &TcpStream,
+        buf: &mut [u8],
+        kernel: bool,
+    ) -> io::Result<(usize, StdInstant)> {
+        loop {
+            stream.readable().await?;
+            let got = if kernel {
+                stream.try_io(tokio::io::Interest::READABLE, || stamped(stream, buf))
+            } else {
+                stream.try_read(buf).map(|n| (n, None))
+            };
+            match got {
+                Ok((n, stamp)) => return Ok((n, stamp.unwrap_or_else(StdInstant::now))),
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    #[cfg(target_os = "linux")]
+    fn stamped(stream: &TcpStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
+        use std::os::fd::AsRawFd;
+        use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+        use nix::sys::socket::{ControlMessageOwned, MsgFlags, recvmsg};
+        use nix::sys::time::TimeSpec;
+
+        let mut iov = [io::IoSliceMut::new(buf)];
+        let mut cmsg = nix::cmsg_space!(TimeSpec);
+        let msg = recvmsg::<()>(
+            stream.as_raw_fd(),
+            &mut iov,
+            Some(&mut cmsg),
+            MsgFlags::empty(),
+        )
+        .map_err(io::Error::from)?;
+        let kernel = msg.cmsgs().ok().and_then(|mut c| {
+            c.find_map(|m| match m {
+                ControlMessageOwned::ScmTimestampns(ts) => Some(ts),
+                _ => None,
+            })
+        });
+        // The stamp is on the wall clock: turn it into an age, then into a
+        // monotonic instant. A stamp from the future or older than a second
+        // means the wall clock moved; trust the read time then.
+        let stamp = kernel.and_then(|ts| {
+            let sec = u64::try_from(ts.tv_sec()).ok()?;
+            let nsec = u32::try_from(ts.tv_nsec()).ok()?;
+            let wall = UNIX_EPOCH + Duration::new(sec, nsec);
+            let (now, wall_now) = (StdInstant::now(), SystemTime::now());
+            let age = wall_now.duration_since(wall).ok()?;
+            (age < Duration::from_secs(1))
+                .then(|| now.checked_sub(age))
+                .flatten()
+        });
+        Ok((msg.bytes, stamp))
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    fn stamped(stream: &TcpStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
+        stream.try_read(buf).map(|n| (n, None))
     }
 }
 
