@@ -5,34 +5,35 @@
 //! link does not scale: at 100 Hz each spins about 2 % of a core. A hub runs
 //! every endpoint it owns on one tick grid (one origin for all), so links of
 //! the same period tick at the same instants and one spin serves them all.
-//! Deadlines live in an ordered index; frames from the readers arrive on one
-//! channel tagged with their link.
+//!
+//! The hub also owns the links' sockets (non-blocking, polled with mio): a
+//! frame goes from the kernel to its endpoint in one thread wake-up, with no
+//! hand-over between threads, and frames are written from the same thread.
 
 use std::collections::{BTreeSet, HashMap};
 use std::io::{self, Write as _};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering as AtomicOrdering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, Sender, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
+use mio::net::TcpStream as MioStream;
+use mio::{Events, Interest, Poll, Token, Waker};
 use ndr_core::endpoint::{Endpoint, Event, LinkError, Running};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::MAX_FRAME_LEN;
 use tokio::sync::Notify;
 
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
-use crate::framing::FramingError;
+use crate::framing::{Deframer, FramingError};
 use crate::link::{LinkStats, MAX_AXES, QUEUE, Sample};
 
 pub(crate) type LinkEndpoint = Endpoint<MAX_AXES, QUEUE>;
 
-/// What a link's reader (or its application) tells the hub.
-pub(crate) enum Input {
-    Frame { at: StdInstant, bytes: Vec<u8> },
-    Bad(FramingError),
-    Eof,
-    Close,
-}
+/// The waker's token; links use their id.
+const WAKER: Token = Token(usize::MAX);
+/// Bytes a link may have waiting for a slow socket before it is cut off.
+const MAX_PENDING: usize = 1 << 20;
 
 /// What the hub hands to a link's application.
 pub(crate) enum Delivery {
@@ -53,10 +54,11 @@ pub(crate) struct Entry {
     pub endpoint: Box<LinkEndpoint>,
     pub shared: Arc<Shared>,
     pub deliveries: SyncSender<Delivery>,
-    /// The socket, written directly (non-blocking) while nothing waits in `out`.
-    pub direct: std::net::TcpStream,
-    pub queued: Arc<AtomicUsize>,
-    pub out: tokio::sync::mpsc::UnboundedSender<Vec<u8>>,
+    pub socket: MioStream,
+    pub deframer: Deframer,
+    /// Bytes the socket would not take yet, in order.
+    pub pending: Vec<u8>,
+    pub kernel_stamps: bool,
     pub app_dropped: u64,
     /// From a frame's arrival (the kernel's stamp) to the hub handling it.
     pub rx_lag: Running,
@@ -66,14 +68,25 @@ pub(crate) struct Entry {
 
 pub(crate) enum Msg {
     Add(u64, Box<Entry>),
-    Input(u64, Input),
+    Close(u64),
 }
 
 struct Inner {
-    tx: Sender<Msg>,
+    /// `None` only while dropping (see `Drop`).
+    tx: Option<Sender<Msg>>,
+    waker: Waker,
     next_id: AtomicU64,
     origin: StdInstant,
     links: Arc<AtomicUsize>,
+}
+
+impl Drop for Inner {
+    /// The last handle is gone: close the channel, then wake the thread so it
+    /// sees that and ends (it has no link left: links hold handles).
+    fn drop(&mut self) {
+        drop(self.tx.take());
+        let _ = self.waker.wake();
+    }
 }
 
 /// A driver thread for any number of links; cheap to clone.
@@ -97,9 +110,12 @@ impl Hub {
     /// `spin_margin` before each deadline.
     pub fn new(spin_margin: Duration) -> io::Result<Hub> {
         let (tx, rx) = mpsc::channel();
+        let poll = Poll::new()?;
+        let waker = Waker::new(poll.registry(), WAKER)?;
         let origin = StdInstant::now();
         let links = Arc::new(AtomicUsize::new(0));
         let driver = Driver {
+            poll,
             origin,
             margin: spin_margin.into(),
             input: rx,
@@ -117,7 +133,8 @@ impl Hub {
             .spawn(move || driver.run())?;
         Ok(Hub {
             inner: Arc::new(Inner {
-                tx,
+                tx: Some(tx),
+                waker,
                 next_id: AtomicU64::new(0),
                 origin,
                 links,
@@ -140,13 +157,22 @@ impl Hub {
         self.inner.origin
     }
 
-    pub(crate) fn register(&self) -> (u64, Sender<Msg>) {
-        let id = self.inner.next_id.fetch_add(1, AtomicOrdering::Relaxed);
-        (id, self.inner.tx.clone())
+    pub(crate) fn next_id(&self) -> u64 {
+        self.inner.next_id.fetch_add(1, AtomicOrdering::Relaxed)
+    }
+
+    /// Hands the hub a message and wakes it; `false` if its thread is gone.
+    pub(crate) fn send(&self, msg: Msg) -> bool {
+        self.inner
+            .tx
+            .as_ref()
+            .is_some_and(|tx| tx.send(msg).is_ok())
+            && self.inner.waker.wake().is_ok()
     }
 }
 
 struct Driver {
+    poll: Poll,
     origin: StdInstant,
     margin: std::time::Duration,
     input: Receiver<Msg>,
@@ -161,69 +187,171 @@ struct Driver {
 }
 
 impl Driver {
-    fn local(&self, t: StdInstant) -> Instant {
-        Instant::from_std(self.origin, t)
-    }
-
     fn run(mut self) {
         // Best effort: a 1 µs timer slack makes the native sleep precise.
         let _ = crate::clock::set_current_thread_timer_slack(DEFAULT_TIMER_SLACK);
+        let mut events = Events::with_capacity(1024);
         loop {
-            let next = self.timers.first().map(|&(t, _)| t);
-            let deadline = next.and_then(|t| t.to_std(self.origin));
-            let msg = match deadline {
-                Some(d) => {
-                    let wait = d
-                        .saturating_duration_since(StdInstant::now())
-                        .saturating_sub(self.margin);
-                    self.input.recv_timeout(wait)
+            let deadline = self
+                .timers
+                .first()
+                .and_then(|&(t, _)| t.to_std(self.origin));
+            // epoll counts whole milliseconds and rounds up: ask it for one
+            // millisecond less than the whole milliseconds to the target, and
+            // sleep the rest natively.
+            let timeout = deadline.map(|d| {
+                let t = d
+                    .saturating_duration_since(StdInstant::now())
+                    .saturating_sub(self.margin);
+                let ms = u64::try_from(t.as_millis()).unwrap_or(u64::MAX);
+                std::time::Duration::from_millis(ms.saturating_sub(1))
+            });
+            if let Err(e) = self.poll.poll(&mut events, timeout) {
+                if e.kind() != io::ErrorKind::Interrupted {
+                    return;
                 }
-                None => self
-                    .input
-                    .recv()
-                    .map_err(|_| RecvTimeoutError::Disconnected),
-            };
-            match msg {
-                Ok(m) => self.handle(m),
-                Err(RecvTimeoutError::Timeout) => {
-                    if let Some(d) = deadline {
-                        self.tick(d);
+            }
+            let mut woken = false;
+            for ev in &events {
+                match ev.token() {
+                    WAKER => woken = true,
+                    Token(t) => {
+                        let id = t as u64;
+                        if ev.is_readable() || ev.is_read_closed() || ev.is_error() {
+                            self.read(id);
+                        }
+                        if ev.is_writable() {
+                            self.write_pending(id);
+                        }
+                        self.flush(id);
                     }
                 }
-                // Every handle and reader is gone: nothing can reach the
-                // remaining links (there are none in practice).
-                Err(RecvTimeoutError::Disconnected) => return,
+            }
+            if woken && !self.messages() {
+                return;
+            }
+            if let Some(d) = deadline {
+                let target = d.checked_sub(self.margin).unwrap_or(d);
+                let left = target.saturating_duration_since(StdInstant::now());
+                if events.is_empty() && left < std::time::Duration::from_millis(2) {
+                    // Under two milliseconds to go: sleep them precisely. Frames
+                    // arriving meanwhile keep their kernel stamps and are read
+                    // before the tick.
+                    std::thread::sleep(left);
+                }
+                if StdInstant::now() + self.margin >= d {
+                    self.tick(d);
+                }
             }
         }
     }
 
-    fn handle(&mut self, msg: Msg) {
-        match msg {
-            Msg::Add(id, entry) => {
-                self.entries.insert(id, *entry);
-                self.links
-                    .store(self.entries.len(), AtomicOrdering::Relaxed);
-                self.flush(id);
-            }
-            Msg::Input(id, input) => {
-                let Some(e) = self.entries.get_mut(&id) else {
-                    return;
-                };
-                match input {
-                    Input::Frame { at, bytes } => {
-                        e.rx_lag
-                            .push_duration(StdInstant::now().saturating_duration_since(at).into());
-                        let t = Instant::from_std(self.origin, at);
-                        // A fatal error closes the endpoint, which reports it as an event.
-                        let _ = e.endpoint.handle_frame(t, &bytes);
+    /// Links added or closed by their handles; `false` once every handle
+    /// and the hub itself are gone and no link is left.
+    fn messages(&mut self) -> bool {
+        loop {
+            match self.input.try_recv() {
+                Ok(Msg::Add(id, mut entry)) => {
+                    let token = Token(id as usize);
+                    if self
+                        .poll
+                        .registry()
+                        .register(&mut entry.socket, token, Interest::READABLE)
+                        .is_err()
+                    {
+                        entry.endpoint.abort(LinkError::Disconnected);
                     }
-                    Input::Bad(FramingError::Wire(err)) => e.endpoint.abort(LinkError::from(err)),
-                    Input::Eof => e.endpoint.abort(LinkError::Disconnected),
-                    Input::Close => e.endpoint.close(),
+                    self.entries.insert(id, *entry);
+                    self.links
+                        .store(self.entries.len(), AtomicOrdering::Relaxed);
+                    self.flush(id);
                 }
-                self.flush(id);
+                Ok(Msg::Close(id)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        e.endpoint.close();
+                    }
+                    self.flush(id);
+                }
+                Err(mpsc::TryRecvError::Empty) => return true,
+                Err(mpsc::TryRecvError::Disconnected) => return !self.entries.is_empty(),
             }
         }
+    }
+
+    /// Reads everything the socket has, handing each frame to the endpoint
+    /// with its arrival time.
+    fn read(&mut self, id: u64) {
+        let origin = self.origin;
+        let Some(e) = self.entries.get_mut(&id) else {
+            return;
+        };
+        loop {
+            match crate::link::arrival::read_now(&e.socket, e.deframer.spare(), e.kernel_stamps) {
+                Ok((0, _)) => {
+                    e.endpoint.abort(LinkError::Disconnected);
+                    return;
+                }
+                Ok((n, at)) => {
+                    let handled = StdInstant::now();
+                    e.deframer.filled(n);
+                    loop {
+                        match e.deframer.next_frame() {
+                            Ok(Some(frame)) => {
+                                e.rx_lag
+                                    .push_duration(handled.saturating_duration_since(at).into());
+                                // A fatal error closes the endpoint, which reports it.
+                                let _ = e
+                                    .endpoint
+                                    .handle_frame(Instant::from_std(origin, at), frame.as_bytes());
+                            }
+                            Ok(None) => break,
+                            Err(FramingError::Wire(err)) => {
+                                e.endpoint.abort(LinkError::from(err));
+                                return;
+                            }
+                        }
+                    }
+                    if e.endpoint.is_closed() {
+                        return;
+                    }
+                }
+                Err(err) if err.kind() == io::ErrorKind::WouldBlock => return,
+                Err(err) if err.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => {
+                    e.endpoint.abort(LinkError::Disconnected);
+                    return;
+                }
+            }
+        }
+    }
+
+    /// The socket can take more: write what was waiting.
+    fn write_pending(&mut self, id: u64) {
+        let Some(e) = self.entries.get_mut(&id) else {
+            return;
+        };
+        while !e.pending.is_empty() {
+            match e.socket.write(&e.pending) {
+                Ok(n) => {
+                    e.pending.drain(..n);
+                }
+                Err(err) if err.kind() == io::ErrorKind::WouldBlock => break,
+                Err(err) if err.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => {
+                    e.endpoint.abort(LinkError::Disconnected);
+                    return;
+                }
+            }
+        }
+        let interest = if e.pending.is_empty() {
+            Interest::READABLE
+        } else {
+            Interest::READABLE | Interest::WRITABLE
+        };
+        let _ = self
+            .poll
+            .registry()
+            .reregister(&mut e.socket, Token(id as usize), interest);
     }
 
     /// The deadline `d` has come: spin to it, take what arrived before it,
@@ -232,8 +360,22 @@ impl Driver {
         while StdInstant::now() < d {
             std::hint::spin_loop();
         }
-        while let Ok(m) = self.input.try_recv() {
-            self.handle(m);
+        // Frames that arrived during the spin belong before the tick.
+        let mut events = Events::with_capacity(256);
+        if self
+            .poll
+            .poll(&mut events, Some(std::time::Duration::ZERO))
+            .is_ok()
+        {
+            for ev in &events {
+                if ev.token() != WAKER {
+                    let id = ev.token().0 as u64;
+                    self.read(id);
+                    self.flush(id);
+                } else {
+                    let _ = self.messages();
+                }
+            }
         }
         let woke = StdInstant::now();
         self.lateness
@@ -242,7 +384,7 @@ impl Driver {
         if self.wakes % 64 == 1 {
             self.lateness_stats = self.lateness.stats();
         }
-        let now = self.local(woke);
+        let now = Instant::from_std(self.origin, woke);
         let due: Vec<u64> = self
             .timers
             .iter()
@@ -258,7 +400,7 @@ impl Driver {
         }
     }
 
-    /// Events to the application, frames to the socket, the deadline to the
+    /// Frames to the socket, events to the application, the deadline to the
     /// index; a closed link leaves the hub.
     fn flush(&mut self, id: u64) {
         let Some(e) = self.entries.get_mut(&id) else {
@@ -268,8 +410,21 @@ impl Driver {
         // cannot make this tick anyway (its sample was taken before), and
         // waking its thread first would delay the frame by the wake-up.
         let now = Instant::from_std(self.origin, StdInstant::now());
+        let mut wants_write = false;
         while let Ok(Some(n)) = e.endpoint.poll_transmit(now, &mut self.buf) {
-            send_frame(e, &self.buf[..n]);
+            wants_write |= send_frame(e, &self.buf[..n]);
+        }
+        if e.pending.len() > MAX_PENDING {
+            // The peer does not read: cut it off rather than grow without bound.
+            e.pending.clear();
+            e.endpoint.abort(LinkError::Disconnected);
+        }
+        if wants_write {
+            let _ = self.poll.registry().reregister(
+                &mut e.socket,
+                Token(id as usize),
+                Interest::READABLE | Interest::WRITABLE,
+            );
         }
         let mut delivered = false;
         while let Some(event) = e.endpoint.poll_event() {
@@ -301,9 +456,13 @@ impl Driver {
             if let Some(old) = e.deadline.take() {
                 self.timers.remove(&(old, id));
             }
-            // Dropping the entry ends its writer (which shuts the socket's
-            // write side) and tells the application nothing more will come.
-            self.entries.remove(&id);
+            // The Close frame was written above if the socket took it;
+            // dropping the entry closes the socket and tells the application
+            // that nothing more will come.
+            if let Some(mut gone) = self.entries.remove(&id) {
+                let _ = self.poll.registry().deregister(&mut gone.socket);
+                let _ = gone.socket.shutdown(std::net::Shutdown::Write);
+            }
             self.links
                 .store(self.entries.len(), AtomicOrdering::Relaxed);
         }
@@ -323,22 +482,20 @@ fn take_sample(e: &mut Entry) {
     }
 }
 
-/// Writes a frame on the socket now if nothing waits for the writer task,
-/// else queues it behind what waits (frames stay in order).
-fn send_frame(e: &mut Entry, bytes: &[u8]) {
-    let mut rest = bytes;
-    if e.queued.load(AtomicOrdering::Acquire) == 0 {
-        match e.direct.write(bytes) {
-            Ok(n) if n == bytes.len() => return,
-            Ok(n) => rest = &bytes[n..],
-            // Full buffer, or a broken socket the writer will report.
-            Err(_) => {}
+/// Writes a frame now if nothing is waiting, else queues it behind what is
+/// (frames stay in order); `true` if bytes are left waiting for the socket.
+fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
+    if e.pending.is_empty() {
+        match e.socket.write(bytes) {
+            Ok(n) if n == bytes.len() => return false,
+            Ok(n) => e.pending.extend_from_slice(&bytes[n..]),
+            // Full buffer (or a broken socket, which the next read reports).
+            Err(_) => e.pending.extend_from_slice(bytes),
         }
+        return true;
     }
-    e.queued.fetch_add(1, AtomicOrdering::AcqRel);
-    if e.out.send(rest.to_vec()).is_err() {
-        e.queued.fetch_sub(1, AtomicOrdering::AcqRel);
-    }
+    e.pending.extend_from_slice(bytes);
+    true
 }
 
 fn publish(e: &Entry, lateness: LatenessStats) {

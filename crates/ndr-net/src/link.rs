@@ -2,15 +2,13 @@
 //!
 //! Three parties per link:
 //!
-//! - a **reader** task (tokio) deframes the socket and stamps each frame with
-//!   its arrival time the moment it is read;
-//! - a **hub** thread ([`Hub`], `ndr-hub`) owns the endpoint and keeps its
-//!   deadlines: it waits for frames until just before the next deadline,
-//!   then spins to it, so ticks are kept to microseconds rather than tokio's
-//!   milliseconds; one hub can drive many links on one tick grid;
-//! - the hub writes the link's frames to the socket itself (it is
-//!   non-blocking); a **writer** task (tokio) takes over only the frames
-//!   that find the socket buffer full, in order.
+//! - a **hub** thread ([`Hub`], `ndr-hub`) owns the endpoint and the socket:
+//!   it polls the socket (mio) until just before the next deadline, then
+//!   spins to it, so ticks are kept to microseconds rather than tokio's
+//!   milliseconds; it reads frames as they come, stamped with the kernel's
+//!   arrival time, and writes frames itself; one hub can drive many links
+//!   on one tick grid;
+//! - tokio only connects and accepts.
 //!
 //! The application holds a [`Link`]: [`Link::send`] sets the sample sent at
 //! the next tick, [`Link::recv`] / [`Link::recv_async`] give the next released
@@ -20,22 +18,20 @@ use std::collections::VecDeque;
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
 use ndr_core::endpoint::{Config, ConfigError, Event, LinkError, Phase, Release, Running, Stats};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::Role;
-use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
 use crate::clock::LatenessStats;
 use crate::framing::Deframer;
-use crate::hub::{Delivery, Entry, Hub, Input, LinkEndpoint, Msg, Shared};
+use crate::hub::{Delivery, Entry, Hub, LinkEndpoint, Msg, Shared};
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
@@ -140,7 +136,6 @@ pub struct LinkStats {
 /// One side of a running link. Dropping it closes the link.
 pub struct Link {
     id: u64,
-    hub_tx: Sender<Msg>,
     deliveries: Receiver<Delivery>,
     shared: Arc<Shared>,
     events: VecDeque<Event<MAX_AXES>>,
@@ -148,8 +143,8 @@ pub struct Link {
     closed: Option<LinkError>,
     shut: bool,
     peer: SocketAddr,
-    // Keeps a link's own hub (and runtime, for `connect_blocking`) alive.
-    _hub: Hub,
+    // The hub driving it (a link's own, or shared).
+    hub: Hub,
     _runtime: Option<tokio::runtime::Runtime>,
 }
 
@@ -211,17 +206,13 @@ impl Link {
         }
         stream.set_nodelay(true)?;
         let peer = stream.peer_addr()?;
-        // The link thread writes frames itself, through a clone of the socket
-        // (non-blocking, like tokio's): handing each frame to a tokio task
-        // would cost a thread wake-up, tens of µs, on every frame.
+        // The hub owns the socket from here: it reads and writes it itself.
         let _guard = rt.enter();
         let std_stream = stream.into_std()?;
-        let direct = std_stream.try_clone()?;
-        let stream = TcpStream::from_std(std_stream)?;
-        let (rd, wr) = stream.into_split();
-        let queued = Arc::new(AtomicUsize::new(0));
-        let (id, hub_tx) = hub.register();
-        let (out_tx, out_rx) = tokio::sync::mpsc::unbounded_channel::<Vec<u8>>();
+        std_stream.set_nonblocking(true)?;
+        let kernel_stamps = arrival::enable(&std_stream);
+        let socket = mio::net::TcpStream::from_std(std_stream);
+        let id = hub.next_id();
         let (del_tx, del_rx) = mpsc::sync_channel::<Delivery>(config.app_queue.max(1));
         let shared = Arc::new(Shared {
             sample: Mutex::new((vec![0.0; usize::from(cfg.axes)], false)),
@@ -235,21 +226,21 @@ impl Link {
             endpoint,
             shared: Arc::clone(&shared),
             deliveries: del_tx,
-            direct,
-            queued: Arc::clone(&queued),
-            out: out_tx,
+            socket,
+            deframer: Deframer::new(),
+            pending: Vec::new(),
+            kernel_stamps,
             app_dropped: 0,
             rx_lag: Running::default(),
             deadline: None,
         };
-        hub_tx
-            .send(Msg::Add(id, Box::new(entry)))
-            .map_err(|_| NetError::Io(io::Error::other("the link's hub thread has stopped")))?;
-        rt.spawn(read_frames(rd, id, hub_tx.clone()));
-        rt.spawn(write_frames(wr, out_rx, id, hub_tx.clone(), queued));
+        if !hub.send(Msg::Add(id, Box::new(entry))) {
+            return Err(NetError::Io(io::Error::other(
+                "the link's hub thread has stopped",
+            )));
+        }
         Ok(Link {
             id,
-            hub_tx,
             deliveries: del_rx,
             shared,
             events: VecDeque::new(),
@@ -257,7 +248,7 @@ impl Link {
             closed: None,
             shut: false,
             peer,
-            _hub: hub.clone(),
+            hub: hub.clone(),
             _runtime: None,
         })
     }
@@ -408,7 +399,7 @@ impl Link {
             return;
         }
         self.shut = true;
-        let _ = self.hub_tx.send(Msg::Input(self.id, Input::Close));
+        let _ = self.hub.send(Msg::Close(self.id));
         let end = StdInstant::now() + std::time::Duration::from_secs(2);
         loop {
             let left = end.saturating_duration_since(StdInstant::now());
@@ -488,83 +479,47 @@ impl Hub {
     }
 }
 
-async fn read_frames(rd: tokio::net::tcp::OwnedReadHalf, id: u64, hub: Sender<Msg>) {
-    let mut deframer = Deframer::new();
-    let send = |input| hub.send(Msg::Input(id, input)).is_ok();
-    let stream: &TcpStream = rd.as_ref();
-    let kernel_stamps = arrival::enable(stream);
-    loop {
-        let (n, at) = match arrival::read(stream, deframer.spare(), kernel_stamps).await {
-            Ok((0, _)) | Err(_) => {
-                send(Input::Eof);
-                return;
-            }
-            Ok(read) => read,
-        };
-        deframer.filled(n);
-        loop {
-            match deframer.next_frame() {
-                Ok(Some(frame)) => {
-                    let bytes = frame.as_bytes().to_vec();
-                    if !send(Input::Frame { at, bytes }) {
-                        return;
-                    }
-                }
-                Ok(None) => break,
-                Err(e) => {
-                    send(Input::Bad(e));
-                    return;
-                }
-            }
-        }
-    }
-}
-
 /// When bytes arrived: the kernel's receive timestamp where the platform
 /// gives one, else the moment the reader got them. The kernel's stamp leaves
 /// out the reader's wake-up (tens of µs for a thread that slept a period),
 /// which would otherwise count as network delay.
-mod arrival {
-    use std::io;
+pub(crate) mod arrival {
+    use std::io::{self, Read as _};
+    use std::os::fd::AsFd;
     use std::time::Instant as StdInstant;
 
-    use tokio::net::TcpStream;
+    use mio::net::TcpStream as MioStream;
 
     /// Asks the kernel to stamp received data; `false` if it will not.
     #[cfg(target_os = "linux")]
-    pub(super) fn enable(stream: &TcpStream) -> bool {
-        nix::sys::socket::setsockopt(stream, nix::sys::socket::sockopt::ReceiveTimestampns, &true)
+    pub(crate) fn enable(socket: &impl AsFd) -> bool {
+        nix::sys::socket::setsockopt(socket, nix::sys::socket::sockopt::ReceiveTimestampns, &true)
             .is_ok()
     }
 
     #[cfg(not(target_os = "linux"))]
-    pub(super) fn enable(_: &TcpStream) -> bool {
+    pub(crate) fn enable(_: &impl AsFd) -> bool {
         false
     }
 
-    /// Reads what is available into `buf`, with its arrival time.
-    pub(super) async fn read(
-        stream: &TcpStream,
+    /// Reads what is available into `buf` without blocking, with its
+    /// arrival time (`WouldBlock` when there is nothing).
+    pub(crate) fn read_now(
+        socket: &MioStream,
         buf: &mut [u8],
         kernel: bool,
     ) -> io::Result<(usize, StdInstant)> {
-        loop {
-            stream.readable().await?;
-            let got = if kernel {
-                stream.try_io(tokio::io::Interest::READABLE, || stamped(stream, buf))
-            } else {
-                stream.try_read(buf).map(|n| (n, None))
-            };
-            match got {
-                Ok((n, stamp)) => return Ok((n, stamp.unwrap_or_else(StdInstant::now))),
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,
-                Err(e) => return Err(e),
-            }
+        if kernel {
+            let (n, stamp) = stamped(socket, buf)?;
+            Ok((n, stamp.unwrap_or_else(StdInstant::now)))
+        } else {
+            let mut reader = socket;
+            Ok((reader.read(buf)?, StdInstant::now()))
         }
     }
 
     #[cfg(target_os = "linux")]
-    fn stamped(stream: &TcpStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
+    fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
         use std::os::fd::AsRawFd;
         use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -574,7 +529,7 @@ mod arrival {
         let mut iov = [io::IoSliceMut::new(buf)];
         let mut cmsg = nix::cmsg_space!(TimeSpec);
         let msg = recvmsg::<()>(
-            stream.as_raw_fd(),
+            socket.as_raw_fd(),
             &mut iov,
             Some(&mut cmsg),
             MsgFlags::empty(),
@@ -603,26 +558,8 @@ mod arrival {
     }
 
     #[cfg(not(target_os = "linux"))]
-    fn stamped(stream: &TcpStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
-        stream.try_read(buf).map(|n| (n, None))
+    fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
+        let mut reader = socket;
+        reader.read(buf).map(|n| (n, None))
     }
-}
-
-/// Writes what the hub could not write at once (a full socket buffer), in
-/// order; the hub writes directly again once `queued` is back to zero.
-async fn write_frames(
-    mut wr: tokio::net::tcp::OwnedWriteHalf,
-    mut out: tokio::sync::mpsc::UnboundedReceiver<Vec<u8>>,
-    id: u64,
-    hub: Sender<Msg>,
-    queued: Arc<AtomicUsize>,
-) {
-    while let Some(frame) = out.recv().await {
-        if wr.write_all(&frame).await.is_err() {
-            let _ = hub.send(Msg::Input(id, Input::Eof));
-            return;
-        }
-        queued.fetch_sub(1, AtomicOrdering::Release);
-    }
-    let _ = wr.shutdown().await;
 }
