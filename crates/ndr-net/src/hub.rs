@@ -32,6 +32,8 @@ pub(crate) type LinkEndpoint = Endpoint<MAX_AXES, QUEUE>;
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
+/// The deadline timer's token.
+const TIMER: Token = Token(usize::MAX - 1);
 /// Bytes a link may have waiting for a slow socket before it is cut off.
 const MAX_PENDING: usize = 1 << 20;
 
@@ -114,8 +116,10 @@ impl Hub {
         let waker = Waker::new(poll.registry(), WAKER)?;
         let origin = StdInstant::now();
         let links = Arc::new(AtomicUsize::new(0));
+        let timer = precise::Timer::new(poll.registry(), TIMER);
         let driver = Driver {
             poll,
+            timer,
             origin,
             margin: spin_margin.into(),
             input: rx,
@@ -173,6 +177,8 @@ impl Hub {
 
 struct Driver {
     poll: Poll,
+    /// A nanosecond timer in the poll set, where the platform has one.
+    timer: Option<precise::Timer>,
     origin: StdInstant,
     margin: std::time::Duration,
     input: Receiver<Msg>,
@@ -196,16 +202,25 @@ impl Driver {
                 .timers
                 .first()
                 .and_then(|&(t, _)| t.to_std(self.origin));
-            // epoll counts whole milliseconds and rounds up: ask it for one
-            // millisecond less than the whole milliseconds to the target, and
-            // sleep the rest natively.
-            let timeout = deadline.map(|d| {
-                let t = d
-                    .saturating_duration_since(StdInstant::now())
-                    .saturating_sub(self.margin);
-                let ms = u64::try_from(t.as_millis()).unwrap_or(u64::MAX);
-                std::time::Duration::from_millis(ms.saturating_sub(1))
+            let wait = deadline.map(|d| {
+                d.saturating_duration_since(StdInstant::now())
+                    .saturating_sub(self.margin)
             });
+            let timeout = match (&self.timer, wait) {
+                // The timer wakes the poll to the nanosecond.
+                (Some(timer), Some(w)) => {
+                    timer.arm(w);
+                    None
+                }
+                // epoll counts whole milliseconds and rounds up: ask it for
+                // one millisecond less than the whole milliseconds to the
+                // target, and sleep the rest natively below.
+                (None, Some(w)) => {
+                    let ms = u64::try_from(w.as_millis()).unwrap_or(u64::MAX);
+                    Some(std::time::Duration::from_millis(ms.saturating_sub(1)))
+                }
+                (_, None) => None,
+            };
             if let Err(e) = self.poll.poll(&mut events, timeout) {
                 if e.kind() != io::ErrorKind::Interrupted {
                     return;
@@ -215,6 +230,11 @@ impl Driver {
             for ev in &events {
                 match ev.token() {
                     WAKER => woken = true,
+                    TIMER => {
+                        if let Some(timer) = &self.timer {
+                            timer.clear();
+                        }
+                    }
                     Token(t) => {
                         let id = t as u64;
                         if ev.is_readable() || ev.is_read_closed() || ev.is_error() {
@@ -233,7 +253,10 @@ impl Driver {
             if let Some(d) = deadline {
                 let target = d.checked_sub(self.margin).unwrap_or(d);
                 let left = target.saturating_duration_since(StdInstant::now());
-                if events.is_empty() && left < std::time::Duration::from_millis(2) {
+                if self.timer.is_none()
+                    && events.is_empty()
+                    && left < std::time::Duration::from_millis(2)
+                {
                     // Under two milliseconds to go: sleep them precisely. Frames
                     // arriving meanwhile keep their kernel stamps and are read
                     // before the tick.
@@ -360,6 +383,13 @@ impl Driver {
         while StdInstant::now() < d {
             std::hint::spin_loop();
         }
+        // The clock's own precision: how late it woke for this deadline.
+        self.lateness
+            .record(StdInstant::now().saturating_duration_since(d).into());
+        self.wakes += 1;
+        if self.wakes % 64 == 1 {
+            self.lateness_stats = self.lateness.stats();
+        }
         // Frames that arrived during the spin belong before the tick.
         let mut events = Events::with_capacity(256);
         if self
@@ -368,23 +398,25 @@ impl Driver {
             .is_ok()
         {
             for ev in &events {
-                if ev.token() != WAKER {
-                    let id = ev.token().0 as u64;
-                    self.read(id);
-                    self.flush(id);
-                } else {
-                    let _ = self.messages();
+                match ev.token() {
+                    WAKER => {
+                        let _ = self.messages();
+                    }
+                    TIMER => {
+                        if let Some(timer) = &self.timer {
+                            timer.clear();
+                        }
+                    }
+                    Token(t) => {
+                        let id = t as u64;
+                        self.read(id);
+                        self.flush(id);
+                    }
                 }
             }
         }
-        let woke = StdInstant::now();
-        self.lateness
-            .record(woke.saturating_duration_since(d).into());
-        self.wakes += 1;
-        if self.wakes % 64 == 1 {
-            self.lateness_stats = self.lateness.stats();
-        }
-        let now = Instant::from_std(self.origin, woke);
+        // Releases are stamped when they really happen, after those reads.
+        let now = Instant::from_std(self.origin, StdInstant::now());
         let due: Vec<u64> = self
             .timers
             .iter()
@@ -466,6 +498,66 @@ impl Driver {
             self.links
                 .store(self.entries.len(), AtomicOrdering::Relaxed);
         }
+    }
+}
+
+/// A nanosecond timer that wakes the poll: Linux's timerfd.
+mod precise {
+    use mio::{Registry, Token};
+
+    #[cfg(target_os = "linux")]
+    pub(super) struct Timer(nix::sys::timerfd::TimerFd);
+
+    #[cfg(target_os = "linux")]
+    impl Timer {
+        /// A timer registered in `registry`; `None` if the kernel refuses one.
+        pub(super) fn new(registry: &Registry, token: Token) -> Option<Timer> {
+            use nix::sys::timerfd::{ClockId, TimerFd, TimerFlags};
+            use std::os::fd::{AsFd, AsRawFd};
+            let fd = TimerFd::new(
+                ClockId::CLOCK_MONOTONIC,
+                TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC,
+            )
+            .ok()?;
+            let raw = fd.as_fd().as_raw_fd();
+            registry
+                .register(
+                    &mut mio::unix::SourceFd(&raw),
+                    token,
+                    mio::Interest::READABLE,
+                )
+                .ok()?;
+            Some(Timer(fd))
+        }
+
+        /// Fires once, `after` from now (at once for zero).
+        pub(super) fn arm(&self, after: std::time::Duration) {
+            use nix::sys::time::TimeSpec;
+            use nix::sys::timerfd::{Expiration, TimerSetTimeFlags};
+            // A zero expiration would disarm the timer instead.
+            let after = after.max(std::time::Duration::from_nanos(1));
+            let _ = self.0.set(
+                Expiration::OneShot(TimeSpec::from_duration(after)),
+                TimerSetTimeFlags::empty(),
+            );
+        }
+
+        /// Reads the expiry so the next one wakes the poll again.
+        pub(super) fn clear(&self) {
+            let _ = self.0.wait();
+        }
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    pub(super) struct Timer;
+
+    #[cfg(not(target_os = "linux"))]
+    impl Timer {
+        pub(super) fn new(_: &Registry, _: Token) -> Option<Timer> {
+            None
+        }
+        pub(super) fn arm(&self, _: std::time::Duration) {}
+        pub(super) fn clear(&self) {}
     }
 }
 
