@@ -227,45 +227,64 @@ impl Driver {
                 }
             }
             let mut woken = false;
+            let mut timer_fired = false;
+            let mut ready: Vec<(u64, bool, bool)> = Vec::new();
             for ev in &events {
                 match ev.token() {
                     WAKER => woken = true,
                     TIMER => {
+                        timer_fired = true;
                         if let Some(timer) = &self.timer {
                             timer.clear();
                         }
                     }
-                    Token(t) => {
-                        let id = t as u64;
-                        if ev.is_readable() || ev.is_read_closed() || ev.is_error() {
-                            self.read(id);
-                        }
-                        if ev.is_writable() {
-                            self.write_pending(id);
-                        }
-                        self.flush(id);
-                    }
+                    Token(t) => ready.push((
+                        t as u64,
+                        ev.is_readable() || ev.is_read_closed() || ev.is_error(),
+                        ev.is_writable(),
+                    )),
                 }
             }
             if woken && !self.messages() {
                 return;
             }
-            if let Some(d) = deadline {
-                let target = d.checked_sub(self.margin).unwrap_or(d);
-                let left = target.saturating_duration_since(StdInstant::now());
-                if self.timer.is_none()
-                    && events.is_empty()
-                    && left < std::time::Duration::from_millis(2)
-                {
-                    // Under two milliseconds to go: sleep them precisely. Frames
-                    // arriving meanwhile keep their kernel stamps and are read
-                    // before the tick.
-                    std::thread::sleep(left);
-                }
-                if StdInstant::now() + self.margin >= d {
-                    self.tick(d);
-                }
+            let Some(d) = deadline else {
+                self.serve(&ready);
+                continue;
+            };
+            let target = d.checked_sub(self.margin).unwrap_or(d);
+            let left = target.saturating_duration_since(StdInstant::now());
+            if timer_fired || left.is_zero() {
+                // Deadline first: the sockets that woke us too are read right
+                // after the spin, before the releases (their kernel stamps
+                // keep them in order), so their work does not make the clock late.
+                self.tick(d, &ready);
+                continue;
             }
+            self.serve(&ready);
+            if self.timer.is_none()
+                && events.is_empty()
+                && left < std::time::Duration::from_millis(2)
+            {
+                // Without a precise timer: sleep the last stretch natively.
+                // Frames arriving meanwhile keep their kernel stamps and are
+                // read before the tick.
+                std::thread::sleep(left);
+                self.tick(d, &[]);
+            }
+        }
+    }
+
+    /// Reads and writes for the sockets that are ready.
+    fn serve(&mut self, ready: &[(u64, bool, bool)]) {
+        for &(id, readable, writable) in ready {
+            if readable {
+                self.read(id);
+            }
+            if writable {
+                self.write_pending(id);
+            }
+            self.flush(id);
         }
     }
 
@@ -379,7 +398,7 @@ impl Driver {
 
     /// The deadline `d` has come: spin to it, take what arrived before it,
     /// then run every endpoint that is due.
-    fn tick(&mut self, d: StdInstant) {
+    fn tick(&mut self, d: StdInstant, ready: &[(u64, bool, bool)]) {
         while StdInstant::now() < d {
             std::hint::spin_loop();
         }
@@ -390,7 +409,8 @@ impl Driver {
         if self.wakes % 64 == 1 {
             self.lateness_stats = self.lateness.stats();
         }
-        // Frames that arrived during the spin belong before the tick.
+        // Frames that arrived before the deadline belong before the releases.
+        self.serve(ready);
         let mut events = Events::with_capacity(256);
         if self
             .poll
