@@ -1,6 +1,6 @@
 //! `ndr.LowPass`, `ndr.Envelope` and the batch `ndr.lowpass`, `ndr.envelope`.
 
-use ndr_core::filters::{DEFAULT_DECAY, Envelope, LowPass};
+use ndr_core::filters::{DEFAULT_DECAY, Envelope, FilterError, LowPass};
 use numpy::PyArray1;
 use pyo3::prelude::*;
 
@@ -45,11 +45,8 @@ impl PyLowPass {
         py: Python<'py>,
         x: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let x = vector("x", x, None)?;
         let f = &mut self.inner;
-        // Finite inputs: the updates cannot fail.
-        let y = py.detach(|| x.iter().map(|&v| f.update(v).unwrap_or(v)).collect());
-        Ok(array1(py, y))
+        filter_series(py, x, |v| f.update(v))
     }
 
     /// The output, None before the first sample.
@@ -112,10 +109,8 @@ impl PyEnvelope {
         py: Python<'py>,
         x: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let x = vector("x", x, None)?;
         let f = &mut self.inner;
-        let y = py.detach(|| x.iter().map(|&v| f.update(v).unwrap_or(v)).collect());
-        Ok(array1(py, y))
+        filter_series(py, x, |v| f.update(v))
     }
 
     /// The envelope, None before the first sample.
@@ -142,6 +137,18 @@ impl PyEnvelope {
             self.inner.value()
         )
     }
+}
+
+/// Runs a filter over the series `x` (shape `(n,)`) without the GIL.
+fn filter_series<'py>(
+    py: Python<'py>,
+    x: &Bound<'py, PyAny>,
+    mut step: impl FnMut(f64) -> Result<f64, FilterError> + Send,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let x = vector("x", x, None)?;
+    // `vector` refused non-finite values: the steps cannot fail.
+    let y = py.detach(|| x.iter().map(|&v| step(v).unwrap_or(v)).collect());
+    Ok(array1(py, y))
 }
 
 /// Low-passes the series `x` (shape `(n,)`) with time constant `tau` at
