@@ -20,16 +20,12 @@ use std::net::SocketAddr;
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::Config;
+use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
 use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
 use ndr::net::{Link, LinkConfig, Listener};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
-}
 
 fn frame() -> Vec<u8> {
     let header = Header {

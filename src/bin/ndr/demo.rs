@@ -12,8 +12,8 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::arx::{Tf2, Tf2State};
 use ndr::core::endpoint::{Config, Event, Mode, Status, Underflow};
-use ndr::core::sim::PlantConfig;
 use ndr::core::sim::signal::Signal;
+use ndr::core::sim::{PlantConfig, percentile};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::clock::LatenessStats;
@@ -386,14 +386,6 @@ fn write_csv(path: &PathBuf, rows: &[Row]) -> Result<(), String> {
     w.flush().map_err(err)
 }
 
-fn p99(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
-}
-
 fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
     let (b, remote, relay, rows) = (o.base.as_ref(), o.remote.as_ref(), o.relay, &o.rows);
     let eb = b.map(|s| s.endpoint).unwrap_or_default();
@@ -416,7 +408,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         nrtt_std_s: eb.nrtt.std(),
         grtt_mean_s: eb.grtt.mean(),
         grtt_std_s: eb.grtt.std(),
-        grtt_p99_s: p99(grtts),
+        grtt_p99_s: percentile(&grtts, 0.99),
         grtt_count: eb.grtt.count(),
         queue_base_min: range(b).0,
         queue_base_max: range(b).1,

@@ -24,4 +24,4 @@ mod report;
 pub mod signal;
 
 pub use engine::{MAX_SIM_AXES, PlantConfig, SIM_QUEUE, SimConfig, SimError, SimOutput, run};
-pub use report::{Report, Row};
+pub use report::{Report, Row, percentile};

@@ -219,14 +219,14 @@ fn mean_std(xs: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-fn p99(xs: &[f64]) -> f64 {
-    if xs.is_empty() {
-        return 0.0;
-    }
+/// The `q` quantile of `xs` (0 < q ≤ 1) by nearest rank: the smallest value
+/// with at least `q·n` values at or below it; 0 for no values.
+#[must_use]
+pub fn percentile(xs: &[f64], q: f64) -> f64 {
     let mut v = xs.to_vec();
     v.sort_by(f64::total_cmp);
-    let rank = ((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len());
-    v[rank - 1]
+    let rank = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len().max(1));
+    v.get(rank - 1).copied().unwrap_or(0.0)
 }
 
 impl Collector {
@@ -357,7 +357,7 @@ impl Collector {
             nrtt_std_s: bs.nrtt.std(),
             grtt_mean_s: grtt_mean,
             grtt_std_s: grtt_std,
-            grtt_p99_s: p99(&self.grtt),
+            grtt_p99_s: percentile(&self.grtt, 0.99),
             grtt_count: self.grtt.len() as u64,
             settled_grtt_mean_s: settled_mean,
             settled_grtt_std_s: settled_std,
