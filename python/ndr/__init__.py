@@ -18,59 +18,101 @@ The building blocks, with the names Python users already know:
   :func:`kalman3_filter`, :func:`rls_filter`, :func:`lowpass`,
   :func:`envelope`.
 
+The link (:mod:`ndr.link`): :class:`Link` (``Link.connect``,
+``Link.listen``), :class:`Listener`, :class:`Tick`, :class:`Event`, the
+delaying :class:`Relay`, and the exceptions, all ``ConnectionError``
+subclasses: :class:`LinkError`, :class:`HandshakeError`,
+:class:`ProtocolError`, :class:`PeerClosedError`,
+:class:`DisconnectedError`, :class:`LinkClosedError`.
+
+The simulator is :func:`ndr.sim.run`; :mod:`ndr.plot` draws the paper's
+figures (``pip install 'ndr[plot]'`` for matplotlib); ``python -m ndr demo``
+runs the main job.
+
 Times are seconds (float); arrays are float64. Bad input raises ValueError
-(or TypeError for a wrong kind of object) naming what was expected. The link
-and the simulator follow.
+(or TypeError for a wrong kind of object) naming what was expected. Rust's
+log records reach :mod:`logging` under the ``ndr`` logger
+(:func:`set_log_level` chooses how verbose Rust is, default ``"info"``).
 """
 
 from ._native import (
     ESTIMATOR_HISTORY,
     INIT_EXCHANGES,
+    MAX_AXES,
     MAX_CAPACITY,
     Arx2,
+    DisconnectedError,
     Envelope,
     Estimator,
+    HandshakeError,
     Kalman3,
+    LinkClosedError,
+    LinkError,
     LowPass,
     NetworkPredictor,
+    PeerClosedError,
     Prediction,
+    ProtocolError,
     Regulator,
     RegulatorFull,
+    Relay,
     Rls,
+    Signal,
     Tf2,
     Tf2State,
+    Tick,
     __version__,
     envelope,
+    flush_logs,
     init_stats,
     kalman3_filter,
     lowpass,
     nominal_size,
     period_law,
     rls_filter,
+    set_log_level,
 )
+from . import sim
+from .link import Event, Link, Listener
 
 __all__ = [
     "ESTIMATOR_HISTORY",
     "INIT_EXCHANGES",
+    "MAX_AXES",
     "MAX_CAPACITY",
     "Arx2",
+    "DisconnectedError",
     "Envelope",
     "Estimator",
+    "Event",
+    "HandshakeError",
     "Kalman3",
+    "Link",
+    "LinkClosedError",
+    "LinkError",
+    "Listener",
     "LowPass",
     "NetworkPredictor",
+    "PeerClosedError",
     "Prediction",
+    "ProtocolError",
     "Regulator",
     "RegulatorFull",
+    "Relay",
     "Rls",
+    "Signal",
     "Tf2",
     "Tf2State",
+    "Tick",
     "__version__",
     "envelope",
+    "flush_logs",
     "init_stats",
     "kalman3_filter",
     "lowpass",
     "nominal_size",
     "period_law",
     "rls_filter",
+    "set_log_level",
+    "sim",
 ]

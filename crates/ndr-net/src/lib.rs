@@ -16,5 +16,5 @@ pub mod relay;
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
-pub use link::{Link, LinkConfig, LinkStats, Listener, NetError, Sample};
+pub use link::{Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};

@@ -265,23 +265,25 @@ impl Link {
         if let Some(e) = self.closed {
             return Err(NetError::Link(e));
         }
-        if values.len() != self.axes {
-            return Err(NetError::Link(LinkError::SampleShape {
-                expected: self.axes as u16,
-                got: values.len(),
-            }));
+        self.sender().send(values)
+    }
+
+    /// A handle that sets the samples this link sends and reads its stats,
+    /// for another thread while this one waits in [`recv`](Self::recv).
+    #[must_use]
+    pub fn sender(&self) -> LinkSender {
+        LinkSender {
+            shared: Arc::clone(&self.shared),
+            axes: self.axes,
+            origin: self.hub.origin(),
         }
-        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
-            return Err(NetError::Link(LinkError::NonFinite { index }));
-        }
-        let mut slot = self
-            .shared
-            .sample
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        slot.0.copy_from_slice(values);
-        slot.1 = true;
-        Ok(())
+    }
+
+    /// Now, on the link's clock: the one its samples' `arrived_at` and
+    /// `released_at` are on (its hub's; the peer's `sent_at` is on the peer's).
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        Instant::from_std(self.hub.origin(), StdInstant::now())
     }
 
     /// The next released sample, waiting as long as it takes; an error once
@@ -379,11 +381,7 @@ impl Link {
     /// A snapshot of the link's counters (`None` before the first tick).
     #[must_use]
     pub fn stats(&self) -> Option<LinkStats> {
-        *self
-            .shared
-            .stats
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
+        self.sender().stats()
     }
 
     /// Closes the link (a Close frame is sent) and waits for its thread.
@@ -392,9 +390,11 @@ impl Link {
         self.stats()
     }
 
-    /// Asks the hub to close the link (a Close frame goes out), then waits —
-    /// two seconds at most — until the hub has let it go.
-    fn shutdown(&mut self) {
+    /// [`close`](Self::close) for a link that is not owned (one behind a
+    /// mutex, say): asks the hub to close it (a Close frame goes out), then
+    /// waits — two seconds at most — until the hub has let it go. Receiving
+    /// then reports the end.
+    pub fn shutdown(&mut self) {
         if self.shut {
             return;
         }
@@ -417,6 +417,71 @@ impl Drop for Link {
     }
 }
 
+/// The sending half of a [`Link`] ([`Link::sender`]): it sets the sample
+/// sent at the next tick and reads the counters, from any thread, without
+/// waiting for a thread blocked in [`Link::recv`]. It does not know whether
+/// the link has ended: the receiving side reports that, and a sample set
+/// after the end is simply never sent.
+#[derive(Clone)]
+pub struct LinkSender {
+    shared: Arc<Shared>,
+    axes: usize,
+    origin: StdInstant,
+}
+
+impl fmt::Debug for LinkSender {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LinkSender")
+            .field("axes", &self.axes)
+            .finish_non_exhaustive()
+    }
+}
+
+impl LinkSender {
+    /// Sets the sample sent at the next tick (see [`Link::send`]).
+    pub fn send(&self, values: &[f64]) -> Result<(), NetError> {
+        if values.len() != self.axes {
+            return Err(NetError::Link(LinkError::SampleShape {
+                expected: u16::try_from(self.axes).unwrap_or(u16::MAX),
+                got: values.len(),
+            }));
+        }
+        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+            return Err(NetError::Link(LinkError::NonFinite { index }));
+        }
+        let mut slot = self
+            .shared
+            .sample
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        slot.0.copy_from_slice(values);
+        slot.1 = true;
+        Ok(())
+    }
+
+    /// A snapshot of the link's counters (`None` before the first tick).
+    #[must_use]
+    pub fn stats(&self) -> Option<LinkStats> {
+        *self
+            .shared
+            .stats
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Axes per sample.
+    #[must_use]
+    pub fn axes(&self) -> usize {
+        self.axes
+    }
+
+    /// Now, on the link's clock (see [`Link::now`]).
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        Instant::from_std(self.origin, StdInstant::now())
+    }
+}
+
 fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
     Ok(tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -431,6 +496,7 @@ pub struct Listener {
     listener: TcpListener,
     config: LinkConfig,
     hub: Hub,
+    role: Role,
 }
 
 impl Listener {
@@ -440,7 +506,16 @@ impl Listener {
             listener: TcpListener::bind(addr).await?,
             hub: Hub::new(config.spin_margin)?,
             config,
+            role: Role::Remote,
         })
+    }
+
+    /// Takes `role` in the links it accepts instead of the remote's (a base
+    /// that waits for its robot to dial in).
+    #[must_use]
+    pub fn with_role(mut self, role: Role) -> Listener {
+        self.role = role;
+        self
     }
 
     /// Puts the links it accepts on `hub` (shared with other listeners or
@@ -456,17 +531,12 @@ impl Listener {
         Ok(self.listener.local_addr()?)
     }
 
-    /// The next base that connects, as a running link (this side is the
-    /// remote). A failed link does not affect the listener.
+    /// The next peer that connects, as a running link (this side is the
+    /// remote unless [`with_role`](Self::with_role) said otherwise). A failed
+    /// link does not affect the listener.
     pub async fn accept(&self) -> Result<Link, NetError> {
         let (stream, _) = self.listener.accept().await?;
-        Link::start(
-            stream,
-            Role::Remote,
-            self.config,
-            Handle::current(),
-            &self.hub,
-        )
+        Link::start(stream, self.role, self.config, Handle::current(), &self.hub)
     }
 }
 

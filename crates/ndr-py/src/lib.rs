@@ -11,16 +11,29 @@
 //! - [`kalman`]: `Kalman3`, `NetworkPredictor`, `Prediction`, `kalman3_filter`;
 //! - [`rls`]: `Rls` (sizes 1 to 8), `rls_filter`;
 //! - [`arx`]: `Tf2`, `Tf2State`, `Arx2`, `Estimator`;
-//! - [`filters`]: `LowPass`, `Envelope`, `lowpass`, `envelope`.
+//! - [`filters`]: `LowPass`, `Envelope`, `lowpass`, `envelope`;
+//! - [`link`]: the link natives (`_Link`, `_Listener`, `Tick`, `connect`,
+//!   `listen`) behind `ndr.Link`, with [`errors`] (the `ConnectionError`
+//!   subclasses) and [`blocking`] (waits without the GIL, Ctrl-C);
+//! - [`relay`]: `Relay`, the delaying proxy;
+//! - [`sim`]: `sim_run`, the simulator behind `ndr.sim.run`;
+//! - [`log`]: Rust's `tracing` records into Python's `logging`.
 //!
-//! Batch functions copy their inputs, then run without the GIL.
+//! Batch functions copy their inputs, then run without the GIL. Waits on
+//! the network release the GIL too, and wake every 50 ms to let Ctrl-C in.
 
 pub mod arx;
+pub mod blocking;
 pub mod convert;
+pub mod errors;
 pub mod filters;
 pub mod kalman;
+pub mod link;
+pub mod log;
 pub mod regulator;
+pub mod relay;
 pub mod rls;
+pub mod sim;
 
 use ndr_core::sizing::{self, InitPattern, Sizing};
 use pyo3::exceptions::PyValueError;
@@ -101,5 +114,18 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(filters::envelope, m)?)?;
     m.add("MAX_CAPACITY", regulator::MAX_CAPACITY)?;
     m.add("ESTIMATOR_HISTORY", arx::ESTIMATOR_HISTORY)?;
+    errors::register(m)?;
+    m.add_class::<link::PyTick>()?;
+    m.add_class::<link::PyLink>()?;
+    m.add_class::<link::PyListener>()?;
+    m.add_function(wrap_pyfunction!(link::connect, m)?)?;
+    m.add_function(wrap_pyfunction!(link::listen, m)?)?;
+    m.add("MAX_AXES", ndr_net::link::MAX_AXES)?;
+    m.add_class::<relay::PyRelay>()?;
+    m.add_function(wrap_pyfunction!(sim::run, m)?)?;
+    m.add_class::<sim::PySignal>()?;
+    m.add_function(wrap_pyfunction!(log::set_log_level, m)?)?;
+    m.add_function(wrap_pyfunction!(log::flush_logs, m)?)?;
+    log::install();
     Ok(())
 }

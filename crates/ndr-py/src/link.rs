@@ -1,0 +1,716 @@
+//! The link natives behind `ndr.Link` and `ndr.Listener` (python/ndr/link.py
+//! adds the context managers, iterators and asyncio).
+//!
+//! A `_Link` splits the Rust [`Link`] in two so that sending never waits for
+//! a receive: the [`LinkSender`] half sets the next sample and reads stats
+//! from any thread; the receiving half sits behind a mutex that is only ever
+//! taken without the GIL (a thread holding the GIL while it waits for a
+//! thread that waits for the GIL would deadlock).
+//!
+//! A link is handed to Python only once its handshake has succeeded: a peer
+//! with other settings raises `HandshakeError` from `connect`, and a
+//! listener logs it, counts it and keeps waiting for the next peer.
+
+use std::collections::VecDeque;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::Duration as StdDuration;
+
+use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
+use ndr_core::time::Duration;
+use ndr_core::wire::Role;
+use ndr_net::link::MAX_AXES;
+use ndr_net::{Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
+use numpy::PyArray1;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use crate::blocking::{self, timed_out, wait};
+use crate::convert::{period, sample};
+use crate::errors::{link_error, net_error};
+use crate::log;
+
+/// Events kept for Python between two reads; older ones are dropped.
+const EVENTS: usize = 1024;
+
+/// A sample released by the link's regulator at one of its ticks.
+///
+/// Times are seconds: `arrived_at` and `released_at` on this side's link
+/// clock (`Link.now()`), `sent_at` on the peer's. Only differences on one
+/// clock mean something; `released_at - sent_at` is the end-to-end delay
+/// plus the (constant) offset between the clocks.
+#[pyclass(frozen, module = "ndr", name = "Tick")]
+pub struct PyTick {
+    release: Sample,
+}
+
+#[pymethods]
+impl PyTick {
+    /// The sample's values: a new float64 array of shape `(axes,)`.
+    #[getter]
+    fn sample<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, self.release.values())
+    }
+
+    /// The sample's sequence number (the peer's data frame count).
+    #[getter]
+    fn seq(&self) -> u64 {
+        self.release.seq
+    }
+
+    /// When the peer sent it, on the peer's clock (s).
+    #[getter]
+    fn sent_at(&self) -> f64 {
+        self.release.sent_at.as_secs_f64()
+    }
+
+    /// When it arrived here, on this side's clock (s).
+    #[getter]
+    fn arrived_at(&self) -> f64 {
+        self.release.arrived_at.as_secs_f64()
+    }
+
+    /// The tick that released it, on this side's clock (s).
+    #[getter]
+    fn released_at(&self) -> f64 {
+        self.release.released_at.as_secs_f64()
+    }
+
+    /// `"fresh"`, or `"held"` when the due sample had not arrived (an
+    /// underflow) and the last one is repeated.
+    #[getter]
+    fn status(&self) -> &'static str {
+        self.release.status.name()
+    }
+
+    /// The round trip as the application sees it (GRTT, s), when this
+    /// release closes one; else `None`.
+    #[getter]
+    fn grtt(&self) -> Option<f64> {
+        self.release.grtt.map(Duration::as_secs_f64)
+    }
+
+    /// Time the sample waited in the regulator: `released_at - arrived_at` (s).
+    #[getter]
+    fn added_delay(&self) -> f64 {
+        self.release.added_delay().as_secs_f64()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Tick(seq={}, status={:?}, released_at={:.6}, sample={:?})",
+            self.release.seq,
+            self.release.status.name(),
+            self.release.released_at.as_secs_f64(),
+            self.release.values()
+        )
+    }
+}
+
+/// The receiving half of a link.
+struct Rx {
+    link: Link,
+    /// Samples handed back by an interrupted asynchronous receive; served first.
+    stash: VecDeque<Sample>,
+    events: VecDeque<Event<MAX_AXES>>,
+    ended: Option<CoreError>,
+}
+
+impl Rx {
+    /// The next sample, waiting at most `slice` (`Ok(None)` when none came).
+    fn take(&mut self, slice: StdDuration) -> Result<Option<Sample>, NetError> {
+        if let Some(s) = self.stash.pop_front() {
+            return Ok(Some(s));
+        }
+        if let Some(e) = self.ended {
+            return Err(NetError::Link(e));
+        }
+        let got = if slice.is_zero() {
+            self.link.try_recv()
+        } else {
+            match self.link.recv_timeout(slice) {
+                Ok(s) => Ok(Some(s)),
+                Err(NetError::Timeout) => Ok(None),
+                Err(e) => Err(e),
+            }
+        };
+        self.events.extend(self.link.drain_events());
+        if let Err(NetError::Link(e)) = &got {
+            self.ended = Some(*e);
+        }
+        got
+    }
+
+    /// Waits until the handshake is over: `Ok(Some(()))` once connected.
+    fn handshake(&mut self, slice: StdDuration) -> Result<Option<()>, NetError> {
+        let connected = |rx: &Rx| {
+            rx.events
+                .iter()
+                .any(|e| matches!(e, Event::Connected { .. }))
+        };
+        if connected(self) {
+            return Ok(Some(()));
+        }
+        // Samples only flow after the handshake and the initialization
+        // pattern; keep any that come while we look.
+        match self.take(slice.min(StdDuration::from_millis(5)))? {
+            Some(s) => self.stash.push_back(s),
+            None if connected(self) => return Ok(Some(())),
+            None => {}
+        }
+        Ok(connected(self).then_some(()))
+    }
+}
+
+/// The native link (`ndr.Link` wraps it).
+#[pyclass(frozen, module = "ndr._native", name = "_Link")]
+pub struct PyLink {
+    sender: LinkSender,
+    rx: Mutex<Rx>,
+    /// Events moved out of `rx` after each receive, so that reading them
+    /// never waits for a receive in progress.
+    events: Mutex<VecDeque<Event<MAX_AXES>>>,
+    pending: AtomicUsize,
+    events_dropped: AtomicU64,
+    role: Role,
+    period: f64,
+    peer: SocketAddr,
+}
+
+fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
+    rx.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+impl PyLink {
+    fn new(link: Link, role: Role, period: Duration) -> Self {
+        PyLink {
+            sender: link.sender(),
+            peer: link.peer_addr(),
+            rx: Mutex::new(Rx {
+                link,
+                stash: VecDeque::new(),
+                events: VecDeque::new(),
+                ended: None,
+            }),
+            events: Mutex::new(VecDeque::new()),
+            pending: AtomicUsize::new(0),
+            events_dropped: AtomicU64::new(0),
+            role,
+            period: period.as_secs_f64(),
+        }
+    }
+
+    /// Moves the events the last receive saw to where Python reads them
+    /// (at most [`EVENTS`]; the oldest go first, as the Rust link does).
+    fn publish(&self, rx: &mut Rx) {
+        if rx.events.is_empty() {
+            return;
+        }
+        let mut out = self.events.lock().unwrap_or_else(PoisonError::into_inner);
+        out.extend(rx.events.drain(..));
+        let excess = out.len().saturating_sub(EVENTS);
+        out.drain(..excess);
+        self.events_dropped
+            .fetch_add(excess as u64, Ordering::Relaxed);
+        self.pending.store(out.len(), Ordering::Release);
+    }
+
+    /// [`Rx::take`], then [`publish`](Self::publish).
+    fn take(&self, slice: StdDuration) -> Result<Option<Sample>, NetError> {
+        let mut rx = lock(&self.rx);
+        let got = rx.take(slice);
+        self.publish(&mut rx);
+        got
+    }
+
+    /// Waits for the handshake; the link's error if it failed.
+    fn await_handshake(&self, py: Python<'_>, limit: StdDuration) -> PyResult<()> {
+        let attempt = |slice| {
+            let mut rx = lock(&self.rx);
+            let got = rx.handshake(slice);
+            if got.as_ref().is_ok_and(Option::is_some) || got.is_err() {
+                self.publish(&mut rx);
+            }
+            got
+        };
+        match wait(py, Some(limit), attempt)? {
+            Ok(Some(())) => Ok(()),
+            Ok(None) => Err(timed_out(
+                "the peer did not complete the handshake",
+                Some(limit),
+            )),
+            Err(e) => Err(net_error(py, e)),
+        }
+    }
+
+    fn ended(&self, py: Python<'_>) -> Option<CoreError> {
+        py.detach(|| lock(&self.rx).ended)
+    }
+}
+
+#[pymethods]
+impl PyLink {
+    /// The next released sample, waiting at most `timeout` seconds (`None`:
+    /// as long as it takes). Raises `TimeoutError` when none came, a
+    /// `LinkError` subclass once the link has ended.
+    #[pyo3(signature = (timeout = None))]
+    fn recv(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<PyTick> {
+        let limit = blocking::timeout("timeout", timeout)?;
+        let got = wait(py, limit, |slice| self.take(slice));
+        log::flush(py);
+        match got? {
+            Ok(Some(release)) => Ok(PyTick { release }),
+            Ok(None) => Err(net_error(py, NetError::Timeout)),
+            Err(e) => Err(net_error(py, e)),
+        }
+    }
+
+    /// The next released sample if one is waiting, else `None`; never blocks.
+    fn try_recv(&self, py: Python<'_>) -> PyResult<Option<PyTick>> {
+        let got = py.detach(|| self.take(StdDuration::ZERO));
+        log::flush(py);
+        got.map(|s| s.map(|release| PyTick { release }))
+            .map_err(|e| net_error(py, e))
+    }
+
+    /// Puts a tick back in front of the queue (an asynchronous receive that
+    /// was cancelled after it got the tick gives it back, so nothing is lost).
+    fn unrecv(&self, py: Python<'_>, tick: &Bound<'_, PyTick>) {
+        let release = tick.get().release;
+        py.detach(|| lock(&self.rx).stash.push_front(release));
+    }
+
+    /// Sets the sample sent at the next tick (the previous one is repeated,
+    /// and counted, at ticks where none was given).
+    fn send(&self, py: Python<'_>, sample_: &Bound<'_, PyAny>) -> PyResult<()> {
+        let values = sample("sample", sample_, self.sender.axes())?;
+        if let Some(e) = self.ended(py) {
+            return Err(link_error(py, e));
+        }
+        self.sender.send(&values).map_err(|e| net_error(py, e))
+    }
+
+    /// The events since the last call, oldest first, as `(kind, fields)`.
+    fn events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let events: Vec<Event<MAX_AXES>> = {
+            let mut queue = self.events.lock().unwrap_or_else(PoisonError::into_inner);
+            self.pending.store(0, Ordering::Release);
+            queue.drain(..).collect()
+        };
+        let list = PyList::empty(py);
+        for e in events {
+            if let Some(item) = event(py, &e)? {
+                list.append(item)?;
+            }
+        }
+        Ok(list)
+    }
+
+    /// Events waiting to be read by `events()`.
+    #[getter]
+    fn pending_events(&self) -> usize {
+        self.pending.load(Ordering::Acquire)
+    }
+
+    /// Events dropped because nobody read them (more than 1024 waited).
+    #[getter]
+    fn events_dropped(&self) -> u64 {
+        self.events_dropped.load(Ordering::Relaxed)
+    }
+
+    /// A snapshot of the link's state and counters (`None` before its first tick).
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.sender.stats().map(|s| stats(py, &s)).transpose()
+    }
+
+    /// Now on this side's link clock (s): `released_at` and `arrived_at` are on it.
+    fn now(&self) -> f64 {
+        self.sender.now().as_secs_f64()
+    }
+
+    /// Closes the link (a Close frame tells the peer) and waits, two seconds
+    /// at most, for it to be let go. Receiving then raises `LinkClosedError`.
+    fn close(&self, py: Python<'_>) {
+        py.detach(|| {
+            let mut rx = lock(&self.rx);
+            rx.link.shutdown();
+            let Rx { link, events, .. } = &mut *rx;
+            events.extend(link.drain_events());
+            if rx.ended.is_none() {
+                rx.ended = Some(CoreError::Closed);
+            }
+            self.publish(&mut rx);
+        });
+        log::flush(py);
+    }
+
+    /// Axes per sample.
+    #[getter]
+    fn axes(&self) -> usize {
+        self.sender.axes()
+    }
+
+    /// The period the link was set up with (s).
+    #[getter]
+    fn period(&self) -> f64 {
+        self.period
+    }
+
+    /// `"base"` or `"remote"`.
+    #[getter]
+    fn role(&self) -> &'static str {
+        role_name(self.role)
+    }
+
+    /// The peer's address as `(host, port)`.
+    #[getter]
+    fn peer(&self) -> (String, u16) {
+        (self.peer.ip().to_string(), self.peer.port())
+    }
+}
+
+fn role_name(role: Role) -> &'static str {
+    match role {
+        Role::Base => "base",
+        Role::Remote => "remote",
+    }
+}
+
+fn event<'py>(py: Python<'py>, e: &Event<MAX_AXES>) -> PyResult<Option<Bound<'py, PyAny>>> {
+    let fields = PyDict::new(py);
+    let kind = match e {
+        Event::Connected { peer } => {
+            fields.set_item("peer_role", role_name(peer.role))?;
+            fields.set_item("axes", peer.axes)?;
+            fields.set_item("period", peer.period.as_secs_f64())?;
+            fields.set_item("mode", Mode::from_code(peer.mode).map(Mode::name))?;
+            "connected"
+        }
+        Event::Started { period, ns } => {
+            fields.set_item("period", period.as_secs_f64())?;
+            fields.set_item("ns", ns)?;
+            "started"
+        }
+        Event::Paused { period, ns } => {
+            fields.set_item("period", period.as_secs_f64())?;
+            fields.set_item("ns", ns)?;
+            "paused"
+        }
+        Event::LinkLost { silent_for } => {
+            fields.set_item("silent_for", silent_for.as_secs_f64())?;
+            "link_lost"
+        }
+        Event::LinkRestored => "link_restored",
+        Event::Closed { error } => {
+            let normal = matches!(
+                error,
+                None | Some(CoreError::PeerClosed { reason: 0 } | CoreError::Closed)
+            );
+            fields.set_item("error", error.map(|e| e.to_string()))?;
+            fields.set_item("normal", normal)?;
+            "closed"
+        }
+        // Releases reach Python as ticks, not events.
+        Event::Released(_) => return Ok(None),
+    };
+    Ok(Some((kind, fields).into_pyobject(py)?.into_any()))
+}
+
+fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let secs = |x: Duration| x.as_secs_f64();
+    d.set_item("phase", format!("{:?}", s.phase).to_lowercase())?;
+    d.set_item("period", secs(s.period))?;
+    d.set_item("ns", s.ns)?;
+    d.set_item("queue_len", s.queue_len)?;
+    d.set_item("queue_range", s.queue_range)?;
+    d.set_item("last_nrtt", s.last_nrtt.map(secs))?;
+    d.set_item("app_dropped", s.app_dropped)?;
+    let e = &s.endpoint;
+    for (k, v) in [
+        ("frames_sent", e.frames_sent),
+        ("frames_received", e.frames_received),
+        ("samples_sent", e.samples_sent),
+        ("samples_repeated", e.samples_repeated),
+        ("samples_received", e.samples_received),
+        ("released_fresh", e.released_fresh),
+        ("released_held", e.released_held),
+        ("underflows", e.underflows),
+        ("late", e.late),
+        ("rejected", e.rejected),
+        ("discarded", e.discarded),
+        ("pauses", e.pauses),
+        ("resizes", e.resizes),
+        ("link_lost", e.link_lost),
+        ("tx_dropped", e.tx_dropped),
+    ] {
+        d.set_item(k, v)?;
+    }
+    let running = |r: &ndr_core::endpoint::Running| -> PyResult<Bound<'py, PyDict>> {
+        let m = PyDict::new(py);
+        m.set_item("count", r.count())?;
+        m.set_item("mean", r.mean())?;
+        m.set_item("std", r.std())?;
+        m.set_item("min", r.min())?;
+        m.set_item("max", r.max())?;
+        Ok(m)
+    };
+    d.set_item("nrtt", running(&e.nrtt)?)?;
+    d.set_item("grtt", running(&e.grtt)?)?;
+    d.set_item("rx_lag", running(&s.rx_lag)?)?;
+    let l = &s.lateness;
+    let lateness = PyDict::new(py);
+    lateness.set_item("count", l.count)?;
+    lateness.set_item("missed", l.missed)?;
+    for (k, v) in [
+        ("p50", l.p50),
+        ("p99", l.p99),
+        ("p999", l.p999),
+        ("max", l.max),
+        ("mean", l.mean),
+    ] {
+        lateness.set_item(k, secs(v))?;
+    }
+    d.set_item("lateness", lateness)?;
+    Ok(d)
+}
+
+/// The settings of one side of a link, from Python's keyword arguments.
+#[allow(clippy::too_many_arguments)]
+fn link_config(
+    role: &str,
+    axes: u16,
+    period_s: f64,
+    mode: &str,
+    underflow: &str,
+    watchdog: Option<f64>,
+    handshake_timeout: f64,
+    app_queue: usize,
+) -> PyResult<(LinkConfig, Role)> {
+    let role = match role {
+        "base" => Role::Base,
+        "remote" => Role::Remote,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "role must be \"base\" (the operator's side) or \"remote\" (the robot's), got {other:?}"
+            )));
+        }
+    };
+    if axes == 0 || usize::from(axes) > MAX_AXES {
+        return Err(PyValueError::new_err(format!(
+            "axes must be 1 to {MAX_AXES} for a link, got {axes}"
+        )));
+    }
+    let mut endpoint = Config::new(role);
+    endpoint.axes = axes;
+    endpoint.period = period("period", period_s)?;
+    endpoint.mode = mode
+        .parse::<Mode>()
+        .map_err(|e| PyValueError::new_err(format!("mode: {e}")))?;
+    endpoint.underflow = underflow
+        .parse::<Underflow>()
+        .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
+    endpoint.watchdog = watchdog.map(|w| period("watchdog", w)).transpose()?;
+    endpoint.handshake_timeout = period("handshake_timeout", handshake_timeout)?;
+    endpoint
+        .validate()
+        .map_err(|e| PyValueError::new_err(format!("link configuration: {e}")))?;
+    if app_queue == 0 {
+        return Err(PyValueError::new_err(
+            "app_queue must be at least 1 (samples and events waiting for the application)",
+        ));
+    }
+    let mut config = LinkConfig::new(endpoint);
+    config.app_queue = app_queue;
+    Ok((config, role))
+}
+
+/// Connects to a peer and waits for the handshake.
+#[pyfunction]
+#[pyo3(signature = (address, *, role, axes, period, mode, underflow, watchdog, handshake_timeout, connect_timeout, app_queue))]
+#[allow(clippy::too_many_arguments)]
+pub fn connect(
+    py: Python<'_>,
+    address: &Bound<'_, PyAny>,
+    role: &str,
+    axes: u16,
+    period: f64,
+    mode: &str,
+    underflow: &str,
+    watchdog: Option<f64>,
+    handshake_timeout: f64,
+    connect_timeout: Option<f64>,
+    app_queue: usize,
+) -> PyResult<PyLink> {
+    let (config, role) = link_config(
+        role,
+        axes,
+        period,
+        mode,
+        underflow,
+        watchdog,
+        handshake_timeout,
+        app_queue,
+    )?;
+    let addr = blocking::address(py, address)?;
+    let limit = blocking::timeout("connect_timeout", connect_timeout)?;
+    let rt = blocking::runtime()?;
+    let hub = blocking::hub()?;
+    let attempt = |slice: StdDuration| {
+        rt.block_on(async {
+            match tokio::time::timeout(slice, tokio::net::TcpStream::connect(addr)).await {
+                Ok(Ok(stream)) => Ok(Some(stream)),
+                Ok(Err(e)) => Err(e),
+                Err(_) => Ok(None),
+            }
+        })
+    };
+    let stream = match wait(py, limit, attempt)? {
+        Ok(Some(s)) => s,
+        Ok(None) => return Err(timed_out(&format!("could not connect to {addr}"), limit)),
+        Err(e) => {
+            return Err(PyErr::from(std::io::Error::new(
+                e.kind(),
+                format!("cannot connect to {addr}: {e}"),
+            )));
+        }
+    };
+    let link = {
+        let _in_runtime = rt.enter();
+        Link::from_stream(stream, role, config, hub).map_err(|e| net_error(py, e))?
+    };
+    let link = PyLink::new(link, role, config.endpoint.period);
+    let handshake = link.await_handshake(py, config.endpoint.handshake_timeout.into());
+    log::flush(py);
+    handshake?;
+    Ok(link)
+}
+
+/// The native listener (`ndr.Listener` wraps it).
+#[pyclass(frozen, module = "ndr._native", name = "_Listener")]
+pub struct PyListener {
+    listener: Mutex<Option<Listener>>,
+    local: SocketAddr,
+    handshake_timeout: StdDuration,
+    period: Duration,
+    role: Role,
+    refused: std::sync::atomic::AtomicU64,
+}
+
+/// Listens for peers.
+#[pyfunction]
+#[pyo3(signature = (address, *, role, axes, period, mode, underflow, watchdog, handshake_timeout, app_queue))]
+#[allow(clippy::too_many_arguments)]
+pub fn listen(
+    py: Python<'_>,
+    address: &Bound<'_, PyAny>,
+    role: &str,
+    axes: u16,
+    period: f64,
+    mode: &str,
+    underflow: &str,
+    watchdog: Option<f64>,
+    handshake_timeout: f64,
+    app_queue: usize,
+) -> PyResult<PyListener> {
+    let (config, role) = link_config(
+        role,
+        axes,
+        period,
+        mode,
+        underflow,
+        watchdog,
+        handshake_timeout,
+        app_queue,
+    )?;
+    let addr = blocking::address(py, address)?;
+    let rt = blocking::runtime()?;
+    let listener = py
+        .detach(|| rt.block_on(Listener::bind(addr, config)))
+        .map_err(|e| net_error(py, e))?
+        .with_role(role);
+    let local = listener.local_addr().map_err(|e| net_error(py, e))?;
+    Ok(PyListener {
+        listener: Mutex::new(Some(listener)),
+        local,
+        handshake_timeout: config.endpoint.handshake_timeout.into(),
+        period: config.endpoint.period,
+        role,
+        refused: std::sync::atomic::AtomicU64::new(0),
+    })
+}
+
+#[pymethods]
+impl PyListener {
+    /// The next peer whose handshake succeeds, as a running link; `None`
+    /// when `timeout` passed first. A peer that fails its handshake is
+    /// logged, counted in `refused` and skipped.
+    #[pyo3(signature = (timeout = None))]
+    fn accept(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Option<PyLink>> {
+        let limit = blocking::timeout("timeout", timeout)?;
+        let rt = blocking::runtime()?;
+        let end = limit.map(|l| std::time::Instant::now() + l);
+        loop {
+            let left = end.map(|e| e.saturating_duration_since(std::time::Instant::now()));
+            let attempt = |slice: StdDuration| {
+                let guard = self.listener.lock().unwrap_or_else(PoisonError::into_inner);
+                let Some(listener) = guard.as_ref() else {
+                    return Err(NetError::Link(CoreError::Closed));
+                };
+                rt.block_on(async {
+                    match tokio::time::timeout(slice, listener.accept()).await {
+                        Ok(Ok(link)) => Ok(Some(link)),
+                        Ok(Err(e)) => Err(e),
+                        Err(_) => Ok(None),
+                    }
+                })
+            };
+            let link = match wait(py, left, attempt)? {
+                Ok(Some(link)) => link,
+                Ok(None) => return Ok(None),
+                Err(e) => return Err(net_error(py, e)),
+            };
+            let peer = link.peer_addr();
+            let link = PyLink::new(link, self.role, self.period);
+            match link.await_handshake(py, self.handshake_timeout) {
+                Ok(()) => {
+                    log::flush(py);
+                    return Ok(Some(link));
+                }
+                Err(e) if e.is_instance_of::<pyo3::exceptions::PyKeyboardInterrupt>(py) => {
+                    return Err(e);
+                }
+                Err(e) => {
+                    self.refused
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    tracing::warn!(target: "ndr_py::listener", %peer, "refused a peer: {e}");
+                    log::flush(py);
+                }
+            }
+        }
+    }
+
+    /// Stops listening; links already accepted go on.
+    fn close(&self, py: Python<'_>) {
+        py.detach(|| {
+            self.listener
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+        });
+    }
+
+    /// The address it listens on, as `(host, port)`.
+    #[getter]
+    fn address(&self) -> (String, u16) {
+        (self.local.ip().to_string(), self.local.port())
+    }
+
+    /// Peers refused because their handshake failed.
+    #[getter]
+    fn refused(&self) -> u64 {
+        self.refused.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}

@@ -1,0 +1,148 @@
+//! `ndr.Relay`: the delay-injecting TCP proxy of `ndr relay`, in-process.
+//!
+//! It runs on the process's I/O thread; each frame in each direction is
+//! delayed by the same models as the simulator, in order.
+
+use std::sync::{Mutex, PoisonError};
+
+use ndr_net::relay::DirectionStats;
+use ndr_net::{Relay, RelayHandle, RelayStats};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::blocking;
+use crate::log;
+use crate::sim::delay_model;
+
+/// A running relay: listens on `listen` and forwards each connection to
+/// `upstream`, delaying every frame by the chosen delay model.
+#[pyclass(frozen, module = "ndr", name = "Relay")]
+pub struct PyRelay {
+    handle: Mutex<Option<RelayHandle>>,
+    address: (String, u16),
+    model: String,
+    last: Mutex<RelayStats>,
+}
+
+#[pymethods]
+impl PyRelay {
+    #[new]
+    #[pyo3(signature = (listen, upstream, *, profile = None, trace = None, dist = None, mean = None, std = None, seed = 1))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        listen: &Bound<'_, PyAny>,
+        upstream: &Bound<'_, PyAny>,
+        profile: Option<&str>,
+        trace: Option<&str>,
+        dist: Option<&str>,
+        mean: Option<f64>,
+        std: Option<f64>,
+        seed: u64,
+    ) -> PyResult<Self> {
+        let model = delay_model(profile, trace, dist, mean, std, "lan-75km")?;
+        let name = model.name();
+        let listen = blocking::address(py, listen)?;
+        let upstream = blocking::address(py, upstream)?;
+        let rt = blocking::runtime()?;
+        let handle = py.detach(|| {
+            rt.block_on(async { Relay::bind(listen, upstream, model, seed).await?.spawn() })
+        });
+        log::flush(py);
+        let handle = handle?;
+        let local = handle.local_addr();
+        Ok(PyRelay {
+            handle: Mutex::new(Some(handle)),
+            address: (local.ip().to_string(), local.port()),
+            model: name,
+            last: Mutex::new(RelayStats::default()),
+        })
+    }
+
+    /// The address it listens on, as `(host, port)`.
+    #[getter]
+    fn address(&self) -> (String, u16) {
+        self.address.clone()
+    }
+
+    /// The delay model's name.
+    #[getter]
+    fn model(&self) -> &str {
+        &self.model
+    }
+
+    /// Its counters: connections, how they ended, and frames per direction.
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        log::flush(py);
+        let snapshot = {
+            let guard = self.handle.lock().unwrap_or_else(PoisonError::into_inner);
+            match guard.as_ref() {
+                Some(h) => h.stats(),
+                None => *self.last.lock().unwrap_or_else(PoisonError::into_inner),
+            }
+        };
+        stats(py, &snapshot)
+    }
+
+    /// Stops it: connections in flight are cut. Idempotent.
+    fn close(&self, py: Python<'_>) -> PyResult<()> {
+        let handle = self
+            .handle
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let Some(handle) = handle else {
+            return Ok(());
+        };
+        let rt = blocking::runtime()?;
+        let last = py.detach(|| rt.block_on(handle.shutdown()));
+        *self.last.lock().unwrap_or_else(PoisonError::into_inner) = last;
+        log::flush(py);
+        Ok(())
+    }
+
+    fn __enter__(slf: Py<Self>) -> Py<Self> {
+        slf
+    }
+
+    #[pyo3(signature = (*_exc))]
+    fn __exit__(&self, py: Python<'_>, _exc: &Bound<'_, pyo3::types::PyTuple>) -> PyResult<bool> {
+        self.close(py)?;
+        Ok(false)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Relay(address={}:{}, model={:?})",
+            self.address.0, self.address.1, self.model
+        )
+    }
+}
+
+fn stats<'py>(py: Python<'py>, s: &RelayStats) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (k, v) in [
+        ("connections", s.connections),
+        ("active", s.active),
+        ("finished", s.finished),
+        ("upstream_failures", s.upstream_failures),
+        ("framing_errors", s.framing_errors),
+        ("queue_overflows", s.queue_overflows),
+        ("io_errors", s.io_errors),
+        ("closed_by_shutdown", s.closed_by_shutdown),
+    ] {
+        d.set_item(k, v)?;
+    }
+    let direction = |x: &DirectionStats| -> PyResult<Bound<'py, PyDict>> {
+        let m = PyDict::new(py);
+        m.set_item("frames_received", x.frames_received)?;
+        m.set_item("frames_delivered", x.frames_delivered)?;
+        m.set_item("bytes_delivered", x.bytes_delivered)?;
+        m.set_item("held_back", x.held_back)?;
+        Ok(m)
+    };
+    d.set_item("forward", direction(&s.forward)?)?;
+    d.set_item("backward", direction(&s.backward)?)?;
+    Ok(d)
+}

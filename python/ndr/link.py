@@ -1,0 +1,539 @@
+"""The regulated link, for Python controllers.
+
+A :class:`Link` connects a base (the operator's side) and a remote (the
+robot's side) over TCP. Each side sends one sample per period; the Network
+Delay Regulator at each input releases the peer's samples at a constant
+period, so the controller sees a constant, known delay::
+
+    import ndr
+
+    with ndr.Link.connect("127.0.0.1:7300", axes=2, period=0.01) as link:
+        for tick in link.ticks():
+            command = controller(tick.sample)     # float64 array, shape (2,)
+            link.send(command)
+
+The remote side listens::
+
+    with ndr.Link.listen("0.0.0.0:7300", axes=2, period=0.01) as listener:
+        with listener.accept() as link:
+            for tick in link.ticks():
+                link.send(plant.step(tick.sample))
+
+Waiting (``recv``, ``ticks``, ``accept``, ``connect``) releases the GIL and
+can be interrupted with Ctrl-C. ``arecv`` and ``aticks`` do the same for
+asyncio. Events (the link started, paused, resized, lost its peer, an
+underflow) are logged to the ``ndr.link`` logger and kept for
+:meth:`Link.events`; Rust's own log records reach the ``ndr.*`` loggers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, AsyncIterator, Callable, Iterator, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _native
+from ._native import LinkClosedError, PeerClosedError, Tick
+
+__all__ = ["Event", "Link", "Listener", "Tick"]
+
+_log = logging.getLogger("ndr.link")
+
+Address = Union[str, Tuple[str, int]]
+SampleLike = Union[np.ndarray, Sequence[float], float]
+
+#: Events kept for :meth:`Link.events`; older ones are dropped (and counted).
+EVENT_BACKLOG = 1024
+
+# How long one slice of an asynchronous receive waits before it checks
+# whether its task was cancelled.
+_ASYNC_SLICE = 0.05
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something the controller should know about the link.
+
+    ``kind`` is one of:
+
+    - ``"connected"``: the handshake succeeded (``details`` holds the peer's
+      role, axes, period and mode);
+    - ``"started"``: samples flow, with ``period`` and ``ns`` (the
+      regulators' nominal size);
+    - ``"paused"``: dynamic mode stops the flow to change ``period`` and
+      ``ns``; ``"resized"`` follows when samples flow again with them;
+    - ``"underflow"``: the sample due at a tick had not arrived; the last
+      one was repeated (``seq`` is the repeated sample's);
+    - ``"link_lost"``: no fresh sample for the watchdog time
+      (``silent_for``): hold the robot safely; ``"link_restored"`` follows;
+    - ``"closed"``: the link ended (``error`` says why; ``details["normal"]``
+      is true when either side closed it in order).
+    """
+
+    kind: str
+    period: Optional[float] = None
+    ns: Optional[int] = None
+    seq: Optional[int] = None
+    silent_for: Optional[float] = None
+    error: Optional[str] = None
+    details: dict = field(default_factory=dict)
+
+
+def _is_normal_end(exc: BaseException) -> bool:
+    if isinstance(exc, LinkClosedError):
+        return True
+    return isinstance(exc, PeerClosedError) and getattr(exc, "reason", None) == 0
+
+
+class Link:
+    """One side of a regulated link. Make one with :meth:`connect` or
+    :meth:`Listener.accept`; use it as a context manager (or call
+    :meth:`close`)."""
+
+    def __init__(
+        self,
+        native: "_native._Link",
+        *,
+        on_event: Optional[Callable[[Event], Any]] = None,
+    ) -> None:
+        self._native = native
+        self._on_event = on_event
+        self._events: deque = deque()
+        self._events_dropped = 0
+        self._paused = False
+        self._closed = False
+        self._executor: Optional[ThreadPoolExecutor] = None
+        self._executor_lock = threading.Lock()
+        self._pump()
+
+    # -- making links -----------------------------------------------------
+
+    @classmethod
+    def connect(
+        cls,
+        address: Address,
+        *,
+        role: str = "base",
+        axes: int = 1,
+        period: float = 0.05,
+        mode: str = "paper-static",
+        underflow: str = "hold",
+        watchdog: Optional[float] = None,
+        handshake_timeout: float = 5.0,
+        connect_timeout: Optional[float] = 10.0,
+        queue: int = 1024,
+        on_event: Optional[Callable[[Event], Any]] = None,
+    ) -> "Link":
+        """Connects to a peer and returns the link once the handshake is done.
+
+        Args:
+            address: ``"host:port"`` or ``(host, port)``.
+            role: ``"base"`` (the operator's side, the default) or
+                ``"remote"`` (a robot that dials out).
+            axes: values per sample, 1 to 8; both peers must agree.
+            period: the sampling period in seconds; both peers must agree.
+            mode: ``"paper-static"`` (queues sized once) or
+                ``"paper-dynamic"`` (the network predictor resizes them).
+            underflow: what a tick does when its sample has not arrived:
+                ``"hold"`` (the paper's FIFO: repeat the last sample, keep
+                every sample) or ``"drop-late"`` (keep the delay constant:
+                a late sample is dropped and counted).
+            watchdog: seconds without a fresh sample before a
+                ``"link_lost"`` event; ``None`` disables it.
+            handshake_timeout: seconds the handshake and each
+                initialization pattern may take.
+            connect_timeout: seconds to wait for the TCP connection
+                (``None``: the operating system's limit).
+            queue: released samples and events that may wait for the
+                application; beyond it the newest are dropped and counted
+                (``stats["app_dropped"]``).
+            on_event: called with each :class:`Event`, on the thread that
+                receives.
+
+        Raises:
+            ConnectionRefusedError: nothing listens at ``address``.
+            HandshakeError: the peer has other settings, or did not answer.
+            TimeoutError: no connection within ``connect_timeout``.
+            ValueError: a setting is invalid (the message says which).
+        """
+        native = _native.connect(
+            address,
+            role=role,
+            axes=axes,
+            period=period,
+            mode=mode,
+            underflow=underflow,
+            watchdog=watchdog,
+            handshake_timeout=handshake_timeout,
+            connect_timeout=connect_timeout,
+            app_queue=queue,
+        )
+        return cls(native, on_event=on_event)
+
+    @classmethod
+    def listen(
+        cls,
+        address: Address,
+        *,
+        role: str = "remote",
+        axes: int = 1,
+        period: float = 0.05,
+        mode: str = "paper-static",
+        underflow: str = "hold",
+        watchdog: Optional[float] = None,
+        handshake_timeout: float = 5.0,
+        queue: int = 1024,
+        on_event: Optional[Callable[[Event], Any]] = None,
+    ) -> "Listener":
+        """Listens at ``address`` (port 0 picks a free one) and returns a
+        :class:`Listener` whose :meth:`~Listener.accept` gives one link per
+        peer. The keyword arguments are those of :meth:`connect`; ``role``
+        defaults to ``"remote"``."""
+        native = _native.listen(
+            address,
+            role=role,
+            axes=axes,
+            period=period,
+            mode=mode,
+            underflow=underflow,
+            watchdog=watchdog,
+            handshake_timeout=handshake_timeout,
+            app_queue=queue,
+        )
+        return Listener(native, on_event=on_event)
+
+    # -- samples ----------------------------------------------------------
+
+    def send(self, sample: SampleLike) -> None:
+        """Sets the sample sent at the next tick: a float64 array (or any
+        sequence of numbers) of shape ``(axes,)``; a plain number when
+        ``axes`` is 1. At a tick where none was given, the previous one is
+        sent again (and counted in ``stats["samples_repeated"]``).
+
+        Raises:
+            ValueError: wrong shape, dtype, or a NaN/infinite value.
+            LinkError: the link has ended (the subclass says how).
+        """
+        self._native.send(sample)
+
+    def recv(self, timeout: Optional[float] = None) -> Tick:
+        """The next released sample, waiting at most ``timeout`` seconds
+        (``None``: as long as it takes).
+
+        Raises:
+            TimeoutError: no sample within ``timeout`` (the link is still up).
+            LinkError: the link has ended; ``PeerClosedError`` with
+                ``reason == 0`` or ``LinkClosedError`` for a normal end.
+        """
+        try:
+            tick = self._native.recv(timeout)
+        finally:
+            if self._native.pending_events:
+                self._pump()
+        if tick.status == "held":
+            self._emit(Event("underflow", seq=tick.seq))
+        return tick
+
+    def try_recv(self) -> Optional[Tick]:
+        """The next released sample if one is waiting, else ``None``."""
+        try:
+            tick = self._native.try_recv()
+        finally:
+            if self._native.pending_events:
+                self._pump()
+        if tick is not None and tick.status == "held":
+            self._emit(Event("underflow", seq=tick.seq))
+        return tick
+
+    def ticks(self, timeout: Optional[float] = None) -> Iterator[Tick]:
+        """Iterates over released samples, one per period, until the link
+        ends normally (the peer closed it, or :meth:`close` was called).
+        ``timeout`` bounds the wait for each tick (``TimeoutError``). A link
+        that fails raises its :class:`LinkError` subclass."""
+        while True:
+            try:
+                tick = self.recv(timeout)
+            except (PeerClosedError, LinkClosedError) as e:
+                if _is_normal_end(e):
+                    return
+                raise
+            yield tick
+
+    def __iter__(self) -> Iterator[Tick]:
+        return self.ticks()
+
+    # -- asyncio ----------------------------------------------------------
+
+    async def arecv(self, timeout: Optional[float] = None) -> Tick:
+        """:meth:`recv` for asyncio: waits on a worker thread of the link,
+        without blocking the event loop. Cancelling it loses nothing: a
+        sample it had already taken is put back for the next receive."""
+        call = _AsyncRecv(self, timeout)
+        loop = asyncio.get_running_loop()
+        future = loop.run_in_executor(self._worker(), call.run)
+        try:
+            tick = await future
+        except asyncio.CancelledError:
+            call.cancel()
+            raise
+        if tick.status == "held":
+            self._emit(Event("underflow", seq=tick.seq))
+        return tick
+
+    async def aticks(self, timeout: Optional[float] = None) -> AsyncIterator[Tick]:
+        """:meth:`ticks` for asyncio: ``async for tick in link.aticks():``."""
+        while True:
+            try:
+                tick = await self.arecv(timeout)
+            except (PeerClosedError, LinkClosedError) as e:
+                if _is_normal_end(e):
+                    return
+                raise
+            yield tick
+
+    def _worker(self) -> ThreadPoolExecutor:
+        with self._executor_lock:
+            if self._executor is None:
+                # One thread: asynchronous receives happen in order.
+                self._executor = ThreadPoolExecutor(
+                    max_workers=1, thread_name_prefix="ndr-arecv"
+                )
+            return self._executor
+
+    # -- state ------------------------------------------------------------
+
+    def events(self) -> list:
+        """The :class:`Event` s since the last call, oldest first."""
+        self._pump()
+        out = list(self._events)
+        self._events.clear()
+        return out
+
+    @property
+    def events_dropped(self) -> int:
+        """Events dropped because :meth:`events` was not called for a long
+        time (more than ``EVENT_BACKLOG`` waited)."""
+        return self._events_dropped + self._native.events_dropped
+
+    @property
+    def stats(self) -> Optional[dict]:
+        """A snapshot of the link's state and counters, ``None`` before its
+        first tick. Times are seconds. Keys include ``phase``, ``period``,
+        ``ns``, ``queue_len``, ``queue_range``, ``last_nrtt``, the counters
+        (``samples_sent``, ``samples_received``, ``released_fresh``,
+        ``released_held``, ``underflows``, ``late``, ``pauses``, …),
+        ``nrtt`` and ``grtt`` (count, mean, std, min, max), ``lateness`` of
+        the release clock (p50, p99, p999, max, mean) and ``app_dropped``."""
+        return self._native.stats()
+
+    def now(self) -> float:
+        """Now, in seconds on this side's link clock (the clock of
+        ``Tick.released_at`` and ``Tick.arrived_at``)."""
+        return self._native.now()
+
+    @property
+    def axes(self) -> int:
+        """Values per sample."""
+        return self._native.axes
+
+    @property
+    def period(self) -> float:
+        """The period the link was set up with, in seconds (dynamic mode
+        may change it: see ``stats["period"]``)."""
+        return self._native.period
+
+    @property
+    def role(self) -> str:
+        """``"base"`` or ``"remote"``."""
+        return self._native.role
+
+    @property
+    def peer(self) -> Tuple[str, int]:
+        """The peer's address, ``(host, port)``."""
+        return self._native.peer
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` was called."""
+        return self._closed
+
+    def close(self) -> None:
+        """Closes the link: the peer is told (a Close frame), receiving then
+        raises ``LinkClosedError``. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._native.close()
+        self._pump()
+        if self._executor is not None:
+            self._executor.shutdown(wait=False)
+
+    def __enter__(self) -> "Link":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        host, port = self.peer
+        state = "closed" if self._closed else "open"
+        return (
+            f"<ndr.Link {self.role} peer={host}:{port} axes={self.axes} "
+            f"period={self.period:g}s {state}>"
+        )
+
+    # -- events -----------------------------------------------------------
+
+    def _pump(self) -> None:
+        for kind, fields in self._native.events():
+            if kind == "paused":
+                self._paused = True
+            elif kind == "started" and self._paused:
+                self._paused = False
+                kind = "resized"
+            self._emit(
+                Event(
+                    kind,
+                    period=fields.get("period"),
+                    ns=fields.get("ns"),
+                    silent_for=fields.get("silent_for"),
+                    error=fields.get("error"),
+                    details=fields,
+                )
+            )
+
+    def _emit(self, event: Event) -> None:
+        if len(self._events) >= EVENT_BACKLOG:
+            self._events.popleft()
+            self._events_dropped += 1
+        self._events.append(event)
+        _log_event(self, event)
+        if self._on_event is not None:
+            self._on_event(event)
+
+
+def _log_event(link: Link, e: Event) -> None:
+    who = link.role
+    if e.kind == "underflow":
+        _log.debug("%s: underflow, sample %s repeated", who, e.seq)
+    elif e.kind == "link_lost":
+        _log.warning("%s: link lost: no fresh sample for %.3f s", who, e.silent_for or 0.0)
+    elif e.kind == "closed" and not e.details.get("normal", True):
+        _log.warning("%s: link closed: %s", who, e.error)
+    elif e.kind in ("started", "resized", "paused"):
+        _log.info("%s: %s, period %.6g s, ns %s", who, e.kind, e.period, e.ns)
+    else:
+        _log.info("%s: %s", who, e.kind)
+
+
+class _AsyncRecv:
+    """One asynchronous receive: waits in slices on the link's worker thread,
+    and gives back a tick that arrives after it was cancelled."""
+
+    def __init__(self, link: Link, timeout: Optional[float]) -> None:
+        self._link = link
+        self._timeout = timeout
+        self._lock = threading.Lock()
+        self._cancelled = False
+        self._taken: Optional[Tick] = None
+
+    def run(self) -> Optional[Tick]:
+        native = self._link._native
+        waited = 0.0
+        while True:
+            with self._lock:
+                if self._cancelled:
+                    return None
+            slice_ = _ASYNC_SLICE
+            if self._timeout is not None:
+                slice_ = min(slice_, max(self._timeout - waited, 0.0))
+            try:
+                tick = native.recv(slice_)
+            except TimeoutError:
+                waited += slice_
+                if self._timeout is not None and waited >= self._timeout:
+                    raise TimeoutError(
+                        f"no sample within {self._timeout} s (the link is still up)"
+                    ) from None
+                continue
+            finally:
+                if native.pending_events:
+                    self._link._pump()
+            with self._lock:
+                if self._cancelled:
+                    native.unrecv(tick)
+                    return None
+                self._taken = tick
+            return tick
+
+    def cancel(self) -> None:
+        with self._lock:
+            self._cancelled = True
+            if self._taken is not None:
+                self._link._native.unrecv(self._taken)
+                self._taken = None
+
+
+class Listener:
+    """Accepts links, one per peer (from :meth:`Link.listen`). A peer whose
+    handshake fails is logged, counted in :attr:`refused` and skipped; the
+    listener keeps serving."""
+
+    def __init__(
+        self,
+        native: "_native._Listener",
+        *,
+        on_event: Optional[Callable[[Event], Any]] = None,
+    ) -> None:
+        self._native = native
+        self._on_event = on_event
+
+    def accept(self, timeout: Optional[float] = None) -> Link:
+        """The next peer whose handshake succeeds, as a running :class:`Link`.
+
+        Raises:
+            TimeoutError: no such peer within ``timeout`` seconds.
+            LinkClosedError: the listener was closed.
+        """
+        native = self._native.accept(timeout)
+        if native is None:
+            raise TimeoutError(f"no peer completed a handshake within {timeout} s")
+        return Link(native, on_event=self._on_event)
+
+    def __iter__(self) -> Iterator[Link]:
+        """Links, one per peer, for as long as the listener is open."""
+        while True:
+            try:
+                yield self.accept()
+            except LinkClosedError:
+                return
+
+    @property
+    def address(self) -> Tuple[str, int]:
+        """The address it listens on, ``(host, port)``."""
+        return self._native.address
+
+    @property
+    def refused(self) -> int:
+        """Peers refused because their handshake failed."""
+        return self._native.refused
+
+    def close(self) -> None:
+        """Stops listening; links already accepted go on."""
+        self._native.close()
+
+    def __enter__(self) -> "Listener":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        host, port = self.address
+        return f"<ndr.Listener {host}:{port}>"

@@ -1,0 +1,177 @@
+"""The paper's figures from a simulation (matplotlib, an optional extra:
+``pip install 'ndr[plot]'``).
+
+::
+
+    import ndr.sim, ndr.plot
+
+    result = ndr.sim.run(profile="paper-fig6", mode="paper-dynamic", duration=1200)
+    fig = ndr.plot.predictions(result)
+    fig.savefig("fig8-9.png")
+
+- :func:`round_trips`: NRTT against GRTT over time (the paper's Fig. 5);
+- :func:`predictions`: the network predictor's mean NRTT and ``mt``, measured
+  and forecast (Figs. 8 and 9);
+- :func:`queues`: the regulators' occupancy and nominal size;
+- :func:`compare`: delay against late rate, one point per playout policy,
+  from ``ndr compare --json``.
+
+Each function takes a :class:`~ndr.sim.SimResult` (or its ``series`` dict),
+draws on ``ax`` when given (else on a new figure) and returns the figure.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Mapping, Optional, Union
+
+import numpy as np
+
+__all__ = ["compare", "predictions", "queues", "round_trips"]
+
+
+def _pyplot() -> Any:
+    try:
+        import matplotlib.pyplot as plt
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "ndr.plot needs matplotlib: pip install 'ndr[plot]' (or pip install matplotlib)"
+        ) from e
+    return plt
+
+
+def _series(result: Any) -> Mapping[str, np.ndarray]:
+    series = getattr(result, "series", result)
+    if not isinstance(series, Mapping) or "t" not in series:
+        raise ValueError(
+            "expected a SimResult from ndr.sim.run(..., series=True) or its series dict"
+        )
+    if len(series["t"]) == 0:
+        raise ValueError("the result has no series: run ndr.sim.run(..., series=True)")
+    return series
+
+
+def _axes(ax: Any, rows: int = 1) -> tuple:
+    plt = _pyplot()
+    if ax is not None:
+        axes = ax if rows > 1 else [ax]
+        return axes[0].figure, list(axes)
+    fig, axes = plt.subplots(rows, 1, sharex=True, figsize=(8, 3 * rows), squeeze=False)
+    return fig, list(axes[:, 0])
+
+
+def round_trips(result: Any, ax: Any = None) -> Any:
+    """NRTT (the network) against GRTT (as the controller sees it), in
+    seconds against time: the paper's Fig. 5."""
+    s = _series(result)
+    fig, (a,) = _axes(ax)
+    a.plot(s["t"], s["nrtt"], lw=0.6, color="0.6", label="NRTT")
+    a.plot(s["t"], s["grtt"], lw=1.5, color="C0", label="GRTT")
+    a.set_xlabel("time (s)")
+    a.set_ylabel("round trip (s)")
+    a.legend(loc="upper right")
+    a.set_title("Network round trip against the regulated round trip")
+    return fig
+
+
+def predictions(result: Any, ax: Any = None) -> Any:
+    """The network predictor: mean NRTT and ``mt``, measured and forecast
+    ``horizon`` periods ahead (the paper's Figs. 8 and 9). ``ax``, when
+    given, is a pair of axes."""
+    s = _series(result)
+    fig, (a, b) = _axes(ax, rows=2)
+    if np.isfinite(s["truth_nrtt"]).any():
+        a.plot(s["t"], s["truth_nrtt"], lw=1, color="0.3", ls="--", label="generating mean")
+    a.plot(s["t"], s["nrtt_mean"], lw=1, color="C0", label="measured mean NRTT")
+    a.plot(s["t"], s["nrtt_ahead"], lw=1, color="C1", label="forecast")
+    a.set_ylabel("mean NRTT (s)")
+    a.legend(loc="upper right")
+    b.plot(s["t"], s["mt"], lw=1, color="C0", label="measured mt")
+    b.plot(s["t"], s["mt_ahead"], lw=1, color="C1", label="forecast")
+    b.set_ylabel("mt (s)")
+    b.set_xlabel("time (s)")
+    b.legend(loc="upper right")
+    return fig
+
+
+def queues(result: Any, ax: Any = None) -> Any:
+    """The regulators' occupancy before each release, and the nominal size."""
+    s = _series(result)
+    fig, (a,) = _axes(ax)
+    a.step(s["t"], s["queue_base"], where="post", lw=0.8, label="base")
+    a.step(s["t"], s["queue_remote"], where="post", lw=0.8, label="remote")
+    a.step(s["t"], s["ns"], where="post", lw=1.5, color="k", label="ns")
+    a.set_xlabel("time (s)")
+    a.set_ylabel("samples in the queue")
+    a.legend(loc="upper right")
+    return fig
+
+
+def compare(report: Union[str, Mapping[str, Any]], ax: Any = None, *, family: Optional[str] = None) -> Any:
+    """Mean end-to-end delay against late rate, one point per playout policy
+    (with the oracle's curve where the report has it), from the JSON of
+    ``ndr compare --json`` (a dict, a JSON string or a file path).
+    ``family`` picks one trace family; by default, the first."""
+    data = _load(report)
+    points = _policy_points(data, family)
+    fig, (a,) = _axes(ax)
+    for name, delay, late in points:
+        a.scatter([max(late, 1e-6)], [delay * 1e3], label=name)
+        a.annotate(name, (max(late, 1e-6), delay * 1e3), fontsize=7, xytext=(3, 3),
+                   textcoords="offset points")
+    a.set_xscale("log")
+    a.set_xlabel("late rate")
+    a.set_ylabel("mean end-to-end delay (ms)")
+    a.set_title(f"Playout policies: delay against late rate ({points.family})")
+    return fig
+
+
+class _Points(list):
+    family: str = ""
+
+
+def _load(report: Union[str, Mapping[str, Any]]) -> Mapping[str, Any]:
+    if isinstance(report, Mapping):
+        return report
+    text = str(report)
+    if text.lstrip().startswith("{"):
+        return json.loads(text)
+    with open(text, encoding="utf-8") as f:
+        return json.load(f)
+
+
+def _policy_points(data: Mapping[str, Any], family: Optional[str]) -> _Points:
+    families = data.get("families")
+    if not families:
+        raise ValueError("not an `ndr compare --json` report: it has no \"families\"")
+    if isinstance(families, Mapping):
+        names = list(families)
+        chosen = family or names[0]
+        if chosen not in families:
+            raise ValueError(f"no family {chosen!r} in the report; it has {names}")
+        fam = families[chosen]
+    else:
+        by_name = {f.get("name"): f for f in families}
+        chosen = family or next(iter(by_name))
+        if chosen not in by_name:
+            raise ValueError(f"no family {chosen!r} in the report; it has {list(by_name)}")
+        fam = by_name[chosen]
+    policies = fam.get("policies") if isinstance(fam, Mapping) else None
+    if not policies:
+        raise ValueError(f"family {chosen!r} has no policies")
+    out = _Points()
+    out.family = str(chosen)
+    items = policies.items() if isinstance(policies, Mapping) else ((p.get("name"), p) for p in policies)
+    for name, p in items:
+        out.append((str(name), _mean(p, "mean_delay_s", "e2e_mean_s"), _mean(p, "late_rate")))
+    return out
+
+
+def _mean(p: Mapping[str, Any], *keys: str) -> float:
+    for k in keys:
+        if k in p:
+            v = p[k]
+            if isinstance(v, Mapping):
+                v = v.get("mean")
+            return float(v)
+    raise ValueError(f"a policy entry has none of {keys}")
