@@ -7,7 +7,7 @@ A wrong shape, dtype or number of axes, a NaN or an infinity raises
 number raises ``TypeError``.
 """
 
-from typing import Optional, Tuple, Union, final
+from typing import Any, Dict, List, Optional, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -19,7 +19,22 @@ _Tf = Tuple[_Floats, _Floats, float]
 __all__ = [
     "ESTIMATOR_HISTORY",
     "INIT_EXCHANGES",
+    "MAX_AXES",
     "MAX_CAPACITY",
+    "DisconnectedError",
+    "HandshakeError",
+    "LinkClosedError",
+    "LinkError",
+    "PeerClosedError",
+    "ProtocolError",
+    "Relay",
+    "Signal",
+    "Tick",
+    "connect",
+    "flush_logs",
+    "listen",
+    "set_log_level",
+    "sim_run",
     "__version__",
     "Arx2",
     "Envelope",
@@ -562,3 +577,184 @@ class Estimator:
         """Forgets the command history and anchors, keeping the model."""
     def reset_identification(self) -> None:
         """Restarts identification from a zero model."""
+
+
+# -- the link ---------------------------------------------------------------
+
+MAX_AXES: int
+_Address = Union[str, Tuple[str, int]]
+
+class LinkError(ConnectionError):
+    """The link failed or ended; every link failure is a subclass."""
+
+class HandshakeError(LinkError):
+    """The peers disagree (version, role, axes, period, mode) or the
+    handshake did not finish in time."""
+
+class ProtocolError(LinkError):
+    """The peer sent bytes that are not a valid ndr frame."""
+
+class PeerClosedError(LinkError):
+    """The peer ended the link; ``reason`` 0 is a normal end."""
+
+    reason: int
+    reason_name: str
+
+class DisconnectedError(LinkError):
+    """The connection dropped without a Close frame."""
+
+class LinkClosedError(LinkError):
+    """This side closed the link."""
+
+@final
+class Tick:
+    """A sample released by the link's regulator at one of its ticks."""
+
+    @property
+    def sample(self) -> _Floats:
+        """The values, a new float64 array of shape ``(axes,)``."""
+    @property
+    def seq(self) -> int: ...
+    @property
+    def sent_at(self) -> float:
+        """When the peer sent it, on the peer's clock (s)."""
+    @property
+    def arrived_at(self) -> float:
+        """When it arrived, on this side's link clock (s)."""
+    @property
+    def released_at(self) -> float:
+        """The tick that released it, on this side's link clock (s)."""
+    @property
+    def status(self) -> str:
+        """``"fresh"``, or ``"held"`` on an underflow (the last sample repeated)."""
+    @property
+    def grtt(self) -> Optional[float]:
+        """The round trip as the application sees it, when this release closes one."""
+    @property
+    def added_delay(self) -> float:
+        """``released_at - arrived_at``."""
+
+@final
+class _Link:
+    def recv(self, timeout: Optional[float] = None) -> Tick: ...
+    def try_recv(self) -> Optional[Tick]: ...
+    def unrecv(self, tick: Tick) -> None: ...
+    def send(self, sample: Union[_ArrayLike, float]) -> None: ...
+    def events(self) -> List[Tuple[str, Dict[str, Any]]]: ...
+    @property
+    def pending_events(self) -> int: ...
+    @property
+    def events_dropped(self) -> int: ...
+    def stats(self) -> Optional[Dict[str, Any]]: ...
+    def now(self) -> float: ...
+    def close(self) -> None: ...
+    @property
+    def axes(self) -> int: ...
+    @property
+    def period(self) -> float: ...
+    @property
+    def role(self) -> str: ...
+    @property
+    def peer(self) -> Tuple[str, int]: ...
+
+@final
+class _Listener:
+    def accept(self, timeout: Optional[float] = None) -> Optional[_Link]: ...
+    def close(self) -> None: ...
+    @property
+    def address(self) -> Tuple[str, int]: ...
+    @property
+    def refused(self) -> int: ...
+
+def connect(
+    address: _Address,
+    *,
+    role: str,
+    axes: int,
+    period: float,
+    mode: str,
+    underflow: str,
+    watchdog: Optional[float],
+    handshake_timeout: float,
+    connect_timeout: Optional[float],
+    app_queue: int,
+) -> _Link: ...
+def listen(
+    address: _Address,
+    *,
+    role: str,
+    axes: int,
+    period: float,
+    mode: str,
+    underflow: str,
+    watchdog: Optional[float],
+    handshake_timeout: float,
+    app_queue: int,
+) -> _Listener: ...
+
+@final
+class Relay:
+    """A delay-injecting TCP proxy (``ndr relay``) running in this process:
+    listens on ``listen`` and forwards each connection to ``upstream``,
+    delaying every frame by a delay model (one of ``profile``, ``trace``,
+    ``dist`` with ``mean`` and ``std``), keeping order. A context manager."""
+
+    def __new__(
+        cls,
+        listen: _Address,
+        upstream: _Address,
+        *,
+        profile: Optional[str] = None,
+        trace: Optional[str] = None,
+        dist: Optional[str] = None,
+        mean: Optional[float] = None,
+        std: Optional[float] = None,
+        seed: int = 1,
+    ) -> "Relay": ...
+    @property
+    def address(self) -> Tuple[str, int]: ...
+    @property
+    def model(self) -> str: ...
+    @property
+    def stats(self) -> Dict[str, Any]: ...
+    def close(self) -> None: ...
+    def __enter__(self) -> "Relay": ...
+    def __exit__(self, *exc: object) -> bool: ...
+
+# -- the simulator ------------------------------------------------------------
+
+@final
+class Signal:
+    """An operator's command: ``"sine[:amp=A,freq=F,offset=O]"``,
+    ``"steps[:low=L,high=H,period=P]"`` or ``"constant:V"``."""
+
+    def __new__(cls, spec: str = "sine") -> "Signal": ...
+    def __call__(self, t: float, axis: int = 0) -> float: ...
+    @property
+    def kind(self) -> str: ...
+
+def sim_run(
+    *,
+    profile: Optional[str] = None,
+    trace: Optional[str] = None,
+    dist: Optional[str] = None,
+    mean: Optional[float] = None,
+    std: Optional[float] = None,
+    mode: str = "paper-static",
+    underflow: str = "hold",
+    period: float = 0.2,
+    duration: float = 600.0,
+    seed: int = 1,
+    axes: int = 1,
+    signal: str = "sine",
+    series: bool = True,
+) -> Tuple[str, Dict[str, _Floats]]:
+    """One simulation: ``(summary JSON, series)``; use :func:`ndr.sim.run`."""
+
+# -- logging ------------------------------------------------------------------
+
+def set_log_level(level: str) -> None:
+    """The most verbose Rust level recorded: error, warning, info (default), debug, trace."""
+
+def flush_logs() -> None:
+    """Hands the waiting Rust log records to :mod:`logging` now."""

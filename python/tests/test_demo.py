@@ -1,0 +1,34 @@
+"""`python -m ndr demo`: the main job, from Python."""
+
+import json
+import subprocess
+import sys
+
+
+def test_python_m_ndr_demo_runs_and_reports(tmp_path):
+    out = tmp_path / "demo.csv"
+    proc = subprocess.run(
+        [sys.executable, "-m", "ndr", "demo", "--duration-s", "3", "--period-ms", "20",
+         "--json", "--out", str(out)],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["profile"] == "lan-75km"
+    assert report["grtt_count"] > 20
+    assert report["grtt_std_s"] < 0.25 * report["period_s"]
+    assert report["samples_released"] > 100
+    assert report["csv"] == str(out)
+    header = out.read_text().splitlines()[0]
+    assert header == "t_s,seq,status,grtt_s,command,state,x3e"
+
+
+def test_bad_options_exit_with_a_message():
+    proc = subprocess.run(
+        [sys.executable, "-m", "ndr", "demo", "--duration-s", "-1"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert "duration" in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "ndr", "fly"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "unknown command" in proc.stderr

@@ -1,0 +1,50 @@
+"""ndr.plot draws the paper's figures (skipped without matplotlib)."""
+
+import json
+
+import pytest
+
+matplotlib = pytest.importorskip("matplotlib")
+matplotlib.use("Agg")
+
+import ndr.plot  # noqa: E402
+import ndr.sim  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def result():
+    return ndr.sim.run("paper-fig6", mode="paper-dynamic", period=0.2, duration=120)
+
+
+@pytest.mark.parametrize("draw", [ndr.plot.round_trips, ndr.plot.predictions, ndr.plot.queues])
+def test_figures_are_drawn(result, draw, tmp_path):
+    fig = draw(result)
+    lines = [line for ax in fig.axes for line in ax.get_lines()]
+    assert lines and all(len(line.get_xdata()) > 100 for line in lines)
+    fig.savefig(tmp_path / "fig.png")
+    assert (tmp_path / "fig.png").stat().st_size > 1000
+
+
+def test_a_result_without_series_is_refused():
+    r = ndr.sim.run("lan-75km", duration=10, series=False)
+    with pytest.raises(ValueError, match="series"):
+        ndr.plot.round_trips(r)
+
+
+def test_compare_draws_one_point_per_policy(tmp_path):
+    report = {
+        "families": {
+            "lan-75km": {
+                "policies": {
+                    "paper-static": {"mean_delay_s": {"mean": 0.6}, "late_rate": {"mean": 0.0}},
+                    "ramjee-1": {"mean_delay_s": {"mean": 0.05}, "late_rate": {"mean": 0.01}},
+                }
+            }
+        }
+    }
+    path = tmp_path / "compare.json"
+    path.write_text(json.dumps(report))
+    fig = ndr.plot.compare(str(path))
+    assert len(fig.axes[0].collections) == 2
+    with pytest.raises(ValueError, match="families"):
+        ndr.plot.compare({"nothing": 1})
