@@ -109,14 +109,16 @@ def queues(result: Any, ax: Any = None) -> Any:
 
 def compare(report: Union[str, Mapping[str, Any]], ax: Any = None, *, family: Optional[str] = None) -> Any:
     """Mean end-to-end delay against late rate, one point per playout policy
-    (with the oracle's curve where the report has it), from the JSON of
-    ``ndr compare --json`` (a dict, a JSON string or a file path).
-    ``family`` picks one trace family; by default, the first."""
+    (the oracles as crosses), from the JSON of ``ndr compare --json``
+    (schema ``ndr-compare/1``: a dict, a JSON string or a file path).
+    ``family`` picks one trace family by name; by default, the first. Late
+    rates of zero are drawn at 1e-6 on the log axis."""
     data = _load(report)
     points = _policy_points(data, family)
     fig, (a,) = _axes(ax)
     for name, delay, late in points:
-        a.scatter([max(late, 1e-6)], [delay * 1e3], label=name)
+        marker = "x" if name.startswith("oracle") else "o"
+        a.scatter([max(late, 1e-6)], [delay * 1e3], label=name, marker=marker)
         a.annotate(name, (max(late, 1e-6), delay * 1e3), fontsize=7, xytext=(3, 3),
                    textcoords="offset points")
     a.set_xscale("log")
@@ -161,17 +163,24 @@ def _policy_points(data: Mapping[str, Any], family: Optional[str]) -> _Points:
         raise ValueError(f"family {chosen!r} has no policies")
     out = _Points()
     out.family = str(chosen)
-    items = policies.items() if isinstance(policies, Mapping) else ((p.get("name"), p) for p in policies)
+    if isinstance(policies, Mapping):
+        items = list(policies.items())
+    else:
+        items = [(p.get("policy", p.get("name")), p) for p in policies]
     for name, p in items:
-        out.append((str(name), _mean(p, "mean_delay_s", "e2e_mean_s"), _mean(p, "late_rate")))
+        point = p.get("point") or {}
+        delay = point.get("mean_delay_s", _mean(p, "mean_delay_s"))
+        late = point.get("late_rate", _mean(p, "late_rate"))
+        if delay is None or late is None:
+            continue  # every run of this policy failed
+        out.append((str(name), float(delay), float(late)))
     return out
 
 
-def _mean(p: Mapping[str, Any], *keys: str) -> float:
-    for k in keys:
-        if k in p:
-            v = p[k]
-            if isinstance(v, Mapping):
-                v = v.get("mean")
-            return float(v)
-    raise ValueError(f"a policy entry has none of {keys}")
+def _mean(p: Mapping[str, Any], key: str) -> Optional[float]:
+    if key not in p:
+        raise ValueError(f"a policy entry has no {key!r}: not an `ndr compare --json` report")
+    v = p[key]
+    if isinstance(v, Mapping):
+        v = v.get("mean")
+    return None if v is None else float(v)

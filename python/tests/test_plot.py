@@ -32,19 +32,30 @@ def test_a_result_without_series_is_refused():
 
 
 def test_compare_draws_one_point_per_policy(tmp_path):
+    # The shape of `ndr compare --json` (schema ndr-compare/1), trimmed.
     report = {
-        "families": {
-            "lan-75km": {
-                "policies": {
-                    "paper-static": {"mean_delay_s": {"mean": 0.6}, "late_rate": {"mean": 0.0}},
-                    "ramjee-1": {"mean_delay_s": {"mean": 0.05}, "late_rate": {"mean": 0.01}},
-                }
+        "schema": "ndr-compare/1",
+        "families": [
+            {
+                "name": "lan-75km",
+                "policies": [
+                    {"policy": "paper-static", "mean_delay_s": {"mean": 0.6, "ci95": 0.0},
+                     "late_rate": {"mean": 0.0, "ci95": 0.0},
+                     "point": {"mean_delay_s": 0.6, "late_rate": 0.0}},
+                    {"policy": "ramjee-1", "mean_delay_s": {"mean": 0.05, "ci95": 0.001},
+                     "late_rate": {"mean": 0.01, "ci95": 0.001},
+                     "point": {"mean_delay_s": 0.05, "late_rate": 0.01}},
+                    {"policy": "oracle", "mean_delay_s": {"mean": 0.02, "ci95": 0.0},
+                     "late_rate": {"mean": 0.001, "ci95": 0.0}},
+                ],
             }
-        }
+        ],
     }
     path = tmp_path / "compare.json"
     path.write_text(json.dumps(report))
     fig = ndr.plot.compare(str(path))
-    assert len(fig.axes[0].collections) == 2
+    assert len(fig.axes[0].collections) == 3
+    with pytest.raises(ValueError, match="no family"):
+        ndr.plot.compare(report, family="mars")
     with pytest.raises(ValueError, match="families"):
         ndr.plot.compare({"nothing": 1})
