@@ -1,0 +1,38 @@
+//! Replays the fuzzing corpus through the fuzz harnesses, so every input the
+//! fuzzer kept (and every crash it ever found, once fixed) stays a test case.
+//! The fuzzing itself runs with cargo-fuzz on nightly: see docs/reliability.md.
+
+#[path = "../fuzz/harness.rs"]
+mod harness;
+
+use std::fs;
+use std::path::Path;
+
+fn replay(target: &str, run: fn(&[u8])) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fuzz/corpus")
+        .join(target);
+    let mut files: Vec<_> = fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| e.expect("a directory entry").path())
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "{} holds no corpus", dir.display());
+    for path in &files {
+        let data = fs::read(path).expect("a corpus file");
+        // A failing input names itself: replay it with
+        // `cargo +nightly fuzz run <target> <file>` for a backtrace.
+        let outcome = std::panic::catch_unwind(|| run(&data));
+        assert!(outcome.is_ok(), "{} failed its harness", path.display());
+    }
+}
+
+#[test]
+fn the_frame_decoder_corpus_passes() {
+    replay("frame_decoder", harness::decode);
+}
+
+#[test]
+fn the_endpoint_corpus_passes() {
+    replay("endpoint", harness::endpoint);
+}
