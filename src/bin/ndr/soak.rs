@@ -1,0 +1,584 @@
+//! `ndr soak`: a long run of a fast link through the relay under a schedule
+//! of faults, checking that within each connection no sample is lost,
+//! duplicated or reordered without a counter saying so, that nothing
+//! panics, and that memory stays flat.
+//!
+//! Three parties: the remote runs as a child process (`ndr soak --serve`,
+//! an echo controller that checks the commands it receives), the relay and
+//! the base run here. The faults take turns, one every `--fault-every-s`:
+//! the relay is restarted (every connection through it is cut), garbage is
+//! sent to the remote (a random stream, a wrong version, an absurd length),
+//! and the remote process is killed (SIGKILL) and started again. Throughout,
+//! the relay's delay trace adds a 150 ms spike every 0.7 fault periods. After a cut the
+//! base connects again; each connection is checked on its own.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpListener as StdListener, TcpStream as StdStream};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr::core::endpoint::{Config, Status, Underflow};
+use ndr::core::sim::delay::{DelayModel, Trace, TraceRow};
+use ndr::core::time::{Duration, Instant};
+use ndr::core::wire::Role;
+use ndr::net::{Hub, Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayHandle};
+use serde::Serialize;
+
+use crate::demo::runtime;
+use crate::size::millis;
+
+#[derive(clap::Args)]
+pub struct SoakArgs {
+    /// How long to run, in seconds.
+    #[arg(long, default_value_t = 60.0)]
+    pub duration_s: f64,
+    /// The link's period, in ms (1: a 1 kHz link).
+    #[arg(long, default_value_t = 1.0)]
+    pub period_ms: f64,
+    /// Seconds between two faults (relay restart, garbage, remote killed, in turn).
+    #[arg(long, default_value_t = 10.0)]
+    pub fault_every_s: f64,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Internal: be the remote, listening on ADDR (the soak starts itself so).
+    #[arg(long, hide = true, value_name = "ADDR")]
+    pub serve: Option<SocketAddr>,
+}
+
+/// A delay spike in the relay's trace, `SPIKE_LEN_S` long, every 0.7 fault
+/// periods (so each relay, restarted every third fault, sees a few).
+const SPIKE_EVERY_FAULTS: f64 = 0.7;
+const SPIKE_LEN_S: f64 = 0.2;
+const SPIKE_DELAY_MS: u64 = 150;
+const BASE_DELAY_US: u64 = 500;
+
+/// What `ndr soak --json` prints.
+#[derive(Serialize, Default)]
+struct SoakReport {
+    command: &'static str,
+    duration_s: f64,
+    period_s: f64,
+    connections: u64,
+    reconnections: u64,
+    connect_failures: u64,
+    samples_sent: u64,
+    samples_released: u64,
+    held: u64,
+    underflows: u64,
+    late: u64,
+    /// Fresh samples missing in a connection's sequence.
+    lost: u64,
+    /// Fresh samples released twice.
+    duplicated: u64,
+    /// Fresh samples released out of order.
+    reordered: u64,
+    /// States whose echoed command went backwards.
+    corrupted: u64,
+    /// Anomalies the remote saw in the commands (lost, duplicated, reordered).
+    remote_anomalies: u64,
+    faults_relay_restarts: u64,
+    faults_garbage: u64,
+    faults_remote_killed: u64,
+    faults_spikes: u64,
+    garbage_cut_off: u64,
+    panics: u64,
+    remote_crashes: u64,
+    rss_start_kib: u64,
+    rss_peak_kib: u64,
+    rss_end_kib: u64,
+    rss_growth_kib: i64,
+    remote_rss_peak_kib: u64,
+    ended_by: Vec<String>,
+    ok: bool,
+}
+
+pub fn run(args: &SoakArgs) -> Result<(), String> {
+    let period = millis("--period-ms", args.period_ms)?;
+    if period.is_zero() {
+        return Err("--period-ms must be positive".into());
+    }
+    let config = link_config(period)?;
+    if let Some(addr) = args.serve {
+        return serve(addr, config);
+    }
+    for (flag, v) in [
+        ("--duration-s", args.duration_s),
+        ("--fault-every-s", args.fault_every_s),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v < 1e7) {
+            return Err(format!(
+                "{flag} must be a positive number of seconds, got {v}"
+            ));
+        }
+    }
+    let report = soak(args, config)?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string(&report).map_err(|e| e.to_string())?
+        );
+    } else {
+        print_table(&report);
+    }
+    if report.ok {
+        Ok(())
+    } else {
+        Err("the soak found a problem (see the counters above)".into())
+    }
+}
+
+fn link_config(period: Duration) -> Result<LinkConfig, String> {
+    let mut endpoint = Config::new(Role::Base);
+    endpoint.axes = 2;
+    endpoint.period = period;
+    endpoint.underflow = Underflow::Hold;
+    endpoint.watchdog = Some(Duration::from_millis(500));
+    endpoint.validate().map_err(|e| e.to_string())?;
+    Ok(LinkConfig::new(endpoint))
+}
+
+// ----- the remote (child process) --------------------------------------------
+
+/// Echoes each command back with the count of anomalies seen in this
+/// connection's command sequence.
+fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
+    let rt = runtime()?;
+    let deadline = StdInstant::now() + StdDuration::from_secs(5);
+    // The previous remote may have just died: its port frees up shortly.
+    let listener = loop {
+        match rt.block_on(Listener::bind(addr, config)) {
+            Ok(l) => break l,
+            Err(e) if StdInstant::now() < deadline => {
+                let _ = e;
+                std::thread::sleep(StdDuration::from_millis(20));
+            }
+            Err(e) => return Err(format!("cannot listen on {addr}: {e}")),
+        }
+    };
+    println!("ready");
+    let _ = std::io::stdout().flush();
+    loop {
+        match rt.block_on(listener.accept()) {
+            Ok(link) => {
+                std::thread::spawn(move || echo(link));
+            }
+            Err(NetError::Io(e)) => eprintln!("ndr soak --serve: accept failed: {e}"),
+            Err(e) => return Err(e.to_string()),
+        }
+    }
+}
+
+fn echo(mut link: Link) {
+    let mut prev: Option<u64> = None;
+    let mut anomalies = 0.0;
+    loop {
+        match link.recv_timeout(StdDuration::from_millis(200)) {
+            Ok(s) => {
+                if s.status == Status::Fresh {
+                    if prev.is_some_and(|p| s.seq != p + 1) {
+                        anomalies += 1.0;
+                    }
+                    prev = Some(s.seq);
+                }
+                let command = s.values().first().copied().unwrap_or(0.0);
+                let _ = link.send(&[command, anomalies]);
+            }
+            Err(NetError::Timeout) => {}
+            Err(_) => return,
+        }
+    }
+}
+
+struct Remote {
+    child: Child,
+    addr: SocketAddr,
+}
+
+impl Remote {
+    fn start(addr: SocketAddr, period_ms: f64) -> Result<Remote, String> {
+        let exe = std::env::current_exe().map_err(|e| format!("cannot find ndr itself: {e}"))?;
+        let mut child = Command::new(exe)
+            .args(["soak", "--serve", &addr.to_string()])
+            .args(["--period-ms", &period_ms.to_string()])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(|e| format!("cannot start the remote: {e}"))?;
+        let mut line = String::new();
+        let stdout = child.stdout.take().ok_or("no pipe to the remote")?;
+        BufReader::new(stdout)
+            .read_line(&mut line)
+            .map_err(|e| format!("the remote did not start: {e}"))?;
+        if line.trim() != "ready" {
+            let _ = child.kill();
+            return Err(format!("the remote did not start (it said {line:?})"));
+        }
+        Ok(Remote { child, addr })
+    }
+
+    fn rss_kib(&self) -> u64 {
+        rss_kib(&format!("/proc/{}/statm", self.child.id()))
+    }
+
+    /// Kills it (SIGKILL) and starts another on the same address; `true`
+    /// if the old one had died by itself (a crash) before.
+    fn restart(&mut self, period_ms: f64) -> Result<bool, String> {
+        let crashed = matches!(self.child.try_wait(), Ok(Some(_)));
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        *self = Remote::start(self.addr, period_ms)?;
+        Ok(crashed)
+    }
+}
+
+impl Drop for Remote {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+// ----- the base and the faults ------------------------------------------------
+
+/// One connection's checks.
+#[derive(Default)]
+struct Conn {
+    prev_seq: Option<u64>,
+    prev_echo: f64,
+    remote_anomalies: f64,
+}
+
+fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
+    let panics = Arc::new(AtomicU64::new(0));
+    {
+        let panics = Arc::clone(&panics);
+        let default = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            panics.fetch_add(1, Ordering::Relaxed);
+            default(info);
+        }));
+    }
+    let rt = runtime()?;
+    let hub = Hub::new(config.spin_margin).map_err(|e| e.to_string())?;
+    let remote_addr = free_port()?;
+    let relay_addr = free_port()?;
+    let mut remote = Remote::start(remote_addr, args.period_ms)?;
+    let spike_every = args.fault_every_s * SPIKE_EVERY_FAULTS;
+    let trace = Arc::new(spike_trace(args.duration_s, spike_every)?);
+    let start_relay = |rt: &tokio::runtime::Runtime| -> Result<RelayHandle, String> {
+        let deadline = StdInstant::now() + StdDuration::from_secs(5);
+        loop {
+            let bound = rt.block_on(async {
+                Relay::bind(
+                    relay_addr,
+                    remote_addr,
+                    DelayModel::Trace(Arc::clone(&trace)),
+                    1,
+                )
+                .await?
+                .spawn()
+            });
+            match bound {
+                Ok(h) => return Ok(h),
+                Err(_) if StdInstant::now() < deadline => {
+                    std::thread::sleep(StdDuration::from_millis(20));
+                }
+                Err(e) => return Err(format!("cannot start the relay: {e}")),
+            }
+        }
+    };
+    let mut relay = Some(start_relay(&rt)?);
+    let mut relay_started = StdInstant::now();
+    let mut r = SoakReport {
+        command: "soak",
+        duration_s: args.duration_s,
+        period_s: config.endpoint.period.as_secs_f64(),
+        rss_start_kib: rss_kib("/proc/self/statm"),
+        ..SoakReport::default()
+    };
+    let start = StdInstant::now();
+    let end = start + StdDuration::from_secs_f64(args.duration_s);
+    let every = StdDuration::from_secs_f64(args.fault_every_s);
+    let warm = start + StdDuration::from_secs_f64((args.duration_s * 0.1).min(30.0));
+    let mut rss_after_warm: Option<u64> = None;
+    let mut next_fault = start + every;
+    let mut next_sample = start;
+    let mut fault = 0u64;
+    let mut link: Option<(Link, Conn)> = None;
+    let mut command = 0.0f64;
+    while StdInstant::now() < end {
+        let now = StdInstant::now();
+        if now >= next_sample {
+            next_sample += StdDuration::from_secs(1);
+            let rss = rss_kib("/proc/self/statm");
+            r.rss_peak_kib = r.rss_peak_kib.max(rss);
+            r.remote_rss_peak_kib = r.remote_rss_peak_kib.max(remote.rss_kib());
+            if now >= warm && rss_after_warm.is_none() {
+                rss_after_warm = Some(rss);
+            }
+        }
+        if now >= next_fault {
+            next_fault += every;
+            match fault % 3 {
+                0 => {
+                    if let Some(h) = relay.take() {
+                        r.faults_spikes += spikes_within(relay_started.elapsed(), spike_every);
+                        let _ = rt.block_on(h.shutdown());
+                    }
+                    relay = Some(start_relay(&rt)?);
+                    relay_started = StdInstant::now();
+                    r.faults_relay_restarts += 1;
+                }
+                1 => {
+                    r.faults_garbage += 1;
+                    if inject_garbage(remote_addr, fault / 3) {
+                        r.garbage_cut_off += 1;
+                    }
+                }
+                _ => {
+                    if remote.restart(args.period_ms)? {
+                        r.remote_crashes += 1;
+                    }
+                    r.faults_remote_killed += 1;
+                }
+            }
+            fault += 1;
+        }
+        let Some((l, conn)) = link.as_mut() else {
+            match rt.block_on(hub.connect(relay_addr, config)) {
+                Ok(l) => {
+                    r.connections += 1;
+                    if r.connections > 1 {
+                        r.reconnections += 1;
+                    }
+                    link = Some((l, Conn::default()));
+                }
+                Err(_) => {
+                    r.connect_failures += 1;
+                    std::thread::sleep(StdDuration::from_millis(20));
+                }
+            }
+            continue;
+        };
+        match l.recv_timeout(StdDuration::from_millis(100)) {
+            Ok(s) => {
+                check(&mut r, conn, s.status, s.seq, s.values());
+                command += 1.0;
+                let _ = l.send(&[command, 0.0]);
+            }
+            Err(NetError::Timeout) => {}
+            Err(e) => {
+                r.ended_by.push(e.to_string());
+                if let Some((l, conn)) = link.take() {
+                    finish_conn(&mut r, &conn, l.close());
+                }
+            }
+        }
+    }
+    if let Some((l, conn)) = link.take() {
+        finish_conn(&mut r, &conn, l.close());
+    }
+    if let Some(h) = relay.take() {
+        r.faults_spikes += spikes_within(relay_started.elapsed(), spike_every);
+        let _ = rt.block_on(h.shutdown());
+    }
+    if matches!(remote.child.try_wait(), Ok(Some(_))) {
+        r.remote_crashes += 1;
+    }
+    drop(remote);
+    r.rss_end_kib = rss_kib("/proc/self/statm");
+    r.rss_growth_kib = r.rss_end_kib as i64 - rss_after_warm.unwrap_or(r.rss_start_kib) as i64;
+    r.panics = panics.load(Ordering::Relaxed);
+    // Collapse the reasons connections ended into counts.
+    r.ended_by = summarize(&r.ended_by);
+    r.ok = r.lost + r.duplicated + r.reordered + r.corrupted + r.remote_anomalies == 0
+        && r.panics == 0
+        && r.remote_crashes == 0
+        && r.samples_released > 0
+        && r.rss_growth_kib < 16 * 1024;
+    Ok(r)
+}
+
+fn check(r: &mut SoakReport, conn: &mut Conn, status: Status, seq: u64, values: &[f64]) {
+    if status != Status::Fresh {
+        return;
+    }
+    match conn.prev_seq {
+        Some(p) if seq == p + 1 => {}
+        Some(p) if seq == p => r.duplicated += 1,
+        Some(p) if seq < p => r.reordered += 1,
+        Some(p) => r.lost += seq - p - 1,
+        None => {}
+    }
+    conn.prev_seq = Some(seq);
+    if let [echo, anomalies, ..] = *values {
+        if echo < conn.prev_echo {
+            r.corrupted += 1;
+        }
+        conn.prev_echo = echo;
+        conn.remote_anomalies = conn.remote_anomalies.max(anomalies);
+    }
+}
+
+fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
+    r.remote_anomalies += conn.remote_anomalies as u64;
+    if let Some(s) = stats {
+        let e = s.endpoint;
+        r.samples_sent += e.samples_sent;
+        r.samples_released += e.released_fresh;
+        r.held += e.released_held;
+        r.underflows += e.underflows;
+        r.late += e.late;
+    }
+}
+
+fn summarize(reasons: &[String]) -> Vec<String> {
+    let mut counts: Vec<(String, u64)> = Vec::new();
+    for reason in reasons {
+        match counts.iter_mut().find(|(r, _)| r == reason) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((reason.clone(), 1)),
+        }
+    }
+    counts
+        .into_iter()
+        .map(|(r, n)| format!("{n} × {r}"))
+        .collect()
+}
+
+/// Sends one kind of garbage to the remote; `true` if it cut the connection
+/// off within a second.
+fn inject_garbage(addr: SocketAddr, kind: u64) -> bool {
+    let Ok(mut s) = StdStream::connect_timeout(&addr, StdDuration::from_secs(1)) else {
+        return false;
+    };
+    let mut bytes: Vec<u8> = match kind % 3 {
+        // A random stream (a xorshift of the fault's index: reproducible).
+        0 => {
+            let mut x = 0x9E37_79B9_7F4A_7C15u64 ^ kind;
+            (0..256)
+                .map(|_| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    x as u8
+                })
+                .collect()
+        }
+        // A Hello-sized frame from another wire version.
+        1 => {
+            let mut f = vec![0u8; 64];
+            f[..4].copy_from_slice(&64u32.to_le_bytes());
+            f[4] = 99;
+            f[5] = 2;
+            f
+        }
+        // A length prefix no frame can have.
+        _ => u32::MAX.to_le_bytes().to_vec(),
+    };
+    bytes.extend_from_slice(&[0u8; 64]);
+    let _ = s.set_read_timeout(Some(StdDuration::from_secs(1)));
+    if s.write_all(&bytes).is_err() {
+        return true; // already cut off
+    }
+    let mut buf = [0u8; 512];
+    let deadline = StdInstant::now() + StdDuration::from_secs(1);
+    while StdInstant::now() < deadline {
+        match s.read(&mut buf) {
+            Ok(0) | Err(_) => return true,
+            Ok(_) => {} // a Close frame, then the end
+        }
+    }
+    false
+}
+
+fn free_port() -> Result<SocketAddr, String> {
+    let l = StdListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
+    l.local_addr().map_err(|e| e.to_string())
+}
+
+/// 0.5 ms each way, with a 150 ms spike for 200 ms every `every` seconds.
+fn spike_trace(duration_s: f64, every: f64) -> Result<Trace, String> {
+    let base = Duration::from_micros(BASE_DELAY_US);
+    let spike = Duration::from_millis(SPIKE_DELAY_MS);
+    let mut rows = vec![TraceRow {
+        at: Instant::ZERO,
+        fwd: base,
+        bwd: base,
+    }];
+    let mut t = every;
+    while t < duration_s + every {
+        let at = Instant::ZERO + Duration::from_secs_f64(t);
+        rows.push(TraceRow {
+            at,
+            fwd: spike,
+            bwd: spike,
+        });
+        rows.push(TraceRow {
+            at: at + Duration::from_secs_f64(SPIKE_LEN_S),
+            fwd: base,
+            bwd: base,
+        });
+        t += every;
+    }
+    Trace::from_rows(rows).map_err(|e| e.to_string())
+}
+
+fn spikes_within(lifetime: StdDuration, every: f64) -> u64 {
+    (lifetime.as_secs_f64() / every) as u64
+}
+
+/// Resident memory from a `/proc/<pid>/statm` file, in KiB (0 if unreadable).
+fn rss_kib(statm: &str) -> u64 {
+    std::fs::read_to_string(statm)
+        .ok()
+        .and_then(|s| s.split_whitespace().nth(1)?.parse::<u64>().ok())
+        .map_or(0, |pages| pages * 4)
+}
+
+fn print_table(r: &SoakReport) {
+    println!(
+        "ndr soak · {:.0} s at T = {:.3} ms · {}",
+        r.duration_s,
+        r.period_s * 1e3,
+        if r.ok { "OK" } else { "PROBLEM" }
+    );
+    println!(
+        "  samples      {} sent · {} released · {} held · {} underflows · {} late",
+        r.samples_sent, r.samples_released, r.held, r.underflows, r.late
+    );
+    println!(
+        "  integrity    {} lost · {} duplicated · {} reordered · {} corrupted · {} seen by the remote",
+        r.lost, r.duplicated, r.reordered, r.corrupted, r.remote_anomalies
+    );
+    println!(
+        "  faults       {} relay restarts · {} garbage ({} cut off) · {} remote kills · {} delay spikes",
+        r.faults_relay_restarts,
+        r.faults_garbage,
+        r.garbage_cut_off,
+        r.faults_remote_killed,
+        r.faults_spikes
+    );
+    println!(
+        "  connections  {} ({} reconnections, {} failed attempts) · ended by: {}",
+        r.connections,
+        r.reconnections,
+        r.connect_failures,
+        if r.ended_by.is_empty() {
+            "–".to_string()
+        } else {
+            r.ended_by.join("; ")
+        }
+    );
+    println!(
+        "  memory       base+relay {} → peak {} → {} KiB (growth after warm-up {} KiB) · remote peak {} KiB",
+        r.rss_start_kib, r.rss_peak_kib, r.rss_end_kib, r.rss_growth_kib, r.remote_rss_peak_kib
+    );
+    println!(
+        "  panics       {} · remote crashes {}",
+        r.panics, r.remote_crashes
+    );
+}
