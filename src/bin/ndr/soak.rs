@@ -69,15 +69,21 @@ struct SoakReport {
     held: u64,
     underflows: u64,
     late: u64,
-    /// Fresh samples missing in a connection's sequence.
+    /// Fresh samples missing in a connection's sequence that no counter
+    /// (late, rejected, discarded) accounts for.
     lost: u64,
+    /// Fresh samples missing in a connection's sequence, each counted by the
+    /// link as late (dropped under `drop-late`), rejected or discarded.
+    dropped_with_counter: u64,
+    rejected: u64,
     /// Fresh samples released twice.
     duplicated: u64,
     /// Fresh samples released out of order.
     reordered: u64,
     /// States whose echoed command went backwards.
     corrupted: u64,
-    /// Anomalies the remote saw in the commands (lost, duplicated, reordered).
+    /// Gaps, repeats or reorderings the remote saw in the commands that its
+    /// counters do not account for.
     remote_anomalies: u64,
     faults_relay_restarts: u64,
     faults_garbage: u64,
@@ -132,9 +138,11 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
 
 fn link_config(period: Duration) -> Result<LinkConfig, String> {
     let mut endpoint = Config::new(Role::Base);
-    endpoint.axes = 2;
+    endpoint.axes = 3;
     endpoint.period = period;
-    endpoint.underflow = Underflow::Hold;
+    // A delay spike then costs late samples (dropped and counted) instead of
+    // a delay that grows by the spike's length each time.
+    endpoint.underflow = Underflow::DropLate;
     endpoint.watchdog = Some(Duration::from_millis(500));
     endpoint.validate().map_err(|e| e.to_string())?;
     Ok(LinkConfig::new(endpoint))
@@ -142,8 +150,9 @@ fn link_config(period: Duration) -> Result<LinkConfig, String> {
 
 // ----- the remote (child process) --------------------------------------------
 
-/// Echoes each command back with the count of anomalies seen in this
-/// connection's command sequence.
+/// Echoes each command back with the gaps, repeats and reorderings seen in
+/// this connection's command sequence, and the samples its counters say
+/// were dropped (late, rejected, discarded).
 fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
     let rt = runtime()?;
     let deadline = StdInstant::now() + StdDuration::from_secs(5);
@@ -173,18 +182,17 @@ fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
 
 fn echo(mut link: Link) {
     let mut prev: Option<u64> = None;
-    let mut anomalies = 0.0;
+    let mut anomalies = 0u64;
     loop {
         match link.recv_timeout(StdDuration::from_millis(200)) {
             Ok(s) => {
                 if s.status == Status::Fresh {
-                    if prev.is_some_and(|p| s.seq != p + 1) {
-                        anomalies += 1.0;
-                    }
+                    anomalies += prev.map_or(0, |p| if s.seq > p { s.seq - p - 1 } else { 1 });
                     prev = Some(s.seq);
                 }
+                let dropped = link.stats().map_or(0, |st| dropped(&st));
                 let command = s.values().first().copied().unwrap_or(0.0);
-                let _ = link.send(&[command, anomalies]);
+                let _ = link.send(&[command, anomalies as f64, dropped as f64]);
             }
             Err(NetError::Timeout) => {}
             Err(_) => return,
@@ -248,7 +256,16 @@ impl Drop for Remote {
 struct Conn {
     prev_seq: Option<u64>,
     prev_echo: f64,
-    remote_anomalies: f64,
+    /// Fresh samples missing from the sequence.
+    gaps: u64,
+    /// The remote's last report: its gaps, and the samples its counters dropped.
+    remote_gaps: f64,
+    remote_dropped: f64,
+}
+
+/// Samples a link's counters say it received but did not release.
+fn dropped(s: &LinkStats) -> u64 {
+    s.endpoint.late + s.endpoint.rejected + s.endpoint.discarded
 }
 
 fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
@@ -367,7 +384,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
             Ok(s) => {
                 check(&mut r, conn, s.status, s.seq, s.values());
                 command += 1.0;
-                let _ = l.send(&[command, 0.0]);
+                let _ = l.send(&[command, 0.0, 0.0]);
             }
             Err(NetError::Timeout) => {}
             Err(e) => {
@@ -410,23 +427,30 @@ fn check(r: &mut SoakReport, conn: &mut Conn, status: Status, seq: u64, values: 
         Some(p) if seq == p + 1 => {}
         Some(p) if seq == p => r.duplicated += 1,
         Some(p) if seq < p => r.reordered += 1,
-        Some(p) => r.lost += seq - p - 1,
+        Some(p) => conn.gaps += seq - p - 1,
         None => {}
     }
     conn.prev_seq = Some(seq);
-    if let [echo, anomalies, ..] = *values {
+    if let [echo, gaps, dropped, ..] = *values {
         if echo < conn.prev_echo {
             r.corrupted += 1;
         }
         conn.prev_echo = echo;
-        conn.remote_anomalies = conn.remote_anomalies.max(anomalies);
+        conn.remote_gaps = conn.remote_gaps.max(gaps);
+        conn.remote_dropped = conn.remote_dropped.max(dropped);
     }
 }
 
 fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
-    r.remote_anomalies += conn.remote_anomalies as u64;
+    // The remote's last report may predate its last drops: only gaps beyond
+    // what its counters said are anomalies.
+    r.remote_anomalies += (conn.remote_gaps - conn.remote_dropped).max(0.0) as u64;
+    let counted = stats.as_ref().map_or(0, dropped);
+    r.dropped_with_counter += conn.gaps.min(counted);
+    r.lost += conn.gaps.saturating_sub(counted);
     if let Some(s) = stats {
         let e = s.endpoint;
+        r.rejected += e.rejected;
         r.samples_sent += e.samples_sent;
         r.samples_released += e.released_fresh;
         r.held += e.released_held;
@@ -551,8 +575,9 @@ fn print_table(r: &SoakReport) {
         r.samples_sent, r.samples_released, r.held, r.underflows, r.late
     );
     println!(
-        "  integrity    {} lost · {} duplicated · {} reordered · {} corrupted · {} seen by the remote",
-        r.lost, r.duplicated, r.reordered, r.corrupted, r.remote_anomalies
+        "  integrity    {} lost · {} duplicated · {} reordered · {} corrupted · {} seen by the remote \
+         (and {} dropped with a counter: late or rejected)",
+        r.lost, r.duplicated, r.reordered, r.corrupted, r.remote_anomalies, r.dropped_with_counter
     );
     println!(
         "  faults       {} relay restarts · {} garbage ({} cut off) · {} remote kills · {} delay spikes",
