@@ -628,10 +628,13 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     }
 
     fn receive_sample(&mut self, slot: Slot<C>) -> Result<(), LinkError> {
+        // Before the handshake a Data frame is a protocol error, not a sample.
+        if self.phase == Phase::Handshake {
+            return Err(self.unexpected(Kind::Data));
+        }
         self.stats.samples_received += 1;
         match self.phase {
             Phase::Running => {}
-            Phase::Handshake => return Err(self.unexpected(Kind::Data)),
             // A sample of the stream a pause ended, still in flight.
             _ => {
                 self.stats.discarded += 1;
