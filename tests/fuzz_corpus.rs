@@ -9,15 +9,26 @@ use std::fs;
 use std::path::Path;
 
 fn replay(target: &str, run: fn(&[u8])) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fuzz/corpus")
-        .join(target);
-    let mut files: Vec<_> = fs::read_dir(&dir)
+    let fuzz = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz");
+    replay_dir(&fuzz.join("corpus").join(target), run, true);
+    // Inputs that once failed, kept by name whatever the corpus minimizer does.
+    let regressions = fuzz.join("regressions").join(target);
+    if regressions.exists() {
+        replay_dir(&regressions, run, false);
+    }
+}
+
+fn replay_dir(dir: &Path, run: fn(&[u8]), required: bool) {
+    let mut files: Vec<_> = fs::read_dir(dir)
         .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
         .map(|e| e.expect("a directory entry").path())
         .collect();
     files.sort();
-    assert!(!files.is_empty(), "{} holds no corpus", dir.display());
+    assert!(
+        !required || !files.is_empty(),
+        "{} holds no corpus",
+        dir.display()
+    );
     for path in &files {
         let data = fs::read(path).expect("a corpus file");
         // A failing input names itself: replay it with
