@@ -399,6 +399,7 @@ impl Collector {
         SimOutput {
             report,
             series: self.rows.unwrap_or_default(),
+            forward: super::engine::ForwardLog::default(),
         }
     }
 }
