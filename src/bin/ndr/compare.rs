@@ -13,28 +13,27 @@ use ndr::core::time::Duration;
 
 use crate::size::millis;
 
-/// The JSON (`--json`) is one object, schema `ndr-compare/1`:
-///
-/// ```text
-/// { schema, period_s, seeds, epsilon, window_s, margin_s,
-///   policies: [name...],
-///   families: [ { name, description, duration_s, seeds, events_s: [s...],
-///                 policies: [ { policy, runs, failed,
-///                               mean_delay_s, std_delay_s, p99_delay_s, late_rate,
-///                               underflows, delay_changes, oracle_ratio, piecewise_ratio:
-///                                   {mean, ci95},
-///                               recovery_s: {mean, ci95} | null,
-///                               point: {mean_delay_s, late_rate} } ] } ],
-///   notes: [text...] }
-/// ```
-///
-/// Each family lists the policies asked for, then `oracle` and
-/// `oracle-piecewise` at `epsilon`. `ci95` is the half-width of the 95 %
-/// confidence interval of the mean over seeds. Delays are end-to-end
-/// (release at the remote − send at the base), in seconds; docs/algorithms.md
-/// defines every measure.
+/// The layout of `ndr compare --json`, shown by `ndr compare --help`.
+const JSON_HELP: &str = "\
+JSON (--json): one object, schema \"ndr-compare/1\":
+  { schema, period_s, seeds, epsilon, window_s, margin_s,
+    policies: [name, ...],
+    families: [ { name, description, duration_s, seeds, events_s: [s, ...],
+                  policies: [ { policy, runs, failed,
+                                mean_delay_s, std_delay_s, p99_delay_s, late_rate,
+                                underflows, delay_changes, oracle_ratio, piecewise_ratio:
+                                    {mean, ci95},
+                                recovery_s: {mean, ci95} or null,
+                                point: {mean_delay_s, late_rate} } ] } ],
+    notes: [text, ...] }
+Each family lists the policies asked for, then `oracle` and `oracle-piecewise`
+at `epsilon`. `mean` is over seeds, `ci95` the half-width of its 95 % confidence
+interval. Delays are end-to-end (release at the remote - send at the base), in
+seconds; `late_rate` counts every sample never released fresh; `point` is the
+(delay, late rate) point to plot. docs/algorithms.md §9 defines every measure.";
+
 #[derive(clap::Args)]
-#[command(verbatim_doc_comment)]
+#[command(after_long_help = JSON_HELP)]
 pub struct CompareArgs {
     /// Delay trace files (CSV `t_s,fwd_ms,bwd_ms`) to compare on, each a
     /// family of one run, instead of the built-in families.
