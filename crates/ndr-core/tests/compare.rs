@@ -220,3 +220,40 @@ fn netem_tables_missing_are_a_note() {
     assert_eq!(notes.len(), 4);
     assert!(notes[0].starts_with("netem-normal skipped"), "{}", notes[0]);
 }
+
+fn trace_family(rows: &[(u64, u64)]) -> Family {
+    use ndr_core::sim::delay::{Trace, TraceRow};
+    use ndr_core::time::Instant;
+    let rows = rows
+        .iter()
+        .map(|&(at_s, d)| TraceRow {
+            at: Instant::from_millis(at_s * 1000),
+            fwd: ms(d),
+            bwd: ms(d),
+        })
+        .collect();
+    compare::trace("steps", Trace::from_rows(rows).unwrap())
+}
+
+#[test]
+fn a_falling_target_skips_and_a_rising_delay_is_late() {
+    let fixed0 = Policy::Target(Playout::FixedAboveMin { latency: ms(0) });
+    // 70 ms, then 30 ms from 20 s: the minimum (the target) falls by 40 ms,
+    // two periods: the release delay goes from 80 to 40 ms once, and the
+    // two samples whose slots the fall jumped over are skipped.
+    let f = trace_family(&[(0, 70), (20, 30)]);
+    let m = run_one(&f, fixed0, 1, (T, WINDOW)).unwrap().metrics;
+    let n = m.samples as f64;
+    assert_eq!(m.delay_changes, 1.0);
+    assert!((m.late_rate - 2.0 / n).abs() < 1e-12, "{m:?}");
+    assert_eq!(m.underflows, 0.0);
+    // 30 ms, then 70 ms from 20 s: the minimum stays 30 ms, every sample
+    // from then on arrives after its slot and is late; every tick repeats.
+    let f = trace_family(&[(0, 30), (20, 70)]);
+    let m = run_one(&f, fixed0, 1, (T, WINDOW)).unwrap().metrics;
+    let late = m.late_rate * m.samples as f64;
+    assert!((m.mean_delay_s - 0.040).abs() < 1e-9);
+    // Sent from 20 s until 10 s before the end (60 s): 30 s at 50 Hz.
+    assert!((late - 1500.0).abs() <= 1.0, "{late}");
+    assert!((m.underflows - late).abs() <= 2.0, "{m:?}");
+}
