@@ -832,8 +832,9 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     }
 
     /// One tick of a target-delay playout: the sample whose slot (the first
-    /// tick at or after `sent_at + D`) is this tick is released; `None` when
-    /// the policy has no target yet.
+    /// tick at or after `sent_at + D`) is this tick is released. Until the
+    /// policy has a target and the first sample is due, ticks release
+    /// nothing and count nothing (like the FIFO's pre-fill).
     fn release_target(&mut self, t: Instant, target: Option<Duration>) -> Tick<Slot<C>> {
         let Some(d) = target else {
             return self.not_started();

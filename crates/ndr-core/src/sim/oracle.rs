@@ -228,13 +228,20 @@ impl Oracle {
 
     /// The lower convex envelope of the constant oracle's (late rate, mean
     /// delay) points at `ε`: the best a policy can do by time-sharing
-    /// between two constant targets. O(K·N) for K distinct thresholds.
+    /// between two constant targets. O(K·N) for K distinct thresholds; past
+    /// [`PIECEWISE_OPTIONS`]·4 distinct ones (a skewed grid) the envelope is
+    /// taken over an evenly spaced subset of them, which can only raise it.
     #[must_use]
     pub fn hull(&self, epsilon: f64) -> f64 {
         let mut targets: Vec<i128> = self.sorted.iter().map(|&th| (th + 1).max(0)).collect();
         targets.push(0);
         targets.sort_unstable();
         targets.dedup();
+        let most = 4 * PIECEWISE_OPTIONS;
+        if targets.len() > most {
+            let step = targets.len().div_ceil(most);
+            targets = targets.into_iter().step_by(step).collect();
+        }
         let points: Vec<OraclePoint> = targets
             .iter()
             .map(|&d| {
