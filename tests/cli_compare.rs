@@ -45,7 +45,7 @@ const BUILTIN: [&str; 8] = [
     "skew-100ppm",
 ];
 
-const STATS: [&str; 8] = [
+const STATS: [&str; 9] = [
     "mean_delay_s",
     "std_delay_s",
     "p99_delay_s",
@@ -54,6 +54,7 @@ const STATS: [&str; 8] = [
     "delay_changes",
     "oracle_ratio",
     "piecewise_ratio",
+    "hull_ratio",
 ];
 
 fn names(v: &Value) -> Vec<&str> {

@@ -21,8 +21,8 @@ JSON (--json): one object, schema \"ndr-compare/1\":
     families: [ { name, description, duration_s, seeds, events_s: [s, ...],
                   policies: [ { policy, runs, failed,
                                 mean_delay_s, std_delay_s, p99_delay_s, late_rate,
-                                underflows, delay_changes, oracle_ratio, piecewise_ratio:
-                                    {mean, ci95},
+                                underflows, delay_changes, oracle_ratio, piecewise_ratio,
+                                hull_ratio: {mean, ci95},
                                 recovery_s: {mean, ci95} or null,
                                 point: {mean_delay_s, late_rate} } ] } ],
     notes: [text, ...] }
@@ -199,12 +199,13 @@ fn ms(s: Stat) -> String {
 fn row(p: &PolicyResult) -> String {
     let pct = |s: Stat| format!("{:.2} ± {:.2}", s.mean * 100.0, s.ci95 * 100.0);
     let num = |s: Stat| format!("{:.1} ± {:.1}", s.mean, s.ci95);
+    let ratio = |s: Stat| format!("{:.2} ± {:.2}", s.mean, s.ci95);
     let recovery = p.recovery_s.map_or_else(
         || "–".to_string(),
         |s| format!("{:.2} ± {:.2}", s.mean, s.ci95),
     );
     format!(
-        "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} ± {:.2} | {:.2} ± {:.2} |",
+        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
         p.policy,
         ms(p.mean_delay_s),
         ms(p.std_delay_s),
@@ -213,10 +214,9 @@ fn row(p: &PolicyResult) -> String {
         num(p.underflows),
         num(p.delay_changes),
         recovery,
-        p.oracle_ratio.mean,
-        p.oracle_ratio.ci95,
-        p.piecewise_ratio.mean,
-        p.piecewise_ratio.ci95,
+        ratio(p.oracle_ratio),
+        ratio(p.hull_ratio),
+        ratio(p.piecewise_ratio),
     )
 }
 
@@ -237,9 +237,9 @@ pub fn print_tables(r: &CompareReport) {
         );
         println!(
             "| policy | delay ms | std ms | p99 ms | late % | underflows | changes | \
-             recovery s | ÷ oracle | ÷ piecewise |"
+             recovery s | ÷ oracle | ÷ hull | ÷ piecewise |"
         );
-        println!("|---|---|---|---|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|");
         for p in &f.policies {
             println!("{}", row(p));
         }

@@ -249,13 +249,18 @@ impl Oracle {
                 self.point(d, late, sum, on_time)
             })
             .collect();
-        // Best mix of two points whose late rates bracket ε.
+        // Best mix of two points whose late rates bracket ε: a share μ of
+        // the samples under `a`'s target, the rest under `b`'s. The mean
+        // delay is over the samples on time, so each side weighs by its own.
         let mut best = f64::INFINITY;
         for a in points.iter().filter(|p| p.late_rate <= epsilon) {
             best = best.min(a.mean_delay_s);
             for b in points.iter().filter(|p| p.late_rate > epsilon) {
-                let lam = (epsilon - a.late_rate) / (b.late_rate - a.late_rate);
-                best = best.min((1.0 - lam) * a.mean_delay_s + lam * b.mean_delay_s);
+                let mu = (b.late_rate - epsilon) / (b.late_rate - a.late_rate);
+                let (wa, wb) = (mu * (1.0 - a.late_rate), (1.0 - mu) * (1.0 - b.late_rate));
+                if wa + wb > 0.0 {
+                    best = best.min((wa * a.mean_delay_s + wb * b.mean_delay_s) / (wa + wb));
+                }
             }
         }
         if best.is_finite() { best } else { 0.0 }
@@ -316,8 +321,11 @@ mod tests {
         assert!((o.constant(0.4).mean_delay_s - 0.040).abs() < 1e-12);
         // ε = 0.39 allows only one late.
         assert!((o.constant(0.39).mean_delay_s - 0.060).abs() < 1e-12);
-        // Time-sharing 60 ms (late 0.2) and 40 ms (late 0.4) at ε = 0.3: 50 ms.
-        assert!((o.hull(0.3) - 0.050).abs() < 1e-12);
+        // Time-sharing 60 ms (late 0.2) and 40 ms (late 0.4) half and half
+        // at ε = 0.3: on time 0.4 at 60 ms and 0.3 at 40 ms, 36/0.7 ms.
+        assert!((o.hull(0.3) - 0.036 / 0.7).abs() < 1e-12);
+        // Past every late rate of a point, at least as good as that point.
+        assert!((o.hull(0.9) - 0.020).abs() < 1e-12);
         // Releasing 3 samples costs at least (20 + 40 + 40)/3.
         assert!((o.lower_bound(3) - 0.100 / 3.0).abs() < 1e-12);
     }

@@ -21,7 +21,8 @@
 //! [`RECOVERY_HORIZON`] (or the next onset), plus one period (0 when none is
 //! lost). The oracle's ratio is the run's mean delay over the
 //! [`Oracle::constant`] mean delay at the run's own late rate, on the run's
-//! own trace; the piecewise ratio the same over [`Oracle::piecewise`].
+//! own trace; the piecewise ratio the same over [`Oracle::piecewise`], the
+//! hull ratio over [`Oracle::hull`] (two constant targets time-shared).
 //!
 //! Across seeds: the mean and the half-width of its 95 % confidence interval
 //! (Student's t).
@@ -195,6 +196,9 @@ pub struct RunMetrics {
     pub oracle_ratio: f64,
     /// Mean delay / the piecewise oracle's at the same late rate.
     pub piecewise_ratio: f64,
+    /// Mean delay / the constant oracle's convex envelope (time-sharing two
+    /// constant targets) at the same late rate.
+    pub hull_ratio: f64,
 }
 
 /// One sample's fate: its send time and, if released fresh, its delay (s).
@@ -248,6 +252,7 @@ fn metrics(fates: &[Fate], underflows: usize, period_s: f64, events: &[f64]) -> 
         recovery_s: recovery,
         oracle_ratio: 1.0,
         piecewise_ratio: 1.0,
+        hull_ratio: 1.0,
     }
 }
 
@@ -304,6 +309,7 @@ pub fn measure(
         m.mean_delay_s,
         oracle.piecewise(m.late_rate, window).mean_delay_s,
     );
+    m.hull_ratio = ratio(m.mean_delay_s, oracle.hull(m.late_rate));
     let released = fates.iter().filter(|f| f.1.is_some()).count();
     Measured {
         metrics: m,
@@ -326,6 +332,7 @@ fn oracle_metrics(o: &OraclePoint, samples: usize, family: &Family) -> RunMetric
         recovery_s: (!family.events_s.is_empty()).then_some(f64::NAN),
         oracle_ratio: 1.0,
         piecewise_ratio: 1.0,
+        hull_ratio: 1.0,
     }
 }
 
@@ -403,6 +410,8 @@ pub struct PolicyResult {
     pub oracle_ratio: Stat,
     /// Mean delay / the piecewise oracle's at the same late rate.
     pub piecewise_ratio: Stat,
+    /// Mean delay / the constant oracle's convex envelope at the same late rate.
+    pub hull_ratio: Stat,
     /// The plot's point: (mean delay, late rate) averaged over seeds.
     pub point: Point,
 }
@@ -431,6 +440,7 @@ impl PolicyResult {
             recovery_s: (!recovery.is_empty()).then(|| Stat::of(&recovery)),
             oracle_ratio: stat(&|r| r.oracle_ratio),
             piecewise_ratio: stat(&|r| r.piecewise_ratio),
+            hull_ratio: stat(&|r| r.hull_ratio),
             point: Point {
                 mean_delay_s: mean_delay_s.mean,
                 late_rate: late_rate.mean,
