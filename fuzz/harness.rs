@@ -10,11 +10,12 @@
 //!   the same header and payload; the deframer's buffer stays bounded.
 //! - [`endpoint`]: bytes as a script for an endpoint — raw frames, valid
 //!   frames with fuzzed fields (to get past the handshake), time steps, the
-//!   application's calls — drained like a driver does. The endpoint writes
+//!   application's calls, any playout policy — drained like a driver does. The endpoint writes
 //!   only valid frames, its counters never go back, every received sample is
 //!   accounted for, and once closed it stays closed.
 
 use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Underflow};
+use ndr_core::playout::Playout;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
     self, Close, Control, Echo, Frame, Header, Hello, MAX_CHANNELS, MAX_FRAME_LEN, Message,
@@ -134,7 +135,21 @@ pub fn endpoint(data: &[u8]) {
     } else {
         Underflow::DropLate
     };
-    cfg.watchdog = match input.byte() % 3 {
+    // One byte picks the watchdog (its remainder by 3) and the playout policy.
+    let pick = input.byte();
+    cfg.playout = match pick / 3 % 8 {
+        0 => Playout::Ramjee1,
+        1 => Playout::Ramjee4,
+        2 => Playout::NetEq,
+        3 => Playout::FixedAboveMin {
+            latency: Duration::from_millis(u64::from(input.byte())),
+        },
+        4 => Playout::Constant {
+            delay: Duration::from_millis(u64::from(input.byte())),
+        },
+        _ => Playout::Fifo,
+    };
+    cfg.watchdog = match pick % 3 {
         0 => None,
         n => Some(cfg.period * u64::from(n) * 5),
     };
@@ -362,10 +377,11 @@ fn received_samples_are_accounted_for(s: &Stats, queued: usize, underflow: Under
         Underflow::DropLate => s.late,
         Underflow::Hold => 0,
     };
-    let accounted = s.released_fresh + queued as u64 + dropped_late + s.rejected + s.discarded;
+    let accounted =
+        s.released_fresh + queued as u64 + dropped_late + s.rejected + s.discarded + s.skipped;
     assert_eq!(
         s.samples_received, accounted,
-        "received = released fresh + queued + late (drop-late) + rejected + discarded \
+        "received = released fresh + queued + late (drop-late) + rejected + discarded + skipped \
          ({s:?}, queued {queued})"
     );
 }

@@ -168,3 +168,38 @@ fn the_paper_table_runs() {
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(json["scenarios"].as_array().unwrap().len(), 5);
 }
+
+#[test]
+fn a_playout_policy_and_a_skewed_clock() {
+    let args = [
+        "sim",
+        "--profile",
+        "constant:30",
+        "--period-ms",
+        "20",
+        "--underflow",
+        "drop-late",
+        "--playout",
+        "fixed:25",
+        "--remote-skew-ppm",
+        "-100",
+        "--duration-s",
+        "30",
+        "--json",
+    ];
+    let out = ndr(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["playout"], "fixed:25");
+    assert_eq!(json["late_samples"], 0);
+    // 30 ms + 25 ms above the smallest delay, released on the 20 ms grid.
+    let e2e = json["e2e_fwd_mean_s"].as_f64().unwrap();
+    assert!((e2e - 0.060).abs() < 0.003, "{e2e}");
+    let out = ndr(&["sim", "--playout", "oracle"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown playout policy"));
+}

@@ -23,6 +23,9 @@
 //! - [`regulator`]: the NDR queue, [`Regulator<T, N>`](Regulator): capacity
 //!   `N` fixed at compile time, nominal size `ns` at run time, pre-fill,
 //!   release per tick, underflow and overflow counted, never a silent drop.
+//! - [`playout`]: when a regulator releases each sample: the paper's FIFO or
+//!   a target delay (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like
+//!   quantile, a fixed latency, a constant), [`Playout`].
 //! - [`sizing`]: the initialization pattern ([`InitPattern`], 10 round trips)
 //!   gives `mt`, and [`Sizing`] applies `ns = 2 + floor(η·mt/T)` and
 //!   `T = max(T_min, NRTT/3)`.
@@ -72,7 +75,8 @@
 //! - `std` (default): conversions between [`Instant`]/[`Duration`] and
 //!   `std::time`. Without it the crate is `#![no_std]` and uses no `alloc`.
 //! - `sim` (default, implies `std`): the discrete-event simulator and its
-//!   delay models (paper profiles, netem tables, trace replay).
+//!   delay models (paper profiles, netem tables, trace replay, events), the
+//!   oracle and the comparison harness of `ndr compare`.
 #![no_std]
 #![forbid(unsafe_code)]
 
@@ -84,6 +88,7 @@ pub mod endpoint;
 pub mod estimator;
 pub mod filters;
 pub mod kalman;
+pub mod playout;
 pub mod predictor;
 pub mod regulator;
 pub mod rls;
@@ -98,6 +103,7 @@ pub use endpoint::{Config, Endpoint, Event, LinkError, Mode, Underflow};
 pub use estimator::{Estimate, Estimator};
 pub use filters::{Envelope, LowPass};
 pub use kalman::Kalman3;
+pub use playout::Playout;
 pub use predictor::{NetworkPredictor, Prediction, PredictorConfig};
 pub use regulator::{Regulator, Tick};
 pub use rls::Rls;

@@ -1,5 +1,6 @@
 //! The `ndr` command line: one module per subcommand.
 
+mod compare;
 mod demo;
 mod paper;
 mod peers;
@@ -41,6 +42,10 @@ enum Command {
     /// Simulate the link (base, remote with its plant, and the network) in
     /// deterministic simulated time, and report what a controller would see.
     Sim(sim::SimArgs),
+    /// Every playout policy (the paper's NDR, Ramjee et al., NetEQ-like,
+    /// fixed latency) on the same simulated traces, beside the oracle: delay,
+    /// late rate, underflows, recovery, mean ± 95 % CI over seeds.
+    Compare(compare::CompareArgs),
     /// Relay TCP connections to an upstream, delaying every frame (in order)
     /// with a delay model, by default the paper's relay (paris-newyork).
     Relay(relay::RelayArgs),
@@ -60,6 +65,7 @@ fn main() -> ExitCode {
         Command::Remote(args) => peers::remote(args),
         Command::Sim(args) => sim::run(args),
         Command::Relay(args) => relay::run(args),
+        Command::Compare(args) => compare::run(args),
         Command::Soak(args) => soak::run(args),
     };
     match result {

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ndr::core::endpoint::{Mode, Underflow};
+use ndr::core::playout::Playout;
 use ndr::core::sim::delay::{DelayModel, DistTable, Trace};
 use ndr::core::sim::signal::Signal;
 use ndr::core::sim::{self, Report, Row, SimConfig};
@@ -85,6 +86,13 @@ pub struct SimArgs {
     /// Both regulators' policy when a sample is missing at its tick.
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
+    /// When the regulators release each sample: fifo (the paper's queue),
+    /// ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS (see `ndr compare`).
+    #[arg(long, default_value = "fifo")]
+    pub playout: Playout,
+    /// The remote's clock runs this many ppm fast (negative: slow).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub remote_skew_ppm: f64,
     /// Sampling period, in ms (the paper's 200).
     #[arg(long, default_value_t = 200.0)]
     pub period_ms: f64,
@@ -127,6 +135,14 @@ impl SimArgs {
         let mut cfg = SimConfig::paper(self.net.model("lan-75km")?);
         cfg.mode = self.mode;
         cfg.underflow = self.underflow;
+        cfg.playout = self.playout;
+        if !(self.remote_skew_ppm.is_finite() && self.remote_skew_ppm.abs() <= 1e5) {
+            return Err(format!(
+                "--remote-skew-ppm must be within ±100000, got {}",
+                self.remote_skew_ppm
+            ));
+        }
+        cfg.remote_skew_ppm = self.remote_skew_ppm;
         cfg.period = period;
         cfg.duration = duration;
         cfg.seed = self.seed;
@@ -176,8 +192,8 @@ fn ms(s: f64) -> String {
 
 pub fn print_report(r: &Report) {
     println!(
-        "{} · {} · {} · seed {} · {:.0} s simulated · {} axis(es)",
-        r.profile, r.mode, r.underflow, r.seed, r.duration_s, r.axes
+        "{} · {} · {} · {} · seed {} · {:.0} s simulated · {} axis(es)",
+        r.profile, r.mode, r.playout, r.underflow, r.seed, r.duration_s, r.axes
     );
     println!("                      mean        std         p99");
     println!(

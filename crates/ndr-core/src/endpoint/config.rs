@@ -3,6 +3,7 @@
 use core::fmt;
 use core::str::FromStr;
 
+use crate::playout::Playout;
 use crate::predictor::PredictorConfig;
 use crate::sizing::Sizing;
 use crate::time::{Duration, Instant};
@@ -182,6 +183,10 @@ pub struct Config {
     pub mode: Mode,
     /// What this side's regulator does when a sample is missing at its tick.
     pub underflow: Underflow,
+    /// When this side's regulator releases each sample: the paper's FIFO
+    /// (the default) or a target delay ([`Playout`]). Each side chooses its
+    /// own; the peer is not told.
+    pub playout: Playout,
     /// The sizing laws (η, `T_min`).
     pub sizing: Sizing,
     /// Ticks fall on `tick_origin + k·T`. Peers whose clocks agree (a
@@ -201,7 +206,7 @@ pub struct Config {
 }
 
 impl Config {
-    /// The paper's setup for `role`: 1 axis, `T = 200 ms`, static, hold.
+    /// The paper's setup for `role`: 1 axis, `T = 200 ms`, static, hold, FIFO.
     #[must_use]
     pub fn new(role: Role) -> Self {
         let period = Duration::from_millis(200);
@@ -211,6 +216,7 @@ impl Config {
             period,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
+            playout: Playout::Fifo,
             sizing: Sizing::default(),
             tick_origin: Instant::ZERO,
             handshake_timeout: Duration::from_secs(10),

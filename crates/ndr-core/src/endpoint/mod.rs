@@ -53,8 +53,9 @@ pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
 
+use crate::playout::{Target, TargetDelay};
 use crate::predictor::{NetworkPredictor, Prediction};
-use crate::regulator::{Occupancy, Regulator, Tick};
+use crate::regulator::{self, Occupancy, Regulator, Tick};
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
 use crate::time::{Duration, Instant};
 use crate::wire::{
@@ -125,6 +126,11 @@ pub struct Endpoint<const C: usize, const N: usize> {
     period: Duration,
     ns: usize,
     regulator: Regulator<Slot<C>, N>,
+    /// Target-delay playout: the policy's state (`None`: the paper's FIFO).
+    target: Option<Target>,
+    /// Target-delay playout: frames sent at or before this (peer clock) had
+    /// their slot at a tick already run.
+    passed: Option<Instant>,
     predictor: NetworkPredictor,
     pattern: InitPattern,
     next_tick: Option<Instant>,
@@ -180,6 +186,8 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 axes: config.axes,
                 capacity: N,
             })?,
+            target: config.playout.target(config.period),
+            passed: None,
             predictor,
             pattern: InitPattern::new(),
             next_tick: None,
@@ -522,6 +530,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                     self.predictor.observe_gap(gap);
                 }
                 self.prev_data_rx = Some((sent_at, now));
+                self.observe_one_way(sent_at, now);
                 if channels.is_empty() {
                     self.stats.probes_received += 1;
                     return match self.phase {
@@ -641,9 +650,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 return Ok(());
             }
         }
-        if self.config.underflow == Underflow::DropLate
-            && self.due_seq.is_some_and(|due| slot.head.seq < due)
-        {
+        if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
             self.stats.late += 1;
             return Ok(());
         }
@@ -750,8 +757,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
 
     fn start_running(&mut self, ns: usize) {
         self.discard_queue();
-        // `ns < N` was checked by the caller.
-        let _ = self.regulator.set_nominal(ns);
+        // `ns < N` was checked by the caller. A target delay keeps no stock:
+        // each sample waits for its own slot.
+        let stock = if self.target.is_some() { 0 } else { ns };
+        let _ = self.regulator.set_nominal(stock);
         self.regulator.restart_prefill();
         // Occupancy statistics describe the current parameters.
         self.regulator.reset_occupancy();
@@ -760,6 +769,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         // sample sent before a pause would measure the pause.
         self.grtt_acked = self.next_seq.checked_sub(1);
         self.due_seq = None;
+        self.passed = None;
         self.ticks_running = 0;
         self.deadline = None;
         self.phase = Phase::Running;
@@ -804,7 +814,15 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     }
 
     fn release(&mut self, t: Instant) {
-        let outcome = match (self.config.underflow, self.due_seq) {
+        let outcome = match self.target.as_ref().map(TargetDelay::target) {
+            Some(target) => self.release_target(t, target),
+            None => self.release_fifo(),
+        };
+        self.deliver(t, outcome);
+    }
+
+    fn release_fifo(&mut self) -> Tick<Slot<C>> {
+        match (self.config.underflow, self.due_seq) {
             (Underflow::DropLate, Some(due)) => {
                 while self.regulator.front().is_some_and(|s| s.head.seq < due) {
                     let _ = self.regulator.discard_front();
@@ -813,7 +831,72 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 self.regulator.tick_if(|s| s.head.seq == due)
             }
             _ => self.regulator.tick(),
+        }
+    }
+
+    /// One tick of a target-delay playout: the sample whose slot (the first
+    /// tick at or after `sent_at + D`) is this tick is released. Until the
+    /// policy has a target and the first sample is due, ticks release
+    /// nothing and count nothing (like the FIFO's pre-fill).
+    fn release_target(&mut self, t: Instant, target: Option<Duration>) -> Tick<Slot<C>> {
+        let Some(d) = target else {
+            return self.not_started();
         };
+        let cutoff = self.release_cutoff(t, d);
+        let due = |s: &Slot<C>| s.head.sent_at <= cutoff;
+        if self.config.underflow == Underflow::DropLate {
+            // The target fell: older samples share this tick's slot with a
+            // newer one. The newest due is released, the others skipped.
+            while self.regulator.iter().nth(1).is_some_and(due) {
+                let _ = self.regulator.discard_front();
+                self.stats.skipped += 1;
+            }
+            self.passed = Some(self.passed.map_or(cutoff, |p| p.max(cutoff)));
+        }
+        if self.regulator.phase() == regulator::Phase::Prefilling
+            && !self.regulator.front().is_some_and(due)
+        {
+            return self.not_started();
+        }
+        self.regulator.tick_if(due)
+    }
+
+    /// Nothing released yet: not an underflow.
+    fn not_started(&self) -> Tick<Slot<C>> {
+        Tick::Prefilling {
+            have: self.regulator.len(),
+            need: 1,
+        }
+    }
+
+    /// Frames sent (peer clock) at or before this have their slot at or
+    /// before the tick `t` for a target delay `d`.
+    fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
+        // Peer clock = local clock until an offset estimate maps them (issue 7).
+        t - d
+    }
+
+    /// A one-way delay sample for the playout policy, from a frame's send
+    /// stamp (peer clock) and its arrival (local clock). The one place where
+    /// the two clocks meet: they are taken as synchronized (a simulation, or
+    /// hosts synchronized by PTP or GPS); an offset estimate belongs here.
+    fn observe_one_way(&mut self, sent_at: Instant, arrived: Instant) {
+        if let Some(target) = &mut self.target {
+            target.observe(sent_at, arrived - sent_at);
+        }
+    }
+
+    /// Under drop-late: whether `slot` arrived after its release slot.
+    fn slot_passed(&self, slot: &Slot<C>) -> bool {
+        if self.target.is_some() {
+            self.released_seq.is_some_and(|r| slot.head.seq <= r)
+                || self.passed.is_some_and(|p| slot.head.sent_at <= p)
+        } else {
+            self.due_seq.is_some_and(|due| slot.head.seq < due)
+        }
+    }
+
+    fn deliver(&mut self, t: Instant, outcome: Tick<Slot<C>>) {
         match outcome {
             Tick::Released(slot) => {
                 self.stats.released_fresh += 1;
@@ -830,7 +913,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 if self.config.underflow == Underflow::Hold {
                     self.stats.late += 1;
                 }
-                self.due_seq = self.due_seq.map(|d| d + 1);
+                if self.target.is_none() {
+                    // FIFO slots are one per tick: this tick's slot is gone.
+                    self.due_seq = self.due_seq.map(|d| d + 1);
+                }
                 if let Some(mut held) = self.last_release {
                     held.status = Status::Held;
                     held.released_at = t;

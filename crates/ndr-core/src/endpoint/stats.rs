@@ -68,8 +68,11 @@ impl Running {
     }
 }
 
-/// Everything an endpoint counted. Invariant of the receive side:
-/// `samples_received = released_fresh + queued + late + rejected + discarded`.
+/// Everything an endpoint counted. Invariant of the receive side, under
+/// `drop-late`: `samples_received = released_fresh + queued + late + rejected
+/// + discarded + skipped`; under `hold` the same without `late` (a late
+/// sample is still released, one tick later; `late` counts the underflows it
+/// caused). The fuzz harness (`fuzz/harness.rs`) checks it after every step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Stats {
     /// Frames sent, of any kind.
@@ -97,6 +100,9 @@ pub struct Stats {
     pub rejected: u64,
     /// Samples discarded because they belonged to a stream that a pause ended.
     pub discarded: u64,
+    /// Target-delay playout: samples passed over because the target fell and
+    /// a newer sample was due at the same tick.
+    pub skipped: u64,
     /// Probe frames (Data without channels) of the initialization pattern received.
     pub probes_received: u64,
     /// Pauses of the dynamic mode.

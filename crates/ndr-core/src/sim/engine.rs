@@ -9,8 +9,9 @@ use std::vec::Vec;
 
 use crate::arx::{ArxError, Tf2, Tf2State};
 use crate::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Mode, Status, Underflow};
+use crate::playout::Playout;
 use crate::time::{Duration, Instant};
-use crate::wire::{HEADER_LEN, Role};
+use crate::wire::{Frame, HEADER_LEN, Payload, Role};
 
 use super::delay::{DelayModel, DelaySampler, Direction, InOrderPath};
 use super::report::{Collector, Report, Row};
@@ -68,6 +69,12 @@ pub struct SimConfig {
     pub mode: Mode,
     /// Both regulators' underflow policy.
     pub underflow: Underflow,
+    /// Both regulators' playout policy.
+    pub playout: Playout,
+    /// The remote's clock runs at `1 + remote_skew_ppm·10⁻⁶` times the
+    /// base's (the network's). Each side reads its own clock, so stamps and
+    /// delays seen across the link carry the skew.
+    pub remote_skew_ppm: f64,
     /// The initial period.
     pub period: Duration,
     /// Simulated time.
@@ -82,6 +89,8 @@ pub struct SimConfig {
     pub plant: PlantConfig,
     /// Keep one [`Row`] per base tick.
     pub record_series: bool,
+    /// Keep every command's timing at the remote ([`SimOutput::forward`]).
+    pub record_forward: bool,
 }
 
 impl SimConfig {
@@ -93,6 +102,8 @@ impl SimConfig {
             model,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
+            playout: Playout::Fifo,
+            remote_skew_ppm: 0.0,
             period: Duration::from_millis(200),
             duration: Duration::from_secs(600),
             seed: 1,
@@ -100,6 +111,7 @@ impl SimConfig {
             signal: Signal::default(),
             plant: PlantConfig::default(),
             record_series: false,
+            record_forward: false,
         }
     }
 }
@@ -154,6 +166,69 @@ pub struct SimOutput {
     pub report: Report,
     /// One row per base tick, when [`SimConfig::record_series`] is set.
     pub series: Vec<Row>,
+    /// The commands as the remote saw them, when [`SimConfig::record_forward`] is set.
+    pub forward: ForwardLog,
+}
+
+/// The commands (base → remote) as the remote saw them, on the remote's clock
+/// (send stamps on the base's).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ForwardLog {
+    /// Every command that reached the remote, in arrival order.
+    pub samples: Vec<CommandTiming>,
+    /// The remote's ticks that repeated a command (underflows).
+    pub held: Vec<Instant>,
+}
+
+/// One command's timing at the remote.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CommandTiming {
+    /// Its sequence number.
+    pub seq: u64,
+    /// Its send stamp (base clock).
+    pub sent_at: Instant,
+    /// Its arrival (remote clock).
+    pub arrived_at: Instant,
+    /// Its fresh release (remote clock); `None` if never released fresh.
+    pub released_at: Option<Instant>,
+}
+
+/// A clock that runs at `1 + ppb·10⁻⁹` times the simulation's.
+#[derive(Clone, Copy, Debug)]
+struct SkewedClock {
+    ppb: i128,
+}
+
+impl SkewedClock {
+    fn new(ppm: f64) -> Self {
+        let ppb = if ppm.is_finite() {
+            (ppm * 1e3).round().clamp(-1e8, 1e8) as i128
+        } else {
+            0
+        };
+        SkewedClock { ppb }
+    }
+
+    /// The clock's reading at simulation time `t`.
+    fn local(self, t: Instant) -> Instant {
+        let n = i128::from(t.as_nanos());
+        let l = n + (n * self.ppb).div_euclid(1_000_000_000);
+        Instant::from_nanos(u64::try_from(l.max(0)).unwrap_or(u64::MAX))
+    }
+
+    /// The first simulation time at which the clock reads `l` or later.
+    fn global(self, l: Instant) -> Instant {
+        if self.ppb == 0 {
+            return l;
+        }
+        let n = i128::from(l.as_nanos());
+        let guess = n * 1_000_000_000 / (1_000_000_000 + self.ppb);
+        let mut g = Instant::from_nanos(u64::try_from(guess.max(0) - 2).unwrap_or(0));
+        while self.local(g) < l {
+            g += Duration::from_nanos(1);
+        }
+        g
+    }
 }
 
 struct Flight {
@@ -174,6 +249,8 @@ struct Sim<'a> {
     plant_out: Vec<f64>,
     operator: Vec<f64>,
     collect: Collector,
+    remote_clock: SkewedClock,
+    forward: Option<ForwardLog>,
     buf: [u8; FRAME_BUF],
 }
 
@@ -209,6 +286,7 @@ fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         c.period = cfg.period;
         c.mode = cfg.mode;
         c.underflow = cfg.underflow;
+        c.playout = cfg.playout;
         // One clock for the whole structure, as in the paper.
         c.tick_origin = Instant::ZERO;
         Ok(Box::new(
@@ -229,6 +307,8 @@ fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         plant_out: std::vec![0.0; axes],
         operator: std::vec![0.0; axes],
         collect: Collector::new(cfg),
+        remote_clock: SkewedClock::new(cfg.remote_skew_ppm),
+        forward: cfg.record_forward.then(ForwardLog::default),
         buf: [0; FRAME_BUF],
     };
     sim.run()?;
@@ -236,9 +316,12 @@ fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         collect,
         base,
         remote,
+        forward,
         ..
     } = sim;
-    Ok(collect.finish(cfg, &base, &remote))
+    let mut out = collect.finish(cfg, &base, &remote);
+    out.forward = forward.unwrap_or_default();
+    Ok(out)
 }
 
 impl Sim<'_> {
@@ -250,7 +333,9 @@ impl Sim<'_> {
                 self.flights[0].front().map(|f| f.arrival),
                 self.flights[1].front().map(|f| f.arrival),
                 self.base.poll_timeout(),
-                self.remote.poll_timeout(),
+                self.remote
+                    .poll_timeout()
+                    .map(|t| self.remote_clock.global(t)),
             ]
             .into_iter()
             .flatten()
@@ -268,21 +353,25 @@ impl Sim<'_> {
                 let Some(flight) = self.flights[dir].pop_front() else {
                     break;
                 };
-                let (side, ep) = if dir == 0 {
-                    (Role::Remote, &mut self.remote)
-                } else {
-                    (Role::Base, &mut self.base)
-                };
-                if let Err(error) = ep.handle_frame(next, &flight.bytes[..flight.len]) {
+                let side = if dir == 0 { Role::Remote } else { Role::Base };
+                let at = self.local(side, next);
+                if let Err(error) = self
+                    .endpoint(side)
+                    .handle_frame(at, &flight.bytes[..flight.len])
+                {
                     return Err(self.link_error(side, error));
+                }
+                if side == Role::Remote {
+                    self.log_command(at, &flight.bytes[..flight.len]);
                 }
                 self.drain(side)?;
             }
             for side in [Role::Base, Role::Remote] {
+                let at = self.local(side, next);
                 let ep = self.endpoint(side);
-                if ep.poll_timeout().is_some_and(|t| t <= next) {
+                if ep.poll_timeout().is_some_and(|t| t <= at) {
                     let steps = ep.predictor().steps();
-                    ep.handle_timeout(next);
+                    ep.handle_timeout(at);
                     let ticked = ep.predictor().steps() != steps;
                     self.drain(side)?;
                     if side == Role::Base && ticked {
@@ -300,6 +389,48 @@ impl Sim<'_> {
         }
     }
 
+    /// Simulation time `t` on `side`'s clock.
+    fn local(&self, side: Role, t: Instant) -> Instant {
+        match side {
+            Role::Base => t,
+            Role::Remote => self.remote_clock.local(t),
+        }
+    }
+
+    /// A frame reached the remote at `at` (its clock): keep a command's timing.
+    fn log_command(&mut self, at: Instant, bytes: &[u8]) {
+        let Some(log) = &mut self.forward else {
+            return;
+        };
+        if let Ok(frame) = Frame::new_checked(bytes)
+            && let Payload::Data(channels) = frame.payload()
+            && !channels.is_empty()
+        {
+            log.samples.push(CommandTiming {
+                seq: frame.seq(),
+                sent_at: frame.sent_at(),
+                arrived_at: at,
+                released_at: None,
+            });
+        }
+    }
+
+    /// The remote released a command (fresh or held) at `t`.
+    fn log_release<const C: usize>(&mut self, r: &crate::endpoint::Release<C>) {
+        let Some(log) = &mut self.forward else {
+            return;
+        };
+        if r.status == Status::Held {
+            log.held.push(r.released_at);
+            return;
+        }
+        if let Ok(i) = log.samples.binary_search_by_key(&r.seq, |c| c.seq)
+            && let Some(c) = log.samples.get_mut(i)
+        {
+            c.released_at = Some(r.released_at);
+        }
+    }
+
     fn link_error(&self, side: Role, error: LinkError) -> SimError {
         SimError::Link {
             side: if side == Role::Base { "base" } else { "remote" },
@@ -310,7 +441,7 @@ impl Sim<'_> {
 
     /// The application's turn, then the transmissions.
     fn drain(&mut self, side: Role) -> Result<(), SimError> {
-        let now = self.now;
+        let now = self.local(side, self.now);
         while let Some(event) = self.endpoint(side).poll_event() {
             match event {
                 Event::Released(r) => {
@@ -318,6 +449,7 @@ impl Sim<'_> {
                         self.collect.fresh(side, &r);
                     }
                     if side == Role::Remote {
+                        self.log_release(&r);
                         // The plant takes the command released now; its
                         // output is the state sent at this tick.
                         for ((plant, out), &u) in self
@@ -374,8 +506,10 @@ impl Sim<'_> {
             } else {
                 Direction::Backward
             };
-            let delay = self.sampler.delay(direction, now);
-            let arrival = self.paths[dir].deliver(now, delay);
+            // The network runs on simulation time.
+            let sent = self.now;
+            let delay = self.sampler.delay(direction, sent);
+            let arrival = self.paths[dir].deliver(sent, delay);
             self.flights[dir].push_back(Flight {
                 arrival,
                 len: n,

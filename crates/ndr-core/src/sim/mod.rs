@@ -18,10 +18,15 @@
 //! # Ok::<(), ndr_core::sim::SimError>(())
 //! ```
 
+pub mod compare;
 pub mod delay;
 mod engine;
+pub mod oracle;
 mod report;
 pub mod signal;
 
-pub use engine::{MAX_SIM_AXES, PlantConfig, SIM_QUEUE, SimConfig, SimError, SimOutput, run};
+pub use engine::{
+    CommandTiming, ForwardLog, MAX_SIM_AXES, PlantConfig, SIM_QUEUE, SimConfig, SimError,
+    SimOutput, run,
+};
 pub use report::{Report, Row, percentile};

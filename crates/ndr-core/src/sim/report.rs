@@ -24,6 +24,8 @@ pub struct Report {
     pub mode: String,
     /// `hold` or `drop-late`.
     pub underflow: String,
+    /// The regulators' playout policy: `fifo` (the paper's), `ramjee-1`, ...
+    pub playout: String,
     /// The seed.
     pub seed: u64,
     /// Simulated time.
@@ -350,6 +352,7 @@ impl Collector {
             profile: cfg.model.name(),
             mode: String::from(cfg.mode.name()),
             underflow: String::from(cfg.underflow.name()),
+            playout: std::format!("{}", cfg.playout),
             seed: cfg.seed,
             duration_s: cfg.duration.as_secs_f64(),
             axes: cfg.axes,
@@ -399,6 +402,7 @@ impl Collector {
         SimOutput {
             report,
             series: self.rows.unwrap_or_default(),
+            forward: super::engine::ForwardLog::default(),
         }
     }
 }

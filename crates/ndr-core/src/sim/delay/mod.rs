@@ -123,6 +123,7 @@
 //! [`DelayModel::Dist`] replays a netem table ([`DistTable`]) and
 //! [`DelayModel::Trace`] a CSV trace ([`Trace`]).
 
+mod events;
 mod netem;
 mod profiles;
 mod trace;
@@ -137,6 +138,7 @@ use std::vec::Vec;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+pub use events::{EventKind, EventParams};
 pub use netem::{DistError, DistTable, MAX_DIST_ENTRIES, MAX_DIST_FILE_BYTES, NETEM_DIST_SCALE};
 pub use profiles::{
     EpisodeParams, FIG6_DURATION, FIG6_STEP_AT_S, JitterParams, LAN_75KM, PARIS_NEW_YORK,
@@ -212,6 +214,8 @@ pub enum DelayModel {
     },
     /// Replay of a recorded or generated trace.
     Trace(Arc<Trace>),
+    /// Jitter plus events at known times: a step, spikes or stalls.
+    Events(EventParams),
 }
 
 /// Why a profile name was refused.
@@ -290,7 +294,7 @@ impl DelayModel {
 
     /// A short name: the profile name for built-in models (which
     /// [`DelayModel::profile`] reads back: `constant:30`, `constant:30,45`),
-    /// `episodes`, `dist` or `trace` otherwise.
+    /// `episodes`, `dist`, `trace` or `events` otherwise.
     #[must_use]
     pub fn name(&self) -> String {
         match self {
@@ -307,6 +311,7 @@ impl DelayModel {
             DelayModel::Episodes(_) => "episodes".to_string(),
             DelayModel::Dist { .. } => "dist".to_string(),
             DelayModel::Trace(_) => "trace".to_string(),
+            DelayModel::Events(_) => "events".to_string(),
         }
     }
 
@@ -337,6 +342,7 @@ impl DelayModel {
                 std: *std,
             },
             DelayModel::Trace(trace) => Kind::Trace(Arc::clone(trace)),
+            DelayModel::Events(p) => Kind::Events(std::boxed::Box::new(events::Events::new(*p))),
         };
         DelaySampler {
             kind,
@@ -379,6 +385,7 @@ enum Kind {
         std: Duration,
     },
     Trace(Arc<Trace>),
+    Events(std::boxed::Box<events::Events>),
 }
 
 impl DelaySampler {
@@ -398,6 +405,7 @@ impl DelaySampler {
             Kind::Episodes(model) => model.delay(rng, dir, sent_at),
             Kind::Dist { table, mean, std } => table.sample(rng, *mean, *std),
             Kind::Trace(trace) => trace.delay(dir, sent_at),
+            Kind::Events(model) => model.delay(rng, dir, sent_at),
         }
     }
 }

@@ -1,0 +1,615 @@
+//! Playout policies: when a regulator releases each sample.
+//!
+//! [`Playout::Fifo`] is the paper's NDR: a FIFO pre-filled to `ns` samples
+//! and released one per tick (its size set by the [`Mode`](crate::Mode)).
+//! Every other policy is a **target delay** on the one-way delay: a sample
+//! sent at `sent_at` is released at the first tick at or after
+//! `sent_at + D`, `D` the policy's current target; under
+//! [`Underflow::DropLate`](crate::Underflow::DropLate) one that arrives after
+//! its slot is late (counted, discarded, the tick repeats the last sample).
+//!
+//! A target policy sees one sample per received frame through
+//! [`TargetDelay::observe`]: the frame's send stamp and its one-way delay
+//! (arrival − send stamp). The endpoint computes that delay in one place, so
+//! a correction for the peers' clock offset applies to every policy at once.
+//! Until then the target policies assume synchronized clocks.
+//!
+//! The constants and references of each policy are in `docs/algorithms.md`.
+
+use core::fmt;
+use core::str::FromStr;
+
+use crate::time::{Duration, Instant};
+
+/// How a regulator decides when to release each sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Playout {
+    /// The paper's FIFO, pre-filled to `ns`, one release per tick.
+    #[default]
+    Fifo,
+    /// Ramjee, Kurose, Towsley, Schulzrinne (1994), algorithm 1: `D = d̂ + 4·v̂`
+    /// with exponential averages (α = 0.998002) of the delay and its deviation.
+    Ramjee1,
+    /// Ramjee et al. (1994), algorithm 4: algorithm 1's target with fast
+    /// averages (1/8) and spike detection.
+    Ramjee4,
+    /// A NetEQ-like target: the 0.95 quantile of a histogram of relative
+    /// delays (bucket width = period, forget factor 0.983) above the
+    /// smallest delay of the last 2–4 s.
+    NetEq,
+    /// A fixed latency above the smallest delay seen (GStreamer's
+    /// rtpjitterbuffer).
+    FixedAboveMin {
+        /// The latency added to the smallest delay.
+        latency: Duration,
+    },
+    /// A constant target delay (the oracle's, on a known trace).
+    Constant {
+        /// The target.
+        delay: Duration,
+    },
+}
+
+/// GStreamer rtpjitterbuffer's default latency.
+pub const DEFAULT_FIXED_LATENCY: Duration = Duration::from_millis(200);
+
+impl Playout {
+    /// The name used on the command line and in reports. [`Playout::Constant`]
+    /// and [`Playout::FixedAboveMin`] carry their value: `constant:120`,
+    /// `fixed:200` (milliseconds).
+    #[must_use]
+    pub fn name(self) -> PlayoutName {
+        PlayoutName(self)
+    }
+
+    /// The target-delay state of this policy for `period`, `None` for the FIFO.
+    #[must_use]
+    pub fn target(self, period: Duration) -> Option<Target> {
+        Some(match self {
+            Playout::Fifo => return None,
+            Playout::Ramjee1 => Target::Ramjee1(Ramjee1::new()),
+            Playout::Ramjee4 => Target::Ramjee4(Ramjee4::new()),
+            Playout::NetEq => Target::NetEq(NetEq::new(period)),
+            Playout::FixedAboveMin { latency } => {
+                Target::FixedAboveMin(FixedAboveMin::new(latency))
+            }
+            Playout::Constant { delay } => Target::Constant(delay),
+        })
+    }
+}
+
+/// Displays a [`Playout`] by its command-line name.
+#[derive(Clone, Copy, Debug)]
+pub struct PlayoutName(Playout);
+
+impl fmt::Display for PlayoutName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        match self.0 {
+            Playout::Fifo => f.write_str("fifo"),
+            Playout::Ramjee1 => f.write_str("ramjee-1"),
+            Playout::Ramjee4 => f.write_str("ramjee-4"),
+            Playout::NetEq => f.write_str("neteq"),
+            Playout::FixedAboveMin { latency } => write!(f, "fixed:{}", ms(latency)),
+            Playout::Constant { delay } => write!(f, "constant:{}", ms(delay)),
+        }
+    }
+}
+
+impl fmt::Display for Playout {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.name().fmt(f)
+    }
+}
+
+/// A name that is not a [`Playout`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnknownPlayout;
+
+impl fmt::Display for UnknownPlayout {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(
+            "unknown playout policy; valid: fifo, ramjee-1, ramjee-4, neteq, fixed[:MS], \
+             constant:MS (milliseconds, finite, not negative)",
+        )
+    }
+}
+
+impl core::error::Error for UnknownPlayout {}
+
+impl FromStr for Playout {
+    type Err = UnknownPlayout;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let millis = |v: &str| -> Result<Duration, UnknownPlayout> {
+            match v.trim().parse::<f64>() {
+                Ok(ms) if ms.is_finite() && ms >= 0.0 => Ok(Duration::from_secs_f64(ms * 1e-3)),
+                _ => Err(UnknownPlayout),
+            }
+        };
+        match s.trim().split_once(':') {
+            None => match s.trim() {
+                "fifo" => Ok(Playout::Fifo),
+                "ramjee-1" => Ok(Playout::Ramjee1),
+                "ramjee-4" => Ok(Playout::Ramjee4),
+                "neteq" => Ok(Playout::NetEq),
+                "fixed" => Ok(Playout::FixedAboveMin {
+                    latency: DEFAULT_FIXED_LATENCY,
+                }),
+                _ => Err(UnknownPlayout),
+            },
+            Some(("fixed", v)) => Ok(Playout::FixedAboveMin {
+                latency: millis(v)?,
+            }),
+            Some(("constant", v)) => Ok(Playout::Constant { delay: millis(v)? }),
+            Some(_) => Err(UnknownPlayout),
+        }
+    }
+}
+
+/// A policy that sets a target one-way delay from the delays it observes.
+pub trait TargetDelay {
+    /// One received frame: its send stamp and its one-way delay.
+    fn observe(&mut self, sent_at: Instant, delay: Duration);
+    /// The current target, `None` before the policy can tell.
+    fn target(&self) -> Option<Duration>;
+}
+
+/// The state of a target-delay [`Playout`].
+// No heap in the core: NetEQ's histogram (2 KiB) lives inline, and an
+// endpoint holds one `Target`, so the size of the others does not matter.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug, PartialEq)]
+pub enum Target {
+    /// See [`Playout::Ramjee1`].
+    Ramjee1(Ramjee1),
+    /// See [`Playout::Ramjee4`].
+    Ramjee4(Ramjee4),
+    /// See [`Playout::NetEq`].
+    NetEq(NetEq),
+    /// See [`Playout::FixedAboveMin`].
+    FixedAboveMin(FixedAboveMin),
+    /// See [`Playout::Constant`].
+    Constant(Duration),
+}
+
+impl TargetDelay for Target {
+    fn observe(&mut self, sent_at: Instant, delay: Duration) {
+        match self {
+            Target::Ramjee1(p) => p.observe(sent_at, delay),
+            Target::Ramjee4(p) => p.observe(sent_at, delay),
+            Target::NetEq(p) => p.observe(sent_at, delay),
+            Target::FixedAboveMin(p) => p.observe(sent_at, delay),
+            Target::Constant(_) => {}
+        }
+    }
+
+    fn target(&self) -> Option<Duration> {
+        match self {
+            Target::Ramjee1(p) => p.target(),
+            Target::Ramjee4(p) => p.target(),
+            Target::NetEq(p) => p.target(),
+            Target::FixedAboveMin(p) => p.target(),
+            Target::Constant(d) => Some(*d),
+        }
+    }
+}
+
+/// `d̂ + 4·v̂`, the playout delay of Ramjee et al.'s algorithms.
+fn mean_plus_4dev(d: f64, v: f64) -> Duration {
+    Duration::from_secs_f64(d + 4.0 * v)
+}
+
+/// Ramjee et al. (1994) algorithm 1's weight.
+pub const RAMJEE_ALPHA: f64 = 0.998002;
+
+/// Ramjee et al. (1994), algorithm 1:
+/// `d̂ ← α·d̂ + (1−α)·n`, `v̂ ← α·v̂ + (1−α)·|d̂ − n|`, `D = d̂ + 4·v̂`.
+///
+/// Until `1/(1−α)` ≈ 500 samples are seen, the weight is `1 − 1/i` at the
+/// `i`-th sample (the running mean), so that the first samples do not start
+/// the averages from zero.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ramjee1 {
+    d: f64,
+    v: f64,
+    seen: u64,
+}
+
+impl Ramjee1 {
+    /// No sample seen yet.
+    #[must_use]
+    pub const fn new() -> Self {
+        Ramjee1 {
+            d: 0.0,
+            v: 0.0,
+            seen: 0,
+        }
+    }
+
+    /// `(d̂, v̂)` in seconds.
+    #[must_use]
+    pub fn estimates(&self) -> (f64, f64) {
+        (self.d, self.v)
+    }
+}
+
+impl TargetDelay for Ramjee1 {
+    fn observe(&mut self, _sent_at: Instant, delay: Duration) {
+        let n = delay.as_secs_f64();
+        self.seen = self.seen.saturating_add(1);
+        let alpha = RAMJEE_ALPHA.min(1.0 - 1.0 / self.seen as f64);
+        self.d = alpha * self.d + (1.0 - alpha) * n;
+        self.v = alpha * self.v + (1.0 - alpha) * libm::fabs(self.d - n);
+    }
+
+    fn target(&self) -> Option<Duration> {
+        (self.seen > 0).then(|| mean_plus_4dev(self.d, self.v))
+    }
+}
+
+/// Algorithm 4's spike threshold, `2·|v̂| + 800` in the paper's 8 kHz
+/// timestamp units: 800 units = 100 ms.
+pub const SPIKE_ENTER: f64 = 0.100;
+/// Algorithm 4 leaves a spike when `var ≤ 63` units (7.875 ms at 8 kHz).
+pub const SPIKE_EXIT: f64 = 63.0 / 8000.0;
+
+/// Ramjee et al. (1994), algorithm 4: fast averages (weight 1/8) and a
+/// spike mode in which `d̂` follows the delays one for one.
+///
+/// ```text
+/// normal: if |n − n₁| > 2·|v̂| + 100 ms  → spike, var = 0
+/// spike:  var = var/2 + |2n − n₁ − n₂|/8; if var ≤ 7.875 ms → normal (skip the update)
+/// d̂ = d̂ + (n − d̂)/8 (normal) or d̂ + n − n₁ (spike);  v̂ = v̂ + (|n − d̂| − v̂)/8
+/// ```
+/// with `n₁`, `n₂` the two previous delays; `D = d̂ + 4·v̂`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ramjee4 {
+    d: f64,
+    v: f64,
+    var: f64,
+    n1: f64,
+    n2: f64,
+    spike: bool,
+    seen: u64,
+}
+
+impl Ramjee4 {
+    /// No sample seen yet.
+    #[must_use]
+    pub const fn new() -> Self {
+        Ramjee4 {
+            d: 0.0,
+            v: 0.0,
+            var: 0.0,
+            n1: 0.0,
+            n2: 0.0,
+            spike: false,
+            seen: 0,
+        }
+    }
+
+    /// Whether the policy is in spike mode.
+    #[must_use]
+    pub fn in_spike(&self) -> bool {
+        self.spike
+    }
+
+    /// `(d̂, v̂)` in seconds.
+    #[must_use]
+    pub fn estimates(&self) -> (f64, f64) {
+        (self.d, self.v)
+    }
+}
+
+impl TargetDelay for Ramjee4 {
+    fn observe(&mut self, _sent_at: Instant, delay: Duration) {
+        let n = delay.as_secs_f64();
+        if self.seen == 0 {
+            // The first delay starts every average.
+            *self = Ramjee4 {
+                d: n,
+                n1: n,
+                n2: n,
+                seen: 1,
+                ..Ramjee4::new()
+            };
+            return;
+        }
+        self.seen = self.seen.saturating_add(1);
+        if !self.spike {
+            if libm::fabs(n - self.n1) > 2.0 * libm::fabs(self.v) + SPIKE_ENTER {
+                self.var = 0.0;
+                self.spike = true;
+            }
+        } else {
+            self.var = self.var / 2.0 + libm::fabs((2.0 * n - self.n1 - self.n2) / 8.0);
+            if self.var <= SPIKE_EXIT {
+                self.spike = false;
+                self.n2 = self.n1;
+                self.n1 = n;
+                return;
+            }
+        }
+        if self.spike {
+            self.d += n - self.n1;
+        } else {
+            self.d = 0.125 * n + 0.875 * self.d;
+        }
+        self.v = 0.125 * libm::fabs(n - self.d) + 0.875 * self.v;
+        self.n2 = self.n1;
+        self.n1 = n;
+    }
+
+    fn target(&self) -> Option<Duration> {
+        (self.seen > 0).then(|| mean_plus_4dev(self.d, self.v))
+    }
+}
+
+/// Buckets of the NetEQ-like histogram; relative delays beyond the last
+/// bucket count in it.
+pub const NETEQ_BUCKETS: usize = 256;
+/// The histogram's forget factor (WebRTC NetEQ's 0.983).
+pub const NETEQ_FORGET: f64 = 0.983;
+/// The quantile of relative delays the target covers.
+pub const NETEQ_QUANTILE: f64 = 0.95;
+/// The smallest delay is taken over the current and the previous block of
+/// this length (a window of 2 to 4 s, NetEQ's 2 s history).
+pub const NETEQ_MIN_BLOCK: Duration = Duration::from_secs(2);
+
+/// A NetEQ-like target: relative delay = delay − smallest delay of the last
+/// 2–4 s; a histogram of relative delays with bucket width `T`, where each
+/// sample multiplies every bucket by 0.983 and adds 0.017 to its own; the
+/// target is that smallest delay plus the upper edge of the bucket holding
+/// the 0.95 quantile.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NetEq {
+    width: Duration,
+    buckets: [f64; NETEQ_BUCKETS],
+    mass: f64,
+    block_start: Option<Instant>,
+    block_min: Duration,
+    prev_min: Option<Duration>,
+    quantile_bucket: usize,
+}
+
+impl NetEq {
+    /// An empty histogram with buckets `width` wide (the period).
+    #[must_use]
+    pub fn new(width: Duration) -> Self {
+        NetEq {
+            width: Duration::from_nanos(width.as_nanos().max(1)),
+            buckets: [0.0; NETEQ_BUCKETS],
+            mass: 0.0,
+            block_start: None,
+            block_min: Duration::MAX,
+            prev_min: None,
+            quantile_bucket: 0,
+        }
+    }
+
+    /// The smallest delay of the window, `None` before any sample.
+    #[must_use]
+    pub fn base(&self) -> Option<Duration> {
+        self.block_start?;
+        Some(
+            self.prev_min
+                .map_or(self.block_min, |p| p.min(self.block_min)),
+        )
+    }
+
+    /// The bucket holding the 0.95 quantile.
+    #[must_use]
+    pub fn quantile_bucket(&self) -> usize {
+        self.quantile_bucket
+    }
+}
+
+impl TargetDelay for NetEq {
+    fn observe(&mut self, sent_at: Instant, delay: Duration) {
+        match self.block_start {
+            Some(start) if sent_at < start + NETEQ_MIN_BLOCK => {
+                self.block_min = self.block_min.min(delay);
+            }
+            Some(_) => {
+                self.prev_min = Some(self.block_min);
+                self.block_min = delay;
+                self.block_start = Some(sent_at);
+            }
+            None => {
+                self.block_min = delay;
+                self.block_start = Some(sent_at);
+            }
+        }
+        let base = self.base().unwrap_or(delay);
+        let rel = (delay - base).as_nanos() / self.width.as_nanos();
+        let bucket = usize::try_from(rel)
+            .unwrap_or(usize::MAX)
+            .min(NETEQ_BUCKETS - 1);
+        for b in &mut self.buckets {
+            *b *= NETEQ_FORGET;
+        }
+        if let Some(b) = self.buckets.get_mut(bucket) {
+            *b += 1.0 - NETEQ_FORGET;
+        }
+        self.mass = self.mass * NETEQ_FORGET + (1.0 - NETEQ_FORGET);
+        let goal = NETEQ_QUANTILE * self.mass;
+        let mut sum = 0.0;
+        self.quantile_bucket = NETEQ_BUCKETS - 1;
+        for (i, b) in self.buckets.iter().enumerate() {
+            sum += b;
+            if sum >= goal {
+                self.quantile_bucket = i;
+                break;
+            }
+        }
+    }
+
+    fn target(&self) -> Option<Duration> {
+        let upper = self.width * (self.quantile_bucket as u64 + 1);
+        self.base().map(|b| b + upper)
+    }
+}
+
+/// A fixed latency above the smallest one-way delay seen so far.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FixedAboveMin {
+    latency: Duration,
+    min: Option<Duration>,
+}
+
+impl FixedAboveMin {
+    /// `latency` above the smallest delay to come.
+    #[must_use]
+    pub const fn new(latency: Duration) -> Self {
+        FixedAboveMin { latency, min: None }
+    }
+}
+
+impl TargetDelay for FixedAboveMin {
+    fn observe(&mut self, _sent_at: Instant, delay: Duration) {
+        self.min = Some(self.min.map_or(delay, |m| m.min(delay)));
+    }
+
+    fn target(&self) -> Option<Duration> {
+        self.min.map(|m| m + self.latency)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(x: u64) -> Duration {
+        Duration::from_millis(x)
+    }
+
+    fn feed(p: &mut impl TargetDelay, delays_ms: &[u64], period_ms: u64) {
+        for (k, &d) in delays_ms.iter().enumerate() {
+            p.observe(Instant::from_millis(k as u64 * period_ms), ms(d));
+        }
+    }
+
+    fn close(a: Duration, b_s: f64) -> bool {
+        (a.as_secs_f64() - b_s).abs() < 1e-9
+    }
+
+    #[test]
+    fn ramjee1_starts_as_running_mean() {
+        let mut p = Ramjee1::new();
+        assert_eq!(p.target(), None);
+        feed(&mut p, &[100, 200], 20);
+        // i=1: d=0.1, v=0; i=2 (weight 1/2): d=0.15, v=0.5·0 + 0.5·|0.15−0.2| = 0.025.
+        let (d, v) = p.estimates();
+        assert!((d - 0.15).abs() < 1e-12 && (v - 0.025).abs() < 1e-12);
+        assert!(close(p.target().unwrap(), 0.25));
+    }
+
+    #[test]
+    fn ramjee1_uses_alpha_once_warm() {
+        let mut p = Ramjee1::new();
+        feed(&mut p, &[50; 600], 20);
+        // Constant delays: d̂ = 50 ms, v̂ = 0 exactly.
+        assert!(close(p.target().unwrap(), 0.05));
+        p.observe(Instant::from_millis(100_000), ms(150));
+        let a = RAMJEE_ALPHA;
+        let d = a * 0.05 + (1.0 - a) * 0.15;
+        let v = (1.0 - a) * (d - 0.15f64).abs();
+        assert!(close(p.target().unwrap(), d + 4.0 * v));
+    }
+
+    #[test]
+    fn ramjee4_detects_a_spike_and_follows_it() {
+        let mut p = Ramjee4::new();
+        feed(&mut p, &[50, 50, 50], 20);
+        assert!(close(p.target().unwrap(), 0.05));
+        // A jump of 300 ms > 2·0 + 100 ms: spike mode, d̂ follows one for one.
+        p.observe(Instant::from_millis(60), ms(350));
+        assert!(p.in_spike());
+        let (d, v) = p.estimates();
+        assert!((d - 0.35).abs() < 1e-12);
+        assert!(v.abs() < 1e-12);
+        // Falling at 20 ms per sample: var = 0/2 + |2·330 − 350 − 50|/8 = 32.5 ms.
+        p.observe(Instant::from_millis(80), ms(330));
+        assert!(p.in_spike());
+        let (d, _) = p.estimates();
+        assert!((d - 0.33).abs() < 1e-12);
+        // Flat again: var = 16.25 + |2·330 − 330 − 350|/8 = 18.75 ms; then
+        // 9.375 + 0 = 9.375 ms; then 4.6875 ≤ 7.875 → normal, no update.
+        p.observe(Instant::from_millis(100), ms(330));
+        p.observe(Instant::from_millis(120), ms(330));
+        assert!(p.in_spike());
+        p.observe(Instant::from_millis(140), ms(330));
+        assert!(!p.in_spike());
+        let (d, _) = p.estimates();
+        assert!((d - 0.33).abs() < 1e-12);
+    }
+
+    #[test]
+    fn ramjee4_small_changes_average_by_an_eighth() {
+        let mut p = Ramjee4::new();
+        feed(&mut p, &[80, 160], 20);
+        // 80 ms jump < 100 ms: normal. d = 80 + 80/8 = 90, v = 70/8 = 8.75.
+        assert!(!p.in_spike());
+        assert!(close(p.target().unwrap(), 0.090 + 4.0 * 0.00875));
+    }
+
+    #[test]
+    fn neteq_quantile_of_relative_delays() {
+        let mut p = NetEq::new(ms(20));
+        // 29 samples at the minimum, one 45 ms above (bucket 2) at k = 5:
+        // after 24 more it weighs 0.017·0.983^24 ≈ 0.0113 of a mass
+        // 1 − 0.983^30 ≈ 0.402, 2.8 % < 5 %: the quantile is bucket 0.
+        let mut delays = [100u64; 30];
+        delays[5] = 145;
+        feed(&mut p, &delays, 20);
+        assert_eq!(p.base(), Some(ms(100)));
+        assert_eq!(p.quantile_bucket(), 0);
+        assert_eq!(p.target(), Some(ms(120)));
+        // A second one: (0.017 + 0.0111) / 0.412 ≈ 6.8 % above bucket 0.
+        p.observe(Instant::from_millis(600), ms(145));
+        assert_eq!(p.quantile_bucket(), 2);
+        assert_eq!(p.target(), Some(ms(160)));
+    }
+
+    #[test]
+    fn neteq_minimum_forgets_after_two_blocks() {
+        let mut p = NetEq::new(ms(20));
+        p.observe(Instant::from_millis(0_000), ms(50));
+        p.observe(Instant::from_millis(1_000), ms(80));
+        p.observe(Instant::from_millis(2_000), ms(80)); // new block, previous min 50
+        assert_eq!(p.base(), Some(ms(50)));
+        p.observe(Instant::from_millis(4_000), ms(80)); // the 50 ms block is gone
+        assert_eq!(p.base(), Some(ms(80)));
+    }
+
+    #[test]
+    fn fixed_above_min_tracks_the_minimum() {
+        let mut p = FixedAboveMin::new(ms(200));
+        assert_eq!(p.target(), None);
+        feed(&mut p, &[70, 40, 90], 20);
+        assert_eq!(p.target(), Some(ms(240)));
+    }
+
+    #[test]
+    fn names_round_trip() {
+        for p in [
+            Playout::Fifo,
+            Playout::Ramjee1,
+            Playout::Ramjee4,
+            Playout::NetEq,
+            Playout::FixedAboveMin { latency: ms(200) },
+            Playout::Constant { delay: ms(120) },
+        ] {
+            let name = std::format!("{p}");
+            assert_eq!(name.parse::<Playout>(), Ok(p), "{name}");
+        }
+        assert_eq!(
+            "fixed".parse::<Playout>(),
+            Ok(Playout::FixedAboveMin {
+                latency: DEFAULT_FIXED_LATENCY
+            })
+        );
+        assert!("constant:-1".parse::<Playout>().is_err());
+        assert!("oracle".parse::<Playout>().is_err());
+    }
+}

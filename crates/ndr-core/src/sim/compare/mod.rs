@@ -1,0 +1,627 @@
+//! The comparison harness: playout policies side by side on the same traces,
+//! beside the oracle (`ndr compare`).
+//!
+//! Every policy runs in the full simulator (both endpoints, the protocol,
+//! in-order delivery) on every family of traces, with the same seeds: all
+//! policies of a family see the same forward delays (the paper's dynamic
+//! mode changes the period, and so its send times). Every regulator drops
+//! late samples ([`Underflow::DropLate`]): a tick whose sample is missing
+//! repeats the last one. The commands (base → remote) are measured, on the
+//! remote's clock against the base's send stamps.
+//!
+//! Per run: the commands sent until [`MARGIN`] before the end (so that each
+//! has had its chance to be released) are the run's samples. Their
+//! end-to-end delay (release − send) gives the mean, standard deviation and
+//! 99th percentile; `late_rate` is the share never released fresh (late,
+//! skipped when a target fell, or discarded by a pause); `underflows` counts
+//! the remote's repeat ticks; `delay_changes` the releases whose delay
+//! differs from the previous release's by more than half a period;
+//! `recovery_s` the mean, over the family's events, of the time from an
+//! onset to the send time of the last sample lost within
+//! [`RECOVERY_HORIZON`] (or the next onset), plus one period (0 when none is
+//! lost). The oracle's ratio is the run's mean delay over the
+//! [`Oracle::constant`] mean delay at the run's own late rate, on the run's
+//! own trace; the piecewise ratio the same over [`Oracle::piecewise`], the
+//! hull ratio over [`Oracle::hull`] (two constant targets time-shared).
+//!
+//! Across seeds: the mean and the half-width of its 95 % confidence interval
+//! (Student's t).
+
+mod families;
+
+use std::string::{String, ToString};
+use std::vec::Vec;
+
+use serde::Serialize;
+
+pub use families::{
+    FAMILY_DURATION, Family, NETEM_MEAN, NETEM_STD, NETEM_TABLES, SKEW_DURATION, TC_DIRS, WAN,
+    builtin, netem, trace,
+};
+
+use super::engine::{ForwardLog, SimConfig, run};
+use super::oracle::{Arrival, Oracle, OraclePoint};
+use super::percentile;
+use crate::endpoint::{Mode, Underflow};
+use crate::playout::{DEFAULT_FIXED_LATENCY, Playout};
+use crate::time::{Duration, Instant};
+
+/// The period of the comparison: 20 ms (50 Hz).
+pub const COMPARE_PERIOD: Duration = Duration::from_millis(20);
+/// Commands sent in the last `MARGIN` of a run are not measured.
+pub const MARGIN: Duration = Duration::from_secs(10);
+/// Longest time after an event in which a loss counts towards its recovery.
+pub const RECOVERY_HORIZON: f64 = 30.0;
+/// The oracle rows' late rate.
+pub const DEFAULT_EPSILON: f64 = 0.01;
+/// The piecewise oracle's window.
+pub const DEFAULT_WINDOW: Duration = Duration::from_secs(10);
+/// The version of the JSON report's layout.
+pub const SCHEMA: &str = "ndr-compare/1";
+
+/// A playout policy under comparison.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Policy {
+    /// The paper's FIFO in one of its modes.
+    Paper(Mode),
+    /// A target-delay playout (the paper's static mode runs the protocol).
+    Target(Playout),
+}
+
+impl Policy {
+    /// The policies `ndr compare` runs by default.
+    pub const ALL: [Policy; 6] = [
+        Policy::Paper(Mode::PaperStatic),
+        Policy::Paper(Mode::PaperDynamic),
+        Policy::Target(Playout::Ramjee1),
+        Policy::Target(Playout::Ramjee4),
+        Policy::Target(Playout::NetEq),
+        Policy::Target(Playout::FixedAboveMin {
+            latency: DEFAULT_FIXED_LATENCY,
+        }),
+    ];
+
+    /// Its name in reports: `paper-static`, `ramjee-1`, `fixed:200`...
+    #[must_use]
+    pub fn name(self) -> String {
+        match self {
+            Policy::Paper(m) => m.name().to_string(),
+            Policy::Target(p) => p.to_string(),
+        }
+    }
+
+    fn mode_playout(self) -> (Mode, Playout) {
+        match self {
+            Policy::Paper(m) => (m, Playout::Fifo),
+            Policy::Target(p) => (Mode::PaperStatic, p),
+        }
+    }
+}
+
+/// What to compare.
+#[derive(Clone, Debug)]
+pub struct CompareConfig {
+    /// The families of traces.
+    pub families: Vec<Family>,
+    /// The policies.
+    pub policies: Vec<Policy>,
+    /// Seeds `1..=seeds` for seeded families.
+    pub seeds: u64,
+    /// The period.
+    pub period: Duration,
+    /// The oracle rows' late rate.
+    pub epsilon: f64,
+    /// The piecewise oracle's window.
+    pub window: Duration,
+    /// Worker threads.
+    pub threads: usize,
+}
+
+impl CompareConfig {
+    /// Every policy on `families`, 10 seeds, `T = 20 ms`, two threads.
+    #[must_use]
+    pub fn new(families: Vec<Family>) -> Self {
+        CompareConfig {
+            families,
+            policies: Policy::ALL.to_vec(),
+            seeds: 10,
+            period: COMPARE_PERIOD,
+            epsilon: DEFAULT_EPSILON,
+            window: DEFAULT_WINDOW,
+            threads: 2,
+        }
+    }
+}
+
+/// A mean over runs and the half-width of its 95 % confidence interval.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Stat {
+    /// The mean.
+    pub mean: f64,
+    /// Half-width of the 95 % confidence interval (0 for a single run).
+    pub ci95: f64,
+}
+
+/// Student's t quantile 0.975 for 1..=30 degrees of freedom.
+const T975: [f64; 30] = [
+    12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
+    2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056,
+    2.052, 2.048, 2.045, 2.042,
+];
+
+impl Stat {
+    /// Mean and 95 % half-width of `xs` (zeros when empty).
+    #[must_use]
+    pub fn of(xs: &[f64]) -> Stat {
+        let n = xs.len();
+        if n == 0 {
+            return Stat {
+                mean: 0.0,
+                ci95: 0.0,
+            };
+        }
+        let mean = xs.iter().sum::<f64>() / n as f64;
+        if n == 1 {
+            return Stat { mean, ci95: 0.0 };
+        }
+        let var = xs.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1) as f64;
+        let t = T975.get(n - 2).copied().unwrap_or(1.96);
+        Stat {
+            mean,
+            ci95: t * (var / n as f64).sqrt(),
+        }
+    }
+}
+
+/// One run's measures (see the module docs). Times in seconds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RunMetrics {
+    /// Samples measured.
+    pub samples: usize,
+    /// Mean end-to-end delay of the samples released fresh.
+    pub mean_delay_s: f64,
+    /// Their standard deviation.
+    pub std_delay_s: f64,
+    /// Their 99th percentile.
+    pub p99_delay_s: f64,
+    /// Samples never released fresh / samples.
+    pub late_rate: f64,
+    /// Repeat ticks.
+    pub underflows: f64,
+    /// Releases whose delay changed by more than half a period.
+    pub delay_changes: f64,
+    /// Mean recovery time after the family's events; `None` without events.
+    pub recovery_s: Option<f64>,
+    /// Mean delay / the constant oracle's at the same late rate.
+    pub oracle_ratio: f64,
+    /// Mean delay / the piecewise oracle's at the same late rate.
+    pub piecewise_ratio: f64,
+    /// Mean delay / the constant oracle's convex envelope (time-sharing two
+    /// constant targets) at the same late rate.
+    pub hull_ratio: f64,
+}
+
+/// One sample's fate: its send time and, if released fresh, its delay (s).
+type Fate = (f64, Option<f64>);
+
+fn metrics(fates: &[Fate], underflows: usize, period_s: f64, events: &[f64]) -> RunMetrics {
+    let delays: Vec<f64> = fates.iter().filter_map(|f| f.1).collect();
+    let n = fates.len();
+    let mean = if delays.is_empty() {
+        0.0
+    } else {
+        delays.iter().sum::<f64>() / delays.len() as f64
+    };
+    let var = if delays.is_empty() {
+        0.0
+    } else {
+        delays.iter().map(|d| (d - mean) * (d - mean)).sum::<f64>() / delays.len() as f64
+    };
+    let changes = delays
+        .windows(2)
+        .filter(|w| matches!(w, [a, b] if (b - a).abs() > period_s / 2.0))
+        .count();
+    let recovery = (!events.is_empty()).then(|| {
+        let total: f64 = events
+            .iter()
+            .enumerate()
+            .map(|(i, &onset)| {
+                let next = events.get(i + 1).copied().unwrap_or(f64::INFINITY);
+                let end = next.min(onset + RECOVERY_HORIZON);
+                fates
+                    .iter()
+                    .filter(|(s, d)| d.is_none() && *s >= onset && *s < end)
+                    .map(|(s, _)| s - onset + period_s)
+                    .fold(0.0, f64::max)
+            })
+            .sum();
+        total / events.len() as f64
+    });
+    RunMetrics {
+        samples: n,
+        mean_delay_s: mean,
+        std_delay_s: var.sqrt(),
+        p99_delay_s: percentile(&delays, 0.99),
+        late_rate: if n == 0 {
+            0.0
+        } else {
+            (n - delays.len()) as f64 / n as f64
+        },
+        underflows: underflows as f64,
+        delay_changes: changes as f64,
+        recovery_s: recovery,
+        oracle_ratio: 1.0,
+        piecewise_ratio: 1.0,
+        hull_ratio: 1.0,
+    }
+}
+
+fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 { a / b } else { 1.0 }
+}
+
+/// A run measured: the policy's metrics, and the trace's oracle.
+#[derive(Clone, Debug)]
+pub struct Measured {
+    /// The policy's metrics.
+    pub metrics: RunMetrics,
+    /// The oracle of the run's own trace.
+    pub oracle: Oracle,
+    /// Fresh releases among the measured samples.
+    pub released: usize,
+}
+
+/// Measures a run from its log of commands.
+#[must_use]
+pub fn measure(
+    log: &ForwardLog,
+    end: Instant,
+    (period, window): (Duration, Duration),
+    family: &Family,
+) -> Measured {
+    let until = end - MARGIN;
+    let kept: Vec<_> = log.samples.iter().filter(|c| c.sent_at <= until).collect();
+    let fates: Vec<Fate> = kept
+        .iter()
+        .map(|c| {
+            let delay = c.released_at.map(|r| (r - c.sent_at).as_secs_f64());
+            (c.sent_at.as_secs_f64(), delay)
+        })
+        .collect();
+    let first = kept.first().map_or(Instant::ZERO, |c| c.sent_at);
+    let underflows = log
+        .held
+        .iter()
+        .filter(|&&t| t >= first && t <= until)
+        .count();
+    let period_s = period.as_secs_f64();
+    let mut m = metrics(&fates, underflows, period_s, &family.events_s);
+    let arrivals: Vec<Arrival> = kept
+        .iter()
+        .map(|c| Arrival {
+            sent_at: c.sent_at,
+            arrived_at: c.arrived_at,
+        })
+        .collect();
+    let oracle = Oracle::new(&arrivals, Instant::ZERO, period);
+    m.oracle_ratio = ratio(m.mean_delay_s, oracle.constant(m.late_rate).mean_delay_s);
+    m.piecewise_ratio = ratio(
+        m.mean_delay_s,
+        oracle.piecewise(m.late_rate, window).mean_delay_s,
+    );
+    m.hull_ratio = ratio(m.mean_delay_s, oracle.hull(m.late_rate));
+    let released = fates.iter().filter(|f| f.1.is_some()).count();
+    Measured {
+        metrics: m,
+        oracle,
+        released,
+    }
+}
+
+/// The metrics of an oracle's point on a trace (as a policy's row).
+fn oracle_metrics(o: &OraclePoint, samples: usize, family: &Family) -> RunMetrics {
+    let lost = (o.late_rate * samples as f64).round();
+    RunMetrics {
+        samples,
+        mean_delay_s: o.mean_delay_s,
+        std_delay_s: 0.0,
+        p99_delay_s: o.mean_delay_s,
+        late_rate: o.late_rate,
+        underflows: lost,
+        delay_changes: 0.0,
+        recovery_s: (!family.events_s.is_empty()).then_some(f64::NAN),
+        oracle_ratio: 1.0,
+        piecewise_ratio: 1.0,
+        hull_ratio: 1.0,
+    }
+}
+
+/// The simulation of one policy on one family and seed.
+#[must_use]
+pub fn sim_config(family: &Family, policy: Policy, seed: u64, period: Duration) -> SimConfig {
+    let mut cfg = SimConfig::paper(family.model.clone());
+    let (mode, playout) = policy.mode_playout();
+    cfg.mode = mode;
+    cfg.playout = playout;
+    cfg.underflow = Underflow::DropLate;
+    cfg.period = period;
+    cfg.duration = family.duration;
+    cfg.seed = seed;
+    cfg.remote_skew_ppm = family.skew_ppm;
+    cfg.record_forward = true;
+    cfg
+}
+
+/// Runs and measures one policy on one family and seed.
+///
+/// # Errors
+///
+/// The simulator's error, as text.
+pub fn run_one(
+    family: &Family,
+    policy: Policy,
+    seed: u64,
+    (period, window): (Duration, Duration),
+) -> Result<Measured, String> {
+    let cfg = sim_config(family, policy, seed, period);
+    let out = run(&cfg).map_err(|e| e.to_string())?;
+    Ok(measure(
+        &out.forward,
+        Instant::ZERO + family.duration,
+        (period, window),
+        family,
+    ))
+}
+
+/// A point for the delay / late-rate plot.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Point {
+    /// Mean end-to-end delay over the seeds, s.
+    pub mean_delay_s: f64,
+    /// Late rate over the seeds.
+    pub late_rate: f64,
+}
+
+/// A policy's (or an oracle's) results on one family.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PolicyResult {
+    /// Its name.
+    pub policy: String,
+    /// Runs measured.
+    pub runs: usize,
+    /// Runs that failed (their errors in the report's notes).
+    pub failed: usize,
+    /// Mean end-to-end delay, s.
+    pub mean_delay_s: Stat,
+    /// Standard deviation of the end-to-end delay within a run, s.
+    pub std_delay_s: Stat,
+    /// 99th percentile of the end-to-end delay, s.
+    pub p99_delay_s: Stat,
+    /// Samples never released fresh / samples.
+    pub late_rate: Stat,
+    /// Repeat ticks per run.
+    pub underflows: Stat,
+    /// Changes of delay per run.
+    pub delay_changes: Stat,
+    /// Recovery after an event, s; `null` for families without events
+    /// and for the oracles.
+    pub recovery_s: Option<Stat>,
+    /// Mean delay / the constant oracle's at the same late rate.
+    pub oracle_ratio: Stat,
+    /// Mean delay / the piecewise oracle's at the same late rate.
+    pub piecewise_ratio: Stat,
+    /// Mean delay / the constant oracle's convex envelope at the same late rate.
+    pub hull_ratio: Stat,
+    /// The plot's point: (mean delay, late rate) averaged over seeds.
+    pub point: Point,
+}
+
+impl PolicyResult {
+    fn of(policy: String, runs: &[RunMetrics], failed: usize) -> Self {
+        let stat =
+            |f: &dyn Fn(&RunMetrics) -> f64| Stat::of(&runs.iter().map(f).collect::<Vec<f64>>());
+        let recovery: Vec<f64> = runs
+            .iter()
+            .filter_map(|r| r.recovery_s)
+            .filter(|x| x.is_finite())
+            .collect();
+        let mean_delay_s = stat(&|r| r.mean_delay_s);
+        let late_rate = stat(&|r| r.late_rate);
+        PolicyResult {
+            policy,
+            runs: runs.len(),
+            failed,
+            mean_delay_s,
+            std_delay_s: stat(&|r| r.std_delay_s),
+            p99_delay_s: stat(&|r| r.p99_delay_s),
+            late_rate,
+            underflows: stat(&|r| r.underflows),
+            delay_changes: stat(&|r| r.delay_changes),
+            recovery_s: (!recovery.is_empty()).then(|| Stat::of(&recovery)),
+            oracle_ratio: stat(&|r| r.oracle_ratio),
+            piecewise_ratio: stat(&|r| r.piecewise_ratio),
+            hull_ratio: stat(&|r| r.hull_ratio),
+            point: Point {
+                mean_delay_s: mean_delay_s.mean,
+                late_rate: late_rate.mean,
+            },
+        }
+    }
+}
+
+/// Every policy's results on one family.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FamilyResult {
+    /// The family's name.
+    pub name: String,
+    /// What it is.
+    pub description: String,
+    /// Simulated time per run, s.
+    pub duration_s: f64,
+    /// Runs per policy (seeds).
+    pub seeds: u64,
+    /// Onsets of the events whose recovery is measured, s.
+    pub events_s: Vec<f64>,
+    /// The policies, in the order asked, then `oracle` and
+    /// `oracle-piecewise` at the report's `epsilon`.
+    pub policies: Vec<PolicyResult>,
+}
+
+/// The whole comparison: what `ndr compare --json` prints.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CompareReport {
+    /// [`SCHEMA`].
+    pub schema: &'static str,
+    /// The period, s.
+    pub period_s: f64,
+    /// Seeds per seeded family.
+    pub seeds: u64,
+    /// The oracle rows' late rate.
+    pub epsilon: f64,
+    /// The piecewise oracle's window, s.
+    pub window_s: f64,
+    /// Commands sent in the last `margin_s` of a run are not measured.
+    pub margin_s: f64,
+    /// The policies' names, in order (the oracles excluded).
+    pub policies: Vec<String>,
+    /// One entry per family.
+    pub families: Vec<FamilyResult>,
+    /// Families skipped, runs failed.
+    pub notes: Vec<String>,
+}
+
+type Job = (usize, Policy, u64);
+type Outcome = Result<(RunMetrics, Option<[RunMetrics; 2]>), String>;
+
+fn job_outcome(cfg: &CompareConfig, (f, policy, seed): Job, oracle_of: Option<Policy>) -> Outcome {
+    let family = cfg.families.get(f).ok_or("no such family")?;
+    let m = run_one(family, policy, seed, (cfg.period, cfg.window))?;
+    let oracles = (oracle_of == Some(policy)).then(|| {
+        let n = m.oracle.len();
+        [
+            oracle_metrics(&m.oracle.constant(cfg.epsilon), n, family),
+            oracle_metrics(&m.oracle.piecewise(cfg.epsilon, cfg.window), n, family),
+        ]
+    });
+    Ok((m.metrics, oracles))
+}
+
+/// Runs the comparison. Deterministic: the same configuration gives the
+/// same report, whatever the number of threads.
+#[must_use]
+pub fn compare(cfg: &CompareConfig) -> CompareReport {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    // The oracle rows come from a static-mode run: its trace is the one
+    // every target policy saw.
+    let oracle_of = cfg
+        .policies
+        .iter()
+        .copied()
+        .find(|p| p.mode_playout().0 == Mode::PaperStatic)
+        .or(cfg.policies.first().copied());
+    let mut jobs: Vec<Job> = Vec::new();
+    for (f, family) in cfg.families.iter().enumerate() {
+        let seeds = if family.seeded { cfg.seeds.max(1) } else { 1 };
+        for seed in 1..=seeds {
+            for &p in &cfg.policies {
+                jobs.push((f, p, seed));
+            }
+        }
+    }
+    // Longest first, so that two workers finish together.
+    let mut order: Vec<usize> = (0..jobs.len()).collect();
+    order.sort_by_key(|&i| {
+        let f = jobs.get(i).map_or(0, |j| j.0);
+        core::cmp::Reverse(cfg.families.get(f).map_or(0, |fam| fam.duration.as_nanos()))
+    });
+    let next = AtomicUsize::new(0);
+    let mut outcomes: Vec<Option<Outcome>> = std::vec![None; jobs.len()];
+    std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..cfg.threads.max(1))
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut done = Vec::new();
+                    loop {
+                        let k = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&i) = order.get(k) else { break };
+                        if let Some(&job) = jobs.get(i) {
+                            done.push((i, job_outcome(cfg, job, oracle_of)));
+                        }
+                    }
+                    done
+                })
+            })
+            .collect();
+        for w in workers {
+            if let Ok(done) = w.join() {
+                for (i, o) in done {
+                    if let Some(slot) = outcomes.get_mut(i) {
+                        *slot = Some(o);
+                    }
+                }
+            }
+        }
+    });
+    let mut notes = Vec::new();
+    let families = cfg
+        .families
+        .iter()
+        .enumerate()
+        .map(|(f, family)| {
+            let of_family = |p: Policy| {
+                jobs.iter()
+                    .zip(&outcomes)
+                    .filter(move |((jf, jp, _), _)| *jf == f && *jp == p)
+            };
+            let mut policies = Vec::new();
+            let mut oracle_rows: [Vec<RunMetrics>; 2] = [Vec::new(), Vec::new()];
+            for &p in &cfg.policies {
+                let mut runs = Vec::new();
+                let mut failed = 0;
+                for ((_, _, seed), o) in of_family(p) {
+                    match o {
+                        Some(Ok((m, oracles))) => {
+                            runs.push(*m);
+                            if let Some([c, w]) = oracles {
+                                oracle_rows[0].push(*c);
+                                oracle_rows[1].push(*w);
+                            }
+                        }
+                        Some(Err(e)) => {
+                            failed += 1;
+                            notes.push(std::format!(
+                                "{} / {} / seed {seed}: {e}",
+                                family.name,
+                                p.name()
+                            ));
+                        }
+                        None => failed += 1,
+                    }
+                }
+                policies.push(PolicyResult::of(p.name(), &runs, failed));
+            }
+            for (name, runs) in ["oracle", "oracle-piecewise"].iter().zip(&oracle_rows) {
+                policies.push(PolicyResult::of(name.to_string(), runs, 0));
+            }
+            FamilyResult {
+                name: family.name.clone(),
+                description: family.description.clone(),
+                duration_s: family.duration.as_secs_f64(),
+                seeds: if family.seeded { cfg.seeds.max(1) } else { 1 },
+                events_s: family.events_s.clone(),
+                policies,
+            }
+        })
+        .collect();
+    CompareReport {
+        schema: SCHEMA,
+        period_s: cfg.period.as_secs_f64(),
+        seeds: cfg.seeds,
+        epsilon: cfg.epsilon,
+        window_s: cfg.window.as_secs_f64(),
+        margin_s: MARGIN.as_secs_f64(),
+        policies: cfg.policies.iter().map(|p| p.name()).collect(),
+        families,
+        notes,
+    }
+}

@@ -1,0 +1,259 @@
+//! The playout policies in the simulator, the oracle, and the comparison
+//! harness: hand-checked delays on constant traces, the oracle reproduced by
+//! the endpoint, the oracle never beaten, determinism.
+
+use ndr_core::endpoint::Mode;
+use ndr_core::playout::Playout;
+use ndr_core::sim::compare::{self, CompareConfig, Family, Policy, builtin, run_one};
+use ndr_core::sim::delay::DelayModel;
+use ndr_core::time::Duration;
+
+const T: Duration = Duration::from_millis(20);
+const WINDOW: Duration = Duration::from_secs(10);
+
+fn ms(x: u64) -> Duration {
+    Duration::from_millis(x)
+}
+
+fn short(mut f: Family, secs: u64) -> Family {
+    f.duration = Duration::from_secs(secs);
+    f.events_s.retain(|&t| t < secs as f64);
+    f
+}
+
+fn named(name: &str) -> Family {
+    builtin()
+        .into_iter()
+        .find(|f| f.name == name)
+        .expect("a built-in family")
+}
+
+fn constant_family(one_way_ms: u64) -> Family {
+    let mut f = named("lan-75km");
+    f.name = "constant".into();
+    f.model = DelayModel::Constant {
+        fwd: ms(one_way_ms),
+        bwd: ms(one_way_ms),
+    };
+    short(f, 40)
+}
+
+#[test]
+fn each_policy_on_a_constant_delay() {
+    // 30 ms each way, T = 20 ms: a sample sent at s arrives at s + 30 ms and
+    // is released at the first tick at or after s + D.
+    let f = constant_family(30);
+    let cases = [
+        // d̂ = 30, v̂ = 0: D = 30 ms → tick s + 40 ms.
+        (Playout::Ramjee1, 0.040),
+        (Playout::Ramjee4, 0.040),
+        // Relative delays all 0: bucket 0, D = 30 + 20 ms → s + 60 ms.
+        (Playout::NetEq, 0.060),
+        // D = 30 + 25 ms → s + 60 ms.
+        (Playout::FixedAboveMin { latency: ms(25) }, 0.060),
+        (Playout::Constant { delay: ms(41) }, 0.060),
+    ];
+    for (p, want) in cases {
+        let m = run_one(&f, Policy::Target(p), 1, (T, WINDOW)).unwrap();
+        let r = m.metrics;
+        assert!(r.samples > 1000, "{p}: {} samples", r.samples);
+        assert!((r.mean_delay_s - want).abs() < 1e-9, "{p}: {r:?}");
+        assert!(r.std_delay_s < 1e-9, "{p}");
+        assert_eq!(r.late_rate, 0.0, "{p}");
+        assert_eq!(r.underflows, 0.0, "{p}");
+        assert_eq!(r.delay_changes, 0.0, "{p}");
+    }
+    // A target shorter than the delay: every slot passes before its sample.
+    let r = run_one(
+        &f,
+        Policy::Target(Playout::Constant { delay: ms(10) }),
+        1,
+        (T, WINDOW),
+    )
+    .unwrap()
+    .metrics;
+    assert_eq!(r.late_rate, 1.0);
+    // The paper's static NDR keeps its constant delay: ns·T above the
+    // first sample's slot.
+    let r = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW))
+        .unwrap()
+        .metrics;
+    assert_eq!(r.late_rate, 0.0);
+    assert!(r.std_delay_s < 1e-9);
+}
+
+#[test]
+fn the_endpoint_reproduces_the_oracle() {
+    // The oracle's constant target, run as a policy through the endpoint,
+    // gives exactly the oracle's late rate and delay: both quantize the
+    // same way.
+    for name in ["lan-75km", "step", "spikes", "skew+100ppm"] {
+        let f = short(named(name), 60);
+        let probe = run_one(&f, Policy::Target(Playout::Ramjee1), 2, (T, WINDOW)).unwrap();
+        for eps in [0.0, 0.01, 0.05] {
+            let o = probe.oracle.constant(eps);
+            assert!(o.late_rate <= eps + 1e-12);
+            let delay = Duration::from_secs_f64(o.target_s);
+            let run = run_one(
+                &f,
+                Policy::Target(Playout::Constant { delay }),
+                2,
+                (T, WINDOW),
+            )
+            .unwrap()
+            .metrics;
+            assert!(
+                (run.late_rate - o.late_rate).abs() < 1e-12,
+                "{name} ε={eps}: {} vs {}",
+                run.late_rate,
+                o.late_rate
+            );
+            assert!(
+                (run.mean_delay_s - o.mean_delay_s).abs() < 1e-9,
+                "{name} ε={eps}: {} vs {}",
+                run.mean_delay_s,
+                o.mean_delay_s
+            );
+        }
+    }
+}
+
+#[test]
+fn no_policy_beats_the_oracle_on_its_own_trace() {
+    let policies = Policy::ALL;
+    // Any trace: a policy that releases k samples fresh waits at least the
+    // k smallest slot delays.
+    for name in ["lan-75km", "step", "spikes", "tcp-stall", "skew-100ppm"] {
+        let f = short(named(name), 60);
+        for p in policies {
+            for seed in 1..=2 {
+                let m = run_one(&f, p, seed, (T, WINDOW)).unwrap();
+                let bound = m.oracle.lower_bound(m.released);
+                assert!(
+                    m.metrics.mean_delay_s >= bound - 1e-12,
+                    "{name} {} seed {seed}: {} < {bound}",
+                    p.name(),
+                    m.metrics.mean_delay_s
+                );
+            }
+        }
+    }
+    // Independent delays (no reordering): no policy beats the constant
+    // oracle at its own late rate, time-sharing between two constant
+    // targets allowed (the oracle's convex envelope).
+    let f = short(named("lan-75km"), 60);
+    for p in policies {
+        for seed in 1..=3 {
+            let m = run_one(&f, p, seed, (T, WINDOW)).unwrap();
+            let r = m.metrics;
+            let hull = m.oracle.hull(r.late_rate);
+            assert!(
+                r.mean_delay_s >= hull - 1e-9,
+                "{} seed {seed}: {} < {hull} at late rate {}",
+                p.name(),
+                r.mean_delay_s,
+                r.late_rate
+            );
+            // The piecewise oracle does at least as well as the constant one.
+            let c = m.oracle.constant(r.late_rate);
+            let w = m.oracle.piecewise(r.late_rate, WINDOW);
+            assert!(w.late_rate <= r.late_rate + 1e-12);
+            assert!(w.mean_delay_s <= c.mean_delay_s + 1e-9);
+        }
+    }
+}
+
+#[test]
+fn recovery_after_a_step() {
+    // The paper's static NDR never follows a step up (its delay is fixed at
+    // the start): every sample after it is late, up to the horizon.
+    let f = short(named("step"), 100);
+    let r = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW))
+        .unwrap()
+        .metrics;
+    assert!(r.late_rate > 0.3, "{r:?}");
+    assert!((r.recovery_s.unwrap() - compare::RECOVERY_HORIZON).abs() < 0.1);
+    // A fixed latency of 200 ms above the minimum absorbs a 150 ms step.
+    let fixed = Policy::Target(Playout::FixedAboveMin { latency: ms(200) });
+    let r = run_one(&f, fixed, 1, (T, WINDOW)).unwrap().metrics;
+    assert_eq!(r.recovery_s, Some(0.0));
+    // Ramjee's algorithm 1 recovers, in a bounded time.
+    let r = run_one(&f, Policy::Target(Playout::Ramjee1), 1, (T, WINDOW))
+        .unwrap()
+        .metrics;
+    let rec = r.recovery_s.unwrap();
+    assert!(rec > 0.0 && rec < compare::RECOVERY_HORIZON, "{rec}");
+}
+
+#[test]
+fn the_comparison_is_deterministic_and_complete() {
+    let families = ["lan-75km", "tcp-stall"]
+        .into_iter()
+        .map(|n| short(named(n), 30))
+        .collect();
+    let mut cfg = CompareConfig::new(families);
+    cfg.seeds = 2;
+    cfg.threads = 1;
+    let one = compare::compare(&cfg);
+    cfg.threads = 3;
+    let three = compare::compare(&cfg);
+    assert_eq!(one, three);
+    assert_eq!(one.families.len(), 2);
+    for f in &one.families {
+        let names: Vec<String> = f.policies.iter().map(|p| p.policy.clone()).collect();
+        let mut want: Vec<String> = Policy::ALL.iter().map(|p| p.name()).collect();
+        want.extend(["oracle".to_string(), "oracle-piecewise".to_string()]);
+        assert_eq!(names, want);
+        for p in &f.policies {
+            assert_eq!(p.runs + p.failed, 2, "{}", p.policy);
+        }
+        let oracle = f.policies.iter().find(|p| p.policy == "oracle").unwrap();
+        assert!(oracle.late_rate.mean <= cfg.epsilon);
+    }
+    assert!(one.notes.is_empty(), "{:?}", one.notes);
+}
+
+#[test]
+fn netem_tables_missing_are_a_note() {
+    let (families, notes) = compare::netem(&["/nonexistent-tc-dir"]);
+    assert!(families.is_empty());
+    assert_eq!(notes.len(), 4);
+    assert!(notes[0].starts_with("netem-normal skipped"), "{}", notes[0]);
+}
+
+fn trace_family(rows: &[(u64, u64)]) -> Family {
+    use ndr_core::sim::delay::{Trace, TraceRow};
+    use ndr_core::time::Instant;
+    let rows = rows
+        .iter()
+        .map(|&(at_s, d)| TraceRow {
+            at: Instant::from_millis(at_s * 1000),
+            fwd: ms(d),
+            bwd: ms(d),
+        })
+        .collect();
+    compare::trace("steps", Trace::from_rows(rows).unwrap())
+}
+
+#[test]
+fn a_falling_target_skips_and_a_rising_delay_is_late() {
+    let fixed0 = Policy::Target(Playout::FixedAboveMin { latency: ms(0) });
+    // 70 ms, then 30 ms from 20 s: the minimum (the target) falls by 40 ms,
+    // two periods: the release delay goes from 80 to 40 ms once, and the
+    // two samples whose slots the fall jumped over are skipped.
+    let f = trace_family(&[(0, 70), (20, 30)]);
+    let m = run_one(&f, fixed0, 1, (T, WINDOW)).unwrap().metrics;
+    let n = m.samples as f64;
+    assert_eq!(m.delay_changes, 1.0);
+    assert!((m.late_rate - 2.0 / n).abs() < 1e-12, "{m:?}");
+    assert_eq!(m.underflows, 0.0);
+    // 30 ms, then 70 ms from 20 s: the minimum stays 30 ms, every sample
+    // from then on arrives after its slot and is late; every tick repeats.
+    let f = trace_family(&[(0, 30), (20, 70)]);
+    let m = run_one(&f, fixed0, 1, (T, WINDOW)).unwrap().metrics;
+    let late = m.late_rate * m.samples as f64;
+    assert!((m.mean_delay_s - 0.040).abs() < 1e-9);
+    // Sent from 20 s until 10 s before the end (60 s): 30 s at 50 Hz.
+    assert!((late - 1500.0).abs() <= 1.0, "{late}");
+    assert!((m.underflows - late).abs() <= 2.0, "{m:?}");
+}

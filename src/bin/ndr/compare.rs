@@ -1,0 +1,250 @@
+//! `ndr compare`: every playout policy on the same traces, beside the oracle.
+
+use std::path::PathBuf;
+use std::time::Instant as WallClock;
+
+use ndr::core::endpoint::Mode;
+use ndr::core::playout::Playout;
+use ndr::core::sim::compare::{
+    self, CompareConfig, CompareReport, Family, Policy, PolicyResult, Stat, TC_DIRS,
+};
+use ndr::core::sim::delay::Trace;
+use ndr::core::time::Duration;
+
+use crate::size::millis;
+
+/// The layout of `ndr compare --json`, shown by `ndr compare --help`.
+const JSON_HELP: &str = "\
+JSON (--json): one object, schema \"ndr-compare/1\":
+  { schema, period_s, seeds, epsilon, window_s, margin_s,
+    policies: [name, ...],
+    families: [ { name, description, duration_s, seeds, events_s: [s, ...],
+                  policies: [ { policy, runs, failed,
+                                mean_delay_s, std_delay_s, p99_delay_s, late_rate,
+                                underflows, delay_changes, oracle_ratio, piecewise_ratio,
+                                hull_ratio: {mean, ci95},
+                                recovery_s: {mean, ci95} or null,
+                                point: {mean_delay_s, late_rate} } ] } ],
+    notes: [text, ...] }
+Each family lists the policies asked for, then `oracle` and `oracle-piecewise`
+at `epsilon`. `mean` is over seeds, `ci95` the half-width of its 95 % confidence
+interval. Delays are end-to-end (release at the remote - send at the base), in
+seconds; `late_rate` counts every sample never released fresh; `point` is the
+(delay, late rate) point to plot. docs/algorithms.md §9 defines every measure.";
+
+#[derive(clap::Args)]
+#[command(after_long_help = JSON_HELP)]
+pub struct CompareArgs {
+    /// Delay trace files (CSV `t_s,fwd_ms,bwd_ms`) to compare on, each a
+    /// family of one run, instead of the built-in families.
+    #[arg(long, value_name = "FILES", num_args = 1..)]
+    pub traces: Vec<PathBuf>,
+    /// Built-in families to run (repeatable; default all): paris-newyork,
+    /// lan-75km, paper-fig6, step, spikes, tcp-stall, skew+100ppm,
+    /// skew-100ppm, netem-normal, netem-pareto, netem-paretonormal,
+    /// netem-experimental.
+    #[arg(long = "family", value_name = "NAME")]
+    pub families: Vec<String>,
+    /// Policies to run (repeatable; default all): paper-static,
+    /// paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS.
+    #[arg(long = "policy", value_name = "NAME")]
+    pub policies: Vec<String>,
+    /// Seeds per family (1..=N).
+    #[arg(long, default_value_t = 10)]
+    pub seeds: u64,
+    /// The period, in ms.
+    #[arg(long, default_value_t = 20.0)]
+    pub period_ms: f64,
+    /// The oracle rows' late rate.
+    #[arg(long, default_value_t = compare::DEFAULT_EPSILON)]
+    pub epsilon: f64,
+    /// The piecewise oracle's window, in seconds.
+    #[arg(long, default_value_t = 10.0)]
+    pub window_s: f64,
+    /// Where to look for iproute2's netem tables (repeatable; default the
+    /// usual places).
+    #[arg(long, value_name = "DIR")]
+    pub tc_dir: Vec<PathBuf>,
+    /// Worker threads (default: the machine's cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Print one JSON object instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn policy(name: &str) -> Result<Policy, String> {
+    if let Ok(mode) = name.parse::<Mode>() {
+        return Ok(Policy::Paper(mode));
+    }
+    match name.parse::<Playout>() {
+        Ok(Playout::Fifo) | Err(_) => Err(format!(
+            "unknown policy `{name}`; valid: paper-static, paper-dynamic, ramjee-1, ramjee-4, \
+             neteq, fixed[:MS], constant:MS"
+        )),
+        Ok(p) => Ok(Policy::Target(p)),
+    }
+}
+
+fn families(args: &CompareArgs) -> Result<(Vec<Family>, Vec<String>), String> {
+    if !args.traces.is_empty() {
+        let mut out = Vec::new();
+        for path in &args.traces {
+            let t = Trace::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            let name = path.file_stem().map_or_else(
+                || path.display().to_string(),
+                |s| s.to_string_lossy().into(),
+            );
+            out.push(compare::trace(&name, t));
+        }
+        return Ok((out, Vec::new()));
+    }
+    let dirs: Vec<PathBuf> = if args.tc_dir.is_empty() {
+        TC_DIRS.iter().map(PathBuf::from).collect()
+    } else {
+        args.tc_dir.clone()
+    };
+    let (netem, mut notes) = compare::netem(&dirs);
+    let mut all = compare::builtin();
+    all.extend(netem);
+    if args.families.is_empty() {
+        return Ok((all, notes));
+    }
+    let mut chosen = Vec::new();
+    let mut kept = Vec::new();
+    for name in &args.families {
+        if let Some(f) = all.iter().find(|f| &f.name == name) {
+            chosen.push(f.clone());
+        } else if let Some(n) = notes.iter().find(|n| n.starts_with(&format!("{name} "))) {
+            // A netem table this machine lacks: a note, not an error.
+            kept.push(n.clone());
+        } else {
+            let known: Vec<&str> = all.iter().map(|f| f.name.as_str()).collect();
+            return Err(format!(
+                "unknown family `{name}`; valid: {}",
+                known.join(", ")
+            ));
+        }
+    }
+    notes = kept;
+    Ok((chosen, notes))
+}
+
+pub fn run(args: &CompareArgs) -> Result<(), String> {
+    let period = millis("--period-ms", args.period_ms)?;
+    if period < ndr::core::endpoint::MIN_PERIOD {
+        return Err(format!(
+            "--period-ms must be at least {}",
+            ndr::core::endpoint::MIN_PERIOD
+        ));
+    }
+    if !(0.0..=1.0).contains(&args.epsilon) {
+        return Err(format!(
+            "--epsilon must be a late rate in [0, 1], got {}",
+            args.epsilon
+        ));
+    }
+    if !(args.window_s.is_finite() && args.window_s > 0.0) {
+        return Err(format!(
+            "--window-s must be a positive number of seconds, got {}",
+            args.window_s
+        ));
+    }
+    if args.seeds == 0 {
+        return Err("--seeds must be at least 1".into());
+    }
+    let (families, skipped) = families(args)?;
+    let mut cfg = CompareConfig::new(families);
+    if !args.policies.is_empty() {
+        cfg.policies = args
+            .policies
+            .iter()
+            .map(|p| policy(p))
+            .collect::<Result<_, _>>()?;
+    }
+    cfg.seeds = args.seeds;
+    cfg.period = period;
+    cfg.epsilon = args.epsilon;
+    cfg.window = Duration::from_secs_f64(args.window_s);
+    cfg.threads = args.threads.unwrap_or_else(|| {
+        std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get)
+    });
+    let started = WallClock::now();
+    let mut report = compare::compare(&cfg);
+    let mut notes = skipped;
+    notes.append(&mut report.notes);
+    report.notes = notes;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string(&report).map_err(|e| e.to_string())?
+        );
+    } else {
+        print_tables(&report);
+    }
+    eprintln!(
+        "ndr compare: {} families × {} policies in {:.1} s ({} threads)",
+        report.families.len(),
+        report.policies.len(),
+        started.elapsed().as_secs_f64(),
+        cfg.threads
+    );
+    Ok(())
+}
+
+fn ms(s: Stat) -> String {
+    format!("{:.0} ± {:.0}", s.mean * 1e3, s.ci95 * 1e3)
+}
+
+fn row(p: &PolicyResult) -> String {
+    let pct = |s: Stat| format!("{:.2} ± {:.2}", s.mean * 100.0, s.ci95 * 100.0);
+    let num = |s: Stat| format!("{:.1} ± {:.1}", s.mean, s.ci95);
+    let ratio = |s: Stat| format!("{:.2} ± {:.2}", s.mean, s.ci95);
+    let recovery = p.recovery_s.map_or_else(
+        || "–".to_string(),
+        |s| format!("{:.2} ± {:.2}", s.mean, s.ci95),
+    );
+    format!(
+        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+        p.policy,
+        ms(p.mean_delay_s),
+        ms(p.std_delay_s),
+        ms(p.p99_delay_s),
+        pct(p.late_rate),
+        num(p.underflows),
+        num(p.delay_changes),
+        recovery,
+        ratio(p.oracle_ratio),
+        ratio(p.hull_ratio),
+        ratio(p.piecewise_ratio),
+    )
+}
+
+/// Markdown: one table per family.
+pub fn print_tables(r: &CompareReport) {
+    println!(
+        "T = {:.0} ms · {} seeds · oracle rows at ε = {} · piecewise window {:.0} s · \
+         mean ± 95 % CI over seeds",
+        r.period_s * 1e3,
+        r.seeds,
+        r.epsilon,
+        r.window_s
+    );
+    for f in &r.families {
+        println!(
+            "\n**{}** — {} ({:.0} s, {} run(s))\n",
+            f.name, f.description, f.duration_s, f.seeds
+        );
+        println!(
+            "| policy | delay ms | std ms | p99 ms | late % | underflows | changes | \
+             recovery s | ÷ oracle | ÷ hull | ÷ piecewise |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|");
+        for p in &f.policies {
+            println!("{}", row(p));
+        }
+    }
+    for n in &r.notes {
+        println!("\nnote: {n}");
+    }
+}

@@ -1,0 +1,200 @@
+//! `ndr compare` as a user runs it: every policy and family in its JSON,
+//! the same output for the same seeds, trace files, missing netem tables.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn ndr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ndr"))
+        .args(args)
+        .output()
+        .expect("the ndr binary runs")
+}
+
+fn json(args: &[&str]) -> Value {
+    let out = ndr(args);
+    assert!(
+        out.status.success(),
+        "ndr {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("one JSON object on stdout")
+}
+
+const POLICIES: [&str; 8] = [
+    "paper-static",
+    "paper-dynamic",
+    "ramjee-1",
+    "ramjee-4",
+    "neteq",
+    "fixed:200",
+    "oracle",
+    "oracle-piecewise",
+];
+
+const BUILTIN: [&str; 8] = [
+    "paris-newyork",
+    "lan-75km",
+    "paper-fig6",
+    "step",
+    "spikes",
+    "tcp-stall",
+    "skew+100ppm",
+    "skew-100ppm",
+];
+
+const STATS: [&str; 9] = [
+    "mean_delay_s",
+    "std_delay_s",
+    "p99_delay_s",
+    "late_rate",
+    "underflows",
+    "delay_changes",
+    "oracle_ratio",
+    "piecewise_ratio",
+    "hull_ratio",
+];
+
+fn names(v: &Value) -> Vec<&str> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x["name"].as_str().or(x["policy"].as_str()).unwrap())
+        .collect()
+}
+
+#[test]
+fn every_policy_on_every_family() {
+    // A 100 ms period: the same families and policies, 5× fewer ticks.
+    let report = json(&["compare", "--json", "--seeds", "1", "--period-ms", "100"]);
+    assert_eq!(report["period_s"], 0.1);
+    assert_eq!(report["schema"], "ndr-compare/1");
+    let families = names(&report["families"]);
+    for f in BUILTIN {
+        assert!(families.contains(&f), "{f} missing from {families:?}");
+    }
+    // netem families: present, or named in a note when this machine has no table.
+    for table in ["normal", "pareto", "paretonormal", "experimental"] {
+        let name = format!("netem-{table}");
+        let noted = report["notes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|n| n.as_str().unwrap().starts_with(&format!("{name} skipped")));
+        assert!(families.contains(&name.as_str()) || noted, "{name}");
+    }
+    for f in report["families"].as_array().unwrap() {
+        assert_eq!(names(&f["policies"]), POLICIES, "{}", f["name"]);
+        for p in f["policies"].as_array().unwrap() {
+            for s in STATS {
+                assert!(
+                    p[s]["mean"].is_number(),
+                    "{} {} {s}",
+                    f["name"],
+                    p["policy"]
+                );
+                assert!(p[s]["ci95"].is_number());
+            }
+            assert!(p["point"]["mean_delay_s"].is_number());
+            assert!(p["point"]["late_rate"].is_number());
+            let events = !f["events_s"].as_array().unwrap().is_empty();
+            let measured = p["runs"].as_u64().unwrap() > 0;
+            let oracle = p["policy"].as_str().unwrap().starts_with("oracle");
+            assert_eq!(
+                p["recovery_s"].is_object(),
+                events && measured && !oracle,
+                "{} {}",
+                f["name"],
+                p["policy"]
+            );
+        }
+    }
+}
+
+#[test]
+fn the_same_seeds_give_the_same_bytes() {
+    let args = [
+        "compare",
+        "--json",
+        "--seeds",
+        "2",
+        "--period-ms",
+        "50",
+        "--family",
+        "spikes",
+        "--family",
+        "skew-100ppm",
+    ];
+    let (a, b) = (ndr(&args), ndr(&args));
+    assert!(a.status.success());
+    assert_eq!(a.stdout, b.stdout);
+}
+
+#[test]
+fn seeds_give_confidence_intervals() {
+    let report = json(&[
+        "compare", "--json", "--seeds", "3", "--family", "lan-75km", "--policy", "ramjee-1",
+    ]);
+    assert_eq!(report["seeds"], 3);
+    let f = &report["families"][0];
+    assert_eq!(
+        names(&f["policies"]),
+        ["ramjee-1", "oracle", "oracle-piecewise"]
+    );
+    let p = &f["policies"][0];
+    assert_eq!(p["runs"], 3);
+    assert!(p["mean_delay_s"]["ci95"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn a_trace_file_is_a_family() {
+    let dir = std::env::temp_dir().join(format!("ndr-cli-compare-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path: PathBuf = dir.join("mylink.csv");
+    std::fs::write(&path, "t_s,fwd_ms,bwd_ms\n0,30,30\n20,90,30\n40,30,30\n").unwrap();
+    let report = json(&["compare", "--json", "--traces", path.to_str().unwrap()]);
+    assert_eq!(names(&report["families"]), ["mylink"]);
+    assert_eq!(report["families"][0]["seeds"], 1);
+    let duration = report["families"][0]["duration_s"].as_f64().unwrap();
+    assert!((duration - 60.0).abs() < 1e-9, "{duration}");
+}
+
+#[test]
+fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
+    let report = json(&[
+        "compare",
+        "--json",
+        "--seeds",
+        "1",
+        "--tc-dir",
+        "/nonexistent-tc",
+        "--family",
+        "netem-pareto",
+        "--family",
+        "lan-75km",
+        "--policy",
+        "neteq",
+    ]);
+    assert_eq!(names(&report["families"]), ["lan-75km"]);
+    let notes = report["notes"].as_array().unwrap();
+    assert_eq!(notes.len(), 1);
+    assert!(
+        notes[0]
+            .as_str()
+            .unwrap()
+            .starts_with("netem-pareto skipped")
+    );
+
+    let out = ndr(&["compare", "--family", "mars"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("unknown family `mars`") && err.contains("lan-75km"),
+        "{err}"
+    );
+    let out = ndr(&["compare", "--policy", "fifo"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown policy"));
+}
