@@ -138,7 +138,7 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
 
 fn link_config(period: Duration) -> Result<LinkConfig, String> {
     let mut endpoint = Config::new(Role::Base);
-    endpoint.axes = 3;
+    endpoint.axes = 4;
     endpoint.period = period;
     // A delay spike then costs late samples (dropped and counted) instead of
     // a delay that grows by the spike's length each time.
@@ -190,9 +190,16 @@ fn echo(mut link: Link) {
                     anomalies += prev.map_or(0, |p| if s.seq > p { s.seq - p - 1 } else { 1 });
                     prev = Some(s.seq);
                 }
-                let dropped = link.stats().map_or(0, |st| dropped(&st));
-                let command = s.values().first().copied().unwrap_or(0.0);
-                let _ = link.send(&[command, anomalies as f64, dropped as f64]);
+                let stats = link.stats();
+                let dropped = stats.as_ref().map_or(0, dropped);
+                let tx_dropped = stats.map_or(0, |st| st.endpoint.tx_dropped);
+                let (command, peer_tx_dropped) = match *s.values() {
+                    [c, t, ..] => (c, t),
+                    _ => (0.0, 0.0),
+                };
+                // The base's own transmit drops explain gaps here too.
+                let explained = dropped as f64 + peer_tx_dropped;
+                let _ = link.send(&[command, anomalies as f64, explained, tx_dropped as f64]);
             }
             Err(NetError::Timeout) => {}
             Err(_) => return,
@@ -258,9 +265,12 @@ struct Conn {
     prev_echo: f64,
     /// Fresh samples missing from the sequence.
     gaps: u64,
-    /// The remote's last report: its gaps, and the samples its counters dropped.
+    /// The remote's last report: its gaps, and the samples its counters (and
+    /// ours, for frames we could not send) say were dropped.
     remote_gaps: f64,
     remote_dropped: f64,
+    /// Frames the remote could not send (its transmit queue overflowed).
+    remote_tx_dropped: f64,
 }
 
 /// Samples a link's counters say it received but did not release.
@@ -384,7 +394,8 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
             Ok(s) => {
                 check(&mut r, conn, s.status, s.seq, s.values());
                 command += 1.0;
-                let _ = l.send(&[command, 0.0, 0.0]);
+                let tx_dropped = l.stats().map_or(0, |st| st.endpoint.tx_dropped);
+                let _ = l.send(&[command, tx_dropped as f64, 0.0, 0.0]);
             }
             Err(NetError::Timeout) => {}
             Err(e) => {
@@ -431,13 +442,14 @@ fn check(r: &mut SoakReport, conn: &mut Conn, status: Status, seq: u64, values: 
         None => {}
     }
     conn.prev_seq = Some(seq);
-    if let [echo, gaps, dropped, ..] = *values {
+    if let [echo, gaps, dropped, tx_dropped, ..] = *values {
         if echo < conn.prev_echo {
             r.corrupted += 1;
         }
         conn.prev_echo = echo;
         conn.remote_gaps = conn.remote_gaps.max(gaps);
         conn.remote_dropped = conn.remote_dropped.max(dropped);
+        conn.remote_tx_dropped = conn.remote_tx_dropped.max(tx_dropped);
     }
 }
 
@@ -445,7 +457,7 @@ fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
     // The remote's last report may predate its last drops: only gaps beyond
     // what its counters said are anomalies.
     r.remote_anomalies += (conn.remote_gaps - conn.remote_dropped).max(0.0) as u64;
-    let counted = stats.as_ref().map_or(0, dropped);
+    let counted = stats.as_ref().map_or(0, dropped) + conn.remote_tx_dropped as u64;
     r.dropped_with_counter += conn.gaps.min(counted);
     r.lost += conn.gaps.saturating_sub(counted);
     if let Some(s) = stats {
