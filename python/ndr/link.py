@@ -123,6 +123,7 @@ class Link:
         axes: int = 1,
         period: float = 0.05,
         mode: str = "paper-static",
+        playout: str = "fifo",
         underflow: str = "hold",
         watchdog: Optional[float] = None,
         handshake_timeout: float = 5.0,
@@ -140,6 +141,11 @@ class Link:
             period: the sampling period in seconds; both peers must agree.
             mode: ``"paper-static"`` (queues sized once) or
                 ``"paper-dynamic"`` (the network predictor resizes them).
+            playout: how this side's regulator picks each sample's release
+                tick: ``"fifo"`` (the paper's queue, the default),
+                ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``
+                or ``"constant:MS"`` (a target delay above the sample's send
+                time; see docs/algorithms.md §9). Local to each side.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:
@@ -168,6 +174,7 @@ class Link:
             axes=axes,
             period=period,
             mode=mode,
+            playout=playout,
             underflow=underflow,
             watchdog=watchdog,
             handshake_timeout=handshake_timeout,
@@ -185,6 +192,7 @@ class Link:
         axes: int = 1,
         period: float = 0.05,
         mode: str = "paper-static",
+        playout: str = "fifo",
         underflow: str = "hold",
         watchdog: Optional[float] = None,
         handshake_timeout: float = 5.0,
@@ -201,6 +209,7 @@ class Link:
             axes=axes,
             period=period,
             mode=mode,
+            playout=playout,
             underflow=underflow,
             watchdog=watchdog,
             handshake_timeout=handshake_timeout,

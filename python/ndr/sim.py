@@ -25,7 +25,7 @@ import numpy as np
 
 from . import _native
 
-__all__ = ["SimResult", "run", "PROFILES", "MODES", "UNDERFLOWS"]
+__all__ = ["SimResult", "run", "PROFILES", "MODES", "PLAYOUTS", "UNDERFLOWS"]
 
 #: The built-in delay profiles (``constant:MS`` also works, e.g. ``"constant:20"``).
 PROFILES = ("paris-newyork", "lan-75km", "paper-fig6")
@@ -33,6 +33,8 @@ PROFILES = ("paris-newyork", "lan-75km", "paper-fig6")
 MODES = ("paper-static", "paper-dynamic")
 #: Underflow policies.
 UNDERFLOWS = ("hold", "drop-late")
+#: Playout policies (``"fixed:MS"`` and ``"constant:MS"`` take a delay in ms).
+PLAYOUTS = ("fifo", "ramjee-1", "ramjee-4", "neteq", "fixed", "constant:MS")
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ def run(
     mean: Optional[float] = None,
     std: Optional[float] = None,
     mode: str = "paper-static",
+    playout: str = "fifo",
     underflow: str = "hold",
     period: float = 0.2,
     duration: float = 600.0,
@@ -83,6 +86,9 @@ def run(
         dist: instead, an iproute2 netem table (``*.dist``), with ``mean``
             and ``std`` (seconds) of the one-way delay.
         mode: ``"paper-static"`` or ``"paper-dynamic"``.
+        playout: both regulators' release policy: ``"fifo"`` (the paper's),
+            ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``,
+            ``"constant:MS"``.
         underflow: ``"hold"`` or ``"drop-late"``.
         period: the sampling period, seconds (the paper's 0.2).
         duration: simulated time, seconds.
@@ -103,6 +109,7 @@ def run(
         mean=mean,
         std=std,
         mode=mode,
+        playout=playout,
         underflow=underflow,
         period=period,
         duration=duration,

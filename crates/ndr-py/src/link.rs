@@ -18,6 +18,7 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration as StdDuration;
 
 use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
+use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
 use ndr_net::link::MAX_AXES;
@@ -441,6 +442,7 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
         ("late", e.late),
         ("rejected", e.rejected),
         ("discarded", e.discarded),
+        ("skipped", e.skipped),
         ("pauses", e.pauses),
         ("resizes", e.resizes),
         ("link_lost", e.link_lost),
@@ -484,6 +486,7 @@ fn link_config(
     axes: u16,
     period_s: f64,
     mode: &str,
+    playout: &str,
     underflow: &str,
     watchdog: Option<f64>,
     handshake_timeout: f64,
@@ -512,6 +515,9 @@ fn link_config(
     endpoint.underflow = underflow
         .parse::<Underflow>()
         .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
+    endpoint.playout = playout
+        .parse::<Playout>()
+        .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
     endpoint.watchdog = watchdog.map(|w| period("watchdog", w)).transpose()?;
     endpoint.handshake_timeout = period("handshake_timeout", handshake_timeout)?;
     endpoint
@@ -529,7 +535,7 @@ fn link_config(
 
 /// Connects to a peer and waits for the handshake.
 #[pyfunction]
-#[pyo3(signature = (address, *, role, axes, period, mode, underflow, watchdog, handshake_timeout, connect_timeout, app_queue))]
+#[pyo3(signature = (address, *, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, connect_timeout, app_queue))]
 #[allow(clippy::too_many_arguments)]
 pub fn connect(
     py: Python<'_>,
@@ -538,6 +544,7 @@ pub fn connect(
     axes: u16,
     period: f64,
     mode: &str,
+    playout: &str,
     underflow: &str,
     watchdog: Option<f64>,
     handshake_timeout: f64,
@@ -549,6 +556,7 @@ pub fn connect(
         axes,
         period,
         mode,
+        playout,
         underflow,
         watchdog,
         handshake_timeout,
@@ -601,7 +609,7 @@ pub struct PyListener {
 
 /// Listens for peers.
 #[pyfunction]
-#[pyo3(signature = (address, *, role, axes, period, mode, underflow, watchdog, handshake_timeout, app_queue))]
+#[pyo3(signature = (address, *, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, app_queue))]
 #[allow(clippy::too_many_arguments)]
 pub fn listen(
     py: Python<'_>,
@@ -610,6 +618,7 @@ pub fn listen(
     axes: u16,
     period: f64,
     mode: &str,
+    playout: &str,
     underflow: &str,
     watchdog: Option<f64>,
     handshake_timeout: f64,
@@ -620,6 +629,7 @@ pub fn listen(
         axes,
         period,
         mode,
+        playout,
         underflow,
         watchdog,
         handshake_timeout,

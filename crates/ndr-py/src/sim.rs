@@ -8,6 +8,7 @@
 use std::sync::Arc;
 
 use ndr_core::endpoint::{Mode, Underflow};
+use ndr_core::playout::Playout;
 use ndr_core::sim::delay::{DelayModel, DistTable, Trace};
 use ndr_core::sim::signal::Signal;
 use ndr_core::sim::{self, Row, SimConfig};
@@ -62,7 +63,7 @@ pub fn delay_model(
 
 /// One simulation; returns `(summary_json, series)`.
 #[pyfunction]
-#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, mode = "paper-static", underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true))]
+#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, mode = "paper-static", playout = "fifo", underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true))]
 #[allow(clippy::too_many_arguments)]
 pub fn run<'py>(
     py: Python<'py>,
@@ -72,6 +73,7 @@ pub fn run<'py>(
     mean: Option<f64>,
     std: Option<f64>,
     mode: &str,
+    playout: &str,
     underflow: &str,
     period: f64,
     duration: f64,
@@ -88,6 +90,9 @@ pub fn run<'py>(
     cfg.underflow = underflow
         .parse::<Underflow>()
         .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
+    cfg.playout = playout
+        .parse::<Playout>()
+        .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
     cfg.period = positive_period("period", period)?;
     finite("duration", duration)?;
     cfg.duration = seconds("duration", duration)?;
