@@ -23,7 +23,7 @@ use ndr::core::endpoint::Config;
 use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
 use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
-use ndr::net::{Link, LinkConfig, Listener};
+use ndr::net::{Link, LinkConfig, LinkStats, Listener};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -75,8 +75,17 @@ async fn raw_ping_pong(seconds: f64, period_ms: u64) -> Vec<f64> {
     rtts
 }
 
-/// The NRTT samples, and the mean receive-path lag of both ends added up.
-fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> (Vec<f64>, f64) {
+/// What the links measured.
+struct LinkRun {
+    nrtt: Vec<f64>,
+    /// The mean receive-path lag of both ends added up.
+    rx_lag: f64,
+    /// The base's and the remote's last stats.
+    base: Option<LinkStats>,
+    remote: Option<LinkStats>,
+}
+
+fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> LinkRun {
     let mut c = Config::new(Role::Base);
     c.axes = 1;
     c.period = Duration::from_millis(period_ms);
@@ -89,12 +98,12 @@ fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> (Vec
         (b.unwrap(), r.unwrap())
     });
     let robot = std::thread::spawn(move || {
-        let mut lag = 0.0;
+        let mut last = None;
         while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
             let _ = remote.send(s.values());
-            lag = remote.stats().map_or(0.0, |s| s.rx_lag.mean());
+            last = remote.stats();
         }
-        lag
+        last
     });
     let mut nrtt = Vec::new();
     let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
@@ -116,10 +125,16 @@ fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> (Vec
         }
         last = Some(count);
     }
-    let base_lag = base.stats().map_or(0.0, |s| s.rx_lag.mean());
+    let base_stats = base.stats();
     drop(base);
-    let remote_lag = robot.join().unwrap_or(0.0);
-    (nrtt, base_lag + remote_lag)
+    let remote_stats = robot.join().ok().flatten();
+    let lag = |s: &Option<LinkStats>| s.map_or(0.0, |s| s.rx_lag.mean());
+    LinkRun {
+        nrtt,
+        rx_lag: lag(&base_stats) + lag(&remote_stats),
+        base: base_stats,
+        remote: remote_stats,
+    }
 }
 
 fn main() {
@@ -137,7 +152,12 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(10);
     let mut raw = rt.block_on(raw_ping_pong(seconds, period_ms));
-    let (mut ours, rx_lag) = link_nrtt(&rt, seconds, period_ms);
+    let LinkRun {
+        nrtt: mut ours,
+        rx_lag,
+        base,
+        remote,
+    } = link_nrtt(&rt, seconds, period_ms);
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
         "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
@@ -170,4 +190,16 @@ fn main() {
     );
     println!("ratio of medians (NRTT / raw): {:.2}", ours_p50 / raw_p50);
     println!("ratio frame-to-endpoint / raw: {:.2}", full / raw_p50);
+    for (side, stats) in [("base", base), ("remote", remote)] {
+        if let Some(s) = stats {
+            println!(
+                "{side:<6} hub: wake lateness p50 {} · p99 {} · release lateness p50 {} · p99 {} · receive lag mean {:.1} µs",
+                s.lateness.p50,
+                s.lateness.p99,
+                s.release_lateness.p50,
+                s.release_lateness.p99,
+                s.rx_lag.mean() * 1e6
+            );
+        }
+    }
 }

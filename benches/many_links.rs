@@ -7,7 +7,8 @@
 //! the growth of the resident set from before the first link.
 //!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
-//! default 10; the process needs 2·NDR_LINKS + 50 file descriptors).
+//! default 10; NDR_QUEUE, the regulators' capacity, default 256; the
+//! process needs 2·NDR_LINKS + 50 file descriptors).
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -64,6 +65,7 @@ fn main() {
     c.period = Duration::from_millis(10);
     let mut config = LinkConfig::new(c);
     config.app_queue = 16;
+    config.queue_capacity = env("NDR_QUEUE", ndr::net::link::QUEUE as f64) as usize;
     let rss0 = rss_kib();
     let (bases, remotes) = rt.block_on(async {
         let remote_hub = Hub::with_defaults().unwrap();
@@ -132,10 +134,10 @@ fn main() {
         .filter_map(Link::stats)
         .map(|s| s.endpoint.grtt.std())
         .fold(0.0, f64::max);
-    let late = stats.first().map(|s| s.lateness).unwrap_or_default();
     let machine = 100.0 * (cpu1 - cpu0) / elapsed / cpus as f64;
     println!(
-        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs"
+        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}",
+        config.queue_capacity
     );
     println!("  endpoints running            {running} of {}", 2 * n);
     println!(
@@ -157,9 +159,30 @@ fn main() {
         "  worst GRTT std of a base     {:.3} ms",
         grtt_std_max * 1e3
     );
+    for (side, links) in [("bases'", &bases), ("remotes'", &remotes)] {
+        // Every link of a hub reports the hub's figures; take the freshest.
+        let Some(s) = links
+            .iter()
+            .filter_map(Link::stats)
+            .max_by_key(|s| s.release_lateness.count)
+        else {
+            continue;
+        };
+        println!(
+            "  {side:<9} hub: wake lateness p50 {} · p99 {} · max {}; release lateness p50 {} · p99 {} · max {}",
+            s.lateness.p50,
+            s.lateness.p99,
+            s.lateness.max,
+            s.release_lateness.p50,
+            s.release_lateness.p99,
+            s.release_lateness.max
+        );
+    }
+    let lag: Vec<f64> = stats.iter().map(|s| s.rx_lag.mean()).collect();
     println!(
-        "  hub release lateness         p50 {} · p99 {} · max {}",
-        late.p50, late.p99, late.max
+        "  receive lag (mean per link)  p50 {:.1} µs · max {:.1} µs",
+        1e6 * ndr::core::sim::percentile(&lag, 0.5),
+        1e6 * lag.iter().copied().fold(0.0, f64::max)
     );
     drop((bases, remotes));
 }

@@ -10,7 +10,7 @@
 //! frame goes from the kernel to its endpoint in one thread wake-up, with no
 //! hand-over between threads, and frames are written from the same thread.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::io::{self, Write as _};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering as AtomicOrdering};
 use std::sync::mpsc::{self, Receiver, Sender, SyncSender, TrySendError};
@@ -19,16 +19,15 @@ use std::time::Instant as StdInstant;
 
 use mio::net::TcpStream as MioStream;
 use mio::{Events, Interest, Poll, Token, Waker};
-use ndr_core::endpoint::{Endpoint, Event, LinkError, Running};
+use ndr_core::endpoint::{Event, LinkError, Running};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::MAX_FRAME_LEN;
 use tokio::sync::Notify;
 
+use crate::capacity::SizedEndpoint;
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
 use crate::framing::{Deframer, FramingError};
-use crate::link::{LinkStats, MAX_AXES, QUEUE, Sample};
-
-pub(crate) type LinkEndpoint = Endpoint<MAX_AXES, QUEUE>;
+use crate::link::{LinkStats, MAX_AXES, Sample};
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
@@ -53,7 +52,7 @@ pub(crate) struct Shared {
 
 /// One link as the hub drives it.
 pub(crate) struct Entry {
-    pub endpoint: Box<LinkEndpoint>,
+    pub endpoint: SizedEndpoint,
     pub shared: Arc<Shared>,
     pub deliveries: SyncSender<Delivery>,
     pub socket: MioStream,
@@ -127,7 +126,14 @@ impl Hub {
             timers: BTreeSet::new(),
             lateness: LatenessHistogram::new(Duration::from_millis(1)),
             lateness_stats: LatenessStats::default(),
+            releases: LatenessHistogram::new(Duration::from_millis(1)),
+            release_stats: LatenessStats::default(),
             wakes: 0,
+            backlog: VecDeque::new(),
+            events: Events::with_capacity(1024),
+            due: Vec::new(),
+            service: Cost::new(),
+            polling: Cost::new(),
             buf: vec![0; MAX_FRAME_LEN],
             links: Arc::clone(&links),
         };
@@ -175,6 +181,51 @@ impl Hub {
     }
 }
 
+/// A socket the poll reported ready.
+#[derive(Clone, Copy)]
+struct Ready {
+    id: u64,
+    readable: bool,
+    writable: bool,
+}
+
+/// What a look at the poll set found besides sockets.
+#[derive(Clone, Copy, Default)]
+struct Woke {
+    /// Anything at all.
+    any: bool,
+    /// The waker: links added or closed.
+    messages: bool,
+}
+
+/// How long a piece of the hub's work takes: a peak that decays by 1/32 at
+/// each new measure, to tell whether one more piece fits before a deadline.
+struct Cost {
+    peak: std::time::Duration,
+}
+
+impl Cost {
+    /// A guard on top of the peak: the clock read and the loop itself.
+    const GUARD: std::time::Duration = std::time::Duration::from_micros(2);
+
+    fn new() -> Cost {
+        Cost {
+            peak: std::time::Duration::from_micros(20),
+        }
+    }
+
+    fn fits(&self, now: StdInstant, deadline: StdInstant) -> bool {
+        now + self.peak + Self::GUARD <= deadline
+    }
+
+    /// A measure longer than `cap` (the spin margin) was a preemption, not
+    /// the work: it counts as `cap`.
+    fn record(&mut self, took: std::time::Duration, cap: std::time::Duration) {
+        let decayed = self.peak - self.peak / 32;
+        self.peak = took.min(cap).max(decayed);
+    }
+}
+
 struct Driver {
     poll: Poll,
     /// A nanosecond timer in the poll set, where the platform has one.
@@ -184,10 +235,22 @@ struct Driver {
     input: Receiver<Msg>,
     entries: HashMap<u64, Entry>,
     timers: BTreeSet<(Instant, u64)>,
+    /// How late the hub woke for its deadlines.
     lateness: LatenessHistogram,
     /// Recomputed every so often: percentiles cost a histogram scan.
     lateness_stats: LatenessStats,
+    /// How late each link's deadline was served (its release stamp).
+    releases: LatenessHistogram,
+    release_stats: LatenessStats,
     wakes: u64,
+    /// Sockets reported ready and not served yet, in order.
+    backlog: VecDeque<Ready>,
+    events: Events,
+    /// The deadlines due at a tick (kept to reuse its memory).
+    due: Vec<(Instant, u64)>,
+    /// How long serving one socket takes, and one look at the poll set.
+    service: Cost,
+    polling: Cost,
     buf: Vec<u8>,
     links: Arc<AtomicUsize>,
 }
@@ -196,7 +259,6 @@ impl Driver {
     fn run(mut self) {
         // Best effort: a 1 µs timer slack makes the native sleep precise.
         let _ = crate::clock::set_current_thread_timer_slack(DEFAULT_TIMER_SLACK);
-        let mut events = Events::with_capacity(1024);
         loop {
             let deadline = self
                 .timers
@@ -221,71 +283,100 @@ impl Driver {
                 }
                 (_, None) => None,
             };
-            if let Err(e) = self.poll.poll(&mut events, timeout) {
-                if e.kind() != io::ErrorKind::Interrupted {
-                    return;
-                }
-            }
-            let mut woken = false;
-            let mut timer_fired = false;
-            let mut ready: Vec<(u64, bool, bool)> = Vec::new();
-            for ev in &events {
-                match ev.token() {
-                    WAKER => woken = true,
-                    TIMER => {
-                        timer_fired = true;
-                        if let Some(timer) = &self.timer {
-                            timer.clear();
-                        }
-                    }
-                    Token(t) => ready.push((
-                        t as u64,
-                        ev.is_readable() || ev.is_read_closed() || ev.is_error(),
-                        ev.is_writable(),
-                    )),
-                }
-            }
-            if woken && !self.messages() {
+            let Ok(woke) = self.poll_ready(timeout) else {
+                return;
+            };
+            if woke.messages && !self.messages() {
                 return;
             }
             let Some(d) = deadline else {
-                self.serve(&ready);
+                self.serve_backlog();
                 continue;
             };
+            // Serve what woke us until the spin should start (the tick serves
+            // the rest as it fits): a burst of frames just before a deadline
+            // must not make it late.
             let target = d.checked_sub(self.margin).unwrap_or(d);
+            while let Some(r) = self.backlog.pop_front() {
+                self.serve_timed(r);
+                if StdInstant::now() >= target {
+                    break;
+                }
+            }
+            // The timer fires at the target, never before: a tick is due
+            // exactly when the target has passed.
             let left = target.saturating_duration_since(StdInstant::now());
-            if timer_fired || left.is_zero() {
-                // Deadline first: the sockets that woke us too are read right
-                // after the spin, before the releases (their kernel stamps
-                // keep them in order), so their work does not make the clock late.
-                self.tick(d, &ready);
+            if left.is_zero() {
+                if !self.tick(d) {
+                    return;
+                }
                 continue;
             }
-            self.serve(&ready);
-            if self.timer.is_none()
-                && events.is_empty()
-                && left < std::time::Duration::from_millis(2)
-            {
+            if self.timer.is_none() && !woke.any && left < std::time::Duration::from_millis(2) {
                 // Without a precise timer: sleep the last stretch natively.
                 // Frames arriving meanwhile keep their kernel stamps and are
                 // read before the tick.
                 std::thread::sleep(left);
-                self.tick(d, &[]);
+                if !self.tick(d) {
+                    return;
+                }
             }
         }
     }
 
-    /// Reads and writes for the sockets that are ready.
-    fn serve(&mut self, ready: &[(u64, bool, bool)]) {
-        for &(id, readable, writable) in ready {
-            if readable {
-                self.read(id);
-            }
-            if writable {
-                self.write_pending(id);
-            }
-            self.flush(id);
+    /// Waits for the poll set (at most `timeout`; `None`: until something
+    /// happens), queueing the ready sockets in the backlog.
+    fn poll_ready(&mut self, timeout: Option<std::time::Duration>) -> io::Result<Woke> {
+        let mut woke = Woke::default();
+        if let Err(e) = self.poll.poll(&mut self.events, timeout) {
+            return if e.kind() == io::ErrorKind::Interrupted {
+                Ok(woke)
+            } else {
+                Err(e)
+            };
         }
+        for ev in &self.events {
+            woke.any = true;
+            match ev.token() {
+                WAKER => woke.messages = true,
+                TIMER => {
+                    if let Some(timer) = &self.timer {
+                        timer.clear();
+                    }
+                }
+                Token(t) => self.backlog.push_back(Ready {
+                    id: t as u64,
+                    readable: ev.is_readable() || ev.is_read_closed() || ev.is_error(),
+                    writable: ev.is_writable(),
+                }),
+            }
+        }
+        Ok(woke)
+    }
+
+    /// Reads and writes for every socket in the backlog.
+    fn serve_backlog(&mut self) {
+        while let Some(r) = self.backlog.pop_front() {
+            self.serve_timed(r);
+        }
+    }
+
+    /// [`serve`](Self::serve), measuring what it costs.
+    fn serve_timed(&mut self, r: Ready) {
+        let start = StdInstant::now();
+        self.serve(r);
+        self.service.record(start.elapsed(), self.margin);
+    }
+
+    /// Reads and writes for one ready socket.
+    fn serve(&mut self, r: Ready) {
+        if r.readable {
+            self.read(r.id);
+        }
+        if r.writable {
+            self.write_pending(r.id);
+        }
+        self.flush(r.id);
     }
 
     /// Links added or closed by their handles; `false` once every handle
@@ -396,10 +487,30 @@ impl Driver {
             .reregister(&mut e.socket, Token(id as usize), interest);
     }
 
-    /// The deadline `d` has come: spin to it, take what arrived before it,
-    /// then run every endpoint that is due.
-    fn tick(&mut self, d: StdInstant, ready: &[(u64, bool, bool)]) {
-        while StdInstant::now() < d {
+    /// The deadline `d` is near: spin to it, serving the sockets that become
+    /// ready meanwhile one at a time, as long as one more service fits before
+    /// `d` (frames reach their endpoints as they arrive, and the deadline
+    /// keeps its microseconds); then take what is still waiting and run every
+    /// endpoint that is due. `false` once the hub has nothing left to drive.
+    fn tick(&mut self, d: StdInstant) -> bool {
+        let mut messages = false;
+        loop {
+            let now = StdInstant::now();
+            if now >= d {
+                break;
+            }
+            if let Some(&r) = self.backlog.front() {
+                if self.service.fits(now, d) {
+                    self.backlog.pop_front();
+                    self.serve_timed(r);
+                    continue;
+                }
+            } else if self.polling.fits(now, d) {
+                let woke = self.poll_ready(Some(std::time::Duration::ZERO));
+                self.polling.record(now.elapsed(), self.margin);
+                messages |= woke.is_ok_and(|w| w.messages);
+                continue;
+            }
             std::hint::spin_loop();
         }
         // The clock's own precision: how late it woke for this deadline.
@@ -408,48 +519,30 @@ impl Driver {
         self.wakes += 1;
         if self.wakes % 64 == 1 {
             self.lateness_stats = self.lateness.stats();
+            self.release_stats = self.releases.stats();
         }
         // Frames that arrived before the deadline belong before the releases.
-        self.serve(ready);
-        let mut events = Events::with_capacity(256);
-        if self
-            .poll
-            .poll(&mut events, Some(std::time::Duration::ZERO))
-            .is_ok()
-        {
-            for ev in &events {
-                match ev.token() {
-                    WAKER => {
-                        let _ = self.messages();
-                    }
-                    TIMER => {
-                        if let Some(timer) = &self.timer {
-                            timer.clear();
-                        }
-                    }
-                    Token(t) => {
-                        let id = t as u64;
-                        self.read(id);
-                        self.flush(id);
-                    }
-                }
-            }
+        let woke = self.poll_ready(Some(std::time::Duration::ZERO));
+        if (messages || woke.is_ok_and(|w| w.messages)) && !self.messages() {
+            return false;
         }
-        // Releases are stamped when they really happen, after those reads.
+        self.serve_backlog();
+        // Each release is stamped when it really happens, after those reads.
         let now = Instant::from_std(self.origin, StdInstant::now());
-        let due: Vec<u64> = self
-            .timers
-            .iter()
-            .take_while(|&&(t, _)| t <= now)
-            .map(|&(_, id)| id)
-            .collect();
-        for id in due {
+        let mut due = std::mem::take(&mut self.due);
+        due.clear();
+        due.extend(self.timers.iter().take_while(|&&(t, _)| t <= now));
+        for &(t, id) in &due {
+            let now = Instant::from_std(self.origin, StdInstant::now());
             if let Some(e) = self.entries.get_mut(&id) {
+                self.releases.record(now - t);
                 take_sample(e);
                 e.endpoint.handle_timeout(now);
             }
             self.flush(id);
         }
+        self.due = due;
+        true
     }
 
     /// Frames to the socket, events to the application, the deadline to the
@@ -493,7 +586,7 @@ impl Driver {
         if delivered {
             e.shared.notify.notify_one();
         }
-        publish(e, self.lateness_stats);
+        publish(e, self.lateness_stats, self.release_stats);
         let next = e.endpoint.poll_timeout();
         if next != e.deadline {
             if let Some(old) = e.deadline {
@@ -610,7 +703,7 @@ fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
     true
 }
 
-fn publish(e: &Entry, lateness: LatenessStats) {
+fn publish(e: &Entry, lateness: LatenessStats, release_lateness: LatenessStats) {
     let ep = &e.endpoint;
     let stats = LinkStats {
         phase: ep.phase(),
@@ -621,6 +714,7 @@ fn publish(e: &Entry, lateness: LatenessStats) {
         last_nrtt: ep.last_nrtt(),
         endpoint: ep.stats(),
         lateness,
+        release_lateness,
         app_dropped: e.app_dropped,
         rx_lag: e.rx_lag,
     };

@@ -7,12 +7,14 @@
 //! before buffering anything.
 #![forbid(unsafe_code)]
 
+mod capacity;
 pub mod clock;
 pub mod framing;
 pub mod hub;
 pub mod link;
 pub mod relay;
 
+pub use capacity::QUEUE_CAPACITIES;
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;

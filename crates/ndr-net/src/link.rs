@@ -29,9 +29,10 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
+use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
 use crate::framing::Deframer;
-use crate::hub::{Delivery, Entry, Hub, LinkEndpoint, Msg, Shared};
+use crate::hub::{Delivery, Entry, Hub, Msg, Shared};
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
@@ -52,6 +53,13 @@ pub struct LinkConfig {
     /// Released samples and events that may wait for the application; when
     /// it does not read, the newest are dropped and counted.
     pub app_queue: usize,
+    /// Samples the regulator can hold (`ns` ≤ capacity − 1), rounded up to
+    /// one of [`QUEUE_CAPACITIES`](crate::QUEUE_CAPACITIES); default
+    /// [`QUEUE`]. The regulator is inline: about 112 bytes per sample at 8
+    /// channels, so 64 takes 14 KiB per link instead of 38 KiB. Both ends
+    /// need room for the `ns` the base decides (a remote that cannot hold
+    /// it ends the link with [`LinkError::BadParameters`]).
+    pub queue_capacity: usize,
 }
 
 impl LinkConfig {
@@ -62,6 +70,7 @@ impl LinkConfig {
             endpoint,
             spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
             app_queue: 1024,
+            queue_capacity: QUEUE,
         }
     }
 }
@@ -124,8 +133,12 @@ pub struct LinkStats {
     pub last_nrtt: Option<Duration>,
     /// Everything the endpoint counted.
     pub endpoint: Stats,
-    /// How late the link thread served its deadlines.
+    /// How late the hub's thread woke for its deadlines (all its links).
     pub lateness: LatenessStats,
+    /// How late the hub ran each link's deadline (the release's stamp, after
+    /// the frames that arrived before it and the links served before it),
+    /// over all its links.
+    pub release_lateness: LatenessStats,
     /// Samples and events dropped because the application did not read them.
     pub app_dropped: u64,
     /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
@@ -221,7 +234,8 @@ impl Link {
         });
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());
-        let endpoint = Box::new(LinkEndpoint::new(cfg, now).map_err(NetError::Config)?);
+        let endpoint =
+            SizedEndpoint::new(cfg, now, config.queue_capacity).map_err(NetError::Config)?;
         let entry = Entry {
             endpoint,
             shared: Arc::clone(&shared),
