@@ -110,10 +110,15 @@ impl Hub {
     /// A hub with its driver thread (`ndr-hub`), spinning the last
     /// `spin_margin` before each deadline.
     pub fn new(spin_margin: Duration) -> io::Result<Hub> {
+        Hub::with_origin(spin_margin, StdInstant::now())
+    }
+
+    /// A hub whose tick grid starts at `origin` (hubs of one pool share it,
+    /// so their links tick at the same instants, in parallel).
+    pub(crate) fn with_origin(spin_margin: Duration, origin: StdInstant) -> io::Result<Hub> {
         let (tx, rx) = mpsc::channel();
         let poll = Poll::new()?;
         let waker = Waker::new(poll.registry(), WAKER)?;
-        let origin = StdInstant::now();
         let links = Arc::new(AtomicUsize::new(0));
         let timer = precise::Timer::new(poll.registry(), TIMER);
         let driver = Driver {
@@ -157,7 +162,8 @@ impl Hub {
         Hub::new(DEFAULT_SPIN_MARGIN)
     }
 
-    /// Links the hub drives now.
+    /// Links the hub drives now (counted from the moment a link is handed
+    /// to it until it has let the link go).
     #[must_use]
     pub fn links(&self) -> usize {
         self.inner.links.load(AtomicOrdering::Relaxed)
@@ -173,11 +179,22 @@ impl Hub {
 
     /// Hands the hub a message and wakes it; `false` if its thread is gone.
     pub(crate) fn send(&self, msg: Msg) -> bool {
-        self.inner
+        // Counted here, not when the thread gets to it: a pool placing many
+        // links at once must see the ones still in flight.
+        let adds = matches!(msg, Msg::Add(..));
+        if adds {
+            self.inner.links.fetch_add(1, AtomicOrdering::Relaxed);
+        }
+        let sent = self
+            .inner
             .tx
             .as_ref()
             .is_some_and(|tx| tx.send(msg).is_ok())
-            && self.inner.waker.wake().is_ok()
+            && self.inner.waker.wake().is_ok();
+        if adds && !sent {
+            self.inner.links.fetch_sub(1, AtomicOrdering::Relaxed);
+        }
+        sent
     }
 }
 
@@ -186,6 +203,9 @@ impl Hub {
 struct Ready {
     id: u64,
     readable: bool,
+    /// The peer closed or the socket failed: read to the end, a short read
+    /// does not mean there is nothing left (the end raises no new edge).
+    closing: bool,
     writable: bool,
 }
 
@@ -346,7 +366,8 @@ impl Driver {
                 }
                 Token(t) => self.backlog.push_back(Ready {
                     id: t as u64,
-                    readable: ev.is_readable() || ev.is_read_closed() || ev.is_error(),
+                    readable: ev.is_readable(),
+                    closing: ev.is_read_closed() || ev.is_error(),
                     writable: ev.is_writable(),
                 }),
             }
@@ -370,8 +391,8 @@ impl Driver {
 
     /// Reads and writes for one ready socket.
     fn serve(&mut self, r: Ready) {
-        if r.readable {
-            self.read(r.id);
+        if r.readable || r.closing {
+            self.read(r.id, r.closing);
         }
         if r.writable {
             self.write_pending(r.id);
@@ -395,8 +416,6 @@ impl Driver {
                         entry.endpoint.abort(LinkError::Disconnected);
                     }
                     self.entries.insert(id, *entry);
-                    self.links
-                        .store(self.entries.len(), AtomicOrdering::Relaxed);
                     self.flush(id);
                 }
                 Ok(Msg::Close(id)) => {
@@ -412,14 +431,16 @@ impl Driver {
     }
 
     /// Reads everything the socket has, handing each frame to the endpoint
-    /// with its arrival time.
-    fn read(&mut self, id: u64) {
+    /// with its arrival time; to `WouldBlock` or the end if `drain`.
+    fn read(&mut self, id: u64, drain: bool) {
         let origin = self.origin;
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
         loop {
-            match crate::link::arrival::read_now(&e.socket, e.deframer.spare(), e.kernel_stamps) {
+            let spare = e.deframer.spare();
+            let room = spare.len();
+            match crate::link::arrival::read_now(&e.socket, spare, e.kernel_stamps) {
                 Ok((0, _)) => {
                     e.endpoint.abort(LinkError::Disconnected);
                     return;
@@ -444,7 +465,10 @@ impl Driver {
                             }
                         }
                     }
-                    if e.endpoint.is_closed() {
+                    // A short read emptied the socket: data arriving later
+                    // raises a new edge in the poll, so the read that would
+                    // only say `WouldBlock` (a syscall per frame) is skipped.
+                    if e.endpoint.is_closed() || (n < room && !drain) {
                         return;
                     }
                 }
@@ -539,15 +563,22 @@ impl Driver {
                 take_sample(e);
                 e.endpoint.handle_timeout(now);
             }
-            self.flush(id);
+            self.flush_with(id, true);
         }
         self.due = due;
         true
     }
 
     /// Frames to the socket, events to the application, the deadline to the
-    /// index; a closed link leaves the hub.
+    /// index; a closed link leaves the hub. The link's stats are published
+    /// after a tick (before its releases reach the application, so the
+    /// application reads the stats of the tick it got) and with any event:
+    /// not after every read, a copy of a few hundred bytes under a lock.
     fn flush(&mut self, id: u64) {
+        self.flush_with(id, false);
+    }
+
+    fn flush_with(&mut self, id: u64, ticked: bool) {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
@@ -571,6 +602,9 @@ impl Driver {
                 Interest::READABLE | Interest::WRITABLE,
             );
         }
+        if ticked {
+            publish(e, self.lateness_stats, self.release_stats);
+        }
         let mut delivered = false;
         while let Some(event) = e.endpoint.poll_event() {
             let d = match event {
@@ -583,10 +617,12 @@ impl Driver {
                 Err(TrySendError::Disconnected(_)) => {}
             }
         }
+        if (delivered && !ticked) || e.endpoint.is_closed() {
+            publish(e, self.lateness_stats, self.release_stats);
+        }
         if delivered {
             e.shared.notify.notify_one();
         }
-        publish(e, self.lateness_stats, self.release_stats);
         let next = e.endpoint.poll_timeout();
         if next != e.deadline {
             if let Some(old) = e.deadline {
@@ -607,9 +643,8 @@ impl Driver {
             if let Some(mut gone) = self.entries.remove(&id) {
                 let _ = self.poll.registry().deregister(&mut gone.socket);
                 let _ = gone.socket.shutdown(std::net::Shutdown::Write);
+                self.links.fetch_sub(1, AtomicOrdering::Relaxed);
             }
-            self.links
-                .store(self.entries.len(), AtomicOrdering::Relaxed);
         }
     }
 }

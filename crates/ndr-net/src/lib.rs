@@ -12,6 +12,7 @@ pub mod clock;
 pub mod framing;
 pub mod hub;
 pub mod link;
+pub mod pool;
 pub mod relay;
 
 pub use capacity::QUEUE_CAPACITIES;
@@ -19,4 +20,5 @@ pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
 pub use link::{Link, LinkConfig, LinkStats, Listener, NetError, Sample};
+pub use pool::HubPool;
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};

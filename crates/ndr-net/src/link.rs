@@ -33,6 +33,7 @@ use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
 use crate::framing::Deframer;
 use crate::hub::{Delivery, Entry, Hub, Msg, Shared};
+use crate::pool::HubPool;
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
@@ -444,7 +445,13 @@ fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
 pub struct Listener {
     listener: TcpListener,
     config: LinkConfig,
-    hub: Hub,
+    hubs: Hubs,
+}
+
+/// Where a listener puts the links it accepts.
+enum Hubs {
+    One(Hub),
+    Pool(HubPool),
 }
 
 impl Listener {
@@ -452,7 +459,7 @@ impl Listener {
     pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         Ok(Listener {
             listener: TcpListener::bind(addr).await?,
-            hub: Hub::new(config.spin_margin)?,
+            hubs: Hubs::One(Hub::new(config.spin_margin)?),
             config,
         })
     }
@@ -461,7 +468,15 @@ impl Listener {
     /// connections) instead of a hub of its own.
     #[must_use]
     pub fn with_hub(mut self, hub: Hub) -> Listener {
-        self.hub = hub;
+        self.hubs = Hubs::One(hub);
+        self
+    }
+
+    /// Spreads the links it accepts over a pool of hubs (each to the least
+    /// loaded one) instead of a hub of its own.
+    #[must_use]
+    pub fn with_pool(mut self, pool: HubPool) -> Listener {
+        self.hubs = Hubs::Pool(pool);
         self
     }
 
@@ -474,13 +489,11 @@ impl Listener {
     /// remote). A failed link does not affect the listener.
     pub async fn accept(&self) -> Result<Link, NetError> {
         let (stream, _) = self.listener.accept().await?;
-        Link::start(
-            stream,
-            Role::Remote,
-            self.config,
-            Handle::current(),
-            &self.hub,
-        )
+        let hub = match &self.hubs {
+            Hubs::One(hub) => hub,
+            Hubs::Pool(pool) => pool.least_loaded(),
+        };
+        Link::start(stream, Role::Remote, self.config, Handle::current(), hub)
     }
 }
 
@@ -538,14 +551,19 @@ pub(crate) mod arrival {
         use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
         use nix::sys::socket::{ControlMessageOwned, MsgFlags, recvmsg};
-        use nix::sys::time::TimeSpec;
+
+        /// Room for one control message (`SCM_TIMESTAMPNS` needs 32 bytes
+        /// on 64-bit Linux), aligned as `cmsghdr` wants, on the stack: nix's
+        /// `cmsg_space!` would allocate at every read.
+        #[repr(C, align(8))]
+        struct Control([u8; 64]);
 
         let mut iov = [io::IoSliceMut::new(buf)];
-        let mut cmsg = nix::cmsg_space!(TimeSpec);
+        let mut cmsg = Control([0; 64]);
         let msg = recvmsg::<()>(
             socket.as_raw_fd(),
             &mut iov,
-            Some(&mut cmsg),
+            Some(&mut cmsg.0),
             MsgFlags::empty(),
         )
         .map_err(io::Error::from)?;
