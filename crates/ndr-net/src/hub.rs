@@ -556,14 +556,29 @@ impl Driver {
         let mut due = std::mem::take(&mut self.due);
         due.clear();
         due.extend(self.timers.iter().take_while(|&&(t, _)| t <= now));
+        // One link: its frame first, then its application (waking that
+        // thread first would delay the frame by the wake-up). Several: every
+        // release first, then the frames, so that the last link's release
+        // does not wait for every other link's write (a syscall of a few µs).
+        let releases_first = due.len() > 1;
         for &(t, id) in &due {
             let now = Instant::from_std(self.origin, StdInstant::now());
             if let Some(e) = self.entries.get_mut(&id) {
                 self.releases.record(now - t);
                 take_sample(e);
                 e.endpoint.handle_timeout(now);
+                if releases_first {
+                    deliver(e, true, self.lateness_stats, self.release_stats);
+                }
             }
-            self.flush_with(id, true);
+            if !releases_first {
+                self.flush_with(id, true);
+            }
+        }
+        if releases_first {
+            for &(_, id) in &due {
+                self.flush(id);
+            }
         }
         self.due = due;
         true
@@ -602,26 +617,9 @@ impl Driver {
                 Interest::READABLE | Interest::WRITABLE,
             );
         }
-        if ticked {
+        deliver(e, ticked, self.lateness_stats, self.release_stats);
+        if e.endpoint.is_closed() {
             publish(e, self.lateness_stats, self.release_stats);
-        }
-        let mut delivered = false;
-        while let Some(event) = e.endpoint.poll_event() {
-            let d = match event {
-                Event::Released(s) => Delivery::Sample(s),
-                other => Delivery::Event(other),
-            };
-            match e.deliveries.try_send(d) {
-                Ok(()) => delivered = true,
-                Err(TrySendError::Full(_)) => e.app_dropped += 1,
-                Err(TrySendError::Disconnected(_)) => {}
-            }
-        }
-        if (delivered && !ticked) || e.endpoint.is_closed() {
-            publish(e, self.lateness_stats, self.release_stats);
-        }
-        if delivered {
-            e.shared.notify.notify_one();
         }
         let next = e.endpoint.poll_timeout();
         if next != e.deadline {
@@ -706,6 +704,32 @@ mod precise {
         }
         pub(super) fn arm(&self, _: std::time::Duration) {}
         pub(super) fn clear(&self) {}
+    }
+}
+
+/// Events to the application; after a tick, the stats first (so the
+/// application reads the stats of the tick it got).
+fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: LatenessStats) {
+    if ticked {
+        publish(e, lateness, releases);
+    }
+    let mut delivered = false;
+    while let Some(event) = e.endpoint.poll_event() {
+        let d = match event {
+            Event::Released(s) => Delivery::Sample(s),
+            other => Delivery::Event(other),
+        };
+        match e.deliveries.try_send(d) {
+            Ok(()) => delivered = true,
+            Err(TrySendError::Full(_)) => e.app_dropped += 1,
+            Err(TrySendError::Disconnected(_)) => {}
+        }
+    }
+    if delivered && !ticked {
+        publish(e, lateness, releases);
+    }
+    if delivered {
+        e.shared.notify.notify_one();
     }
 }
 
