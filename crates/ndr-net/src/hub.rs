@@ -13,7 +13,7 @@
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::io::{self, Write as _};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering as AtomicOrdering};
-use std::sync::mpsc::{self, Receiver, Sender, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
@@ -26,8 +26,9 @@ use tokio::sync::Notify;
 
 use crate::capacity::SizedEndpoint;
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
+use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
-use crate::link::{LinkStats, MAX_AXES, Sample};
+use crate::link::LinkStats;
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
@@ -35,12 +36,6 @@ const WAKER: Token = Token(usize::MAX);
 const TIMER: Token = Token(usize::MAX - 1);
 /// Bytes a link may have waiting for a slow socket before it is cut off.
 const MAX_PENDING: usize = 1 << 20;
-
-/// What the hub hands to a link's application.
-pub(crate) enum Delivery {
-    Sample(Sample),
-    Event(Event<MAX_AXES>),
-}
 
 /// State a link's handle and the hub share.
 pub(crate) struct Shared {
@@ -54,7 +49,7 @@ pub(crate) struct Shared {
 pub(crate) struct Entry {
     pub endpoint: SizedEndpoint,
     pub shared: Arc<Shared>,
-    pub deliveries: SyncSender<Delivery>,
+    pub deliveries: Outbox,
     pub socket: MioStream,
     pub deframer: Deframer,
     /// Bytes the socket would not take yet, in order.
@@ -721,8 +716,8 @@ fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: Laten
         };
         match e.deliveries.try_send(d) {
             Ok(()) => delivered = true,
-            Err(TrySendError::Full(_)) => e.app_dropped += 1,
-            Err(TrySendError::Disconnected(_)) => {}
+            Err(Refused::Full) => e.app_dropped += 1,
+            Err(Refused::Gone) => {}
         }
     }
     if delivered && !ticked {

@@ -35,6 +35,7 @@
 
 mod capacity;
 pub mod clock;
+mod delivery;
 pub mod framing;
 pub mod hub;
 pub mod link;

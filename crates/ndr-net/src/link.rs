@@ -18,7 +18,7 @@ use std::collections::VecDeque;
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
@@ -31,8 +31,9 @@ use tokio::sync::Notify;
 
 use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
+use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
-use crate::hub::{Delivery, Entry, Hub, Msg, Shared};
+use crate::hub::{Entry, Hub, Msg, Shared};
 use crate::pool::HubPool;
 
 /// Most axes a link carries.
@@ -52,7 +53,8 @@ pub struct LinkConfig {
     /// How long before a deadline the link thread stops sleeping and spins.
     pub spin_margin: Duration,
     /// Released samples and events that may wait for the application; when
-    /// it does not read, the newest are dropped and counted.
+    /// it does not read, the newest are dropped and counted. Memory follows
+    /// what waits, not this bound.
     pub app_queue: usize,
     /// Samples the regulator can hold (`ns` ≤ capacity − 1), rounded up to
     /// one of [`QUEUE_CAPACITIES`](crate::QUEUE_CAPACITIES); default
@@ -150,7 +152,7 @@ pub struct LinkStats {
 /// One side of a running link. Dropping it closes the link.
 pub struct Link {
     id: u64,
-    deliveries: Receiver<Delivery>,
+    deliveries: Inbox,
     shared: Arc<Shared>,
     events: VecDeque<Event<MAX_AXES>>,
     axes: usize,
@@ -227,7 +229,7 @@ impl Link {
         let kernel_stamps = arrival::enable(&std_stream);
         let socket = mio::net::TcpStream::from_std(std_stream);
         let id = hub.next_id();
-        let (del_tx, del_rx) = mpsc::sync_channel::<Delivery>(config.app_queue.max(1));
+        let (del_tx, del_rx) = delivery::queue(config.app_queue);
         let shared = Arc::new(Shared {
             sample: Mutex::new((vec![0.0; usize::from(cfg.axes)], false)),
             stats: Mutex::new(None),
