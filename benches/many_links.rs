@@ -7,7 +7,9 @@
 //! the growth of the resident set from before the first link.
 //!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
-//! default 10; NDR_QUEUE, the regulators' capacity, default 256; NDR_HUBS,
+//! default 10; NDR_QUEUE, the regulators' capacity, default 256;
+//! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
+//! NDR_HUBS,
 //! hubs in each side's pool, default 1; the process needs 2·NDR_LINKS + 50
 //! file descriptors).
 
@@ -67,7 +69,7 @@ fn main() {
     c.axes = 1;
     c.period = Duration::from_millis(10);
     let mut config = LinkConfig::new(c);
-    config.app_queue = 16;
+    config.app_queue = env("NDR_APP_QUEUE", 16.0) as usize;
     config.queue_capacity = env("NDR_QUEUE", ndr::net::link::QUEUE as f64) as usize;
     let rss0 = rss_kib();
     let (bases, remotes) = rt.block_on(async {
@@ -139,8 +141,8 @@ fn main() {
         .fold(0.0, f64::max);
     let machine = 100.0 * (cpu1 - cpu0) / elapsed / cpus as f64;
     println!(
-        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, {hubs} hub(s) a side",
-        config.queue_capacity
+        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side",
+        config.queue_capacity, config.app_queue
     );
     println!("  endpoints running            {running} of {}", 2 * n);
     println!(
