@@ -1,17 +1,17 @@
 //! Many concurrent links on loopback at 100 Hz: CPU and memory per link.
 //!
 //! Both ends of every link run in this process: the bases on one hub (or a
-//! pool of them), the remotes on another, one application thread echoing the remotes' commands
-//! and draining the bases' states, tokio (2 workers) moving the bytes.
-//! CPU is read from /proc/self/stat over a window after start-up, memory as
-//! the growth of the resident set from before the first link.
+//! pool of them), the remotes on another, one application thread echoing
+//! the remotes' commands and draining the bases' states; tokio (2 workers)
+//! only connects and accepts. CPU is read from /proc/self/stat over a window
+//! after start-up, memory as the growth of the resident set from before the
+//! first link.
 //!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
 //! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
-//! NDR_HUBS,
-//! hubs in each side's pool, default 1; the process needs 2·NDR_LINKS + 50
-//! file descriptors).
+//! NDR_HUBS, hubs in each side's pool, default 1; the process needs
+//! 2·NDR_LINKS + 50 file descriptors).
 
 use std::net::SocketAddr;
 use std::sync::Arc;
