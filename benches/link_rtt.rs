@@ -5,13 +5,17 @@
 //! across loopback, stamped on arrival by the remote's kernel, echoed in the
 //! remote's next frame (its wait for that tick taken out), back across
 //! loopback and stamped by the base's kernel. That stops where TCP hands the
-//! bytes over; the raw ping-pong also counts its client's wake-up. So the
-//! bench also prints the round trip up to the endpoints: NRTT plus the mean
-//! receive-path lag (kernel arrival to the hub handling the frame) of both
-//! ends.
+//! bytes over; a ping-pong counts until the bytes are in the application. So
+//! the bench also prints the round trip up to the endpoints: NRTT plus the
+//! mean receive-path lag (kernel arrival to the hub handling the frame) of
+//! both ends.
 //!
-//! Both run at the same pace, one frame per link period (a thread woken from
-//! a longer sleep wakes more slowly, on either side).
+//! Two baselines: both ends of the ping-pong on one multi-thread tokio
+//! runtime (a worker that writes the ping often runs the echo task itself,
+//! so no thread is woken), and each end on a thread and runtime of its own,
+//! as the two links' hubs are (every frame wakes the other thread): the
+//! like-for-like one. All run at the same pace, one frame per link period
+//! (a thread woken from a longer sleep wakes more slowly, on either side).
 //!
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
@@ -23,7 +27,7 @@ use ndr::core::endpoint::Config;
 use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
 use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
-use ndr::net::{Link, LinkConfig, Listener};
+use ndr::net::{Link, LinkConfig, LinkStats, Listener};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -40,24 +44,25 @@ fn frame() -> Vec<u8> {
     buf
 }
 
-async fn raw_ping_pong(seconds: f64, period_ms: u64) -> Vec<f64> {
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let msg = frame();
-    let len = msg.len();
-    tokio::spawn(async move {
-        let (mut s, _) = listener.accept().await.unwrap();
-        s.set_nodelay(true).unwrap();
-        let mut buf = vec![0; len];
-        while s.read_exact(&mut buf).await.is_ok() {
-            if s.write_all(&buf).await.is_err() {
-                return;
-            }
+/// Echoes every frame back until the client hangs up.
+async fn echo(listener: TcpListener, len: usize) {
+    let (mut s, _) = listener.accept().await.unwrap();
+    s.set_nodelay(true).unwrap();
+    let mut buf = vec![0; len];
+    while s.read_exact(&mut buf).await.is_ok() {
+        if s.write_all(&buf).await.is_err() {
+            return;
         }
-    });
+    }
+}
+
+/// Pings at the link's pace (a thread woken from a longer sleep wakes
+/// slower) and times each round trip.
+async fn ping(addr: SocketAddr, seconds: f64, period_ms: u64) -> Vec<f64> {
+    let msg = frame();
     let mut c = TcpStream::connect(addr).await.unwrap();
     c.set_nodelay(true).unwrap();
-    let mut buf = vec![0; len];
+    let mut buf = vec![0; msg.len()];
     let mut rtts = Vec::new();
     let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
     let mut i = 0u64;
@@ -69,14 +74,53 @@ async fn raw_ping_pong(seconds: f64, period_ms: u64) -> Vec<f64> {
             rtts.push(t0.elapsed().as_secs_f64());
         }
         i += 1;
-        // The link's pace: a thread woken from a longer sleep wakes slower.
         tokio::time::sleep(StdDuration::from_millis(period_ms)).await;
     }
     rtts
 }
 
-/// The NRTT samples, and the mean receive-path lag of both ends added up.
-fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> (Vec<f64>, f64) {
+/// Both ends on one multi-thread runtime: a worker that writes the ping
+/// often runs the echo task itself, with no thread woken at all.
+async fn raw_one_runtime(seconds: f64, period_ms: u64) -> Vec<f64> {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(echo(listener, frame().len()));
+    ping(addr, seconds, period_ms).await
+}
+
+/// Each end on a thread and runtime of its own, as the two links' hubs are:
+/// every frame wakes the other thread.
+fn raw_two_threads(seconds: f64, period_ms: u64) -> Vec<f64> {
+    let current = || {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+    };
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    listener.set_nonblocking(true).unwrap();
+    let addr = listener.local_addr().unwrap();
+    let server = std::thread::spawn(move || {
+        current().block_on(async move {
+            echo(TcpListener::from_std(listener).unwrap(), frame().len()).await;
+        });
+    });
+    let rtts = current().block_on(ping(addr, seconds, period_ms));
+    server.join().unwrap();
+    rtts
+}
+
+/// What the links measured.
+struct LinkRun {
+    nrtt: Vec<f64>,
+    /// The mean receive-path lag of both ends added up.
+    rx_lag: f64,
+    /// The base's and the remote's last stats.
+    base: Option<LinkStats>,
+    remote: Option<LinkStats>,
+}
+
+fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> LinkRun {
     let mut c = Config::new(Role::Base);
     c.axes = 1;
     c.period = Duration::from_millis(period_ms);
@@ -89,12 +133,12 @@ fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> (Vec
         (b.unwrap(), r.unwrap())
     });
     let robot = std::thread::spawn(move || {
-        let mut lag = 0.0;
+        let mut last = None;
         while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
             let _ = remote.send(s.values());
-            lag = remote.stats().map_or(0.0, |s| s.rx_lag.mean());
+            last = remote.stats();
         }
-        lag
+        last
     });
     let mut nrtt = Vec::new();
     let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
@@ -116,10 +160,16 @@ fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> (Vec
         }
         last = Some(count);
     }
-    let base_lag = base.stats().map_or(0.0, |s| s.rx_lag.mean());
+    let base_stats = base.stats();
     drop(base);
-    let remote_lag = robot.join().unwrap_or(0.0);
-    (nrtt, base_lag + remote_lag)
+    let remote_stats = robot.join().ok().flatten();
+    let lag = |s: &Option<LinkStats>| s.map_or(0.0, |s| s.rx_lag.mean());
+    LinkRun {
+        nrtt,
+        rx_lag: lag(&base_stats) + lag(&remote_stats),
+        base: base_stats,
+        remote: remote_stats,
+    }
 }
 
 fn main() {
@@ -136,38 +186,72 @@ fn main() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(10);
-    let mut raw = rt.block_on(raw_ping_pong(seconds, period_ms));
-    let (mut ours, rx_lag) = link_nrtt(&rt, seconds, period_ms);
+    let mut raw_one = rt.block_on(raw_one_runtime(seconds, period_ms));
+    let mut raw = raw_two_threads(seconds, period_ms);
+    let LinkRun {
+        nrtt: mut ours,
+        rx_lag,
+        base,
+        remote,
+    } = link_nrtt(&rt, seconds, period_ms);
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
         "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
     );
     println!(
-        "{:<34} {:>8} {:>10} {:>10} {:>10}",
+        "{:<40} {:>8} {:>10} {:>10} {:>10}",
         "", "samples", "p50 µs", "p99 µs", "mean µs"
     );
     let row = |name: &str, v: &mut Vec<f64>| {
         let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (p50, p99) = (percentile(v, 0.5), percentile(v, 0.99));
         println!(
-            "{name:<34} {:>8} {:>10.1} {:>10.1} {:>10.1}",
+            "{name:<40} {:>8} {:>10.1} {:>10.1} {:>10.1}",
             v.len(),
             p50 * 1e6,
             p99 * 1e6,
             mean * 1e6
         );
-        p50
+        (p50, mean)
     };
-    let raw_p50 = row("raw tokio TCP ping-pong", &mut raw);
-    let ours_p50 = row("ndr link NRTT (kernel-stamped)", &mut ours);
-    let full = ours_p50 + rx_lag;
+    let (one_p50, one_mean) = row("raw tokio ping-pong, one runtime", &mut raw_one);
+    let (raw_p50, raw_mean) = row("raw tokio ping-pong, a thread per end", &mut raw);
+    let (ours_p50, ours_mean) = row("ndr link NRTT (kernel-stamped)", &mut ours);
+    let (full_p50, full_mean) = (ours_p50 + rx_lag, ours_mean + rx_lag);
     println!(
-        "{:<34} {:>8} {:>10.1}   (NRTT p50 + mean receive-path lag of both ends, {:.1} µs)",
+        "{:<40} {:>8} {:>10.1} {:>10} {:>10.1}   (NRTT + mean receive-path lag of both ends, {:.1} µs)",
         "ndr link, frame to endpoint",
         "",
-        full * 1e6,
+        full_p50 * 1e6,
+        "",
+        full_mean * 1e6,
         rx_lag * 1e6
     );
-    println!("ratio of medians (NRTT / raw): {:.2}", ours_p50 / raw_p50);
-    println!("ratio frame-to-endpoint / raw: {:.2}", full / raw_p50);
+    println!(
+        "ratio NRTT / raw (a thread per end): p50 {:.2} · mean {:.2}",
+        ours_p50 / raw_p50,
+        ours_mean / raw_mean
+    );
+    println!(
+        "ratio frame-to-endpoint / raw (a thread per end): p50 {:.2} · mean {:.2}",
+        full_p50 / raw_p50,
+        full_mean / raw_mean
+    );
+    println!(
+        "ratio frame-to-endpoint / raw (one runtime): p50 {:.2} · mean {:.2}",
+        full_p50 / one_p50,
+        full_mean / one_mean
+    );
+    for (side, stats) in [("base", base), ("remote", remote)] {
+        if let Some(s) = stats {
+            println!(
+                "{side:<6} hub: wake lateness p50 {} · p99 {} · release lateness p50 {} · p99 {} · receive lag mean {:.1} µs",
+                s.lateness.p50,
+                s.lateness.p99,
+                s.release_lateness.p50,
+                s.release_lateness.p99,
+                s.rx_lag.mean() * 1e6
+            );
+        }
+    }
 }

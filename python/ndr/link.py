@@ -338,7 +338,9 @@ class Link:
         (``samples_sent``, ``samples_received``, ``released_fresh``,
         ``released_held``, ``underflows``, ``late``, ``pauses``, …),
         ``nrtt`` and ``grtt`` (count, mean, std, min, max), ``lateness`` of
-        the release clock (p50, p99, p999, max, mean) and ``app_dropped``."""
+        the hub's wake-ups for its deadlines and ``release_lateness`` of
+        the releases themselves (p50, p99, p999, max, mean; over all links
+        of the hub), and ``app_dropped``."""
         return self._native.stats()
 
     def now(self) -> float:

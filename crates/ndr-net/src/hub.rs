@@ -10,25 +10,25 @@
 //! frame goes from the kernel to its endpoint in one thread wake-up, with no
 //! hand-over between threads, and frames are written from the same thread.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::io::{self, Write as _};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering as AtomicOrdering};
-use std::sync::mpsc::{self, Receiver, Sender, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
 use mio::net::TcpStream as MioStream;
 use mio::{Events, Interest, Poll, Token, Waker};
-use ndr_core::endpoint::{Endpoint, Event, LinkError, Running};
+use ndr_core::endpoint::{Event, LinkError, Running};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::MAX_FRAME_LEN;
 use tokio::sync::Notify;
 
+use crate::capacity::SizedEndpoint;
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
+use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
-use crate::link::{LinkStats, MAX_AXES, QUEUE, Sample};
-
-pub(crate) type LinkEndpoint = Endpoint<MAX_AXES, QUEUE>;
+use crate::link::LinkStats;
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
@@ -36,12 +36,6 @@ const WAKER: Token = Token(usize::MAX);
 const TIMER: Token = Token(usize::MAX - 1);
 /// Bytes a link may have waiting for a slow socket before it is cut off.
 const MAX_PENDING: usize = 1 << 20;
-
-/// What the hub hands to a link's application.
-pub(crate) enum Delivery {
-    Sample(Sample),
-    Event(Event<MAX_AXES>),
-}
 
 /// State a link's handle and the hub share.
 pub(crate) struct Shared {
@@ -53,9 +47,9 @@ pub(crate) struct Shared {
 
 /// One link as the hub drives it.
 pub(crate) struct Entry {
-    pub endpoint: Box<LinkEndpoint>,
+    pub endpoint: SizedEndpoint,
     pub shared: Arc<Shared>,
-    pub deliveries: SyncSender<Delivery>,
+    pub deliveries: Outbox,
     pub socket: MioStream,
     pub deframer: Deframer,
     /// Bytes the socket would not take yet, in order.
@@ -111,10 +105,15 @@ impl Hub {
     /// A hub with its driver thread (`ndr-hub`), spinning the last
     /// `spin_margin` before each deadline.
     pub fn new(spin_margin: Duration) -> io::Result<Hub> {
+        Hub::with_origin(spin_margin, StdInstant::now())
+    }
+
+    /// A hub whose tick grid starts at `origin` (hubs of one pool share it,
+    /// so their links tick at the same instants, in parallel).
+    pub(crate) fn with_origin(spin_margin: Duration, origin: StdInstant) -> io::Result<Hub> {
         let (tx, rx) = mpsc::channel();
         let poll = Poll::new()?;
         let waker = Waker::new(poll.registry(), WAKER)?;
-        let origin = StdInstant::now();
         let links = Arc::new(AtomicUsize::new(0));
         let timer = precise::Timer::new(poll.registry(), TIMER);
         let driver = Driver {
@@ -127,7 +126,14 @@ impl Hub {
             timers: BTreeSet::new(),
             lateness: LatenessHistogram::new(Duration::from_millis(1)),
             lateness_stats: LatenessStats::default(),
+            releases: LatenessHistogram::new(Duration::from_millis(1)),
+            release_stats: LatenessStats::default(),
             wakes: 0,
+            backlog: VecDeque::new(),
+            events: Events::with_capacity(1024),
+            due: Vec::new(),
+            service: Cost::new(),
+            polling: Cost::new(),
             buf: vec![0; MAX_FRAME_LEN],
             links: Arc::clone(&links),
         };
@@ -151,7 +157,8 @@ impl Hub {
         Hub::new(DEFAULT_SPIN_MARGIN)
     }
 
-    /// Links the hub drives now.
+    /// Links the hub drives now (counted from the moment a link is handed
+    /// to it until it has let the link go).
     #[must_use]
     pub fn links(&self) -> usize {
         self.inner.links.load(AtomicOrdering::Relaxed)
@@ -167,11 +174,70 @@ impl Hub {
 
     /// Hands the hub a message and wakes it; `false` if its thread is gone.
     pub(crate) fn send(&self, msg: Msg) -> bool {
-        self.inner
+        // Counted here, not when the thread gets to it: a pool placing many
+        // links at once must see the ones still in flight.
+        let adds = matches!(msg, Msg::Add(..));
+        if adds {
+            self.inner.links.fetch_add(1, AtomicOrdering::Relaxed);
+        }
+        let sent = self
+            .inner
             .tx
             .as_ref()
             .is_some_and(|tx| tx.send(msg).is_ok())
-            && self.inner.waker.wake().is_ok()
+            && self.inner.waker.wake().is_ok();
+        if adds && !sent {
+            self.inner.links.fetch_sub(1, AtomicOrdering::Relaxed);
+        }
+        sent
+    }
+}
+
+/// A socket the poll reported ready.
+#[derive(Clone, Copy)]
+struct Ready {
+    id: u64,
+    readable: bool,
+    /// The peer closed or the socket failed: read to the end, a short read
+    /// does not mean there is nothing left (the end raises no new edge).
+    closing: bool,
+    writable: bool,
+}
+
+/// What a look at the poll set found besides sockets.
+#[derive(Clone, Copy, Default)]
+struct Woke {
+    /// Anything at all.
+    any: bool,
+    /// The waker: links added or closed.
+    messages: bool,
+}
+
+/// How long a piece of the hub's work takes: a peak that decays by 1/32 at
+/// each new measure, to tell whether one more piece fits before a deadline.
+struct Cost {
+    peak: std::time::Duration,
+}
+
+impl Cost {
+    /// A guard on top of the peak: the clock read and the loop itself.
+    const GUARD: std::time::Duration = std::time::Duration::from_micros(2);
+
+    fn new() -> Cost {
+        Cost {
+            peak: std::time::Duration::from_micros(20),
+        }
+    }
+
+    fn fits(&self, now: StdInstant, deadline: StdInstant) -> bool {
+        now + self.peak + Self::GUARD <= deadline
+    }
+
+    /// A measure longer than `cap` (the spin margin) was a preemption, not
+    /// the work: it counts as `cap`.
+    fn record(&mut self, took: std::time::Duration, cap: std::time::Duration) {
+        let decayed = self.peak - self.peak / 32;
+        self.peak = took.min(cap).max(decayed);
     }
 }
 
@@ -184,10 +250,22 @@ struct Driver {
     input: Receiver<Msg>,
     entries: HashMap<u64, Entry>,
     timers: BTreeSet<(Instant, u64)>,
+    /// How late the hub woke for its deadlines.
     lateness: LatenessHistogram,
     /// Recomputed every so often: percentiles cost a histogram scan.
     lateness_stats: LatenessStats,
+    /// How late each link's deadline was served (its release stamp).
+    releases: LatenessHistogram,
+    release_stats: LatenessStats,
     wakes: u64,
+    /// Sockets reported ready and not served yet, in order.
+    backlog: VecDeque<Ready>,
+    events: Events,
+    /// The deadlines due at a tick (kept to reuse its memory).
+    due: Vec<(Instant, u64)>,
+    /// How long serving one socket takes, and one look at the poll set.
+    service: Cost,
+    polling: Cost,
     buf: Vec<u8>,
     links: Arc<AtomicUsize>,
 }
@@ -196,7 +274,6 @@ impl Driver {
     fn run(mut self) {
         // Best effort: a 1 µs timer slack makes the native sleep precise.
         let _ = crate::clock::set_current_thread_timer_slack(DEFAULT_TIMER_SLACK);
-        let mut events = Events::with_capacity(1024);
         loop {
             let deadline = self
                 .timers
@@ -221,71 +298,101 @@ impl Driver {
                 }
                 (_, None) => None,
             };
-            if let Err(e) = self.poll.poll(&mut events, timeout) {
-                if e.kind() != io::ErrorKind::Interrupted {
-                    return;
-                }
-            }
-            let mut woken = false;
-            let mut timer_fired = false;
-            let mut ready: Vec<(u64, bool, bool)> = Vec::new();
-            for ev in &events {
-                match ev.token() {
-                    WAKER => woken = true,
-                    TIMER => {
-                        timer_fired = true;
-                        if let Some(timer) = &self.timer {
-                            timer.clear();
-                        }
-                    }
-                    Token(t) => ready.push((
-                        t as u64,
-                        ev.is_readable() || ev.is_read_closed() || ev.is_error(),
-                        ev.is_writable(),
-                    )),
-                }
-            }
-            if woken && !self.messages() {
+            let Ok(woke) = self.poll_ready(timeout) else {
+                return;
+            };
+            if woke.messages && !self.messages() {
                 return;
             }
             let Some(d) = deadline else {
-                self.serve(&ready);
+                self.serve_backlog();
                 continue;
             };
+            // Serve what woke us until the spin should start (the tick serves
+            // the rest as it fits): a burst of frames just before a deadline
+            // must not make it late.
             let target = d.checked_sub(self.margin).unwrap_or(d);
+            while let Some(r) = self.backlog.pop_front() {
+                self.serve_timed(r);
+                if StdInstant::now() >= target {
+                    break;
+                }
+            }
+            // The timer fires at the target, never before: a tick is due
+            // exactly when the target has passed.
             let left = target.saturating_duration_since(StdInstant::now());
-            if timer_fired || left.is_zero() {
-                // Deadline first: the sockets that woke us too are read right
-                // after the spin, before the releases (their kernel stamps
-                // keep them in order), so their work does not make the clock late.
-                self.tick(d, &ready);
+            if left.is_zero() {
+                if !self.tick(d) {
+                    return;
+                }
                 continue;
             }
-            self.serve(&ready);
-            if self.timer.is_none()
-                && events.is_empty()
-                && left < std::time::Duration::from_millis(2)
-            {
+            if self.timer.is_none() && !woke.any && left < std::time::Duration::from_millis(2) {
                 // Without a precise timer: sleep the last stretch natively.
                 // Frames arriving meanwhile keep their kernel stamps and are
                 // read before the tick.
                 std::thread::sleep(left);
-                self.tick(d, &[]);
+                if !self.tick(d) {
+                    return;
+                }
             }
         }
     }
 
-    /// Reads and writes for the sockets that are ready.
-    fn serve(&mut self, ready: &[(u64, bool, bool)]) {
-        for &(id, readable, writable) in ready {
-            if readable {
-                self.read(id);
-            }
-            if writable {
-                self.write_pending(id);
-            }
-            self.flush(id);
+    /// Waits for the poll set (at most `timeout`; `None`: until something
+    /// happens), queueing the ready sockets in the backlog.
+    fn poll_ready(&mut self, timeout: Option<std::time::Duration>) -> io::Result<Woke> {
+        let mut woke = Woke::default();
+        if let Err(e) = self.poll.poll(&mut self.events, timeout) {
+            return if e.kind() == io::ErrorKind::Interrupted {
+                Ok(woke)
+            } else {
+                Err(e)
+            };
         }
+        for ev in &self.events {
+            woke.any = true;
+            match ev.token() {
+                WAKER => woke.messages = true,
+                TIMER => {
+                    if let Some(timer) = &self.timer {
+                        timer.clear();
+                    }
+                }
+                Token(t) => self.backlog.push_back(Ready {
+                    id: t as u64,
+                    readable: ev.is_readable(),
+                    closing: ev.is_read_closed() || ev.is_error(),
+                    writable: ev.is_writable(),
+                }),
+            }
+        }
+        Ok(woke)
+    }
+
+    /// Reads and writes for every socket in the backlog.
+    fn serve_backlog(&mut self) {
+        while let Some(r) = self.backlog.pop_front() {
+            self.serve_timed(r);
+        }
+    }
+
+    /// [`serve`](Self::serve), measuring what it costs.
+    fn serve_timed(&mut self, r: Ready) {
+        let start = StdInstant::now();
+        self.serve(r);
+        self.service.record(start.elapsed(), self.margin);
+    }
+
+    /// Reads and writes for one ready socket.
+    fn serve(&mut self, r: Ready) {
+        if r.readable || r.closing {
+            self.read(r.id, r.closing);
+        }
+        if r.writable {
+            self.write_pending(r.id);
+        }
+        self.flush(r.id);
     }
 
     /// Links added or closed by their handles; `false` once every handle
@@ -304,8 +411,6 @@ impl Driver {
                         entry.endpoint.abort(LinkError::Disconnected);
                     }
                     self.entries.insert(id, *entry);
-                    self.links
-                        .store(self.entries.len(), AtomicOrdering::Relaxed);
                     self.flush(id);
                 }
                 Ok(Msg::Close(id)) => {
@@ -321,14 +426,16 @@ impl Driver {
     }
 
     /// Reads everything the socket has, handing each frame to the endpoint
-    /// with its arrival time.
-    fn read(&mut self, id: u64) {
+    /// with its arrival time; to `WouldBlock` or the end if `drain`.
+    fn read(&mut self, id: u64, drain: bool) {
         let origin = self.origin;
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
         loop {
-            match crate::link::arrival::read_now(&e.socket, e.deframer.spare(), e.kernel_stamps) {
+            let spare = e.deframer.spare();
+            let room = spare.len();
+            match crate::link::arrival::read_now(&e.socket, spare, e.kernel_stamps) {
                 Ok((0, _)) => {
                     e.endpoint.abort(LinkError::Disconnected);
                     return;
@@ -353,7 +460,10 @@ impl Driver {
                             }
                         }
                     }
-                    if e.endpoint.is_closed() {
+                    // A short read emptied the socket: data arriving later
+                    // raises a new edge in the poll, so the read that would
+                    // only say `WouldBlock` (a syscall per frame) is skipped.
+                    if e.endpoint.is_closed() || (n < room && !drain) {
                         return;
                     }
                 }
@@ -396,10 +506,30 @@ impl Driver {
             .reregister(&mut e.socket, Token(id as usize), interest);
     }
 
-    /// The deadline `d` has come: spin to it, take what arrived before it,
-    /// then run every endpoint that is due.
-    fn tick(&mut self, d: StdInstant, ready: &[(u64, bool, bool)]) {
-        while StdInstant::now() < d {
+    /// The deadline `d` is near: spin to it, serving the sockets that become
+    /// ready meanwhile one at a time, as long as one more service fits before
+    /// `d` (frames reach their endpoints as they arrive, and the deadline
+    /// keeps its microseconds); then take what is still waiting and run every
+    /// endpoint that is due. `false` once the hub has nothing left to drive.
+    fn tick(&mut self, d: StdInstant) -> bool {
+        let mut messages = false;
+        loop {
+            let now = StdInstant::now();
+            if now >= d {
+                break;
+            }
+            if let Some(&r) = self.backlog.front() {
+                if self.service.fits(now, d) {
+                    self.backlog.pop_front();
+                    self.serve_timed(r);
+                    continue;
+                }
+            } else if self.polling.fits(now, d) {
+                let woke = self.poll_ready(Some(std::time::Duration::ZERO));
+                self.polling.record(now.elapsed(), self.margin);
+                messages |= woke.is_ok_and(|w| w.messages);
+                continue;
+            }
             std::hint::spin_loop();
         }
         // The clock's own precision: how late it woke for this deadline.
@@ -408,53 +538,57 @@ impl Driver {
         self.wakes += 1;
         if self.wakes % 64 == 1 {
             self.lateness_stats = self.lateness.stats();
+            self.release_stats = self.releases.stats();
         }
         // Frames that arrived before the deadline belong before the releases.
-        self.serve(ready);
-        let mut events = Events::with_capacity(256);
-        if self
-            .poll
-            .poll(&mut events, Some(std::time::Duration::ZERO))
-            .is_ok()
-        {
-            for ev in &events {
-                match ev.token() {
-                    WAKER => {
-                        let _ = self.messages();
-                    }
-                    TIMER => {
-                        if let Some(timer) = &self.timer {
-                            timer.clear();
-                        }
-                    }
-                    Token(t) => {
-                        let id = t as u64;
-                        self.read(id);
-                        self.flush(id);
-                    }
-                }
-            }
+        let woke = self.poll_ready(Some(std::time::Duration::ZERO));
+        if (messages || woke.is_ok_and(|w| w.messages)) && !self.messages() {
+            return false;
         }
-        // Releases are stamped when they really happen, after those reads.
+        self.serve_backlog();
+        // Each release is stamped when it really happens, after those reads.
         let now = Instant::from_std(self.origin, StdInstant::now());
-        let due: Vec<u64> = self
-            .timers
-            .iter()
-            .take_while(|&&(t, _)| t <= now)
-            .map(|&(_, id)| id)
-            .collect();
-        for id in due {
+        let mut due = std::mem::take(&mut self.due);
+        due.clear();
+        due.extend(self.timers.iter().take_while(|&&(t, _)| t <= now));
+        // One link: its frame first, then its application (waking that
+        // thread first would delay the frame by the wake-up). Several: every
+        // release first, then the frames, so that the last link's release
+        // does not wait for every other link's write (a syscall of a few µs).
+        let releases_first = due.len() > 1;
+        for &(t, id) in &due {
+            let now = Instant::from_std(self.origin, StdInstant::now());
             if let Some(e) = self.entries.get_mut(&id) {
+                self.releases.record(now - t);
                 take_sample(e);
                 e.endpoint.handle_timeout(now);
+                if releases_first {
+                    deliver(e, true, self.lateness_stats, self.release_stats);
+                }
             }
-            self.flush(id);
+            if !releases_first {
+                self.flush_with(id, true);
+            }
         }
+        if releases_first {
+            for &(_, id) in &due {
+                self.flush(id);
+            }
+        }
+        self.due = due;
+        true
     }
 
     /// Frames to the socket, events to the application, the deadline to the
-    /// index; a closed link leaves the hub.
+    /// index; a closed link leaves the hub. The link's stats are published
+    /// after a tick (before its releases reach the application, so the
+    /// application reads the stats of the tick it got) and with any event:
+    /// not after every read, a copy of a few hundred bytes under a lock.
     fn flush(&mut self, id: u64) {
+        self.flush_with(id, false);
+    }
+
+    fn flush_with(&mut self, id: u64, ticked: bool) {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
@@ -478,22 +612,10 @@ impl Driver {
                 Interest::READABLE | Interest::WRITABLE,
             );
         }
-        let mut delivered = false;
-        while let Some(event) = e.endpoint.poll_event() {
-            let d = match event {
-                Event::Released(s) => Delivery::Sample(s),
-                other => Delivery::Event(other),
-            };
-            match e.deliveries.try_send(d) {
-                Ok(()) => delivered = true,
-                Err(TrySendError::Full(_)) => e.app_dropped += 1,
-                Err(TrySendError::Disconnected(_)) => {}
-            }
+        deliver(e, ticked, self.lateness_stats, self.release_stats);
+        if e.endpoint.is_closed() {
+            publish(e, self.lateness_stats, self.release_stats);
         }
-        if delivered {
-            e.shared.notify.notify_one();
-        }
-        publish(e, self.lateness_stats);
         let next = e.endpoint.poll_timeout();
         if next != e.deadline {
             if let Some(old) = e.deadline {
@@ -514,9 +636,8 @@ impl Driver {
             if let Some(mut gone) = self.entries.remove(&id) {
                 let _ = self.poll.registry().deregister(&mut gone.socket);
                 let _ = gone.socket.shutdown(std::net::Shutdown::Write);
+                self.links.fetch_sub(1, AtomicOrdering::Relaxed);
             }
-            self.links
-                .store(self.entries.len(), AtomicOrdering::Relaxed);
         }
     }
 }
@@ -581,6 +702,32 @@ mod precise {
     }
 }
 
+/// Events to the application; after a tick, the stats first (so the
+/// application reads the stats of the tick it got).
+fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: LatenessStats) {
+    if ticked {
+        publish(e, lateness, releases);
+    }
+    let mut delivered = false;
+    while let Some(event) = e.endpoint.poll_event() {
+        let d = match event {
+            Event::Released(s) => Delivery::Sample(s),
+            other => Delivery::Event(other),
+        };
+        match e.deliveries.try_send(d) {
+            Ok(()) => delivered = true,
+            Err(Refused::Full) => e.app_dropped += 1,
+            Err(Refused::Gone) => {}
+        }
+    }
+    if delivered && !ticked {
+        publish(e, lateness, releases);
+    }
+    if delivered {
+        e.shared.notify.notify_one();
+    }
+}
+
 fn take_sample(e: &mut Entry) {
     let mut slot = e
         .shared
@@ -610,7 +757,7 @@ fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
     true
 }
 
-fn publish(e: &Entry, lateness: LatenessStats) {
+fn publish(e: &Entry, lateness: LatenessStats, release_lateness: LatenessStats) {
     let ep = &e.endpoint;
     let stats = LinkStats {
         phase: ep.phase(),
@@ -621,6 +768,7 @@ fn publish(e: &Entry, lateness: LatenessStats) {
         last_nrtt: ep.last_nrtt(),
         endpoint: ep.stats(),
         lateness,
+        release_lateness,
         app_dropped: e.app_dropped,
         rx_lag: e.rx_lag,
     };

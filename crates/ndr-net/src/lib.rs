@@ -1,20 +1,51 @@
 //! ndr-net: the network side of the ndr link.
 //!
-//! `ndr-core` holds the link as a sans-IO state machine; this crate will own
-//! the sockets (tokio), the release-clock thread and the delay relay. Bytes
-//! from a TCP stream become frames through a [`Deframer`], which bounds its
-//! memory by the protocol's largest frame and refuses an absurd length prefix
-//! before buffering anything.
+//! `ndr-core` holds the link as a sans-IO state machine; this crate drives it
+//! over TCP, keeps its release clock and runs the delay relay.
+//!
+//! # The drive loop
+//!
+//! A [`Hub`] is one OS thread (`ndr-hub`) that owns the endpoints and the
+//! sockets of its links; tokio only connects and accepts, then hands the
+//! socket over. The hub waits in a mio poll (epoll) over the links' sockets,
+//! a waker (links added or closed) and a timerfd armed a spin margin
+//! (200 µs) before the next deadline; the links of one hub share one tick
+//! grid, so one wake-up serves all the links due at an instant. Then:
+//!
+//! - a frame is read as soon as its socket is ready, with the kernel's
+//!   receive timestamp (`SO_TIMESTAMPNS`) as its arrival time, and handed to
+//!   its endpoint at once;
+//! - from the timer to the deadline the hub spins, still serving sockets one
+//!   at a time while one more service fits before the deadline (it measures
+//!   what a service costs), so the deadline keeps its microseconds;
+//! - at the deadline it reads what is still waiting, runs every due endpoint
+//!   (releases to the applications first when several are due), then writes
+//!   their frames itself, non-blocking; bytes a full socket will not take
+//!   wait in the link, bounded.
+//!
+//! Without a timerfd (not Linux), epoll's millisecond timeout is topped up
+//! with a native sleep. A [`HubPool`] spreads links over several hubs on one
+//! grid, one per core. The application holds a [`Link`] (send the next
+//! sample, receive released ones, read [`LinkStats`]). Bytes from a TCP
+//! stream become frames through a [`Deframer`], which bounds its memory by
+//! the protocol's largest frame and refuses an absurd length prefix before
+//! buffering anything. The standalone [`ReleaseClock`] thread keeps the same
+//! kind of deadlines for code that is not a link.
 #![forbid(unsafe_code)]
 
+mod capacity;
 pub mod clock;
+mod delivery;
 pub mod framing;
 pub mod hub;
 pub mod link;
+pub mod pool;
 pub mod relay;
 
+pub use capacity::QUEUE_CAPACITIES;
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
 pub use link::{Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
+pub use pool::HubPool;
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};

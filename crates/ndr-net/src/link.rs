@@ -18,7 +18,7 @@ use std::collections::VecDeque;
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
@@ -29,9 +29,12 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
+use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
+use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
-use crate::hub::{Delivery, Entry, Hub, LinkEndpoint, Msg, Shared};
+use crate::hub::{Entry, Hub, Msg, Shared};
+use crate::pool::HubPool;
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
@@ -50,8 +53,16 @@ pub struct LinkConfig {
     /// How long before a deadline the link thread stops sleeping and spins.
     pub spin_margin: Duration,
     /// Released samples and events that may wait for the application; when
-    /// it does not read, the newest are dropped and counted.
+    /// it does not read, the newest are dropped and counted. Memory follows
+    /// what waits, not this bound.
     pub app_queue: usize,
+    /// Samples the regulator can hold (`ns` ≤ capacity − 1), rounded up to
+    /// one of [`QUEUE_CAPACITIES`](crate::QUEUE_CAPACITIES); default
+    /// [`QUEUE`]. The regulator is inline: about 112 bytes per sample at 8
+    /// channels, so 64 takes 14 KiB per link instead of 38 KiB. Both ends
+    /// need room for the `ns` the base decides (a remote that cannot hold
+    /// it ends the link with [`LinkError::BadParameters`]).
+    pub queue_capacity: usize,
 }
 
 impl LinkConfig {
@@ -62,6 +73,7 @@ impl LinkConfig {
             endpoint,
             spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
             app_queue: 1024,
+            queue_capacity: QUEUE,
         }
     }
 }
@@ -124,8 +136,12 @@ pub struct LinkStats {
     pub last_nrtt: Option<Duration>,
     /// Everything the endpoint counted.
     pub endpoint: Stats,
-    /// How late the link thread served its deadlines.
+    /// How late the hub's thread woke for its deadlines (all its links).
     pub lateness: LatenessStats,
+    /// How late the hub ran each link's deadline (the release's stamp, after
+    /// the frames that arrived before it and the links served before it),
+    /// over all its links.
+    pub release_lateness: LatenessStats,
     /// Samples and events dropped because the application did not read them.
     pub app_dropped: u64,
     /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
@@ -136,7 +152,7 @@ pub struct LinkStats {
 /// One side of a running link. Dropping it closes the link.
 pub struct Link {
     id: u64,
-    deliveries: Receiver<Delivery>,
+    deliveries: Inbox,
     shared: Arc<Shared>,
     events: VecDeque<Event<MAX_AXES>>,
     axes: usize,
@@ -213,7 +229,7 @@ impl Link {
         let kernel_stamps = arrival::enable(&std_stream);
         let socket = mio::net::TcpStream::from_std(std_stream);
         let id = hub.next_id();
-        let (del_tx, del_rx) = mpsc::sync_channel::<Delivery>(config.app_queue.max(1));
+        let (del_tx, del_rx) = delivery::queue(config.app_queue);
         let shared = Arc::new(Shared {
             sample: Mutex::new((vec![0.0; usize::from(cfg.axes)], false)),
             stats: Mutex::new(None),
@@ -221,7 +237,8 @@ impl Link {
         });
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());
-        let endpoint = Box::new(LinkEndpoint::new(cfg, now).map_err(NetError::Config)?);
+        let endpoint =
+            SizedEndpoint::new(cfg, now, config.queue_capacity).map_err(NetError::Config)?;
         let entry = Entry {
             endpoint,
             shared: Arc::clone(&shared),
@@ -495,8 +512,14 @@ fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
 pub struct Listener {
     listener: TcpListener,
     config: LinkConfig,
-    hub: Hub,
+    hubs: Hubs,
     role: Role,
+}
+
+/// Where a listener puts the links it accepts.
+enum Hubs {
+    One(Hub),
+    Pool(HubPool),
 }
 
 impl Listener {
@@ -504,7 +527,7 @@ impl Listener {
     pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         Ok(Listener {
             listener: TcpListener::bind(addr).await?,
-            hub: Hub::new(config.spin_margin)?,
+            hubs: Hubs::One(Hub::new(config.spin_margin)?),
             config,
             role: Role::Remote,
         })
@@ -522,7 +545,15 @@ impl Listener {
     /// connections) instead of a hub of its own.
     #[must_use]
     pub fn with_hub(mut self, hub: Hub) -> Listener {
-        self.hub = hub;
+        self.hubs = Hubs::One(hub);
+        self
+    }
+
+    /// Spreads the links it accepts over a pool of hubs (each to the least
+    /// loaded one) instead of a hub of its own.
+    #[must_use]
+    pub fn with_pool(mut self, pool: HubPool) -> Listener {
+        self.hubs = Hubs::Pool(pool);
         self
     }
 
@@ -536,7 +567,11 @@ impl Listener {
     /// link does not affect the listener.
     pub async fn accept(&self) -> Result<Link, NetError> {
         let (stream, _) = self.listener.accept().await?;
-        Link::start(stream, self.role, self.config, Handle::current(), &self.hub)
+        let hub = match &self.hubs {
+            Hubs::One(hub) => hub,
+            Hubs::Pool(pool) => pool.least_loaded(),
+        };
+        Link::start(stream, self.role, self.config, Handle::current(), hub)
     }
 }
 
@@ -594,14 +629,19 @@ pub(crate) mod arrival {
         use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
         use nix::sys::socket::{ControlMessageOwned, MsgFlags, recvmsg};
-        use nix::sys::time::TimeSpec;
+
+        /// Room for one control message (`SCM_TIMESTAMPNS` needs 32 bytes
+        /// on 64-bit Linux), aligned as `cmsghdr` wants, on the stack: nix's
+        /// `cmsg_space!` would allocate at every read.
+        #[repr(C, align(8))]
+        struct Control([u8; 64]);
 
         let mut iov = [io::IoSliceMut::new(buf)];
-        let mut cmsg = nix::cmsg_space!(TimeSpec);
+        let mut cmsg = Control([0; 64]);
         let msg = recvmsg::<()>(
             socket.as_raw_fd(),
             &mut iov,
-            Some(&mut cmsg),
+            Some(&mut cmsg.0),
             MsgFlags::empty(),
         )
         .map_err(io::Error::from)?;

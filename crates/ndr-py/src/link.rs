@@ -22,7 +22,7 @@ use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
 use ndr_net::link::MAX_AXES;
-use ndr_net::{Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
+use ndr_net::{LatenessStats, Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -462,20 +462,24 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
     d.set_item("nrtt", running(&e.nrtt)?)?;
     d.set_item("grtt", running(&e.grtt)?)?;
     d.set_item("rx_lag", running(&s.rx_lag)?)?;
-    let l = &s.lateness;
-    let lateness = PyDict::new(py);
-    lateness.set_item("count", l.count)?;
-    lateness.set_item("missed", l.missed)?;
-    for (k, v) in [
-        ("p50", l.p50),
-        ("p99", l.p99),
-        ("p999", l.p999),
-        ("max", l.max),
-        ("mean", l.mean),
-    ] {
-        lateness.set_item(k, secs(v))?;
-    }
-    d.set_item("lateness", lateness)?;
+    let lateness = |l: &LatenessStats| -> PyResult<Bound<'py, PyDict>> {
+        let m = PyDict::new(py);
+        m.set_item("count", l.count)?;
+        m.set_item("missed", l.missed)?;
+        for (k, v) in [
+            ("p50", l.p50),
+            ("p99", l.p99),
+            ("p999", l.p999),
+            ("max", l.max),
+            ("mean", l.mean),
+        ] {
+            m.set_item(k, secs(v))?;
+        }
+        Ok(m)
+    };
+    // When the hub woke for its deadlines, and when each release happened.
+    d.set_item("lateness", lateness(&s.lateness)?)?;
+    d.set_item("release_lateness", lateness(&s.release_lateness)?)?;
     Ok(d)
 }
 
