@@ -27,7 +27,7 @@ use ndr::core::endpoint::Config;
 use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
 use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
-use ndr::net::{Link, LinkConfig, LinkStats, Listener};
+use ndr::net::{Hub, LinkConfig, LinkStats, Listener};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -126,10 +126,20 @@ fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> Link
     c.period = Duration::from_millis(period_ms);
     let config = LinkConfig::new(c);
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let hub = |margin| Hub::new(margin).unwrap();
+    // Two machines' tick grids are unrelated; two hubs made at once in one
+    // process would tick together, each busy with its own tick when the
+    // other's frame arrives. Half a period apart, as if at random.
+    let remote_hub = hub(config.spin_margin);
+    std::thread::sleep(StdDuration::from_micros(period_ms * 500));
+    let base_hub = hub(config.spin_margin);
     let (mut base, mut remote) = rt.block_on(async {
-        let listener = Listener::bind(any, config).await.unwrap();
+        let listener = Listener::bind(any, config)
+            .await
+            .unwrap()
+            .with_hub(remote_hub);
         let addr = listener.local_addr().unwrap();
-        let (r, b) = tokio::join!(listener.accept(), Link::connect(addr, config));
+        let (r, b) = tokio::join!(listener.accept(), base_hub.connect(addr, config));
         (b.unwrap(), r.unwrap())
     });
     let robot = std::thread::spawn(move || {
