@@ -56,7 +56,9 @@ def _axes(ax: Any, rows: int = 1) -> tuple:
     if ax is not None:
         axes = ax if rows > 1 else [ax]
         return axes[0].figure, list(axes)
-    fig, axes = plt.subplots(rows, 1, sharex=True, figsize=(8, 3 * rows), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, 1, sharex=True, figsize=(8, 3 * rows), squeeze=False, constrained_layout=True
+    )
     return fig, list(axes[:, 0])
 
 
