@@ -666,33 +666,28 @@ class _Listener:
     @property
     def refused(self) -> int: ...
 
+@final
+class _LinkSettings:
+    """One side's link settings, checked once (see :meth:`ndr.Link.connect`)."""
+
+    def __new__(
+        cls,
+        *,
+        role: str,
+        axes: int,
+        period: float,
+        mode: str,
+        playout: str,
+        underflow: str,
+        watchdog: Optional[float],
+        handshake_timeout: float,
+        app_queue: int,
+    ) -> "_LinkSettings": ...
+
 def connect(
-    address: _Address,
-    *,
-    role: str,
-    axes: int,
-    period: float,
-    mode: str,
-    playout: str,
-    underflow: str,
-    watchdog: Optional[float],
-    handshake_timeout: float,
-    connect_timeout: Optional[float],
-    app_queue: int,
+    address: _Address, settings: _LinkSettings, *, connect_timeout: Optional[float]
 ) -> _Link: ...
-def listen(
-    address: _Address,
-    *,
-    role: str,
-    axes: int,
-    period: float,
-    mode: str,
-    playout: str,
-    underflow: str,
-    watchdog: Optional[float],
-    handshake_timeout: float,
-    app_queue: int,
-) -> _Listener: ...
+def listen(address: _Address, settings: _LinkSettings) -> _Listener: ...
 
 @final
 class Relay:

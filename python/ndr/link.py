@@ -85,6 +85,26 @@ class Event:
     details: dict = field(default_factory=dict)
 
 
+# The keyword arguments of Link.connect and Link.listen that configure the
+# link, and the native settings' name for each.
+_SETTINGS = {
+    "role": "role",
+    "axes": "axes",
+    "period": "period",
+    "mode": "mode",
+    "playout": "playout",
+    "underflow": "underflow",
+    "watchdog": "watchdog",
+    "handshake_timeout": "handshake_timeout",
+    "queue": "app_queue",
+}
+
+
+def _settings(args: dict) -> "_native._LinkSettings":
+    """The link settings among a call's arguments, checked once in Rust."""
+    return _native._LinkSettings(**{native: args[name] for name, native in _SETTINGS.items()})
+
+
 def _is_normal_end(exc: BaseException) -> bool:
     if isinstance(exc, LinkClosedError):
         return True
@@ -168,19 +188,7 @@ class Link:
             TimeoutError: no connection within ``connect_timeout``.
             ValueError: a setting is invalid (the message says which).
         """
-        native = _native.connect(
-            address,
-            role=role,
-            axes=axes,
-            period=period,
-            mode=mode,
-            playout=playout,
-            underflow=underflow,
-            watchdog=watchdog,
-            handshake_timeout=handshake_timeout,
-            connect_timeout=connect_timeout,
-            app_queue=queue,
-        )
+        native = _native.connect(address, _settings(locals()), connect_timeout=connect_timeout)
         return cls(native, on_event=on_event)
 
     @classmethod
@@ -203,18 +211,7 @@ class Link:
         :class:`Listener` whose :meth:`~Listener.accept` gives one link per
         peer. The keyword arguments are those of :meth:`connect`; ``role``
         defaults to ``"remote"``."""
-        native = _native.listen(
-            address,
-            role=role,
-            axes=axes,
-            period=period,
-            mode=mode,
-            playout=playout,
-            underflow=underflow,
-            watchdog=watchdog,
-            handshake_timeout=handshake_timeout,
-            app_queue=queue,
-        )
+        native = _native.listen(address, _settings(locals()))
         return Listener(native, on_event=on_event)
 
     # -- samples ----------------------------------------------------------

@@ -118,6 +118,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<link::PyTick>()?;
     m.add_class::<link::PyLink>()?;
     m.add_class::<link::PyListener>()?;
+    m.add_class::<link::PyLinkSettings>()?;
     m.add_function(wrap_pyfunction!(link::connect, m)?)?;
     m.add_function(wrap_pyfunction!(link::listen, m)?)?;
     m.add("MAX_AXES", ndr_net::link::MAX_AXES)?;

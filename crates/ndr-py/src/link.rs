@@ -29,7 +29,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::blocking::{self, timed_out, wait};
-use crate::convert::{period, sample};
+use crate::convert::{period as positive, sample};
 use crate::errors::{link_error, net_error};
 use crate::log;
 
@@ -483,89 +483,82 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
-/// The settings of one side of a link, from Python's keyword arguments.
-#[allow(clippy::too_many_arguments)]
-fn link_config(
-    role: &str,
-    axes: u16,
-    period_s: f64,
-    mode: &str,
-    playout: &str,
-    underflow: &str,
-    watchdog: Option<f64>,
-    handshake_timeout: f64,
-    app_queue: usize,
-) -> PyResult<(LinkConfig, Role)> {
-    let role = match role {
-        "base" => Role::Base,
-        "remote" => Role::Remote,
-        other => {
+/// The settings of one side of a link, checked once (`ndr.Link.connect`
+/// and `ndr.Link.listen` build one from their keyword arguments).
+#[pyclass(frozen, module = "ndr._native", name = "_LinkSettings")]
+pub struct PyLinkSettings {
+    config: LinkConfig,
+    role: Role,
+}
+
+#[pymethods]
+impl PyLinkSettings {
+    #[new]
+    #[pyo3(signature = (*, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, app_queue))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        role: &str,
+        axes: u16,
+        period: f64,
+        mode: &str,
+        playout: &str,
+        underflow: &str,
+        watchdog: Option<f64>,
+        handshake_timeout: f64,
+        app_queue: usize,
+    ) -> PyResult<Self> {
+        let role = match role {
+            "base" => Role::Base,
+            "remote" => Role::Remote,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "role must be \"base\" (the operator's side) or \"remote\" (the robot's), got {other:?}"
+                )));
+            }
+        };
+        if axes == 0 || usize::from(axes) > MAX_AXES {
             return Err(PyValueError::new_err(format!(
-                "role must be \"base\" (the operator's side) or \"remote\" (the robot's), got {other:?}"
+                "axes must be 1 to {MAX_AXES} for a link, got {axes}"
             )));
         }
-    };
-    if axes == 0 || usize::from(axes) > MAX_AXES {
-        return Err(PyValueError::new_err(format!(
-            "axes must be 1 to {MAX_AXES} for a link, got {axes}"
-        )));
+        let mut endpoint = Config::new(role);
+        endpoint.axes = axes;
+        endpoint.period = positive("period", period)?;
+        endpoint.mode = mode
+            .parse::<Mode>()
+            .map_err(|e| PyValueError::new_err(format!("mode: {e}")))?;
+        endpoint.underflow = underflow
+            .parse::<Underflow>()
+            .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
+        endpoint.playout = playout
+            .parse::<Playout>()
+            .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
+        endpoint.watchdog = watchdog.map(|w| positive("watchdog", w)).transpose()?;
+        endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;
+        endpoint
+            .validate()
+            .map_err(|e| PyValueError::new_err(format!("link configuration: {e}")))?;
+        if app_queue == 0 {
+            return Err(PyValueError::new_err(
+                "app_queue must be at least 1 (samples and events waiting for the application)",
+            ));
+        }
+        let mut config = LinkConfig::new(endpoint);
+        config.app_queue = app_queue;
+        Ok(PyLinkSettings { config, role })
     }
-    let mut endpoint = Config::new(role);
-    endpoint.axes = axes;
-    endpoint.period = period("period", period_s)?;
-    endpoint.mode = mode
-        .parse::<Mode>()
-        .map_err(|e| PyValueError::new_err(format!("mode: {e}")))?;
-    endpoint.underflow = underflow
-        .parse::<Underflow>()
-        .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
-    endpoint.playout = playout
-        .parse::<Playout>()
-        .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
-    endpoint.watchdog = watchdog.map(|w| period("watchdog", w)).transpose()?;
-    endpoint.handshake_timeout = period("handshake_timeout", handshake_timeout)?;
-    endpoint
-        .validate()
-        .map_err(|e| PyValueError::new_err(format!("link configuration: {e}")))?;
-    if app_queue == 0 {
-        return Err(PyValueError::new_err(
-            "app_queue must be at least 1 (samples and events waiting for the application)",
-        ));
-    }
-    let mut config = LinkConfig::new(endpoint);
-    config.app_queue = app_queue;
-    Ok((config, role))
 }
 
 /// Connects to a peer and waits for the handshake.
 #[pyfunction]
-#[pyo3(signature = (address, *, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, connect_timeout, app_queue))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (address, settings, *, connect_timeout))]
 pub fn connect(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
-    role: &str,
-    axes: u16,
-    period: f64,
-    mode: &str,
-    playout: &str,
-    underflow: &str,
-    watchdog: Option<f64>,
-    handshake_timeout: f64,
+    settings: &PyLinkSettings,
     connect_timeout: Option<f64>,
-    app_queue: usize,
 ) -> PyResult<PyLink> {
-    let (config, role) = link_config(
-        role,
-        axes,
-        period,
-        mode,
-        playout,
-        underflow,
-        watchdog,
-        handshake_timeout,
-        app_queue,
-    )?;
+    let (config, role) = (settings.config, settings.role);
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
     let rt = blocking::runtime()?;
@@ -613,32 +606,12 @@ pub struct PyListener {
 
 /// Listens for peers.
 #[pyfunction]
-#[pyo3(signature = (address, *, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, app_queue))]
-#[allow(clippy::too_many_arguments)]
 pub fn listen(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
-    role: &str,
-    axes: u16,
-    period: f64,
-    mode: &str,
-    playout: &str,
-    underflow: &str,
-    watchdog: Option<f64>,
-    handshake_timeout: f64,
-    app_queue: usize,
+    settings: &PyLinkSettings,
 ) -> PyResult<PyListener> {
-    let (config, role) = link_config(
-        role,
-        axes,
-        period,
-        mode,
-        playout,
-        underflow,
-        watchdog,
-        handshake_timeout,
-        app_queue,
-    )?;
+    let (config, role) = (settings.config, settings.role);
     let addr = blocking::address(py, address)?;
     let rt = blocking::runtime()?;
     let listener = py
