@@ -346,7 +346,7 @@ fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN]) {
 }
 
 /// The counters that only ever grow.
-fn counters(s: &Stats) -> [u64; 13] {
+fn counters(s: &Stats) -> [u64; 14] {
     [
         s.frames_sent,
         s.frames_received,
@@ -359,6 +359,7 @@ fn counters(s: &Stats) -> [u64; 13] {
         s.late,
         s.rejected,
         s.discarded,
+        s.skipped,
         s.pauses,
         s.link_lost,
     ]
