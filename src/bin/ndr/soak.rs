@@ -73,9 +73,13 @@ struct SoakReport {
     /// (late, rejected, discarded) accounts for.
     lost: u64,
     /// Fresh samples missing in a connection's sequence, each counted by the
-    /// link as late (dropped under `drop-late`), rejected or discarded.
+    /// link as late (dropped under `drop-late`), rejected, discarded or not
+    /// read in time by the application.
     dropped_with_counter: u64,
+    /// Samples refused by a full regulator.
     rejected: u64,
+    /// Releases dropped because the application's queue was full.
+    app_dropped: u64,
     /// Fresh samples released twice.
     duplicated: u64,
     /// Fresh samples released out of order.
@@ -273,9 +277,12 @@ struct Conn {
     remote_tx_dropped: f64,
 }
 
-/// Samples a link's counters say it received but did not release.
+/// Samples a link's counters say it received but did not hand to the
+/// application: dropped late, refused by a full regulator, discarded by a
+/// pause, or dropped because the application's queue was full (that counter
+/// also counts events, so it bounds the samples from above).
 fn dropped(s: &LinkStats) -> u64 {
-    s.endpoint.late + s.endpoint.rejected + s.endpoint.discarded
+    s.endpoint.late + s.endpoint.rejected + s.endpoint.discarded + s.app_dropped
 }
 
 fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
@@ -463,6 +470,7 @@ fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
     if let Some(s) = stats {
         let e = s.endpoint;
         r.rejected += e.rejected;
+        r.app_dropped += s.app_dropped;
         r.samples_sent += e.samples_sent;
         r.samples_released += e.released_fresh;
         r.held += e.released_held;
@@ -588,8 +596,16 @@ fn print_table(r: &SoakReport) {
     );
     println!(
         "  integrity    {} lost · {} duplicated · {} reordered · {} corrupted · {} seen by the remote \
-         (and {} dropped with a counter: late or rejected)",
-        r.lost, r.duplicated, r.reordered, r.corrupted, r.remote_anomalies, r.dropped_with_counter
+         (and {} dropped with a counter: {} late, {} rejected, {} not read in time)",
+        r.lost,
+        r.duplicated,
+        r.reordered,
+        r.corrupted,
+        r.remote_anomalies,
+        r.dropped_with_counter,
+        r.late,
+        r.rejected,
+        r.app_dropped
     );
     println!(
         "  faults       {} relay restarts · {} garbage ({} cut off) · {} remote kills · {} delay spikes",
