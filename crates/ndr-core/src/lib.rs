@@ -95,6 +95,7 @@ pub mod rls;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod sizing;
+pub mod sync;
 pub mod time;
 pub mod wire;
 
