@@ -57,11 +57,16 @@ use crate::playout::{Target, TargetDelay};
 use crate::predictor::{NetworkPredictor, Prediction};
 use crate::regulator::{self, Occupancy, Regulator, Tick};
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
+use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
 use crate::wire::{
     self, Control, Echo, Frame, Header, Hello, Kind, Message, Payload, Role, control_op,
 };
 use event::Head;
+
+fn ns_i64(t: Instant) -> i64 {
+    i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
+}
 
 /// Where the endpoint is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,6 +136,10 @@ pub struct Endpoint<const C: usize, const N: usize> {
     /// Target-delay playout: frames sent at or before this (peer clock) had
     /// their slot at a tick already run.
     passed: Option<Instant>,
+    /// The peer's clock offset and skew.
+    sync: ClockSync,
+    /// Target-delay playout: the constant end-to-end delay now, in ticks.
+    delay_ticks: Option<u64>,
     predictor: NetworkPredictor,
     pattern: InitPattern,
     next_tick: Option<Instant>,
@@ -188,6 +197,8 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             })?,
             target: config.playout.target(config.period),
             passed: None,
+            sync: ClockSync::new(),
+            delay_ticks: None,
             predictor,
             pattern: InitPattern::new(),
             next_tick: None,
@@ -446,6 +457,23 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         self.last_nrtt
     }
 
+    /// The estimate of the peer's clock offset and skew.
+    #[must_use]
+    pub fn clock_sync(&self) -> &ClockSync {
+        &self.sync
+    }
+
+    /// Target-delay playout: the end-to-end delay samples get now (the
+    /// release time on the local clock minus the send time on the peer's,
+    /// corrected by the offset estimate for [`Playout::Adaptive`]); `None`
+    /// for the FIFO and before the policy has a target.
+    ///
+    /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
+    #[must_use]
+    pub fn playout_delay(&self) -> Option<Duration> {
+        self.current_delay(self.last_tick()?)
+    }
+
     /// The peer's Hello, once the handshake is done.
     #[must_use]
     pub fn peer(&self) -> Option<Hello> {
@@ -516,8 +544,9 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
 
     fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
+        self.sync.observe_arrival(sent_at, now);
         if let Some(echo) = frame.echo() {
-            self.measure_nrtt(now, echo)?;
+            self.measure_nrtt(now, echo, sent_at)?;
         }
         self.newest_rx = Some((sent_at, now));
         match frame.payload() {
@@ -572,7 +601,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         }
     }
 
-    fn measure_nrtt(&mut self, now: Instant, echo: Echo) -> Result<(), LinkError> {
+    fn measure_nrtt(&mut self, now: Instant, echo: Echo, t3: Instant) -> Result<(), LinkError> {
         // Several peer frames can echo the same one of ours: measure once.
         if self.newest_echo.is_some_and(|t| echo.sent_at <= t) {
             return Ok(());
@@ -585,6 +614,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             });
         };
         self.newest_echo = Some(echo.sent_at);
+        self.sync.observe_echo(echo.sent_at, echo.hold, t3);
+        if let Some(d) = self.sync.one_way_tx(echo.sent_at, echo.hold, t3) {
+            self.stats.one_way_tx.push(d);
+        }
         let nrtt = rtt.saturating_sub(echo.hold);
         self.last_nrtt = Some(nrtt);
         self.stats.nrtt.push_duration(nrtt);
@@ -791,6 +824,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             }
             Phase::Running => {
                 self.release(t);
+                self.track_delay(t);
                 self.watch(t);
                 let seq = self.take_seq(t);
                 self.queue_tx(Tx::Sample { seq });
@@ -872,8 +906,58 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// Frames sent (peer clock) at or before this have their slot at or
     /// before the tick `t` for a target delay `d`.
     fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
-        // Peer clock = local clock until an offset estimate maps them (issue 7).
-        t - d
+        match self.floor_ns(t) {
+            // Send times on the peer's clock: `t − floor(t)` is the send time
+            // of a frame arriving now at the floor delay.
+            Some(floor) => {
+                let d = i64::try_from(d.as_nanos()).unwrap_or(i64::MAX);
+                let c = ns_i64(t).saturating_sub(floor).saturating_sub(d);
+                Instant::from_nanos(u64::try_from(c).unwrap_or(0))
+            }
+            // The other policies take the two clocks as one.
+            None => t - d,
+        }
+    }
+
+    /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive): the floor
+    /// of the raw delays at `t` (ns), to which its target is relative.
+    fn floor_ns(&self, t: Instant) -> Option<i64> {
+        match self.target {
+            Some(Target::Adaptive(_)) => Some(self.sync.floor_at(t)? as i64),
+            _ => None,
+        }
+    }
+
+    /// The end-to-end delay a sample released at `t` gets, offset-corrected.
+    fn current_delay(&self, t: Instant) -> Option<Duration> {
+        let d = self.target.as_ref()?.target()?;
+        match self.floor_ns(t) {
+            Some(floor) => {
+                let offset = self.sync.offset_at(t).unwrap_or(0.0);
+                let e2e = floor as f64 * 1e-9 - offset + d.as_secs_f64();
+                Some(Duration::from_secs_f64(e2e.max(0.0)))
+            }
+            None => Some(d),
+        }
+    }
+
+    fn last_tick(&self) -> Option<Instant> {
+        Some(self.next_tick? - self.period)
+    }
+
+    /// Emits [`Event::DelayChanged`] when the delay in ticks changes.
+    fn track_delay(&mut self, t: Instant) {
+        let Some(d) = self.current_delay(t) else {
+            return;
+        };
+        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        self.stats.playout_delay_s = d.as_secs_f64();
+        self.stats.playout_delay_ticks = ticks;
+        if self.delay_ticks != Some(ticks) {
+            self.delay_ticks = Some(ticks);
+            self.stats.delay_changes += 1;
+            self.emit(Event::DelayChanged { delay: d, ticks });
+        }
     }
 
     /// A one-way delay sample for the playout policy, from a frame's send
@@ -881,8 +965,19 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// the two clocks meet: they are taken as synchronized (a simulation, or
     /// hosts synchronized by PTP or GPS); an offset estimate belongs here.
     fn observe_one_way(&mut self, sent_at: Instant, arrived: Instant) {
+        if let Some(d) = self.sync.one_way_rx(sent_at, arrived) {
+            self.stats.one_way_rx.push(d);
+        }
+        let delay = match self.floor_ns(arrived) {
+            // Adaptive: the delay above the floor, whatever the clocks.
+            Some(floor) => {
+                let raw = ns_i64(arrived).saturating_sub(ns_i64(sent_at));
+                Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0))
+            }
+            None => arrived - sent_at,
+        };
         if let Some(target) = &mut self.target {
-            target.observe(sent_at, arrived - sent_at);
+            target.observe(sent_at, delay);
         }
     }
 

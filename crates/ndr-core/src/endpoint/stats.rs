@@ -121,4 +121,18 @@ pub struct Stats {
     pub nrtt: Running,
     /// Round trips as the application sees them, in seconds.
     pub grtt: Running,
+    /// One-way delays of the frames received, in seconds (raw delay minus
+    /// the clock offset estimate; from the first echo on).
+    pub one_way_rx: Running,
+    /// One-way delays of our frames, from the peer's echoes, in seconds.
+    pub one_way_tx: Running,
+    /// Target-delay playout: the end-to-end delay of the samples released
+    /// now, in seconds (offset-corrected for the adaptive policy).
+    pub playout_delay_s: f64,
+    /// The same in ticks (periods, rounded up).
+    pub playout_delay_ticks: u64,
+    /// Changes of `playout_delay_ticks` (each one an [`Event::DelayChanged`]).
+    ///
+    /// [`Event::DelayChanged`]: super::Event::DelayChanged
+    pub delay_changes: u64,
 }

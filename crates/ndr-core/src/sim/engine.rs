@@ -477,7 +477,8 @@ impl Sim<'_> {
                 Event::Paused { .. }
                 | Event::Connected { .. }
                 | Event::LinkLost { .. }
-                | Event::LinkRestored => {}
+                | Event::LinkRestored
+                | Event::DelayChanged { .. } => {}
                 Event::Closed { error } => {
                     if let Some(e) = error {
                         return Err(self.link_error(side, e));
