@@ -541,7 +541,9 @@ fn bucket_of(d: Duration) -> usize {
         let shift = e - 6;
         LINEAR + (shift - 1) * PER_OCTAVE + ((u >> shift) - PER_OCTAVE)
     };
-    usize::try_from(b).unwrap_or(usize::MAX).min(ADAPTIVE_BUCKETS - 1)
+    usize::try_from(b)
+        .unwrap_or(usize::MAX)
+        .min(ADAPTIVE_BUCKETS - 1)
 }
 
 /// The upper edge of bucket `b` (every delay in it is below).

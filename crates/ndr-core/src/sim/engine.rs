@@ -477,8 +477,12 @@ impl Sim<'_> {
                 Event::Paused { .. }
                 | Event::Connected { .. }
                 | Event::LinkLost { .. }
-                | Event::LinkRestored
-                | Event::DelayChanged { .. } => {}
+                | Event::LinkRestored => {}
+                Event::DelayChanged { .. } => {
+                    if side == Role::Remote {
+                        self.collect.delay_events_fwd += 1;
+                    }
+                }
                 Event::Closed { error } => {
                     if let Some(e) = error {
                         return Err(self.link_error(side, e));
