@@ -76,7 +76,6 @@ fn the_delay_is_near_the_oracle_and_the_late_rate_near_epsilon() {
 }
 
 #[test]
-#[ignore = "known gap (issue 7): at -100 ppm on the WAN family the true delay drifts with the skew; see docs/algorithms.md §10"]
 fn an_hour_at_100_ppm_keeps_the_delay_and_the_late_rate() {
     // A 100 ms period keeps the debug build quick. The release grid slides
     // under the sender's (the clocks differ), so each delay is the target

@@ -923,7 +923,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// of the raw delays at `t` (ns), to which its target is relative.
     fn floor_ns(&self, t: Instant) -> Option<i64> {
         match self.target {
-            Some(Target::Adaptive(_)) => Some(self.sync.floor_at(t)? as i64),
+            Some(Target::Adaptive(_)) => Some((self.sync.floor_at(t)? * 1e9) as i64),
             _ => None,
         }
     }

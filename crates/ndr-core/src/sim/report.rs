@@ -135,6 +135,8 @@ pub struct Report {
     pub delay_changes_fwd: u64,
     /// `DelayChanged` events the remote's application received.
     pub delay_events_fwd: u64,
+    /// The remote's playout delay at the end (target policies), s.
+    pub playout_delay_fwd_s: f64,
 }
 
 /// One base tick of a run, for plots (`ndr sim --out`). Times in seconds;
@@ -379,6 +381,7 @@ impl Collector {
             one_way_bwd_mean_s: bs.one_way_rx.mean(),
             delay_changes_fwd: rs.delay_changes,
             delay_events_fwd: self.delay_events_fwd,
+            playout_delay_fwd_s: rs.playout_delay_s,
             profile: cfg.model.name(),
             mode: String::from(cfg.mode.name()),
             underflow: String::from(cfg.underflow.name()),
