@@ -800,6 +800,63 @@ mod tests {
     }
 
     #[test]
+    fn adaptive_buckets_cover_their_delays() {
+        for us in [
+            0u64,
+            49,
+            50,
+            6_399,
+            6_400,
+            6_450,
+            99_999,
+            1_234_567,
+            104_000_000,
+        ] {
+            let d = Duration::from_micros(us);
+            let b = bucket_of(d);
+            assert!(d < bucket_upper(b), "{us} µs in bucket {b}");
+            if b > 0 {
+                assert!(d >= bucket_upper(b - 1), "{us} µs above bucket {b}");
+            }
+        }
+        // 64 buckets per octave: at most 1.6 % wide above 6.4 ms.
+        let b = bucket_of(ms(500));
+        let width = bucket_upper(b) - bucket_upper(b - 1);
+        assert!(width.as_secs_f64() <= 0.016 * 0.5, "{width:?}");
+        assert_eq!(bucket_of(Duration::from_secs(1000)), ADAPTIVE_BUCKETS - 1);
+    }
+
+    #[test]
+    fn adaptive_quantile_window_and_slew() {
+        let mut p = Adaptive::new(ms(20), 0.01);
+        assert_eq!(p.target(), None);
+        // 1000 delays: 989 at 10 ms, 11 at 90 ms; ε·n = 10 may be above:
+        // the quantile is 90 ms's bucket.
+        for k in 0..1000u64 {
+            let d = if k % 90 == 5 { 90 } else { 10 };
+            p.observe(Instant::from_millis(k * 20), ms(d));
+        }
+        let q = p.goal().unwrap();
+        assert!(q > ms(90) && q < ms(92), "{q:?}");
+        // Only small delays for the next 2 minutes: the window forgets the
+        // large ones, and the target falls at most 2 ms (0.1·T) per sample.
+        let before = p.target().unwrap();
+        p.observe(Instant::from_millis(20_000), ms(10));
+        let after = p.target().unwrap();
+        assert!(before - after <= ms(2) + Duration::from_nanos(1));
+        for k in 1..7000u64 {
+            p.observe(Instant::from_millis(20_000 + k * 20), ms(10));
+        }
+        let q = p.goal().unwrap();
+        assert!(q > ms(10) && q <= ms(11), "{q:?}");
+        assert_eq!(p.target(), Some(q));
+        // A rise is followed by up to one period per sample.
+        p.observe(Instant::from_millis(200_000), ms(500));
+        p.observe(Instant::from_millis(200_020), ms(500));
+        assert!(p.target().unwrap() <= q + ms(40) + Duration::from_nanos(2));
+    }
+
+    #[test]
     fn names_round_trip() {
         for p in [
             Playout::Fifo,
@@ -808,6 +865,8 @@ mod tests {
             Playout::NetEq,
             Playout::FixedAboveMin { latency: ms(200) },
             Playout::Constant { delay: ms(120) },
+            Playout::ADAPTIVE,
+            Playout::Adaptive { epsilon_ppm: 5000 },
         ] {
             let name = std::format!("{p}");
             assert_eq!(name.parse::<Playout>(), Ok(p), "{name}");
@@ -820,5 +879,11 @@ mod tests {
         );
         assert!("constant:-1".parse::<Playout>().is_err());
         assert!("oracle".parse::<Playout>().is_err());
+        assert_eq!(
+            "adaptive:0.5".parse::<Playout>(),
+            Ok(Playout::Adaptive { epsilon_ppm: 5000 })
+        );
+        assert!("adaptive:0".parse::<Playout>().is_err());
+        assert!("adaptive:100".parse::<Playout>().is_err());
     }
 }
