@@ -561,6 +561,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
         self.sync.observe_arrival(sent_at, now);
+        if let Some(theta) = self.sync.offset_at(now) {
+            self.stats.clock_offset_s = theta;
+        }
+        self.stats.clock_skew_ppm = self.sync.skew() * 1e6;
         if let Some(echo) = frame.echo() {
             self.measure_nrtt(now, echo, sent_at)?;
         }
@@ -979,7 +983,13 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     fn adaptive_ticks(&self, t: Instant) -> Option<u64> {
         let d = self.target.as_ref()?.target()?;
         let min_one_way = (self.floor_ns(t)? - self.mapping_ns(t)?) as f64 * 1e-9;
-        let need = min_one_way + d.as_secs_f64();
+        // Steered ahead by the paper's predictor: half the rise of the mean
+        // round trip it forecasts over its horizon.
+        let lead = self
+            .predictor
+            .last()
+            .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
+        let need = min_one_way + d.as_secs_f64() + lead;
         let per = self.period.as_secs_f64();
         let goal = libm::ceil(need / per).max(1.0) as u64;
         Some(match self.delay_ticks {

@@ -126,6 +126,11 @@ pub struct Stats {
     pub one_way_rx: Running,
     /// One-way delays of our frames, from the peer's echoes, in seconds.
     pub one_way_tx: Running,
+    /// The clock offset estimate `local − peer` at the latest frame, in
+    /// seconds (0 until both directions have a floor).
+    pub clock_offset_s: f64,
+    /// The clock skew estimate `d(local − peer)/dt`, in ppm.
+    pub clock_skew_ppm: f64,
     /// Target-delay playout: the end-to-end delay of the samples released
     /// now, in seconds (offset-corrected for the adaptive policy).
     pub playout_delay_s: f64,
