@@ -161,6 +161,15 @@ struct DemoReport {
     underflows: u64,
     link_lost: u64,
     pauses: u64,
+    /// The remote's estimates: one-way delay base → remote, clock offset
+    /// (remote − base), skew (ppm); the base's: one-way delay back.
+    one_way_fwd_mean_s: f64,
+    one_way_bwd_mean_s: f64,
+    remote_clock_offset_s: f64,
+    remote_clock_skew_ppm: f64,
+    /// Target-delay playouts: each side's delay at the end (0 for the FIFO).
+    playout_delay_fwd_s: f64,
+    playout_delay_bwd_s: f64,
     clock_base_p50_s: f64,
     clock_base_p99_s: f64,
     clock_remote_p50_s: f64,
@@ -471,6 +480,12 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         underflows: eb.underflows + er.underflows,
         link_lost: eb.link_lost + er.link_lost,
         pauses: eb.pauses,
+        one_way_fwd_mean_s: er.one_way_rx.mean(),
+        one_way_bwd_mean_s: eb.one_way_rx.mean(),
+        remote_clock_offset_s: er.clock_offset_s,
+        remote_clock_skew_ppm: er.clock_skew_ppm,
+        playout_delay_fwd_s: er.playout_delay_s,
+        playout_delay_bwd_s: eb.playout_delay_s,
         clock_base_p50_s: clock(b, |l| l.p50),
         clock_base_p99_s: clock(b, |l| l.p99),
         clock_remote_p50_s: clock(remote, |l| l.p50),
