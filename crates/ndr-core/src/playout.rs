@@ -171,7 +171,7 @@ impl FromStr for Playout {
             Some(("constant", v)) => Ok(Playout::Constant { delay: millis(v)? }),
             Some(("adaptive", v)) => match v.trim().parse::<f64>() {
                 Ok(pc) if pc > 0.0 && pc < 100.0 => Ok(Playout::Adaptive {
-                    epsilon_ppm: (pc * 1e4).round().max(1.0) as u32,
+                    epsilon_ppm: libm::round(pc * 1e4).max(1.0) as u32,
                 }),
                 _ => Err(UnknownPlayout),
             },
