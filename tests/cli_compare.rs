@@ -23,13 +23,14 @@ fn json(args: &[&str]) -> Value {
     serde_json::from_slice(&out.stdout).expect("one JSON object on stdout")
 }
 
-const POLICIES: [&str; 8] = [
+const POLICIES: [&str; 9] = [
     "paper-static",
     "paper-dynamic",
     "ramjee-1",
     "ramjee-4",
     "neteq",
     "fixed:200",
+    "adaptive",
     "oracle",
     "oracle-piecewise",
 ];

@@ -25,7 +25,11 @@
 //!   release per tick, underflow and overflow counted, never a silent drop.
 //! - [`playout`]: when a regulator releases each sample: the paper's FIFO or
 //!   a target delay (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like
-//!   quantile, a fixed latency, a constant), [`Playout`].
+//!   quantile, a fixed latency, a constant, and the adaptive timestamp-based
+//!   policy), [`Playout`].
+//! - [`sync`]: the peers' clock offset and skew from the timestamps the link
+//!   already exchanges (Moon et al.'s hull of the delay floors, NTP's formula
+//!   on them), which the adaptive playout and the one-way delays use.
 //! - [`sizing`]: the initialization pattern ([`InitPattern`], 10 round trips)
 //!   gives `mt`, and [`Sizing`] applies `ns = 2 + floor(η·mt/T)` and
 //!   `T = max(T_min, NRTT/3)`.
@@ -95,6 +99,7 @@ pub mod rls;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod sizing;
+pub mod sync;
 pub mod time;
 pub mod wire;
 

@@ -48,7 +48,19 @@ pub enum Playout {
         /// The target.
         delay: Duration,
     },
+    /// Timestamp-based (issue 7): each sample is released at its send time,
+    /// mapped to the local clock by the offset and skew estimate
+    /// ([`ClockSync`](crate::sync::ClockSync)), plus the `1 − ε` quantile of
+    /// the delays above the floor over the last 90–120 s; the target slews
+    /// at a bounded rate.
+    Adaptive {
+        /// The target late rate ε, in parts per million (1000 = 0.1 %).
+        epsilon_ppm: u32,
+    },
 }
+
+/// The adaptive policy's default late rate, 0.1 % in parts per million.
+pub const DEFAULT_EPSILON_PPM: u32 = 1000;
 
 /// GStreamer rtpjitterbuffer's default latency.
 pub const DEFAULT_FIXED_LATENCY: Duration = Duration::from_millis(200);
@@ -74,8 +86,16 @@ impl Playout {
                 Target::FixedAboveMin(FixedAboveMin::new(latency))
             }
             Playout::Constant { delay } => Target::Constant(delay),
+            Playout::Adaptive { epsilon_ppm } => {
+                Target::Adaptive(Adaptive::new(period, f64::from(epsilon_ppm) * 1e-6))
+            }
         })
     }
+
+    /// The adaptive policy at its default late rate.
+    pub const ADAPTIVE: Playout = Playout::Adaptive {
+        epsilon_ppm: DEFAULT_EPSILON_PPM,
+    };
 }
 
 /// Displays a [`Playout`] by its command-line name.
@@ -92,6 +112,12 @@ impl fmt::Display for PlayoutName {
             Playout::NetEq => f.write_str("neteq"),
             Playout::FixedAboveMin { latency } => write!(f, "fixed:{}", ms(latency)),
             Playout::Constant { delay } => write!(f, "constant:{}", ms(delay)),
+            Playout::Adaptive {
+                epsilon_ppm: DEFAULT_EPSILON_PPM,
+            } => f.write_str("adaptive"),
+            Playout::Adaptive { epsilon_ppm } => {
+                write!(f, "adaptive:{}", f64::from(epsilon_ppm) * 1e-4)
+            }
         }
     }
 }
@@ -110,7 +136,8 @@ impl fmt::Display for UnknownPlayout {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(
             "unknown playout policy; valid: fifo, ramjee-1, ramjee-4, neteq, fixed[:MS], \
-             constant:MS (milliseconds, finite, not negative)",
+             constant:MS (milliseconds, finite, not negative), adaptive[:PERCENT] (the \
+             target late rate, 0 < PERCENT < 100, default 0.1)",
         )
     }
 }
@@ -132,6 +159,7 @@ impl FromStr for Playout {
                 "ramjee-1" => Ok(Playout::Ramjee1),
                 "ramjee-4" => Ok(Playout::Ramjee4),
                 "neteq" => Ok(Playout::NetEq),
+                "adaptive" => Ok(Playout::ADAPTIVE),
                 "fixed" => Ok(Playout::FixedAboveMin {
                     latency: DEFAULT_FIXED_LATENCY,
                 }),
@@ -141,6 +169,12 @@ impl FromStr for Playout {
                 latency: millis(v)?,
             }),
             Some(("constant", v)) => Ok(Playout::Constant { delay: millis(v)? }),
+            Some(("adaptive", v)) => match v.trim().parse::<f64>() {
+                Ok(pc) if pc > 0.0 && pc < 100.0 => Ok(Playout::Adaptive {
+                    epsilon_ppm: libm::round(pc * 1e4).max(1.0) as u32,
+                }),
+                _ => Err(UnknownPlayout),
+            },
             Some(_) => Err(UnknownPlayout),
         }
     }
@@ -170,6 +204,8 @@ pub enum Target {
     FixedAboveMin(FixedAboveMin),
     /// See [`Playout::Constant`].
     Constant(Duration),
+    /// See [`Playout::Adaptive`].
+    Adaptive(Adaptive),
 }
 
 impl TargetDelay for Target {
@@ -180,6 +216,7 @@ impl TargetDelay for Target {
             Target::NetEq(p) => p.observe(sent_at, delay),
             Target::FixedAboveMin(p) => p.observe(sent_at, delay),
             Target::Constant(_) => {}
+            Target::Adaptive(p) => p.observe(sent_at, delay),
         }
     }
 
@@ -190,6 +227,7 @@ impl TargetDelay for Target {
             Target::NetEq(p) => p.target(),
             Target::FixedAboveMin(p) => p.target(),
             Target::Constant(d) => Some(*d),
+            Target::Adaptive(p) => p.target(),
         }
     }
 }
@@ -475,6 +513,177 @@ impl TargetDelay for FixedAboveMin {
     }
 }
 
+/// Buckets of the adaptive policy's histogram (log-linear, module docs).
+pub const ADAPTIVE_BUCKETS: usize = 1024;
+/// The histogram's unit: 50 µs.
+const UNIT_NS: u64 = 50_000;
+/// Linear buckets below 128 units; then 64 per octave (1.6 % wide).
+const LINEAR: u64 = 128;
+const PER_OCTAVE: u64 = 64;
+/// The histogram's window: [`ADAPTIVE_BLOCKS`] blocks of this (90–120 s).
+pub const ADAPTIVE_BLOCK: Duration = Duration::from_secs(30);
+/// Blocks in the window.
+pub const ADAPTIVE_BLOCKS: usize = 4;
+/// The target may fall by this fraction of a period per sample (a skipped
+/// sample at most every 10 ticks).
+pub const SLEW_DOWN: f64 = 0.1;
+/// The target may rise by this fraction of a period per sample (a repeated
+/// tick at most every tick: a late sample costs more than a repeat).
+pub const SLEW_UP: f64 = 1.0;
+
+/// The bucket of a relative delay.
+fn bucket_of(d: Duration) -> usize {
+    let u = d.as_nanos() / UNIT_NS;
+    let b = if u < LINEAR {
+        u
+    } else {
+        let e = u64::from(63 - u.leading_zeros()); // ≥ 7
+        let shift = e - 6;
+        LINEAR + (shift - 1) * PER_OCTAVE + ((u >> shift) - PER_OCTAVE)
+    };
+    usize::try_from(b)
+        .unwrap_or(usize::MAX)
+        .min(ADAPTIVE_BUCKETS - 1)
+}
+
+/// The upper edge of bucket `b` (every delay in it is below).
+fn bucket_upper(b: usize) -> Duration {
+    let b = b as u64;
+    let u = if b < LINEAR {
+        b + 1
+    } else {
+        let shift = (b - LINEAR) / PER_OCTAVE + 1;
+        let m = (b - LINEAR) % PER_OCTAVE + PER_OCTAVE;
+        (m + 1) << shift
+    };
+    Duration::from_nanos(u.saturating_mul(UNIT_NS))
+}
+
+/// The timestamp-based target of [`Playout::Adaptive`]: the `1 − ε`
+/// quantile of the delays above the floor (given by the endpoint, which
+/// knows the clocks), over a sliding window of [`ADAPTIVE_BLOCKS`] ×
+/// [`ADAPTIVE_BLOCK`], in a log-linear histogram (50 µs linear up to 6.4 ms,
+/// then 64 buckets per octave, up to 105 s), in bounded memory. The target
+/// is the upper edge of the smallest bucket with at most `⌊ε·n⌋` of the `n`
+/// delays above it (with fewer than 1/ε delays, the largest), and moves
+/// towards it by at most [`SLEW_UP`] or [`SLEW_DOWN`] periods per sample.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Adaptive {
+    period: f64,
+    epsilon: f64,
+    blocks: [[u32; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
+    total: [u32; ADAPTIVE_BUCKETS],
+    count: u64,
+    block_counts: [u64; ADAPTIVE_BLOCKS],
+    current: usize,
+    block_start: Option<Instant>,
+    goal: Option<Duration>,
+    applied: Option<f64>,
+}
+
+impl Adaptive {
+    /// An empty window for `period` and late rate `epsilon` (clamped to
+    /// 10⁻⁶..0.5).
+    #[must_use]
+    pub fn new(period: Duration, epsilon: f64) -> Self {
+        let epsilon = if epsilon.is_finite() { epsilon } else { 1e-3 };
+        Adaptive {
+            period: period.as_secs_f64(),
+            epsilon: epsilon.clamp(1e-6, 0.5),
+            blocks: [[0; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
+            total: [0; ADAPTIVE_BUCKETS],
+            count: 0,
+            block_counts: [0; ADAPTIVE_BLOCKS],
+            current: 0,
+            block_start: None,
+            goal: None,
+            applied: None,
+        }
+    }
+
+    /// The target late rate.
+    #[must_use]
+    pub fn epsilon(&self) -> f64 {
+        self.epsilon
+    }
+
+    /// The quantile the target moves towards.
+    #[must_use]
+    pub fn goal(&self) -> Option<Duration> {
+        self.goal
+    }
+
+    /// Delays in the window.
+    #[must_use]
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    fn rotate(&mut self, sent_at: Instant) {
+        let start = *self.block_start.get_or_insert(sent_at);
+        if sent_at < start + ADAPTIVE_BLOCK {
+            return;
+        }
+        self.block_start = Some(sent_at);
+        self.current = (self.current + 1) % ADAPTIVE_BLOCKS;
+        if let (Some(old), Some(n)) = (
+            self.blocks.get_mut(self.current),
+            self.block_counts.get_mut(self.current),
+        ) {
+            for (t, o) in self.total.iter_mut().zip(old.iter_mut()) {
+                *t = t.saturating_sub(*o);
+                *o = 0;
+            }
+            self.count = self.count.saturating_sub(*n);
+            *n = 0;
+        }
+    }
+
+    fn quantile(&self) -> Option<Duration> {
+        let allowed = (self.epsilon * self.count as f64) as u64;
+        let mut above = 0u64;
+        for (b, &c) in self.total.iter().enumerate().rev() {
+            above += u64::from(c);
+            if above > allowed {
+                return Some(bucket_upper(b));
+            }
+        }
+        None
+    }
+}
+
+impl TargetDelay for Adaptive {
+    /// `delay` is the delay above the floor.
+    fn observe(&mut self, sent_at: Instant, delay: Duration) {
+        self.rotate(sent_at);
+        let b = bucket_of(delay);
+        if let (Some(block), Some(t), Some(n)) = (
+            self.blocks.get_mut(self.current),
+            self.total.get_mut(b),
+            self.block_counts.get_mut(self.current),
+        ) && let Some(c) = block.get_mut(b)
+        {
+            *c = c.saturating_add(1);
+            *t = t.saturating_add(1);
+            *n += 1;
+            self.count += 1;
+        }
+        self.goal = self.quantile();
+        let Some(goal) = self.goal.map(Duration::as_secs_f64) else {
+            return;
+        };
+        let next = match self.applied {
+            None => goal,
+            Some(a) => goal.clamp(a - SLEW_DOWN * self.period, a + SLEW_UP * self.period),
+        };
+        self.applied = Some(next.max(0.0));
+    }
+
+    fn target(&self) -> Option<Duration> {
+        self.applied.map(Duration::from_secs_f64)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -591,6 +800,63 @@ mod tests {
     }
 
     #[test]
+    fn adaptive_buckets_cover_their_delays() {
+        for us in [
+            0u64,
+            49,
+            50,
+            6_399,
+            6_400,
+            6_450,
+            99_999,
+            1_234_567,
+            104_000_000,
+        ] {
+            let d = Duration::from_micros(us);
+            let b = bucket_of(d);
+            assert!(d < bucket_upper(b), "{us} µs in bucket {b}");
+            if b > 0 {
+                assert!(d >= bucket_upper(b - 1), "{us} µs above bucket {b}");
+            }
+        }
+        // 64 buckets per octave: at most 1.6 % wide above 6.4 ms.
+        let b = bucket_of(ms(500));
+        let width = bucket_upper(b) - bucket_upper(b - 1);
+        assert!(width.as_secs_f64() <= 0.016 * 0.5, "{width:?}");
+        assert_eq!(bucket_of(Duration::from_secs(1000)), ADAPTIVE_BUCKETS - 1);
+    }
+
+    #[test]
+    fn adaptive_quantile_window_and_slew() {
+        let mut p = Adaptive::new(ms(20), 0.01);
+        assert_eq!(p.target(), None);
+        // 1000 delays: 989 at 10 ms, 11 at 90 ms; ε·n = 10 may be above:
+        // the quantile is 90 ms's bucket.
+        for k in 0..1000u64 {
+            let d = if k % 90 == 5 { 90 } else { 10 };
+            p.observe(Instant::from_millis(k * 20), ms(d));
+        }
+        let q = p.goal().unwrap();
+        assert!(q > ms(90) && q < ms(92), "{q:?}");
+        // Only small delays for the next 2 minutes: the window forgets the
+        // large ones, and the target falls at most 2 ms (0.1·T) per sample.
+        let before = p.target().unwrap();
+        p.observe(Instant::from_millis(20_000), ms(10));
+        let after = p.target().unwrap();
+        assert!(before - after <= ms(2) + Duration::from_nanos(1));
+        for k in 1..7000u64 {
+            p.observe(Instant::from_millis(20_000 + k * 20), ms(10));
+        }
+        let q = p.goal().unwrap();
+        assert!(q > ms(10) && q <= ms(11), "{q:?}");
+        assert_eq!(p.target(), Some(q));
+        // A rise is followed by up to one period per sample.
+        p.observe(Instant::from_millis(200_000), ms(500));
+        p.observe(Instant::from_millis(200_020), ms(500));
+        assert!(p.target().unwrap() <= q + ms(40) + Duration::from_nanos(2));
+    }
+
+    #[test]
     fn names_round_trip() {
         for p in [
             Playout::Fifo,
@@ -599,6 +865,8 @@ mod tests {
             Playout::NetEq,
             Playout::FixedAboveMin { latency: ms(200) },
             Playout::Constant { delay: ms(120) },
+            Playout::ADAPTIVE,
+            Playout::Adaptive { epsilon_ppm: 5000 },
         ] {
             let name = std::format!("{p}");
             assert_eq!(name.parse::<Playout>(), Ok(p), "{name}");
@@ -611,5 +879,11 @@ mod tests {
         );
         assert!("constant:-1".parse::<Playout>().is_err());
         assert!("oracle".parse::<Playout>().is_err());
+        assert_eq!(
+            "adaptive:0.5".parse::<Playout>(),
+            Ok(Playout::Adaptive { epsilon_ppm: 5000 })
+        );
+        assert!("adaptive:0".parse::<Playout>().is_err());
+        assert!("adaptive:100".parse::<Playout>().is_err());
     }
 }

@@ -404,6 +404,11 @@ fn event<'py>(py: Python<'py>, e: &Event<MAX_AXES>) -> PyResult<Option<Bound<'py
             "link_lost"
         }
         Event::LinkRestored => "link_restored",
+        Event::DelayChanged { delay, ticks } => {
+            fields.set_item("delay", delay.as_secs_f64())?;
+            fields.set_item("ticks", ticks)?;
+            "delay_changed"
+        }
         Event::Closed { error } => {
             let normal = matches!(
                 error,

@@ -46,7 +46,8 @@ pub struct CompareArgs {
     #[arg(long = "family", value_name = "NAME")]
     pub families: Vec<String>,
     /// Policies to run (repeatable; default all): paper-static,
-    /// paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS.
+    /// paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
+    /// adaptive[:PERCENT].
     #[arg(long = "policy", value_name = "NAME")]
     pub policies: Vec<String>,
     /// Seeds per family (1..=N).
@@ -80,7 +81,7 @@ fn policy(name: &str) -> Result<Policy, String> {
     match name.parse::<Playout>() {
         Ok(Playout::Fifo) | Err(_) => Err(format!(
             "unknown policy `{name}`; valid: paper-static, paper-dynamic, ramjee-1, ramjee-4, \
-             neteq, fixed[:MS], constant:MS"
+             neteq, fixed[:MS], constant:MS, adaptive[:PERCENT]"
         )),
         Ok(p) => Ok(Policy::Target(p)),
     }

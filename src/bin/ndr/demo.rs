@@ -12,6 +12,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::arx::{Tf2, Tf2State};
 use ndr::core::endpoint::{Config, Event, Mode, Status, Underflow};
+use ndr::core::playout::Playout;
 use ndr::core::sim::signal::Signal;
 use ndr::core::sim::{PlantConfig, percentile};
 use ndr::core::time::Duration;
@@ -26,9 +27,15 @@ use crate::size::millis;
 /// The link's settings, shared by `demo`, `base` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct LinkArgs {
-    /// Regulation mode.
-    #[arg(long, default_value = "paper-static")]
-    pub mode: Mode,
+    /// Regulation mode: paper-static, paper-dynamic, or adaptive (the
+    /// static handshake with `--playout adaptive`).
+    #[arg(long, default_value = "paper-static", value_parser = link_mode)]
+    pub mode: LinkMode,
+    /// When this side releases each sample: fifo (the paper's queue, sized
+    /// by the mode), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
+    /// adaptive[:PERCENT] (default: adaptive with `--mode adaptive`, else fifo).
+    #[arg(long)]
+    pub playout: Option<Playout>,
     /// The regulator's policy when a sample is missing at its tick.
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
@@ -49,11 +56,51 @@ impl LinkArgs {
         let mut endpoint = Config::new(Role::Base);
         endpoint.axes = self.axes;
         endpoint.period = period;
-        endpoint.mode = self.mode;
+        endpoint.mode = self.mode.mode;
+        endpoint.playout = self.playout.unwrap_or(if self.mode.adaptive {
+            Playout::ADAPTIVE
+        } else {
+            Playout::Fifo
+        });
         endpoint.underflow = self.underflow;
         endpoint.validate().map_err(|e| e.to_string())?;
         Ok(LinkConfig::new(endpoint))
     }
+}
+
+/// `--mode`: a paper mode, or `adaptive`.
+#[derive(Clone, Copy, Debug)]
+pub struct LinkMode {
+    /// The mode stated in the Hello.
+    pub mode: Mode,
+    /// `--mode adaptive`: the static mode with the adaptive playout.
+    pub adaptive: bool,
+}
+
+impl LinkMode {
+    /// The name given on the command line.
+    pub fn name(self) -> &'static str {
+        if self.adaptive {
+            "adaptive"
+        } else {
+            self.mode.name()
+        }
+    }
+}
+
+fn link_mode(s: &str) -> Result<LinkMode, String> {
+    if s.trim() == "adaptive" {
+        return Ok(LinkMode {
+            mode: Mode::PaperStatic,
+            adaptive: true,
+        });
+    }
+    s.parse::<Mode>()
+        .map(|mode| LinkMode {
+            mode,
+            adaptive: false,
+        })
+        .map_err(|e| format!("{e}; or adaptive"))
 }
 
 /// The operator's run, shared by `demo` and `base`.
@@ -92,6 +139,7 @@ struct DemoReport {
     command: &'static str,
     profile: String,
     mode: &'static str,
+    playout: String,
     underflow: &'static str,
     period_s: f64,
     duration_s: f64,
@@ -113,6 +161,15 @@ struct DemoReport {
     underflows: u64,
     link_lost: u64,
     pauses: u64,
+    /// The remote's estimates: one-way delay base → remote, clock offset
+    /// (remote − base), skew (ppm); the base's: one-way delay back.
+    one_way_fwd_mean_s: f64,
+    one_way_bwd_mean_s: f64,
+    remote_clock_offset_s: f64,
+    remote_clock_skew_ppm: f64,
+    /// Target-delay playouts: each side's delay at the end (0 for the FIFO).
+    playout_delay_fwd_s: f64,
+    playout_delay_bwd_s: f64,
     clock_base_p50_s: f64,
     clock_base_p99_s: f64,
     clock_remote_p50_s: f64,
@@ -399,6 +456,9 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         command: if relay.is_some() { "demo" } else { "base" },
         profile: o.profile.clone(),
         mode: link.mode.name(),
+        playout: link
+            .config()
+            .map_or_else(|_| String::new(), |c| c.endpoint.playout.to_string()),
         underflow: link.underflow.name(),
         period_s: b.map_or(0.0, |s| s.period.as_secs_f64()),
         duration_s: run.duration_s,
@@ -420,6 +480,12 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         underflows: eb.underflows + er.underflows,
         link_lost: eb.link_lost + er.link_lost,
         pauses: eb.pauses,
+        one_way_fwd_mean_s: er.one_way_rx.mean(),
+        one_way_bwd_mean_s: eb.one_way_rx.mean(),
+        remote_clock_offset_s: er.clock_offset_s,
+        remote_clock_skew_ppm: er.clock_skew_ppm,
+        playout_delay_fwd_s: er.playout_delay_s,
+        playout_delay_bwd_s: eb.playout_delay_s,
         clock_base_p50_s: clock(b, |l| l.p50),
         clock_base_p99_s: clock(b, |l| l.p99),
         clock_remote_p50_s: clock(remote, |l| l.p50),
@@ -433,10 +499,11 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
 fn print_table(r: &DemoReport) {
     let ms = |s: f64| format!("{:.2} ms", s * 1e3);
     println!(
-        "ndr {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        "ndr {} · {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
         r.command,
         r.profile,
         r.mode,
+        r.playout,
         r.underflow,
         ms(r.period_s),
         r.duration_s,

@@ -122,6 +122,16 @@ pub enum Event<const C: usize> {
         /// How long since the last fresh sample.
         silent_for: Duration,
     },
+    /// Target-delay playout: the end-to-end delay of the released samples
+    /// changed by at least a tick (the adaptive policy slews it without a
+    /// pause: a repeated tick when it rises, a skipped sample when it falls).
+    DelayChanged {
+        /// The new delay (release on this side's clock − send on the peer's,
+        /// offset-corrected for the adaptive policy).
+        delay: Duration,
+        /// The same in periods, rounded up.
+        ticks: u64,
+    },
     /// Fresh samples flow again after a [`Event::LinkLost`].
     LinkRestored,
     /// The link ended.

@@ -57,11 +57,24 @@ use crate::playout::{Target, TargetDelay};
 use crate::predictor::{NetworkPredictor, Prediction};
 use crate::regulator::{self, Occupancy, Regulator, Tick};
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
+use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
 use crate::wire::{
     self, Control, Echo, Frame, Header, Hello, Kind, Message, Payload, Role, control_op,
 };
 use event::Head;
+
+/// The adaptive delay falls by a tick only when its need is this many
+/// periods below the boundary: a quantile that wobbles around a boundary
+/// must not move the delay back and forth.
+const HYSTERESIS: f64 = 1.0;
+
+/// The smallest skew estimate for which a remote's ticks follow the base's grid.
+pub const GRID_SKEW_MIN: f64 = 2e-6;
+
+fn ns_i64(t: Instant) -> i64 {
+    i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
+}
 
 /// Where the endpoint is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,6 +144,16 @@ pub struct Endpoint<const C: usize, const N: usize> {
     /// Target-delay playout: frames sent at or before this (peer clock) had
     /// their slot at a tick already run.
     passed: Option<Instant>,
+    /// The peer's clock offset and skew.
+    sync: ClockSync,
+    /// Target-delay playout: the constant end-to-end delay now, in ticks.
+    delay_ticks: Option<u64>,
+    /// Adaptive playout, remote side: the send stamp (peer clock) and
+    /// sequence number of a sample, which anchor the peer's tick grid.
+    peer_grid: Option<(Instant, u64)>,
+    /// Whether the ticks follow the peer's grid (set once the skew is
+    /// [`GRID_SKEW_MIN`] or more).
+    slaved: bool,
     predictor: NetworkPredictor,
     pattern: InitPattern,
     next_tick: Option<Instant>,
@@ -188,6 +211,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             })?,
             target: config.playout.target(config.period),
             passed: None,
+            sync: ClockSync::new(),
+            delay_ticks: None,
+            peer_grid: None,
+            slaved: false,
             predictor,
             pattern: InitPattern::new(),
             next_tick: None,
@@ -250,7 +277,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             return;
         }
         while let Some(t) = self.next_tick.filter(|&t| t <= now) {
-            self.next_tick = Some(t + self.period);
+            self.next_tick = Some(self.following_tick(t));
             // Stamps are when things really happen: a late driver shows in the
             // measured delays instead of hiding behind the deadline.
             self.tick(now);
@@ -446,6 +473,23 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         self.last_nrtt
     }
 
+    /// The estimate of the peer's clock offset and skew.
+    #[must_use]
+    pub fn clock_sync(&self) -> &ClockSync {
+        &self.sync
+    }
+
+    /// Target-delay playout: the end-to-end delay samples get now (the
+    /// release time on the local clock minus the send time on the peer's,
+    /// corrected by the offset estimate for [`Playout::Adaptive`]); `None`
+    /// for the FIFO and before the policy has a target.
+    ///
+    /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
+    #[must_use]
+    pub fn playout_delay(&self) -> Option<Duration> {
+        self.current_delay(self.last_tick()?)
+    }
+
     /// The peer's Hello, once the handshake is done.
     #[must_use]
     pub fn peer(&self) -> Option<Hello> {
@@ -516,8 +560,13 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
 
     fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
+        self.sync.observe_arrival(sent_at, now);
+        if let Some(theta) = self.sync.offset_at(now) {
+            self.stats.clock_offset_s = theta;
+        }
+        self.stats.clock_skew_ppm = self.sync.skew() * 1e6;
         if let Some(echo) = frame.echo() {
-            self.measure_nrtt(now, echo)?;
+            self.measure_nrtt(now, echo, sent_at)?;
         }
         self.newest_rx = Some((sent_at, now));
         match frame.payload() {
@@ -572,7 +621,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         }
     }
 
-    fn measure_nrtt(&mut self, now: Instant, echo: Echo) -> Result<(), LinkError> {
+    fn measure_nrtt(&mut self, now: Instant, echo: Echo, t3: Instant) -> Result<(), LinkError> {
         // Several peer frames can echo the same one of ours: measure once.
         if self.newest_echo.is_some_and(|t| echo.sent_at <= t) {
             return Ok(());
@@ -585,6 +634,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             });
         };
         self.newest_echo = Some(echo.sent_at);
+        self.sync.observe_echo(echo.sent_at, echo.hold, t3);
+        if let Some(d) = self.sync.one_way_tx(echo.sent_at, echo.hold, t3) {
+            self.stats.one_way_tx.push(d);
+        }
         let nrtt = rtt.saturating_sub(echo.hold);
         self.last_nrtt = Some(nrtt);
         self.stats.nrtt.push_duration(nrtt);
@@ -653,6 +706,9 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
             self.stats.late += 1;
             return Ok(());
+        }
+        if self.peer_grid.is_none() {
+            self.peer_grid = Some((slot.head.sent_at, slot.head.seq));
         }
         if self.regulator.push(slot).is_err() {
             self.stats.rejected += 1;
@@ -770,6 +826,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         self.grtt_acked = self.next_seq.checked_sub(1);
         self.due_seq = None;
         self.passed = None;
+        self.peer_grid = None;
         self.ticks_running = 0;
         self.deadline = None;
         self.phase = Phase::Running;
@@ -790,6 +847,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 self.queue_tx(Tx::Probe { seq });
             }
             Phase::Running => {
+                self.track_delay(t);
                 self.release(t);
                 self.watch(t);
                 let seq = self.take_seq(t);
@@ -814,7 +872,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     }
 
     fn release(&mut self, t: Instant) {
+        let adaptive = matches!(self.target, Some(Target::Adaptive(_)));
         let outcome = match self.target.as_ref().map(TargetDelay::target) {
+            // Adaptive: nothing is due before the delay in ticks is set.
+            Some(_) if adaptive && self.delay_ticks.is_none() => self.not_started(),
             Some(target) => self.release_target(t, target),
             None => self.release_fifo(),
         };
@@ -872,17 +933,160 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// Frames sent (peer clock) at or before this have their slot at or
     /// before the tick `t` for a target delay `d`.
     fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
-        // Peer clock = local clock until an offset estimate maps them (issue 7).
-        t - d
+        match (self.mapping_ns(t), self.delay_ticks) {
+            // Adaptive: due when the send time mapped to the local clock
+            // plus the delay (whole ticks, less half a period so that the
+            // estimate's noise cannot move a sample across a tick) is past.
+            (Some(map), Some(ticks)) => {
+                let d = self.period * ticks;
+                let d = i64::try_from((d - self.period / 2).as_nanos()).unwrap_or(i64::MAX);
+                let c = ns_i64(t).saturating_sub(map).saturating_sub(d);
+                Instant::from_nanos(u64::try_from(c).unwrap_or(0))
+            }
+            // The other policies take the two clocks as one.
+            _ => t - d,
+        }
+    }
+
+    /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive): the floor
+    /// of the raw delays at `t` (ns), to which its target is relative.
+    fn floor_ns(&self, t: Instant) -> Option<i64> {
+        match self.target {
+            Some(Target::Adaptive(_)) => Some((self.sync.floor_at(t)? * 1e9) as i64),
+            _ => None,
+        }
+    }
+
+    /// Adaptive: `local − peer` at `t` (ns), which maps send stamps to the
+    /// local clock; until the offset is known, the floor (as if the fastest
+    /// frame took no time).
+    fn mapping_ns(&self, t: Instant) -> Option<i64> {
+        self.floor_ns(t)?;
+        match self.sync.offset_at(t) {
+            Some(theta) => Some((theta * 1e9) as i64),
+            None => self.floor_ns(t),
+        }
+    }
+
+    /// The end-to-end delay a sample released at `t` gets: for the adaptive
+    /// policy the whole ticks it keeps, for the others their target.
+    fn current_delay(&self, _t: Instant) -> Option<Duration> {
+        match self.target {
+            Some(Target::Adaptive(_)) => Some(self.period * self.delay_ticks?),
+            _ => self.target.as_ref()?.target(),
+        }
+    }
+
+    /// Adaptive: the delay in whole ticks the target needs (the floor's
+    /// one-way delay plus the policy's target above it), rising at once and
+    /// falling only [`HYSTERESIS`] periods past the boundary.
+    fn adaptive_ticks(&self, t: Instant) -> Option<u64> {
+        let d = self.target.as_ref()?.target()?;
+        let min_one_way = (self.floor_ns(t)? - self.mapping_ns(t)?) as f64 * 1e-9;
+        // Steered ahead by the paper's predictor: half the rise of the mean
+        // round trip it forecasts over its horizon.
+        let lead = self
+            .predictor
+            .last()
+            .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
+        let need = min_one_way + d.as_secs_f64() + lead;
+        let per = self.period.as_secs_f64();
+        let goal = libm::ceil(need / per).max(1.0) as u64;
+        Some(match self.delay_ticks {
+            Some(cur) if goal < cur && need > (cur - 1) as f64 * per - HYSTERESIS * per => cur,
+            _ => goal,
+        })
+    }
+
+    /// Sets the delay (adaptive: in whole ticks) and emits
+    /// [`Event::DelayChanged`] when the delay in ticks changes.
+    fn track_delay(&mut self, t: Instant) {
+        if let Some(Target::Adaptive(_)) = self.target {
+            if let Some(ticks) = self.adaptive_ticks(t) {
+                self.announce(self.period * ticks, ticks);
+            }
+            return;
+        }
+        let Some(d) = self.current_delay(t) else {
+            return;
+        };
+        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        self.announce(d, ticks);
+    }
+
+    fn announce(&mut self, d: Duration, ticks: u64) {
+        self.stats.playout_delay_s = d.as_secs_f64();
+        self.stats.playout_delay_ticks = ticks;
+        if self.delay_ticks != Some(ticks) {
+            self.delay_ticks = Some(ticks);
+            self.stats.delay_changes += 1;
+            self.emit(Event::DelayChanged { delay: d, ticks });
+        }
+    }
+
+    /// The tick after the one scheduled at `t`. The base's clock is the
+    /// structure's: a remote under [`Playout::Adaptive`] puts its ticks on
+    /// the base's grid (the send stamps of its samples, one period apart)
+    /// mapped to the local clock by the offset estimate, so that the two
+    /// grids do not slide under skew and each delay keeps its quantization.
+    /// The next tick is always between half a period and 1.5 periods away.
+    /// Below [`GRID_SKEW_MIN`] of skew the local grid stays (its slide is a
+    /// tick every 2.8 h at 20 ms, and the estimate's own noise would move
+    /// the grid more than the skew does).
+    ///
+    /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
+    fn following_tick(&mut self, t: Instant) -> Instant {
+        let plain = t + self.period;
+        let (Role::Remote, Some(Target::Adaptive(_)), Some((anchor, _))) =
+            (self.config.role, &self.target, self.peer_grid)
+        else {
+            return plain;
+        };
+        self.slaved |= libm::fabs(self.sync.skew()) >= GRID_SKEW_MIN;
+        if !self.slaved {
+            return plain;
+        }
+        let Some(theta) = self.sync.offset_at(t) else {
+            return plain;
+        };
+        let period = i64::try_from(self.period.as_nanos())
+            .unwrap_or(i64::MAX)
+            .max(1);
+        let theta = (theta * 1e9) as i64;
+        let peer_now = ns_i64(t).saturating_sub(theta).saturating_add(period / 2);
+        let k = peer_now.saturating_sub(ns_i64(anchor)).div_euclid(period) + 1;
+        let next = ns_i64(anchor)
+            .saturating_add(k.saturating_mul(period))
+            .saturating_add(theta);
+        match u64::try_from(next) {
+            Ok(n) if n > t.as_nanos() => Instant::from_nanos(n),
+            _ => plain,
+        }
+    }
+
+    fn last_tick(&self) -> Option<Instant> {
+        Some(self.next_tick? - self.period)
     }
 
     /// A one-way delay sample for the playout policy, from a frame's send
     /// stamp (peer clock) and its arrival (local clock). The one place where
-    /// the two clocks meet: they are taken as synchronized (a simulation, or
-    /// hosts synchronized by PTP or GPS); an offset estimate belongs here.
+    /// the two clocks meet: the adaptive policy gets the delay above the
+    /// floor of the clock estimate; the others take the clocks as one (a
+    /// simulation, or hosts synchronized by PTP or GPS).
     fn observe_one_way(&mut self, sent_at: Instant, arrived: Instant) {
+        if let Some(d) = self.sync.one_way_rx(sent_at, arrived) {
+            self.stats.one_way_rx.push(d);
+        }
+        let delay = match self.floor_ns(arrived) {
+            // Adaptive: the delay above the floor, whatever the clocks.
+            Some(floor) => {
+                let raw = ns_i64(arrived).saturating_sub(ns_i64(sent_at));
+                Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0))
+            }
+            None => arrived - sent_at,
+        };
         if let Some(target) = &mut self.target {
-            target.observe(sent_at, arrived - sent_at);
+            target.observe(sent_at, delay);
         }
     }
 

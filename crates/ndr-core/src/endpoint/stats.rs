@@ -121,4 +121,23 @@ pub struct Stats {
     pub nrtt: Running,
     /// Round trips as the application sees them, in seconds.
     pub grtt: Running,
+    /// One-way delays of the frames received, in seconds (raw delay minus
+    /// the clock offset estimate; from the first echo on).
+    pub one_way_rx: Running,
+    /// One-way delays of our frames, from the peer's echoes, in seconds.
+    pub one_way_tx: Running,
+    /// The clock offset estimate `local − peer` at the latest frame, in
+    /// seconds (0 until both directions have a floor).
+    pub clock_offset_s: f64,
+    /// The clock skew estimate `d(local − peer)/dt`, in ppm.
+    pub clock_skew_ppm: f64,
+    /// Target-delay playout: the end-to-end delay of the samples released
+    /// now, in seconds (offset-corrected for the adaptive policy).
+    pub playout_delay_s: f64,
+    /// The same in ticks (periods, rounded up).
+    pub playout_delay_ticks: u64,
+    /// Changes of `playout_delay_ticks` (each one an [`Event::DelayChanged`]).
+    ///
+    /// [`Event::DelayChanged`]: super::Event::DelayChanged
+    pub delay_changes: u64,
 }

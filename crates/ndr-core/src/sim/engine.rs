@@ -478,6 +478,11 @@ impl Sim<'_> {
                 | Event::Connected { .. }
                 | Event::LinkLost { .. }
                 | Event::LinkRestored => {}
+                Event::DelayChanged { .. } => {
+                    if side == Role::Remote {
+                        self.collect.delay_events_fwd += 1;
+                    }
+                }
                 Event::Closed { error } => {
                     if let Some(e) = error {
                         return Err(self.link_error(side, e));

@@ -121,6 +121,22 @@ pub struct Report {
     pub pred_count: u64,
     /// How far ahead the forecasts look, at the final period.
     pub pred_horizon_s: f64,
+    /// The remote's estimate of the skew `d(remote − base)/dt`, ppm.
+    pub remote_clock_skew_ppm: f64,
+    /// The remote's estimate of `remote − base` clocks at the end, s.
+    pub remote_clock_offset_s: f64,
+    /// The base's estimate of the skew `d(base − remote)/dt`, ppm.
+    pub base_clock_skew_ppm: f64,
+    /// Mean one-way delay base → remote as the remote estimates it, s.
+    pub one_way_fwd_mean_s: f64,
+    /// Mean one-way delay remote → base as the base estimates it, s.
+    pub one_way_bwd_mean_s: f64,
+    /// Changes of the remote's playout delay, in ticks (target policies).
+    pub delay_changes_fwd: u64,
+    /// `DelayChanged` events the remote's application received.
+    pub delay_events_fwd: u64,
+    /// The remote's playout delay at the end (target policies), s.
+    pub playout_delay_fwd_s: f64,
 }
 
 /// One base tick of a run, for plots (`ndr sim --out`). Times in seconds;
@@ -209,6 +225,8 @@ pub(crate) struct Collector {
     pred_count: u64,
     rows: Option<Vec<Row>>,
     fig6: bool,
+    /// `Event::DelayChanged` the remote's application received.
+    pub(crate) delay_events_fwd: u64,
 }
 
 fn mean_std(xs: &[f64]) -> (f64, f64) {
@@ -234,6 +252,7 @@ pub fn percentile(xs: &[f64], q: f64) -> f64 {
 impl Collector {
     pub(crate) fn new(cfg: &SimConfig) -> Self {
         Collector {
+            delay_events_fwd: 0,
             grtt: Vec::new(),
             settled_from: 0,
             e2e: [Vec::new(), Vec::new()],
@@ -348,7 +367,21 @@ impl Collector {
         let mean_s = occ_b.map_or(0.0, |o| o.mean) + occ_r.map_or(0.0, |o| o.mean);
         let relation_mean = mean_s * period.as_secs_f64() + bs.nrtt.mean();
         let n = self.pred_count.max(1) as f64;
+        // The end of the run on the remote's clock.
+        let skew = 1.0 + cfg.remote_skew_ppm * 1e-6;
+        let remote_end = Instant::ZERO + Duration::from_secs_f64(cfg.duration.as_secs_f64() * skew);
         let report = Report {
+            remote_clock_skew_ppm: remote.clock_sync().skew() * 1e6,
+            remote_clock_offset_s: remote
+                .clock_sync()
+                .offset_at(remote_end)
+                .unwrap_or(f64::NAN),
+            base_clock_skew_ppm: base.clock_sync().skew() * 1e6,
+            one_way_fwd_mean_s: rs.one_way_rx.mean(),
+            one_way_bwd_mean_s: bs.one_way_rx.mean(),
+            delay_changes_fwd: rs.delay_changes,
+            delay_events_fwd: self.delay_events_fwd,
+            playout_delay_fwd_s: rs.playout_delay_s,
             profile: cfg.model.name(),
             mode: String::from(cfg.mode.name()),
             underflow: String::from(cfg.underflow.name()),

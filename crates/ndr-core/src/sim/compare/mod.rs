@@ -70,7 +70,7 @@ pub enum Policy {
 
 impl Policy {
     /// The policies `ndr compare` runs by default.
-    pub const ALL: [Policy; 6] = [
+    pub const ALL: [Policy; 7] = [
         Policy::Paper(Mode::PaperStatic),
         Policy::Paper(Mode::PaperDynamic),
         Policy::Target(Playout::Ramjee1),
@@ -79,6 +79,7 @@ impl Policy {
         Policy::Target(Playout::FixedAboveMin {
             latency: DEFAULT_FIXED_LATENCY,
         }),
+        Policy::Target(Playout::ADAPTIVE),
     ];
 
     /// Its name in reports: `paper-static`, `ramjee-1`, `fixed:200`...

@@ -1,0 +1,134 @@
+//! The adaptive playout (issue 7) in simulated time: the clock estimate
+//! against the simulator's true skew and offset, the delay against the
+//! oracle, the late rate near its target, no pause, an event per change.
+
+use ndr_core::playout::Playout;
+use ndr_core::sim::compare::{Family, Policy, builtin, run_one, sim_config};
+use ndr_core::sim::run;
+use ndr_core::time::Duration;
+
+const T: Duration = Duration::from_millis(20);
+const WINDOW: Duration = Duration::from_secs(10);
+const ADAPTIVE: Policy = Policy::Target(Playout::ADAPTIVE);
+
+fn named(name: &str, secs: u64) -> Family {
+    let mut f = builtin()
+        .into_iter()
+        .find(|f| f.name == name)
+        .expect("a built-in family");
+    f.duration = Duration::from_secs(secs);
+    f.events_s.retain(|&t| t < secs as f64);
+    f
+}
+
+#[test]
+fn skew_and_offset_estimates_match_the_simulator_after_10_minutes() {
+    for (name, ppm) in [("skew+100ppm", 100.0), ("skew-100ppm", -100.0)] {
+        let cfg = sim_config(&named(name, 600), ADAPTIVE, 1, T);
+        let r = run(&cfg).expect("the run").report;
+        assert!(
+            (r.remote_clock_skew_ppm - ppm).abs() < 5.0,
+            "{name}: remote {}",
+            r.remote_clock_skew_ppm
+        );
+        assert!(
+            (r.base_clock_skew_ppm + ppm).abs() < 5.0,
+            "{name}: base {}",
+            r.base_clock_skew_ppm
+        );
+        // remote − base after 600 s; symmetric paths whose fastest frames
+        // are within a millisecond of the 40 ms floor.
+        let truth = ppm * 1e-6 * 600.0;
+        assert!(
+            (r.remote_clock_offset_s - truth).abs() < 1e-3,
+            "{name}: offset {} vs {truth}",
+            r.remote_clock_offset_s
+        );
+        // The one-way delays, offset removed: about 40 ms + 10 ms of jitter.
+        for d in [r.one_way_fwd_mean_s, r.one_way_bwd_mean_s] {
+            assert!((d - 0.050).abs() < 0.005, "{name}: one-way {d}");
+        }
+        assert_eq!(r.pauses, 0);
+    }
+}
+
+#[test]
+fn the_delay_is_near_the_oracle_and_the_late_rate_near_epsilon() {
+    // (family, largest late rate): ε = 0.1 %, plus the start (the first
+    // quantiles come from few samples).
+    for (name, secs, late) in [
+        ("lan-75km", 120, 0.002),
+        ("skew+100ppm", 120, 0.002),
+        ("skew-100ppm", 120, 0.002),
+        ("paris-newyork", 120, 0.015),
+    ] {
+        let m = run_one(&named(name, secs), ADAPTIVE, 1, (T, WINDOW))
+            .expect("the run")
+            .metrics;
+        assert!(m.oracle_ratio <= 1.15, "{name}: ratio {}", m.oracle_ratio);
+        assert!(m.late_rate <= late, "{name}: late rate {}", m.late_rate);
+    }
+    // After a step the adaptive target beats any constant one.
+    let m = run_one(&named("step", 120), ADAPTIVE, 1, (T, WINDOW))
+        .expect("the run")
+        .metrics;
+    assert!(m.oracle_ratio < 1.0, "step: ratio {}", m.oracle_ratio);
+}
+
+#[test]
+fn an_hour_at_100_ppm_keeps_the_delay_and_the_late_rate() {
+    // The remote's ticks follow the base's grid through the clock estimate
+    // and the delay is held in whole ticks: from the first minute on, the
+    // true end-to-end delay (release on the simulation's clock − send) stays
+    // put. Without the skew correction it would drift by 360 ms.
+    // The two runs side by side: the debug build takes a while.
+    let runs: Vec<_> = std::thread::scope(|s| {
+        let handles: Vec<_> = [("skew+100ppm", 100.0), ("skew-100ppm", -100.0)]
+            .into_iter()
+            .map(|(name, ppm)| {
+                s.spawn(move || {
+                    let mut cfg = sim_config(&named(name, 3600), ADAPTIVE, 2, T);
+                    cfg.duration = Duration::from_secs(3600);
+                    (name, ppm, run(&cfg).expect("the run"))
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("a run"))
+            .collect()
+    });
+    for (name, ppm, out) in runs {
+        assert_eq!(out.report.pauses, 0);
+        let rate = 1.0 + ppm * 1e-6;
+        let (mut delays, mut late) = (Vec::new(), 0u32);
+        for c in &out.forward.samples {
+            let sent = c.sent_at.as_secs_f64();
+            if !(60.0..3590.0).contains(&sent) {
+                continue;
+            }
+            match c.released_at {
+                Some(r) => delays.push(r.as_secs_f64() / rate - sent),
+                None => late += 1,
+            }
+        }
+        let n = delays.len() as f64;
+        let mean = delays.iter().sum::<f64>() / n;
+        let std = (delays.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
+        assert!(std <= 1e-3, "{name}: std {std} around {mean}");
+        let late_rate = f64::from(late) / (n + f64::from(late));
+        assert!(late_rate < 0.002, "{name}: late rate {late_rate}");
+    }
+}
+
+#[test]
+fn every_change_of_delay_is_an_event() {
+    let cfg = sim_config(&named("step", 90), ADAPTIVE, 3, T);
+    let r = run(&cfg).expect("the run").report;
+    assert_eq!(r.pauses, 0);
+    // The step moves the delay: at least one change after the start.
+    assert!(r.delay_changes_fwd >= 2, "{}", r.delay_changes_fwd);
+
+    // Each change reached the application as an event (none dropped).
+    assert_eq!(r.delay_events_fwd, r.delay_changes_fwd);
+}
