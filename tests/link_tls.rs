@@ -1,0 +1,306 @@
+//! The link over mutual TLS 1.3 on loopback: the same constant round trip
+//! as the plain link, peers without a trusted certificate refused before
+//! they become links, and plain links refused off loopback.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration as StdDuration;
+
+use ndr::core::endpoint::{Config, Status};
+use ndr::core::time::Duration;
+use ndr::core::wire::Role;
+use ndr::keygen::{self, KeyPair};
+use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
+
+/// The tests of this file run one at a time: the round-trip test measures
+/// jitter, and the others' handshakes would add their own.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn config() -> LinkConfig {
+    let mut c = Config::new(Role::Base);
+    c.axes = 2;
+    c.period = Duration::from_millis(10);
+    LinkConfig::new(c)
+}
+
+/// A fresh directory of throwaway certificates for one test.
+fn certs(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("ndr-link-tls-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn pair_of(dir: &std::path::Path, name: &str) -> KeyPair {
+    keygen::write(dir, name).unwrap()
+}
+
+/// `own` trusting `peer` by its certificate file.
+fn tls(own: &KeyPair, peer: &KeyPair) -> TlsConfig {
+    TlsConfig::from_files(&own.cert, &own.key, &peer.cert).unwrap()
+}
+
+fn loopback() -> SocketAddr {
+    "127.0.0.1:0".parse().unwrap()
+}
+
+#[test]
+fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
+    let _serial = serial();
+    let dir = certs("grtt");
+    let (b, r) = (pair_of(&dir, "base"), pair_of(&dir, "remote"));
+    let rt = runtime();
+    let listener = rt
+        .block_on(Listener::bind_tls(loopback(), config(), &tls(&r, &b)))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    let base_tls = tls(&b, &r);
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect_tls(addr, config(), &base_tls)
+        )
+    });
+    let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
+    let robot = std::thread::spawn(move || {
+        let mut seqs = Vec::new();
+        loop {
+            match remote.recv_timeout(StdDuration::from_secs(2)) {
+                Ok(s) => {
+                    if s.status == Status::Fresh {
+                        seqs.push(s.seq);
+                    }
+                    remote.send(s.values()).unwrap();
+                }
+                Err(_) => return seqs,
+            }
+        }
+    });
+    let mut seqs = Vec::new();
+    for k in 0..300 {
+        base.send(&[f64::from(k), -f64::from(k)]).unwrap();
+        let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+        if s.status == Status::Fresh {
+            seqs.push(s.seq);
+            // The echo is the command sent ns ticks before: same values.
+            assert_eq!(s.values()[0], -s.values()[1]);
+        }
+    }
+    let stats = base.close().unwrap();
+    let remote_seqs = robot.join().unwrap();
+    for (name, seqs) in [("base", &seqs), ("remote", &remote_seqs)] {
+        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
+        assert!(
+            seqs.windows(2).all(|w| w[1] == w[0] + 1),
+            "{name}: gap or repeat"
+        );
+    }
+    let grtt = stats.endpoint.grtt;
+    assert!(grtt.count() > 200, "{grtt:?}");
+    assert!(grtt.std() <= 1e-3, "GRTT std {} s", grtt.std());
+    assert!(
+        grtt.mean() >= 0.039 && grtt.mean() <= 0.061,
+        "GRTT mean {}",
+        grtt.mean()
+    );
+    assert_eq!(listener.stats().accepted, 1);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn peers_without_a_trusted_certificate_never_become_links() {
+    let _serial = serial();
+    let dir = certs("refused");
+    let (b, r, stranger) = (
+        pair_of(&dir, "base"),
+        pair_of(&dir, "remote"),
+        pair_of(&dir, "stranger"),
+    );
+    let rt = runtime();
+    let listener = rt
+        .block_on(Listener::bind_tls(loopback(), config(), &tls(&r, &b)))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    let good = tls(&b, &r);
+    rt.block_on(async {
+        // Handshakes are served one after the other: the stranger, the
+        // peer without a certificate, a plain peer, then the good one.
+        let accepting = listener.accept();
+        let attempts = async {
+            let unknown = Link::connect_tls(addr, config(), &tls(&stranger, &r)).await;
+            let none = Link::connect_tls(addr, config(), &good.without_client_certificate()).await;
+            let plain = Link::connect(addr, config()).await;
+            let ok = Link::connect_tls(addr, config(), &good).await;
+            (unknown, none, plain, ok)
+        };
+        let (accepted, (unknown, none, plain, ok)) = tokio::join!(accepting, attempts);
+        // In TLS 1.3 the client finishes before the server has checked its
+        // certificate: a refused client sees the server's alert or the
+        // closed socket at its first read, not always at connect.
+        for (name, attempt) in [("unknown", unknown), ("none", none)] {
+            if let Ok(mut link) = attempt {
+                let err = link.recv_timeout(StdDuration::from_secs(2)).unwrap_err();
+                assert!(matches!(err, NetError::Link(_)), "{name}: {err:?}");
+            }
+        }
+        // The plain peer's frames are not TLS: the listener refuses it; it
+        // sees its link closed.
+        if let Ok(mut link) = plain {
+            assert!(link.recv_timeout(StdDuration::from_secs(2)).is_err());
+        }
+        let mut accepted = accepted.unwrap();
+        let ok = ok.unwrap();
+        let got = tokio::task::spawn_blocking(move || {
+            ok.send(&[1.0, 2.0]).unwrap();
+            accepted.send(&[3.0, 4.0]).unwrap();
+            let s = accepted.recv_timeout(StdDuration::from_secs(3));
+            (s.map(|s| s.values().to_vec()), ok, accepted)
+        })
+        .await
+        .unwrap();
+        assert!(got.0.is_ok(), "{:?}", got.0);
+    });
+    let stats = listener.stats();
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    assert_eq!(stats.refused_certificate, 1, "{stats:?}");
+    assert_eq!(stats.refused_no_certificate, 1, "{stats:?}");
+    assert_eq!(stats.refused_version, 1, "{stats:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_pin_mismatch_is_refused_by_the_client() {
+    let _serial = serial();
+    let dir = certs("pin");
+    let (b, r, other) = (
+        pair_of(&dir, "base"),
+        pair_of(&dir, "remote"),
+        pair_of(&dir, "other"),
+    );
+    let rt = runtime();
+    let listener = rt
+        .block_on(Listener::bind_tls(loopback(), config(), &tls(&r, &b)))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    // The base pins another certificate than the remote's.
+    let wrong = TlsConfig::from_files_pinned(&b.cert, &b.key, vec![other.fingerprint]).unwrap();
+    let right = TlsConfig::from_files_pinned(&b.cert, &b.key, vec![r.fingerprint]).unwrap();
+    rt.block_on(async {
+        let attempts = async {
+            let wrong = Link::connect_tls(addr, config(), &wrong).await;
+            let right = Link::connect_tls(addr, config(), &right).await;
+            (wrong, right)
+        };
+        let (accepted, (wrong, right)) = tokio::join!(listener.accept(), attempts);
+        match wrong {
+            Err(NetError::Handshake(HandshakeError::UnknownCertificate(_))) => {}
+            other => panic!("expected an unknown certificate, got {other:?}"),
+        }
+        assert!(right.is_ok() && accepted.is_ok());
+    });
+    // The remote saw the base's alert about its certificate.
+    let stats = listener.stats();
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    assert_eq!(
+        stats.refused_certificate + stats.failed_other,
+        1,
+        "{stats:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn plain_links_off_loopback_are_refused_unless_insecure() {
+    let _serial = serial();
+    let rt = runtime();
+    // TEST-NET-1: never routed; the refusal must come before any connect.
+    let far: SocketAddr = "192.0.2.1:9".parse().unwrap();
+    let start = std::time::Instant::now();
+    match rt.block_on(Link::connect(far, config())) {
+        Err(e @ NetError::Insecure(_)) => {
+            let text = e.to_string();
+            assert!(
+                text.contains("--insecure") && text.contains("TLS"),
+                "{text}"
+            );
+        }
+        other => panic!("expected the insecure refusal, got {other:?}"),
+    }
+    assert!(Matches::insecure(Link::connect_blocking(far, config())));
+    assert!(start.elapsed() < StdDuration::from_millis(500));
+    let any: SocketAddr = "0.0.0.0:0".parse().unwrap();
+    assert!(Matches::insecure(
+        rt.block_on(Listener::bind(any, config()))
+    ));
+    let mut insecure = config();
+    insecure.insecure = true;
+    let listener = rt.block_on(Listener::bind(any, insecure)).unwrap();
+    let port = listener.local_addr().unwrap().port();
+    assert_ne!(port, 0);
+    // Loopback stays plain without asking.
+    assert!(rt.block_on(Listener::bind(loopback(), config())).is_ok());
+}
+
+struct Matches;
+impl Matches {
+    fn insecure<T>(r: Result<T, NetError>) -> bool {
+        matches!(r, Err(NetError::Insecure(_)))
+    }
+}
+
+#[test]
+fn keygen_writes_a_pair_whose_fingerprint_pins_it() {
+    let _serial = serial();
+    let dir = certs("keygen");
+    let pair = pair_of(&dir, "lab");
+    let text = std::fs::read_to_string(&pair.cert).unwrap();
+    assert!(text.starts_with("-----BEGIN CERTIFICATE-----"));
+    let config = TlsConfig::from_files(&pair.cert, &pair.key, &pair.cert).unwrap();
+    assert_eq!(config.fingerprint(), pair.fingerprint);
+    // A key is never overwritten.
+    assert!(keygen::write(&dir, "lab").is_err());
+    assert!(keygen::write(&dir, "../escape").is_err());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_silent_peer_times_out_and_the_next_one_is_served() {
+    let _serial = serial();
+    let dir = certs("timeout");
+    let (b, r) = (pair_of(&dir, "base"), pair_of(&dir, "remote"));
+    let rt = runtime();
+    let mut remote_tls = tls(&r, &b);
+    remote_tls.handshake_timeout = StdDuration::from_millis(200);
+    let listener = rt
+        .block_on(Listener::bind_tls(loopback(), config(), &remote_tls))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    let good = tls(&b, &r);
+    rt.block_on(async {
+        let attempts = async {
+            // Connects, says nothing, holds the socket open past the timeout.
+            let silent = tokio::net::TcpStream::connect(addr).await.unwrap();
+            let ok = Link::connect_tls(addr, config(), &good).await;
+            drop(silent);
+            ok
+        };
+        let (accepted, ok) = tokio::join!(listener.accept(), attempts);
+        assert!(accepted.is_ok() && ok.is_ok());
+    });
+    let stats = listener.stats();
+    assert_eq!((stats.timeouts, stats.accepted), (1, 1), "{stats:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
