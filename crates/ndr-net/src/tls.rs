@@ -195,10 +195,7 @@ impl TlsConfig {
         key: impl AsRef<Path>,
         peer_cert: impl AsRef<Path>,
     ) -> Result<TlsConfig, TlsError> {
-        let pins = read_certs(peer_cert.as_ref())?
-            .iter()
-            .map(|c| Fingerprint::of(c))
-            .collect();
+        let pins = read_fingerprints(peer_cert)?;
         TlsConfig::new(
             read_certs(cert.as_ref())?,
             read_key(key.as_ref())?,
@@ -459,6 +456,14 @@ impl fmt::Display for HandshakeError {
 }
 
 impl std::error::Error for HandshakeError {}
+
+/// The fingerprints of the certificates in a PEM file (a peer's `.crt`).
+pub fn read_fingerprints(path: impl AsRef<Path>) -> Result<Vec<Fingerprint>, TlsError> {
+    Ok(read_certs(path.as_ref())?
+        .iter()
+        .map(|c| Fingerprint::of(c))
+        .collect())
+}
 
 fn read_certs(path: &Path) -> Result<Vec<CertificateDer<'static>>, TlsError> {
     let read_err = |e: rustls::pki_types::pem::Error| TlsError::Read {

@@ -2,6 +2,7 @@
 
 mod compare;
 mod demo;
+mod keygen;
 mod paper;
 mod peers;
 mod relay;
@@ -54,6 +55,9 @@ enum Command {
     /// duplicated or reordered without a counter, nothing panics and memory
     /// stays flat.
     Soak(soak::SoakArgs),
+    /// Make a self-signed certificate and key (PEM) for a lab setup, and
+    /// print its SHA-256 fingerprint (what the peer pins).
+    Keygen(keygen::KeygenArgs),
 }
 
 fn main() -> ExitCode {
@@ -67,6 +71,7 @@ fn main() -> ExitCode {
         Command::Relay(args) => relay::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Soak(args) => soak::run(args),
+        Command::Keygen(args) => keygen::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
