@@ -289,17 +289,19 @@ fn a_silent_peer_times_out_and_the_next_one_is_served() {
         .unwrap();
     let addr = listener.local_addr().unwrap();
     let good = tls(&b, &r);
-    rt.block_on(async {
-        let attempts = async {
-            // Connects, says nothing, holds the socket open past the timeout.
-            let silent = tokio::net::TcpStream::connect(addr).await.unwrap();
-            let ok = Link::connect_tls(addr, config(), &good).await;
-            drop(silent);
-            ok
-        };
-        let (accepted, ok) = tokio::join!(listener.accept(), attempts);
-        assert!(accepted.is_ok() && ok.is_ok());
+    // Connects, says nothing, holds the socket open past the timeout.
+    let silent = rt.block_on(tokio::net::TcpStream::connect(addr)).unwrap();
+    let (accepted, ok) = rt.block_on(async {
+        tokio::join!(listener.accept(), Link::connect_tls(addr, config(), &good))
     });
+    assert!(accepted.is_ok() && ok.is_ok());
+    // Handshakes run side by side: the good peer did not wait for the
+    // silent one, whose timeout comes later.
+    let end = std::time::Instant::now() + StdDuration::from_secs(3);
+    while listener.stats().timeouts == 0 && std::time::Instant::now() < end {
+        std::thread::sleep(StdDuration::from_millis(20));
+    }
+    drop(silent);
     let stats = listener.stats();
     assert_eq!((stats.timeouts, stats.accepted), (1, 1), "{stats:?}");
     let _ = std::fs::remove_dir_all(&dir);

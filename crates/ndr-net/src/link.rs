@@ -28,6 +28,7 @@ use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
+use tokio::task::JoinSet;
 
 use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
@@ -569,7 +570,9 @@ pub struct Listener {
     hubs: Hubs,
     role: Role,
     tls: Option<TlsConfig>,
-    stats: Mutex<ListenerStats>,
+    stats: Arc<Mutex<ListenerStats>>,
+    /// TLS handshakes in flight, a task each (aborted with the listener).
+    handshakes: tokio::sync::Mutex<JoinSet<Option<(TcpStream, rustls::Connection)>>>,
 }
 
 /// Connections a [`Listener`] refused before they became links, by reason.
@@ -590,6 +593,9 @@ pub struct ListenerStats {
     pub timeouts: u64,
     /// Handshakes that failed otherwise (the peer closed, a reset).
     pub failed_other: u64,
+    /// Connections dropped unanswered because
+    /// [`TlsConfig::max_pending_handshakes`] were in flight already.
+    pub refused_busy: u64,
 }
 
 impl ListenerStats {
@@ -643,7 +649,8 @@ impl Listener {
             config,
             role: Role::Remote,
             tls,
-            stats: Mutex::new(ListenerStats::default()),
+            stats: Arc::new(Mutex::new(ListenerStats::default())),
+            handshakes: tokio::sync::Mutex::new(JoinSet::new()),
         })
     }
 
@@ -684,38 +691,63 @@ impl Listener {
 
     /// The next peer that connects, as a running link (this side is the
     /// remote unless [`with_role`](Self::with_role) said otherwise). A failed
-    /// link does not affect the listener. On a TLS listener, a peer whose
-    /// handshake fails is counted and skipped: this waits for the next one.
-    /// Handshakes run one at a time, each bounded by
-    /// [`TlsConfig::handshake_timeout`].
+    /// link does not affect the listener. On a TLS listener, handshakes run
+    /// side by side (at most [`TlsConfig::max_pending_handshakes`], each
+    /// bounded by [`TlsConfig::handshake_timeout`]), and a peer whose
+    /// handshake fails is logged, counted in [`stats`](Self::stats) and
+    /// dropped: only peers that passed are returned.
     pub async fn accept(&self) -> Result<Link, NetError> {
+        let Some(tls) = &self.tls else {
+            let (stream, _) = self.listener.accept().await?;
+            return self.start(stream, None);
+        };
+        let mut handshakes = self.handshakes.lock().await;
         loop {
-            let (stream, peer) = self.listener.accept().await?;
-            let (stream, conn) = match &self.tls {
-                None => (stream, None),
-                Some(tls) => match tls.accept(stream).await {
-                    Ok((stream, conn)) => (stream, Some(conn)),
+            tokio::select! {
+                biased;
+                Some(done) = handshakes.join_next(), if !handshakes.is_empty() => match done {
+                    Ok(Some((stream, conn))) => return self.start(stream, Some(conn)),
+                    Ok(None) => {}
                     Err(e) => {
-                        tracing::warn!(%peer, "link refused: {e}");
-                        self.stats
-                            .lock()
-                            .unwrap_or_else(PoisonError::into_inner)
-                            .count(&e);
-                        continue;
+                        tracing::warn!("link refused: its handshake task failed: {e}");
+                        self.count(|s| &mut s.failed_other);
                     }
                 },
-            };
-            let hub = match &self.hubs {
-                Hubs::One(hub) => hub,
-                Hubs::Pool(pool) => pool.least_loaded(),
-            };
-            let link = Link::start(stream, self.role, self.config, Handle::current(), hub, conn)?;
-            self.stats
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .accepted += 1;
-            return Ok(link);
+                accepted = self.listener.accept() => {
+                    let (stream, peer) = accepted?;
+                    if handshakes.len() >= tls.max_pending_handshakes {
+                        tracing::warn!(%peer, "link refused: too many handshakes in flight");
+                        self.count(|s| &mut s.refused_busy);
+                        continue;
+                    }
+                    let (tls, stats) = (tls.clone(), Arc::clone(&self.stats));
+                    handshakes.spawn(async move {
+                        match tls.accept(stream).await {
+                            Ok(done) => Some(done),
+                            Err(e) => {
+                                tracing::warn!(%peer, "link refused: {e}");
+                                stats.lock().unwrap_or_else(PoisonError::into_inner).count(&e);
+                                None
+                            }
+                        }
+                    });
+                }
+            }
         }
+    }
+
+    fn count(&self, counter: impl FnOnce(&mut ListenerStats) -> &mut u64) {
+        *counter(&mut self.stats.lock().unwrap_or_else(PoisonError::into_inner)) += 1;
+    }
+
+    fn start(&self, stream: TcpStream, tls: Option<rustls::Connection>) -> Result<Link, NetError> {
+        let hub = match &self.hubs {
+            Hubs::One(hub) => hub,
+            Hubs::Pool(pool) => pool.least_loaded(),
+        };
+        let link = Link::start(stream, self.role, self.config, Handle::current(), hub, tls)?;
+        self.count(|s| &mut s.accepted);
+        Ok(link)
     }
 }
 

@@ -38,6 +38,8 @@ use tokio::net::TcpStream;
 
 /// Default bound on a TLS handshake.
 pub const DEFAULT_HANDSHAKE_TIMEOUT: StdDuration = StdDuration::from_secs(5);
+/// Default bound on the handshakes a listener runs at once.
+pub const DEFAULT_MAX_PENDING_HANDSHAKES: usize = 64;
 /// The name a server's certificate is checked against under [`Trust::Ca`]
 /// unless told otherwise (`ndr keygen` puts it in every certificate).
 pub const DEFAULT_SERVER_NAME: &str = "ndr";
@@ -174,6 +176,9 @@ pub struct TlsConfig {
     fingerprint: Fingerprint,
     /// Longest a handshake may take before the connection is dropped.
     pub handshake_timeout: StdDuration,
+    /// Most handshakes a listener runs at once; a connection beyond is
+    /// dropped unanswered and counted.
+    pub max_pending_handshakes: usize,
 }
 
 impl fmt::Debug for TlsConfig {
@@ -315,6 +320,7 @@ impl TlsConfig {
             server_verifier,
             fingerprint: own,
             handshake_timeout: DEFAULT_HANDSHAKE_TIMEOUT,
+            max_pending_handshakes: DEFAULT_MAX_PENDING_HANDSHAKES,
         })
     }
 
