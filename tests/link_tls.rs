@@ -57,21 +57,67 @@ fn loopback() -> SocketAddr {
     "127.0.0.1:0".parse().unwrap()
 }
 
+/// Three throwaway certificates and a TLS listener for the remote, which
+/// trusts the base only.
+struct Lab {
+    dir: PathBuf,
+    base: KeyPair,
+    remote: KeyPair,
+    other: KeyPair,
+    rt: tokio::runtime::Runtime,
+    listener: Listener,
+    addr: SocketAddr,
+}
+
+fn lab(test: &str, handshake_timeout: Option<StdDuration>) -> Lab {
+    let dir = certs(test);
+    let (base, remote, other) = (
+        pair_of(&dir, "base"),
+        pair_of(&dir, "remote"),
+        pair_of(&dir, "other"),
+    );
+    let rt = runtime();
+    let mut remote_tls = tls(&remote, &base);
+    if let Some(t) = handshake_timeout {
+        remote_tls.handshake_timeout = t;
+    }
+    let listener = rt
+        .block_on(Listener::bind_tls(loopback(), config(), &remote_tls))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    Lab {
+        dir,
+        base,
+        remote,
+        other,
+        rt,
+        listener,
+        addr,
+    }
+}
+
+impl Drop for Lab {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
 #[test]
 fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
     let _serial = serial();
-    let dir = certs("grtt");
-    let (b, r) = (pair_of(&dir, "base"), pair_of(&dir, "remote"));
-    let rt = runtime();
-    let listener = rt
-        .block_on(Listener::bind_tls(loopback(), config(), &tls(&r, &b)))
-        .unwrap();
-    let addr = listener.local_addr().unwrap();
-    let base_tls = tls(&b, &r);
+    let Lab {
+        base: b,
+        remote: r,
+        rt,
+        listener,
+        addr,
+        ..
+    } = &lab("grtt", None);
+    let base_tls = tls(b, r);
     let (remote, base) = rt.block_on(async {
         tokio::join!(
             listener.accept(),
-            Link::connect_tls(addr, config(), &base_tls)
+            Link::connect_tls(*addr, config(), &base_tls)
         )
     });
     let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
@@ -117,30 +163,27 @@ fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
         grtt.mean()
     );
     assert_eq!(listener.stats().accepted, 1);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn peers_without_a_trusted_certificate_never_become_links() {
     let _serial = serial();
-    let dir = certs("refused");
-    let (b, r, stranger) = (
-        pair_of(&dir, "base"),
-        pair_of(&dir, "remote"),
-        pair_of(&dir, "stranger"),
-    );
-    let rt = runtime();
-    let listener = rt
-        .block_on(Listener::bind_tls(loopback(), config(), &tls(&r, &b)))
-        .unwrap();
-    let addr = listener.local_addr().unwrap();
-    let good = tls(&b, &r);
+    let Lab {
+        base: b,
+        remote: r,
+        other: stranger,
+        rt,
+        listener,
+        addr,
+        ..
+    } = &lab("refused", None);
+    let (addr, good) = (*addr, tls(b, r));
     rt.block_on(async {
-        // Handshakes are served one after the other: the stranger, the
-        // peer without a certificate, a plain peer, then the good one.
+        // One after the other: the stranger, the peer without a
+        // certificate, a plain peer, then the good one.
         let accepting = listener.accept();
         let attempts = async {
-            let unknown = Link::connect_tls(addr, config(), &tls(&stranger, &r)).await;
+            let unknown = Link::connect_tls(addr, config(), &tls(stranger, r)).await;
             let none = Link::connect_tls(addr, config(), &good.without_client_certificate()).await;
             let plain = Link::connect(addr, config()).await;
             let ok = Link::connect_tls(addr, config(), &good).await;
@@ -178,23 +221,21 @@ fn peers_without_a_trusted_certificate_never_become_links() {
     assert_eq!(stats.refused_certificate, 1, "{stats:?}");
     assert_eq!(stats.refused_no_certificate, 1, "{stats:?}");
     assert_eq!(stats.refused_version, 1, "{stats:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn a_pin_mismatch_is_refused_by_the_client() {
     let _serial = serial();
-    let dir = certs("pin");
-    let (b, r, other) = (
-        pair_of(&dir, "base"),
-        pair_of(&dir, "remote"),
-        pair_of(&dir, "other"),
-    );
-    let rt = runtime();
-    let listener = rt
-        .block_on(Listener::bind_tls(loopback(), config(), &tls(&r, &b)))
-        .unwrap();
-    let addr = listener.local_addr().unwrap();
+    let Lab {
+        base: b,
+        remote: r,
+        other,
+        rt,
+        listener,
+        addr,
+        ..
+    } = &lab("pin", None);
+    let addr = *addr;
     // The base pins another certificate than the remote's.
     let wrong = TlsConfig::from_files_pinned(&b.cert, &b.key, vec![other.fingerprint]).unwrap();
     let right = TlsConfig::from_files_pinned(&b.cert, &b.key, vec![r.fingerprint]).unwrap();
@@ -219,7 +260,6 @@ fn a_pin_mismatch_is_refused_by_the_client() {
         1,
         "{stats:?}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -279,16 +319,15 @@ fn keygen_writes_a_pair_whose_fingerprint_pins_it() {
 #[test]
 fn a_silent_peer_times_out_and_the_next_one_is_served() {
     let _serial = serial();
-    let dir = certs("timeout");
-    let (b, r) = (pair_of(&dir, "base"), pair_of(&dir, "remote"));
-    let rt = runtime();
-    let mut remote_tls = tls(&r, &b);
-    remote_tls.handshake_timeout = StdDuration::from_millis(200);
-    let listener = rt
-        .block_on(Listener::bind_tls(loopback(), config(), &remote_tls))
-        .unwrap();
-    let addr = listener.local_addr().unwrap();
-    let good = tls(&b, &r);
+    let Lab {
+        base: b,
+        remote: r,
+        rt,
+        listener,
+        addr,
+        ..
+    } = &lab("timeout", Some(StdDuration::from_millis(200)));
+    let (addr, good) = (*addr, tls(b, r));
     // Connects, says nothing, holds the socket open past the timeout.
     let silent = rt.block_on(tokio::net::TcpStream::connect(addr)).unwrap();
     let (accepted, ok) = rt.block_on(async {
@@ -304,7 +343,6 @@ fn a_silent_peer_times_out_and_the_next_one_is_served() {
     drop(silent);
     let stats = listener.stats();
     assert_eq!((stats.timeouts, stats.accepted), (1, 1), "{stats:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
