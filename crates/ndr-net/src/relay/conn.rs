@@ -358,3 +358,39 @@ async fn read_exact<R: AsyncRead + Unpin>(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndr_core::wire::MAX_FRAME_LEN;
+
+    #[test]
+    fn a_tls_record_is_never_taken_for_a_frame_nor_a_frame_for_one() {
+        for minor in 1..=4 {
+            let head = [0x16, 0x03, minor, 0x00];
+            assert!(is_tls(&head));
+            assert!(wire::frame_len(&head).is_err());
+        }
+        for len in PREFIX_LEN..=MAX_FRAME_LEN {
+            let prefix = u32::try_from(len).unwrap().to_le_bytes();
+            assert!(!is_tls(&prefix), "{len}");
+        }
+    }
+
+    #[tokio::test]
+    async fn records_are_read_whole_and_a_bad_header_is_refused() {
+        let mut stream = vec![0x16, 0x03, 0x01, 0x00, 0x02, 0xaa, 0xbb];
+        stream.extend([0x17, 0x03, 0x03, 0x00, 0x01, 0xcc]);
+        stream.extend([0x42, 0x03, 0x03, 0x00, 0x01, 0xdd]);
+        let mut from = BufReader::new(&stream[..]);
+        let mut format = None;
+        let first = read_unit(&mut from, &mut format).await.ok().flatten();
+        assert_eq!(first.as_deref(), Some(&stream[..7]));
+        let second = read_unit(&mut from, &mut format).await.ok().flatten();
+        assert_eq!(second.as_deref(), Some(&stream[7..13]));
+        assert!(matches!(
+            read_unit(&mut from, &mut format).await,
+            Err(ReadError::Record([0x42, ..]))
+        ));
+    }
+}
