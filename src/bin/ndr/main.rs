@@ -47,7 +47,8 @@ enum Command {
     /// fixed latency) on the same simulated traces, beside the oracle: delay,
     /// late rate, underflows, recovery, mean ± 95 % CI over seeds.
     Compare(compare::CompareArgs),
-    /// Relay TCP connections to an upstream, delaying every frame (in order)
+    /// Relay TCP connections to an upstream, delaying every frame (a TLS
+    /// link: every TLS record, unopened) in order
     /// with a delay model, by default the paper's relay (paris-newyork).
     Relay(relay::RelayArgs),
     /// Run a 1 kHz link through the relay under a schedule of faults (relay
