@@ -404,3 +404,56 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn peers_trusted_through_a_ca_link_and_a_wrong_server_name_is_refused() {
+    use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, IsCa, KeyPair as Key};
+
+    let _serial = serial();
+    let dir = certs("ca");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    let ca = CertifiedIssuer::self_signed(ca_params, Key::generate().unwrap()).unwrap();
+    std::fs::write(dir.join("ca.crt"), ca.pem()).unwrap();
+    // A leaf signed by the CA, named `name`: its (cert, key) files.
+    let leaf = |name: &str| {
+        let key = Key::generate().unwrap();
+        let cert = CertificateParams::new(vec![name.to_owned()])
+            .unwrap()
+            .signed_by(&key, &ca)
+            .unwrap();
+        let (c, k) = (
+            dir.join(format!("{name}.crt")),
+            dir.join(format!("{name}.key")),
+        );
+        std::fs::write(&c, cert.pem()).unwrap();
+        std::fs::write(&k, key.serialize_pem()).unwrap();
+        (c, k)
+    };
+    let ((rc, rk), (bc, bk)) = (leaf("ndr"), leaf("operator"));
+    let ca_file = dir.join("ca.crt");
+    let remote = TlsConfig::from_files_with_ca(&rc, &rk, &ca_file, "ndr").unwrap();
+    let base = TlsConfig::from_files_with_ca(&bc, &bk, &ca_file, "ndr").unwrap();
+    let misnamed = TlsConfig::from_files_with_ca(&bc, &bk, &ca_file, "robot").unwrap();
+    let rt = runtime();
+    rt.block_on(async {
+        let listener = Listener::bind_tls(loopback(), config(), &remote)
+            .await
+            .unwrap();
+        let addr = listener.local_addr().unwrap();
+        let attempts = async {
+            let misnamed = Link::connect_tls(addr, config(), &misnamed).await;
+            let ok = Link::connect_tls(addr, config(), &base).await;
+            (misnamed, ok)
+        };
+        let (accepted, (misnamed, ok)) = tokio::join!(listener.accept(), attempts);
+        match misnamed {
+            Err(NetError::Handshake(HandshakeError::UnknownCertificate(_))) => {}
+            other => panic!("expected a refused server name, got {other:?}"),
+        }
+        assert!(accepted.is_ok() && ok.is_ok());
+        assert_eq!(listener.stats().accepted, 1);
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+}
