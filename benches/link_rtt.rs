@@ -17,6 +17,10 @@
 //! like-for-like one. All run at the same pace, one frame per link period
 //! (a thread woken from a longer sleep wakes more slowly, on either side).
 //!
+//! The same link over mutual TLS 1.3 runs last, in the same process: its
+//! rows beside the plain link's give TLS's cost (sealing and opening one
+//! record each way, in the hubs).
+//!
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
 
@@ -27,7 +31,7 @@ use ndr::core::endpoint::Config;
 use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
 use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
-use ndr::net::{Hub, LinkConfig, LinkStats, Listener};
+use ndr::net::{Hub, LinkConfig, LinkStats, Listener, TlsConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -120,7 +124,25 @@ struct LinkRun {
     remote: Option<LinkStats>,
 }
 
-fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> LinkRun {
+/// The remote's and the base's TLS configurations, each pinning the other,
+/// from throwaway certificates.
+fn tls_pair() -> (TlsConfig, TlsConfig) {
+    let dir = std::env::temp_dir().join(format!("ndr-bench-tls-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let b = ndr::keygen::write(&dir, "base").unwrap();
+    let r = ndr::keygen::write(&dir, "remote").unwrap();
+    let remote = TlsConfig::from_files(&r.cert, &r.key, &b.cert).unwrap();
+    let base = TlsConfig::from_files(&b.cert, &b.key, &r.cert).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    (remote, base)
+}
+
+fn link_nrtt(
+    rt: &tokio::runtime::Runtime,
+    seconds: f64,
+    period_ms: u64,
+    tls: Option<&(TlsConfig, TlsConfig)>,
+) -> LinkRun {
     let mut c = Config::new(Role::Base);
     c.axes = 1;
     c.period = Duration::from_millis(period_ms);
@@ -134,12 +156,24 @@ fn link_nrtt(rt: &tokio::runtime::Runtime, seconds: f64, period_ms: u64) -> Link
     std::thread::sleep(StdDuration::from_micros(period_ms * 500));
     let base_hub = hub(config.spin_margin);
     let (mut base, mut remote) = rt.block_on(async {
-        let listener = Listener::bind(any, config)
+        let Some((remote_tls, base_tls)) = tls else {
+            let listener = Listener::bind(any, config)
+                .await
+                .unwrap()
+                .with_hub(remote_hub);
+            let addr = listener.local_addr().unwrap();
+            let (r, b) = tokio::join!(listener.accept(), base_hub.connect(addr, config));
+            return (b.unwrap(), r.unwrap());
+        };
+        let listener = Listener::bind_tls(any, config, remote_tls)
             .await
             .unwrap()
             .with_hub(remote_hub);
         let addr = listener.local_addr().unwrap();
-        let (r, b) = tokio::join!(listener.accept(), base_hub.connect(addr, config));
+        let (r, b) = tokio::join!(
+            listener.accept(),
+            base_hub.connect_tls(addr, config, base_tls)
+        );
         (b.unwrap(), r.unwrap())
     });
     let robot = std::thread::spawn(move || {
@@ -203,7 +237,8 @@ fn main() {
         rx_lag,
         base,
         remote,
-    } = link_nrtt(&rt, seconds, period_ms);
+    } = link_nrtt(&rt, seconds, period_ms, None);
+    let tls_run = link_nrtt(&rt, seconds, period_ms, Some(&tls_pair()));
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
         "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
@@ -252,10 +287,33 @@ fn main() {
         full_p50 / one_p50,
         full_mean / one_mean
     );
-    for (side, stats) in [("base", base), ("remote", remote)] {
+    let mut tls_nrtt = tls_run.nrtt;
+    let (tls_p50, tls_mean) = row("ndr link over TLS 1.3, NRTT", &mut tls_nrtt);
+    let tls_lag = tls_run.rx_lag;
+    println!(
+        "{:<40} {:>8} {:>10.1} {:>10} {:>10.1}   (NRTT + mean receive-path lag of both ends, {:.1} µs)",
+        "ndr link over TLS 1.3, frame to endpoint",
+        "",
+        (tls_p50 + tls_lag) * 1e6,
+        "",
+        (tls_mean + tls_lag) * 1e6,
+        tls_lag * 1e6
+    );
+    println!(
+        "TLS / plain, frame to endpoint: p50 {:.2} · mean {:.2} (+{:.1} µs at p50)",
+        (tls_p50 + tls_lag) / full_p50,
+        (tls_mean + tls_lag) / full_mean,
+        (tls_p50 + tls_lag - full_p50) * 1e6
+    );
+    for (side, stats) in [
+        ("base", base),
+        ("remote", remote),
+        ("tls base", tls_run.base),
+        ("tls remote", tls_run.remote),
+    ] {
         if let Some(s) = stats {
             println!(
-                "{side:<6} hub: wake lateness p50 {} · p99 {} · release lateness p50 {} · p99 {} · receive lag mean {:.1} µs",
+                "{side:<10} hub: wake lateness p50 {} · p99 {} · release lateness p50 {} · p99 {} · receive lag mean {:.1} µs",
                 s.lateness.p50,
                 s.lateness.p99,
                 s.release_lateness.p50,

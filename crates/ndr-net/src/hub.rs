@@ -54,6 +54,8 @@ pub(crate) struct Entry {
     pub deframer: Deframer,
     /// Bytes the socket would not take yet, in order.
     pub pending: Vec<u8>,
+    /// The TLS session continued from the handshake; `None` on a plain link.
+    pub tls: Option<Box<crate::tls_io::Session>>,
     pub kernel_stamps: bool,
     pub app_dropped: u64,
     /// From a frame's arrival (the kernel's stamp) to the hub handling it.
@@ -410,7 +412,13 @@ impl Driver {
                     {
                         entry.endpoint.abort(LinkError::Disconnected);
                     }
+                    let tls = entry.tls.is_some();
                     self.entries.insert(id, *entry);
+                    if tls {
+                        // The handshake may have read records past its end:
+                        // rustls holds them, and no new edge will say so.
+                        self.read(id, false);
+                    }
                     self.flush(id);
                 }
                 Ok(Msg::Close(id)) => {
@@ -432,6 +440,10 @@ impl Driver {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
+        if e.tls.is_some() {
+            crate::tls_io::read(e, origin, drain);
+            return;
+        }
         loop {
             let spare = e.deframer.spare();
             let room = spare.len();
@@ -441,24 +453,9 @@ impl Driver {
                     return;
                 }
                 Ok((n, at)) => {
-                    let handled = StdInstant::now();
                     e.deframer.filled(n);
-                    loop {
-                        match e.deframer.next_frame() {
-                            Ok(Some(frame)) => {
-                                e.rx_lag
-                                    .push_duration(handled.saturating_duration_since(at).into());
-                                // A fatal error closes the endpoint, which reports it.
-                                let _ = e
-                                    .endpoint
-                                    .handle_frame(Instant::from_std(origin, at), frame.as_bytes());
-                            }
-                            Ok(None) => break,
-                            Err(FramingError::Wire(err)) => {
-                                e.endpoint.abort(LinkError::from(err));
-                                return;
-                            }
-                        }
+                    if !handle_frames(e, origin, at) {
+                        return;
                     }
                     // A short read emptied the socket: data arriving later
                     // raises a new edge in the poll, so the read that would
@@ -634,6 +631,7 @@ impl Driver {
             // dropping the entry closes the socket and tells the application
             // that nothing more will come.
             if let Some(mut gone) = self.entries.remove(&id) {
+                crate::tls_io::close_notify(&mut gone);
                 let _ = self.poll.registry().deregister(&mut gone.socket);
                 let _ = gone.socket.shutdown(std::net::Shutdown::Write);
                 self.links.fetch_sub(1, AtomicOrdering::Relaxed);
@@ -741,19 +739,52 @@ fn take_sample(e: &mut Entry) {
     }
 }
 
+/// Hands the endpoint every whole frame the deframer holds, arrived at
+/// `at`; `false` if the stream is corrupt (the endpoint is aborted).
+pub(crate) fn handle_frames(e: &mut Entry, origin: StdInstant, at: StdInstant) -> bool {
+    let handled = StdInstant::now();
+    loop {
+        match e.deframer.next_frame() {
+            Ok(Some(frame)) => {
+                e.rx_lag
+                    .push_duration(handled.saturating_duration_since(at).into());
+                // A fatal error closes the endpoint, which reports it.
+                let _ = e
+                    .endpoint
+                    .handle_frame(Instant::from_std(origin, at), frame.as_bytes());
+            }
+            Ok(None) => return true,
+            Err(FramingError::Wire(err)) => {
+                e.endpoint.abort(LinkError::from(err));
+                return false;
+            }
+        }
+    }
+}
+
 /// Writes a frame now if nothing is waiting, else queues it behind what is
 /// (frames stay in order); `true` if bytes are left waiting for the socket.
+/// On a TLS link the frame is sealed into records first.
 fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
-    if e.pending.is_empty() {
-        match e.socket.write(bytes) {
+    if e.tls.is_some() {
+        return crate::tls_io::send(e, bytes);
+    }
+    write_or_queue(&mut e.socket, &mut e.pending, bytes)
+}
+
+/// Writes `bytes` now if nothing is waiting, else queues them; `true` if
+/// bytes are left waiting for the socket.
+pub(crate) fn write_or_queue(socket: &mut MioStream, pending: &mut Vec<u8>, bytes: &[u8]) -> bool {
+    if pending.is_empty() {
+        match socket.write(bytes) {
             Ok(n) if n == bytes.len() => return false,
-            Ok(n) => e.pending.extend_from_slice(&bytes[n..]),
+            Ok(n) => pending.extend_from_slice(&bytes[n..]),
             // Full buffer (or a broken socket, which the next read reports).
-            Err(_) => e.pending.extend_from_slice(bytes),
+            Err(_) => pending.extend_from_slice(bytes),
         }
         return true;
     }
-    e.pending.extend_from_slice(bytes);
+    pending.extend_from_slice(bytes);
     true
 }
 

@@ -41,11 +41,16 @@ pub mod hub;
 pub mod link;
 pub mod pool;
 pub mod relay;
+pub mod tls;
+mod tls_io;
 
 pub use capacity::QUEUE_CAPACITIES;
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
-pub use link::{Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
+pub use link::{
+    Link, LinkConfig, LinkSender, LinkStats, Listener, ListenerStats, NetError, Sample,
+};
 pub use pool::HubPool;
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
+pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};

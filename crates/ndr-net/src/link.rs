@@ -28,6 +28,7 @@ use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
+use tokio::task::JoinSet;
 
 use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
@@ -35,6 +36,8 @@ use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
 use crate::hub::{Entry, Hub, Msg, Shared};
 use crate::pool::HubPool;
+use crate::tls::{HandshakeError, TlsConfig};
+use crate::tls_io::Session;
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
@@ -63,6 +66,10 @@ pub struct LinkConfig {
     /// need room for the `ns` the base decides (a remote that cannot hold
     /// it ends the link with [`LinkError::BadParameters`]).
     pub queue_capacity: usize,
+    /// Allows a link without TLS to or from a non-loopback address (the
+    /// `--insecure` switch). Off by default: such a link is refused with
+    /// [`NetError::Insecure`]; loopback links may always be plain.
+    pub insecure: bool,
 }
 
 impl LinkConfig {
@@ -74,6 +81,7 @@ impl LinkConfig {
             spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
             app_queue: 1024,
             queue_capacity: QUEUE,
+            insecure: false,
         }
     }
 }
@@ -89,6 +97,11 @@ pub enum NetError {
     Link(LinkError),
     /// No sample came within the timeout (the link is still up).
     Timeout,
+    /// A plain (unencrypted, unauthenticated) link to or from a
+    /// non-loopback address, without [`LinkConfig::insecure`].
+    Insecure(SocketAddr),
+    /// The TLS handshake failed: no link was set up.
+    Handshake(HandshakeError),
 }
 
 impl fmt::Display for NetError {
@@ -98,6 +111,12 @@ impl fmt::Display for NetError {
             NetError::Config(e) => write!(f, "link configuration: {e}"),
             NetError::Link(e) => write!(f, "{e}"),
             NetError::Timeout => f.write_str("no sample within the timeout (the link is still up)"),
+            NetError::Insecure(addr) => write!(
+                f,
+                "refusing a plain link with {addr}: it is not loopback; configure TLS \
+                 (--cert, --key, --peer-cert or --pin) or pass --insecure (Python: insecure=True)"
+            ),
+            NetError::Handshake(e) => write!(f, "{e}"),
         }
     }
 }
@@ -108,7 +127,8 @@ impl std::error::Error for NetError {
             NetError::Io(e) => Some(e),
             NetError::Config(e) => Some(e),
             NetError::Link(e) => Some(e),
-            NetError::Timeout => None,
+            NetError::Handshake(e) => Some(e),
+            NetError::Timeout | NetError::Insecure(_) => None,
         }
     }
 }
@@ -175,32 +195,65 @@ impl fmt::Debug for Link {
 }
 
 impl Link {
-    /// Connects to a remote (this side is the base), on the current tokio runtime.
+    /// Connects to a remote (this side is the base), on the current tokio
+    /// runtime, without TLS: refused with [`NetError::Insecure`] before
+    /// connecting unless `addr` is loopback or [`LinkConfig::insecure`].
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        plain_allowed(addr, &config)?;
         let hub = Hub::new(config.spin_margin)?;
         hub.connect(addr, config).await
+    }
+
+    /// Connects to a remote (this side is the base) over mutual TLS 1.3, on
+    /// the current tokio runtime. A failed handshake is
+    /// [`NetError::Handshake`].
+    pub async fn connect_tls(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Link, NetError> {
+        let hub = Hub::new(config.spin_margin)?;
+        hub.connect_tls(addr, config, tls).await
     }
 
     /// [`connect`](Self::connect) for programs without a tokio runtime: the
     /// link gets a small runtime of its own.
     pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        Link::connect_blocking_with(addr, config, None)
+    }
+
+    /// [`connect_tls`](Self::connect_tls) for programs without a tokio
+    /// runtime.
+    pub fn connect_blocking_tls(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Link, NetError> {
+        Link::connect_blocking_with(addr, config, Some(tls))
+    }
+
+    fn connect_blocking_with(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: Option<&TlsConfig>,
+    ) -> Result<Link, NetError> {
         let rt = own_runtime()?;
-        let stream = rt.block_on(TcpStream::connect(addr))?;
-        let handle = rt.handle().clone();
         let hub = Hub::new(config.spin_margin)?;
-        let mut link = Link::start(stream, Role::Base, config, handle, &hub)?;
+        let mut link = rt.block_on(hub.connect_with(addr, config, tls))?;
         link._runtime = Some(rt);
         Ok(link)
     }
 
     /// Drives an already connected stream in `role`.
+    /// The stream is taken as it is: no TLS, and no check of its peer's
+    /// address.
     pub fn from_stream(
         stream: TcpStream,
         role: Role,
         config: LinkConfig,
         hub: &Hub,
     ) -> Result<Link, NetError> {
-        Link::start(stream, role, config, Handle::current(), hub)
+        Link::start(stream, role, config, Handle::current(), hub, None)
     }
 
     fn start(
@@ -209,6 +262,7 @@ impl Link {
         config: LinkConfig,
         rt: Handle,
         hub: &Hub,
+        tls: Option<rustls::Connection>,
     ) -> Result<Link, NetError> {
         let mut cfg = config.endpoint;
         cfg.role = role;
@@ -246,6 +300,7 @@ impl Link {
             socket,
             deframer: Deframer::new(),
             pending: Vec::new(),
+            tls: tls.map(|conn| Box::new(Session::new(conn))),
             kernel_stamps,
             app_dropped: 0,
             rx_lag: Running::default(),
@@ -514,6 +569,46 @@ pub struct Listener {
     config: LinkConfig,
     hubs: Hubs,
     role: Role,
+    tls: Option<TlsConfig>,
+    stats: Arc<Mutex<ListenerStats>>,
+    /// TLS handshakes in flight, a task each (aborted with the listener).
+    handshakes: tokio::sync::Mutex<JoinSet<Option<(TcpStream, rustls::Connection)>>>,
+}
+
+/// Connections a [`Listener`] refused before they became links, by reason.
+/// None of them reached the application.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ListenerStats {
+    /// Links accepted (handed to the application).
+    pub accepted: u64,
+    /// TLS handshakes refused for an unknown (untrusted, unpinned)
+    /// certificate.
+    pub refused_certificate: u64,
+    /// TLS handshakes refused because the peer presented no certificate.
+    pub refused_no_certificate: u64,
+    /// TLS handshakes refused because the peer does not speak TLS 1.3 (an
+    /// older TLS, or a plain link).
+    pub refused_version: u64,
+    /// TLS handshakes that did not finish within the timeout.
+    pub timeouts: u64,
+    /// Handshakes that failed otherwise (the peer closed, a reset).
+    pub failed_other: u64,
+    /// Connections dropped unanswered because
+    /// [`TlsConfig::max_pending_handshakes`] were in flight already.
+    pub refused_busy: u64,
+}
+
+impl ListenerStats {
+    fn count(&mut self, e: &HandshakeError) {
+        let counter = match e {
+            HandshakeError::UnknownCertificate(_) => &mut self.refused_certificate,
+            HandshakeError::NoCertificate => &mut self.refused_no_certificate,
+            HandshakeError::Version(_) => &mut self.refused_version,
+            HandshakeError::Timeout(_) => &mut self.timeouts,
+            HandshakeError::Other(_) => &mut self.failed_other,
+        };
+        *counter += 1;
+    }
 }
 
 /// Where a listener puts the links it accepts.
@@ -523,14 +618,46 @@ enum Hubs {
 }
 
 impl Listener {
-    /// Listens on `addr`; the links it accepts share one hub of their own.
+    /// Listens on `addr` for plain links; the links it accepts share one
+    /// hub of their own. Refused with [`NetError::Insecure`] unless `addr`
+    /// is loopback (then no other host can connect) or
+    /// [`LinkConfig::insecure`].
     pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        plain_allowed(addr, &config)?;
+        Listener::bind_with(addr, config, None).await
+    }
+
+    /// Listens on `addr` for links over mutual TLS 1.3: a peer whose
+    /// handshake fails is counted ([`stats`](Self::stats)), logged and
+    /// dropped, and never returned by [`accept`](Self::accept).
+    pub async fn bind_tls(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Listener, NetError> {
+        Listener::bind_with(addr, config, Some(tls.clone())).await
+    }
+
+    async fn bind_with(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: Option<TlsConfig>,
+    ) -> Result<Listener, NetError> {
         Ok(Listener {
             listener: TcpListener::bind(addr).await?,
             hubs: Hubs::One(Hub::new(config.spin_margin)?),
             config,
             role: Role::Remote,
+            tls,
+            stats: Arc::new(Mutex::new(ListenerStats::default())),
+            handshakes: tokio::sync::Mutex::new(JoinSet::new()),
         })
+    }
+
+    /// What it accepted and refused so far.
+    #[must_use]
+    pub fn stats(&self) -> ListenerStats {
+        *self.stats.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     /// Takes `role` in the links it accepts instead of the remote's (a base
@@ -564,23 +691,114 @@ impl Listener {
 
     /// The next peer that connects, as a running link (this side is the
     /// remote unless [`with_role`](Self::with_role) said otherwise). A failed
-    /// link does not affect the listener.
+    /// link does not affect the listener. On a TLS listener, handshakes run
+    /// side by side (at most [`TlsConfig::max_pending_handshakes`], each
+    /// bounded by [`TlsConfig::handshake_timeout`]), and a peer whose
+    /// handshake fails is logged, counted in [`stats`](Self::stats) and
+    /// dropped: only peers that passed are returned.
     pub async fn accept(&self) -> Result<Link, NetError> {
-        let (stream, _) = self.listener.accept().await?;
+        let Some(tls) = &self.tls else {
+            let (stream, _) = self.listener.accept().await?;
+            return self.start(stream, None);
+        };
+        let mut handshakes = self.handshakes.lock().await;
+        loop {
+            tokio::select! {
+                biased;
+                Some(done) = handshakes.join_next(), if !handshakes.is_empty() => match done {
+                    Ok(Some((stream, conn))) => return self.start(stream, Some(conn)),
+                    Ok(None) => {}
+                    Err(e) => {
+                        tracing::warn!("link refused: its handshake task failed: {e}");
+                        self.count(|s| &mut s.failed_other);
+                    }
+                },
+                accepted = self.listener.accept() => {
+                    let (stream, peer) = accepted?;
+                    if handshakes.len() >= tls.max_pending_handshakes {
+                        tracing::warn!(%peer, "link refused: too many handshakes in flight");
+                        self.count(|s| &mut s.refused_busy);
+                        continue;
+                    }
+                    let (tls, stats) = (tls.clone(), Arc::clone(&self.stats));
+                    handshakes.spawn(async move {
+                        match tls.accept(stream).await {
+                            Ok(done) => Some(done),
+                            Err(e) => {
+                                tracing::warn!(%peer, "link refused: {e}");
+                                stats.lock().unwrap_or_else(PoisonError::into_inner).count(&e);
+                                None
+                            }
+                        }
+                    });
+                }
+            }
+        }
+    }
+
+    fn count(&self, counter: impl FnOnce(&mut ListenerStats) -> &mut u64) {
+        *counter(&mut self.stats.lock().unwrap_or_else(PoisonError::into_inner)) += 1;
+    }
+
+    fn start(&self, stream: TcpStream, tls: Option<rustls::Connection>) -> Result<Link, NetError> {
         let hub = match &self.hubs {
             Hubs::One(hub) => hub,
             Hubs::Pool(pool) => pool.least_loaded(),
         };
-        Link::start(stream, self.role, self.config, Handle::current(), hub)
+        let link = Link::start(stream, self.role, self.config, Handle::current(), hub, tls)?;
+        self.count(|s| &mut s.accepted);
+        Ok(link)
+    }
+}
+
+/// Refuses a plain link with a non-loopback address unless insecure.
+fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(), NetError> {
+    if crate::tls::plain_allowed(addr.ip(), config.insecure) {
+        Ok(())
+    } else {
+        Err(NetError::Insecure(addr))
     }
 }
 
 impl Hub {
     /// Connects to a remote (this side is the base) and drives the link on
-    /// this hub, on the current tokio runtime.
+    /// this hub, on the current tokio runtime; without TLS, refused as
+    /// [`Link::connect`] is.
     pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        self.connect_with(addr, config, None).await
+    }
+
+    /// [`connect`](Self::connect) over mutual TLS 1.3 (see [`Link::connect_tls`]).
+    pub async fn connect_tls(
+        &self,
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Link, NetError> {
+        self.connect_with(addr, config, Some(tls)).await
+    }
+
+    pub(crate) async fn connect_with(
+        &self,
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: Option<&TlsConfig>,
+    ) -> Result<Link, NetError> {
+        let Some(tls) = tls else {
+            plain_allowed(addr, &config)?;
+            let stream = TcpStream::connect(addr).await?;
+            return Link::start(stream, Role::Base, config, Handle::current(), self, None);
+        };
         let stream = TcpStream::connect(addr).await?;
-        Link::start(stream, Role::Base, config, Handle::current(), self)
+        let (stream, conn) = tls.connect(stream).await.map_err(NetError::Handshake)?;
+        Link::start(
+            stream,
+            Role::Base,
+            config,
+            Handle::current(),
+            self,
+            Some(conn),
+        )
     }
 }
 

@@ -17,6 +17,7 @@ use ndr_core::time::Duration;
 use crate::clock::DEFAULT_SPIN_MARGIN;
 use crate::hub::Hub;
 use crate::link::{Link, LinkConfig, NetError};
+use crate::tls::TlsConfig;
 
 /// Hubs that share a tick grid; a new link goes to the one with the fewest
 /// links. Cheap to clone.
@@ -75,6 +76,16 @@ impl HubPool {
     /// the least loaded hub, on the current tokio runtime.
     pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
         self.least_loaded().connect(addr, config).await
+    }
+
+    /// [`connect`](Self::connect) over mutual TLS 1.3.
+    pub async fn connect_tls(
+        &self,
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Link, NetError> {
+        self.least_loaded().connect_tls(addr, config, tls).await
     }
 }
 

@@ -12,7 +12,13 @@
 //!
 //! 1. reads whole frames by their 4-byte length prefix
 //!    ([`wire::frame_len`](ndr_core::wire::frame_len)); the rest of a frame
-//!    is not decoded, and the bytes go out unchanged;
+//!    is not decoded, and the bytes go out unchanged. A direction whose
+//!    first bytes are a TLS record header (`0x16 0x03 0x01..=0x04`: never a
+//!    valid frame prefix, which would claim over 64 KiB) is a TLS link: it
+//!    is read as whole TLS records by their 5-byte header instead, each
+//!    record delayed as a unit (a chunk of the encrypted stream, which the
+//!    relay cannot open), still unchanged and in order; its counters then
+//!    count records as frames;
 //! 2. gives each frame the delay `sampler.delay(dir, t)`, `t` being the time
 //!    the frame arrived, counted from the start of the relay;
 //! 3. keeps the stream in order as TCP does, with an
@@ -141,6 +147,14 @@ pub enum ConnectionEnd {
         /// The refused prefix.
         error: WireError,
     },
+    /// A TLS stream (see the module's docs) sent a record header that is
+    /// not TLS: nothing after it can be cut into records.
+    BadRecord {
+        /// The direction of the bad header (forward: from the client).
+        dir: Direction,
+        /// The refused header.
+        header: [u8; 5],
+    },
     /// A direction held more frames or bytes than [`RelayConfig`] allows.
     QueueFull {
         /// The direction that overflowed.
@@ -184,6 +198,9 @@ impl fmt::Display for ConnectionEnd {
             ConnectionEnd::UpstreamFailed { error } => write!(f, "upstream failed: {error}"),
             ConnectionEnd::Framing { dir, error } => {
                 write!(f, "bad framing {}: {error}", dir_name(*dir))
+            }
+            ConnectionEnd::BadRecord { dir, header } => {
+                write!(f, "bad TLS record header {}: {header:02x?}", dir_name(*dir))
             }
             ConnectionEnd::QueueFull { dir, frames, bytes } => write!(
                 f,

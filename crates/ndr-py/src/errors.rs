@@ -117,6 +117,8 @@ pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
         NetError::Timeout => {
             PyTimeoutError::new_err("no sample within the timeout (the link is still up)")
         }
+        NetError::Handshake(h) => HandshakeError::new_err(h.to_string()),
+        other @ NetError::Insecure(_) => PyValueError::new_err(other.to_string()),
     }
 }
 

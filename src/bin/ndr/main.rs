@@ -2,6 +2,7 @@
 
 mod compare;
 mod demo;
+mod keygen;
 mod paper;
 mod peers;
 mod relay;
@@ -46,7 +47,8 @@ enum Command {
     /// fixed latency) on the same simulated traces, beside the oracle: delay,
     /// late rate, underflows, recovery, mean ± 95 % CI over seeds.
     Compare(compare::CompareArgs),
-    /// Relay TCP connections to an upstream, delaying every frame (in order)
+    /// Relay TCP connections to an upstream, delaying every frame (a TLS
+    /// link: every TLS record, unopened) in order
     /// with a delay model, by default the paper's relay (paris-newyork).
     Relay(relay::RelayArgs),
     /// Run a 1 kHz link through the relay under a schedule of faults (relay
@@ -54,6 +56,9 @@ enum Command {
     /// duplicated or reordered without a counter, nothing panics and memory
     /// stays flat.
     Soak(soak::SoakArgs),
+    /// Make a self-signed certificate and key (PEM) for a lab setup, and
+    /// print its SHA-256 fingerprint (what the peer pins).
+    Keygen(keygen::KeygenArgs),
 }
 
 fn main() -> ExitCode {
@@ -67,6 +72,7 @@ fn main() -> ExitCode {
         Command::Relay(args) => relay::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Soak(args) => soak::run(args),
+        Command::Keygen(args) => keygen::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -8,6 +8,7 @@ use ndr::core::endpoint::LinkError;
 use ndr::net::{Link, LinkStats, Listener, NetError};
 
 use crate::demo::{LinkArgs, Outcome, RunArgs, check_duration, finish, operator, robot, runtime};
+use crate::keygen::SecurityArgs;
 
 #[derive(clap::Args)]
 pub struct BaseArgs {
@@ -16,6 +17,8 @@ pub struct BaseArgs {
     pub connect: SocketAddr,
     #[command(flatten)]
     pub link: LinkArgs,
+    #[command(flatten)]
+    pub security: SecurityArgs,
     #[command(flatten)]
     pub run: RunArgs,
 }
@@ -27,16 +30,22 @@ pub struct RemoteArgs {
     pub listen: SocketAddr,
     #[command(flatten)]
     pub link: LinkArgs,
+    #[command(flatten)]
+    pub security: SecurityArgs,
     /// Serve one base, then exit (by default it serves one after another).
     #[arg(long)]
     pub once: bool,
 }
 
 pub fn base(args: &BaseArgs) -> Result<(), String> {
-    let config = args.link.config()?;
+    let mut config = args.link.config()?;
+    let tls = args.security.apply(&mut config)?;
     check_duration(&args.run)?;
-    let link = Link::connect_blocking(args.connect, config)
-        .map_err(|e| format!("cannot connect to {}: {e}", args.connect))?;
+    let link = match &tls {
+        Some(tls) => Link::connect_blocking_tls(args.connect, config, tls),
+        None => Link::connect_blocking(args.connect, config),
+    }
+    .map_err(|e| format!("cannot connect to {}: {e}", args.connect))?;
     let (stats, rows) = operator(link, &args.run, args.link.axes, None)?;
     let outcome = Outcome {
         profile: format!("tcp {}", args.connect),
@@ -49,10 +58,16 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
 }
 
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
-    let config = args.link.config()?;
+    let mut config = args.link.config()?;
+    let tls = args.security.apply(&mut config)?;
     let rt = runtime()?;
     let listener = rt
-        .block_on(Listener::bind(args.listen, config))
+        .block_on(async {
+            match &tls {
+                Some(tls) => Listener::bind_tls(args.listen, config, tls).await,
+                None => Listener::bind(args.listen, config).await,
+            }
+        })
         .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?;
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
     eprintln!("ndr remote: waiting for a base on {addr}");

@@ -161,11 +161,14 @@ async fn read_side<R: AsyncRead + Unpin>(
 ) -> Result<(), ConnectionEnd> {
     let mut from = BufReader::with_capacity(READ_BUFFER, from);
     let mut path = InOrderPath::new();
+    // Decided by the direction's first bytes.
+    let mut format = None;
     loop {
-        let bytes = match read_frame(&mut from).await {
+        let bytes = match read_unit(&mut from, &mut format).await {
             Ok(Some(bytes)) => bytes,
             Ok(None) => return Ok(()),
             Err(ReadError::Wire(error)) => return Err(ConnectionEnd::Framing { dir, error }),
+            Err(ReadError::Record(header)) => return Err(ConnectionEnd::BadRecord { dir, header }),
             Err(ReadError::Truncated(got)) => {
                 tracing::warn!(
                     ?dir,
@@ -261,21 +264,53 @@ async fn write_side<W: AsyncWrite + Unpin>(
 
 enum ReadError {
     Wire(WireError),
+    /// Not a TLS record header, in a TLS stream.
+    Record([u8; TLS_HEADER]),
     /// End of stream after this many bytes of a frame.
     Truncated(usize),
     Io(std::io::Error),
 }
 
-/// The next whole frame, prefix included; `None` at a clean end of stream.
-/// Only the length prefix is checked: the rest is passed on as it is.
-async fn read_frame<R: AsyncRead + Unpin>(
+/// What a direction carries.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Format {
+    /// ndr frames, by their length prefix.
+    Frames,
+    /// TLS records, by their 5-byte header.
+    Tls,
+}
+
+/// A TLS record header: type, version (2), length (2, big-endian).
+const TLS_HEADER: usize = 5;
+/// Largest TLS record body (2^14 plus the most expansion TLS allows).
+const TLS_MAX_BODY: usize = (1 << 14) + 2048;
+
+/// `true` for the start of a TLS record: a handshake record of TLS 1.0 to
+/// 1.3. A frame prefix starting so would claim over 64 KiB.
+fn is_tls(prefix: &[u8; PREFIX_LEN]) -> bool {
+    prefix[0] == 0x16 && prefix[1] == 0x03 && (1..=4).contains(&prefix[2])
+}
+
+/// The next whole frame (prefix included) or TLS record (header included);
+/// `None` at a clean end of stream. Only the prefix or header is checked:
+/// the rest is passed on as it is.
+async fn read_unit<R: AsyncRead + Unpin>(
     from: &mut BufReader<R>,
+    format: &mut Option<Format>,
 ) -> Result<Option<Vec<u8>>, ReadError> {
     if from.fill_buf().await.map_err(ReadError::Io)?.is_empty() {
         return Ok(None);
     }
     let mut prefix = [0u8; PREFIX_LEN];
     read_exact(from, &mut prefix, 0).await?;
+    let format = *format.get_or_insert(if is_tls(&prefix) {
+        Format::Tls
+    } else {
+        Format::Frames
+    });
+    if format == Format::Tls {
+        return read_record(from, prefix).await.map(Some);
+    }
     let len = match wire::frame_len(&prefix) {
         Ok(Some(len)) => len,
         Ok(None) => return Err(ReadError::Truncated(PREFIX_LEN)),
@@ -286,6 +321,25 @@ async fn read_frame<R: AsyncRead + Unpin>(
     head.copy_from_slice(&prefix[..head.len()]);
     read_exact(from, rest, PREFIX_LEN).await?;
     Ok(Some(bytes))
+}
+
+/// The rest of a TLS record whose first header bytes are `prefix`.
+async fn read_record<R: AsyncRead + Unpin>(
+    from: &mut BufReader<R>,
+    prefix: [u8; PREFIX_LEN],
+) -> Result<Vec<u8>, ReadError> {
+    let mut header = [0u8; TLS_HEADER];
+    header[..PREFIX_LEN].copy_from_slice(&prefix);
+    read_exact(from, &mut header[PREFIX_LEN..], PREFIX_LEN).await?;
+    let len = usize::from(u16::from_be_bytes([header[3], header[4]]));
+    // Change cipher spec, alert, handshake, application data, heartbeat.
+    if !(0x14..=0x18).contains(&header[0]) || header[1] != 0x03 || len > TLS_MAX_BODY {
+        return Err(ReadError::Record(header));
+    }
+    let mut bytes = vec![0u8; TLS_HEADER + len];
+    bytes[..TLS_HEADER].copy_from_slice(&header);
+    read_exact(from, &mut bytes[TLS_HEADER..], TLS_HEADER).await?;
+    Ok(bytes)
 }
 
 async fn read_exact<R: AsyncRead + Unpin>(
@@ -303,4 +357,40 @@ async fn read_exact<R: AsyncRead + Unpin>(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndr_core::wire::MAX_FRAME_LEN;
+
+    #[test]
+    fn a_tls_record_is_never_taken_for_a_frame_nor_a_frame_for_one() {
+        for minor in 1..=4 {
+            let head = [0x16, 0x03, minor, 0x00];
+            assert!(is_tls(&head));
+            assert!(wire::frame_len(&head).is_err());
+        }
+        for len in PREFIX_LEN..=MAX_FRAME_LEN {
+            let prefix = u32::try_from(len).unwrap().to_le_bytes();
+            assert!(!is_tls(&prefix), "{len}");
+        }
+    }
+
+    #[tokio::test]
+    async fn records_are_read_whole_and_a_bad_header_is_refused() {
+        let mut stream = vec![0x16, 0x03, 0x01, 0x00, 0x02, 0xaa, 0xbb];
+        stream.extend([0x17, 0x03, 0x03, 0x00, 0x01, 0xcc]);
+        stream.extend([0x42, 0x03, 0x03, 0x00, 0x01, 0xdd]);
+        let mut from = BufReader::new(&stream[..]);
+        let mut format = None;
+        let first = read_unit(&mut from, &mut format).await.ok().flatten();
+        assert_eq!(first.as_deref(), Some(&stream[..7]));
+        let second = read_unit(&mut from, &mut format).await.ok().flatten();
+        assert_eq!(second.as_deref(), Some(&stream[7..13]));
+        assert!(matches!(
+            read_unit(&mut from, &mut format).await,
+            Err(ReadError::Record([0x42, ..]))
+        ));
+    }
 }

@@ -36,7 +36,8 @@ pub struct RelayStats {
     /// Connections dropped because the upstream refused them, or did not
     /// answer within the connect timeout.
     pub upstream_failures: u64,
-    /// Connections cut because a side sent an absurd length prefix.
+    /// Connections cut because a side sent an absurd length prefix (or a
+    /// TLS stream a header that is not TLS).
     pub framing_errors: u64,
     /// Connections cut because a direction's queue went over its bound.
     pub queue_overflows: u64,
@@ -118,7 +119,7 @@ impl Counters {
         let counter = match end {
             ConnectionEnd::Finished => &self.finished,
             ConnectionEnd::UpstreamFailed { .. } => &self.upstream_failures,
-            ConnectionEnd::Framing { .. } => &self.framing_errors,
+            ConnectionEnd::Framing { .. } | ConnectionEnd::BadRecord { .. } => &self.framing_errors,
             ConnectionEnd::QueueFull { .. } => &self.queue_overflows,
             ConnectionEnd::Io { .. } => &self.io_errors,
             ConnectionEnd::Shutdown => &self.closed_by_shutdown,
