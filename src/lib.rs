@@ -1,4 +1,5 @@
 //! ndr: regulated teleoperation link (facade over `ndr-core` and `ndr-net`).
 pub use ndr_core as core;
 pub use ndr_net as net;
-pub mod keygen;
+/// Certificate pairs for a lab setup (`ndr keygen`); lives in `ndr-net`.
+pub use ndr_net::keygen;

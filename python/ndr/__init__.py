@@ -20,7 +20,8 @@ The building blocks, with the names Python users already know:
 
 The link (:mod:`ndr.link`): :class:`Link` (``Link.connect``,
 ``Link.listen``), :class:`Listener`, :class:`Tick`, :class:`Event`, the
-delaying :class:`Relay`, and the exceptions, all ``ConnectionError``
+delaying :class:`Relay`, :class:`TlsConfig` (mutual TLS 1.3; plain links
+off loopback need ``insecure=True``), and the exceptions, all ``ConnectionError``
 subclasses: :class:`LinkError`, :class:`HandshakeError`,
 :class:`ProtocolError`, :class:`PeerClosedError`,
 :class:`DisconnectedError`, :class:`LinkClosedError`.
@@ -61,11 +62,13 @@ from ._native import (
     Tf2,
     Tf2State,
     Tick,
+    TlsConfig,
     __version__,
     envelope,
     flush_logs,
     init_stats,
     kalman3_filter,
+    keygen,
     lowpass,
     nominal_size,
     period_law,
@@ -104,11 +107,13 @@ __all__ = [
     "Tf2",
     "Tf2State",
     "Tick",
+    "TlsConfig",
     "__version__",
     "envelope",
     "flush_logs",
     "init_stats",
     "kalman3_filter",
+    "keygen",
     "lowpass",
     "nominal_size",
     "period_law",

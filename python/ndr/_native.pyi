@@ -7,6 +7,7 @@ A wrong shape, dtype or number of axes, a NaN or an infinity raises
 number raises ``TypeError``.
 """
 
+import os
 from typing import Any, Dict, List, Optional, Tuple, Union, final
 
 import numpy as np
@@ -30,7 +31,9 @@ __all__ = [
     "Relay",
     "Signal",
     "Tick",
+    "TlsConfig",
     "connect",
+    "keygen",
     "flush_logs",
     "listen",
     "set_log_level",
@@ -665,6 +668,8 @@ class _Listener:
     def address(self) -> Tuple[str, int]: ...
     @property
     def refused(self) -> int: ...
+    @property
+    def stats(self) -> Dict[str, int]: ...
 
 @final
 class _LinkSettings:
@@ -682,12 +687,46 @@ class _LinkSettings:
         watchdog: Optional[float],
         handshake_timeout: float,
         app_queue: int,
+        insecure: bool,
     ) -> "_LinkSettings": ...
 
+@final
+class TlsConfig:
+    """Mutual TLS 1.3 for a link: this side's certificate and key (PEM
+    files), and whom it trusts: exactly one of ``peer_cert`` (the peer's
+    certificate, pinned by fingerprint), ``pins`` (SHA-256 fingerprints) or
+    ``ca`` (a CA certificate; the server's certificate must name
+    ``server_name``). ``ValueError`` names a file or value it cannot use."""
+
+    def __new__(
+        cls,
+        cert: Union[str, "os.PathLike[str]"],
+        key: Union[str, "os.PathLike[str]"],
+        *,
+        peer_cert: Optional[Union[str, "os.PathLike[str]"]] = None,
+        pins: Optional[List[str]] = None,
+        ca: Optional[Union[str, "os.PathLike[str]"]] = None,
+        server_name: Optional[str] = None,
+        handshake_timeout: Optional[float] = None,
+    ) -> "TlsConfig": ...
+    @property
+    def fingerprint(self) -> str:
+        """This side's certificate fingerprint (SHA-256), to pin on the peer."""
+
+def keygen(dir: Union[str, "os.PathLike[str]"], name: str = "ndr") -> Tuple[str, str, str]:
+    """A self-signed certificate pair for a lab setup (as ``ndr keygen``):
+    ``(cert_path, key_path, fingerprint)``; never overwrites a key."""
+
 def connect(
-    address: _Address, settings: _LinkSettings, *, connect_timeout: Optional[float]
+    address: _Address,
+    settings: _LinkSettings,
+    *,
+    connect_timeout: Optional[float],
+    tls: Optional[TlsConfig] = None,
 ) -> _Link: ...
-def listen(address: _Address, settings: _LinkSettings) -> _Listener: ...
+def listen(
+    address: _Address, settings: _LinkSettings, *, tls: Optional[TlsConfig] = None
+) -> _Listener: ...
 
 @final
 class Relay:

@@ -12,9 +12,11 @@ period, so the controller sees a constant, known delay::
             command = controller(tick.sample)     # float64 array, shape (2,)
             link.send(command)
 
-The remote side listens::
+The remote side listens; off loopback, over mutual TLS (``ndr keygen`` makes
+each side's certificate; each pins the other's)::
 
-    with ndr.Link.listen("0.0.0.0:7300", axes=2, period=0.01) as listener:
+    tls = ndr.TlsConfig("robot.crt", "robot.key", peer_cert="base.crt")
+    with ndr.Link.listen("0.0.0.0:7300", axes=2, period=0.01, tls=tls) as listener:
         with listener.accept() as link:
             for tick in link.ticks():
                 link.send(plant.step(tick.sample))
@@ -39,9 +41,9 @@ from typing import Any, AsyncIterator, Callable, Iterator, Optional, Sequence, T
 import numpy as np
 
 from . import _native
-from ._native import LinkClosedError, PeerClosedError, Tick
+from ._native import LinkClosedError, PeerClosedError, Tick, TlsConfig
 
-__all__ = ["Event", "Link", "Listener", "Tick"]
+__all__ = ["Event", "Link", "Listener", "Tick", "TlsConfig"]
 
 _log = logging.getLogger("ndr.link")
 
@@ -70,6 +72,9 @@ class Event:
       ``ns``; ``"resized"`` follows when samples flow again with them;
     - ``"underflow"``: the sample due at a tick had not arrived; the last
       one was repeated (``seq`` is the repeated sample's);
+    - ``"delay_changed"``: a target-delay playout (``"adaptive"``, …)
+      changed the constant delay it holds, now ``delay`` seconds, ``ticks``
+      periods (no pause: the change is smooth);
     - ``"link_lost"``: no fresh sample for the watchdog time
       (``silent_for``): hold the robot safely; ``"link_restored"`` follows;
     - ``"closed"``: the link ended (``error`` says why; ``details["normal"]``
@@ -81,6 +86,8 @@ class Event:
     ns: Optional[int] = None
     seq: Optional[int] = None
     silent_for: Optional[float] = None
+    delay: Optional[float] = None
+    ticks: Optional[int] = None
     error: Optional[str] = None
     details: dict = field(default_factory=dict)
 
@@ -97,6 +104,7 @@ _SETTINGS = {
     "watchdog": "watchdog",
     "handshake_timeout": "handshake_timeout",
     "queue": "app_queue",
+    "insecure": "insecure",
 }
 
 
@@ -149,6 +157,8 @@ class Link:
         handshake_timeout: float = 5.0,
         connect_timeout: Optional[float] = 10.0,
         queue: int = 1024,
+        tls: Optional[TlsConfig] = None,
+        insecure: bool = False,
         on_event: Optional[Callable[[Event], Any]] = None,
     ) -> "Link":
         """Connects to a peer and returns the link once the handshake is done.
@@ -179,6 +189,11 @@ class Link:
             queue: released samples and events that may wait for the
                 application; beyond it the newest are dropped and counted
                 (``stats["app_dropped"]``).
+            tls: a :class:`TlsConfig`: mutual TLS 1.3, both sides present
+                certificates (``ndr keygen`` makes a pair). Without it a link
+                to or from a non-loopback address is refused…
+            insecure: …unless this is true (plain TCP: anyone on the path
+                can read and forge the samples). Loopback is always allowed.
             on_event: called with each :class:`Event`, on the thread that
                 receives.
 
@@ -186,9 +201,12 @@ class Link:
             ConnectionRefusedError: nothing listens at ``address``.
             HandshakeError: the peer has other settings, or did not answer.
             TimeoutError: no connection within ``connect_timeout``.
-            ValueError: a setting is invalid (the message says which).
+            ValueError: a setting is invalid (the message says which), or
+                a plain link off loopback without ``insecure=True``.
         """
-        native = _native.connect(address, _settings(locals()), connect_timeout=connect_timeout)
+        native = _native.connect(
+            address, _settings(locals()), connect_timeout=connect_timeout, tls=tls
+        )
         return cls(native, on_event=on_event)
 
     @classmethod
@@ -205,13 +223,15 @@ class Link:
         watchdog: Optional[float] = None,
         handshake_timeout: float = 5.0,
         queue: int = 1024,
+        tls: Optional[TlsConfig] = None,
+        insecure: bool = False,
         on_event: Optional[Callable[[Event], Any]] = None,
     ) -> "Listener":
         """Listens at ``address`` (port 0 picks a free one) and returns a
         :class:`Listener` whose :meth:`~Listener.accept` gives one link per
         peer. The keyword arguments are those of :meth:`connect`; ``role``
         defaults to ``"remote"``."""
-        native = _native.listen(address, _settings(locals()))
+        native = _native.listen(address, _settings(locals()), tls=tls)
         return Listener(native, on_event=on_event)
 
     # -- samples ----------------------------------------------------------
@@ -411,6 +431,8 @@ class Link:
                     period=fields.get("period"),
                     ns=fields.get("ns"),
                     silent_for=fields.get("silent_for"),
+                    delay=fields.get("delay"),
+                    ticks=fields.get("ticks"),
                     error=fields.get("error"),
                     details=fields,
                 )
@@ -434,6 +456,8 @@ def _log_event(link: Link, e: Event) -> None:
         _log.warning("%s: link lost: no fresh sample for %.3f s", who, e.silent_for or 0.0)
     elif e.kind == "closed" and not e.details.get("normal", True):
         _log.warning("%s: link closed: %s", who, e.error)
+    elif e.kind == "delay_changed":
+        _log.info("%s: delay now %.6g s (%s periods)", who, e.delay, e.ticks)
     elif e.kind in ("started", "resized", "paused"):
         _log.info("%s: %s, period %.6g s, ns %s", who, e.kind, e.period, e.ns)
     else:
@@ -529,8 +553,18 @@ class Listener:
 
     @property
     def refused(self) -> int:
-        """Peers refused because their handshake failed."""
+        """Peers refused: a failed TLS handshake (unknown or missing
+        certificate, old TLS, timeout) or a failed ndr handshake (other
+        settings)."""
         return self._native.refused
+
+    @property
+    def stats(self) -> dict:
+        """The listener's counters by reason: ``accepted``,
+        ``refused_certificate``, ``refused_no_certificate``,
+        ``refused_version``, ``tls_timeouts``, ``failed_other``,
+        ``refused_busy``, ``refused_handshake``."""
+        return self._native.stats
 
     def close(self) -> None:
         """Stops listening; links already accepted go on."""

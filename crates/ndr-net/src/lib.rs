@@ -38,6 +38,7 @@ pub mod clock;
 mod delivery;
 pub mod framing;
 pub mod hub;
+pub mod keygen;
 pub mod link;
 pub mod pool;
 pub mod relay;

@@ -34,6 +34,7 @@ pub mod regulator;
 pub mod relay;
 pub mod rls;
 pub mod sim;
+pub mod tls;
 
 use ndr_core::sizing::{self, InitPattern, Sizing};
 use pyo3::exceptions::PyValueError;
@@ -119,6 +120,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<link::PyLink>()?;
     m.add_class::<link::PyListener>()?;
     m.add_class::<link::PyLinkSettings>()?;
+    m.add_class::<tls::PyTlsConfig>()?;
+    m.add_function(wrap_pyfunction!(tls::keygen, m)?)?;
     m.add_function(wrap_pyfunction!(link::connect, m)?)?;
     m.add_function(wrap_pyfunction!(link::listen, m)?)?;
     m.add("MAX_AXES", ndr_net::link::MAX_AXES)?;

@@ -32,6 +32,7 @@ use crate::blocking::{self, timed_out, wait};
 use crate::convert::{period as positive, sample};
 use crate::errors::{link_error, net_error};
 use crate::log;
+use crate::tls::PyTlsConfig;
 
 /// Events kept for Python between two reads; older ones are dropped.
 const EVENTS: usize = 1024;
@@ -466,6 +467,15 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
     };
     d.set_item("nrtt", running(&e.nrtt)?)?;
     d.set_item("grtt", running(&e.grtt)?)?;
+    // One-way delays from the clock estimate (offset and skew between the
+    // peers), and the delay a target-delay playout holds now.
+    d.set_item("one_way_rx", running(&e.one_way_rx)?)?;
+    d.set_item("one_way_tx", running(&e.one_way_tx)?)?;
+    d.set_item("clock_offset", e.clock_offset_s)?;
+    d.set_item("clock_skew_ppm", e.clock_skew_ppm)?;
+    d.set_item("playout_delay", e.playout_delay_s)?;
+    d.set_item("playout_delay_ticks", e.playout_delay_ticks)?;
+    d.set_item("delay_changes", e.delay_changes)?;
     d.set_item("rx_lag", running(&s.rx_lag)?)?;
     let lateness = |l: &LatenessStats| -> PyResult<Bound<'py, PyDict>> {
         let m = PyDict::new(py);
@@ -499,7 +509,7 @@ pub struct PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, app_queue))]
+    #[pyo3(signature = (*, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, app_queue, insecure))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         role: &str,
@@ -511,6 +521,7 @@ impl PyLinkSettings {
         watchdog: Option<f64>,
         handshake_timeout: f64,
         app_queue: usize,
+        insecure: bool,
     ) -> PyResult<Self> {
         let role = match role {
             "base" => Role::Base,
@@ -550,46 +561,78 @@ impl PyLinkSettings {
         }
         let mut config = LinkConfig::new(endpoint);
         config.app_queue = app_queue;
+        config.insecure = insecure;
         Ok(PyLinkSettings { config, role })
     }
 }
 
-/// Connects to a peer and waits for the handshake.
+/// Connects to a peer (over mutual TLS with `tls`) and waits for the
+/// handshake.
 #[pyfunction]
-#[pyo3(signature = (address, settings, *, connect_timeout))]
+#[pyo3(signature = (address, settings, *, connect_timeout, tls = None))]
 pub fn connect(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
     settings: &PyLinkSettings,
     connect_timeout: Option<f64>,
+    tls: Option<&Bound<'_, PyTlsConfig>>,
 ) -> PyResult<PyLink> {
     let (config, role) = (settings.config, settings.role);
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
+    let tls = tls.map(|t| t.get().inner.clone());
+    if tls.is_some() && role == Role::Remote {
+        return Err(PyValueError::new_err(
+            "a remote that dials out cannot use TLS (the TLS client is the base): \
+             listen on the remote, or connect as the base",
+        ));
+    }
+    if tls.is_none() && !ndr_net::tls::plain_allowed(addr.ip(), config.insecure) {
+        return Err(net_error(py, NetError::Insecure(addr)));
+    }
     let rt = blocking::runtime()?;
-    let hub = blocking::hub()?;
+    let hub = blocking::hub()?.clone();
+    // The connection and the TLS handshake run as a task, so a wait cut
+    // short (timeout, Ctrl-C) can abandon it cleanly.
+    let mut task = rt.spawn(async move {
+        match (tls, role) {
+            (Some(tls), _) => hub.connect_tls(addr, config, &tls).await,
+            (None, Role::Base) => hub.connect(addr, config).await,
+            (None, Role::Remote) => {
+                let stream = tokio::net::TcpStream::connect(addr).await?;
+                Link::from_stream(stream, role, config, &hub)
+            }
+        }
+    });
     let attempt = |slice: StdDuration| {
         rt.block_on(async {
-            match tokio::time::timeout(slice, tokio::net::TcpStream::connect(addr)).await {
-                Ok(Ok(stream)) => Ok(Some(stream)),
-                Ok(Err(e)) => Err(e),
+            match tokio::time::timeout(slice, &mut task).await {
+                Ok(Ok(done)) => done.map(Some),
+                Ok(Err(join)) => Err(NetError::Io(std::io::Error::other(format!(
+                    "the connection task failed: {join}"
+                )))),
                 Err(_) => Ok(None),
             }
         })
     };
-    let stream = match wait(py, limit, attempt)? {
-        Ok(Some(s)) => s,
-        Ok(None) => return Err(timed_out(&format!("could not connect to {addr}"), limit)),
-        Err(e) => {
+    let waited = wait(py, limit, attempt);
+    let link = match waited {
+        Ok(Ok(Some(link))) => link,
+        Ok(Ok(None)) => {
+            task.abort();
+            return Err(timed_out(&format!("could not connect to {addr}"), limit));
+        }
+        Ok(Err(NetError::Io(e))) => {
             return Err(PyErr::from(std::io::Error::new(
                 e.kind(),
                 format!("cannot connect to {addr}: {e}"),
             )));
         }
-    };
-    let link = {
-        let _in_runtime = rt.enter();
-        Link::from_stream(stream, role, config, hub).map_err(|e| net_error(py, e))?
+        Ok(Err(e)) => return Err(net_error(py, e)),
+        Err(interrupted) => {
+            task.abort();
+            return Err(interrupted);
+        }
     };
     let link = PyLink::new(link, role, config.endpoint.period);
     let handshake = link.await_handshake(py, config.endpoint.handshake_timeout.into());
@@ -609,18 +652,28 @@ pub struct PyListener {
     refused: std::sync::atomic::AtomicU64,
 }
 
-/// Listens for peers.
+/// Listens for peers (over mutual TLS with `tls`).
 #[pyfunction]
+#[pyo3(signature = (address, settings, *, tls = None))]
 pub fn listen(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
     settings: &PyLinkSettings,
+    tls: Option<&Bound<'_, PyTlsConfig>>,
 ) -> PyResult<PyListener> {
     let (config, role) = (settings.config, settings.role);
     let addr = blocking::address(py, address)?;
     let rt = blocking::runtime()?;
+    let tls = tls.map(|t| t.get().inner.clone());
     let listener = py
-        .detach(|| rt.block_on(Listener::bind(addr, config)))
+        .detach(|| {
+            rt.block_on(async {
+                match &tls {
+                    Some(tls) => Listener::bind_tls(addr, config, tls).await,
+                    None => Listener::bind(addr, config).await,
+                }
+            })
+        })
         .map_err(|e| net_error(py, e))?
         .with_role(role);
     let local = listener.local_addr().map_err(|e| net_error(py, e))?;
@@ -632,6 +685,19 @@ pub fn listen(
         role,
         refused: std::sync::atomic::AtomicU64::new(0),
     })
+}
+
+impl PyListener {
+    fn tls_stats(&self, py: Python<'_>) -> ndr_net::link::ListenerStats {
+        py.detach(|| {
+            self.listener
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .as_ref()
+                .map(Listener::stats)
+                .unwrap_or_default()
+        })
+    }
 }
 
 #[pymethods]
@@ -700,9 +766,37 @@ impl PyListener {
         (self.local.ip().to_string(), self.local.port())
     }
 
-    /// Peers refused because their handshake failed.
+    /// Peers refused: their TLS handshake failed (unknown or missing
+    /// certificate, old TLS, timeout, too many at once) or their ndr
+    /// handshake did (other settings, no answer).
     #[getter]
-    fn refused(&self) -> u64 {
+    fn refused(&self, py: Python<'_>) -> u64 {
+        let tls = self.tls_stats(py);
         self.refused.load(std::sync::atomic::Ordering::Relaxed)
+            + tls.refused_certificate
+            + tls.refused_no_certificate
+            + tls.refused_version
+            + tls.timeouts
+            + tls.failed_other
+            + tls.refused_busy
+    }
+
+    /// What the listener counted, by reason.
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = self.tls_stats(py);
+        let d = PyDict::new(py);
+        d.set_item("accepted", s.accepted)?;
+        d.set_item("refused_certificate", s.refused_certificate)?;
+        d.set_item("refused_no_certificate", s.refused_no_certificate)?;
+        d.set_item("refused_version", s.refused_version)?;
+        d.set_item("tls_timeouts", s.timeouts)?;
+        d.set_item("failed_other", s.failed_other)?;
+        d.set_item("refused_busy", s.refused_busy)?;
+        d.set_item(
+            "refused_handshake",
+            self.refused.load(std::sync::atomic::Ordering::Relaxed),
+        )?;
+        Ok(d)
     }
 }

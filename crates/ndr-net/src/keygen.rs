@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use ndr_net::tls::{DEFAULT_SERVER_NAME, Fingerprint};
+use crate::tls::{DEFAULT_SERVER_NAME, Fingerprint};
 
 /// A certificate written by [`write`].
 #[derive(Clone, Debug)]
