@@ -150,7 +150,9 @@ mod tests {
             Err(e) => panic!("default config refused: {e}"),
         };
         assert!(size(16) < size(64) && size(64) < size(QUEUE));
-        // At 8 channels: about 112 bytes per queued sample.
-        assert!(size(64) < 16 * 1024, "{}", size(64));
+        // At 8 channels: about 112 bytes per queued sample, plus about
+        // 24 KiB of playout state held inline whatever the policy (the
+        // adaptive policy's delay histogram and the clock estimate).
+        assert!(size(64) < 40 * 1024, "{}", size(64));
     }
 }
