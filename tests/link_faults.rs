@@ -1,5 +1,5 @@
-//! Bad peers on a real listener: each is cut off with its own error, and the
-//! listener goes on serving.
+//! Bad peers on a real listener: each is cut off with its own error and
+//! counter, never reaches the application, and the listener goes on serving.
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -7,10 +7,10 @@ use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Config, LinkError};
 use ndr::core::time::{Duration, Instant};
-use ndr::core::wire::{
-    self, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, WireError, close_reason,
-};
-use ndr::net::{Link, LinkConfig, Listener, NetError};
+use ndr::core::wire::{self, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, close_reason};
+use std::sync::Arc;
+
+use ndr::net::{Link, LinkConfig, Listener, ListenerStats, NetError};
 
 fn config() -> LinkConfig {
     let mut c = Config::new(Role::Base);
@@ -19,19 +19,25 @@ fn config() -> LinkConfig {
     LinkConfig::new(c)
 }
 
-/// What the remote side of each accepted link ended with.
+/// What the remote side of each accepted link ended with, and the listener.
 fn serve(
     rt: &tokio::runtime::Runtime,
     n: usize,
-) -> (SocketAddr, std::sync::mpsc::Receiver<NetError>) {
-    let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
-        .unwrap();
+) -> (
+    SocketAddr,
+    std::sync::mpsc::Receiver<NetError>,
+    Arc<Listener>,
+) {
+    let listener = Arc::new(
+        rt.block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+            .unwrap(),
+    );
     let addr = listener.local_addr().unwrap();
     let (tx, rx) = std::sync::mpsc::channel();
+    let serving = Arc::clone(&listener);
     rt.spawn(async move {
         for _ in 0..n {
-            let mut link = listener.accept().await.unwrap();
+            let mut link = serving.accept().await.unwrap();
             let tx = tx.clone();
             std::thread::spawn(move || {
                 let err = loop {
@@ -46,10 +52,27 @@ fn serve(
             });
         }
     });
-    (addr, rx)
+    (addr, rx, listener)
+}
+
+/// Waits (3 s at most) until the listener's counter reaches `n`.
+fn counted(listener: &Listener, counter: fn(&ListenerStats) -> u64, n: u64) {
+    let end = std::time::Instant::now() + StdDuration::from_secs(3);
+    while counter(&listener.stats()) < n {
+        assert!(
+            std::time::Instant::now() < end,
+            "counter stuck: {:?}",
+            listener.stats()
+        );
+        std::thread::sleep(StdDuration::from_millis(10));
+    }
 }
 
 fn hello_bytes(version: u8) -> Vec<u8> {
+    hello_from(version, Role::Base, 1)
+}
+
+fn hello_from(version: u8, role: Role, axes: u16) -> Vec<u8> {
     let header = Header {
         seq: 0,
         sent_at: Instant::ZERO,
@@ -57,10 +80,10 @@ fn hello_bytes(version: u8) -> Vec<u8> {
         released: None,
     };
     let hello = Hello {
-        role: Role::Base,
+        role,
         mode: 0,
         underflow: 0,
-        axes: 1,
+        axes,
         period: Duration::from_millis(10),
     };
     let mut buf = vec![0; MAX_FRAME_LEN];
@@ -95,40 +118,34 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
         .enable_all()
         .build()
         .unwrap();
-    let (addr, errors) = serve(&rt, 4);
+    let (addr, errors, listener) = serve(&rt, 1);
 
     // Garbage: not even a plausible length prefix.
     let back = poke(addr, b"GET / HTTP/1.1\r\nHost: robot\r\n\r\n");
     assert_eq!(close_reason_of(&back), Some(close_reason::PROTOCOL_ERROR));
-    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
-    assert!(
-        matches!(
-            e,
-            NetError::Link(LinkError::Wire(WireError::LengthOutOfRange(_)))
-        ),
-        "{e:?}"
-    );
+    counted(&listener, |s| s.refused_protocol, 1);
 
     // An absurd length: refused before anything is buffered.
     let back = poke(addr, &u32::MAX.to_le_bytes());
     assert_eq!(close_reason_of(&back), Some(close_reason::PROTOCOL_ERROR));
-    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
-    assert!(
-        matches!(
-            e,
-            NetError::Link(LinkError::Wire(WireError::LengthOutOfRange(u32::MAX)))
-        ),
-        "{e:?}"
-    );
+    counted(&listener, |s| s.refused_protocol, 2);
 
     // A Hello from a newer version of the protocol.
     let back = poke(addr, &hello_bytes(2));
     assert_eq!(close_reason_of(&back), Some(close_reason::VERSION_MISMATCH));
-    let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
-    assert!(
-        matches!(e, NetError::Link(LinkError::VersionMismatch { peer: 2 })),
-        "{e:?}"
-    );
+    counted(&listener, |s| s.refused_wire_version, 1);
+
+    // A peer that claims the remote's role, and one with other axes.
+    let back = poke(addr, &hello_from(wire::VERSION, Role::Remote, 1));
+    assert_eq!(close_reason_of(&back), Some(close_reason::ROLE_MISMATCH));
+    counted(&listener, |s| s.refused_role, 1);
+    let back = poke(addr, &hello_from(wire::VERSION, Role::Base, 3));
+    assert_eq!(close_reason_of(&back), Some(close_reason::AXES_MISMATCH));
+    counted(&listener, |s| s.refused_axes, 1);
+
+    // None of them reached the application.
+    assert_eq!(listener.stats().accepted, 0);
+    assert!(errors.try_recv().is_err());
 
     // The listener still serves a real base.
     let mut base = rt.block_on(Link::connect(addr, config())).unwrap();
@@ -151,7 +168,7 @@ fn a_peer_that_vanishes_is_reported_within_a_second() {
         .enable_all()
         .build()
         .unwrap();
-    let (addr, errors) = serve(&rt, 1);
+    let (addr, errors, _listener) = serve(&rt, 1);
     // A raw client that completes the handshake by hand, then drops the socket.
     let mut s = TcpStream::connect(addr).unwrap();
     s.write_all(&hello_bytes(wire::VERSION)).unwrap();

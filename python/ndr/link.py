@@ -560,10 +560,12 @@ class Listener:
 
     @property
     def stats(self) -> dict:
-        """The listener's counters by reason: ``accepted``,
+        """The listener's counters by reason: ``accepted``; TLS:
         ``refused_certificate``, ``refused_no_certificate``,
-        ``refused_version``, ``tls_timeouts``, ``failed_other``,
-        ``refused_busy``, ``refused_handshake``."""
+        ``refused_version``; ndr's handshake: ``refused_role``,
+        ``refused_axes``, ``refused_settings`` (period, mode),
+        ``refused_wire_version``, ``refused_protocol``; and ``timeouts``,
+        ``failed_other``, ``refused_busy``, ``refused_handshake``."""
         return self._native.stats
 
     def close(self) -> None:

@@ -148,6 +148,7 @@ def test_mismatched_settings_raise_handshake_error_and_the_listener_keeps_servin
         assert good.role == "base" and accepted[0].role == "remote"
         accepted[0].close()
     assert lst.refused == 2
+    assert lst.stats["refused_axes"] == 1 and lst.stats["refused_settings"] == 1
     lst.close()
 
 

@@ -418,6 +418,32 @@ impl Link {
         }
     }
 
+    /// Waits until the handshake is over: `Ok` once the peer's Hello was
+    /// accepted ([`Event::Connected`], kept for
+    /// [`drain_events`](Self::drain_events)); the link's error if it failed.
+    pub async fn handshake(&mut self) -> Result<(), NetError> {
+        let shared = Arc::clone(&self.shared);
+        loop {
+            if self
+                .events
+                .iter()
+                .any(|e| matches!(e, Event::Connected { .. }))
+            {
+                return Ok(());
+            }
+            let notified = shared.notify.notified();
+            match self.deliveries.try_recv() {
+                // Samples only flow after the handshake and the
+                // initialization pattern: none can come before it.
+                Ok(d) => {
+                    let _ = self.accept(d)?;
+                }
+                Err(mpsc::TryRecvError::Empty) => notified.await,
+                Err(mpsc::TryRecvError::Disconnected) => return Err(self.ended()),
+            }
+        }
+    }
+
     fn ended(&self) -> NetError {
         NetError::Link(self.closed.unwrap_or(LinkError::Closed))
     }
@@ -571,8 +597,9 @@ pub struct Listener {
     role: Role,
     tls: Option<TlsConfig>,
     stats: Arc<Mutex<ListenerStats>>,
-    /// TLS handshakes in flight, a task each (aborted with the listener).
-    handshakes: tokio::sync::Mutex<JoinSet<Option<(TcpStream, rustls::Connection)>>>,
+    /// Handshakes in flight (TLS if configured, then ndr's Hello), a task
+    /// each (aborted with the listener).
+    handshakes: tokio::sync::Mutex<JoinSet<Option<Link>>>,
 }
 
 /// Connections a [`Listener`] refused before they became links, by reason.
@@ -594,11 +621,59 @@ pub struct ListenerStats {
     /// Handshakes that failed otherwise (the peer closed, a reset).
     pub failed_other: u64,
     /// Connections dropped unanswered because
-    /// [`TlsConfig::max_pending_handshakes`] were in flight already.
+    /// [`TlsConfig::max_pending_handshakes`] (or, without TLS,
+    /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES))
+    /// were in flight already.
     pub refused_busy: u64,
+    /// ndr handshakes refused: the peer claims this side's role.
+    pub refused_role: u64,
+    /// ndr handshakes refused: the peer has another number of axes.
+    pub refused_axes: u64,
+    /// ndr handshakes refused: another period, regulation mode or
+    /// parameters this side cannot take.
+    pub refused_settings: u64,
+    /// ndr handshakes refused: the peer speaks another wire version.
+    pub refused_wire_version: u64,
+    /// ndr handshakes refused: the peer sent bytes that are not ndr frames.
+    pub refused_protocol: u64,
 }
 
 impl ListenerStats {
+    /// Counts a link whose ndr handshake failed, by reason.
+    fn count_link(&mut self, e: &NetError) {
+        use ndr_core::wire::close_reason as why;
+        let counter = match e {
+            NetError::Link(LinkError::RoleMismatch { .. })
+            | NetError::Link(LinkError::PeerClosed {
+                reason: why::ROLE_MISMATCH,
+            }) => &mut self.refused_role,
+            NetError::Link(LinkError::AxesMismatch { .. })
+            | NetError::Link(LinkError::PeerClosed {
+                reason: why::AXES_MISMATCH,
+            }) => &mut self.refused_axes,
+            NetError::Link(
+                LinkError::PeriodMismatch { .. }
+                | LinkError::ModeMismatch { .. }
+                | LinkError::BadParameters { .. }
+                | LinkError::PeerClosed {
+                    reason: why::PERIOD_MISMATCH | why::MODE_MISMATCH,
+                },
+            ) => &mut self.refused_settings,
+            NetError::Link(
+                LinkError::VersionMismatch { .. }
+                | LinkError::PeerClosed {
+                    reason: why::VERSION_MISMATCH,
+                },
+            ) => &mut self.refused_wire_version,
+            NetError::Link(
+                LinkError::Wire(_) | LinkError::Unexpected { .. } | LinkError::ChannelCount { .. },
+            ) => &mut self.refused_protocol,
+            NetError::Link(LinkError::Timeout) | NetError::Timeout => &mut self.timeouts,
+            _ => &mut self.failed_other,
+        };
+        *counter += 1;
+    }
+
     fn count(&mut self, e: &HandshakeError) {
         let counter = match e {
             HandshakeError::UnknownCertificate(_) => &mut self.refused_certificate,
@@ -689,24 +764,32 @@ impl Listener {
         Ok(self.listener.local_addr()?)
     }
 
-    /// The next peer that connects, as a running link (this side is the
-    /// remote unless [`with_role`](Self::with_role) said otherwise). A failed
-    /// link does not affect the listener. On a TLS listener, handshakes run
-    /// side by side (at most [`TlsConfig::max_pending_handshakes`], each
-    /// bounded by [`TlsConfig::handshake_timeout`]), and a peer whose
-    /// handshake fails is logged, counted in [`stats`](Self::stats) and
-    /// dropped: only peers that passed are returned.
+    /// The next peer that connects and completes its handshakes, as a
+    /// running link (this side is the remote unless
+    /// [`with_role`](Self::with_role) said otherwise). Handshakes run side by
+    /// side (at most [`TlsConfig::max_pending_handshakes`], or
+    /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
+    /// without TLS): first TLS's, if the listener has it, then ndr's Hello,
+    /// each bounded by its timeout. A peer whose handshake fails (unknown
+    /// certificate, another role, other axes, period or mode, no answer…) is
+    /// logged, counted in [`stats`](Self::stats) and dropped: it never
+    /// reaches the application, and the listener keeps serving.
     pub async fn accept(&self) -> Result<Link, NetError> {
-        let Some(tls) = &self.tls else {
-            let (stream, _) = self.listener.accept().await?;
-            return self.start(stream, None);
-        };
         let mut handshakes = self.handshakes.lock().await;
+        let max = self
+            .tls
+            .as_ref()
+            .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
+                t.max_pending_handshakes
+            });
         loop {
             tokio::select! {
                 biased;
                 Some(done) = handshakes.join_next(), if !handshakes.is_empty() => match done {
-                    Ok(Some((stream, conn))) => return self.start(stream, Some(conn)),
+                    Ok(Some(link)) => {
+                        self.count(|s| &mut s.accepted);
+                        return Ok(link);
+                    }
                     Ok(None) => {}
                     Err(e) => {
                         tracing::warn!("link refused: its handshake task failed: {e}");
@@ -715,18 +798,45 @@ impl Listener {
                 },
                 accepted = self.listener.accept() => {
                     let (stream, peer) = accepted?;
-                    if handshakes.len() >= tls.max_pending_handshakes {
+                    if handshakes.len() >= max {
                         tracing::warn!(%peer, "link refused: too many handshakes in flight");
                         self.count(|s| &mut s.refused_busy);
                         continue;
                     }
-                    let (tls, stats) = (tls.clone(), Arc::clone(&self.stats));
+                    let hub = match &self.hubs {
+                        Hubs::One(hub) => hub.clone(),
+                        Hubs::Pool(pool) => pool.least_loaded().clone(),
+                    };
+                    let (tls, stats) = (self.tls.clone(), Arc::clone(&self.stats));
+                    let (role, config) = (self.role, self.config);
                     handshakes.spawn(async move {
-                        match tls.accept(stream).await {
-                            Ok(done) => Some(done),
+                        let (stream, conn) = match tls {
+                            None => (stream, None),
+                            Some(tls) => match tls.accept(stream).await {
+                                Ok((stream, conn)) => (stream, Some(conn)),
+                                Err(e) => {
+                                    tracing::warn!(%peer, "link refused: {e}");
+                                    stats.lock().unwrap_or_else(PoisonError::into_inner).count(&e);
+                                    return None;
+                                }
+                            },
+                        };
+                        let limit: std::time::Duration = config.endpoint.handshake_timeout.into();
+                        let handshake = async {
+                            let mut link =
+                                Link::start(stream, role, config, Handle::current(), &hub, conn)?;
+                            link.handshake().await?;
+                            Ok::<Link, NetError>(link)
+                        };
+                        let outcome = match tokio::time::timeout(limit, handshake).await {
+                            Ok(outcome) => outcome,
+                            Err(_) => Err(NetError::Timeout),
+                        };
+                        match outcome {
+                            Ok(link) => Some(link),
                             Err(e) => {
                                 tracing::warn!(%peer, "link refused: {e}");
-                                stats.lock().unwrap_or_else(PoisonError::into_inner).count(&e);
+                                stats.lock().unwrap_or_else(PoisonError::into_inner).count_link(&e);
                                 None
                             }
                         }
@@ -738,16 +848,6 @@ impl Listener {
 
     fn count(&self, counter: impl FnOnce(&mut ListenerStats) -> &mut u64) {
         *counter(&mut self.stats.lock().unwrap_or_else(PoisonError::into_inner)) += 1;
-    }
-
-    fn start(&self, stream: TcpStream, tls: Option<rustls::Connection>) -> Result<Link, NetError> {
-        let hub = match &self.hubs {
-            Hubs::One(hub) => hub,
-            Hubs::Pool(pool) => pool.least_loaded(),
-        };
-        let link = Link::start(stream, self.role, self.config, Handle::current(), hub, tls)?;
-        self.count(|s| &mut s.accepted);
-        Ok(link)
     }
 }
 

@@ -779,6 +779,11 @@ impl PyListener {
             + tls.timeouts
             + tls.failed_other
             + tls.refused_busy
+            + tls.refused_role
+            + tls.refused_axes
+            + tls.refused_settings
+            + tls.refused_wire_version
+            + tls.refused_protocol
     }
 
     /// What the listener counted, by reason.
@@ -790,9 +795,14 @@ impl PyListener {
         d.set_item("refused_certificate", s.refused_certificate)?;
         d.set_item("refused_no_certificate", s.refused_no_certificate)?;
         d.set_item("refused_version", s.refused_version)?;
-        d.set_item("tls_timeouts", s.timeouts)?;
+        d.set_item("timeouts", s.timeouts)?;
         d.set_item("failed_other", s.failed_other)?;
         d.set_item("refused_busy", s.refused_busy)?;
+        d.set_item("refused_role", s.refused_role)?;
+        d.set_item("refused_axes", s.refused_axes)?;
+        d.set_item("refused_settings", s.refused_settings)?;
+        d.set_item("refused_wire_version", s.refused_wire_version)?;
+        d.set_item("refused_protocol", s.refused_protocol)?;
         d.set_item(
             "refused_handshake",
             self.refused.load(std::sync::atomic::Ordering::Relaxed),
