@@ -147,6 +147,7 @@ pub fn endpoint(data: &[u8]) {
         4 => Playout::Constant {
             delay: Duration::from_millis(u64::from(input.byte())),
         },
+        5 => Playout::ADAPTIVE,
         _ => Playout::Fifo,
     };
     cfg.watchdog = match pick % 3 {
