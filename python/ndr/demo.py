@@ -213,6 +213,7 @@ def run(
     period: float = 0.05,
     duration: float = 20.0,
     mode: str = "paper-static",
+    playout: str = "fifo",
     underflow: str = "hold",
     axes: int = 1,
     seed: int = 1,
@@ -225,7 +226,7 @@ def run(
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
     sig = Signal(signal)
-    settings = dict(axes=axes, period=period, mode=mode, underflow=underflow)
+    settings = dict(axes=axes, period=period, mode=mode, playout=playout, underflow=underflow)
     loopback = ("127.0.0.1", 0)
     rb = RobotLog()
     stop = threading.Event()
@@ -260,6 +261,7 @@ def run(
     report = _report(
         profile=relay.model,
         mode=mode,
+        playout=playout,
         underflow=underflow,
         duration=duration,
         axes=axes,
@@ -281,7 +283,7 @@ def _write_csv(path: str, op: OperatorLog) -> None:
             f.write(f"{t:.6f},{seq},{'held' if held else 'fresh'},{g},{u:.6f},{y:.6f},{xe}\n")
 
 
-def _report(*, profile, mode, underflow, duration, axes, op, rb, relay, out) -> dict:
+def _report(*, profile, mode, playout, underflow, duration, axes, op, rb, relay, out) -> dict:
     b = op.stats or {}
     r = rb.stats or {}
     grtts = np.asarray([g for g in op.grtt if not math.isnan(g)])
@@ -292,6 +294,7 @@ def _report(*, profile, mode, underflow, duration, axes, op, rb, relay, out) -> 
         "command": "python demo",
         "profile": profile,
         "mode": mode,
+        "playout": playout,
         "underflow": underflow,
         "period_s": b.get("period", 0.0),
         "duration_s": duration,
@@ -374,6 +377,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--period-ms", type=float, default=50.0, help="sampling period, ms")
     parser.add_argument("--duration-s", type=float, default=20.0, help="how long to run, s")
     parser.add_argument("--mode", default="paper-static", choices=("paper-static", "paper-dynamic"))
+    parser.add_argument("--playout", default="fifo", help="when each side releases a sample: "
+                        "fifo (the paper's queue), ramjee-1, ramjee-4, neteq, fixed[:MS], "
+                        "constant:MS, adaptive[:PERCENT]")
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 8)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")
@@ -388,6 +394,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             period=args.period_ms / 1e3,
             duration=args.duration_s,
             mode=args.mode,
+            playout=args.playout,
             underflow=args.underflow,
             axes=args.axes,
             seed=args.seed,

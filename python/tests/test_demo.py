@@ -23,6 +23,19 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert header == "t_s,seq,status,grtt_s,command,state,x3e"
 
 
+def test_the_adaptive_playout_runs_in_the_demo(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "ndr", "demo", "--duration-s", "3", "--period-ms", "20",
+         "--playout", "adaptive", "--underflow", "drop-late", "--json",
+         "--out", str(tmp_path / "d.csv")],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["playout"] == "adaptive"
+    assert report["samples_released"] > 100
+
+
 def test_bad_options_exit_with_a_message():
     proc = subprocess.run(
         [sys.executable, "-m", "ndr", "demo", "--duration-s", "-1"],
