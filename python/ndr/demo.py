@@ -335,7 +335,7 @@ def print_table(r: dict, file=sys.stdout) -> None:
     us = lambda s: f"{s * 1e6:.0f} µs"  # noqa: E731
     p = lambda *a: print(*a, file=file)  # noqa: E731
     p(
-        f"ndr {r['command']} · {r['profile']} · {r['mode']} · {r['underflow']} · "
+        f"ndr {r['command']} · {r['profile']} · {r['mode']} · {r['playout']} · {r['underflow']} · "
         f"T = {ms(r['period_s'])} · {r['duration_s']:.0f} s · {r['axes']} axis(es)"
     )
     p("                     mean          std")
