@@ -1,6 +1,8 @@
 //! The real link over loopback TCP: every sample delivered once and in
 //! order, and a constant round trip as the application sees it.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::time::Duration as StdDuration;
 
@@ -72,26 +74,7 @@ fn loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     }
     let stats = base.close().unwrap();
     let (remote_seqs, remote_stats) = robot.join().unwrap();
-    for (name, seqs) in [("base", &seqs), ("remote", &remote_seqs)] {
-        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
-        assert!(
-            seqs.windows(2).all(|w| w[1] == w[0] + 1),
-            "{name}: gap or repeat"
-        );
-    }
-    let grtt = stats.endpoint.grtt;
-    assert!(grtt.count() > 200, "{grtt:?}");
-    assert!(grtt.std() <= 1e-3, "GRTT std {} s", grtt.std());
-    // Loopback, ns = 2: each side holds a sample ns periods plus the wait to
-    // its next tick, so GRTT is 2·ns·T to (2·ns + 2)·T depending on the phase
-    // between the two sides' tick grids (a frame read in the same pass as a
-    // tick's deadline still counts for that tick). Whatever the phase, it is
-    // constant.
-    assert!(
-        grtt.mean() >= 0.039 && grtt.mean() <= 0.061,
-        "GRTT mean {}",
-        grtt.mean()
-    );
+    common::assert_regulated(&seqs, &remote_seqs, &stats);
     assert_eq!(stats.ns, 2);
     let late = stats.lateness;
     assert!(late.count > 250);

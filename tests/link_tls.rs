@@ -2,6 +2,8 @@
 //! as the plain link, peers without a trusted certificate refused before
 //! they become links, and plain links refused off loopback.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration as StdDuration;
@@ -147,21 +149,7 @@ fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
     }
     let stats = base.close().unwrap();
     let remote_seqs = robot.join().unwrap();
-    for (name, seqs) in [("base", &seqs), ("remote", &remote_seqs)] {
-        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
-        assert!(
-            seqs.windows(2).all(|w| w[1] == w[0] + 1),
-            "{name}: gap or repeat"
-        );
-    }
-    let grtt = stats.endpoint.grtt;
-    assert!(grtt.count() > 200, "{grtt:?}");
-    assert!(grtt.std() <= 1e-3, "GRTT std {} s", grtt.std());
-    assert!(
-        grtt.mean() >= 0.039 && grtt.mean() <= 0.061,
-        "GRTT mean {}",
-        grtt.mean()
-    );
+    common::assert_regulated(&seqs, &remote_seqs, &stats);
     assert_eq!(listener.stats().accepted, 1);
 }
 

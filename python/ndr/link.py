@@ -565,7 +565,7 @@ class Listener:
         ``refused_version``; ndr's handshake: ``refused_role``,
         ``refused_axes``, ``refused_settings`` (period, mode),
         ``refused_wire_version``, ``refused_protocol``; and ``timeouts``,
-        ``failed_other``, ``refused_busy``, ``refused_handshake``."""
+        ``failed_other``, ``refused_busy``."""
         return self._native.stats
 
     def close(self) -> None:

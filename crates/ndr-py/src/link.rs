@@ -144,26 +144,6 @@ impl Rx {
         }
         got
     }
-
-    /// Waits until the handshake is over: `Ok(Some(()))` once connected.
-    fn handshake(&mut self, slice: StdDuration) -> Result<Option<()>, NetError> {
-        let connected = |rx: &Rx| {
-            rx.events
-                .iter()
-                .any(|e| matches!(e, Event::Connected { .. }))
-        };
-        if connected(self) {
-            return Ok(Some(()));
-        }
-        // Samples only flow after the handshake and the initialization
-        // pattern; keep any that come while we look.
-        match self.take(slice.min(StdDuration::from_millis(5)))? {
-            Some(s) => self.stash.push_back(s),
-            None if connected(self) => return Ok(Some(())),
-            None => {}
-        }
-        Ok(connected(self).then_some(()))
-    }
 }
 
 /// The native link (`ndr.Link` wraps it).
@@ -225,26 +205,6 @@ impl PyLink {
         let got = rx.take(slice);
         self.publish(&mut rx);
         got
-    }
-
-    /// Waits for the handshake; the link's error if it failed.
-    fn await_handshake(&self, py: Python<'_>, limit: StdDuration) -> PyResult<()> {
-        let attempt = |slice| {
-            let mut rx = lock(&self.rx);
-            let got = rx.handshake(slice);
-            if got.as_ref().is_ok_and(Option::is_some) || got.is_err() {
-                self.publish(&mut rx);
-            }
-            got
-        };
-        match wait(py, Some(limit), attempt)? {
-            Ok(Some(())) => Ok(()),
-            Ok(None) => Err(timed_out(
-                "the peer did not complete the handshake",
-                Some(limit),
-            )),
-            Err(e) => Err(net_error(py, e)),
-        }
     }
 
     fn ended(&self, py: Python<'_>) -> Option<CoreError> {
@@ -592,53 +552,91 @@ pub fn connect(
     }
     let rt = blocking::runtime()?;
     let hub = blocking::hub()?.clone();
-    // The connection and the TLS handshake run as a task, so a wait cut
-    // short (timeout, Ctrl-C) can abandon it cleanly.
+    // The connection, the TLS handshake and ndr's run as a task, so a wait
+    // cut short (Ctrl-C) can abandon it cleanly; each step has its limit.
+    let handshake_limit: StdDuration = config.endpoint.handshake_timeout.into();
     let mut task = rt.spawn(async move {
-        match (tls, role) {
-            (Some(tls), _) => hub.connect_tls(addr, config, &tls).await,
-            (None, Role::Base) => hub.connect(addr, config).await,
-            (None, Role::Remote) => {
-                let stream = tokio::net::TcpStream::connect(addr).await?;
-                Link::from_stream(stream, role, config, &hub)
+        let connect = async {
+            match (tls, role) {
+                (Some(tls), _) => hub.connect_tls(addr, config, &tls).await,
+                (None, Role::Base) => hub.connect(addr, config).await,
+                (None, Role::Remote) => {
+                    let stream = tokio::net::TcpStream::connect(addr).await?;
+                    Link::from_stream(stream, role, config, &hub)
+                }
             }
-        }
+        };
+        let mut link = match limit {
+            Some(l) => tokio::time::timeout(l, connect)
+                .await
+                .map_err(|_| Step::Connect)??,
+            None => connect.await?,
+        };
+        tokio::time::timeout(handshake_limit, link.handshake())
+            .await
+            .map_err(|_| Step::Handshake)??;
+        Ok::<Link, Step>(link)
     });
     let attempt = |slice: StdDuration| {
         rt.block_on(async {
             match tokio::time::timeout(slice, &mut task).await {
                 Ok(Ok(done)) => done.map(Some),
-                Ok(Err(join)) => Err(NetError::Io(std::io::Error::other(format!(
+                Ok(Err(join)) => Err(Step::Failed(NetError::Io(std::io::Error::other(format!(
                     "the connection task failed: {join}"
-                )))),
+                ))))),
                 Err(_) => Ok(None),
             }
         })
     };
-    let waited = wait(py, limit, attempt);
+    let waited = wait(py, None, attempt);
+    log::flush(py);
     let link = match waited {
         Ok(Ok(Some(link))) => link,
-        Ok(Ok(None)) => {
-            task.abort();
+        // (The wait has no limit of its own: the task's steps have theirs.)
+        Ok(Ok(None) | Err(Step::Connect)) => {
             return Err(timed_out(&format!("could not connect to {addr}"), limit));
         }
-        Ok(Err(NetError::Io(e))) => {
+        Ok(Err(Step::Handshake)) => {
+            return Err(timed_out(
+                "the peer did not complete the handshake",
+                Some(handshake_limit),
+            ));
+        }
+        Ok(Err(Step::Failed(NetError::Io(e)))) => {
             return Err(PyErr::from(std::io::Error::new(
                 e.kind(),
                 format!("cannot connect to {addr}: {e}"),
             )));
         }
-        Ok(Err(e)) => return Err(net_error(py, e)),
+        Ok(Err(Step::Failed(e))) => return Err(net_error(py, e)),
         Err(interrupted) => {
             task.abort();
             return Err(interrupted);
         }
     };
-    let link = PyLink::new(link, role, config.endpoint.period);
-    let handshake = link.await_handshake(py, config.endpoint.handshake_timeout.into());
-    log::flush(py);
-    handshake?;
-    Ok(link)
+    Ok(PyLink::new(link, role, config.endpoint.period))
+}
+
+/// Where a connection attempt stopped.
+enum Step {
+    /// No TCP connection (and TLS handshake) within `connect_timeout`.
+    Connect,
+    /// No ndr handshake within `handshake_timeout`.
+    Handshake,
+    /// The link failed.
+    Failed(NetError),
+}
+
+impl From<NetError> for Step {
+    fn from(e: NetError) -> Self {
+        Step::Failed(e)
+    }
+}
+
+impl From<std::io::Error> for Step {
+    fn from(e: std::io::Error) -> Self {
+        Step::Failed(NetError::Io(e))
+    }
 }
 
 /// The native listener (`ndr.Listener` wraps it).
@@ -646,10 +644,8 @@ pub fn connect(
 pub struct PyListener {
     listener: Mutex<Option<Listener>>,
     local: SocketAddr,
-    handshake_timeout: StdDuration,
     period: Duration,
     role: Role,
-    refused: std::sync::atomic::AtomicU64,
 }
 
 /// Listens for peers (over mutual TLS with `tls`).
@@ -680,10 +676,8 @@ pub fn listen(
     Ok(PyListener {
         listener: Mutex::new(Some(listener)),
         local,
-        handshake_timeout: config.endpoint.handshake_timeout.into(),
         period: config.endpoint.period,
         role,
-        refused: std::sync::atomic::AtomicU64::new(0),
     })
 }
 
@@ -702,51 +696,31 @@ impl PyListener {
 
 #[pymethods]
 impl PyListener {
-    /// The next peer whose handshake succeeds, as a running link; `None`
+    /// The next peer whose handshakes succeed, as a running link; `None`
     /// when `timeout` passed first. A peer that fails its handshake is
-    /// logged, counted in `refused` and skipped.
+    /// logged, counted in `stats` and skipped by the Rust listener.
     #[pyo3(signature = (timeout = None))]
     fn accept(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Option<PyLink>> {
         let limit = blocking::timeout("timeout", timeout)?;
         let rt = blocking::runtime()?;
-        let end = limit.map(|l| std::time::Instant::now() + l);
-        loop {
-            let left = end.map(|e| e.saturating_duration_since(std::time::Instant::now()));
-            let attempt = |slice: StdDuration| {
-                let guard = self.listener.lock().unwrap_or_else(PoisonError::into_inner);
-                let Some(listener) = guard.as_ref() else {
-                    return Err(NetError::Link(CoreError::Closed));
-                };
-                rt.block_on(async {
-                    match tokio::time::timeout(slice, listener.accept()).await {
-                        Ok(Ok(link)) => Ok(Some(link)),
-                        Ok(Err(e)) => Err(e),
-                        Err(_) => Ok(None),
-                    }
-                })
+        let attempt = |slice: StdDuration| {
+            let guard = self.listener.lock().unwrap_or_else(PoisonError::into_inner);
+            let Some(listener) = guard.as_ref() else {
+                return Err(NetError::Link(CoreError::Closed));
             };
-            let link = match wait(py, left, attempt)? {
-                Ok(Some(link)) => link,
-                Ok(None) => return Ok(None),
-                Err(e) => return Err(net_error(py, e)),
-            };
-            let peer = link.peer_addr();
-            let link = PyLink::new(link, self.role, self.period);
-            match link.await_handshake(py, self.handshake_timeout) {
-                Ok(()) => {
-                    log::flush(py);
-                    return Ok(Some(link));
+            rt.block_on(async {
+                match tokio::time::timeout(slice, listener.accept()).await {
+                    Ok(Ok(link)) => Ok(Some(link)),
+                    Ok(Err(e)) => Err(e),
+                    Err(_) => Ok(None),
                 }
-                Err(e) if e.is_instance_of::<pyo3::exceptions::PyKeyboardInterrupt>(py) => {
-                    return Err(e);
-                }
-                Err(e) => {
-                    self.refused
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    tracing::warn!(target: "ndr_py::listener", %peer, "refused a peer: {e}");
-                    log::flush(py);
-                }
-            }
+            })
+        };
+        let got = wait(py, limit, attempt);
+        log::flush(py);
+        match got? {
+            Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.period))),
+            Err(e) => Err(net_error(py, e)),
         }
     }
 
@@ -768,22 +742,21 @@ impl PyListener {
 
     /// Peers refused: their TLS handshake failed (unknown or missing
     /// certificate, old TLS, timeout, too many at once) or their ndr
-    /// handshake did (other settings, no answer).
+    /// handshake did (another role, other settings, no answer).
     #[getter]
     fn refused(&self, py: Python<'_>) -> u64 {
-        let tls = self.tls_stats(py);
-        self.refused.load(std::sync::atomic::Ordering::Relaxed)
-            + tls.refused_certificate
-            + tls.refused_no_certificate
-            + tls.refused_version
-            + tls.timeouts
-            + tls.failed_other
-            + tls.refused_busy
-            + tls.refused_role
-            + tls.refused_axes
-            + tls.refused_settings
-            + tls.refused_wire_version
-            + tls.refused_protocol
+        let s = self.tls_stats(py);
+        s.refused_certificate
+            + s.refused_no_certificate
+            + s.refused_version
+            + s.timeouts
+            + s.failed_other
+            + s.refused_busy
+            + s.refused_role
+            + s.refused_axes
+            + s.refused_settings
+            + s.refused_wire_version
+            + s.refused_protocol
     }
 
     /// What the listener counted, by reason.
@@ -803,10 +776,6 @@ impl PyListener {
         d.set_item("refused_settings", s.refused_settings)?;
         d.set_item("refused_wire_version", s.refused_wire_version)?;
         d.set_item("refused_protocol", s.refused_protocol)?;
-        d.set_item(
-            "refused_handshake",
-            self.refused.load(std::sync::atomic::Ordering::Relaxed),
-        )?;
         Ok(d)
     }
 }
