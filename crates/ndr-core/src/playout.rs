@@ -575,6 +575,9 @@ pub struct Adaptive {
     total: [u32; ADAPTIVE_BUCKETS],
     count: u64,
     block_counts: [u64; ADAPTIVE_BLOCKS],
+    /// Sum of the delays (s), per block and in the window.
+    block_sums: [f64; ADAPTIVE_BLOCKS],
+    sum: f64,
     current: usize,
     block_start: Option<Instant>,
     goal: Option<Duration>,
@@ -594,6 +597,8 @@ impl Adaptive {
             total: [0; ADAPTIVE_BUCKETS],
             count: 0,
             block_counts: [0; ADAPTIVE_BLOCKS],
+            block_sums: [0.0; ADAPTIVE_BLOCKS],
+            sum: 0.0,
             current: 0,
             block_start: None,
             goal: None,
@@ -626,9 +631,10 @@ impl Adaptive {
         }
         self.block_start = Some(sent_at);
         self.current = (self.current + 1) % ADAPTIVE_BLOCKS;
-        if let (Some(old), Some(n)) = (
+        if let (Some(old), Some(n), Some(sum)) = (
             self.blocks.get_mut(self.current),
             self.block_counts.get_mut(self.current),
+            self.block_sums.get_mut(self.current),
         ) {
             for (t, o) in self.total.iter_mut().zip(old.iter_mut()) {
                 *t = t.saturating_sub(*o);
@@ -636,7 +642,31 @@ impl Adaptive {
             }
             self.count = self.count.saturating_sub(*n);
             *n = 0;
+            self.sum = if self.count == 0 {
+                0.0
+            } else {
+                self.sum - *sum
+            };
+            *sum = 0.0;
         }
+    }
+
+    /// While the window holds fewer than `1/ε` delays its quantile is only
+    /// their maximum, which later delays pass (the next of `n` draws is the
+    /// largest with odds `1/(n+1)`): the goal extrapolates the tail as an
+    /// exponential one, `s·ln(1/(n·ε))` above the maximum with the scale
+    /// `s = (max − mean)/ln n`, and at least `(1 − n·ε)·T`. Both vanish at
+    /// `n = 1/ε`.
+    fn warmup_margin(&self, q: Duration) -> Duration {
+        let n = self.count as f64;
+        let filled = self.epsilon * n;
+        if filled >= 1.0 || self.count == 0 {
+            return Duration::ZERO;
+        }
+        let mean = self.sum / n;
+        let scale = (q.as_secs_f64() - mean).max(0.0) / libm::log(n.max(2.0));
+        let tail = scale * libm::log(1.0 / filled);
+        Duration::from_secs_f64(tail.max((1.0 - filled) * self.period))
     }
 
     fn quantile(&self) -> Option<Duration> {
@@ -657,18 +687,21 @@ impl TargetDelay for Adaptive {
     fn observe(&mut self, sent_at: Instant, delay: Duration) {
         self.rotate(sent_at);
         let b = bucket_of(delay);
-        if let (Some(block), Some(t), Some(n)) = (
+        if let (Some(block), Some(t), Some(n), Some(sum)) = (
             self.blocks.get_mut(self.current),
             self.total.get_mut(b),
             self.block_counts.get_mut(self.current),
+            self.block_sums.get_mut(self.current),
         ) && let Some(c) = block.get_mut(b)
         {
             *c = c.saturating_add(1);
             *t = t.saturating_add(1);
             *n += 1;
+            *sum += delay.as_secs_f64();
             self.count += 1;
+            self.sum += delay.as_secs_f64();
         }
-        self.goal = self.quantile();
+        self.goal = self.quantile().map(|q| q + self.warmup_margin(q));
         let Some(goal) = self.goal.map(Duration::as_secs_f64) else {
             return;
         };

@@ -117,6 +117,7 @@ fn an_hour_at_100_ppm_keeps_the_delay_and_the_late_rate() {
         let std = (delays.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
         assert!(std <= 1e-3, "{name}: std {std} around {mean}");
         let late_rate = f64::from(late) / (n + f64::from(late));
+        eprintln!("{name}: true delay {mean:.6} s, std {std:.6} s, late rate {late_rate:.6}");
         assert!(late_rate < 0.002, "{name}: late rate {late_rate}");
     }
 }
@@ -131,4 +132,40 @@ fn every_change_of_delay_is_an_event() {
 
     // Each change reached the application as an event (none dropped).
     assert_eq!(r.delay_events_fwd, r.delay_changes_fwd);
+}
+
+#[test]
+fn the_delay_falls_by_sliding_the_releases_without_skipping_a_sample() {
+    // The paper's Fig. 6: slow sines in the delay, so that the target rises
+    // and falls for ten minutes. A fall brings the releases forward by a
+    // tenth of a period each (one every 0.9·T) instead of skipping samples;
+    // the grid the remote follows moves by a twentieth of a period at most.
+    let cfg = sim_config(&named("paper-fig6", 600), ADAPTIVE, 1, T);
+    let out = run(&cfg).expect("the run");
+    assert_eq!(out.report.skipped, 0);
+    assert_eq!(out.report.pauses, 0);
+    let fresh: Vec<(f64, f64)> = out
+        .forward
+        .samples
+        .iter()
+        .filter_map(|c| {
+            let r = c.released_at?.as_secs_f64();
+            Some((r, r - c.sent_at.as_secs_f64()))
+        })
+        .collect();
+    let per = T.as_secs_f64();
+    let gaps: Vec<f64> = fresh.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    let shortest = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(
+        shortest >= 0.85 * per - 1e-6,
+        "a release {shortest} s after the last"
+    );
+    let sliding = gaps.iter().filter(|&&g| g < 0.95 * per).count();
+    let (mut highest, mut fall) = (0.0f64, 0.0f64);
+    for &(_, d) in &fresh {
+        highest = highest.max(d);
+        fall = fall.max(highest - d);
+    }
+    assert!(fall > 0.2, "the delay fell by {fall} s at most");
+    assert!(sliding >= 100, "{sliding} releases sliding forward");
 }

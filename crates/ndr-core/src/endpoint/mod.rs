@@ -64,13 +64,23 @@ use crate::wire::{
 };
 use event::Head;
 
-/// The adaptive delay falls by a tick only when its need is this many
-/// periods below the boundary: a quantile that wobbles around a boundary
-/// must not move the delay back and forth.
-const HYSTERESIS: f64 = 1.0;
+/// The adaptive delay starts to fall only when its need is this many
+/// periods below it: a quantile that wobbles must not move the delay back
+/// and forth (each rise repeats a sample).
+const HYSTERESIS: f64 = 0.5;
+
+/// The adaptive delay falls by sliding its releases ahead of the ticks by
+/// `T / RELEASE_SLEW_STEPS` per release (releases every 0.9·T while it
+/// falls, a tick of delay every 10 releases): no sample is skipped.
+pub const RELEASE_SLEW_STEPS: u64 = 10;
 
 /// The smallest skew estimate for which a remote's ticks follow the base's grid.
 pub const GRID_SKEW_MIN: f64 = 2e-6;
+
+/// A remote following the base's grid moves its next tick by at most
+/// `T / GRID_SLEW` from one period after the last: an update of the offset
+/// estimate is caught up over several ticks instead of in one.
+pub const GRID_SLEW: u64 = 20;
 
 fn ns_i64(t: Instant) -> i64 {
     i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
@@ -148,6 +158,11 @@ pub struct Endpoint<const C: usize, const N: usize> {
     sync: ClockSync,
     /// Target-delay playout: the constant end-to-end delay now, in ticks.
     delay_ticks: Option<u64>,
+    /// Adaptive playout: how far releases run ahead of the ticks (less than
+    /// a period); the delay is `delay_ticks·T − slew`.
+    slew: Duration,
+    /// Adaptive playout: the next release, apart from the ticks (which send).
+    next_release: Option<Instant>,
     /// Adaptive playout, remote side: the send stamp (peer clock) and
     /// sequence number of a sample, which anchor the peer's tick grid.
     peer_grid: Option<(Instant, u64)>,
@@ -213,6 +228,8 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
             passed: None,
             sync: ClockSync::new(),
             delay_ticks: None,
+            slew: Duration::ZERO,
+            next_release: None,
             peer_grid: None,
             slaved: false,
             predictor,
@@ -276,11 +293,19 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         if self.phase == Phase::Closed {
             return;
         }
-        while let Some(t) = self.next_tick.filter(|&t| t <= now) {
-            self.next_tick = Some(self.following_tick(t));
-            // Stamps are when things really happen: a late driver shows in the
-            // measured delays instead of hiding behind the deadline.
-            self.tick(now);
+        loop {
+            let tick = self.next_tick.filter(|&t| t <= now);
+            match (self.next_release.filter(|&r| r <= now), tick) {
+                (Some(r), Some(t)) if r <= t => self.release_apart(now),
+                (Some(_), None) => self.release_apart(now),
+                (_, Some(t)) => {
+                    self.next_tick = Some(self.following_tick(t));
+                    // Stamps are when things really happen: a late driver shows
+                    // in the measured delays instead of hiding behind the deadline.
+                    self.tick(now);
+                }
+                (None, None) => break,
+            }
             if self.phase == Phase::Closed {
                 return;
             }
@@ -293,10 +318,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// The next time [`handle_timeout`](Self::handle_timeout) must be called.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        match (self.next_tick, self.deadline) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
+        [self.next_tick, self.next_release, self.deadline]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     /// Writes the next frame to send into `buf` (use [`wire::MAX_FRAME_LEN`]
@@ -543,6 +568,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     fn enter_closed(&mut self, error: Option<LinkError>) {
         self.phase = Phase::Closed;
         self.next_tick = None;
+        self.next_release = None;
         self.deadline = None;
         self.emit(Event::Closed { error });
     }
@@ -826,6 +852,8 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         self.grtt_acked = self.next_seq.checked_sub(1);
         self.due_seq = None;
         self.passed = None;
+        self.slew = Duration::ZERO;
+        self.next_release = None;
         self.peer_grid = None;
         self.ticks_running = 0;
         self.deadline = None;
@@ -847,9 +875,17 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 self.queue_tx(Tx::Probe { seq });
             }
             Phase::Running => {
-                self.track_delay(t);
-                self.release(t);
-                self.watch(t);
+                if self.is_adaptive() {
+                    // Its releases have their own schedule: the next one is
+                    // this tick's successor, less the slew.
+                    if self.next_release.is_none() {
+                        self.next_release = self.next_tick.map(|n| (n - self.slew).max(t));
+                    }
+                } else {
+                    self.track_delay(t);
+                    self.release(t);
+                    self.watch(t);
+                }
                 let seq = self.take_seq(t);
                 self.queue_tx(Tx::Sample { seq });
                 self.ticks_running += 1;
@@ -871,8 +907,77 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         seq
     }
 
+    fn is_adaptive(&self) -> bool {
+        matches!(self.target, Some(Target::Adaptive(_)))
+    }
+
+    /// Adaptive playout: one release, `slew` ahead of its tick. The delay
+    /// rises at once (by whole ticks, a repeated tick for each) before it,
+    /// and falls after it by `T / RELEASE_SLEW_STEPS`, so that releases
+    /// stay one sample each and none is skipped.
+    fn release_apart(&mut self, t: Instant) {
+        self.next_release = None;
+        if self.phase != Phase::Running {
+            return;
+        }
+        let need = self.adaptive_need(t);
+        if let Some(need) = need {
+            self.rise_to(need);
+        }
+        self.release(t);
+        self.watch(t);
+        if let Some(need) = need {
+            self.fall_from(need);
+        }
+    }
+
+    /// Adaptive: rises to `need` (s) at once, in whole ticks (a fall under
+    /// way is given up: the releases go back to the ticks).
+    fn rise_to(&mut self, need: f64) {
+        let per = self.period.as_secs_f64();
+        if self.delay_ticks.is_some() && need <= self.current_delay_s() {
+            return;
+        }
+        let goal = (libm::ceil(need / per).max(1.0) as u64).max(self.delay_ticks.unwrap_or(0));
+        self.slew = Duration::ZERO;
+        self.announce_adaptive(goal);
+    }
+
+    /// Adaptive: the delay falls a whole tick at a time, by sliding the
+    /// releases ahead by `T / RELEASE_SLEW_STEPS` per release; a fall starts
+    /// when the need is [`HYSTERESIS`] periods below the tick under the
+    /// delay. At rest the releases are on the ticks.
+    fn fall_from(&mut self, need: f64) {
+        let Some(cur) = self.delay_ticks.filter(|&c| c > 1) else {
+            return;
+        };
+        let per = self.period.as_secs_f64();
+        if self.slew.is_zero() && need > (cur - 1) as f64 * per - HYSTERESIS * per {
+            return;
+        }
+        let step = self.period / RELEASE_SLEW_STEPS;
+        let slew = self.slew + step;
+        if slew + step / 2 < self.period {
+            self.slew = slew;
+            self.stats.playout_delay_s = self.current_delay_s();
+            return;
+        }
+        // A period ahead: the next release is the next tick's own.
+        self.slew = Duration::ZERO;
+        self.announce_adaptive(cur - 1);
+        self.next_release = self.next_tick;
+    }
+
+    fn current_delay_s(&self) -> f64 {
+        (self.period * self.delay_ticks.unwrap_or(0) - self.slew).as_secs_f64()
+    }
+
+    fn announce_adaptive(&mut self, ticks: u64) {
+        self.announce(self.period * ticks - self.slew, ticks);
+    }
+
     fn release(&mut self, t: Instant) {
-        let adaptive = matches!(self.target, Some(Target::Adaptive(_)));
+        let adaptive = self.is_adaptive();
         let outcome = match self.target.as_ref().map(TargetDelay::target) {
             // Adaptive: nothing is due before the delay in ticks is set.
             Some(_) if adaptive && self.delay_ticks.is_none() => self.not_started(),
@@ -903,7 +1008,20 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         let Some(d) = target else {
             return self.not_started();
         };
-        let cutoff = self.release_cutoff(t, d);
+        let mut cutoff = self.release_cutoff(t, d);
+        if self.is_adaptive() {
+            // More than one due: the clock estimate moved the slots earlier.
+            // The delay rises by as many ticks instead of skipping samples.
+            let due = self
+                .regulator
+                .iter()
+                .take_while(|s| s.head.sent_at <= cutoff)
+                .count() as u64;
+            if let (Some(cur), true) = (self.delay_ticks, due > 1) {
+                self.announce_adaptive(cur + due - 1);
+                cutoff = self.release_cutoff(t, d);
+            }
+        }
         let due = |s: &Slot<C>| s.head.sent_at <= cutoff;
         if self.config.underflow == Underflow::DropLate {
             // The target fell: older samples share this tick's slot with a
@@ -935,10 +1053,11 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
         match (self.mapping_ns(t), self.delay_ticks) {
             // Adaptive: due when the send time mapped to the local clock
-            // plus the delay (whole ticks, less half a period so that the
-            // estimate's noise cannot move a sample across a tick) is past.
+            // plus the delay (whole ticks less the slew, less half a period
+            // so that the estimate's noise cannot move a sample across a
+            // release) is past.
             (Some(map), Some(ticks)) => {
-                let d = self.period * ticks;
+                let d = self.period * ticks - self.slew;
                 let d = i64::try_from((d - self.period / 2).as_nanos()).unwrap_or(i64::MAX);
                 let c = ns_i64(t).saturating_sub(map).saturating_sub(d);
                 Instant::from_nanos(u64::try_from(c).unwrap_or(0))
@@ -969,44 +1088,32 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     }
 
     /// The end-to-end delay a sample released at `t` gets: for the adaptive
-    /// policy the whole ticks it keeps, for the others their target.
+    /// policy the whole ticks it keeps less the slew, for the others their
+    /// target.
     fn current_delay(&self, _t: Instant) -> Option<Duration> {
         match self.target {
-            Some(Target::Adaptive(_)) => Some(self.period * self.delay_ticks?),
+            Some(Target::Adaptive(_)) => Some(self.period * self.delay_ticks? - self.slew),
             _ => self.target.as_ref()?.target(),
         }
     }
 
-    /// Adaptive: the delay in whole ticks the target needs (the floor's
-    /// one-way delay plus the policy's target above it), rising at once and
-    /// falling only [`HYSTERESIS`] periods past the boundary.
-    fn adaptive_ticks(&self, t: Instant) -> Option<u64> {
+    /// Adaptive: the end-to-end delay the target needs (s): the floor's
+    /// one-way delay plus the policy's target above it, steered ahead by
+    /// the paper's predictor (half the rise of the mean round trip it
+    /// forecasts over its horizon).
+    fn adaptive_need(&self, t: Instant) -> Option<f64> {
         let d = self.target.as_ref()?.target()?;
         let min_one_way = (self.floor_ns(t)? - self.mapping_ns(t)?) as f64 * 1e-9;
-        // Steered ahead by the paper's predictor: half the rise of the mean
-        // round trip it forecasts over its horizon.
         let lead = self
             .predictor
             .last()
             .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
-        let need = min_one_way + d.as_secs_f64() + lead;
-        let per = self.period.as_secs_f64();
-        let goal = libm::ceil(need / per).max(1.0) as u64;
-        Some(match self.delay_ticks {
-            Some(cur) if goal < cur && need > (cur - 1) as f64 * per - HYSTERESIS * per => cur,
-            _ => goal,
-        })
+        Some(min_one_way + d.as_secs_f64() + lead)
     }
 
-    /// Sets the delay (adaptive: in whole ticks) and emits
-    /// [`Event::DelayChanged`] when the delay in ticks changes.
+    /// A target playout other than the adaptive one: sets the delay and
+    /// emits [`Event::DelayChanged`] when the delay in ticks changes.
     fn track_delay(&mut self, t: Instant) {
-        if let Some(Target::Adaptive(_)) = self.target {
-            if let Some(ticks) = self.adaptive_ticks(t) {
-                self.announce(self.period * ticks, ticks);
-            }
-            return;
-        }
         let Some(d) = self.current_delay(t) else {
             return;
         };
@@ -1029,7 +1136,8 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
     /// the base's grid (the send stamps of its samples, one period apart)
     /// mapped to the local clock by the offset estimate, so that the two
     /// grids do not slide under skew and each delay keeps its quantization.
-    /// The next tick is always between half a period and 1.5 periods away.
+    /// The next tick is 0.95 to 1.05 periods away: a grid that moved (the
+    /// offset estimate changed) is caught up by [`GRID_SLEW`] at most.
     /// Below [`GRID_SKEW_MIN`] of skew the local grid stays (its slide is a
     /// tick every 2.8 h at 20 ms, and the estimate's own noise would move
     /// the grid more than the skew does).
@@ -1058,10 +1166,11 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         let next = ns_i64(anchor)
             .saturating_add(k.saturating_mul(period))
             .saturating_add(theta);
-        match u64::try_from(next) {
-            Ok(n) if n > t.as_nanos() => Instant::from_nanos(n),
-            _ => plain,
-        }
+        let Ok(next) = u64::try_from(next) else {
+            return plain;
+        };
+        let slew = self.period / GRID_SLEW;
+        Instant::from_nanos(next).clamp(plain - slew, plain + slew)
     }
 
     fn last_tick(&self) -> Option<Instant> {

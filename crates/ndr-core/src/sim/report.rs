@@ -90,6 +90,9 @@ pub struct Report {
     pub rejected: u64,
     /// Samples discarded by pauses, both directions.
     pub discarded: u64,
+    /// Samples skipped when a target delay fell by a tick at once, both
+    /// directions (the adaptive policy slides instead: none).
+    pub skipped: u64,
     /// Watchdog alarms (no fresh sample for a second), both sides.
     pub link_lost: u64,
     /// Parameter changes.
@@ -418,6 +421,7 @@ impl Collector {
             underflows: bs.underflows + rs.underflows,
             rejected: bs.rejected + rs.rejected,
             discarded: bs.discarded + rs.discarded,
+            skipped: bs.skipped + rs.skipped,
             link_lost: bs.link_lost + rs.link_lost,
             resizes: bs.resizes,
             pauses: bs.pauses,
