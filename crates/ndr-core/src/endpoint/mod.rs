@@ -922,7 +922,7 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         }
         let need = self.adaptive_need(t);
         if let Some(need) = need {
-            self.rise_to(need);
+            self.rise_to(t, need);
         }
         self.release(t);
         self.watch(t);
@@ -933,9 +933,12 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
 
     /// Adaptive: rises to `need` (s) at once, in whole ticks (a fall under
     /// way is given up: the releases go back to the ticks).
-    fn rise_to(&mut self, need: f64) {
+    fn rise_to(&mut self, t: Instant, need: f64) {
         let per = self.period.as_secs_f64();
-        if self.delay_ticks.is_some() && need <= self.current_delay_s() {
+        if self
+            .current_delay(t)
+            .is_some_and(|d| need <= d.as_secs_f64())
+        {
             return;
         }
         let goal = (libm::ceil(need / per).max(1.0) as u64).max(self.delay_ticks.unwrap_or(0));
@@ -959,17 +962,13 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
         let slew = self.slew + step;
         if slew + step / 2 < self.period {
             self.slew = slew;
-            self.stats.playout_delay_s = self.current_delay_s();
+            self.stats.playout_delay_s = (self.period * cur - slew).as_secs_f64();
             return;
         }
         // A period ahead: the next release is the next tick's own.
         self.slew = Duration::ZERO;
         self.announce_adaptive(cur - 1);
         self.next_release = self.next_tick;
-    }
-
-    fn current_delay_s(&self) -> f64 {
-        (self.period * self.delay_ticks.unwrap_or(0) - self.slew).as_secs_f64()
     }
 
     fn announce_adaptive(&mut self, ticks: u64) {
@@ -1017,7 +1016,9 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 .iter()
                 .take_while(|s| s.head.sent_at <= cutoff)
                 .count() as u64;
-            if let (Some(cur), true) = (self.delay_ticks, due > 1) {
+            if due > 1
+                && let Some(cur) = self.delay_ticks
+            {
                 self.announce_adaptive(cur + due - 1);
                 cutoff = self.release_cutoff(t, d);
             }
