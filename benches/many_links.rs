@@ -10,7 +10,8 @@
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
 //! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
-//! NDR_HUBS, hubs in each side's pool, default 1; the process needs
+//! NDR_HUBS, hubs in each side's pool, default 1; NDR_PLAYOUT, the playout
+//! policy by its command-line name, default `fifo`; the process needs
 //! 2·NDR_LINKS + 50 file descriptors).
 
 use std::net::SocketAddr;
@@ -71,6 +72,10 @@ fn main() {
     let mut config = LinkConfig::new(c);
     config.app_queue = env("NDR_APP_QUEUE", 16.0) as usize;
     config.queue_capacity = env("NDR_QUEUE", ndr::net::link::QUEUE as f64) as usize;
+    let playout = std::env::var("NDR_PLAYOUT").unwrap_or_else(|_| "fifo".into());
+    config.endpoint.playout = playout
+        .parse()
+        .unwrap_or_else(|_| panic!("NDR_PLAYOUT={playout}: not a playout policy"));
     let rss0 = rss_kib();
     let (bases, remotes) = rt.block_on(async {
         let remote_hubs = HubPool::new(hubs, DEFAULT_SPIN_MARGIN).unwrap();
@@ -141,8 +146,8 @@ fn main() {
         .fold(0.0, f64::max);
     let machine = 100.0 * (cpu1 - cpu0) / elapsed / cpus as f64;
     println!(
-        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side",
-        config.queue_capacity, config.app_queue
+        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}",
+        config.queue_capacity, config.app_queue, config.endpoint.playout
     );
     println!("  endpoints running            {running} of {}", 2 * n);
     println!(

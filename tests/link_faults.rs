@@ -182,3 +182,38 @@ fn a_peer_that_vanishes_is_reported_within_a_second() {
         "{e:?}"
     );
 }
+
+#[test]
+fn peers_beyond_the_handshake_limit_wait_for_a_slot_instead_of_being_refused() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let mut remote = config();
+    remote.endpoint.handshake_timeout = Duration::from_millis(500);
+    let listener = rt
+        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), remote))
+        .unwrap();
+    let addr = listener.local_addr().unwrap();
+    // More silent peers than the handshakes a listener runs at once
+    // (DEFAULT_MAX_PENDING_HANDSHAKES = 64), then a real one.
+    let silent: Vec<TcpStream> = (0..70).map(|_| TcpStream::connect(addr).unwrap()).collect();
+    let start = std::time::Instant::now();
+    let accepted = rt.block_on(async {
+        let mut base = Link::connect(addr, config()).await?;
+        let accepted = tokio::time::timeout(StdDuration::from_secs(5), listener.accept())
+            .await
+            .map_err(|_| NetError::Timeout)??;
+        base.handshake().await?;
+        Ok::<_, NetError>(accepted)
+    });
+    let accepted = accepted.unwrap_or_else(|e| panic!("{e:?} {:?}", listener.stats()));
+    // The silent peers ahead of it held every slot for one timeout.
+    assert!(start.elapsed() >= StdDuration::from_millis(400));
+    assert!(accepted.stats().is_some());
+    let stats = listener.stats();
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    assert!(stats.timeouts >= 64, "{stats:?}");
+    drop(silent);
+}

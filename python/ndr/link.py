@@ -565,7 +565,8 @@ class Listener:
         ``refused_version``; ndr's handshake: ``refused_role``,
         ``refused_axes``, ``refused_settings`` (period, mode),
         ``refused_wire_version``, ``refused_protocol``; and ``timeouts``,
-        ``failed_other``, ``refused_busy``."""
+        ``failed_other``. Peers beyond the handshakes run at once wait in
+        the kernel's accept queue; none is refused for being one too many."""
         return self._native.stats
 
     def close(self) -> None:

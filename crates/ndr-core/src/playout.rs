@@ -77,8 +77,22 @@ impl Playout {
     /// The target-delay state of this policy for `period`, `None` for the FIFO.
     #[must_use]
     pub fn target(self, period: Duration) -> Option<Target> {
-        Some(match self {
-            Playout::Fifo => return None,
+        // `Adaptive` always has room for itself: never `Err`.
+        self.target_in::<Adaptive>(period).unwrap_or(None)
+    }
+
+    /// [`Playout::target`] in a [`Target`] whose adaptive state is `A`.
+    ///
+    /// # Errors
+    ///
+    /// [`NoAdaptiveRoom`] for [`Playout::Adaptive`] when `A` holds no
+    /// adaptive state ([`NoAdaptive`]).
+    pub fn target_in<A: AdaptiveSlot>(
+        self,
+        period: Duration,
+    ) -> Result<Option<Target<A>>, NoAdaptiveRoom> {
+        Ok(Some(match self {
+            Playout::Fifo => return Ok(None),
             Playout::Ramjee1 => Target::Ramjee1(Ramjee1::new()),
             Playout::Ramjee4 => Target::Ramjee4(Ramjee4::new()),
             Playout::NetEq => Target::NetEq(NetEq::new(period)),
@@ -86,10 +100,10 @@ impl Playout {
                 Target::FixedAboveMin(FixedAboveMin::new(latency))
             }
             Playout::Constant { delay } => Target::Constant(delay),
-            Playout::Adaptive { epsilon_ppm } => {
-                Target::Adaptive(Adaptive::new(period, f64::from(epsilon_ppm) * 1e-6))
-            }
-        })
+            Playout::Adaptive { epsilon_ppm } => Target::Adaptive(
+                A::build(period, f64::from(epsilon_ppm) * 1e-6).ok_or(NoAdaptiveRoom)?,
+            ),
+        }))
     }
 
     /// The adaptive policy at its default late rate.
@@ -188,12 +202,65 @@ pub trait TargetDelay {
     fn target(&self) -> Option<Duration>;
 }
 
-/// The state of a target-delay [`Playout`].
+/// Where a [`Target`] keeps [`Playout::Adaptive`]'s state: [`Adaptive`]
+/// itself (about 12 KiB, the default), or [`NoAdaptive`], nothing, for an
+/// endpoint that never runs that policy and should not carry its histogram.
+pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
+    /// The state for `period` and late rate `epsilon`; `None` if this slot
+    /// holds none.
+    fn build(period: Duration, epsilon: f64) -> Option<Self>;
+}
+
+impl AdaptiveSlot for Adaptive {
+    fn build(period: Duration, epsilon: f64) -> Option<Self> {
+        Some(Adaptive::new(period, epsilon))
+    }
+}
+
+/// An [`AdaptiveSlot`] with no room: a [`Target<NoAdaptive>`] is the size of
+/// the other policies' largest state (NetEQ's 2 KiB), and asking it for
+/// [`Playout::Adaptive`] is a [`NoAdaptiveRoom`] error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoAdaptive {}
+
+impl TargetDelay for NoAdaptive {
+    fn observe(&mut self, _: Instant, _: Duration) {
+        match *self {}
+    }
+
+    fn target(&self) -> Option<Duration> {
+        match *self {}
+    }
+}
+
+impl AdaptiveSlot for NoAdaptive {
+    fn build(_: Duration, _: f64) -> Option<Self> {
+        None
+    }
+}
+
+/// [`Playout::Adaptive`] asked of a [`Target<NoAdaptive>`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NoAdaptiveRoom;
+
+impl fmt::Display for NoAdaptiveRoom {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(
+            "the adaptive playout needs room for its histogram: \
+             build the endpoint with the default `Adaptive` slot, not `NoAdaptive`",
+        )
+    }
+}
+
+impl core::error::Error for NoAdaptiveRoom {}
+
+/// The state of a target-delay [`Playout`], with the adaptive policy's state
+/// in `A` (see [`AdaptiveSlot`]).
 // No heap in the core: NetEQ's histogram (2 KiB) lives inline, and an
 // endpoint holds one `Target`, so the size of the others does not matter.
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq)]
-pub enum Target {
+pub enum Target<A = Adaptive> {
     /// See [`Playout::Ramjee1`].
     Ramjee1(Ramjee1),
     /// See [`Playout::Ramjee4`].
@@ -205,10 +272,10 @@ pub enum Target {
     /// See [`Playout::Constant`].
     Constant(Duration),
     /// See [`Playout::Adaptive`].
-    Adaptive(Adaptive),
+    Adaptive(A),
 }
 
-impl TargetDelay for Target {
+impl<A: TargetDelay> TargetDelay for Target<A> {
     fn observe(&mut self, sent_at: Instant, delay: Duration) {
         match self {
             Target::Ramjee1(p) => p.observe(sent_at, delay),

@@ -562,3 +562,32 @@ fn abort_reports_the_drivers_error_and_sends_no_close_for_a_lost_connection() {
         })
     ));
 }
+
+#[test]
+fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_playout() {
+    use ndr_core::endpoint::ConfigError;
+    use ndr_core::playout::{NoAdaptive, NoAdaptiveRoom, Playout};
+    type Lean = Endpoint<4, 16, NoAdaptive>;
+    let mut c = config(Role::Remote);
+    c.playout = Playout::ADAPTIVE;
+    let refused = Lean::new(c, Instant::ZERO).err();
+    assert_eq!(refused, Some(ConfigError::NoAdaptiveRoom(NoAdaptiveRoom)));
+    assert!(
+        refused
+            .unwrap()
+            .to_string()
+            .contains("default `Adaptive` slot")
+    );
+    assert!(Endpoint::<4, 16>::new(c, Instant::ZERO).is_ok());
+    for playout in [
+        Playout::Fifo,
+        Playout::NetEq,
+        Playout::Ramjee1,
+        Playout::Ramjee4,
+    ] {
+        c.playout = playout;
+        assert!(Lean::new(c, Instant::ZERO).is_ok(), "{playout}");
+    }
+    let (lean, full) = (size_of::<Lean>(), size_of::<Endpoint<4, 16>>());
+    assert!(lean + 10 * 1024 <= full, "{lean} {full}");
+}

@@ -620,11 +620,6 @@ pub struct ListenerStats {
     pub timeouts: u64,
     /// Handshakes that failed otherwise (the peer closed, a reset).
     pub failed_other: u64,
-    /// Connections dropped unanswered because
-    /// [`TlsConfig::max_pending_handshakes`] (or, without TLS,
-    /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES))
-    /// were in flight already.
-    pub refused_busy: u64,
     /// ndr handshakes refused: the peer claims this side's role.
     pub refused_role: u64,
     /// ndr handshakes refused: the peer has another number of axes.
@@ -769,19 +764,22 @@ impl Listener {
     /// [`with_role`](Self::with_role) said otherwise). Handshakes run side by
     /// side (at most [`TlsConfig::max_pending_handshakes`], or
     /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
-    /// without TLS): first TLS's, if the listener has it, then ndr's Hello,
-    /// each bounded by its timeout. A peer whose handshake fails (unknown
+    /// without TLS; further connections wait in the kernel's accept queue):
+    /// first TLS's, if the listener has it, then ndr's Hello, each bounded
+    /// by its timeout. A peer whose handshake fails (unknown
     /// certificate, another role, other axes, period or mode, no answer…) is
     /// logged, counted in [`stats`](Self::stats) and dropped: it never
     /// reaches the application, and the listener keeps serving.
     pub async fn accept(&self) -> Result<Link, NetError> {
         let mut handshakes = self.handshakes.lock().await;
+        // At least one, or no branch below could ever run.
         let max = self
             .tls
             .as_ref()
             .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
                 t.max_pending_handshakes
-            });
+            })
+            .max(1);
         loop {
             tokio::select! {
                 biased;
@@ -796,13 +794,11 @@ impl Listener {
                         self.count(|s| &mut s.failed_other);
                     }
                 },
-                accepted = self.listener.accept() => {
+                // With `max` handshakes in flight, the next connections wait
+                // in the kernel's accept queue (bounded by its backlog)
+                // until one ends: a burst of peers is served, not refused.
+                accepted = self.listener.accept(), if handshakes.len() < max => {
                     let (stream, peer) = accepted?;
-                    if handshakes.len() >= max {
-                        tracing::warn!(%peer, "link refused: too many handshakes in flight");
-                        self.count(|s| &mut s.refused_busy);
-                        continue;
-                    }
                     let hub = match &self.hubs {
                         Hubs::One(hub) => hub.clone(),
                         Hubs::Pool(pool) => pool.least_loaded().clone(),

@@ -176,8 +176,8 @@ pub struct TlsConfig {
     fingerprint: Fingerprint,
     /// Longest a handshake may take before the connection is dropped.
     pub handshake_timeout: StdDuration,
-    /// Most handshakes a listener runs at once; a connection beyond is
-    /// dropped unanswered and counted.
+    /// Most handshakes a listener runs at once (at least one); further
+    /// connections wait in the kernel's accept queue until one ends.
     pub max_pending_handshakes: usize,
 }
 

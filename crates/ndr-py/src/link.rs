@@ -751,7 +751,6 @@ impl PyListener {
             + s.refused_version
             + s.timeouts
             + s.failed_other
-            + s.refused_busy
             + s.refused_role
             + s.refused_axes
             + s.refused_settings
@@ -770,7 +769,6 @@ impl PyListener {
         d.set_item("refused_version", s.refused_version)?;
         d.set_item("timeouts", s.timeouts)?;
         d.set_item("failed_other", s.failed_other)?;
-        d.set_item("refused_busy", s.refused_busy)?;
         d.set_item("refused_role", s.refused_role)?;
         d.set_item("refused_axes", s.refused_axes)?;
         d.set_item("refused_settings", s.refused_settings)?;

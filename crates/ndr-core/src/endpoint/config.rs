@@ -276,6 +276,9 @@ pub enum ConfigError {
     Timeout,
     /// The predictor's constants are invalid.
     Predictor(crate::predictor::PredictorError),
+    /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) on an
+    /// endpoint built without room for its state.
+    NoAdaptiveRoom(crate::playout::NoAdaptiveRoom),
 }
 
 impl fmt::Display for ConfigError {
@@ -298,6 +301,7 @@ impl fmt::Display for ConfigError {
             }
             ConfigError::Timeout => f.write_str("the handshake timeout must be positive"),
             ConfigError::Predictor(e) => write!(f, "{e}"),
+            ConfigError::NoAdaptiveRoom(e) => write!(f, "{e}"),
         }
     }
 }

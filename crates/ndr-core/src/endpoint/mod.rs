@@ -53,7 +53,7 @@ pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
 
-use crate::playout::{Target, TargetDelay};
+use crate::playout::{Adaptive, AdaptiveSlot, Target, TargetDelay};
 use crate::predictor::{NetworkPredictor, Prediction};
 use crate::regulator::{self, Occupancy, Regulator, Tick};
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
@@ -141,16 +141,19 @@ const EVENT_QUEUE: usize = 32;
 /// regulator of capacity `N`.
 ///
 /// The endpoint holds `N` queued samples of `C` values inline (no heap):
-/// about `N·(8·C + 48)` bytes. Box it when `N` is large.
+/// about `N·(8·C + 48)` bytes. Box it when `N` is large. `A` holds the
+/// adaptive playout's histogram (about 12 KiB): an endpoint that never runs
+/// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) can drop it with
+/// [`NoAdaptive`](crate::playout::NoAdaptive).
 #[derive(Clone, Debug)]
-pub struct Endpoint<const C: usize, const N: usize> {
+pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> {
     config: Config,
     phase: Phase,
     period: Duration,
     ns: usize,
     regulator: Regulator<Slot<C>, N>,
     /// Target-delay playout: the policy's state (`None`: the paper's FIFO).
-    target: Option<Target>,
+    target: Option<Target<A>>,
     /// Target-delay playout: frames sent at or before this (peer clock) had
     /// their slot at a tick already run.
     passed: Option<Instant>,
@@ -204,7 +207,7 @@ pub struct Endpoint<const C: usize, const N: usize> {
     stats: Stats,
 }
 
-impl<const C: usize, const N: usize> Endpoint<C, N> {
+impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// An endpoint that starts at `now`. A base queues its Hello at once.
     pub fn new(config: Config, now: Instant) -> Result<Self, ConfigError> {
         config.validate()?;
@@ -224,7 +227,10 @@ impl<const C: usize, const N: usize> Endpoint<C, N> {
                 axes: config.axes,
                 capacity: N,
             })?,
-            target: config.playout.target(config.period),
+            target: config
+                .playout
+                .target_in(config.period)
+                .map_err(ConfigError::NoAdaptiveRoom)?,
             passed: None,
             sync: ClockSync::new(),
             delay_ticks: None,
