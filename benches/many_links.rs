@@ -2,10 +2,10 @@
 //!
 //! Both ends of every link run in this process: the bases on one hub (or a
 //! pool of them), the remotes on another, one application thread echoing
-//! the remotes' commands and draining the bases' states; tokio (2 workers)
-//! only connects and accepts. CPU is read from /proc/self/stat over a window
-//! after start-up, memory as the growth of the resident set from before the
-//! first link.
+//! the remotes' commands and draining the bases' states and every link's
+//! events; tokio (2 workers) only connects and accepts. CPU is read from
+//! /proc/self/stat over a window after start-up, memory as the growth of the
+//! resident set from before the first link.
 //!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
@@ -112,11 +112,15 @@ fn main() {
                         let _ = r.send(s.values());
                         released += 1;
                     }
+                    // Events (underflows, delay changes) are kept for the
+                    // application, up to 256 a link: read them as it would.
+                    r.drain_events().for_each(drop);
                 }
                 for b in &mut bases {
                     while let Ok(Some(_)) = b.try_recv() {
                         released += 1;
                     }
+                    b.drain_events().for_each(drop);
                 }
                 std::thread::sleep(StdDuration::from_millis(5));
             }
