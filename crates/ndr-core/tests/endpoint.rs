@@ -37,6 +37,11 @@ struct Pair {
     tick: u64,
     /// What each side actually sent, by sequence number.
     sent_values: [BTreeMap<u64, Vec<f64>>; 2],
+    /// How late the remote's driver serves its n-th deadline.
+    remote_lag: DelayFn,
+    remote_wakes: u64,
+    /// The remote's deadline being waited for, and how late it will be served.
+    lagged: Option<(Instant, Duration)>,
 }
 
 fn config(role: Role) -> Config {
@@ -64,7 +69,25 @@ impl Pair {
             remote_errors: Vec::new(),
             tick: 0,
             sent_values: [BTreeMap::new(), BTreeMap::new()],
+            remote_lag: Box::new(|_| Duration::ZERO),
+            remote_wakes: 0,
+            lagged: None,
         }
+    }
+
+    /// When the remote's driver serves its next deadline.
+    fn remote_wake(&mut self) -> Option<Instant> {
+        let t = self.remote.poll_timeout()?;
+        let lag = match self.lagged {
+            Some((d, lag)) if d == t => lag,
+            _ => {
+                let lag = (self.remote_lag)(self.remote_wakes);
+                self.remote_wakes += 1;
+                self.lagged = Some((t, lag));
+                lag
+            }
+        };
+        Some(t + lag)
     }
 
     fn constant(ms: u64) -> Pair {
@@ -133,14 +156,10 @@ impl Pair {
     /// Advances to the next deadline or arrival and handles it.
     fn step(&mut self) -> bool {
         let next_wire = self.wire.keys().next().map(|k| k.0);
-        let next = [
-            next_wire,
-            self.base.poll_timeout(),
-            self.remote.poll_timeout(),
-        ]
-        .into_iter()
-        .flatten()
-        .min();
+        let next = [next_wire, self.base.poll_timeout(), self.remote_wake()]
+            .into_iter()
+            .flatten()
+            .min();
         let Some(next) = next else { return false };
         self.now = next;
         // Arrivals first, then deadlines, at equal times.
@@ -159,7 +178,11 @@ impl Pair {
             self.drain(dest);
         }
         for side in [Side::Base, Side::Remote] {
-            if self.ep(side).poll_timeout().is_some_and(|t| t <= self.now) {
+            let wake = match side {
+                Side::Base => self.base.poll_timeout(),
+                Side::Remote => self.remote_wake(),
+            };
+            if wake.is_some_and(|t| t <= self.now) {
                 let now = self.now;
                 self.ep(side).handle_timeout(now);
             }
@@ -590,4 +613,36 @@ fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_pl
     }
     let (lean, full) = (size_of::<Lean>(), size_of::<Endpoint<4, 16>>());
     assert!(lean + 10 * 1024 <= full, "{lean} {full}");
+}
+
+#[test]
+fn an_adaptive_release_served_late_is_its_own_slot_not_a_reason_to_raise_the_delay() {
+    use ndr_core::playout::Playout;
+    // 10 ms each way on a 200 ms period; the remote's driver serves one
+    // deadline in three 0.6·T late (a busy hub). Each late release is the
+    // sample of the slot it was late for: the delay stays where the network
+    // puts it, and nothing repeats.
+    let run = |lag_ms: u64| {
+        let d = Duration::from_millis(10);
+        let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+        base.playout = Playout::ADAPTIVE;
+        remote.playout = Playout::ADAPTIVE;
+        let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
+        p.remote_lag =
+            Box::new(move |n| Duration::from_millis(if n % 3 == 2 { lag_ms } else { 0 }));
+        p.run_until(secs(300));
+        assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+        let released = Pair::releases(&p.remote_events);
+        assert!(released.len() > 1000, "{}", released.len());
+        p.remote.stats()
+    };
+    let (on_time, late) = (run(0), run(120));
+    assert_eq!(late.playout_delay_ticks, on_time.playout_delay_ticks);
+    assert!(late.playout_delay_ticks <= 2, "{late:?}");
+    assert_eq!(
+        (late.underflows, late.late, late.skipped),
+        (0, 0, 0),
+        "{late:?}"
+    );
+    assert_eq!(late.delay_changes, on_time.delay_changes, "{late:?}");
 }

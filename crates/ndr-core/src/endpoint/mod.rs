@@ -301,14 +301,17 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         loop {
             let tick = self.next_tick.filter(|&t| t <= now);
+            // Stamps are when things really happen (a late driver shows in
+            // the measured delays instead of hiding behind the deadline), but
+            // which sample is due is the schedule's to say: a late wake-up
+            // releases the sample of the slot it was late for, as the FIFO
+            // does, rather than find the next one due too.
             match (self.next_release.filter(|&r| r <= now), tick) {
-                (Some(r), Some(t)) if r <= t => self.release_apart(now),
-                (Some(_), None) => self.release_apart(now),
+                (Some(r), Some(t)) if r <= t => self.release_apart(r, now),
+                (Some(r), None) => self.release_apart(r, now),
                 (_, Some(t)) => {
                     self.next_tick = Some(self.following_tick(t));
-                    // Stamps are when things really happen: a late driver shows
-                    // in the measured delays instead of hiding behind the deadline.
-                    self.tick(now);
+                    self.tick(t, now);
                 }
                 (None, None) => break,
             }
@@ -874,7 +877,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         });
     }
 
-    fn tick(&mut self, t: Instant) {
+    /// The tick scheduled at `at`, run at `t`.
+    fn tick(&mut self, at: Instant, t: Instant) {
         match self.phase {
             Phase::Init | Phase::Pausing => {
                 let seq = self.take_seq(t);
@@ -885,11 +889,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     // Its releases have their own schedule: the next one is
                     // this tick's successor, less the slew.
                     if self.next_release.is_none() {
-                        self.next_release = self.next_tick.map(|n| (n - self.slew).max(t));
+                        self.next_release = self.next_tick.map(|n| (n - self.slew).max(at));
                     }
                 } else {
                     self.track_delay(t);
-                    self.release(t);
+                    self.release(at, t);
                     self.watch(t);
                 }
                 let seq = self.take_seq(t);
@@ -921,7 +925,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// rises at once (by whole ticks, a repeated tick for each) before it,
     /// and falls after it by `T / RELEASE_SLEW_STEPS`, so that releases
     /// stay one sample each and none is skipped.
-    fn release_apart(&mut self, t: Instant) {
+    fn release_apart(&mut self, at: Instant, t: Instant) {
         self.next_release = None;
         if self.phase != Phase::Running {
             return;
@@ -930,7 +934,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(need) = need {
             self.rise_to(t, need);
         }
-        self.release(t);
+        self.release(at, t);
         self.watch(t);
         if let Some(need) = need {
             self.fall_from(need);
@@ -981,12 +985,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.announce(self.period * ticks - self.slew, ticks);
     }
 
-    fn release(&mut self, t: Instant) {
+    /// The release scheduled at `at`, run (and stamped) at `t`.
+    fn release(&mut self, at: Instant, t: Instant) {
         let adaptive = self.is_adaptive();
         let outcome = match self.target.as_ref().map(TargetDelay::target) {
             // Adaptive: nothing is due before the delay in ticks is set.
             Some(_) if adaptive && self.delay_ticks.is_none() => self.not_started(),
-            Some(target) => self.release_target(t, target),
+            Some(target) => self.release_target(at, target),
             None => self.release_fifo(),
         };
         self.deliver(t, outcome);
