@@ -361,6 +361,7 @@ fn matched_against_the_paper_modes() {
         assert!((a.mean_delay_s - 0.040).abs() < 1e-9, "{a:?}");
         assert!(s.win);
     }
+    assert!((m.delay_gain_s.mean - 0.040).abs() < 1e-9 && m.delay_gain_s.ci95 < 1e-9);
     // The dynamic mode's pause discards samples: a late rate above 0, which
     // the adaptive policy meets at the same 40 ms.
     let m = row("constant", "paper-dynamic");

@@ -27,7 +27,8 @@ JSON (--json): one object, schema \"ndr-compare/1\":
                                 point: {mean_delay_s, late_rate} } ] } ],
     matched: [ { family, against, seeds, paper_failed, matched, wins, win,
                  paper_delay_s, paper_late_rate, adaptive_delay_s,
-                 adaptive_late_rate, epsilon: {mean, ci95}, adaptive_runs,
+                 adaptive_late_rate, epsilon, delay_gain_s: {mean, ci95},
+                 adaptive_runs,
                  runs: [ { seed, paper_delay_s, paper_late_rate, win,
                            adaptive: {epsilon, mean_delay_s, late_rate} or null } ] } ]
              (only with --matched),
@@ -38,8 +39,9 @@ interval. Delays are end-to-end (release at the remote - send at the base), in
 seconds; `late_rate` counts every sample never released fresh; `point` is the
 (delay, late rate) point to plot. With --matched, per family and paper mode
 asked for: the adaptive policy's lowest delay at a late rate <= the paper run's,
-per seed (ε searched on the same seed); `win` = a match on every seed and a lower
-mean delay. docs/algorithms.md §9 defines every measure.";
+per seed (ε searched on the same seed); `delay_gain_s` = paper delay - adaptive
+delay, paired per matched seed; `win` = a match on every seed and a lower mean
+delay. docs/algorithms.md §9 defines every measure.";
 
 #[derive(clap::Args)]
 #[command(after_long_help = JSON_HELP)]
@@ -273,13 +275,14 @@ fn print_matched(matched: &[Matched]) {
     }
     println!(
         "\n**adaptive at an equal or lower late rate** — per seed, the lowest-delay \
-         adaptive run (ε searched) with a late rate ≤ the paper run's\n"
+         adaptive run (ε searched) with a late rate ≤ the paper run's; gain = paper − \
+         adaptive delay, paired per seed; n.s.: its 95 % interval includes 0\n"
     );
     println!(
         "| family | against | paper delay ms | paper late % | adaptive delay ms | \
-         adaptive late % | ε % | seeds won | wins |"
+         adaptive late % | ε % | gain ms | seeds won | wins |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     let pct = |s: Stat| format!("{:.4} ± {:.4}", s.mean * 100.0, s.ci95 * 100.0);
     for m in matched {
         let unmatched = m.seeds - m.matched;
@@ -291,7 +294,7 @@ fn print_matched(matched: &[Matched]) {
             }
         };
         println!(
-            "| {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
             m.family,
             m.against,
             ms(m.paper_delay_s),
@@ -299,9 +302,15 @@ fn print_matched(matched: &[Matched]) {
             adaptive(ms(m.adaptive_delay_s)),
             pct(m.adaptive_late_rate),
             pct(m.epsilon),
+            ms(m.delay_gain_s),
             m.wins,
             m.seeds,
-            if m.win { "yes" } else { "no" },
+            match (m.win, m.delay_gain_s.mean - m.delay_gain_s.ci95 > 0.0) {
+                (false, _) => "no",
+                (true, true) => "yes",
+                // The paired gain's 95 % interval includes 0.
+                (true, false) => "yes (n.s.)",
+            },
         );
     }
 }

@@ -128,6 +128,9 @@ pub struct Matched {
     pub adaptive_late_rate: Stat,
     /// The matches' ε.
     pub epsilon: Stat,
+    /// The paper run's delay less the match's, per matched seed (paired:
+    /// a confidence interval that excludes 0 is a significant difference), s.
+    pub delay_gain_s: Stat,
     /// Adaptive runs made for this family (shared by its paper modes).
     pub adaptive_runs: usize,
     /// Per seed.
@@ -196,6 +199,11 @@ impl Matched {
             adaptive_delay_s,
             adaptive_late_rate: stat(found.iter().map(|a| a.late_rate).collect()),
             epsilon: stat(found.iter().map(|a| a.epsilon).collect()),
+            delay_gain_s: stat(
+                runs.iter()
+                    .filter_map(|r| Some(r.paper_delay_s - r.adaptive?.mean_delay_s))
+                    .collect(),
+            ),
             adaptive_runs,
             runs,
         }
