@@ -226,6 +226,9 @@ fn matched_is_deterministic_and_only_when_asked() {
     assert_eq!(against, ["paper-static", "paper-dynamic"]);
     for m in matched {
         assert_eq!(m["family"], "skew-100ppm");
+        let one = &m["one_epsilon"];
+        let paper = m["paper_late_rate"]["mean"].as_f64().unwrap();
+        assert!(one["adaptive_late_rate"]["mean"].as_f64().unwrap() <= paper + 1e-12);
         let runs = m["runs"].as_array().unwrap();
         assert_eq!(runs.len() as u64 + m["paper_failed"].as_u64().unwrap(), 2);
         for r in runs {
@@ -243,7 +246,8 @@ fn matched_is_deterministic_and_only_when_asked() {
     let out = ndr(&args);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
-        text.contains("adaptive at an equal or lower late rate"),
+        text.contains("adaptive at an equal or lower late rate")
+            && text.contains("adaptive at one ε for all seeds"),
         "{text}"
     );
 }

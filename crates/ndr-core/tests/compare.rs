@@ -362,6 +362,10 @@ fn matched_against_the_paper_modes() {
         assert!(s.win);
     }
     assert!((m.delay_gain_s.mean - 0.040).abs() < 1e-9 && m.delay_gain_s.ci95 < 1e-9);
+    // One ε for both seeds: the same.
+    let one = m.one_epsilon.unwrap();
+    assert!((one.adaptive_delay_s.mean - 0.040).abs() < 1e-9 && one.win);
+    assert_eq!(one.adaptive_late_rate.mean, 0.0);
     // The dynamic mode's pause discards samples: a late rate above 0, which
     // the adaptive policy meets at the same 40 ms.
     let m = row("constant", "paper-dynamic");
@@ -380,6 +384,11 @@ fn matched_against_the_paper_modes() {
     assert!((s.paper_delay_s - 0.080).abs() < 1e-9);
     let a = s.adaptive.unwrap();
     assert!(a.late_rate < 0.2 && a.mean_delay_s > 0.1, "{a:?}");
+    // One seed: the one-ε match is the per-seed one.
+    let one = m.one_epsilon.unwrap();
+    assert_eq!(one.epsilon, a.epsilon);
+    assert_eq!(one.adaptive_delay_s.mean, a.mean_delay_s);
+    assert!(!one.win);
     // Without `matched`, no row and no adaptive run.
     cfg.matched = false;
     assert!(compare::compare(&cfg).matched.is_empty());

@@ -101,6 +101,19 @@ pub struct MatchedSeed {
     pub win: bool,
 }
 
+/// The adaptive policy at one ε on every seed, against a paper mode's mean.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct OneEpsilon {
+    /// The ε.
+    pub epsilon: f64,
+    /// Its mean delay over the seeds, s.
+    pub adaptive_delay_s: Stat,
+    /// Its late rate over the seeds.
+    pub adaptive_late_rate: Stat,
+    /// A lower mean delay than the paper mode's.
+    pub win: bool,
+}
+
 /// The adaptive policy against one paper mode on one family.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Matched {
@@ -131,10 +144,32 @@ pub struct Matched {
     /// The paper run's delay less the match's, per matched seed (paired:
     /// a confidence interval that excludes 0 is a significant difference), s.
     pub delay_gain_s: Stat,
+    /// One ε for every seed: the lowest mean delay over the compared seeds
+    /// whose mean late rate is at most the paper mode's; `null` when no ε
+    /// meets it.
+    pub one_epsilon: Option<OneEpsilon>,
     /// Adaptive runs made for this family (shared by its paper modes).
     pub adaptive_runs: usize,
     /// Per seed.
     pub runs: Vec<MatchedSeed>,
+}
+
+/// Adaptive runs by ε (ppm): `(mean delay, late rate)`, `None` if failed.
+pub type Runs = BTreeMap<u32, Option<(f64, f64)>>;
+
+/// What [`match_seed`] gives: the matches and the runs made.
+pub type SeedMatches = (Vec<Option<MatchedSeed>>, Runs);
+
+/// One adaptive run of `family` at ε = `epsilon_ppm`·10⁻⁶.
+fn adaptive_run(
+    family: &Family,
+    epsilon_ppm: u32,
+    seed: u64,
+    times: (Duration, Duration),
+) -> Option<(f64, f64)> {
+    let p = super::Policy::Target(Playout::Adaptive { epsilon_ppm });
+    let r = run_one(family, p, seed, times).ok()?.metrics;
+    Some((r.mean_delay_s, r.late_rate))
 }
 
 /// The searches of one family and seed against each paper run's late rate,
@@ -145,18 +180,16 @@ pub fn match_seed(
     seed: u64,
     paper: &[Option<RunMetrics>],
     times: (Duration, Duration),
-) -> (Vec<Option<MatchedSeed>>, usize) {
-    let mut runs: BTreeMap<u32, Option<(f64, f64)>> = BTreeMap::new();
+) -> SeedMatches {
+    let mut runs = Runs::new();
     let matches = paper
         .iter()
         .map(|m| {
             let m = (*m)?;
-            let adaptive = search(m.late_rate, |epsilon_ppm| {
-                *runs.entry(epsilon_ppm).or_insert_with(|| {
-                    let p = super::Policy::Target(Playout::Adaptive { epsilon_ppm });
-                    let r = run_one(family, p, seed, times).ok()?.metrics;
-                    Some((r.mean_delay_s, r.late_rate))
-                })
+            let adaptive = search(m.late_rate, |ppm| {
+                *runs
+                    .entry(ppm)
+                    .or_insert_with(|| adaptive_run(family, ppm, seed, times))
             });
             Some(MatchedSeed {
                 seed,
@@ -167,7 +200,7 @@ pub fn match_seed(
             })
         })
         .collect();
-    (matches, runs.len())
+    (matches, runs)
 }
 
 impl Matched {
@@ -178,6 +211,7 @@ impl Matched {
         against: String,
         runs: Vec<MatchedSeed>,
         paper_failed: usize,
+        one_epsilon: Option<OneEpsilon>,
         adaptive_runs: usize,
     ) -> Self {
         let stat = |xs: Vec<f64>| Stat::of(&xs);
@@ -204,6 +238,7 @@ impl Matched {
                     .filter_map(|r| Some(r.paper_delay_s - r.adaptive?.mean_delay_s))
                     .collect(),
             ),
+            one_epsilon,
             adaptive_runs,
             runs,
         }
@@ -247,28 +282,91 @@ pub(super) fn match_all(
     });
     let mut out = Vec::new();
     for (f, family) in cfg.families.iter().enumerate() {
-        let of_family: Vec<&(Vec<Option<MatchedSeed>>, usize)> = tasks
+        let of_family: Vec<(u64, &SeedMatches)> = tasks
             .iter()
             .zip(&done)
             .filter(|((tf, _), _)| *tf == f)
-            .filter_map(|(_, d)| d.as_ref())
+            .filter_map(|((_, seed), d)| Some((*seed, d.as_ref()?)))
             .collect();
-        let adaptive_runs = of_family.iter().map(|d| d.1).sum();
+        let mut runs: BTreeMap<(u32, u64), Option<(f64, f64)>> = BTreeMap::new();
+        for (seed, (_, r)) in &of_family {
+            runs.extend(r.iter().map(|(&ppm, &x)| ((ppm, *seed), x)));
+        }
+        let seeds = if family.seeded { cfg.seeds.max(1) } else { 1 };
         for (k, p) in papers.iter().enumerate() {
-            let runs: Vec<MatchedSeed> = of_family
+            let matched: Vec<MatchedSeed> = of_family
                 .iter()
-                .filter_map(|d| d.0.get(k).copied().flatten())
+                .filter_map(|(_, d)| d.0.get(k).copied().flatten())
                 .collect();
-            let seeds = if family.seeded { cfg.seeds.max(1) } else { 1 };
-            let failed = usize::try_from(seeds).unwrap_or(usize::MAX) - runs.len();
+            let failed = usize::try_from(seeds).unwrap_or(usize::MAX) - matched.len();
+            let one = one_epsilon(cfg, family, &matched, &mut runs);
             out.push(Matched::of(
                 family.name.clone(),
                 p.name(),
-                runs,
+                matched,
                 failed,
-                adaptive_runs,
+                one,
+                0,
             ));
+        }
+        let total = runs.len();
+        for m in out.iter_mut().rev().take(papers.len()) {
+            m.adaptive_runs = total;
         }
     }
     out
+}
+
+/// The one-ε match of a family against a paper mode's seeds `matched`
+/// (searched as [`search`] does, on the mean late rate), with the runs
+/// already made by `(ppm, seed)`; new ones on the seeds in parallel.
+fn one_epsilon(
+    cfg: &super::CompareConfig,
+    family: &Family,
+    matched: &[MatchedSeed],
+    runs: &mut BTreeMap<(u32, u64), Option<(f64, f64)>>,
+) -> Option<OneEpsilon> {
+    if matched.is_empty() {
+        return None;
+    }
+    let n = matched.len() as f64;
+    let limit = matched.iter().map(|m| m.paper_late_rate).sum::<f64>() / n;
+    let paper_delay = matched.iter().map(|m| m.paper_delay_s).sum::<f64>() / n;
+    let times = (cfg.period, cfg.window);
+    let mut at = |ppm: u32| -> Option<Vec<(f64, f64)>> {
+        let missing: Vec<u64> = matched
+            .iter()
+            .map(|m| m.seed)
+            .filter(|&s| !runs.contains_key(&(ppm, s)))
+            .collect();
+        let order: Vec<usize> = (0..missing.len()).collect();
+        let new = super::parallel(cfg.threads, &order, |i| {
+            let seed = *missing.get(i)?;
+            Some(adaptive_run(family, ppm, seed, times))
+        });
+        for (seed, r) in missing.iter().zip(new) {
+            runs.insert((ppm, *seed), r.flatten());
+        }
+        matched
+            .iter()
+            .map(|m| runs.get(&(ppm, m.seed)).copied().flatten())
+            .collect()
+    };
+    let mut per_seed: BTreeMap<u32, Vec<(f64, f64)>> = BTreeMap::new();
+    let best = search(limit, |ppm| {
+        let xs = at(ppm)?;
+        let mean = |f: fn(&(f64, f64)) -> f64| xs.iter().map(f).sum::<f64>() / n;
+        let point = (mean(|x| x.0), mean(|x| x.1));
+        per_seed.insert(ppm, xs);
+        Some(point)
+    })?;
+    let ppm = (best.epsilon * 1e6).round() as u32;
+    let xs = per_seed.get(&ppm)?;
+    let stat = |f: fn(&(f64, f64)) -> f64| Stat::of(&xs.iter().map(f).collect::<Vec<f64>>());
+    Some(OneEpsilon {
+        epsilon: best.epsilon,
+        adaptive_delay_s: stat(|x| x.0),
+        adaptive_late_rate: stat(|x| x.1),
+        win: best.mean_delay_s < paper_delay,
+    })
 }

@@ -39,7 +39,10 @@ pub use families::{
     FAMILY_DURATION, Family, NETEM_MEAN, NETEM_STD, NETEM_TABLES, SKEW_DURATION, TC_DIRS, WAN,
     builtin, netem, trace,
 };
-pub use matched::{BRACKET, MATCH_PROBES, Matched, MatchedSeed, Probe, STRIDE, match_seed, search};
+pub use matched::{
+    BRACKET, MATCH_PROBES, Matched, MatchedSeed, OneEpsilon, Probe, Runs, STRIDE, SeedMatches,
+    match_seed, search,
+};
 
 use super::engine::{ForwardLog, SimConfig, run};
 use super::oracle::{Arrival, Oracle, OraclePoint};
