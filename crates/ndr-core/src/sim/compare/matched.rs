@@ -15,6 +15,12 @@
 //! its match's delay is below the paper run's; it wins the family when it
 //! has a match on every seed where the paper mode ran and its mean delay
 //! over those is below the paper mode's.
+//!
+//! Choosing ε per seed uses each seed's `L`, which a user does not know in
+//! advance; [`OneEpsilon`] is the stricter-to-tune reading: one ε for all
+//! the seeds, searched the same way against the paper mode's mean late
+//! rate, the match being the lowest mean delay whose mean late rate is at
+//! most the paper mode's (a seed may then be above its own `L`).
 
 use std::collections::BTreeMap;
 use std::string::String;
