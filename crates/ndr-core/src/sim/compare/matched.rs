@@ -2,7 +2,8 @@
 //! policy against each paper mode at an equal or lower late rate.
 //!
 //! The adaptive policy's late rate is not its ε (far below it at a small ε,
-//! with a floor where the trace reorders or loses), and a paper mode's late
+//! with a floor where an event comes before its window has seen one, as
+//! paris-newyork's first congestion episode), and a paper mode's late
 //! rate varies per seed, so rows at fixed ε do not answer "lower delay at an
 //! equal or lower late rate". Here, per family, seed and paper mode, the
 //! paper run's late rate `L` is the limit, and ε is searched on the same
@@ -17,10 +18,10 @@
 //! over those is below the paper mode's.
 //!
 //! Choosing ε per seed uses each seed's `L`, which a user does not know in
-//! advance; [`OneEpsilon`] is the stricter-to-tune reading: one ε for all
-//! the seeds, searched the same way against the paper mode's mean late
-//! rate, the match being the lowest mean delay whose mean late rate is at
-//! most the paper mode's (a seed may then be above its own `L`).
+//! advance. [`OneEpsilon`] takes one ε for all the seeds instead, searched
+//! the same way against the paper mode's mean late rate: the match is the
+//! lowest mean delay whose mean late rate is at most the paper mode's (a
+//! seed may then be above its own `L`).
 
 use std::collections::BTreeMap;
 use std::string::String;
@@ -304,7 +305,9 @@ pub(super) fn match_all(
                 .iter()
                 .filter_map(|(_, d)| d.0.get(k).copied().flatten())
                 .collect();
-            let failed = usize::try_from(seeds).unwrap_or(usize::MAX) - matched.len();
+            let failed = usize::try_from(seeds)
+                .unwrap_or(usize::MAX)
+                .saturating_sub(matched.len());
             let one = one_epsilon(cfg, family, &matched, &mut runs);
             out.push(Matched::of(
                 family.name.clone(),
@@ -315,6 +318,7 @@ pub(super) fn match_all(
                 0,
             ));
         }
+        // Known once every mode's one-ε search has run.
         let total = runs.len();
         for m in out.iter_mut().rev().take(papers.len()) {
             m.adaptive_runs = total;
