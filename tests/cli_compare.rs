@@ -114,20 +114,13 @@ fn every_policy_on_every_family() {
     }
 }
 
+/// Two seeds at T = 50 ms, in JSON: a short comparison.
+const SHORT: [&str; 6] = ["compare", "--json", "--seeds", "2", "--period-ms", "50"];
+
 #[test]
 fn the_same_seeds_give_the_same_bytes() {
-    let args = [
-        "compare",
-        "--json",
-        "--seeds",
-        "2",
-        "--period-ms",
-        "50",
-        "--family",
-        "spikes",
-        "--family",
-        "skew-100ppm",
-    ];
+    let mut args = SHORT.to_vec();
+    args.extend(["--family", "spikes", "--family", "skew-100ppm"]);
     let (a, b) = (ndr(&args), ndr(&args));
     assert!(a.status.success());
     assert_eq!(a.stdout, b.stdout);
@@ -198,4 +191,64 @@ fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
     let out = ndr(&["compare", "--policy", "fifo"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown policy"));
+}
+
+#[test]
+fn matched_is_deterministic_and_only_when_asked() {
+    let mut args = SHORT.to_vec();
+    args.extend([
+        "--family",
+        "lan-75km",
+        "--policy",
+        "paper-static",
+        "--policy",
+        "paper-dynamic",
+    ]);
+    let plain: Value = serde_json::from_slice(&ndr(&args).stdout).unwrap();
+    assert!(
+        plain.get("matched").is_none(),
+        "no `matched` key unless asked"
+    );
+    args.push("--matched");
+    let (a, b) = (ndr(&args), ndr(&args));
+    assert!(a.status.success());
+    assert_eq!(a.stdout, b.stdout);
+    let report: Value = serde_json::from_slice(&a.stdout).unwrap();
+    // The families' rows are those of the run without --matched.
+    assert_eq!(report["families"], plain["families"]);
+    let matched = report["matched"].as_array().unwrap();
+    let against: Vec<&str> = matched
+        .iter()
+        .map(|m| m["against"].as_str().unwrap())
+        .collect();
+    assert_eq!(against, ["paper-static", "paper-dynamic"]);
+    for m in matched {
+        assert_eq!(m["family"], "lan-75km");
+        let one = &m["one_epsilon"];
+        let paper = m["paper_late_rate"]["mean"].as_f64().unwrap();
+        assert!(one["adaptive_late_rate"]["mean"].as_f64().unwrap() <= paper + 1e-12);
+        let runs = m["runs"].as_array().unwrap();
+        assert_eq!(runs.len() as u64 + m["paper_failed"].as_u64().unwrap(), 2);
+        for r in runs {
+            let limit = r["paper_late_rate"].as_f64().unwrap();
+            if let Some(a) = r["adaptive"].as_object() {
+                assert!(a["late_rate"].as_f64().unwrap() <= limit);
+                let win =
+                    a["mean_delay_s"].as_f64().unwrap() < r["paper_delay_s"].as_f64().unwrap();
+                assert_eq!(r["win"], win);
+            }
+        }
+    }
+    // The tables print a matched section too (one seed: quicker).
+    args.retain(|a| *a != "--json");
+    if let Some(seeds) = args.iter().position(|a| *a == "--seeds") {
+        args[seeds + 1] = "1";
+    }
+    let out = ndr(&args);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("adaptive at an equal or lower late rate")
+            && text.contains("adaptive at one ε for all seeds"),
+        "{text}"
+    );
 }

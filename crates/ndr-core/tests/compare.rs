@@ -257,3 +257,139 @@ fn a_falling_target_skips_and_a_rising_delay_is_late() {
     assert!((late - 1500.0).abs() <= 1.0, "{late}");
     assert!((m.underflows - late).abs() <= 2.0, "{m:?}");
 }
+
+/// A synthetic policy for the search: late rate `slope·ε` above a `floor`,
+/// delay falling with ε; records the ε asked.
+fn model(slope: f64, floor: f64, asked: &mut Vec<u32>) -> impl FnMut(u32) -> Option<(f64, f64)> {
+    move |ppm| {
+        asked.push(ppm);
+        let eps = f64::from(ppm) * 1e-6;
+        Some((1.0 - eps, floor.max(slope * eps)))
+    }
+}
+
+#[test]
+fn the_search_brackets_the_limit_in_log_space() {
+    use compare::{BRACKET, MATCH_PROBES, STRIDE, search};
+    // Late rate ε/2: the limit 0.1 % is met up to ε = 0.2 %. The search
+    // starts at ε = L (1000 ppm, met), widens ×8 (8000 ppm, not met), then
+    // bisects (√(1000·8000) ≈ 2828, not met; √(1000·2828) ≈ 1682, met...)
+    // until the bracket is narrower than 1.1.
+    let mut asked = Vec::new();
+    let best = search(0.001, model(0.5, 0.0, &mut asked)).unwrap();
+    assert_eq!(&asked[..4], &[1000, 1000 * STRIDE, 2828, 1682]);
+    assert!(asked.len() <= MATCH_PROBES, "{asked:?}");
+    assert!(best.late_rate <= 0.001);
+    // The best is the largest ε met, within the bracket of the boundary.
+    assert!(
+        best.epsilon <= 0.002 && best.epsilon * BRACKET > 0.002,
+        "{best:?}"
+    );
+    assert!((best.mean_delay_s - (1.0 - best.epsilon)).abs() < 1e-12);
+
+    // A floor of 0.7 % above a limit of 0.1 %: down by ÷8 to 1 ppm, no match.
+    let mut asked = Vec::new();
+    assert_eq!(search(0.001, model(0.5, 0.007, &mut asked)), None);
+    assert_eq!(asked, [1000, 125, 15, 1]);
+
+    // A limit of 0: starts at 1 ppm; met everywhere (no late sample): up by
+    // ×8 to the policy's largest ε, 50 %, the lowest delay.
+    let mut asked = Vec::new();
+    let best = search(0.0, model(0.0, 0.0, &mut asked)).unwrap();
+    assert_eq!(asked, [1, 8, 64, 512, 4096, 32768, 262144, 500000]);
+    assert_eq!(best.epsilon, 0.5);
+    assert_eq!(best.late_rate, 0.0);
+
+    // Failed runs count as above the limit.
+    let mut asked = Vec::new();
+    let failing = |ppm| {
+        asked.push(ppm);
+        None
+    };
+    assert_eq!(search(0.01, failing), None);
+    assert_eq!(asked, [10_000, 1250, 156, 19, 2, 1]);
+}
+
+#[test]
+fn the_search_keeps_the_lowest_delay_met() {
+    // Not monotone: ε = 1 % meets the limit with a high delay, 8 % misses
+    // it, 2.83 % meets it with a lower delay, 4.76 % misses it, and so on:
+    // the best is the lowest delay among the runs met, not the largest ε.
+    let runs = |ppm: u32| {
+        let late = if ppm == 10_000 || (20_000..30_000).contains(&ppm) {
+            0.005
+        } else {
+            0.02
+        };
+        Some((if ppm == 10_000 { 0.5 } else { 0.3 }, late))
+    };
+    let best = compare::search(0.01, runs).unwrap();
+    assert_eq!(best.mean_delay_s, 0.3);
+    assert!((20_000..30_000).contains(&((best.epsilon * 1e6).round() as u32)));
+}
+
+#[test]
+fn matched_against_the_paper_modes() {
+    // 30 ms each way, then a trace stepping from 30 to 200 ms at 20 s.
+    let families = vec![constant_family(30), trace_family(&[(0, 30), (20, 200)])];
+    let mut cfg = CompareConfig::new(families);
+    cfg.policies = vec![
+        Policy::Paper(Mode::PaperStatic),
+        Policy::Paper(Mode::PaperDynamic),
+    ];
+    cfg.seeds = 2;
+    cfg.matched = true;
+    cfg.threads = 1;
+    let r = compare::compare(&cfg);
+    cfg.threads = 3;
+    assert_eq!(r, compare::compare(&cfg));
+    let row = |family: &str, against: &str| {
+        r.matched
+            .iter()
+            .find(|m| m.family == family && m.against == against)
+            .unwrap()
+    };
+    // Constant: the static FIFO keeps 80 ms and loses nothing; the adaptive
+    // policy loses nothing at 40 ms (two ticks above 30 ms), at any ε.
+    let m = row("constant", "paper-static");
+    assert_eq!((m.seeds, m.matched, m.wins, m.win), (2, 2, 2, true));
+    for s in &m.runs {
+        assert_eq!(s.paper_late_rate, 0.0);
+        assert!((s.paper_delay_s - 0.080).abs() < 1e-9, "{s:?}");
+        let a = s.adaptive.unwrap();
+        assert_eq!(a.late_rate, 0.0);
+        assert!((a.mean_delay_s - 0.040).abs() < 1e-9, "{a:?}");
+        assert!(s.win);
+    }
+    assert!((m.delay_gain_s.mean - 0.040).abs() < 1e-9 && m.delay_gain_s.ci95 < 1e-9);
+    // One ε for both seeds: the same.
+    let one = m.one_epsilon.unwrap();
+    assert!((one.adaptive_delay_s.mean - 0.040).abs() < 1e-9 && one.win);
+    assert_eq!(one.adaptive_late_rate.mean, 0.0);
+    // The dynamic mode's pause discards samples: a late rate above 0, which
+    // the adaptive policy meets at the same 40 ms.
+    let m = row("constant", "paper-dynamic");
+    assert!(m.paper_late_rate.mean > 0.0 && m.win && m.wins == 2);
+    assert!((m.adaptive_delay_s.mean - 0.040).abs() < 1e-9);
+    assert!(m.adaptive_runs <= 2 * 2 * compare::MATCH_PROBES);
+    // The step: the static FIFO never follows it, so every sample sent
+    // after 20 s is late (30 s of the 50 measured) and the others keep
+    // 80 ms. The adaptive policy follows the step even at ε = 50 %: fewer
+    // late samples, a higher mean delay. Not a win: a lower delay at this
+    // late rate takes dropping what the FIFO drops.
+    let m = row("steps", "paper-static");
+    assert_eq!((m.seeds, m.matched, m.wins, m.win), (1, 1, 0, false));
+    let s = m.runs[0];
+    assert!((s.paper_late_rate - 0.6).abs() < 0.01, "{s:?}");
+    assert!((s.paper_delay_s - 0.080).abs() < 1e-9);
+    let a = s.adaptive.unwrap();
+    assert!(a.late_rate < 0.2 && a.mean_delay_s > 0.1, "{a:?}");
+    // One seed: the one-ε match is the per-seed one.
+    let one = m.one_epsilon.unwrap();
+    assert_eq!(one.epsilon, a.epsilon);
+    assert_eq!(one.adaptive_delay_s.mean, a.mean_delay_s);
+    assert!(!one.win);
+    // Without `matched`, no row and no adaptive run.
+    cfg.matched = false;
+    assert!(compare::compare(&cfg).matched.is_empty());
+}

@@ -6,7 +6,7 @@ use std::time::Instant as WallClock;
 use ndr::core::endpoint::Mode;
 use ndr::core::playout::Playout;
 use ndr::core::sim::compare::{
-    self, CompareConfig, CompareReport, Family, Policy, PolicyResult, Stat, TC_DIRS,
+    self, CompareConfig, CompareReport, Family, Matched, Policy, PolicyResult, Stat, TC_DIRS,
 };
 use ndr::core::sim::delay::Trace;
 use ndr::core::time::Duration;
@@ -25,12 +25,26 @@ JSON (--json): one object, schema \"ndr-compare/1\":
                                 hull_ratio: {mean, ci95},
                                 recovery_s: {mean, ci95} or null,
                                 point: {mean_delay_s, late_rate} } ] } ],
+    matched: [ { family, against, seeds, paper_failed, matched, wins, win,
+                 paper_delay_s, paper_late_rate, adaptive_delay_s,
+                 adaptive_late_rate, epsilon, delay_gain_s: {mean, ci95},
+                 one_epsilon: { epsilon, adaptive_delay_s, adaptive_late_rate,
+                                win } or null,
+                 adaptive_runs,
+                 runs: [ { seed, paper_delay_s, paper_late_rate, win,
+                           adaptive: {epsilon, mean_delay_s, late_rate} or null } ] } ]
+             (only with --matched),
     notes: [text, ...] }
 Each family lists the policies asked for, then `oracle` and `oracle-piecewise`
 at `epsilon`. `mean` is over seeds, `ci95` the half-width of its 95 % confidence
 interval. Delays are end-to-end (release at the remote - send at the base), in
 seconds; `late_rate` counts every sample never released fresh; `point` is the
-(delay, late rate) point to plot. docs/algorithms.md §9 defines every measure.";
+(delay, late rate) point to plot. With --matched, per family and paper mode
+asked for: the adaptive policy's lowest delay at a late rate <= the paper run's,
+per seed (ε searched on the same seed); `delay_gain_s` = paper delay - adaptive
+delay, paired per matched seed; `win` = a match on every seed and a lower mean
+delay; `one_epsilon`: one ε for all those seeds, the lowest mean delay at a mean
+late rate <= the paper mode's. docs/algorithms.md §9 defines every measure.";
 
 #[derive(clap::Args)]
 #[command(after_long_help = JSON_HELP)]
@@ -69,6 +83,11 @@ pub struct CompareArgs {
     /// Worker threads (default: the machine's cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Also compare the adaptive policy with each paper mode asked for at an
+    /// equal or lower late rate, per seed (ε searched by bisection, up to 10
+    /// adaptive runs per paper run).
+    #[arg(long)]
+    pub matched: bool,
     /// Print one JSON object instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -167,6 +186,7 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
     cfg.period = period;
     cfg.epsilon = args.epsilon;
     cfg.window = Duration::from_secs_f64(args.window_s);
+    cfg.matched = args.matched;
     cfg.threads = args.threads.unwrap_or_else(|| {
         std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get)
     });
@@ -245,7 +265,90 @@ pub fn print_tables(r: &CompareReport) {
             println!("{}", row(p));
         }
     }
+    print_matched(&r.matched);
     for n in &r.notes {
         println!("\nnote: {n}");
+    }
+}
+
+/// Markdown: the late-rate-matched comparison, one row per family and paper mode.
+fn print_matched(matched: &[Matched]) {
+    if matched.is_empty() {
+        return;
+    }
+    println!(
+        "\n**adaptive at an equal or lower late rate** — per seed, the lowest-delay \
+         adaptive run (ε searched) with a late rate ≤ the paper run's; gain = paper − \
+         adaptive delay, paired per seed; n.s.: its 95 % interval includes 0\n"
+    );
+    println!(
+        "| family | against | paper delay ms | paper late % | adaptive delay ms | \
+         adaptive late % | ε % | gain ms | seeds won | wins |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let pct = |s: Stat| format!("{:.4} ± {:.4}", s.mean * 100.0, s.ci95 * 100.0);
+    for m in matched {
+        let unmatched = m.seeds - m.matched;
+        let adaptive = |s: String| {
+            if unmatched == 0 {
+                s
+            } else {
+                format!("{s} ({unmatched} unmatched)")
+            }
+        };
+        println!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
+            m.family,
+            m.against,
+            ms(m.paper_delay_s),
+            pct(m.paper_late_rate),
+            adaptive(ms(m.adaptive_delay_s)),
+            pct(m.adaptive_late_rate),
+            pct(m.epsilon),
+            ms(m.delay_gain_s),
+            m.wins,
+            m.seeds,
+            match (m.win, m.delay_gain_s.mean - m.delay_gain_s.ci95 > 0.0) {
+                (false, _) => "no",
+                (true, true) => "yes",
+                // The paired gain's 95 % interval includes 0.
+                (true, false) => "yes (n.s.)",
+            },
+        );
+    }
+    println!(
+        "\n**adaptive at one ε for all seeds** — the lowest mean delay at a mean late \
+         rate ≤ the paper mode's\n"
+    );
+    println!(
+        "| family | against | paper delay ms | paper late % | ε % | adaptive delay ms | adaptive late % | wins |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for m in matched {
+        let (eps, delay, late, win) = m.one_epsilon.map_or_else(
+            || {
+                (
+                    "–".to_string(),
+                    "–".to_string(),
+                    "–".to_string(),
+                    "no (no ε)",
+                )
+            },
+            |o| {
+                (
+                    format!("{:.4}", o.epsilon * 100.0),
+                    ms(o.adaptive_delay_s),
+                    pct(o.adaptive_late_rate),
+                    if o.win { "yes" } else { "no" },
+                )
+            },
+        );
+        println!(
+            "| {} | {} | {} | {} | {eps} | {delay} | {late} | {win} |",
+            m.family,
+            m.against,
+            ms(m.paper_delay_s),
+            pct(m.paper_late_rate),
+        );
     }
 }

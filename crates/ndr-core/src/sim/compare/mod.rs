@@ -28,6 +28,7 @@
 //! (Student's t).
 
 mod families;
+mod matched;
 
 use std::string::{String, ToString};
 use std::vec::Vec;
@@ -37,6 +38,10 @@ use serde::Serialize;
 pub use families::{
     FAMILY_DURATION, Family, NETEM_MEAN, NETEM_STD, NETEM_TABLES, SKEW_DURATION, TC_DIRS, WAN,
     builtin, netem, trace,
+};
+pub use matched::{
+    BRACKET, MATCH_PROBES, Matched, MatchedSeed, OneEpsilon, Probe, Runs, STRIDE, SeedMatches,
+    match_seed, search,
 };
 
 use super::engine::{ForwardLog, SimConfig, run};
@@ -116,6 +121,10 @@ pub struct CompareConfig {
     pub window: Duration,
     /// Worker threads.
     pub threads: usize,
+    /// Also match the adaptive policy's late rate to each paper mode's
+    /// (the report's `matched`; costs up to [`MATCH_PROBES`] adaptive runs
+    /// per paper run).
+    pub matched: bool,
 }
 
 impl CompareConfig {
@@ -130,6 +139,7 @@ impl CompareConfig {
             epsilon: DEFAULT_EPSILON,
             window: DEFAULT_WINDOW,
             threads: 2,
+            matched: false,
         }
     }
 }
@@ -487,6 +497,11 @@ pub struct CompareReport {
     pub policies: Vec<String>,
     /// One entry per family.
     pub families: Vec<FamilyResult>,
+    /// The late-rate-matched comparison ([`CompareConfig::matched`]): per
+    /// family, the adaptive policy against each paper mode asked for.
+    /// Absent from the JSON when not asked.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub matched: Vec<Matched>,
     /// Families skipped, runs failed.
     pub notes: Vec<String>,
 }
@@ -507,11 +522,51 @@ fn job_outcome(cfg: &CompareConfig, (f, policy, seed): Job, oracle_of: Option<Po
     Ok((m.metrics, oracles))
 }
 
+/// `f(i)` for every `i` of `order` (taken in that order) on `threads`
+/// workers; slot `i` of the result holds `f(i)` (`None` where `f` gave none
+/// or `i` was not in `order`). The result does not depend on `threads`.
+fn parallel<T: Send>(
+    threads: usize,
+    order: &[usize],
+    f: impl Fn(usize) -> Option<T> + Sync,
+) -> Vec<Option<T>> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let next = AtomicUsize::new(0);
+    let len = order.iter().max().map_or(0, |&m| m + 1);
+    let mut out: Vec<Option<T>> = (0..len).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..threads.max(1))
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut done = Vec::new();
+                    loop {
+                        let k = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&i) = order.get(k) else { break };
+                        if let Some(o) = f(i) {
+                            done.push((i, o));
+                        }
+                    }
+                    done
+                })
+            })
+            .collect();
+        for w in workers {
+            if let Ok(done) = w.join() {
+                for (i, o) in done {
+                    if let Some(slot) = out.get_mut(i) {
+                        *slot = Some(o);
+                    }
+                }
+            }
+        }
+    });
+    out
+}
+
 /// Runs the comparison. Deterministic: the same configuration gives the
 /// same report, whatever the number of threads.
 #[must_use]
 pub fn compare(cfg: &CompareConfig) -> CompareReport {
-    use std::sync::atomic::{AtomicUsize, Ordering};
     // The oracle rows come from a static-mode run: its trace is the one
     // every target policy saw.
     let oracle_of = cfg
@@ -535,35 +590,18 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
         let f = jobs.get(i).map_or(0, |j| j.0);
         core::cmp::Reverse(cfg.families.get(f).map_or(0, |fam| fam.duration.as_nanos()))
     });
-    let next = AtomicUsize::new(0);
-    let mut outcomes: Vec<Option<Outcome>> = std::vec![None; jobs.len()];
-    std::thread::scope(|scope| {
-        let workers: Vec<_> = (0..cfg.threads.max(1))
-            .map(|_| {
-                scope.spawn(|| {
-                    let mut done = Vec::new();
-                    loop {
-                        let k = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&i) = order.get(k) else { break };
-                        if let Some(&job) = jobs.get(i) {
-                            done.push((i, job_outcome(cfg, job, oracle_of)));
-                        }
-                    }
-                    done
-                })
-            })
-            .collect();
-        for w in workers {
-            if let Ok(done) = w.join() {
-                for (i, o) in done {
-                    if let Some(slot) = outcomes.get_mut(i) {
-                        *slot = Some(o);
-                    }
-                }
-            }
-        }
+    let outcomes = parallel(cfg.threads, &order, |i| {
+        jobs.get(i).map(|&job| job_outcome(cfg, job, oracle_of))
     });
+    let matched = if cfg.matched {
+        matched::match_all(cfg, &jobs, &outcomes)
+    } else {
+        Vec::new()
+    };
     let mut notes = Vec::new();
+    if cfg.matched && !cfg.policies.iter().any(|p| matches!(p, Policy::Paper(_))) {
+        notes.push("--matched: no paper mode among the policies, nothing matched".to_string());
+    }
     let families = cfg
         .families
         .iter()
@@ -623,6 +661,7 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
         margin_s: MARGIN.as_secs_f64(),
         policies: cfg.policies.iter().map(|p| p.name()).collect(),
         families,
+        matched,
         notes,
     }
 }
