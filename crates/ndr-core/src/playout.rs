@@ -129,8 +129,20 @@ impl fmt::Display for PlayoutName {
             Playout::Adaptive {
                 epsilon_ppm: DEFAULT_EPSILON_PPM,
             } => f.write_str("adaptive"),
+            // The percentage from the integer, so that no float noise shows
+            // (7 000 ppm is `0.7`, not `0.7000000000000001`).
             Playout::Adaptive { epsilon_ppm } => {
-                write!(f, "adaptive:{}", f64::from(epsilon_ppm) * 1e-4)
+                write!(f, "adaptive:{}", epsilon_ppm / 10_000)?;
+                let mut frac = epsilon_ppm % 10_000;
+                if frac > 0 {
+                    let mut digits = 4;
+                    while frac % 10 == 0 {
+                        frac /= 10;
+                        digits -= 1;
+                    }
+                    write!(f, ".{frac:0digits$}")?;
+                }
+                Ok(())
             }
         }
     }
@@ -991,9 +1003,22 @@ mod tests {
             Playout::Constant { delay: ms(120) },
             Playout::ADAPTIVE,
             Playout::Adaptive { epsilon_ppm: 5000 },
+            Playout::Adaptive { epsilon_ppm: 7000 },
+            Playout::Adaptive { epsilon_ppm: 1 },
+            Playout::Adaptive {
+                epsilon_ppm: 123_456,
+            },
         ] {
             let name = std::format!("{p}");
             assert_eq!(name.parse::<Playout>(), Ok(p), "{name}");
+        }
+        for (ppm, name) in [
+            (7000, "adaptive:0.7"),
+            (1, "adaptive:0.0001"),
+            (120_500, "adaptive:12.05"),
+        ] {
+            let p = Playout::Adaptive { epsilon_ppm: ppm };
+            assert_eq!(std::format!("{p}"), name);
         }
         assert_eq!(
             "fixed".parse::<Playout>(),
