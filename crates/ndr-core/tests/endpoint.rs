@@ -37,11 +37,11 @@ struct Pair {
     tick: u64,
     /// What each side actually sent, by sequence number.
     sent_values: [BTreeMap<u64, Vec<f64>>; 2],
-    /// How late the remote's driver serves its n-th deadline.
-    remote_lag: DelayFn,
-    remote_wakes: u64,
-    /// The remote's deadline being waited for, and how late it will be served.
-    lagged: Option<(Instant, Duration)>,
+    /// How late each side's driver serves its n-th deadline.
+    lag: [DelayFn; 2],
+    wakes: [u64; 2],
+    /// Each side's deadline being waited for, and how late it will be served.
+    lagged: [Option<(Instant, Duration)>; 2],
 }
 
 fn config(role: Role) -> Config {
@@ -69,21 +69,22 @@ impl Pair {
             remote_errors: Vec::new(),
             tick: 0,
             sent_values: [BTreeMap::new(), BTreeMap::new()],
-            remote_lag: Box::new(|_| Duration::ZERO),
-            remote_wakes: 0,
-            lagged: None,
+            lag: [Box::new(|_| Duration::ZERO), Box::new(|_| Duration::ZERO)],
+            wakes: [0; 2],
+            lagged: [None; 2],
         }
     }
 
-    /// When the remote's driver serves its next deadline.
-    fn remote_wake(&mut self) -> Option<Instant> {
-        let t = self.remote.poll_timeout()?;
-        let lag = match self.lagged {
+    /// When `side`'s driver serves its next deadline.
+    fn wake(&mut self, side: Side) -> Option<Instant> {
+        let t = self.ep(side).poll_timeout()?;
+        let i = side as usize;
+        let lag = match self.lagged[i] {
             Some((d, lag)) if d == t => lag,
             _ => {
-                let lag = (self.remote_lag)(self.remote_wakes);
-                self.remote_wakes += 1;
-                self.lagged = Some((t, lag));
+                let lag = (self.lag[i])(self.wakes[i]);
+                self.wakes[i] += 1;
+                self.lagged[i] = Some((t, lag));
                 lag
             }
         };
@@ -156,7 +157,7 @@ impl Pair {
     /// Advances to the next deadline or arrival and handles it.
     fn step(&mut self) -> bool {
         let next_wire = self.wire.keys().next().map(|k| k.0);
-        let next = [next_wire, self.base.poll_timeout(), self.remote_wake()]
+        let next = [next_wire, self.wake(Side::Base), self.wake(Side::Remote)]
             .into_iter()
             .flatten()
             .min();
@@ -178,11 +179,7 @@ impl Pair {
             self.drain(dest);
         }
         for side in [Side::Base, Side::Remote] {
-            let wake = match side {
-                Side::Base => self.base.poll_timeout(),
-                Side::Remote => self.remote_wake(),
-            };
-            if wake.is_some_and(|t| t <= self.now) {
+            if self.wake(side).is_some_and(|t| t <= self.now) {
                 let now = self.now;
                 self.ep(side).handle_timeout(now);
             }
@@ -615,28 +612,39 @@ fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_pl
     assert!(lean + 10 * 1024 <= full, "{lean} {full}");
 }
 
+/// The remote's stats after 300 s of an adaptive link, 10 ms each way on a
+/// 200 ms period, with `side`'s driver serving one deadline in three
+/// `lag_ms` late.
+fn adaptive_with_a_late_driver(side: Side, lag_ms: u64) -> ndr_core::endpoint::Stats {
+    use ndr_core::playout::Playout;
+    let d = Duration::from_millis(10);
+    let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+    base.playout = Playout::ADAPTIVE;
+    remote.playout = Playout::ADAPTIVE;
+    let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
+    p.lag[side as usize] =
+        Box::new(move |n| Duration::from_millis(if n % 3 == 2 { lag_ms } else { 0 }));
+    p.run_until(secs(300));
+    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    let released = Pair::releases(&p.remote_events);
+    assert!(
+        released.len() > 1000,
+        "{} {:?} {:?} {:?}",
+        released.len(),
+        p.remote.phase(),
+        p.remote.stats(),
+        &p.remote_events[..p.remote_events.len().min(8)]
+    );
+    p.remote.stats()
+}
+
 #[test]
 fn an_adaptive_release_served_late_is_its_own_slot_not_a_reason_to_raise_the_delay() {
-    use ndr_core::playout::Playout;
-    // 10 ms each way on a 200 ms period; the remote's driver serves one
-    // deadline in three 0.6·T late (a busy hub). Each late release is the
-    // sample of the slot it was late for: the delay stays where the network
-    // puts it, and nothing repeats.
-    let run = |lag_ms: u64| {
-        let d = Duration::from_millis(10);
-        let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
-        base.playout = Playout::ADAPTIVE;
-        remote.playout = Playout::ADAPTIVE;
-        let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
-        p.remote_lag =
-            Box::new(move |n| Duration::from_millis(if n % 3 == 2 { lag_ms } else { 0 }));
-        p.run_until(secs(300));
-        assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
-        let released = Pair::releases(&p.remote_events);
-        assert!(released.len() > 1000, "{}", released.len());
-        p.remote.stats()
-    };
-    let (on_time, late) = (run(0), run(120));
+    // A busy hub on the receiving side: each late release is the sample of
+    // the slot it was late for; the delay stays where the network puts it,
+    // and nothing repeats.
+    let on_time = adaptive_with_a_late_driver(Side::Remote, 0);
+    let late = adaptive_with_a_late_driver(Side::Remote, 120);
     assert_eq!(late.playout_delay_ticks, on_time.playout_delay_ticks);
     assert!(late.playout_delay_ticks <= 2, "{late:?}");
     assert_eq!(
@@ -645,4 +653,19 @@ fn an_adaptive_release_served_late_is_its_own_slot_not_a_reason_to_raise_the_del
         "{late:?}"
     );
     assert_eq!(late.delay_changes, on_time.delay_changes, "{late:?}");
+}
+
+#[test]
+fn an_adaptive_link_takes_a_late_sender_as_delay_not_as_a_ratchet() {
+    // A busy hub on the sending side: one send in three leaves 0.6·T late
+    // (and is stamped so), so two stamps fall in one period. The delay
+    // covers the late sends once (a tick more), and does not keep rising.
+    let on_time = adaptive_with_a_late_driver(Side::Base, 0);
+    let late = adaptive_with_a_late_driver(Side::Base, 120);
+    assert!(
+        late.playout_delay_ticks <= on_time.playout_delay_ticks + 1,
+        "{late:?}"
+    );
+    assert!(late.delay_changes <= on_time.delay_changes + 4, "{late:?}");
+    assert_eq!(late.skipped, 0, "{late:?}");
 }

@@ -184,7 +184,8 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     next_seq: u64,
     sample: [f64; C],
     sample_fresh: bool,
-    /// Tick time of each sample sent, by `seq mod N`, for GRTT.
+    /// Scheduled time of each tick that sent a sample or probe, by `seq mod
+    /// N`: its frame's send stamp, and the start of its GRTT.
     sent_ticks: [(u64, Instant); N],
     /// Newest frame received: (its `sent_at`, our arrival time), echoed back.
     newest_rx: Option<(Instant, Instant)>,
@@ -301,11 +302,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         loop {
             let tick = self.next_tick.filter(|&t| t <= now);
-            // Stamps are when things really happen (a late driver shows in
-            // the measured delays instead of hiding behind the deadline), but
-            // which sample is due is the schedule's to say: a late wake-up
-            // releases the sample of the slot it was late for, as the FIFO
-            // does, rather than find the next one due too.
+            // A sample is stamped with its tick's scheduled time, and which
+            // sample is due is the schedule's to say: a late driver shows in
+            // the delays the peer measures (and in the release stamps), but
+            // neither bunches the send stamps of two ticks (which the
+            // adaptive playout would take for two samples due at once) nor
+            // makes a late release find the next sample due too.
             match (self.next_release.filter(|&r| r <= now), tick) {
                 (Some(r), Some(t)) if r <= t => self.release_apart(r, now),
                 (Some(r), None) => self.release_apart(r, now),
@@ -344,16 +346,23 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let Some(&item) = self.tx.front() else {
             return Ok(None);
         };
+        let (seq, sent_at) = match item {
+            Tx::Probe { seq } | Tx::Sample { seq } => (seq, self.tick_of(seq).unwrap_or(now)),
+            _ => (self.next_seq, now),
+        };
         let header = Header {
-            seq: match item {
-                Tx::Probe { seq } | Tx::Sample { seq } => seq,
-                _ => self.next_seq,
-            },
-            sent_at: now,
-            echo: self.newest_rx.map(|(sent_at, arrived)| Echo {
-                sent_at,
-                hold: now - arrived,
-            }),
+            seq,
+            sent_at,
+            // The hold runs to this frame's stamp, so that the peer's
+            // `stamp − hold` is the echoed frame's arrival; a frame that
+            // arrived after the stamp (a late driver) is echoed by the next.
+            echo: self
+                .newest_rx
+                .filter(|&(_, arrived)| arrived <= sent_at)
+                .map(|(echoed, arrived)| Echo {
+                    sent_at: echoed,
+                    hold: sent_at - arrived,
+                }),
             released: self.released_seq,
         };
         let axes = usize::from(self.config.axes);
@@ -881,7 +890,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     fn tick(&mut self, at: Instant, t: Instant) {
         match self.phase {
             Phase::Init | Phase::Pausing => {
-                let seq = self.take_seq(t);
+                let seq = self.take_seq(at);
                 self.queue_tx(Tx::Probe { seq });
             }
             Phase::Running => {
@@ -896,7 +905,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     self.release(at, t);
                     self.watch(t);
                 }
-                let seq = self.take_seq(t);
+                let seq = self.take_seq(at);
                 self.queue_tx(Tx::Sample { seq });
                 self.ticks_running += 1;
             }
@@ -905,6 +914,15 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let prediction = self.predictor.step();
         if let Some(p) = prediction {
             self.maybe_adapt(t, p);
+        }
+    }
+
+    /// The scheduled time of the tick that took `seq`, while it is within
+    /// the last `N` ticks.
+    fn tick_of(&self, seq: u64) -> Option<Instant> {
+        match self.sent_ticks.get((seq % N as u64) as usize) {
+            Some(&(s, at)) if s == seq => Some(at),
+            _ => None,
         }
     }
 
@@ -1019,9 +1037,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             return self.not_started();
         };
         let mut cutoff = self.release_cutoff(t, d);
+        // Adaptive, more than one due: stamps bunched (a send that left late,
+        // or the clock estimate moved the slots earlier). The delay rises by
+        // as many ticks instead of skipping samples, and this release takes
+        // the oldest of them, so that each later release has one due: were
+        // it to take none, the same samples would be due again at the next
+        // release, and the delay would rise without end.
+        let mut oldest = false;
         if self.is_adaptive() {
-            // More than one due: the clock estimate moved the slots earlier.
-            // The delay rises by as many ticks instead of skipping samples.
             let due = self
                 .regulator
                 .iter()
@@ -1032,6 +1055,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             {
                 self.announce_adaptive(cur + due - 1);
                 cutoff = self.release_cutoff(t, d);
+                oldest = true;
             }
         }
         let due = |s: &Slot<C>| s.head.sent_at <= cutoff;
@@ -1044,12 +1068,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             }
             self.passed = Some(self.passed.map_or(cutoff, |p| p.max(cutoff)));
         }
+        let release = |s: &Slot<C>| oldest || due(s);
         if self.regulator.phase() == regulator::Phase::Prefilling
-            && !self.regulator.front().is_some_and(due)
+            && !self.regulator.front().is_some_and(release)
         {
             return self.not_started();
         }
-        self.regulator.tick_if(due)
+        self.regulator.tick_if(release)
     }
 
     /// Nothing released yet: not an underflow.
@@ -1277,8 +1302,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             return None;
         }
         self.grtt_acked = Some(k);
-        match self.sent_ticks.get((k % N as u64) as usize) {
-            Some(&(seq, sent)) if seq == k => {
+        match self.tick_of(k) {
+            Some(sent) => {
                 let grtt = t - sent;
                 self.stats.grtt.push_duration(grtt);
                 Some(grtt)
