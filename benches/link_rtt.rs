@@ -1,10 +1,12 @@
 //! One frame's round trip through two ndr links on loopback, beside a raw
 //! tokio TCP ping-pong of the same bytes, in one run (target: ratio ≤ 1.2).
 //!
-//! Ours is the NRTT the base measures: its frame written by the base's hub,
-//! across loopback, stamped on arrival by the remote's kernel, echoed in the
-//! remote's next frame (its wait for that tick taken out), back across
-//! loopback and stamped by the base's kernel. That stops where TCP hands the
+//! Ours is the NRTT the base measures: its frame, stamped with its tick's
+//! scheduled time and written by the base's hub, across loopback, stamped on
+//! arrival by the remote's kernel, echoed in the remote's next frame (its
+//! wait from that arrival to its own tick's scheduled time taken out), back
+//! across loopback and stamped by the base's kernel. So it also holds both
+//! hubs' time from a tick's deadline to its frame's write. That stops where TCP hands the
 //! bytes over; a ping-pong counts until the bytes are in the application. So
 //! the bench also prints the round trip up to the endpoints: NRTT plus the
 //! mean receive-path lag (kernel arrival to the hub handling the frame) of
