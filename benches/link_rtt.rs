@@ -19,9 +19,13 @@
 //! like-for-like one. All run at the same pace, one frame per link period
 //! (a thread woken from a longer sleep wakes more slowly, on either side).
 //!
-//! The same link over mutual TLS 1.3 runs last, in the same process: its
-//! rows beside the plain link's give TLS's cost (sealing and opening one
-//! record each way, in the hubs).
+//! The plain link runs twice: with each application thread blocked on
+//! `recv` (woken at every release, at the instant its hub writes the frame:
+//! on two cores that wake-up competes with the peer hub's), and with the
+//! applications polling every 50 ms (no thread woken per tick but the hubs,
+//! as in the raw ping-pong). The same link over mutual TLS 1.3 runs last, in
+//! the same process: its rows beside the plain link's give TLS's cost
+//! (sealing and opening one record each way, in the hubs).
 //!
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
@@ -139,11 +143,16 @@ fn tls_pair() -> (TlsConfig, TlsConfig) {
     (remote, base)
 }
 
+/// How long a polling application sleeps between reads.
+const POLL: StdDuration = StdDuration::from_millis(50);
+
+/// `poll`: the applications read every [`POLL`] instead of waiting.
 fn link_nrtt(
     rt: &tokio::runtime::Runtime,
     seconds: f64,
     period_ms: u64,
     tls: Option<&(TlsConfig, TlsConfig)>,
+    poll: bool,
 ) -> LinkRun {
     let mut c = Config::new(Role::Base);
     c.axes = 1;
@@ -180,6 +189,14 @@ fn link_nrtt(
     });
     let robot = std::thread::spawn(move || {
         let mut last = None;
+        let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
+        while poll && StdInstant::now() < end {
+            std::thread::sleep(POLL);
+            while let Ok(Some(s)) = remote.try_recv() {
+                let _ = remote.send(s.values());
+            }
+            last = remote.stats();
+        }
         while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
             let _ = remote.send(s.values());
             last = remote.stats();
@@ -192,7 +209,10 @@ fn link_nrtt(
     let mut ticks = 0u64;
     while StdInstant::now() < end {
         let _ = base.send(&[0.5]);
-        if base.recv_timeout(StdDuration::from_secs(2)).is_err() {
+        if poll {
+            std::thread::sleep(POLL);
+            while let Ok(Some(_)) = base.try_recv() {}
+        } else if base.recv_timeout(StdDuration::from_secs(2)).is_err() {
             break;
         }
         ticks += 1;
@@ -239,8 +259,9 @@ fn main() {
         rx_lag,
         base,
         remote,
-    } = link_nrtt(&rt, seconds, period_ms, None);
-    let tls_run = link_nrtt(&rt, seconds, period_ms, Some(&tls_pair()));
+    } = link_nrtt(&rt, seconds, period_ms, None, false);
+    let polled = link_nrtt(&rt, seconds, period_ms, None, true);
+    let tls_run = link_nrtt(&rt, seconds, period_ms, Some(&tls_pair()), false);
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
         "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
@@ -263,17 +284,21 @@ fn main() {
     };
     let (one_p50, one_mean) = row("raw tokio ping-pong, one runtime", &mut raw_one);
     let (raw_p50, raw_mean) = row("raw tokio ping-pong, a thread per end", &mut raw);
-    let (ours_p50, ours_mean) = row("ndr link NRTT (kernel-stamped)", &mut ours);
-    let (full_p50, full_mean) = (ours_p50 + rx_lag, ours_mean + rx_lag);
-    println!(
-        "{:<40} {:>8} {:>10.1} {:>10} {:>10.1}   (NRTT + mean receive-path lag of both ends, {:.1} µs)",
-        "ndr link, frame to endpoint",
-        "",
-        full_p50 * 1e6,
-        "",
-        full_mean * 1e6,
-        rx_lag * 1e6
-    );
+    // NRTT + the mean receive-path lag of both ends: (p50, mean).
+    let to_endpoint = |name: &str, (p50, mean): (f64, f64), lag: f64| {
+        println!(
+            "{name:<40} {:>8} {:>10.1} {:>10} {:>10.1}   (NRTT + mean receive-path lag of both ends, {:.1} µs)",
+            "",
+            (p50 + lag) * 1e6,
+            "",
+            (mean + lag) * 1e6,
+            lag * 1e6
+        );
+        (p50 + lag, mean + lag)
+    };
+    let nrtt = row("ndr link NRTT (kernel-stamped)", &mut ours);
+    let (ours_p50, ours_mean) = nrtt;
+    let (full_p50, full_mean) = to_endpoint("ndr link, frame to endpoint", nrtt, rx_lag);
     println!(
         "ratio NRTT / raw (a thread per end): p50 {:.2} · mean {:.2}",
         ours_p50 / raw_p50,
@@ -289,33 +314,39 @@ fn main() {
         full_p50 / one_p50,
         full_mean / one_mean
     );
-    let mut tls_nrtt = tls_run.nrtt;
-    let (tls_p50, tls_mean) = row("ndr link over TLS 1.3, NRTT", &mut tls_nrtt);
-    let tls_lag = tls_run.rx_lag;
+    let mut polled_nrtt = polled.nrtt;
+    let nrtt = row("ndr link NRTT, applications polling", &mut polled_nrtt);
+    let (poll_p50, poll_mean) =
+        to_endpoint("ndr link, polling, frame to endpoint", nrtt, polled.rx_lag);
     println!(
-        "{:<40} {:>8} {:>10.1} {:>10} {:>10.1}   (NRTT + mean receive-path lag of both ends, {:.1} µs)",
+        "ratio frame-to-endpoint / raw (a thread per end), applications polling: p50 {:.2} · mean {:.2}",
+        poll_p50 / raw_p50,
+        poll_mean / raw_mean
+    );
+    let mut tls_nrtt = tls_run.nrtt;
+    let nrtt = row("ndr link over TLS 1.3, NRTT", &mut tls_nrtt);
+    let (tls_p50, tls_mean) = to_endpoint(
         "ndr link over TLS 1.3, frame to endpoint",
-        "",
-        (tls_p50 + tls_lag) * 1e6,
-        "",
-        (tls_mean + tls_lag) * 1e6,
-        tls_lag * 1e6
+        nrtt,
+        tls_run.rx_lag,
     );
     println!(
         "TLS / plain, frame to endpoint: p50 {:.2} · mean {:.2} (+{:.1} µs at p50)",
-        (tls_p50 + tls_lag) / full_p50,
-        (tls_mean + tls_lag) / full_mean,
-        (tls_p50 + tls_lag - full_p50) * 1e6
+        tls_p50 / full_p50,
+        tls_mean / full_mean,
+        (tls_p50 - full_p50) * 1e6
     );
     for (side, stats) in [
         ("base", base),
         ("remote", remote),
+        ("poll base", polled.base),
+        ("poll remote", polled.remote),
         ("tls base", tls_run.base),
         ("tls remote", tls_run.remote),
     ] {
         if let Some(s) = stats {
             println!(
-                "{side:<10} hub: wake lateness p50 {} · p99 {} · release lateness p50 {} · p99 {} · receive lag mean {:.1} µs",
+                "{side:<11} hub: wake lateness p50 {} · p99 {} · release lateness p50 {} · p99 {} · receive lag mean {:.1} µs",
                 s.lateness.p50,
                 s.lateness.p99,
                 s.release_lateness.p50,
