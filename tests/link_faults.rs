@@ -217,3 +217,52 @@ fn peers_beyond_the_handshake_limit_wait_for_a_slot_instead_of_being_refused() {
     assert!(stats.timeouts >= 64, "{stats:?}");
     drop(silent);
 }
+
+#[test]
+fn a_data_frame_with_more_channels_than_the_link_carries_ends_it_with_that_error() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let (addr, errors, listener) = serve(&rt, 2);
+    // Past the handshake (one axis), a sample of 3 channels (caught by the
+    // endpoint) and one of 200 (longer than any frame a link of at most
+    // eight axes reads, caught by its deframer): the same error for both.
+    for channels in [3, 200] {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.set_read_timeout(Some(StdDuration::from_secs(3))).unwrap();
+        s.write_all(&hello_bytes(wire::VERSION)).unwrap();
+        let header = Header {
+            seq: 0,
+            sent_at: Instant::from_millis(1),
+            echo: None,
+            released: None,
+        };
+        let mut buf = vec![0; MAX_FRAME_LEN];
+        let values = vec![0.5; channels];
+        let n = wire::encode(&header, &Message::Data(&values), &mut buf).unwrap();
+        std::thread::sleep(StdDuration::from_millis(100));
+        s.write_all(&buf[..n]).unwrap();
+        let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
+        assert!(
+            matches!(
+                e,
+                NetError::Link(LinkError::ChannelCount { expected: 1, got }) if got == channels
+            ),
+            "{channels}: {e:?}"
+        );
+        // Its last frame is a Close that says why.
+        let mut back = Vec::new();
+        let _ = s.read_to_end(&mut back);
+        let mut last = &back[..];
+        while let Ok(Some(len)) = wire::frame_len(last) {
+            if len >= last.len() {
+                break;
+            }
+            last = &last[len..];
+        }
+        assert_eq!(close_reason_of(last), Some(close_reason::PROTOCOL_ERROR));
+    }
+    assert_eq!(listener.stats().accepted, 2);
+}

@@ -104,6 +104,10 @@ impl SizedEndpoint {
         each!(self, ep => ep.phase())
     }
 
+    pub(crate) fn axes(&self) -> u16 {
+        each!(self, ep => ep.config().axes)
+    }
+
     pub(crate) fn period(&self) -> Duration {
         each!(self, ep => ep.period())
     }

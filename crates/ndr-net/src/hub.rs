@@ -21,7 +21,7 @@ use mio::net::TcpStream as MioStream;
 use mio::{Events, Interest, Poll, Token, Waker};
 use ndr_core::endpoint::{Event, LinkError, Running};
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::MAX_FRAME_LEN;
+use ndr_core::wire::{HEADER_LEN, MAX_FRAME_LEN};
 use tokio::sync::Notify;
 
 use crate::capacity::SizedEndpoint;
@@ -756,6 +756,14 @@ pub(crate) fn handle_frames(e: &mut Entry, origin: StdInstant, at: StdInstant) -
             Ok(None) => return true,
             Err(FramingError::Wire(err)) => {
                 e.endpoint.abort(LinkError::from(err));
+                return false;
+            }
+            // Only a Data frame has no fixed length: this one has more
+            // channels than the link carries.
+            Err(FramingError::TooLong { len, .. }) => {
+                let expected = e.endpoint.axes();
+                let got = len.saturating_sub(HEADER_LEN) / 8;
+                e.endpoint.abort(LinkError::ChannelCount { expected, got });
                 return false;
             }
         }

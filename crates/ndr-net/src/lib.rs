@@ -28,8 +28,8 @@
 //! grid, one per core. The application holds a [`Link`] (send the next
 //! sample, receive released ones, read [`LinkStats`]). Bytes from a TCP
 //! stream become frames through a [`Deframer`], which bounds its memory by
-//! the protocol's largest frame and refuses an absurd length prefix before
-//! buffering anything. The standalone [`ReleaseClock`] thread keeps the same
+//! a few of the largest frames the link carries and refuses an absurd or
+//! too long length prefix before buffering anything. The standalone [`ReleaseClock`] thread keeps the same
 //! kind of deadlines for code that is not a link.
 #![forbid(unsafe_code)]
 

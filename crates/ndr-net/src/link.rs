@@ -24,7 +24,7 @@ use std::time::Instant as StdInstant;
 
 use ndr_core::endpoint::{Config, ConfigError, Event, LinkError, Phase, Release, Running, Stats};
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::Role;
+use ndr_core::wire::{HEADER_LEN, Role};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
@@ -298,7 +298,8 @@ impl Link {
             shared: Arc::clone(&shared),
             deliveries: del_tx,
             socket,
-            deframer: Deframer::new(),
+            // The peer's Data frames carry the agreed axes, at most MAX_AXES.
+            deframer: Deframer::with_max_frame(HEADER_LEN + 8 * MAX_AXES),
             pending: Vec::new(),
             tls: tls.map(|conn| Box::new(Session::new(conn))),
             kernel_stamps,
