@@ -208,13 +208,12 @@ fn peers_beyond_the_handshake_limit_wait_for_a_slot_instead_of_being_refused() {
         base.handshake().await?;
         Ok::<_, NetError>(accepted)
     });
-    let accepted = accepted.unwrap_or_else(|e| panic!("{e:?} {:?}", listener.stats()));
+    let _accepted = accepted.unwrap_or_else(|e| panic!("{e:?} {:?}", listener.stats()));
     // The silent peers ahead of it held every slot for one timeout.
     assert!(start.elapsed() >= StdDuration::from_millis(400));
-    assert!(accepted.stats().is_some());
-    let stats = listener.stats();
-    assert_eq!(stats.accepted, 1, "{stats:?}");
-    assert!(stats.timeouts >= 64, "{stats:?}");
+    assert_eq!(listener.stats().accepted, 1, "{:?}", listener.stats());
+    // Every silent peer had its turn and timed out; none was dropped unheard.
+    counted(&listener, |s| s.timeouts, 70);
     drop(silent);
 }
 
