@@ -18,7 +18,7 @@ pub fn assert_regulated(base_seqs: &[u64], remote_seqs: &[u64], base: &LinkStats
     }
     let grtt = base.endpoint.grtt;
     assert!(grtt.count() > 200, "{grtt:?}");
-    assert!(grtt.std() <= 1e-3, "GRTT std {} s", grtt.std());
+    assert!(grtt.std() <= 1e-3, "GRTT std {} s: {grtt:?}", grtt.std());
     assert!(
         grtt.mean() >= 0.039 && grtt.mean() <= 0.061,
         "GRTT mean {}",
