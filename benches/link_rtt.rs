@@ -296,32 +296,28 @@ fn main() {
         );
         (p50 + lag, mean + lag)
     };
+    // "ratio {name}: p50 … · mean …" of two (p50, mean) pairs.
+    let ratio = |name: &str, (p50, mean): (f64, f64), (base_p50, base_mean): (f64, f64)| {
+        println!(
+            "ratio {name}: p50 {:.2} · mean {:.2}",
+            p50 / base_p50,
+            mean / base_mean
+        );
+    };
+    let (raw_pair, one_pair) = ((raw_p50, raw_mean), (one_p50, one_mean));
     let nrtt = row("ndr link NRTT (kernel-stamped)", &mut ours);
-    let (ours_p50, ours_mean) = nrtt;
-    let (full_p50, full_mean) = to_endpoint("ndr link, frame to endpoint", nrtt, rx_lag);
-    println!(
-        "ratio NRTT / raw (a thread per end): p50 {:.2} · mean {:.2}",
-        ours_p50 / raw_p50,
-        ours_mean / raw_mean
-    );
-    println!(
-        "ratio frame-to-endpoint / raw (a thread per end): p50 {:.2} · mean {:.2}",
-        full_p50 / raw_p50,
-        full_mean / raw_mean
-    );
-    println!(
-        "ratio frame-to-endpoint / raw (one runtime): p50 {:.2} · mean {:.2}",
-        full_p50 / one_p50,
-        full_mean / one_mean
-    );
+    let full = to_endpoint("ndr link, frame to endpoint", nrtt, rx_lag);
+    let (full_p50, full_mean) = full;
+    ratio("NRTT / raw (a thread per end)", nrtt, raw_pair);
+    ratio("frame-to-endpoint / raw (a thread per end)", full, raw_pair);
+    ratio("frame-to-endpoint / raw (one runtime)", full, one_pair);
     let mut polled_nrtt = polled.nrtt;
     let nrtt = row("ndr link NRTT, applications polling", &mut polled_nrtt);
-    let (poll_p50, poll_mean) =
-        to_endpoint("ndr link, polling, frame to endpoint", nrtt, polled.rx_lag);
-    println!(
-        "ratio frame-to-endpoint / raw (a thread per end), applications polling: p50 {:.2} · mean {:.2}",
-        poll_p50 / raw_p50,
-        poll_mean / raw_mean
+    let poll = to_endpoint("ndr link, polling, frame to endpoint", nrtt, polled.rx_lag);
+    ratio(
+        "frame-to-endpoint / raw (a thread per end), applications polling",
+        poll,
+        raw_pair,
     );
     let mut tls_nrtt = tls_run.nrtt;
     let nrtt = row("ndr link over TLS 1.3, NRTT", &mut tls_nrtt);

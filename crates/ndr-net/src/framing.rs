@@ -10,15 +10,20 @@
 
 use core::fmt;
 
-use ndr_core::wire::{self, Frame, HEADER_LEN, MAX_FRAME_LEN, WireError};
+use ndr_core::wire::{self, Control, Frame, HEADER_LEN, Hello, MAX_FRAME_LEN, WireError};
 
 /// Frames of the largest size a [`Deframer`] holds at once (what one read
 /// can take when frames wait in the socket).
 pub const READ_FRAMES: usize = 4;
 
 /// The smallest limit a [`Deframer`] takes: the largest frame of fixed size
-/// (a Hello or a Control, 16 bytes of payload).
-pub const MIN_MAX_FRAME: usize = HEADER_LEN + 16;
+/// (a Hello or a Control; a Close is shorter).
+pub const MIN_MAX_FRAME: usize = HEADER_LEN
+    + if Hello::LEN > Control::LEN {
+        Hello::LEN
+    } else {
+        Control::LEN
+    };
 
 /// A stream that cannot be deframed; the connection must be closed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
