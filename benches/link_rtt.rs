@@ -54,12 +54,21 @@ fn frame() -> Vec<u8> {
     buf
 }
 
-/// Echoes every frame back until the client hangs up.
-async fn echo(listener: TcpListener, len: usize) {
+/// Echoes every frame back until the client hangs up; with a `hold`, each
+/// one after that long, the time it really held the frame written into the
+/// frame's last 8 bytes (the client takes it out, as the NRTT takes out the
+/// remote's hold).
+async fn echo(listener: TcpListener, len: usize, hold: StdDuration) {
     let (mut s, _) = listener.accept().await.unwrap();
     s.set_nodelay(true).unwrap();
     let mut buf = vec![0; len];
     while s.read_exact(&mut buf).await.is_ok() {
+        if !hold.is_zero() {
+            let t = StdInstant::now();
+            tokio::time::sleep(hold).await;
+            let held = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+            buf[len - 8..].copy_from_slice(&held.to_le_bytes());
+        }
         if s.write_all(&buf).await.is_err() {
             return;
         }
@@ -67,8 +76,8 @@ async fn echo(listener: TcpListener, len: usize) {
 }
 
 /// Pings at the link's pace (a thread woken from a longer sleep wakes
-/// slower) and times each round trip.
-async fn ping(addr: SocketAddr, seconds: f64, period_ms: u64) -> Vec<f64> {
+/// slower) and times each round trip, less the echo's hold if it held.
+async fn ping(addr: SocketAddr, seconds: f64, period_ms: u64, hold: StdDuration) -> Vec<f64> {
     let msg = frame();
     let mut c = TcpStream::connect(addr).await.unwrap();
     c.set_nodelay(true).unwrap();
@@ -80,11 +89,17 @@ async fn ping(addr: SocketAddr, seconds: f64, period_ms: u64) -> Vec<f64> {
         let t0 = StdInstant::now();
         c.write_all(&msg).await.unwrap();
         c.read_exact(&mut buf).await.unwrap();
+        let mut rtt = t0.elapsed();
+        if !hold.is_zero() {
+            let held = u64::from_le_bytes(buf[buf.len() - 8..].try_into().unwrap());
+            rtt = rtt.saturating_sub(StdDuration::from_nanos(held));
+        }
         if i >= 20 {
-            rtts.push(t0.elapsed().as_secs_f64());
+            rtts.push(rtt.as_secs_f64());
         }
         i += 1;
-        tokio::time::sleep(StdDuration::from_millis(period_ms)).await;
+        let pace = StdDuration::from_millis(period_ms).saturating_sub(hold);
+        tokio::time::sleep(pace).await;
     }
     rtts
 }
@@ -94,13 +109,16 @@ async fn ping(addr: SocketAddr, seconds: f64, period_ms: u64) -> Vec<f64> {
 async fn raw_one_runtime(seconds: f64, period_ms: u64) -> Vec<f64> {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
-    tokio::spawn(echo(listener, frame().len()));
-    ping(addr, seconds, period_ms).await
+    tokio::spawn(echo(listener, frame().len(), StdDuration::ZERO));
+    ping(addr, seconds, period_ms, StdDuration::ZERO).await
 }
 
 /// Each end on a thread and runtime of its own, as the two links' hubs are:
-/// every frame wakes the other thread.
-fn raw_two_threads(seconds: f64, period_ms: u64) -> Vec<f64> {
+/// every frame wakes the other thread. With a `hold`, the echo holds each
+/// frame that long, as a remote holds the base's frame until its own tick:
+/// then both threads have slept for milliseconds when a frame comes, as
+/// both hubs have (the held time is taken out of the round trip).
+fn raw_two_threads(seconds: f64, period_ms: u64, hold: StdDuration) -> Vec<f64> {
     let current = || {
         tokio::runtime::Builder::new_current_thread()
             .enable_all()
@@ -112,10 +130,15 @@ fn raw_two_threads(seconds: f64, period_ms: u64) -> Vec<f64> {
     let addr = listener.local_addr().unwrap();
     let server = std::thread::spawn(move || {
         current().block_on(async move {
-            echo(TcpListener::from_std(listener).unwrap(), frame().len()).await;
+            echo(
+                TcpListener::from_std(listener).unwrap(),
+                frame().len(),
+                hold,
+            )
+            .await;
         });
     });
-    let rtts = current().block_on(ping(addr, seconds, period_ms));
+    let rtts = current().block_on(ping(addr, seconds, period_ms, hold));
     server.join().unwrap();
     rtts
 }
@@ -253,7 +276,11 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(10);
     let mut raw_one = rt.block_on(raw_one_runtime(seconds, period_ms));
-    let mut raw = raw_two_threads(seconds, period_ms);
+    let mut raw = raw_two_threads(seconds, period_ms, StdDuration::ZERO);
+    // The remote's hub ticks half a period after the base's (below): its
+    // hold of each base frame is about that.
+    let hold = StdDuration::from_micros(period_ms * 500);
+    let mut raw_held = raw_two_threads(seconds, period_ms, hold);
     let LinkRun {
         nrtt: mut ours,
         rx_lag,
@@ -284,6 +311,7 @@ fn main() {
     };
     let (one_p50, one_mean) = row("raw tokio ping-pong, one runtime", &mut raw_one);
     let (raw_p50, raw_mean) = row("raw tokio ping-pong, a thread per end", &mut raw);
+    let held = row("raw, a thread per end, echo held", &mut raw_held);
     // NRTT + the mean receive-path lag of both ends: (p50, mean).
     let to_endpoint = |name: &str, (p50, mean): (f64, f64), lag: f64| {
         println!(
@@ -311,6 +339,7 @@ fn main() {
     ratio("NRTT / raw (a thread per end)", nrtt, raw_pair);
     ratio("frame-to-endpoint / raw (a thread per end)", full, raw_pair);
     ratio("frame-to-endpoint / raw (one runtime)", full, one_pair);
+    ratio("frame-to-endpoint / raw, echo held", full, held);
     let mut polled_nrtt = polled.nrtt;
     let nrtt = row("ndr link NRTT, applications polling", &mut polled_nrtt);
     let poll = to_endpoint("ndr link, polling, frame to endpoint", nrtt, polled.rx_lag);
@@ -318,6 +347,11 @@ fn main() {
         "frame-to-endpoint / raw (a thread per end), applications polling",
         poll,
         raw_pair,
+    );
+    ratio(
+        "frame-to-endpoint / raw, echo held, applications polling",
+        poll,
+        held,
     );
     let mut tls_nrtt = tls_run.nrtt;
     let nrtt = row("ndr link over TLS 1.3, NRTT", &mut tls_nrtt);

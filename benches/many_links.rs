@@ -7,6 +7,13 @@
 //! /proc/self/stat over a window after start-up, memory as the growth of the
 //! resident set from before the first link.
 //!
+//! The baseline, in the same run after the links are gone: as many raw
+//! tokio TCP connections on loopback carrying the same bytes (one 1-axis
+//! Data frame each way every 10 ms), one thread and current-thread runtime
+//! a side, as our two hubs are, a writer and a reader task a socket. It is
+//! what the frames cost in the kernel and in an ordinary event loop: the
+//! share of the CPU left to the links' own work is the difference.
+//!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
 //! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
@@ -21,7 +28,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
-use ndr::core::wire::Role;
+use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
 use ndr::net::{HubPool, Link, LinkConfig, Listener};
 
@@ -54,6 +61,81 @@ fn cpu_s() -> f64 {
         .collect();
     // Fields 14 and 15 of the line are the 12th and 13th after the name.
     (f.get(10).copied().unwrap_or(0) + f.get(11).copied().unwrap_or(0)) as f64 / 100.0
+}
+
+/// One 1-axis Data frame, as the links send.
+fn frame() -> Vec<u8> {
+    let header = Header {
+        seq: 1,
+        sent_at: ndr::core::time::Instant::from_millis(1),
+        echo: None,
+        released: None,
+    };
+    let mut buf = vec![0; MAX_FRAME_LEN];
+    let n = wire::encode(&header, &Message::Data(&[0.5]), &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+/// One side of the baseline: on this thread's own current-thread runtime,
+/// every socket writes `frame` every 10 ms and reads the peer's, until `end`.
+fn raw_side(sockets: Vec<std::net::TcpStream>, end: StdInstant) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async move {
+        let msg = frame();
+        for s in sockets {
+            s.set_nonblocking(true).unwrap();
+            let s = tokio::net::TcpStream::from_std(s).unwrap();
+            let (mut rd, mut wr) = s.into_split();
+            let len = msg.len();
+            tokio::spawn(async move {
+                let mut buf = vec![0; len];
+                while rd.read_exact(&mut buf).await.is_ok() {}
+            });
+            let msg = msg.clone();
+            tokio::spawn(async move {
+                let mut every = tokio::time::interval(StdDuration::from_millis(10));
+                every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+                loop {
+                    every.tick().await;
+                    if wr.write_all(&msg).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+        tokio::time::sleep_until(end.into()).await;
+    });
+}
+
+/// The baseline's CPU share of the machine over a `seconds` window (after
+/// a second's start), `n` connections.
+fn raw_cpu(n: usize, seconds: f64, cpus: usize) -> f64 {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (mut a, mut b) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for _ in 0..n {
+        let c = std::net::TcpStream::connect(addr).unwrap();
+        let (s, _) = listener.accept().unwrap();
+        c.set_nodelay(true).unwrap();
+        s.set_nodelay(true).unwrap();
+        a.push(c);
+        b.push(s);
+    }
+    let end = StdInstant::now() + StdDuration::from_secs_f64(seconds + 2.0);
+    let sides = [a, b].map(|socks| std::thread::spawn(move || raw_side(socks, end)));
+    std::thread::sleep(StdDuration::from_secs(1));
+    let (cpu0, t0) = (cpu_s(), StdInstant::now());
+    std::thread::sleep(StdDuration::from_secs_f64(seconds));
+    let (cpu1, elapsed) = (cpu_s(), t0.elapsed().as_secs_f64());
+    for side in sides {
+        side.join().unwrap();
+    }
+    100.0 * (cpu1 - cpu0) / elapsed / cpus as f64
 }
 
 fn main() {
@@ -199,4 +281,11 @@ fn main() {
         1e6 * lag.iter().copied().fold(0.0, f64::max)
     );
     drop((bases, remotes));
+    // Let the hubs close their sockets and end before the baseline.
+    std::thread::sleep(StdDuration::from_secs(1));
+    let raw = raw_cpu(n, seconds, cpus);
+    println!(
+        "  baseline: raw tokio TCP      {raw:.1} % of the machine ({n} connections, the same frame each way every 10 ms, a thread a side); links / raw {:.2}",
+        machine / raw
+    );
 }

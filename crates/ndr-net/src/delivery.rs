@@ -1,14 +1,18 @@
 //! What the hub hands to a link's application, and the bounded queue it
 //! goes through.
 //!
-//! std's `sync_channel(n)` allocates and writes its `n` slots up front: with
-//! the default 1 024 that is 136 KiB of every link's memory before anything
-//! waits. This queue is std's unbounded channel (its memory follows what
-//! waits, in blocks of 31) with a counter that bounds it.
+//! std's `sync_channel(n)` allocates and writes its `n` slots up front (136
+//! KiB a link at the default 1 024), and its unbounded channel allocates in
+//! blocks of 31 slots (4 KiB a link even when one delivery waits). This
+//! queue is a `VecDeque` behind a mutex, so its memory follows what waits,
+//! with a counter that bounds it. The hub wakes a blocked reader only when
+//! there is one: a condition variable's notify is a syscall even when
+//! nobody waits, and the hub delivers to every link at every tick.
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::mpsc::{self, RecvError, RecvTimeoutError, TryRecvError};
+use std::collections::VecDeque;
+use std::sync::mpsc::{RecvError, RecvTimeoutError, TryRecvError};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use std::time::Instant;
 
 use ndr_core::endpoint::Event;
 
@@ -20,18 +24,42 @@ pub(crate) enum Delivery {
     Event(Event<MAX_AXES>),
 }
 
+struct State {
+    waiting: VecDeque<Delivery>,
+    /// The hub's end is gone: nothing more will come.
+    sender_gone: bool,
+    /// The application's end is gone: nothing will be read.
+    receiver_gone: bool,
+    /// Readers blocked on the condition variable.
+    blocked: usize,
+}
+
+struct Queue {
+    state: Mutex<State>,
+    ready: Condvar,
+    capacity: usize,
+}
+
+impl Queue {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // Neither end panics while holding the lock; a poisoned state is whole.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
 /// A queue that holds at most `capacity` deliveries (at least one).
 pub(crate) fn queue(capacity: usize) -> (Outbox, Inbox) {
-    let (tx, rx) = mpsc::channel();
-    let waiting = Arc::new(AtomicUsize::new(0));
-    (
-        Outbox {
-            tx,
-            waiting: Arc::clone(&waiting),
-            capacity: capacity.max(1),
-        },
-        Inbox { rx, waiting },
-    )
+    let q = Arc::new(Queue {
+        state: Mutex::new(State {
+            waiting: VecDeque::new(),
+            sender_gone: false,
+            receiver_gone: false,
+            blocked: 0,
+        }),
+        ready: Condvar::new(),
+        capacity: capacity.max(1),
+    });
+    (Outbox { q: Arc::clone(&q) }, Inbox { q })
 }
 
 /// Why a delivery was not queued (it is dropped).
@@ -43,54 +71,106 @@ pub(crate) enum Refused {
     Gone,
 }
 
-/// The hub's end (one sender: the count cannot overshoot).
+/// The hub's end.
 pub(crate) struct Outbox {
-    tx: mpsc::Sender<Delivery>,
-    waiting: Arc<AtomicUsize>,
-    capacity: usize,
+    q: Arc<Queue>,
 }
 
 impl Outbox {
     /// Queues `d`, or drops it and says why.
     pub(crate) fn try_send(&self, d: Delivery) -> Result<(), Refused> {
-        if self.waiting.load(Ordering::Acquire) >= self.capacity {
+        let mut s = self.q.lock();
+        if s.receiver_gone {
+            return Err(Refused::Gone);
+        }
+        if s.waiting.len() >= self.q.capacity {
             return Err(Refused::Full);
         }
-        self.waiting.fetch_add(1, Ordering::AcqRel);
-        self.tx.send(d).map_err(|_| {
-            self.waiting.fetch_sub(1, Ordering::AcqRel);
-            Refused::Gone
-        })
+        s.waiting.push_back(d);
+        let wake = s.blocked > 0;
+        drop(s);
+        if wake {
+            self.q.ready.notify_one();
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Outbox {
+    fn drop(&mut self) {
+        let mut s = self.q.lock();
+        s.sender_gone = true;
+        let wake = s.blocked > 0;
+        drop(s);
+        if wake {
+            self.q.ready.notify_all();
+        }
     }
 }
 
 /// The application's end.
 pub(crate) struct Inbox {
-    rx: mpsc::Receiver<Delivery>,
-    waiting: Arc<AtomicUsize>,
+    q: Arc<Queue>,
 }
 
 impl Inbox {
-    fn took<E>(&self, r: Result<Delivery, E>) -> Result<Delivery, E> {
-        if r.is_ok() {
-            self.waiting.fetch_sub(1, Ordering::AcqRel);
-        }
-        r
-    }
-
     pub(crate) fn recv(&self) -> Result<Delivery, RecvError> {
-        self.took(self.rx.recv())
+        self.wait(None).map_err(|_| RecvError)
     }
 
     pub(crate) fn try_recv(&self) -> Result<Delivery, TryRecvError> {
-        self.took(self.rx.try_recv())
+        let mut s = self.q.lock();
+        match s.waiting.pop_front() {
+            Some(d) => Ok(d),
+            None if s.sender_gone => Err(TryRecvError::Disconnected),
+            None => Err(TryRecvError::Empty),
+        }
     }
 
     pub(crate) fn recv_timeout(
         &self,
         timeout: std::time::Duration,
     ) -> Result<Delivery, RecvTimeoutError> {
-        self.took(self.rx.recv_timeout(timeout))
+        // A timeout too long for the clock waits as long as it takes.
+        self.wait(Instant::now().checked_add(timeout))
+    }
+
+    /// The next delivery, waiting until `end` (`None`: as long as it takes).
+    fn wait(&self, end: Option<Instant>) -> Result<Delivery, RecvTimeoutError> {
+        let mut s = self.q.lock();
+        loop {
+            if let Some(d) = s.waiting.pop_front() {
+                return Ok(d);
+            }
+            if s.sender_gone {
+                return Err(RecvTimeoutError::Disconnected);
+            }
+            let left = end.map(|end| end.saturating_duration_since(Instant::now()));
+            if left.is_some_and(|l| l.is_zero()) {
+                return Err(RecvTimeoutError::Timeout);
+            }
+            s.blocked += 1;
+            s = match left {
+                None => self.q.ready.wait(s).unwrap_or_else(PoisonError::into_inner),
+                Some(left) => {
+                    self.q
+                        .ready
+                        .wait_timeout(s, left)
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .0
+                }
+            };
+            s.blocked -= 1;
+        }
+    }
+}
+
+impl Drop for Inbox {
+    fn drop(&mut self) {
+        let mut s = self.q.lock();
+        s.receiver_gone = true;
+        // What waits is dropped with the application's end, not kept by the hub.
+        s.waiting = VecDeque::new();
     }
 }
 
@@ -128,5 +208,43 @@ mod tests {
         drop(out);
         assert!(inbox.recv().is_ok());
         assert!(matches!(inbox.recv(), Err(RecvError)));
+    }
+
+    #[test]
+    fn a_blocked_reader_wakes_for_a_delivery_and_for_the_hub_going_away() {
+        let (out, inbox) = queue(4);
+        let reader = std::thread::spawn(move || {
+            let first = inbox.recv().is_ok();
+            let second = inbox.recv_timeout(std::time::Duration::from_secs(60));
+            (first, matches!(second, Err(RecvTimeoutError::Disconnected)))
+        });
+        // Give the reader time to block (the test holds either way).
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(out.try_send(event()).is_ok());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        drop(out);
+        assert_eq!(reader.join().unwrap(), (true, true));
+    }
+
+    #[test]
+    fn a_wait_with_nothing_coming_times_out() {
+        let (_out, inbox) = queue(4);
+        let start = std::time::Instant::now();
+        let r = inbox.recv_timeout(std::time::Duration::from_millis(10));
+        assert!(matches!(r, Err(RecvTimeoutError::Timeout)));
+        assert!(start.elapsed() >= std::time::Duration::from_millis(10));
+    }
+
+    #[test]
+    fn the_queue_holds_memory_for_what_waits_not_for_its_bound() {
+        let (out, inbox) = queue(1024);
+        assert_eq!(out.q.lock().waiting.capacity(), 0);
+        for _ in 0..10_000 {
+            assert!(out.try_send(event()).is_ok());
+            assert!(inbox.try_recv().is_ok());
+        }
+        assert!(out.q.lock().waiting.capacity() <= 4);
+        drop(inbox);
+        assert_eq!(out.q.lock().waiting.capacity(), 0);
     }
 }
