@@ -12,25 +12,32 @@
 //! mean receive-path lag (kernel arrival to the hub handling the frame) of
 //! both ends.
 //!
-//! Two baselines: both ends of the ping-pong on one multi-thread tokio
+//! Three baselines: both ends of the ping-pong on one multi-thread tokio
 //! runtime (a worker that writes the ping often runs the echo task itself,
-//! so no thread is woken), and each end on a thread and runtime of its own,
-//! as the two links' hubs are (every frame wakes the other thread): the
-//! like-for-like one. All run at the same pace, one frame per link period
-//! (a thread woken from a longer sleep wakes more slowly, on either side).
+//! so no thread is woken); each end on a thread and runtime of its own, as
+//! the two links' hubs are (every frame wakes the other thread); and the
+//! same with the echo holding each frame half a period, as the remote holds
+//! the base's frame until its own tick, the hold taken out of the round
+//! trip: the like-for-like one, since then, as with the links, each frame
+//! wakes a thread that has slept for milliseconds (slower than one that
+//! went to sleep microseconds ago, as the pinging thread does while the
+//! echo answers at once). All run at the same pace, one frame per link
+//! period.
 //!
 //! The plain link runs twice: with each application thread blocked on
 //! `recv` (woken at every release, at the instant its hub writes the frame:
-//! on two cores that wake-up competes with the peer hub's), and with the
-//! applications polling every 50 ms (no thread woken per tick but the hubs,
-//! as in the raw ping-pong). The same link over mutual TLS 1.3 runs last, in
-//! the same process: its rows beside the plain link's give TLS's cost
-//! (sealing and opening one record each way, in the hubs).
+//! on two cores that wake-up competes with the peer hub's), and with both
+//! applications as release handlers on their hubs' threads
+//! (`Link::on_release`: no thread woken per tick but the hubs, as in the
+//! raw ping-pong). The same link over mutual TLS 1.3 runs last, in the same
+//! process: its rows beside the plain link's give TLS's cost (sealing and
+//! opening one record each way, in the hubs).
 //!
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
 
 use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::Config;
@@ -166,16 +173,14 @@ fn tls_pair() -> (TlsConfig, TlsConfig) {
     (remote, base)
 }
 
-/// How long a polling application sleeps between reads.
-const POLL: StdDuration = StdDuration::from_millis(50);
-
-/// `poll`: the applications read every [`POLL`] instead of waiting.
+/// `handlers`: the applications run on their hubs' threads instead of
+/// waiting in `recv`.
 fn link_nrtt(
     rt: &tokio::runtime::Runtime,
     seconds: f64,
     period_ms: u64,
     tls: Option<&(TlsConfig, TlsConfig)>,
-    poll: bool,
+    handlers: bool,
 ) -> LinkRun {
     let mut c = Config::new(Role::Base);
     c.axes = 1;
@@ -210,45 +215,70 @@ fn link_nrtt(
         );
         (b.unwrap(), r.unwrap())
     });
-    let robot = std::thread::spawn(move || {
-        let mut last = None;
-        let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
-        while poll && StdInstant::now() < end {
-            std::thread::sleep(POLL);
-            while let Ok(Some(s)) = remote.try_recv() {
+    let (nrtt, robot) = if handlers {
+        // Both applications on their hubs' threads: the remote echoes, the
+        // base sends and notes each new NRTT.
+        let tx = remote.sender();
+        remote
+            .on_release(move |s| {
+                let _ = tx.send(s.values());
+            })
+            .unwrap();
+        let tx = base.sender();
+        let log = Arc::new(Mutex::new((Vec::new(), None, 0u64)));
+        let noted = Arc::clone(&log);
+        base.on_release(move |_| {
+            let _ = tx.send(&[0.5]);
+            let Some(stats) = tx.stats() else { return };
+            let mut log = noted.lock().unwrap();
+            let (nrtt, last, ticks) = &mut *log;
+            *ticks += 1;
+            let count = stats.endpoint.nrtt.count();
+            if *last != Some(count) && *ticks > 20 {
+                nrtt.extend(stats.last_nrtt.map(|n| n.as_secs_f64()));
+            }
+            *last = Some(count);
+        })
+        .unwrap();
+        std::thread::sleep(StdDuration::from_secs_f64(seconds));
+        let nrtt = std::mem::take(&mut log.lock().unwrap().0);
+        let robot = std::thread::spawn(move || {
+            // The handler has the releases: this waits for the end.
+            let _ = remote.recv_timeout(StdDuration::from_secs(2));
+            remote.stats()
+        });
+        (nrtt, robot)
+    } else {
+        let robot = std::thread::spawn(move || {
+            let mut last = None;
+            while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
                 let _ = remote.send(s.values());
+                last = remote.stats();
             }
-            last = remote.stats();
-        }
-        while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
-            let _ = remote.send(s.values());
-            last = remote.stats();
-        }
-        last
-    });
-    let mut nrtt = Vec::new();
-    let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
-    let mut last = None;
-    let mut ticks = 0u64;
-    while StdInstant::now() < end {
-        let _ = base.send(&[0.5]);
-        if poll {
-            std::thread::sleep(POLL);
-            while let Ok(Some(_)) = base.try_recv() {}
-        } else if base.recv_timeout(StdDuration::from_secs(2)).is_err() {
-            break;
-        }
-        ticks += 1;
-        let stats = base.stats().unwrap();
-        let count = stats.endpoint.nrtt.count();
-        // One new NRTT sample per new echo; skip the start-up.
-        if last != Some(count) && ticks > 20 {
-            if let Some(n) = stats.last_nrtt {
-                nrtt.push(n.as_secs_f64());
+            last
+        });
+        let mut nrtt = Vec::new();
+        let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
+        let mut last = None;
+        let mut ticks = 0u64;
+        while StdInstant::now() < end {
+            let _ = base.send(&[0.5]);
+            if base.recv_timeout(StdDuration::from_secs(2)).is_err() {
+                break;
             }
+            ticks += 1;
+            let stats = base.stats().unwrap();
+            let count = stats.endpoint.nrtt.count();
+            // One new NRTT sample per new echo; skip the start-up.
+            if last != Some(count) && ticks > 20 {
+                if let Some(n) = stats.last_nrtt {
+                    nrtt.push(n.as_secs_f64());
+                }
+            }
+            last = Some(count);
         }
-        last = Some(count);
-    }
+        (nrtt, robot)
+    };
     let base_stats = base.stats();
     drop(base);
     let remote_stats = robot.join().ok().flatten();
@@ -287,7 +317,7 @@ fn main() {
         base,
         remote,
     } = link_nrtt(&rt, seconds, period_ms, None, false);
-    let polled = link_nrtt(&rt, seconds, period_ms, None, true);
+    let handled = link_nrtt(&rt, seconds, period_ms, None, true);
     let tls_run = link_nrtt(&rt, seconds, period_ms, Some(&tls_pair()), false);
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
@@ -340,17 +370,21 @@ fn main() {
     ratio("frame-to-endpoint / raw (a thread per end)", full, raw_pair);
     ratio("frame-to-endpoint / raw (one runtime)", full, one_pair);
     ratio("frame-to-endpoint / raw, echo held", full, held);
-    let mut polled_nrtt = polled.nrtt;
-    let nrtt = row("ndr link NRTT, applications polling", &mut polled_nrtt);
-    let poll = to_endpoint("ndr link, polling, frame to endpoint", nrtt, polled.rx_lag);
+    let mut handled_nrtt = handled.nrtt;
+    let nrtt = row("ndr link NRTT, release handlers", &mut handled_nrtt);
+    let on_hub = to_endpoint(
+        "ndr link, handlers, frame to endpoint",
+        nrtt,
+        handled.rx_lag,
+    );
     ratio(
-        "frame-to-endpoint / raw (a thread per end), applications polling",
-        poll,
+        "frame-to-endpoint / raw (a thread per end), release handlers",
+        on_hub,
         raw_pair,
     );
     ratio(
-        "frame-to-endpoint / raw, echo held, applications polling",
-        poll,
+        "frame-to-endpoint / raw, echo held, release handlers",
+        on_hub,
         held,
     );
     let mut tls_nrtt = tls_run.nrtt;
@@ -369,8 +403,8 @@ fn main() {
     for (side, stats) in [
         ("base", base),
         ("remote", remote),
-        ("poll base", polled.base),
-        ("poll remote", polled.remote),
+        ("handler base", handled.base),
+        ("handler remote", handled.remote),
         ("tls base", tls_run.base),
         ("tls remote", tls_run.remote),
     ] {

@@ -110,3 +110,105 @@ fn a_closed_peer_is_reported_and_recv_stops_waiting() {
         "{err:?}"
     );
 }
+
+#[test]
+fn a_release_handler_on_the_hub_thread_gets_every_sample_once_in_order_and_its_answers_go_out() {
+    let rt = runtime();
+    let (mut base, mut remote) = pair(&rt);
+    // The remote's "plant" runs on its hub's thread: no thread woken per tick.
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let tx = remote.sender();
+    let log = std::sync::Arc::clone(&seen);
+    remote
+        .on_release(move |s| {
+            if s.status == Status::Fresh {
+                log.lock().unwrap().push(s.seq);
+            }
+            tx.send(s.values()).unwrap();
+        })
+        .unwrap();
+    let mut seqs = Vec::new();
+    let mut echoed = 0;
+    for k in 1..=300 {
+        base.send(&[f64::from(k), -f64::from(k)]).unwrap();
+        let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+        if s.status == Status::Fresh {
+            seqs.push(s.seq);
+            // The remote answered with a command the base had sent.
+            if s.values()[0] > 0.0 {
+                assert_eq!(s.values()[1], -s.values()[0]);
+                echoed += 1;
+            }
+        }
+    }
+    let stats = base.close().unwrap();
+    // With a handler, `recv` only waits for the end of the link.
+    let end = remote.recv_timeout(StdDuration::from_secs(3));
+    assert!(
+        matches!(end, Err(NetError::Link(LinkError::PeerClosed { .. }))),
+        "{end:?}"
+    );
+    let remote_seqs = seen.lock().unwrap().clone();
+    common::assert_regulated(&seqs, &remote_seqs, &stats);
+    assert!(echoed > 250, "{echoed}");
+}
+
+#[test]
+fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others() {
+    let rt = runtime();
+    let hub = ndr::net::Hub::with_defaults().unwrap();
+    let listener = rt
+        .block_on(Listener::bind(
+            "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
+            config(),
+        ))
+        .unwrap()
+        .with_hub(hub);
+    let addr = listener.local_addr().unwrap();
+    let mut links = Vec::new();
+    for _ in 0..2 {
+        let (r, b) =
+            rt.block_on(async { tokio::join!(listener.accept(), Link::connect(addr, config())) });
+        links.push((b.unwrap(), r.unwrap()));
+    }
+    let [(mut base_a, mut remote_a), (_base_b, mut remote_b)] = <[_; 2]>::try_from(links).unwrap();
+    let mut releases = 0;
+    remote_a
+        .on_release(move |_| {
+            releases += 1;
+            assert!(releases < 5, "the application's bug");
+        })
+        .unwrap();
+    let count = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let counted = std::sync::Arc::clone(&count);
+    remote_b
+        .on_release(move |_| {
+            counted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        })
+        .unwrap();
+    let err = remote_a.recv_timeout(StdDuration::from_secs(5));
+    assert!(
+        matches!(err, Err(NetError::Link(LinkError::HandlerPanicked))),
+        "{err:?}"
+    );
+    let peer = loop {
+        match base_a.recv_timeout(StdDuration::from_secs(5)) {
+            Ok(_) => {}
+            Err(e) => break e,
+        }
+    };
+    assert!(
+        matches!(
+            peer,
+            NetError::Link(LinkError::PeerClosed {
+                reason: ndr::core::wire::close_reason::APPLICATION
+            })
+        ),
+        "{peer:?}"
+    );
+    // The other link on the same hub keeps being released.
+    let before = count.load(std::sync::atomic::Ordering::Relaxed);
+    std::thread::sleep(StdDuration::from_millis(500));
+    let after = count.load(std::sync::atomic::Ordering::Relaxed);
+    assert!(after >= before + 30, "{before} → {after}");
+}

@@ -28,7 +28,7 @@ use crate::capacity::SizedEndpoint;
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
 use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
-use crate::link::LinkStats;
+use crate::link::{LinkStats, Sample};
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
@@ -44,6 +44,10 @@ pub(crate) struct Shared {
     pub stats: Mutex<Option<LinkStats>>,
     pub notify: Notify,
 }
+
+/// The application's code run at each release on the hub's thread
+/// ([`Link::on_release`](crate::Link::on_release)).
+pub(crate) type Handler = Box<dyn FnMut(&Sample) + Send>;
 
 /// One link as the hub drives it.
 pub(crate) struct Entry {
@@ -62,11 +66,14 @@ pub(crate) struct Entry {
     pub rx_lag: Running,
     /// The deadline this entry holds in the hub's index.
     pub deadline: Option<Instant>,
+    /// Takes the releases instead of the application's queue, if set.
+    pub handler: Option<Handler>,
 }
 
 pub(crate) enum Msg {
     Add(u64, Box<Entry>),
     Close(u64),
+    Handler(u64, Handler),
 }
 
 struct Inner {
@@ -427,6 +434,11 @@ impl Driver {
                     }
                     self.flush(id);
                 }
+                Ok(Msg::Handler(id, handler)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        e.handler = Some(handler);
+                    }
+                }
                 Err(mpsc::TryRecvError::Empty) => return true,
                 Err(mpsc::TryRecvError::Disconnected) => return !self.entries.is_empty(),
             }
@@ -560,7 +572,8 @@ impl Driver {
                 take_sample(e);
                 e.endpoint.handle_timeout(now);
                 if releases_first {
-                    deliver(e, true, self.lateness_stats, self.release_stats);
+                    // A panicked handler's Close frame goes with the frames below.
+                    let _ = deliver(e, true, self.lateness_stats, self.release_stats);
                 }
             }
             if !releases_first {
@@ -593,9 +606,10 @@ impl Driver {
         // cannot make this tick anyway (its sample was taken before), and
         // waking its thread first would delay the frame by the wake-up.
         let now = Instant::from_std(self.origin, StdInstant::now());
-        let mut wants_write = false;
-        while let Ok(Some(n)) = e.endpoint.poll_transmit(now, &mut self.buf) {
-            wants_write |= send_frame(e, &self.buf[..n]);
+        let mut wants_write = transmit(e, now, &mut self.buf);
+        if deliver(e, ticked, self.lateness_stats, self.release_stats) {
+            // The handler panicked: the endpoint queued its Close frame.
+            wants_write |= transmit(e, now, &mut self.buf);
         }
         if e.pending.len() > MAX_PENDING {
             // The peer does not read: cut it off rather than grow without bound.
@@ -609,7 +623,6 @@ impl Driver {
                 Interest::READABLE | Interest::WRITABLE,
             );
         }
-        deliver(e, ticked, self.lateness_stats, self.release_stats);
         if e.endpoint.is_closed() {
             publish(e, self.lateness_stats, self.release_stats);
         }
@@ -700,16 +713,44 @@ mod precise {
     }
 }
 
+/// The endpoint's frames to the socket (or behind what waits for it);
+/// `true` if bytes are left waiting.
+fn transmit(e: &mut Entry, now: Instant, buf: &mut [u8]) -> bool {
+    let mut wants_write = false;
+    while let Ok(Some(n)) = e.endpoint.poll_transmit(now, buf) {
+        wants_write |= send_frame(e, buf.get(..n).unwrap_or_default());
+    }
+    wants_write
+}
+
 /// Events to the application; after a tick, the stats first (so the
-/// application reads the stats of the tick it got).
-fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: LatenessStats) {
+/// application reads the stats of the tick it got). Releases go to the
+/// link's handler if it has one; `true` if the handler panicked (the link
+/// is then aborted, its Close frame queued).
+fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: LatenessStats) -> bool {
     if ticked {
         publish(e, lateness, releases);
     }
     let mut delivered = false;
+    let mut panicked = false;
     while let Some(event) = e.endpoint.poll_event() {
         let d = match event {
-            Event::Released(s) => Delivery::Sample(s),
+            Event::Released(s) => {
+                if let Some(handler) = e.handler.as_mut() {
+                    // The handler is the application's code: its panic ends
+                    // its own link, not the hub and every link on it.
+                    let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        handler(&s);
+                    }));
+                    if run.is_err() {
+                        e.handler = None;
+                        e.endpoint.abort(LinkError::HandlerPanicked);
+                        panicked = true;
+                    }
+                    continue;
+                }
+                Delivery::Sample(s)
+            }
             other => Delivery::Event(other),
         };
         match e.deliveries.try_send(d) {
@@ -724,6 +765,7 @@ fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: Laten
     if delivered {
         e.shared.notify.notify_one();
     }
+    panicked
 }
 
 fn take_sample(e: &mut Entry) {

@@ -26,7 +26,9 @@
 //! Without a timerfd (not Linux), epoll's millisecond timeout is topped up
 //! with a native sleep. A [`HubPool`] spreads links over several hubs on one
 //! grid, one per core. The application holds a [`Link`] (send the next
-//! sample, receive released ones, read [`LinkStats`]). Bytes from a TCP
+//! sample, receive released ones, read [`LinkStats`]), or gives it a
+//! handler that the hub runs at each release on its own thread
+//! ([`Link::on_release`]), so that no thread is woken per tick. Bytes from a TCP
 //! stream become frames through a [`Deframer`], which bounds its memory by
 //! a few of the largest frames the link carries and refuses an absurd or
 //! too long length prefix before buffering anything. The standalone [`ReleaseClock`] thread keeps the same

@@ -306,6 +306,7 @@ impl Link {
             app_dropped: 0,
             rx_lag: Running::default(),
             deadline: None,
+            handler: None,
         };
         if !hub.send(Msg::Add(id, Box::new(entry))) {
             return Err(NetError::Io(io::Error::other(
@@ -481,6 +482,37 @@ impl Link {
     #[must_use]
     pub fn stats(&self) -> Option<LinkStats> {
         self.sender().stats()
+    }
+
+    /// Runs `handler` on the link's hub thread at each release from now on,
+    /// instead of queueing the sample for [`recv`](Self::recv): the lowest
+    /// latency a control loop can have, with no thread woken per tick (on
+    /// a machine with few cores, the application's wake-up at each release
+    /// competes with the peer's). To answer, give the handler a
+    /// [`LinkSender`] ([`sender`](Self::sender)): a sample it sends goes out
+    /// at the next tick.
+    ///
+    /// The handler shares the hub's thread with every link on that hub: it
+    /// must return in microseconds and never block (its time shows as
+    /// release lateness in [`LinkStats`]). If it panics, the link ends with
+    /// [`LinkError::HandlerPanicked`] (its peer gets a Close) and the hub
+    /// goes on with its other links. Events (and the end of the link) still
+    /// come through [`try_recv`](Self::try_recv) and [`recv`](Self::recv),
+    /// which then wait for the link to end; releases queued before the
+    /// handler took over are still there to read. Python has no handler:
+    /// its code would hold the GIL on the hub's thread.
+    pub fn on_release<F>(&mut self, handler: F) -> Result<(), NetError>
+    where
+        F: FnMut(&Sample) + Send + 'static,
+    {
+        if let Some(e) = self.closed {
+            return Err(NetError::Link(e));
+        }
+        if self.hub.send(Msg::Handler(self.id, Box::new(handler))) {
+            Ok(())
+        } else {
+            Err(NetError::Link(LinkError::Closed))
+        }
     }
 
     /// Closes the link (a Close frame is sent) and waits for its thread.

@@ -78,6 +78,10 @@ pub enum LinkError {
     Disconnected,
     /// The link is closed; nothing more can be sent or received.
     Closed,
+    /// The application's code run by the driver for this link (a release
+    /// handler on the driver's thread) panicked: the driver ended the link
+    /// and kept the others it drives.
+    HandlerPanicked,
     /// The application's sample does not have `axes` channels (the call is refused).
     SampleShape {
         /// The agreed number of axes.
@@ -113,6 +117,7 @@ impl LinkError {
             LinkError::Timeout => close_reason::TIMEOUT,
             LinkError::PeerClosed { reason } => *reason,
             LinkError::Closed => close_reason::NORMAL,
+            LinkError::HandlerPanicked => close_reason::APPLICATION,
             _ => close_reason::PROTOCOL_ERROR,
         }
     }
@@ -202,6 +207,10 @@ impl fmt::Display for LinkError {
                 "the connection to the peer was lost (no Close frame): the peer or a relay on the path died",
             ),
             LinkError::Closed => f.write_str("the link is closed"),
+            LinkError::HandlerPanicked => f.write_str(
+                "the release handler panicked, so the link was closed; a handler runs on the link's \
+                 driver thread and must return normally (handle errors inside it)",
+            ),
             LinkError::SampleShape { expected, got } => write!(
                 f,
                 "a sample must have {expected} values (one per axis), got {got}"

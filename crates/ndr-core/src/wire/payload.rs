@@ -274,6 +274,9 @@ pub mod close_reason {
     pub const PROTOCOL_ERROR: u16 = 6;
     /// The peer went silent for too long.
     pub const TIMEOUT: u16 = 7;
+    /// The sender's application failed (its code on the link's driver
+    /// thread panicked).
+    pub const APPLICATION: u16 = 8;
 
     /// A short name for `code`, `"unknown"` for codes this build does not know.
     #[must_use]
@@ -287,6 +290,7 @@ pub mod close_reason {
             MODE_MISMATCH => "mode mismatch",
             PROTOCOL_ERROR => "protocol error",
             TIMEOUT => "timeout",
+            APPLICATION => "application failure",
             _ => "unknown",
         }
     }
