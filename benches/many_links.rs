@@ -138,6 +138,29 @@ fn raw_cpu(n: usize, seconds: f64, cpus: usize) -> f64 {
     100.0 * (cpu1 - cpu0) / elapsed / cpus as f64
 }
 
+/// CPU time (user + system, seconds) of this process's threads named
+/// `name` (the hubs: `ndr-hub`), from /proc/self/task.
+fn threads_cpu_s(name: &str) -> f64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    tasks
+        .filter_map(Result::ok)
+        .filter_map(|t| std::fs::read_to_string(t.path().join("stat")).ok())
+        .filter_map(|stat| {
+            let (head, rest) = stat.rsplit_once(')')?;
+            let comm = head.split_once('(')?.1;
+            (comm == name).then(|| {
+                let f: Vec<u64> = rest
+                    .split_whitespace()
+                    .filter_map(|x| x.parse().ok())
+                    .collect();
+                (f.get(10).copied().unwrap_or(0) + f.get(11).copied().unwrap_or(0)) as f64 / 100.0
+            })
+        })
+        .sum()
+}
+
 fn main() {
     let n = env("NDR_LINKS", 1000.0) as usize;
     let seconds = env("NDR_SECONDS", 10.0);
@@ -211,9 +234,13 @@ fn main() {
     };
     // Start-up: handshake, 10-probe pattern and pre-fill, all under a second.
     std::thread::sleep(StdDuration::from_secs(3));
-    let (cpu0, t0) = (cpu_s(), StdInstant::now());
+    let (cpu0, hubs0, t0) = (cpu_s(), threads_cpu_s("ndr-hub"), StdInstant::now());
     std::thread::sleep(StdDuration::from_secs_f64(seconds));
-    let (cpu1, elapsed) = (cpu_s(), t0.elapsed().as_secs_f64());
+    let (cpu1, hubs1, elapsed) = (
+        cpu_s(),
+        threads_cpu_s("ndr-hub"),
+        t0.elapsed().as_secs_f64(),
+    );
     let rss = rss_kib();
     stop.store(true, Ordering::Relaxed);
     let (bases, remotes, released) = app.join().unwrap();
@@ -237,8 +264,9 @@ fn main() {
     );
     println!("  endpoints running            {running} of {}", 2 * n);
     println!(
-        "  CPU                          {machine:.1} % of the machine ({:.1} µs per link per second)",
-        1e6 * (cpu1 - cpu0) / elapsed / n as f64
+        "  CPU                          {machine:.1} % of the machine ({:.1} µs per link per second); the hubs {:.1} %, the bench's application loop and tokio the rest",
+        1e6 * (cpu1 - cpu0) / elapsed / n as f64,
+        100.0 * (hubs1 - hubs0) / elapsed / cpus as f64
     );
     println!(
         "  memory                       {:.1} KiB per link, both ends ({:.0} MiB resident after set-up, {:.0} MiB at the end)",

@@ -14,16 +14,6 @@ use ndr::core::wire::Role;
 use ndr::keygen::{self, KeyPair};
 use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
 
-/// The tests of this file run one at a time: the round-trip test measures
-/// jitter, and the others' handshakes would add their own.
-static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-}
-
 fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -106,56 +96,57 @@ impl Drop for Lab {
 
 #[test]
 fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
-    let _serial = serial();
-    let Lab {
-        base: b,
-        remote: r,
-        rt,
-        listener,
-        addr,
-        ..
-    } = &lab("grtt", None);
-    let base_tls = tls(b, r);
-    let (remote, base) = rt.block_on(async {
-        tokio::join!(
-            listener.accept(),
-            Link::connect_tls(*addr, config(), &base_tls)
-        )
-    });
-    let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
-    let robot = std::thread::spawn(move || {
-        let mut seqs = Vec::new();
-        loop {
-            match remote.recv_timeout(StdDuration::from_secs(2)) {
-                Ok(s) => {
-                    if s.status == Status::Fresh {
-                        seqs.push(s.seq);
+    let _serial = common::serial();
+    common::assert_regulated(|| {
+        let Lab {
+            base: b,
+            remote: r,
+            rt,
+            listener,
+            addr,
+            ..
+        } = &lab("grtt", None);
+        let base_tls = tls(b, r);
+        let (remote, base) = rt.block_on(async {
+            tokio::join!(
+                listener.accept(),
+                Link::connect_tls(*addr, config(), &base_tls)
+            )
+        });
+        let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
+        let robot = std::thread::spawn(move || {
+            let mut seqs = Vec::new();
+            loop {
+                match remote.recv_timeout(StdDuration::from_secs(2)) {
+                    Ok(s) => {
+                        if s.status == Status::Fresh {
+                            seqs.push(s.seq);
+                        }
+                        remote.send(s.values()).unwrap();
                     }
-                    remote.send(s.values()).unwrap();
+                    Err(_) => return (seqs, remote.stats()),
                 }
-                Err(_) => return seqs,
             }
+        });
+        // The echo is the command sent ns ticks before (checked by `drive_base`).
+        let (base_seqs, grtts, echoed) = common::drive_base(&mut base);
+        let base = base.close().unwrap();
+        let (remote_seqs, remote) = robot.join().unwrap();
+        assert_eq!(listener.stats().accepted, 1);
+        common::Run {
+            base_seqs,
+            remote_seqs,
+            grtts,
+            echoed,
+            base,
+            remote,
         }
     });
-    let mut seqs = Vec::new();
-    for k in 0..300 {
-        base.send(&[f64::from(k), -f64::from(k)]).unwrap();
-        let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
-        if s.status == Status::Fresh {
-            seqs.push(s.seq);
-            // The echo is the command sent ns ticks before: same values.
-            assert_eq!(s.values()[0], -s.values()[1]);
-        }
-    }
-    let stats = base.close().unwrap();
-    let remote_seqs = robot.join().unwrap();
-    common::assert_regulated(&seqs, &remote_seqs, &stats);
-    assert_eq!(listener.stats().accepted, 1);
 }
 
 #[test]
 fn peers_without_a_trusted_certificate_never_become_links() {
-    let _serial = serial();
+    let _serial = common::serial();
     let Lab {
         base: b,
         remote: r,
@@ -213,7 +204,7 @@ fn peers_without_a_trusted_certificate_never_become_links() {
 
 #[test]
 fn a_pin_mismatch_is_refused_by_the_client() {
-    let _serial = serial();
+    let _serial = common::serial();
     let Lab {
         base: b,
         remote: r,
@@ -252,7 +243,7 @@ fn a_pin_mismatch_is_refused_by_the_client() {
 
 #[test]
 fn plain_links_off_loopback_are_refused_unless_insecure() {
-    let _serial = serial();
+    let _serial = common::serial();
     let rt = runtime();
     // TEST-NET-1: never routed; the refusal must come before any connect.
     let far: SocketAddr = "192.0.2.1:9".parse().unwrap();
@@ -291,7 +282,7 @@ impl Matches {
 
 #[test]
 fn keygen_writes_a_pair_whose_fingerprint_pins_it() {
-    let _serial = serial();
+    let _serial = common::serial();
     let dir = certs("keygen");
     let pair = pair_of(&dir, "lab");
     let text = std::fs::read_to_string(&pair.cert).unwrap();
@@ -306,7 +297,7 @@ fn keygen_writes_a_pair_whose_fingerprint_pins_it() {
 
 #[test]
 fn a_silent_peer_times_out_and_the_next_one_is_served() {
-    let _serial = serial();
+    let _serial = common::serial();
     let Lab {
         base: b,
         remote: r,
@@ -338,7 +329,7 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
     use ndr::core::sim::delay::DelayModel;
     use ndr::net::Relay;
 
-    let _serial = serial();
+    let _serial = common::serial();
     let dir = certs("relay");
     let (b, r) = (pair_of(&dir, "base"), pair_of(&dir, "remote"));
     let rt = runtime();
@@ -397,7 +388,7 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
 fn peers_trusted_through_a_ca_link_and_a_wrong_server_name_is_refused() {
     use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, IsCa, KeyPair as Key};
 
-    let _serial = serial();
+    let _serial = common::serial();
     let dir = certs("ca");
     std::fs::create_dir_all(&dir).unwrap();
     let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();

@@ -1,27 +1,154 @@
 //! What every regulated link over loopback must show (shared by the plain
 //! and the TLS link tests).
 
-use ndr::net::LinkStats;
+use std::time::Duration;
+
+use ndr::core::endpoint::Status;
+use ndr::net::{Link, LinkStats};
+
+/// The tests of a file that measures jitter run one at a time: the others'
+/// threads, handshakes and hubs would add their own (on two cores, a few
+/// frames then miss their tick and the round trip steps by a period).
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Held for the whole test: the next waits until it ends.
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Runs of a regulated-link test at most, while the host stalls them.
+pub const RUNS: usize = 5;
+
+/// What one regulated run over a real link measured.
+pub struct Run {
+    /// The base's fresh releases, by sequence number.
+    pub base_seqs: Vec<u64>,
+    /// The remote's.
+    pub remote_seqs: Vec<u64>,
+    /// The GRTTs the base's fresh releases carried, seconds.
+    pub grtts: Vec<f64>,
+    /// The base's fresh releases that were one of its commands echoed.
+    pub echoed: usize,
+    pub base: LinkStats,
+    /// Where the test has them.
+    pub remote: Option<LinkStats>,
+}
+
+/// The base's side of a run: 300 ticks of commands `(k, −k)`, each answered
+/// by the next release; `(fresh seqs, GRTTs, echoed)`, `echoed` counting
+/// the fresh releases that carried one of the commands back (the remote
+/// sends zeros until it has one). A command comes back whole.
+pub fn drive_base(base: &mut Link) -> (Vec<u64>, Vec<f64>, usize) {
+    let (mut seqs, mut grtts, mut echoed) = (Vec::new(), Vec::new(), 0);
+    for k in 1..=300 {
+        base.send(&[f64::from(k), -f64::from(k)]).unwrap();
+        let s = base.recv_timeout(Duration::from_secs(5)).unwrap();
+        if s.status == Status::Fresh {
+            seqs.push(s.seq);
+            grtts.extend(s.grtt.map(|g| g.as_secs_f64()));
+            assert_eq!(s.values()[0], -s.values()[1]);
+            if s.values()[0] > 0.0 {
+                echoed += 1;
+            }
+        }
+    }
+    (seqs, grtts, echoed)
+}
 
 /// Both sides' fresh samples came once each and in order, and the base's
 /// round trip is constant: at T = 10 ms on loopback with ns = 2, GRTT is
 /// 2·ns·T to (2·ns + 2)·T depending on the phase between the two sides'
 /// tick grids (a frame read in the same pass as a tick's deadline still
 /// counts for that tick); whatever the phase, its std is ≤ 1 ms.
-pub fn assert_regulated(base_seqs: &[u64], remote_seqs: &[u64], base: &LinkStats) {
-    for (name, seqs) in [("base", base_seqs), ("remote", remote_seqs)] {
-        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
-        assert!(
-            seqs.windows(2).all(|w| w[1] == w[0] + 1),
-            "{name}: gap or repeat"
-        );
+///
+/// A shared host sometimes holds the process, or the kernel's loopback
+/// path, for more than a period (a hub records missed deadlines; a frame
+/// takes longer than a period across loopback): the releases around it are
+/// late, and past the queue's slack the FIFO's delay steps up by a period,
+/// by design. Order and completeness are checked on every run; the GRTT on
+/// a run the host did not stall, `run` being repeated (three runs at most)
+/// until there is one. If all three stalled, the last must still have at
+/// most 2 % of its GRTTs more than 2 ms from the median, and the others
+/// within 1 ms std.
+pub fn assert_regulated(mut run: impl FnMut() -> Run) -> Run {
+    for attempt in 1..=RUNS {
+        let r = run();
+        for (name, seqs) in [("base", &r.base_seqs), ("remote", &r.remote_seqs)] {
+            assert!(seqs.len() > 250, "{name}: {}", seqs.len());
+            assert!(
+                seqs.windows(2).all(|w| w[1] == w[0] + 1),
+                "{name}: gap or repeat"
+            );
+        }
+        assert!(r.echoed > 250, "{} commands echoed", r.echoed);
+        let stalls: u64 = std::iter::once(&r.base)
+            .chain(&r.remote)
+            .map(host_stalls)
+            .sum();
+        if stalls > 0 && attempt < RUNS {
+            eprintln!(
+                "run {attempt}: the host stalled the link a period or more ({stalls} signs: \
+                 base hub lateness {:?}, NRTT {:?}); the GRTT is checked on another run",
+                r.base.lateness, r.base.endpoint.nrtt
+            );
+            continue;
+        }
+        assert_constant_grtt(&r, stalls);
+        return r;
     }
-    let grtt = base.endpoint.grtt;
-    assert!(grtt.count() > 200, "{grtt:?}");
-    assert!(grtt.std() <= 1e-3, "GRTT std {} s: {grtt:?}", grtt.std());
+    unreachable!("the last run returns")
+}
+
+/// What shows that the host, not the link, stalled: a hub that served a
+/// deadline or a release a whole period late, or a frame that took longer
+/// than a period across loopback (an idle loopback takes tens of
+/// microseconds).
+fn host_stalls(s: &LinkStats) -> u64 {
+    let period = s.period.as_secs_f64();
+    [
+        s.lateness.max.as_secs_f64(),
+        s.release_lateness.max.as_secs_f64(),
+        s.endpoint.nrtt.max(),
+        s.endpoint.one_way_rx.max(),
+    ]
+    .iter()
+    .filter(|&&d| d >= period)
+    .count() as u64
+}
+
+fn assert_constant_grtt(r: &Run, stalls: u64) {
+    let all = r.base.endpoint.grtt;
     assert!(
-        grtt.mean() >= 0.039 && grtt.mean() <= 0.061,
-        "GRTT mean {}",
-        grtt.mean()
+        all.count() > 200 && r.grtts.len() > 200,
+        "{all:?}, {}",
+        r.grtts.len()
     );
+    let (mean, std) = if stalls == 0 {
+        (all.mean(), all.std())
+    } else {
+        let mut sorted = r.grtts.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        let (kept, strays): (Vec<f64>, Vec<f64>) =
+            r.grtts.iter().partition(|&&g| (g - median).abs() <= 2e-3);
+        assert!(
+            strays.len() <= r.grtts.len() / 50,
+            "{RUNS} runs stalled by the host; in the last, {} GRTTs more than 2 ms from the \
+             median {median} s: {strays:?}; {all:?}",
+            strays.len()
+        );
+        let n = kept.len() as f64;
+        let mean = kept.iter().sum::<f64>() / n;
+        let var = kept.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / n;
+        (mean, var.sqrt())
+    };
+    assert!(
+        std <= 1e-3,
+        "GRTT std {std} s (host stalls: {stalls}): {all:?}; base {:?}; remote {:?}",
+        r.base,
+        r.remote
+    );
+    assert!((0.039..=0.061).contains(&mean), "GRTT mean {mean}");
 }
