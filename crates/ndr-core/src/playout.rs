@@ -116,33 +116,45 @@ impl Playout {
 #[derive(Clone, Copy, Debug)]
 pub struct PlayoutName(Playout);
 
+/// `units / 10^digits` with the fraction's trailing zeros cut: names are
+/// printed from integers, so that no float noise shows (7 000 ppm is
+/// `0.7`, not `0.7000000000000001`; 124 ms is `124`).
+fn write_decimal(f: &mut fmt::Formatter<'_>, units: u64, digits: u32) -> fmt::Result {
+    let scale = 10u64.pow(digits);
+    write!(f, "{}", units / scale)?;
+    let (mut frac, mut width) = (units % scale, digits as usize);
+    if frac > 0 {
+        while frac % 10 == 0 {
+            frac /= 10;
+            width -= 1;
+        }
+        write!(f, ".{frac:0width$}")?;
+    }
+    Ok(())
+}
+
 impl fmt::Display for PlayoutName {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        let ms = |f: &mut fmt::Formatter<'_>, d: Duration| write_decimal(f, d.as_nanos(), 6);
         match self.0 {
             Playout::Fifo => f.write_str("fifo"),
             Playout::Ramjee1 => f.write_str("ramjee-1"),
             Playout::Ramjee4 => f.write_str("ramjee-4"),
             Playout::NetEq => f.write_str("neteq"),
-            Playout::FixedAboveMin { latency } => write!(f, "fixed:{}", ms(latency)),
-            Playout::Constant { delay } => write!(f, "constant:{}", ms(delay)),
+            Playout::FixedAboveMin { latency } => {
+                f.write_str("fixed:")?;
+                ms(f, latency)
+            }
+            Playout::Constant { delay } => {
+                f.write_str("constant:")?;
+                ms(f, delay)
+            }
             Playout::Adaptive {
                 epsilon_ppm: DEFAULT_EPSILON_PPM,
             } => f.write_str("adaptive"),
-            // The percentage from the integer, so that no float noise shows
-            // (7 000 ppm is `0.7`, not `0.7000000000000001`).
             Playout::Adaptive { epsilon_ppm } => {
-                write!(f, "adaptive:{}", epsilon_ppm / 10_000)?;
-                let mut frac = epsilon_ppm % 10_000;
-                if frac > 0 {
-                    let mut digits = 4;
-                    while frac % 10 == 0 {
-                        frac /= 10;
-                        digits -= 1;
-                    }
-                    write!(f, ".{frac:0digits$}")?;
-                }
-                Ok(())
+                f.write_str("adaptive:")?;
+                write_decimal(f, u64::from(epsilon_ppm), 4)
             }
         }
     }
@@ -175,7 +187,10 @@ impl FromStr for Playout {
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let millis = |v: &str| -> Result<Duration, UnknownPlayout> {
             match v.trim().parse::<f64>() {
-                Ok(ms) if ms.is_finite() && ms >= 0.0 => Ok(Duration::from_secs_f64(ms * 1e-3)),
+                // To the nanosecond, rounded: `124` is 124 ms exactly.
+                Ok(ms) if ms.is_finite() && ms >= 0.0 => {
+                    Ok(Duration::from_nanos(libm::round(ms * 1e6) as u64))
+                }
                 _ => Err(UnknownPlayout),
             }
         };
@@ -1018,6 +1033,15 @@ mod tests {
             (120_500, "adaptive:12.05"),
         ] {
             let p = Playout::Adaptive { epsilon_ppm: ppm };
+            assert_eq!(std::format!("{p}"), name);
+        }
+        for (given, name) in [
+            ("constant:124", "constant:124"),
+            ("constant:0.1", "constant:0.1"),
+            ("fixed:12.5", "fixed:12.5"),
+            ("constant:0.000001", "constant:0.000001"),
+        ] {
+            let p: Playout = given.parse().unwrap();
             assert_eq!(std::format!("{p}"), name);
         }
         assert_eq!(
