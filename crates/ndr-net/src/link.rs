@@ -496,11 +496,33 @@ impl Link {
     /// must return in microseconds and never block (its time shows as
     /// release lateness in [`LinkStats`]). If it panics, the link ends with
     /// [`LinkError::HandlerPanicked`] (its peer gets a Close) and the hub
-    /// goes on with its other links. Events (and the end of the link) still
-    /// come through [`try_recv`](Self::try_recv) and [`recv`](Self::recv),
-    /// which then wait for the link to end; releases queued before the
-    /// handler took over are still there to read. Python has no handler:
-    /// its code would hold the GIL on the hub's thread.
+    /// goes on with its other links (in a build with `panic = "abort"`, a
+    /// panic ends the process, as anywhere else).
+    ///
+    /// Events (and the end of the link) still come through
+    /// [`try_recv`](Self::try_recv) and [`recv`](Self::recv), which then
+    /// wait for the link to end; releases queued before the handler took
+    /// over are still there to read. Python has no handler: its code would
+    /// hold the GIL on the hub's thread.
+    ///
+    /// ```no_run
+    /// # async fn robot(mut link: ndr_net::Link) -> Result<(), ndr_net::NetError> {
+    /// let tx = link.sender();
+    /// link.on_release(move |command| {
+    ///     // The plant's step, in microseconds and without allocating; its
+    ///     // state goes out at the next tick.
+    ///     let mut state = [0.0; ndr_net::link::MAX_AXES];
+    ///     for (s, c) in state.iter_mut().zip(command.values()) {
+    ///         *s = 0.5 * c;
+    ///     }
+    ///     let _ = tx.send(&state[..command.values().len()]);
+    /// })?;
+    /// // Events and the end of the link.
+    /// let end = link.recv_async().await;
+    /// # let _ = end;
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn on_release<F>(&mut self, handler: F) -> Result<(), NetError>
     where
         F: FnMut(&Sample) + Send + 'static,
