@@ -36,30 +36,20 @@
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
 
+mod common;
+
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
+use common::frame;
 use ndr::core::endpoint::Config;
 use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
-use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
+use ndr::core::wire::Role;
 use ndr::net::{Hub, LinkConfig, LinkStats, Listener, TlsConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-
-fn frame() -> Vec<u8> {
-    let header = Header {
-        seq: 1,
-        sent_at: ndr::core::time::Instant::from_millis(1),
-        echo: None,
-        released: None,
-    };
-    let mut buf = vec![0; MAX_FRAME_LEN];
-    let n = wire::encode(&header, &Message::Data(&[0.5]), &mut buf).unwrap();
-    buf.truncate(n);
-    buf
-}
 
 /// Echoes every frame back until the client hangs up; with a `hold`, each
 /// one after that long, the time it really held the frame written into the

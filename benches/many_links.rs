@@ -21,14 +21,17 @@
 //! policy by its command-line name, default `fifo`; the process needs
 //! 2·NDR_LINKS + 50 file descriptors).
 
+mod common;
+
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
+use common::frame;
 use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
-use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message, Role};
+use ndr::core::wire::Role;
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
 use ndr::net::{HubPool, Link, LinkConfig, Listener};
 
@@ -51,9 +54,8 @@ fn rss_kib() -> u64 {
         .unwrap_or(0)
 }
 
-/// CPU time of this process (user + system), seconds (USER_HZ = 100).
-fn cpu_s() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+/// User + system CPU time (seconds, USER_HZ = 100) in a /proc `stat` line.
+fn stat_cpu_s(stat: &str) -> f64 {
     let after = stat.rsplit_once(')').map_or("", |(_, r)| r);
     let f: Vec<u64> = after
         .split_whitespace()
@@ -63,18 +65,9 @@ fn cpu_s() -> f64 {
     (f.get(10).copied().unwrap_or(0) + f.get(11).copied().unwrap_or(0)) as f64 / 100.0
 }
 
-/// One 1-axis Data frame, as the links send.
-fn frame() -> Vec<u8> {
-    let header = Header {
-        seq: 1,
-        sent_at: ndr::core::time::Instant::from_millis(1),
-        echo: None,
-        released: None,
-    };
-    let mut buf = vec![0; MAX_FRAME_LEN];
-    let n = wire::encode(&header, &Message::Data(&[0.5]), &mut buf).unwrap();
-    buf.truncate(n);
-    buf
+/// CPU time of this process, seconds.
+fn cpu_s() -> f64 {
+    stat_cpu_s(&std::fs::read_to_string("/proc/self/stat").unwrap_or_default())
 }
 
 /// One side of the baseline: on this thread's own current-thread runtime,
@@ -138,8 +131,8 @@ fn raw_cpu(n: usize, seconds: f64, cpus: usize) -> f64 {
     100.0 * (cpu1 - cpu0) / elapsed / cpus as f64
 }
 
-/// CPU time (user + system, seconds) of this process's threads named
-/// `name` (the hubs: `ndr-hub`), from /proc/self/task.
+/// CPU time (seconds) of this process's threads named `name` (the hubs:
+/// `ndr-hub`), from /proc/self/task.
 fn threads_cpu_s(name: &str) -> f64 {
     let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
         return 0.0;
@@ -147,17 +140,11 @@ fn threads_cpu_s(name: &str) -> f64 {
     tasks
         .filter_map(Result::ok)
         .filter_map(|t| std::fs::read_to_string(t.path().join("stat")).ok())
-        .filter_map(|stat| {
-            let (head, rest) = stat.rsplit_once(')')?;
-            let comm = head.split_once('(')?.1;
-            (comm == name).then(|| {
-                let f: Vec<u64> = rest
-                    .split_whitespace()
-                    .filter_map(|x| x.parse().ok())
-                    .collect();
-                (f.get(10).copied().unwrap_or(0) + f.get(11).copied().unwrap_or(0)) as f64 / 100.0
-            })
+        .filter(|stat| {
+            let comm = stat.split_once('(').and_then(|(_, r)| r.rsplit_once(')'));
+            comm.is_some_and(|(comm, _)| comm == name)
         })
+        .map(|stat| stat_cpu_s(&stat))
         .sum()
 }
 

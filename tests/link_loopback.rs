@@ -50,38 +50,13 @@ fn loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     let _serial = common::serial();
     let rt = runtime();
     let run = common::assert_regulated(|| {
-        let (mut base, mut remote) = pair(&rt);
-        let robot = std::thread::spawn(move || {
-            // The remote: its "plant" returns the command it was given.
-            let mut seqs = Vec::new();
-            loop {
-                match remote.recv_timeout(StdDuration::from_secs(2)) {
-                    Ok(s) => {
-                        if s.status == Status::Fresh {
-                            seqs.push(s.seq);
-                        }
-                        remote.send(s.values()).unwrap();
-                    }
-                    Err(_) => return (seqs, remote.stats().unwrap()),
-                }
-            }
-        });
-        let (base_seqs, grtts, echoed) = common::drive_base(&mut base);
-        let base = base.close().unwrap();
-        let (remote_seqs, remote) = robot.join().unwrap();
-        common::Run {
-            base_seqs,
-            remote_seqs,
-            grtts,
-            echoed,
-            base,
-            remote: Some(remote),
-        }
+        let (base, remote) = pair(&rt);
+        common::echo_run(base, remote)
     });
     assert_eq!(run.base.ns, 2);
     assert!(run.base.lateness.count > 250);
     // Nothing lost at the remote without a counter saying so.
-    let remote = run.remote.unwrap();
+    let remote = run.remote.expect("the remote's stats");
     let r = remote.endpoint;
     assert_eq!(
         r.samples_received,

@@ -113,34 +113,10 @@ fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
                 Link::connect_tls(*addr, config(), &base_tls)
             )
         });
-        let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
-        let robot = std::thread::spawn(move || {
-            let mut seqs = Vec::new();
-            loop {
-                match remote.recv_timeout(StdDuration::from_secs(2)) {
-                    Ok(s) => {
-                        if s.status == Status::Fresh {
-                            seqs.push(s.seq);
-                        }
-                        remote.send(s.values()).unwrap();
-                    }
-                    Err(_) => return (seqs, remote.stats()),
-                }
-            }
-        });
         // The echo is the command sent ns ticks before (checked by `drive_base`).
-        let (base_seqs, grtts, echoed) = common::drive_base(&mut base);
-        let base = base.close().unwrap();
-        let (remote_seqs, remote) = robot.join().unwrap();
+        let run = common::echo_run(base.unwrap(), remote.unwrap());
         assert_eq!(listener.stats().accepted, 1);
-        common::Run {
-            base_seqs,
-            remote_seqs,
-            grtts,
-            echoed,
-            base,
-            remote,
-        }
+        run
     });
 }
 

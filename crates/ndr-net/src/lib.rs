@@ -28,11 +28,12 @@
 //! grid, one per core. The application holds a [`Link`] (send the next
 //! sample, receive released ones, read [`LinkStats`]), or gives it a
 //! handler that the hub runs at each release on its own thread
-//! ([`Link::on_release`]), so that no thread is woken per tick. Bytes from a TCP
-//! stream become frames through a [`Deframer`], which bounds its memory by
-//! a few of the largest frames the link carries and refuses an absurd or
-//! too long length prefix before buffering anything. The standalone [`ReleaseClock`] thread keeps the same
-//! kind of deadlines for code that is not a link.
+//! ([`Link::on_release`]), so that no thread is woken per tick. Bytes from
+//! a TCP stream become frames through a [`Deframer`], which bounds its
+//! memory by a few of the largest frames the link carries and refuses an
+//! absurd or too long length prefix before buffering anything. The
+//! standalone [`ReleaseClock`] thread keeps the same kind of deadlines for
+//! code that is not a link.
 #![forbid(unsafe_code)]
 
 mod capacity;
