@@ -79,7 +79,9 @@ pub(crate) enum Msg {
 struct Inner {
     /// `None` only while dropping (see `Drop`).
     tx: Option<Sender<Msg>>,
-    waker: Waker,
+    /// Shared with the driver: the waker's eventfd must stay open until the
+    /// thread has taken the last wake (closing it drops a pending event).
+    waker: Arc<Waker>,
     next_id: AtomicU64,
     origin: StdInstant,
     links: Arc<AtomicUsize>,
@@ -122,7 +124,7 @@ impl Hub {
     pub(crate) fn with_origin(spin_margin: Duration, origin: StdInstant) -> io::Result<Hub> {
         let (tx, rx) = mpsc::channel();
         let poll = Poll::new()?;
-        let waker = Waker::new(poll.registry(), WAKER)?;
+        let waker = Arc::new(Waker::new(poll.registry(), WAKER)?);
         let links = Arc::new(AtomicUsize::new(0));
         let timer = precise::Timer::new(poll.registry(), TIMER);
         let driver = Driver {
@@ -145,6 +147,7 @@ impl Hub {
             polling: Cost::new(),
             buf: vec![0; MAX_FRAME_LEN],
             links: Arc::clone(&links),
+            _waker: Arc::clone(&waker),
         };
         std::thread::Builder::new()
             .name("ndr-hub".into())
@@ -277,6 +280,8 @@ struct Driver {
     polling: Cost,
     buf: Vec<u8>,
     links: Arc<AtomicUsize>,
+    /// Kept open while the thread runs (see [`Inner::waker`]).
+    _waker: Arc<Waker>,
 }
 
 impl Driver {

@@ -1,0 +1,92 @@
+//! A hub's thread ends with its last handle: listeners and links leave no
+//! `ndr-hub` thread behind.
+
+use ndr_core::endpoint::Config;
+use ndr_core::wire::Role;
+use ndr_net::{Link, LinkConfig, Listener};
+
+/// `ndr-hub` threads of this process.
+fn hub_threads() -> usize {
+    std::fs::read_dir("/proc/self/task")
+        .map(|tasks| {
+            tasks
+                .filter_map(Result::ok)
+                .filter(|t| {
+                    std::fs::read_to_string(t.path().join("comm"))
+                        .is_ok_and(|c| c.trim() == "ndr-hub")
+                })
+                .count()
+        })
+        .unwrap_or(0)
+}
+
+/// Waits (2 s at most) for the count of hub threads to come down to `n`.
+fn settles_to(n: usize) -> usize {
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(2);
+    loop {
+        let now = hub_threads();
+        if now <= n || std::time::Instant::now() > end {
+            return now;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn a_dropped_listener_ends_its_hub_thread() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let before = hub_threads();
+    for _ in 0..5 {
+        let l = rt
+            .block_on(Listener::bind(
+                "127.0.0.1:0".parse().expect("addr"),
+                LinkConfig::new(Config::new(Role::Remote)),
+            ))
+            .expect("bind");
+        drop(l);
+    }
+    assert_eq!(settles_to(before), before);
+}
+
+#[test]
+fn a_dropped_hub_ends_its_thread() {
+    let before = hub_threads();
+    for _ in 0..5 {
+        drop(ndr_net::Hub::with_defaults().expect("hub"));
+    }
+    assert_eq!(settles_to(before), before);
+}
+
+#[test]
+fn closed_links_and_their_listener_leave_no_hub_thread() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let before = hub_threads();
+    for _ in 0..3 {
+        let listener = rt
+            .block_on(Listener::bind(
+                "127.0.0.1:0".parse().expect("addr"),
+                LinkConfig::new(Config::new(Role::Remote)),
+            ))
+            .expect("bind");
+        let addr = listener.local_addr().expect("address");
+        let (base, remote) = rt.block_on(async {
+            tokio::join!(
+                Link::connect(addr, LinkConfig::new(Config::new(Role::Base))),
+                listener.accept()
+            )
+        });
+        // Both handshakes are done: each hub drives a link.
+        let (base, remote) = (base.expect("connect"), remote.expect("accept"));
+        drop(listener);
+        drop(remote.close());
+        drop(base.close());
+    }
+    assert_eq!(settles_to(before), before);
+}
