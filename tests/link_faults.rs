@@ -265,3 +265,79 @@ fn a_data_frame_with_more_channels_than_the_link_carries_ends_it_with_that_error
     }
     assert_eq!(listener.stats().accepted, 2);
 }
+
+/// How a base that ends in `end` is reported by the remote (`serve`).
+fn remote_sees(end: impl FnOnce(Link) + Send + 'static) -> NetError {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let (addr, errors, _listener) = serve(&rt, 1);
+    let mut base = rt.block_on(Link::connect(addr, config())).unwrap();
+    // Running: a sample came back.
+    base.send(&[1.0]).unwrap();
+    base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+    end(base);
+    errors.recv_timeout(StdDuration::from_secs(3)).unwrap()
+}
+
+#[test]
+fn a_closed_link_is_a_normal_end_for_the_peer() {
+    let e = remote_sees(|mut base| {
+        base.shutdown();
+        assert!(matches!(
+            base.recv_timeout(StdDuration::from_secs(1)),
+            Err(NetError::Link(LinkError::Closed))
+        ));
+        assert!(
+            base.drain_events()
+                .any(|e| matches!(e, ndr::core::endpoint::Event::Closed { error: None }))
+        );
+    });
+    assert!(
+        matches!(
+            e,
+            NetError::Link(LinkError::PeerClosed {
+                reason: close_reason::NORMAL
+            })
+        ),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn an_aborted_link_or_one_dropped_in_a_panic_is_an_application_failure_for_the_peer() {
+    let application_failure = |e: &NetError| {
+        matches!(
+            e,
+            NetError::Link(LinkError::PeerClosed {
+                reason: close_reason::APPLICATION
+            })
+        )
+    };
+    let e = remote_sees(|mut base| {
+        base.abort();
+        // This side then says how it ended, in its receive and its events.
+        assert!(matches!(
+            base.recv_timeout(StdDuration::from_secs(1)),
+            Err(NetError::Link(LinkError::Abandoned))
+        ));
+        assert!(base.drain_events().any(|e| matches!(
+            e,
+            ndr::core::endpoint::Event::Closed {
+                error: Some(LinkError::Abandoned)
+            }
+        )));
+    });
+    assert!(application_failure(&e), "{e:?}");
+    let e = remote_sees(|base| {
+        let panicked = std::thread::spawn(move || {
+            let _owned = base;
+            panic!("the operator's control loop failed (expected by the test)");
+        })
+        .join();
+        assert!(panicked.is_err());
+    });
+    assert!(application_failure(&e), "{e:?}");
+}

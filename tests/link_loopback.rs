@@ -88,6 +88,11 @@ fn a_closed_peer_is_reported_and_recv_stops_waiting() {
         matches!(err, NetError::Link(LinkError::PeerClosed { reason: 0 })),
         "{err:?}"
     );
+    // The closed link's last stats count the release clock up to its end,
+    // not as of the hub's periodic refresh (which a short run sees once).
+    let last = remote.stats().expect("stats");
+    assert!(last.lateness.count > 1, "{:?}", last.lateness);
+    assert!(last.release_lateness.count > 1, "{:?}", last.release_lateness);
 }
 
 #[test]

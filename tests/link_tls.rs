@@ -8,7 +8,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration as StdDuration;
 
-use ndr::core::endpoint::{Config, Status};
+use ndr::core::endpoint::{Config, LinkError, Status};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::keygen::{self, KeyPair};
@@ -146,18 +146,22 @@ fn peers_without_a_trusted_certificate_never_become_links() {
         };
         let (accepted, (unknown, none, plain, ok)) = tokio::join!(accepting, attempts);
         // In TLS 1.3 the client finishes before the server has checked its
-        // certificate: a refused client sees the server's alert or the
-        // closed socket at its first read, not always at connect.
+        // certificate: a refused client sees the server's alert at its first
+        // read, not always at connect, and says what it means.
         for (name, attempt) in [("unknown", unknown), ("none", none)] {
             if let Ok(mut link) = attempt {
                 let err = link.recv_timeout(StdDuration::from_secs(2)).unwrap_err();
-                assert!(matches!(err, NetError::Link(_)), "{name}: {err:?}");
+                assert!(
+                    matches!(err, NetError::Link(LinkError::CertificateRefused)),
+                    "{name}: {err:?}"
+                );
             }
         }
-        // The plain peer's frames are not TLS: the listener refuses it; it
-        // sees its link closed.
+        // The plain peer's frames are not TLS: the listener refuses it with
+        // an alert, which the plain peer reads as a frame and names.
         if let Ok(mut link) = plain {
-            assert!(link.recv_timeout(StdDuration::from_secs(2)).is_err());
+            let err = link.recv_timeout(StdDuration::from_secs(2)).unwrap_err();
+            assert!(err.to_string().contains("the peer speaks TLS"), "{err}");
         }
         let mut accepted = accepted.unwrap();
         let ok = ok.unwrap();

@@ -73,6 +73,8 @@ pub(crate) struct Entry {
 pub(crate) enum Msg {
     Add(u64, Box<Entry>),
     Close(u64),
+    /// Ends the link as an application failure ([`LinkError::Abandoned`]).
+    Abort(u64),
     Handler(u64, Handler),
 }
 
@@ -439,6 +441,12 @@ impl Driver {
                     }
                     self.flush(id);
                 }
+                Ok(Msg::Abort(id)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        e.endpoint.abort(LinkError::Abandoned);
+                    }
+                    self.flush(id);
+                }
                 Ok(Msg::Handler(id, handler)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
                         e.handler = Some(handler);
@@ -629,6 +637,10 @@ impl Driver {
             );
         }
         if e.endpoint.is_closed() {
+            // The link's last stats: the clock's figures up to now, not as
+            // of the last periodic refresh (a short run has had only one).
+            self.lateness_stats = self.lateness.stats();
+            self.release_stats = self.releases.stats();
             publish(e, self.lateness_stats, self.release_stats);
         }
         let next = e.endpoint.poll_timeout();

@@ -548,16 +548,36 @@ impl Link {
     /// waits — two seconds at most — until the hub has let it go. Receiving
     /// then reports the end.
     pub fn shutdown(&mut self) {
+        self.end(Msg::Close(self.id));
+    }
+
+    /// Ends the link as a failure of this side's application: the peer gets
+    /// Close code 8, "application failure" (its receive reports
+    /// `PeerClosed { reason: 8 }`, not a normal end), so a robot can tell an
+    /// operator who stopped from one whose program failed. Dropping a link
+    /// while its thread panics does this; Python's `Link` does it when an
+    /// exception leaves its `with` block or the link is dropped unclosed.
+    /// Waits as [`shutdown`](Self::shutdown) does; a no-op once closed.
+    pub fn abort(&mut self) {
+        self.end(Msg::Abort(self.id));
+    }
+
+    fn end(&mut self, how: Msg) {
         if self.shut {
             return;
         }
         self.shut = true;
-        let _ = self.hub.send(Msg::Close(self.id));
+        let _ = self.hub.send(how);
         let end = StdInstant::now() + std::time::Duration::from_secs(2);
         loop {
             let left = end.saturating_duration_since(StdInstant::now());
             match self.deliveries.recv_timeout(left) {
-                Ok(_) => {}
+                // Samples after the end are not the application's any more;
+                // events are (the Closed one says how this side ended).
+                Ok(Delivery::Sample(_)) => {}
+                Ok(d @ Delivery::Event(_)) => {
+                    let _ = self.accept(d);
+                }
                 Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return,
             }
         }
@@ -565,8 +585,13 @@ impl Link {
 }
 
 impl Drop for Link {
+    /// Closes the link; while the thread panics, as a failure ([`abort`](Link::abort)).
     fn drop(&mut self) {
-        self.shutdown();
+        if std::thread::panicking() {
+            self.abort();
+        } else {
+            self.shutdown();
+        }
     }
 }
 

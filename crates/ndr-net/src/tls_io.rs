@@ -81,7 +81,7 @@ pub(crate) fn read(e: &mut Entry, origin: StdInstant, drain: bool) {
             tracing::warn!("TLS link: {err}; closing it");
             // The alert rustls queued, best effort.
             let _ = tls.conn.write_tls(&mut &e.socket);
-            e.endpoint.abort(LinkError::Disconnected);
+            e.endpoint.abort(ended_by(&err));
             return;
         }
         if !plaintext(e, origin, at) {
@@ -164,5 +164,25 @@ pub(crate) fn close_notify(e: &mut Entry) {
     seal(tls);
     if e.pending.is_empty() {
         let _ = e.socket.write(&tls.sealed);
+    }
+}
+
+/// What a TLS error ends the link with: a peer that refused our certificate
+/// says so in its alert (a TLS 1.3 server checks the client's certificate
+/// after the client's handshake is over, so the client learns it here).
+fn ended_by(err: &rustls::Error) -> LinkError {
+    use rustls::AlertDescription as A;
+    match err {
+        rustls::Error::AlertReceived(
+            A::BadCertificate
+            | A::UnsupportedCertificate
+            | A::CertificateRevoked
+            | A::CertificateExpired
+            | A::CertificateUnknown
+            | A::UnknownCA
+            | A::AccessDenied
+            | A::CertificateRequired,
+        ) => LinkError::CertificateRefused,
+        _ => LinkError::Disconnected,
     }
 }

@@ -82,6 +82,15 @@ pub enum LinkError {
     /// handler on the driver's thread) panicked: the driver ended the link
     /// and kept the others it drives.
     HandlerPanicked,
+    /// This side's application ended the link without closing it: it was
+    /// dropped during a panic, or abandoned (an exception, a handle dropped
+    /// unclosed). The peer gets Close code [`close_reason::APPLICATION`],
+    /// not a normal end.
+    Abandoned,
+    /// The peer's TLS refused this side's certificate (an alert after the
+    /// handshake, as TLS 1.3 checks the client's last): the peer neither pins
+    /// it nor trusts its CA (reported by the driver).
+    CertificateRefused,
     /// The application's sample does not have `axes` channels (the call is refused).
     SampleShape {
         /// The agreed number of axes.
@@ -117,7 +126,7 @@ impl LinkError {
             LinkError::Timeout => close_reason::TIMEOUT,
             LinkError::PeerClosed { reason } => *reason,
             LinkError::Closed => close_reason::NORMAL,
-            LinkError::HandlerPanicked => close_reason::APPLICATION,
+            LinkError::HandlerPanicked | LinkError::Abandoned => close_reason::APPLICATION,
             _ => close_reason::PROTOCOL_ERROR,
         }
     }
@@ -196,7 +205,10 @@ impl fmt::Display for LinkError {
                  give it a larger queue capacity or bound the period"
             ),
             LinkError::Timeout => f.write_str(
-                "the handshake or initialization pattern timed out: the peer is unreachable or not an ndr peer",
+                "the handshake or an initialization pattern did not finish within the handshake \
+                 timeout: check that the peer is reachable, speaks ndr and takes the other role \
+                 (one base, one remote); on a slow network (a pause of the dynamic mode re-runs \
+                 the pattern) raise the handshake timeout",
             ),
             LinkError::PeerClosed { reason } => write!(
                 f,
@@ -210,6 +222,14 @@ impl fmt::Display for LinkError {
             LinkError::HandlerPanicked => f.write_str(
                 "the release handler panicked, so the link was closed; a handler runs on the link's \
                  driver thread and must return normally (handle errors inside it)",
+            ),
+            LinkError::Abandoned => f.write_str(
+                "the application ended the link without closing it (a panic or an exception, or \
+                 its handle dropped unclosed); the peer was told: application failure",
+            ),
+            LinkError::CertificateRefused => f.write_str(
+                "the peer refused this side's TLS certificate: it neither pins it nor trusts its \
+                 CA; give the peer this side's certificate (its peer certificate) or its SHA-256 pin",
             ),
             LinkError::SampleShape { expected, got } => write!(
                 f,

@@ -101,10 +101,18 @@ impl fmt::Display for WireError {
                 f,
                 "truncated frame: {got} bytes, the frame needs {needed}; read the rest from the stream before decoding"
             ),
-            WireError::LengthOutOfRange(len) => write!(
-                f,
-                "frame length field is {len}, valid is {HEADER_LEN}..={MAX_FRAME_LEN}; the stream is corrupt or not ndr, close the connection"
-            ),
+            WireError::LengthOutOfRange(len) => {
+                write!(
+                    f,
+                    "frame length field is {len}, valid is {HEADER_LEN}..={MAX_FRAME_LEN}; the stream is corrupt or not ndr, close the connection"
+                )?;
+                if looks_like_tls(len) {
+                    f.write_str(
+                        " (these bytes start a TLS record: the peer speaks TLS, configure TLS on this side too)",
+                    )?;
+                }
+                Ok(())
+            }
             WireError::LengthMismatch { field, actual } => write!(
                 f,
                 "frame length field says {field} bytes but the buffer holds {actual}; pass exactly one frame (split the stream with frame_len)"
@@ -174,3 +182,10 @@ impl fmt::Display for WireError {
 }
 
 impl core::error::Error for WireError {}
+
+/// Whether a length field's bytes are a TLS record's header: a content type
+/// (20–23), then version 3.x.
+fn looks_like_tls(field: u32) -> bool {
+    let [kind, major, minor, _] = field.to_le_bytes();
+    (20..=23).contains(&kind) && major == 3 && minor <= 4
+}

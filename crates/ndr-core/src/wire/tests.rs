@@ -522,3 +522,16 @@ fn every_error_has_a_message() {
         "Hello payload is 3 bytes, it must be exactly 16"
     );
 }
+
+#[test]
+fn a_tls_record_where_a_frame_was_expected_is_named_in_the_error() {
+    // A TLS alert record (a TLS server answering a plain Hello) and a
+    // ClientHello's record header, read as a length prefix.
+    for header in [[0x15, 0x03, 0x03, 0x00], [0x16, 0x03, 0x01, 0x02]] {
+        let e = frame_len(&header).unwrap_err();
+        assert!(e.to_string().contains("the peer speaks TLS"), "{e}");
+    }
+    // Other garbage is not taken for TLS.
+    let e = frame_len(b"GET ").unwrap_err();
+    assert!(!e.to_string().contains("TLS"), "{e}");
+}
