@@ -92,7 +92,11 @@ fn a_closed_peer_is_reported_and_recv_stops_waiting() {
     // not as of the hub's periodic refresh (which a short run sees once).
     let last = remote.stats().expect("stats");
     assert!(last.lateness.count > 1, "{:?}", last.lateness);
-    assert!(last.release_lateness.count > 1, "{:?}", last.release_lateness);
+    assert!(
+        last.release_lateness.count > 1,
+        "{:?}",
+        last.release_lateness
+    );
 }
 
 #[test]
