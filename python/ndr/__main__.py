@@ -15,10 +15,15 @@ commands:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Runs the command named by ``argv`` (default ``sys.argv[1:]``); returns
+    the exit status (2, with the usage on standard error, for a usage error)."""
     args = list(sys.argv[1:] if argv is None else argv)
-    if not args or args[0] in ("-h", "--help"):
+    if not args:
+        print(f"no command given\n\n{USAGE}", end="", file=sys.stderr)
+        return 2
+    if args[0] in ("-h", "--help"):
         print(USAGE, end="")
-        return 0 if args else 2
+        return 0
     command, rest = args[0], args[1:]
     if command == "demo":
         from .demo import main as demo

@@ -8,7 +8,7 @@ number raises ``TypeError``.
 """
 
 import os
-from typing import Any, Dict, List, Optional, Tuple, Union, final
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -79,11 +79,14 @@ def nominal_size(mt: float, period: float, *, eta: float = 1.3) -> int:
 def period_law(nrtt: float, *, min_period: float = 0.05) -> float:
     """The paper's period law ``max(min_period, nrtt / 3)``, in seconds."""
 
-def init_stats(nrtt: list[float]) -> tuple[float, float, float, float]:
+def init_stats(
+    nrtt: Union[Sequence[float], npt.NDArray[np.floating[Any]], npt.NDArray[np.integer[Any]]],
+) -> tuple[float, float, float, float]:
     """``(nrtt_min, nrtt_max, nrtt_mean, mt)`` of an initialization pattern.
 
-    Takes 1 to ``INIT_EXCHANGES`` round-trip times in seconds; ``mt`` is the
-    largest lag of a reception behind its schedule, ``max - min``.
+    Takes 1 to ``INIT_EXCHANGES`` round-trip times in seconds (a list, a
+    tuple or a 1-D numpy array); ``mt`` is the largest lag of a reception
+    behind its schedule, ``max - min``.
     """
 
 # ---------------------------------------------------------------- regulator
@@ -112,6 +115,9 @@ class Regulator:
     """
 
     def __new__(cls, ns: int, width: int = 1, *, capacity: int = 64) -> "Regulator": ...
+    def __copy__(self) -> "Regulator":
+        """An independent copy: queue, samples, phase and counters."""
+    def __deepcopy__(self, memo: object) -> "Regulator": ...
     def push(self, sample: Union[float, _ArrayLike]) -> None:
         """Queues a sample that has just arrived: a float when ``width`` is 1,
         else ``width`` floats. Raises :class:`RegulatorFull` when full."""
@@ -643,6 +649,7 @@ class _Link:
     def try_recv(self) -> Optional[Tick]: ...
     def unrecv(self, tick: Tick) -> None: ...
     def send(self, sample: Union[_ArrayLike, float]) -> None: ...
+    def abort(self) -> None: ...
     def events(self) -> List[Tuple[str, Dict[str, Any]]]: ...
     @property
     def pending_events(self) -> int: ...
@@ -694,9 +701,10 @@ class _LinkSettings:
 class TlsConfig:
     """Mutual TLS 1.3 for a link: this side's certificate and key (PEM
     files), and whom it trusts: exactly one of ``peer_cert`` (the peer's
-    certificate, pinned by fingerprint), ``pins`` (SHA-256 fingerprints) or
-    ``ca`` (a CA certificate; the server's certificate must name
-    ``server_name``). ``ValueError`` names a file or value it cannot use."""
+    certificate, pinned by fingerprint), ``pins`` (SHA-256 fingerprints, a
+    list, or one as a str) or ``ca`` (a CA certificate; the server's
+    certificate must name ``server_name``). ``ValueError`` names a file or
+    value it cannot use."""
 
     def __new__(
         cls,
@@ -704,7 +712,7 @@ class TlsConfig:
         key: Union[str, "os.PathLike[str]"],
         *,
         peer_cert: Optional[Union[str, "os.PathLike[str]"]] = None,
-        pins: Optional[List[str]] = None,
+        pins: Union[str, Sequence[str], None] = None,
         ca: Optional[Union[str, "os.PathLike[str]"]] = None,
         server_name: Optional[str] = None,
         handshake_timeout: Optional[float] = None,
@@ -733,7 +741,12 @@ class Relay:
     """A delay-injecting TCP proxy (``ndr relay``) running in this process:
     listens on ``listen`` and forwards each connection to ``upstream``,
     delaying every frame by a delay model (one of ``profile``, ``trace``,
-    ``dist`` with ``mean`` and ``std``), keeping order. A context manager."""
+    ``dist`` with ``mean`` and ``std``; with none of them, the
+    ``"lan-75km"`` profile), keeping order. ``seed`` (0 to 2**64 - 1) seeds
+    the delays. A context manager.
+
+    Raises ``OSError`` (with ``errno``, e.g. ``errno.EADDRINUSE``) when it
+    cannot listen on ``listen``."""
 
     def __new__(
         cls,
@@ -765,7 +778,8 @@ class Signal:
     ``"steps[:low=L,high=H,period=P]"`` or ``"constant:V"``."""
 
     def __new__(cls, spec: str = "sine") -> "Signal": ...
-    def __call__(self, t: float, axis: int = 0) -> float: ...
+    def __call__(self, t: float, axis: int = 0) -> float:
+        """The value at time ``t`` (s) for ``axis`` (≥ 0; axes are phase-shifted)."""
     @property
     def kind(self) -> str: ...
 
@@ -786,12 +800,16 @@ def sim_run(
     signal: str = "sine",
     series: bool = True,
 ) -> Tuple[str, Dict[str, _Floats]]:
-    """One simulation: ``(summary JSON, series)``; use :func:`ndr.sim.run`."""
+    """One simulation: ``(summary JSON, series)``, ``null`` in the JSON where
+    nothing was measured; use :func:`ndr.sim.run`."""
 
 # -- logging ------------------------------------------------------------------
 
-def set_log_level(level: str) -> None:
-    """The most verbose Rust level recorded: error, warning, info (default), debug, trace."""
+def set_log_level(level: Union[str, int, None]) -> None:
+    """How verbose Rust is: ``"error"``, ``"warning"``, ``"info"`` (the
+    default), ``"debug"``, ``"trace"``; a :mod:`logging` level such as
+    ``logging.DEBUG`` (the Rust records at or above it are kept); or
+    ``"off"`` or None (no Rust records)."""
 
 def flush_logs() -> None:
     """Hands the waiting Rust log records to :mod:`logging` now."""

@@ -19,7 +19,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import List, Optional, Sequence
+from typing import Any, Callable, Dict, List, Optional, Sequence, TextIO, Tuple, TypedDict
 
 import numpy as np
 
@@ -44,7 +44,7 @@ class RobotLog:
 
     t: List[float] = field(default_factory=list)
     state: List[float] = field(default_factory=list)
-    stats: Optional[dict] = None
+    stats: Optional[Dict[str, Any]] = None
     error: Optional[str] = None
 
 
@@ -90,10 +90,10 @@ class OperatorLog:
     command: List[float] = field(default_factory=list)
     state: List[float] = field(default_factory=list)
     x3e: List[float] = field(default_factory=list)
-    stats: Optional[dict] = None
+    stats: Optional[Dict[str, Any]] = None
 
 
-def _delays(grtt: float, period: float) -> tuple:
+def _delays(grtt: float, period: float) -> Tuple[int, int]:
     """The estimator's one-way delays in ticks, from the GRTT: the link's
     round trip is a whole number of ticks, split evenly (the paper's
     assumption); the remote's answer leaves one tick after the command it
@@ -108,7 +108,7 @@ def operator(
     duration: float,
     signal: Signal,
     *,
-    status=None,
+    status: Optional[Callable[[float, Link, OperatorLog], object]] = None,
 ) -> OperatorLog:
     """The base's controller: sends the operator's command each tick, and
     estimates the remote's current state from the delayed feedback."""
@@ -159,7 +159,7 @@ def operator(
     return log
 
 
-def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> dict:
+def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> Dict[str, Any]:
     """How well the base knows the remote's current state, over the last
     ``1 - after`` of the run: the RMS error of ``x3e`` and of the delayed
     state it receives, against the true state at the same instant."""
@@ -177,7 +177,10 @@ def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> dic
     valid = np.isfinite(x3e)
     if not valid.any():
         return {"x3e_rms_error": math.nan, "delayed_rms_error": math.nan, "compared": 0}
-    rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
+
+    def rms(e: "np.ndarray[Any, Any]") -> float:
+        return float(np.sqrt(np.mean(np.square(e))))
+
     return {
         "x3e_rms_error": rms(x3e[valid] - truth[valid]),
         "delayed_rms_error": rms(y[valid] - truth[valid]),
@@ -189,7 +192,7 @@ def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> dic
 class DemoResult:
     """The demo's report (``report``, what ``--json`` prints) and both logs."""
 
-    report: dict
+    report: Dict[str, Any]
     operator: OperatorLog
     robot: RobotLog
 
@@ -198,13 +201,26 @@ def _status_line(t: float, link: Link, log: OperatorLog) -> None:
     s = link.stats or {}
     nrtt = s.get("last_nrtt")
     grtt = next((g for g in reversed(log.grtt[-50:]) if not math.isnan(g)), math.nan)
-    ms = lambda x: "–" if x is None or math.isnan(x) else f"{x * 1e3:.1f} ms"  # noqa: E731
+
+    def ms(x: Optional[float]) -> str:
+        return "–" if x is None or math.isnan(x) else f"{x * 1e3:.1f} ms"
+
     sys.stderr.write(
         f"\r\x1b[2K  t {t:5.1f} s · {s.get('phase', 'starting'):<9} · NRTT {ms(nrtt):>9} · "
         f"GRTT {ms(grtt):>9} · queue {s.get('queue_len', 0):>3} · "
         f"underflows {s.get('underflows', 0)} "
     )
     sys.stderr.flush()
+
+
+class _Settings(TypedDict):
+    """The link settings both sides of the demo share."""
+
+    axes: int
+    period: float
+    mode: str
+    playout: str
+    underflow: str
 
 
 def run(
@@ -226,14 +242,14 @@ def run(
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
     sig = Signal(signal)
-    settings = dict(axes=axes, period=period, mode=mode, playout=playout, underflow=underflow)
+    settings = _Settings(axes=axes, period=period, mode=mode, playout=playout, underflow=underflow)
     loopback = ("127.0.0.1", 0)
     rb = RobotLog()
     stop = threading.Event()
     with Link.listen(loopback, **settings) as listener, Relay(
         loopback, listener.address, profile=profile, seed=seed
     ) as relay:
-        accepted: list = []
+        accepted: List[Link] = []
 
         def serve() -> None:
             try:
@@ -283,13 +299,28 @@ def _write_csv(path: str, op: OperatorLog) -> None:
             f.write(f"{t:.6f},{seq},{'held' if held else 'fresh'},{g},{u:.6f},{y:.6f},{xe}\n")
 
 
-def _report(*, profile, mode, playout, underflow, duration, axes, op, rb, relay, out) -> dict:
-    b = op.stats or {}
-    r = rb.stats or {}
+def _report(
+    *,
+    profile: str,
+    mode: str,
+    playout: str,
+    underflow: str,
+    duration: float,
+    axes: int,
+    op: OperatorLog,
+    rb: RobotLog,
+    relay: Dict[str, Any],
+    out: Optional[str],
+) -> Dict[str, Any]:
+    b: Dict[str, Any] = op.stats or {}
+    r: Dict[str, Any] = rb.stats or {}
     grtts = np.asarray([g for g in op.grtt if not math.isnan(g)])
     qb = b.get("queue_range") or (0, 0)
     qr = r.get("queue_range") or (0, 0)
-    get = lambda s, k: s.get(k, 0)  # noqa: E731
+
+    def get(s: Dict[str, Any], k: str) -> Any:
+        return s.get(k, 0)
+
     report = {
         "command": "python demo",
         "profile": profile,
@@ -329,11 +360,19 @@ def _report(*, profile, mode, playout, underflow, duration, axes, op, rb, relay,
     return report
 
 
-def print_table(r: dict, file=sys.stdout) -> None:
-    """The report as the CLI prints it."""
-    ms = lambda s: f"{s * 1e3:.2f} ms"  # noqa: E731
-    us = lambda s: f"{s * 1e6:.0f} µs"  # noqa: E731
-    p = lambda *a: print(*a, file=file)  # noqa: E731
+def print_table(r: Dict[str, Any], file: Optional[TextIO] = None) -> None:
+    """The report as the CLI prints it (to ``file``, standard output by default)."""
+    out = sys.stdout if file is None else file
+
+    def ms(s: float) -> str:
+        return f"{s * 1e3:.2f} ms"
+
+    def us(s: float) -> str:
+        return f"{s * 1e6:.0f} µs"
+
+    def p(*a: object) -> None:
+        print(*a, file=out)
+
     p(
         f"ndr {r['command']} · {r['profile']} · {r['mode']} · {r['playout']} · {r['underflow']} · "
         f"T = {ms(r['period_s'])} · {r['duration_s']:.0f} s · {r['axes']} axis(es)"
@@ -388,6 +427,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--out", default="ndr-demo.csv", help="where to write the base's series (CSV)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
+    # Checked here, in the unit given: the link would report seconds.
+    if not (math.isfinite(args.period_ms) and args.period_ms > 0):
+        parser.error(
+            f"--period-ms must be a positive number of milliseconds, got {args.period_ms:g}"
+        )
+    if not (math.isfinite(args.duration_s) and args.duration_s > 0):
+        parser.error(f"--duration-s must be a positive number of seconds, got {args.duration_s:g}")
     try:
         result = run(
             profile=args.profile,
@@ -415,6 +461,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     return 0
 
 
-def _finite(report: dict) -> dict:
+def _finite(report: Dict[str, Any]) -> Dict[str, Any]:
     """NaN (nothing measured) becomes JSON's null."""
     return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in report.items()}

@@ -32,11 +32,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 import threading
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, AsyncIterator, Callable, Iterator, Optional, Sequence, Tuple, Union
+from typing import Any, AsyncIterator, Callable, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -113,6 +114,14 @@ def _settings(args: dict) -> "_native._LinkSettings":
     return _native._LinkSettings(**{native: args[name] for name, native in _SETTINGS.items()})
 
 
+def _check_timeout(timeout: Optional[float]) -> None:
+    # The native receive's own check, for the asynchronous one that slices it.
+    if timeout is not None and not 0.0 <= timeout < 1e9:
+        raise ValueError(
+            f"timeout must be None (wait forever) or a finite number of seconds ≥ 0, got {timeout}"
+        )
+
+
 def _is_normal_end(exc: BaseException) -> bool:
     if isinstance(exc, LinkClosedError):
         return True
@@ -136,6 +145,8 @@ class Link:
         self._events_dropped = 0
         self._paused = False
         self._closed = False
+        # A receive raised a LinkError: the link is over (for repr).
+        self._ended = False
         self._executor: Optional[ThreadPoolExecutor] = None
         self._executor_lock = threading.Lock()
         self._pump()
@@ -154,7 +165,7 @@ class Link:
         playout: str = "fifo",
         underflow: str = "hold",
         watchdog: Optional[float] = None,
-        handshake_timeout: float = 5.0,
+        handshake_timeout: float = 10.0,
         connect_timeout: Optional[float] = 10.0,
         queue: int = 1024,
         tls: Optional[TlsConfig] = None,
@@ -173,9 +184,11 @@ class Link:
                 ``"paper-dynamic"`` (the network predictor resizes them).
             playout: how this side's regulator picks each sample's release
                 tick: ``"fifo"`` (the paper's queue, the default),
-                ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``
-                or ``"constant:MS"`` (a target delay above the sample's send
-                time; see docs/algorithms.md §9). Local to each side.
+                ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``,
+                ``"constant:MS"`` or ``"adaptive[:PERCENT]"`` (a target delay
+                above the sample's send time; ``"adaptive"`` holds the
+                smallest constant delay with a late rate of 0.1 %, or
+                ``PERCENT``; see docs/algorithms.md §9). Local to each side.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:
@@ -183,12 +196,13 @@ class Link:
             watchdog: seconds without a fresh sample before a
                 ``"link_lost"`` event; ``None`` disables it.
             handshake_timeout: seconds the handshake and each
-                initialization pattern may take.
+                initialization pattern may take (a pause of the dynamic
+                mode re-runs the pattern: over a slow network, raise it).
             connect_timeout: seconds to wait for the TCP connection
                 (``None``: the operating system's limit).
             queue: released samples and events that may wait for the
-                application; beyond it the newest are dropped and counted
-                (``stats["app_dropped"]``).
+                application (1 to 2**20); beyond it the newest are dropped
+                and counted (``stats["app_dropped"]``).
             tls: a :class:`TlsConfig`: mutual TLS 1.3, both sides present
                 certificates (``ndr keygen`` makes a pair). Without it a link
                 to or from a non-loopback address is refused…
@@ -221,7 +235,7 @@ class Link:
         playout: str = "fifo",
         underflow: str = "hold",
         watchdog: Optional[float] = None,
-        handshake_timeout: float = 5.0,
+        handshake_timeout: float = 10.0,
         queue: int = 1024,
         tls: Optional[TlsConfig] = None,
         insecure: bool = False,
@@ -259,22 +273,44 @@ class Link:
         """
         try:
             tick = self._native.recv(timeout)
-        finally:
-            if self._native.pending_events:
-                self._pump()
-        if tick.status == "held":
-            self._emit(Event("underflow", seq=tick.seq))
-        return tick
+        except BaseException:
+            self._ended_by_error()
+            raise
+        return self._delivered(tick)
 
     def try_recv(self) -> Optional[Tick]:
         """The next released sample if one is waiting, else ``None``."""
         try:
             tick = self._native.try_recv()
-        finally:
+        except BaseException:
+            self._ended_by_error()
+            raise
+        if tick is None:
             if self._native.pending_events:
                 self._pump()
-        if tick is not None and tick.status == "held":
-            self._emit(Event("underflow", seq=tick.seq))
+            return None
+        return self._delivered(tick)
+
+    def _ended_by_error(self) -> None:
+        """A receive raised: the events that say why go out first."""
+        exc = sys.exc_info()[1]
+        if isinstance(exc, _native.LinkError):
+            self._ended = True
+        if self._native.pending_events:
+            self._pump()
+
+    def _delivered(self, tick: Tick) -> Tick:
+        """Events, then the tick. If an ``on_event`` callback raises, the
+        tick goes back in front of the queue (the next receive returns it)
+        and the callback's exception propagates: nothing is lost."""
+        try:
+            if self._native.pending_events:
+                self._pump()
+            if tick.status == "held":
+                self._emit(Event("underflow", seq=tick.seq))
+        except BaseException:
+            self._native.unrecv(tick)
+            raise
         return tick
 
     def ticks(self, timeout: Optional[float] = None) -> Iterator[Tick]:
@@ -300,6 +336,9 @@ class Link:
         """:meth:`recv` for asyncio: waits on a worker thread of the link,
         without blocking the event loop. Cancelling it loses nothing: a
         sample it had already taken is put back for the next receive."""
+        _check_timeout(timeout)
+        if self._closed:
+            raise LinkClosedError("the link is closed")
         call = _AsyncRecv(self, timeout)
         loop = asyncio.get_running_loop()
         future = loop.run_in_executor(self._worker(), call.run)
@@ -308,9 +347,10 @@ class Link:
         except asyncio.CancelledError:
             call.cancel()
             raise
-        if tick.status == "held":
-            self._emit(Event("underflow", seq=tick.seq))
-        return tick
+        if tick is None:
+            # Cancelled by close() from another thread while it waited.
+            raise LinkClosedError("the link is closed")
+        return self._delivered(tick)
 
     async def aticks(self, timeout: Optional[float] = None) -> AsyncIterator[Tick]:
         """:meth:`ticks` for asyncio: ``async for tick in link.aticks():``."""
@@ -334,7 +374,7 @@ class Link:
 
     # -- state ------------------------------------------------------------
 
-    def events(self) -> list:
+    def events(self) -> List[Event]:
         """The :class:`Event` s since the last call, oldest first."""
         self._pump()
         out = list(self._events)
@@ -392,25 +432,45 @@ class Link:
         return self._closed
 
     def close(self) -> None:
-        """Closes the link: the peer is told (a Close frame), receiving then
-        raises ``LinkClosedError``. Idempotent."""
+        """Closes the link, a normal end: the peer is told (a Close frame),
+        a ``"closed"`` event follows here, and receiving then raises
+        ``LinkClosedError``. Idempotent."""
+        self._end(self._native.close)
+
+    def abort(self) -> None:
+        """Ends the link as a failure of this program: the peer is told
+        "application failure" (Close code 8), so its receive raises
+        ``PeerClosedError`` (``reason == 8``) instead of ending normally,
+        and a robot holds safely rather than taking it for a deliberate
+        stop. An exception leaving a ``with`` block does this, and so does a
+        link garbage-collected without :meth:`close`. Idempotent; a no-op
+        after :meth:`close`."""
+        self._end(self._native.abort)
+
+    def _end(self, how: Callable[[], None]) -> None:
         if self._closed:
             return
         self._closed = True
-        self._native.close()
-        self._pump()
-        if self._executor is not None:
-            self._executor.shutdown(wait=False)
+        how()
+        try:
+            self._pump()
+        finally:
+            if self._executor is not None:
+                self._executor.shutdown(wait=False)
 
     def __enter__(self) -> "Link":
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: Optional[type], *rest: object) -> None:
+        # An exception (Ctrl-C included) is not a deliberate end.
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
     def __repr__(self) -> str:
         host, port = self.peer
-        state = "closed" if self._closed else "open"
+        state = "closed" if self._closed else "ended" if self._ended else "open"
         return (
             f"<ndr.Link {self.role} peer={host}:{port} axes={self.axes} "
             f"period={self.period:g}s {state}>"
@@ -419,24 +479,33 @@ class Link:
     # -- events -----------------------------------------------------------
 
     def _pump(self) -> None:
+        # Every event of the batch is kept and passed to ``on_event``, even
+        # if the callback raises for one; its first exception then propagates.
+        failure: Optional[BaseException] = None
         for kind, fields in self._native.events():
             if kind == "paused":
                 self._paused = True
             elif kind == "started" and self._paused:
                 self._paused = False
                 kind = "resized"
-            self._emit(
-                Event(
-                    kind,
-                    period=fields.get("period"),
-                    ns=fields.get("ns"),
-                    silent_for=fields.get("silent_for"),
-                    delay=fields.get("delay"),
-                    ticks=fields.get("ticks"),
-                    error=fields.get("error"),
-                    details=fields,
+            try:
+                self._emit(
+                    Event(
+                        kind,
+                        period=fields.get("period"),
+                        ns=fields.get("ns"),
+                        silent_for=fields.get("silent_for"),
+                        delay=fields.get("delay"),
+                        ticks=fields.get("ticks"),
+                        error=fields.get("error"),
+                        details=fields,
+                    )
                 )
-            )
+            except BaseException as e:  # noqa: BLE001 - re-raised below
+                if failure is None:
+                    failure = e
+        if failure is not None:
+            raise failure
 
     def _emit(self, event: Event) -> None:
         if len(self._events) >= EVENT_BACKLOG:
@@ -494,9 +563,9 @@ class _AsyncRecv:
                         f"no sample within {self._timeout} s (the link is still up)"
                     ) from None
                 continue
-            finally:
-                if native.pending_events:
-                    self._link._pump()
+            except BaseException:
+                self._link._ended_by_error()
+                raise
             with self._lock:
                 if self._cancelled:
                     native.unrecv(tick)
@@ -515,7 +584,12 @@ class _AsyncRecv:
 class Listener:
     """Accepts links, one per peer (from :meth:`Link.listen`). A peer whose
     handshake fails is logged, counted in :attr:`refused` and skipped; the
-    listener keeps serving."""
+    listener keeps serving.
+
+    The handshakes run while :meth:`accept` (or iteration) waits: a peer
+    that connects in between waits for it, so a program that both listens
+    and connects must accept on another thread than the one that connects
+    (a ``connect`` made before anyone accepts times out)."""
 
     def __init__(
         self,

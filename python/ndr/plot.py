@@ -23,7 +23,7 @@ draws on ``ax`` when given (else on a new figure) and returns the figure.
 from __future__ import annotations
 
 import json
-from typing import Any, Mapping, Optional, Union
+from typing import Any, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
@@ -32,7 +32,7 @@ __all__ = ["compare", "predictions", "queues", "round_trips"]
 
 def _pyplot() -> Any:
     try:
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # type: ignore[import-not-found,unused-ignore]
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError(
             "ndr.plot needs matplotlib: pip install 'ndr[plot]' (or pip install matplotlib)"
@@ -51,7 +51,7 @@ def _series(result: Any) -> Mapping[str, np.ndarray]:
     return series
 
 
-def _axes(ax: Any, rows: int = 1) -> tuple:
+def _axes(ax: Any, rows: int = 1) -> Tuple[Any, List[Any]]:
     plt = _pyplot()
     if ax is not None:
         axes = ax if rows > 1 else [ax]
@@ -130,7 +130,7 @@ def compare(report: Union[str, Mapping[str, Any]], ax: Any = None, *, family: Op
     return fig
 
 
-class _Points(list):
+class _Points(List[Tuple[Any, ...]]):
     family: str = ""
 
 
@@ -138,10 +138,13 @@ def _load(report: Union[str, Mapping[str, Any]]) -> Mapping[str, Any]:
     if isinstance(report, Mapping):
         return report
     text = str(report)
+    loaded: Mapping[str, Any]
     if text.lstrip().startswith("{"):
-        return json.loads(text)
-    with open(text, encoding="utf-8") as f:
-        return json.load(f)
+        loaded = json.loads(text)
+    else:
+        with open(text, encoding="utf-8") as f:
+            loaded = json.load(f)
+    return loaded
 
 
 def _policy_points(data: Mapping[str, Any], family: Optional[str]) -> _Points:

@@ -7,6 +7,7 @@ properties with margins rather than exact timings.
 import _thread
 import asyncio
 import logging
+import os
 import threading
 import time
 
@@ -42,7 +43,8 @@ class Pair:
         self._accepted.set()
 
     def close(self):
-        self.base.close()
+        if self.base is not None:
+            self.base.close()
         if self.remote is not None:
             self.remote.close()
         if self.relay is not None:
@@ -153,7 +155,7 @@ def test_mismatched_settings_raise_handshake_error_and_the_listener_keeps_servin
 
 
 def test_bad_arguments_raise_value_error_naming_what_was_expected():
-    with pytest.raises(ValueError, match="axes must be 1 to 8"):
+    with pytest.raises(ValueError, match="axes must be an integer from 1 to 8"):
         ndr.Link.connect(("127.0.0.1", 9), axes=9)
     with pytest.raises(ValueError, match="role"):
         ndr.Link.connect(("127.0.0.1", 9), role="robot")
@@ -215,6 +217,111 @@ def test_a_normal_close_ends_the_iteration_and_later_calls_raise():
     p.base.close()
     with pytest.raises(ndr.LinkError):
         p.base.recv(timeout=0)
+
+
+def test_the_closing_side_gets_its_closed_event_and_repr_tells_an_ended_link():
+    with Pair(period=0.01) as p:
+        p.base.recv(timeout=3)
+        p.remote.recv(timeout=3)
+        p.remote.close()
+        closed = [e for e in p.remote.events() if e.kind == "closed"]
+        assert len(closed) == 1 and closed[0].details["normal"], closed
+        assert repr(p.remote).endswith("closed>")
+        with pytest.raises(ndr.PeerClosedError):
+            while True:
+                p.base.recv(timeout=2)
+        assert repr(p.base).endswith("ended>")
+
+
+def _the_peer_sees(end):
+    """How the remote's ``ticks()`` ends when the base ends as ``end(base)``."""
+    with Pair(period=0.01) as p:
+        p.base.recv(timeout=3)
+        end(p)
+        got = []
+        with pytest.raises(ndr.PeerClosedError) as info:
+            for tick in p.remote.ticks(timeout=3):
+                got.append(tick)
+        return info.value
+
+
+def test_an_exception_in_the_with_block_is_an_application_failure_for_the_peer():
+    def fail_inside(p):
+        with pytest.raises(ZeroDivisionError):
+            with p.base:
+                1 / 0
+        assert p.base.closed
+
+    e = _the_peer_sees(fail_inside)
+    assert (e.reason, e.reason_name) == (8, "application failure")
+
+
+def test_a_link_dropped_without_close_is_an_application_failure_for_the_peer():
+    def drop_it(p):
+        p.base = None
+        import gc
+
+        gc.collect()
+
+    assert _the_peer_sees(drop_it).reason == 8
+    # abort() says the same, deliberately.
+    assert _the_peer_sees(lambda p: p.base.abort()).reason == 8
+
+
+def test_an_on_event_callback_that_raises_loses_no_sample_nor_event():
+    calls = []
+
+    def callback(event):
+        calls.append(event.kind)
+        if event.kind == "started":
+            raise RuntimeError("the application's callback failed")
+
+    with Pair(period=0.01) as p:
+        first = p.base.recv(timeout=3).seq
+    with Pair(period=0.01) as p:
+        p.base._on_event = callback
+        with pytest.raises(RuntimeError, match="callback failed"):
+            while True:
+                p.base.recv(timeout=3)
+        # The tick taken with the failing event comes next, and the rest follow.
+        seqs = [p.base.recv(timeout=3).seq for _ in range(10)]
+        assert seqs[0] == first and (np.diff(seqs) == 1).all(), (first, seqs)
+        assert calls.count("started") == 1 and "connected" in calls
+
+
+def test_arecv_checks_its_timeout_and_the_link_being_open():
+    async def main(link):
+        with pytest.raises(ValueError, match="timeout"):
+            await link.arecv(timeout=-1)
+        link.close()
+        with pytest.raises(ndr.LinkClosedError):
+            await link.arecv(timeout=0.1)
+
+    with Pair(period=0.01) as p:
+        asyncio.run(main(p.base))
+
+
+def _hub_threads():
+    """This process's ``ndr-hub`` threads (Linux's /proc)."""
+    n = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/comm") as f:
+                n += f.read().strip() == "ndr-hub"
+        except OSError:
+            pass  # the thread ended meanwhile
+    return n
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads in /proc")
+def test_listeners_leave_no_driver_thread_behind():
+    before = _hub_threads()
+    for _ in range(5):
+        ndr.Link.listen(LOOPBACK).close()
+    deadline = time.monotonic() + 2
+    while _hub_threads() > before and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert _hub_threads() <= before
 
 
 def test_a_killed_relay_is_reported_as_disconnected_on_both_ends():

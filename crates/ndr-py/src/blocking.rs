@@ -21,6 +21,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use tokio::runtime::Runtime;
 
+use crate::convert::int_in;
+
 /// Longest stretch without checking for Ctrl-C.
 pub const SLICE: Duration = Duration::from_millis(50);
 
@@ -90,24 +92,41 @@ where
 }
 
 /// An address: `"host:port"` or a `(host, port)` tuple; resolved, first
-/// address taken.
+/// address taken. An empty host (`("", 0)`, `":7300"`) is every interface,
+/// `0.0.0.0`, as Python's `socket.bind` takes it.
 pub fn address(py: Python<'_>, obj: &Bound<'_, PyAny>) -> PyResult<SocketAddr> {
+    const EXPECTED: &str = "address: expected \"host:port\" or a (host, port) tuple";
     let text = if let Ok(s) = obj.extract::<String>() {
-        s
+        match s.strip_prefix(':') {
+            Some(port) => format!("0.0.0.0:{port}"),
+            None => s,
+        }
     } else if let Ok(t) = obj.cast::<PyTuple>() {
-        let (host, port): (String, u16) = t.extract().map_err(|_| {
-            PyTypeError::new_err(
-                "address: expected \"host:port\" or a (host, port) tuple with a port in 0..=65535",
-            )
+        if t.len() != 2 {
+            return Err(PyTypeError::new_err(format!(
+                "{EXPECTED}, got a tuple of {} items",
+                t.len()
+            )));
+        }
+        let host_item = t.get_item(0)?;
+        let host: String = host_item.extract().map_err(|_| {
+            let ty = host_item.get_type().name();
+            PyTypeError::new_err(match ty {
+                Ok(ty) => format!("{EXPECTED}: the host must be a str, got {ty}"),
+                Err(_) => format!("{EXPECTED}: the host must be a str"),
+            })
         })?;
-        if host.contains(':') {
+        let port: u16 = int_in("port", &t.get_item(1)?, 0, u16::MAX)?;
+        if host.is_empty() {
+            format!("0.0.0.0:{port}")
+        } else if host.contains(':') {
             format!("[{host}]:{port}")
         } else {
             format!("{host}:{port}")
         }
     } else {
         return Err(PyTypeError::new_err(format!(
-            "address: expected \"host:port\" or a (host, port) tuple, got {}",
+            "{EXPECTED}, got {}",
             obj.get_type().name()?
         )));
     };

@@ -61,23 +61,70 @@ pub fn finite(name: &str, value: f64) -> PyResult<f64> {
 /// An integer in `min..=max`, from any Python int; out of range (even beyond
 /// 64 bits) is a `ValueError`, a non-integer a `TypeError`.
 pub fn count(name: &str, obj: &Bound<'_, PyAny>, min: usize, max: usize) -> PyResult<usize> {
-    let expected = || format!("{name} must be an integer from {min} to {max}");
-    let v: i64 = match obj.extract::<i64>() {
-        Ok(v) => v,
-        Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => {
-            return Err(PyValueError::new_err(format!("{}, got {obj}", expected())));
-        }
+    int_in(name, obj, min, max)
+}
+
+/// An integer of type `T` in `min..=max`, from any Python int: a negative or
+/// too large one (even beyond 128 bits) is a `ValueError` naming `name` and
+/// the range (`"axes must be an integer from 1 to 8, got -1"`), a
+/// non-integer a `TypeError`. Take unsigned parameters (axes, seeds, sizes)
+/// this way, or as `i128` checked by [`in_range`], rather than as `u16`,
+/// `u64` or `usize`, whose refusal is pyo3's `OverflowError` naming no
+/// parameter.
+pub fn int_in<T>(name: &str, obj: &Bound<'_, PyAny>, min: T, max: T) -> PyResult<T>
+where
+    T: Copy + Display + TryFrom<i128>,
+    i128: TryFrom<T>,
+{
+    match obj.extract::<i128>() {
+        Ok(v) => in_range(name, v, min, max),
+        Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => Err(PyValueError::new_err(
+            format!("{}, got {obj}", expected_int(name, min, max)),
+        )),
         Err(_) => {
             let ty = obj.get_type().name()?;
-            return Err(PyTypeError::new_err(format!(
+            Err(PyTypeError::new_err(format!(
                 "{}, got an object of type {ty}",
-                expected()
-            )));
+                expected_int(name, min, max)
+            )))
         }
-    };
-    match usize::try_from(v) {
-        Ok(v) if (min..=max).contains(&v) => Ok(v),
-        _ => Err(PyValueError::new_err(format!("{}, got {v}", expected()))),
+    }
+}
+
+/// `v` as a `T` in `min..=max`, else a `ValueError` naming `name` and the
+/// range (for a parameter taken as `i128`, e.g. one with a default).
+pub fn in_range<T>(name: &str, v: i128, min: T, max: T) -> PyResult<T>
+where
+    T: Copy + Display + TryFrom<i128>,
+    i128: TryFrom<T>,
+{
+    match T::try_from(v) {
+        Ok(t) if (wide(min)..=wide(max)).contains(&v) => Ok(t),
+        _ => Err(PyValueError::new_err(format!(
+            "{}, got {v}",
+            expected_int(name, min, max)
+        ))),
+    }
+}
+
+fn wide<T>(x: T) -> i128
+where
+    i128: TryFrom<T>,
+{
+    i128::try_from(x).unwrap_or(i128::MAX)
+}
+
+/// "`name` must be an integer from `min` to `max`" (`2**64 - 1` for the
+/// largest `u64`).
+fn expected_int<T>(name: &str, min: T, max: T) -> String
+where
+    T: Copy + Display,
+    i128: TryFrom<T>,
+{
+    if wide(max) == i128::from(u64::MAX) {
+        format!("{name} must be an integer from {min} to 2**64 - 1")
+    } else {
+        format!("{name} must be an integer from {min} to {max}")
     }
 }
 

@@ -12,15 +12,20 @@
 //!     └── LinkClosedError    this side closed the link
 //! ```
 //!
-//! A refused connection is Python's own `ConnectionRefusedError` (also a
-//! `ConnectionError`); a receive timeout is `TimeoutError`; a sample of the
-//! wrong shape or a bad configuration is `ValueError`.
+//! A socket error is Python's own `OSError` subclass for its errno, with
+//! `errno` and `strerror` set (a refused connection is
+//! `ConnectionRefusedError`, also a `ConnectionError`; an address in use is
+//! `OSError` with `errno.EADDRINUSE`); a receive timeout is `TimeoutError`;
+//! a sample of the wrong shape or a bad configuration is `ValueError`.
+
+use std::io;
 
 use ndr_core::endpoint::LinkError as CoreError;
 use ndr_core::wire::close_reason;
 use ndr_net::NetError;
+use ndr_net::tls::HandshakeError as TlsHandshakeError;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyConnectionError, PyTimeoutError, PyValueError};
+use pyo3::exceptions::{PyConnectionError, PyOSError, PyTimeoutError, PyValueError};
 use pyo3::prelude::*;
 
 create_exception!(
@@ -76,7 +81,10 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
         | CoreError::PeriodMismatch { .. }
         | CoreError::ModeMismatch { .. }
         | CoreError::BadParameters { .. }
-        | CoreError::Timeout => HandshakeError::new_err(msg),
+        | CoreError::Timeout
+        // The peer's TLS refused our certificate after our side's handshake
+        // was over (TLS 1.3 checks the client's last): a TLS handshake failure.
+        | CoreError::CertificateRefused => HandshakeError::new_err(msg),
         CoreError::Wire(_) | CoreError::Unexpected { .. } | CoreError::ChannelCount { .. } => {
             ProtocolError::new_err(msg)
         }
@@ -111,15 +119,92 @@ fn peer_closed(py: Python<'_>, msg: String, reason: u16) -> PyErr {
 /// The exception for a network driver error.
 pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
     match e {
-        NetError::Io(io) => PyErr::from(io),
+        NetError::Io(io) => os_error(py, &io, None),
         NetError::Config(c) => PyValueError::new_err(format!("link configuration: {c}")),
         NetError::Link(l) => link_error(py, l),
         NetError::Timeout => {
             PyTimeoutError::new_err("no sample within the timeout (the link is still up)")
         }
-        NetError::Handshake(h) => HandshakeError::new_err(h.to_string()),
-        other @ NetError::Insecure(_) => PyValueError::new_err(other.to_string()),
+        NetError::Handshake(h) => HandshakeError::new_err(tls_handshake_message(&h)),
+        NetError::Insecure(addr) => PyValueError::new_err(format!(
+            "refusing a plain link with {addr}: it is not loopback; pass \
+             tls=ndr.TlsConfig(...) (mutual TLS), or insecure=True to send plain TCP \
+             (anyone on the path can read and forge the samples)"
+        )),
     }
+}
+
+/// A TLS handshake failure in the words of the Python API (the Rust
+/// message names the command line's flags).
+fn tls_handshake_message(h: &TlsHandshakeError) -> String {
+    match h {
+        TlsHandshakeError::UnknownCertificate(why) => format!(
+            "TLS handshake refused: unknown certificate ({why}); give each side's TlsConfig \
+             the other's certificate (peer_cert=) or its fingerprint (pins=[...])"
+        ),
+        TlsHandshakeError::NoCertificate => "TLS handshake refused: no client certificate; \
+             both sides need a TlsConfig (cert and key)"
+            .to_owned(),
+        TlsHandshakeError::Version(why) => format!(
+            "TLS handshake refused: the peer does not speak TLS 1.3 ({why}); give both \
+             sides a TlsConfig (tls=), or neither on loopback"
+        ),
+        other => other.to_string(),
+    }
+}
+
+/// The `OSError` for a socket error: the subclass its errno selects
+/// (`ConnectionRefusedError`, `PermissionError`, …, plain `OSError` for an
+/// address in use), with `errno` and `strerror` set, as Python's own socket
+/// functions raise. `context` (e.g. `"cannot connect to 127.0.0.1:7300"`)
+/// goes before the system's message in `strerror`, as asyncio does.
+///
+/// The errno is the system's when `e` carries it, else the one of its kind
+/// (an error re-wrapped with a message keeps only its kind); an error with
+/// neither is an `OSError` (or the subclass of its kind) with the message.
+pub fn os_error(py: Python<'_>, e: &io::Error, context: Option<&str>) -> PyErr {
+    let errno = e.raw_os_error().or_else(|| errno_of(py, e.kind()));
+    // An OS error displays as "Address already in use (os error 98)":
+    // strerror is the part before the code.
+    let text = e.to_string();
+    let text = match text.rfind(" (os error ") {
+        Some(i) if text.ends_with(')') => text[..i].to_owned(),
+        _ => text,
+    };
+    let strerror = match context {
+        Some(c) => format!("{c}: {text}"),
+        None => text,
+    };
+    match errno {
+        // `OSError(errno, strerror)` is created as the subclass for errno.
+        Some(code) => PyOSError::new_err((code, strerror)),
+        None => PyErr::from(io::Error::new(e.kind(), strerror)),
+    }
+}
+
+/// The errno of an I/O error kind, from Python's `errno` module (so the
+/// platform's value), for the kinds a socket gives.
+fn errno_of(py: Python<'_>, kind: io::ErrorKind) -> Option<i32> {
+    use io::ErrorKind as K;
+    let name = match kind {
+        K::ConnectionRefused => "ECONNREFUSED",
+        K::ConnectionReset => "ECONNRESET",
+        K::ConnectionAborted => "ECONNABORTED",
+        K::NotConnected => "ENOTCONN",
+        K::AddrInUse => "EADDRINUSE",
+        K::AddrNotAvailable => "EADDRNOTAVAIL",
+        K::BrokenPipe => "EPIPE",
+        K::TimedOut => "ETIMEDOUT",
+        K::PermissionDenied => "EACCES",
+        K::HostUnreachable => "EHOSTUNREACH",
+        K::NetworkUnreachable => "ENETUNREACH",
+        K::NetworkDown => "ENETDOWN",
+        _ => return None,
+    };
+    py.import("errno")
+        .and_then(|m| m.getattr(name))
+        .and_then(|v| v.extract::<i32>())
+        .ok()
 }
 
 /// Registers the exception types on the module.

@@ -39,6 +39,7 @@ pub mod tls;
 use ndr_core::sizing::{self, InitPattern, Sizing};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyList;
 
 use crate::convert::seconds;
 
@@ -130,6 +131,22 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<sim::PySignal>()?;
     m.add_function(wrap_pyfunction!(log::set_log_level, m)?)?;
     m.add_function(wrap_pyfunction!(log::flush_logs, m)?)?;
+    private_out_of_all(m)?;
     log::install();
     Ok(())
+}
+
+/// Takes the private names (`_Link`, `_Listener`, `_LinkSettings`: the
+/// natives behind `ndr.Link`) out of the `__all__` pyo3 keeps; `__version__`
+/// stays.
+fn private_out_of_all(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let all = m.getattr("__all__")?.cast_into::<PyList>()?;
+    let public: Vec<Bound<'_, PyAny>> = all
+        .iter()
+        .filter(|name| {
+            name.extract::<String>()
+                .map_or(true, |n| !n.starts_with('_') || n.starts_with("__"))
+        })
+        .collect();
+    m.setattr("__all__", PyList::new(m.py(), public)?)
 }

@@ -29,13 +29,18 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::blocking::{self, timed_out, wait};
-use crate::convert::{period as positive, sample};
-use crate::errors::{link_error, net_error};
+use crate::convert::{count, int_in, period as positive, sample as to_sample};
+use crate::errors::{link_error, net_error, os_error};
 use crate::log;
 use crate::tls::PyTlsConfig;
 
 /// Events kept for Python between two reads; older ones are dropped.
 const EVENTS: usize = 1024;
+
+/// The most released samples and events that may wait for the application
+/// (`queue=`): a bound on the memory a link that nobody reads can take
+/// (about 100 MiB at 8 axes), far beyond the 1024 default.
+const MAX_APP_QUEUE: usize = 1 << 20;
 
 /// A sample released by the link's regulator at one of its ticks.
 ///
@@ -210,6 +215,35 @@ impl PyLink {
     fn ended(&self, py: Python<'_>) -> Option<CoreError> {
         py.detach(|| lock(&self.rx).ended)
     }
+
+    /// Ends the link (`how`: close or abort), keeps the events that tell
+    /// how, and marks it ended for the receive calls.
+    fn end(&self, py: Python<'_>, how: fn(&mut Link)) {
+        py.detach(|| {
+            let mut rx = lock(&self.rx);
+            how(&mut rx.link);
+            let Rx { link, events, .. } = &mut *rx;
+            events.extend(link.drain_events());
+            if rx.ended.is_none() {
+                rx.ended = Some(CoreError::Closed);
+            }
+            self.publish(&mut rx);
+        });
+        log::flush(py);
+    }
+}
+
+impl Drop for PyLink {
+    /// A link dropped without `close()` (garbage-collected, or the
+    /// interpreter exiting) was abandoned: the peer must not take that for a
+    /// normal end. A no-op after `close()`.
+    fn drop(&mut self) {
+        self.rx
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner)
+            .link
+            .abort();
+    }
 }
 
 #[pymethods]
@@ -246,8 +280,8 @@ impl PyLink {
 
     /// Sets the sample sent at the next tick (the previous one is repeated,
     /// and counted, at ticks where none was given).
-    fn send(&self, py: Python<'_>, sample_: &Bound<'_, PyAny>) -> PyResult<()> {
-        let values = sample("sample", sample_, self.sender.axes())?;
+    fn send(&self, py: Python<'_>, sample: &Bound<'_, PyAny>) -> PyResult<()> {
+        let values = to_sample("sample", sample, self.sender.axes())?;
         if let Some(e) = self.ended(py) {
             return Err(link_error(py, e));
         }
@@ -295,17 +329,14 @@ impl PyLink {
     /// Closes the link (a Close frame tells the peer) and waits, two seconds
     /// at most, for it to be let go. Receiving then raises `LinkClosedError`.
     fn close(&self, py: Python<'_>) {
-        py.detach(|| {
-            let mut rx = lock(&self.rx);
-            rx.link.shutdown();
-            let Rx { link, events, .. } = &mut *rx;
-            events.extend(link.drain_events());
-            if rx.ended.is_none() {
-                rx.ended = Some(CoreError::Closed);
-            }
-            self.publish(&mut rx);
-        });
-        log::flush(py);
+        self.end(py, Link::shutdown);
+    }
+
+    /// Ends the link as a failure of this application (the peer gets Close
+    /// code 8, "application failure", not a normal end) and waits as
+    /// `close` does. Receiving then raises `LinkClosedError`.
+    fn abort(&self, py: Python<'_>) {
+        self.end(py, Link::abort);
     }
 
     /// Axes per sample.
@@ -473,14 +504,14 @@ impl PyLinkSettings {
     #[allow(clippy::too_many_arguments)]
     fn new(
         role: &str,
-        axes: u16,
+        axes: &Bound<'_, PyAny>,
         period: f64,
         mode: &str,
         playout: &str,
         underflow: &str,
         watchdog: Option<f64>,
         handshake_timeout: f64,
-        app_queue: usize,
+        app_queue: &Bound<'_, PyAny>,
         insecure: bool,
     ) -> PyResult<Self> {
         let role = match role {
@@ -492,11 +523,10 @@ impl PyLinkSettings {
                 )));
             }
         };
-        if axes == 0 || usize::from(axes) > MAX_AXES {
-            return Err(PyValueError::new_err(format!(
-                "axes must be 1 to {MAX_AXES} for a link, got {axes}"
-            )));
-        }
+        let max_axes = u16::try_from(MAX_AXES).unwrap_or(u16::MAX);
+        let axes = int_in("axes", axes, 1, max_axes)?;
+        // (`queue` is the name `ndr.Link` gives it.)
+        let app_queue = count("queue", app_queue, 1, MAX_APP_QUEUE)?;
         let mut endpoint = Config::new(role);
         endpoint.axes = axes;
         endpoint.period = positive("period", period)?;
@@ -514,11 +544,6 @@ impl PyLinkSettings {
         endpoint
             .validate()
             .map_err(|e| PyValueError::new_err(format!("link configuration: {e}")))?;
-        if app_queue == 0 {
-            return Err(PyValueError::new_err(
-                "app_queue must be at least 1 (samples and events waiting for the application)",
-            ));
-        }
         let mut config = LinkConfig::new(endpoint);
         config.app_queue = app_queue;
         config.insecure = insecure;
@@ -603,10 +628,7 @@ pub fn connect(
             ));
         }
         Ok(Err(Step::Failed(NetError::Io(e)))) => {
-            return Err(PyErr::from(std::io::Error::new(
-                e.kind(),
-                format!("cannot connect to {addr}: {e}"),
-            )));
+            return Err(os_error(py, &e, Some(&format!("cannot connect to {addr}"))));
         }
         Ok(Err(Step::Failed(e))) => return Err(net_error(py, e)),
         Err(interrupted) => {

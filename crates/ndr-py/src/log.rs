@@ -34,8 +34,8 @@ struct Entry {
 static QUEUED: Mutex<VecDeque<Entry>> = Mutex::new(VecDeque::new());
 static PENDING: AtomicUsize = AtomicUsize::new(0);
 static DROPPED: AtomicU64 = AtomicU64::new(0);
-/// The most verbose level recorded: 0 error … 4 trace.
-static MAX_LEVEL: AtomicUsize = AtomicUsize::new(2);
+/// Levels recorded, from the least verbose: 0 none, 1 error … 5 trace.
+static LEVELS: AtomicUsize = AtomicUsize::new(3);
 static INSTALLED: AtomicBool = AtomicBool::new(false);
 
 fn rank(level: Level) -> usize {
@@ -82,7 +82,7 @@ impl Subscriber for Bridge {
     }
 
     fn enabled(&self, meta: &Metadata<'_>) -> bool {
-        meta.is_event() && rank(*meta.level()) <= MAX_LEVEL.load(Ordering::Relaxed)
+        meta.is_event() && rank(*meta.level()) < LEVELS.load(Ordering::Relaxed)
     }
 
     fn new_span(&self, _: &Attributes<'_>) -> Id {
@@ -180,25 +180,63 @@ fn emit(py: Python<'_>, entries: Vec<Entry>, dropped: u64) -> PyResult<()> {
     Ok(())
 }
 
-/// Sets the most verbose Rust level recorded: "error", "warning", "info",
-/// "debug" or "trace" (default "info").
+/// Sets how verbose Rust is (default "info"): a name, "error", "warning",
+/// "info", "debug" or "trace"; a `logging` level (`logging.DEBUG`: the Rust
+/// records at or above it are kept, so `logging.CRITICAL` keeps none); or
+/// "off" or None: no Rust records at all.
 #[pyfunction]
-pub fn set_log_level(level: &str) -> PyResult<()> {
-    let rank = match level.to_ascii_lowercase().as_str() {
-        "error" | "critical" => 0,
-        "warn" | "warning" => 1,
-        "info" => 2,
-        "debug" => 3,
-        "trace" => 4,
-        _ => {
-            return Err(pyo3::exceptions::PyValueError::new_err(format!(
-                "unknown log level {level:?}: expected one of error, warning, info, debug, trace"
-            )));
-        }
+#[pyo3(signature = (level))]
+pub fn set_log_level(level: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+    let levels = match level {
+        None => 0,
+        Some(obj) => levels(obj)?,
     };
-    MAX_LEVEL.store(rank, Ordering::Relaxed);
+    LEVELS.store(levels, Ordering::Relaxed);
     tracing::callsite::rebuild_interest_cache();
     Ok(())
+}
+
+/// How many Rust levels a `set_log_level` argument keeps.
+fn levels(obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    const EXPECTED: &str = "expected \"error\", \"warning\", \"info\", \"debug\", \"trace\", \
+                            \"off\", None, or a logging level such as logging.DEBUG";
+    if let Ok(name) = obj.extract::<String>() {
+        return match name.to_ascii_lowercase().as_str() {
+            "off" | "none" => Ok(0),
+            "error" | "critical" => Ok(1),
+            "warn" | "warning" => Ok(2),
+            "info" => Ok(3),
+            "debug" => Ok(4),
+            "trace" => Ok(5),
+            _ => Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "unknown log level {name:?}: {EXPECTED}"
+            ))),
+        };
+    }
+    if obj.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "log level: {EXPECTED}, got a bool"
+        )));
+    }
+    match obj.extract::<i128>() {
+        // The Rust levels a logger at this level lets through.
+        Ok(n) => Ok([
+            Level::ERROR,
+            Level::WARN,
+            Level::INFO,
+            Level::DEBUG,
+            Level::TRACE,
+        ]
+        .iter()
+        .take_while(|&&l| i128::from(python_level(l)) >= n)
+        .count()),
+        // Beyond 128 bits: above every level, or below.
+        Err(_) if obj.is_instance_of::<pyo3::types::PyInt>() => Ok(if obj.gt(0)? { 0 } else { 5 }),
+        Err(_) => Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "log level: {EXPECTED}, got an object of type {}",
+            obj.get_type().name()?
+        ))),
+    }
 }
 
 /// Hands the Rust log records waiting in the queue to `logging` now.

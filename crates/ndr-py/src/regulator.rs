@@ -41,6 +41,7 @@ enum LastTick {
 /// The Network Delay Regulator: a FIFO of float64 vectors released one per
 /// tick after a pre-fill to the nominal size `ns`.
 #[pyclass(module = "ndr", name = "Regulator")]
+#[derive(Clone)]
 pub struct PyRegulator {
     core: Box<Core<u64, MAX_CAPACITY>>,
     data: Vec<f64>,
@@ -314,6 +315,16 @@ impl PyRegulator {
         d.set_item("mean", o.mean)?;
         d.set_item("ticks", o.ticks)?;
         Ok(Some(d))
+    }
+
+    /// An independent copy: queue, samples, phase and counters.
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    /// As `__copy__` (the samples are floats: nothing is shared).
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
     }
 
     fn __repr__(&self) -> String {

@@ -11,11 +11,15 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::blocking;
+use crate::convert::in_range;
+use crate::errors::os_error;
 use crate::log;
 use crate::sim::delay_model;
 
 /// A running relay: listens on `listen` and forwards each connection to
-/// `upstream`, delaying every frame by the chosen delay model.
+/// `upstream`, delaying every frame by the chosen delay model: one of
+/// `profile`, `trace`, `dist` (with `mean` and `std`), or, with none of
+/// them, the "lan-75km" profile.
 #[pyclass(frozen, module = "ndr", name = "Relay")]
 pub struct PyRelay {
     handle: Mutex<Option<RelayHandle>>,
@@ -38,8 +42,9 @@ impl PyRelay {
         dist: Option<&str>,
         mean: Option<f64>,
         std: Option<f64>,
-        seed: u64,
+        seed: i128,
     ) -> PyResult<Self> {
+        let seed = in_range("seed", seed, 0, u64::MAX)?;
         let model = delay_model(profile, trace, dist, mean, std, "lan-75km")?;
         let name = model.name();
         let listen = blocking::address(py, listen)?;
@@ -49,7 +54,7 @@ impl PyRelay {
             rt.block_on(async { Relay::bind(listen, upstream, model, seed).await?.spawn() })
         });
         log::flush(py);
-        let handle = handle?;
+        let handle = handle.map_err(|e| os_error(py, &e, None))?;
         let local = handle.local_addr();
         Ok(PyRelay {
             handle: Mutex::new(Some(handle)),

@@ -2,8 +2,9 @@
 //! shares with the relay.
 //!
 //! The run happens without the GIL; the summary comes back as the JSON of
-//! `ndr sim --json` (the Python side parses it into a dict) and the per-tick
-//! series as float64 arrays, one per column of `ndr sim --out`.
+//! `ndr sim --json`, with `null` for what nothing measured (see [`summary`];
+//! the Python side parses it into a dict), and the per-tick series as float64
+//! arrays, one per column of `ndr sim --out`.
 
 use std::sync::Arc;
 
@@ -11,13 +12,13 @@ use ndr_core::endpoint::{Mode, Underflow};
 use ndr_core::playout::Playout;
 use ndr_core::sim::delay::{DelayModel, DistTable, Trace};
 use ndr_core::sim::signal::Signal;
-use ndr_core::sim::{self, Row, SimConfig};
+use ndr_core::sim::{self, MAX_SIM_AXES, Report, Row, SimConfig};
 use numpy::PyArray1;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{finite, period as positive_period, seconds, value_error};
+use crate::convert::{finite, in_range, period as positive_period, seconds, value_error};
 use crate::log;
 
 /// The network's delays, from exactly one of a profile, a trace CSV or a
@@ -77,11 +78,14 @@ pub fn run<'py>(
     underflow: &str,
     period: f64,
     duration: f64,
-    seed: u64,
-    axes: u16,
+    seed: i128,
+    axes: i128,
     signal: &str,
     series: bool,
 ) -> PyResult<(String, Bound<'py, PyDict>)> {
+    let seed = in_range("seed", seed, 0, u64::MAX)?;
+    let max_axes = u16::try_from(MAX_SIM_AXES).unwrap_or(u16::MAX);
+    let axes = in_range("axes", axes, 1, max_axes)?;
     let model = delay_model(profile, trace, dist, mean, std, "paris-newyork")?;
     let mut cfg = SimConfig::paper(model);
     cfg.mode = mode
@@ -111,9 +115,82 @@ pub fn run<'py>(
         sim::SimError::Thread(_) => PyRuntimeError::new_err(e.to_string()),
         other => PyValueError::new_err(other.to_string()),
     })?;
-    let summary = serde_json::to_string(&out.report)
+    let summary = summary(&out.report)
         .map_err(|e| PyRuntimeError::new_err(format!("cannot encode the report: {e}")))?;
     Ok((summary, columns(py, &out.series)?))
+}
+
+/// The report as JSON, with `null` instead of the zeros the core writes for
+/// what nothing measured (a run too short for a GRTT or a forecast):
+///
+/// - no GRTT (`grtt_count` 0): `grtt_mean_s`, `grtt_std_s`, `grtt_p99_s`;
+/// - no GRTT since the last parameter change (none at all, or a settled
+///   mean of exactly 0, which a GRTT, at least a period, cannot give):
+///   `settled_grtt_mean_s`, `settled_grtt_std_s`, and the relations' errors;
+/// - no forecast compared (`pred_count` 0): `pred_*_mae_s`, `pred_*_rmse_s`;
+/// - no sample released (`samples_released` 0): `e2e_*_mean_s`, `e2e_*_std_s`;
+/// - no running tick on a side since the last parameter change (a maximum
+///   occupancy of 0: the first running tick finds more than `ns ≥ 0`):
+///   that side's `queue_*_min`, `_max`, `_mean`, and then the relations;
+/// - no initialization pattern finished (`initial_ns` 0; a size is ≥ 2):
+///   `initial_ns`.
+///
+/// Non-finite values (`remote_clock_offset_s` before the clock estimate) are
+/// already `null` in serde_json.
+fn summary(report: &Report) -> serde_json::Result<String> {
+    let mut value = serde_json::to_value(report)?;
+    if let Some(fields) = value.as_object_mut() {
+        let mut none = |names: &[&str]| {
+            for name in names {
+                debug_assert!(fields.contains_key(*name), "no field {name} in the report");
+                if let Some(v) = fields.get_mut(*name) {
+                    *v = serde_json::Value::Null;
+                }
+            }
+        };
+        let r = report;
+        let no_settled = r.grtt_count == 0 || r.settled_grtt_mean_s == 0.0;
+        let no_base_queue = r.queue_base_max == 0;
+        let no_remote_queue = r.queue_remote_max == 0;
+        if r.grtt_count == 0 {
+            none(&["grtt_mean_s", "grtt_std_s", "grtt_p99_s"]);
+        }
+        if no_settled {
+            none(&["settled_grtt_mean_s", "settled_grtt_std_s"]);
+        }
+        if r.pred_count == 0 {
+            none(&[
+                "pred_nrtt_mae_s",
+                "pred_nrtt_rmse_s",
+                "pred_mt_mae_s",
+                "pred_mt_rmse_s",
+            ]);
+        }
+        if r.samples_released == 0 {
+            none(&[
+                "e2e_fwd_mean_s",
+                "e2e_fwd_std_s",
+                "e2e_bwd_mean_s",
+                "e2e_bwd_std_s",
+            ]);
+        }
+        if no_base_queue {
+            none(&["queue_base_min", "queue_base_max", "queue_base_mean"]);
+        }
+        if no_remote_queue {
+            none(&["queue_remote_min", "queue_remote_max", "queue_remote_mean"]);
+        }
+        if no_base_queue || no_remote_queue {
+            none(&["relation_grtt_s", "relation_mean_grtt_s"]);
+        }
+        if no_settled || no_base_queue || no_remote_queue {
+            none(&["relation_error_s", "relation_mean_error_s"]);
+        }
+        if r.initial_ns == 0 {
+            none(&["initial_ns"]);
+        }
+    }
+    serde_json::to_string(&value)
 }
 
 /// The series as one float64 array per column (`NaN` where nothing was
@@ -163,7 +240,8 @@ impl PySignal {
 
     /// The value at time `t` (s) for `axis` (axes are phase-shifted).
     #[pyo3(signature = (t, axis = 0))]
-    fn __call__(&self, t: f64, axis: usize) -> PyResult<f64> {
+    fn __call__(&self, t: f64, axis: i128) -> PyResult<f64> {
+        let axis = in_range("axis", axis, 0, usize::MAX)?;
         Ok(self.inner.value(finite("t", t)?, axis))
     }
 

@@ -2,15 +2,16 @@
 //! the peer trusted by its pinned fingerprint or through a CA).
 
 use ndr_net::TlsConfig;
-use ndr_net::tls::Fingerprint;
-use pyo3::exceptions::PyValueError;
+use ndr_net::tls::{Fingerprint, TlsError};
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyString;
 
 /// This side's certificate and key, and whom it trusts. Give exactly one of
 /// `peer_cert` (the peer's certificate file: its fingerprint is pinned, the
 /// lab setup of `ndr keygen`), `pins` (SHA-256 fingerprints, hex) or `ca`
 /// (a CA certificate file; the server's certificate must then name
-/// `server_name`).
+/// `server_name`). A single fingerprint may be given as a str.
 #[pyclass(frozen, module = "ndr", name = "TlsConfig")]
 pub struct PyTlsConfig {
     pub(crate) inner: TlsConfig,
@@ -25,23 +26,21 @@ impl PyTlsConfig {
         cert: std::path::PathBuf,
         key: std::path::PathBuf,
         peer_cert: Option<std::path::PathBuf>,
-        pins: Option<Vec<String>>,
+        pins: Option<&Bound<'_, PyAny>>,
         ca: Option<std::path::PathBuf>,
         server_name: Option<&str>,
         handshake_timeout: Option<f64>,
     ) -> PyResult<Self> {
-        let err = |e: ndr_net::TlsError| PyValueError::new_err(format!("TLS: {e}"));
+        let err = |e: TlsError| tls_error(&e);
+        let pins = pins.map(pin_list).transpose()?;
         let mut inner = match (peer_cert, pins, ca) {
             (Some(peer), None, None) => TlsConfig::from_files(&cert, &key, peer).map_err(err)?,
             (None, Some(pins), None) => {
                 let pins = pins
                     .iter()
                     .map(|p| {
-                        p.parse::<Fingerprint>().map_err(|e| {
-                            PyValueError::new_err(format!(
-                                "pins: {p:?} is not a SHA-256 fingerprint: {e}"
-                            ))
-                        })
+                        p.parse::<Fingerprint>()
+                            .map_err(|e| PyValueError::new_err(format!("pins: {}", words(&e))))
                     })
                     .collect::<PyResult<Vec<_>>>()?;
                 TlsConfig::from_files_pinned(&cert, &key, pins).map_err(err)?
@@ -76,6 +75,62 @@ impl PyTlsConfig {
     }
 }
 
+/// `pins`: a list (any iterable) of fingerprints, or one as a str.
+fn pin_list(obj: &Bound<'_, PyAny>) -> PyResult<Vec<String>> {
+    if let Ok(s) = obj.cast::<PyString>() {
+        return Ok(vec![s.to_cow()?.into_owned()]);
+    }
+    let expected = "pins must be a list of SHA-256 fingerprints (64 hex digits each, as \
+                    TlsConfig.fingerprint gives them) or one as a str";
+    let type_error = || -> PyResult<PyErr> {
+        Ok(PyTypeError::new_err(format!(
+            "{expected}, got an object of type {}",
+            obj.get_type().name()?
+        )))
+    };
+    let Ok(items) = obj.try_iter() else {
+        return Err(type_error()?);
+    };
+    let mut pins = Vec::new();
+    for item in items {
+        let item = item?;
+        match item.cast::<PyString>() {
+            Ok(s) => pins.push(s.to_cow()?.into_owned()),
+            Err(_) => {
+                return Err(PyTypeError::new_err(format!(
+                    "{expected}, got an item of type {}",
+                    item.get_type().name()?
+                )));
+            }
+        }
+    }
+    Ok(pins)
+}
+
+/// A TLS setup error as a `ValueError`, in the words of the Python API.
+fn tls_error(e: &TlsError) -> PyErr {
+    PyValueError::new_err(format!("TLS: {}", words(e)))
+}
+
+/// The message of a TLS setup error, naming `TlsConfig`'s arguments and
+/// `ndr.keygen` where the Rust message names the command line's.
+fn words(e: &TlsError) -> String {
+    match e {
+        TlsError::Read { path, error } => {
+            format!("cannot read {path}: {error} (give PEM files, e.g. from ndr.keygen())")
+        }
+        TlsError::NoCertificate(path) => {
+            format!("{path} holds no PEM certificate (give a .crt file, e.g. from ndr.keygen())")
+        }
+        TlsError::Fingerprint(s) => format!(
+            "{s:?} is not a SHA-256 fingerprint: give 64 hex digits, colons allowed \
+             (ndr.keygen() returns it, TlsConfig.fingerprint gives it)"
+        ),
+        TlsError::NoTrust => "no peer to trust: give one of peer_cert, pins and ca".to_owned(),
+        other => other.to_string(),
+    }
+}
+
 /// Makes a self-signed certificate pair for a lab setup (as `ndr keygen`):
 /// writes `dir/name.crt` and `dir/name.key` (PEM; the key readable by its
 /// owner only) and returns `(cert_path, key_path, fingerprint)`. Refuses to
@@ -83,7 +138,9 @@ impl PyTlsConfig {
 #[pyfunction]
 #[pyo3(signature = (dir, name = "ndr"))]
 pub fn keygen(dir: std::path::PathBuf, name: &str) -> PyResult<(String, String, String)> {
-    let pair = ndr_net::keygen::write(&dir, name).map_err(PyValueError::new_err)?;
+    // (The Rust message names the command line's `--name`.)
+    let pair = ndr_net::keygen::write(&dir, name)
+        .map_err(|e| PyValueError::new_err(e.replace("another --name", "another name")))?;
     Ok((
         pair.cert.display().to_string(),
         pair.key.display().to_string(),
