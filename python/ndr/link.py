@@ -37,7 +37,19 @@ import threading
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, AsyncIterator, Callable, Iterator, List, Optional, Sequence, Tuple, Union
+from typing import (
+    Any,
+    AsyncIterator,
+    Callable,
+    Deque,
+    Dict,
+    Iterator,
+    List,
+    Optional,
+    Sequence,
+    Tuple,
+    Union,
+)
 
 import numpy as np
 
@@ -90,7 +102,7 @@ class Event:
     delay: Optional[float] = None
     ticks: Optional[int] = None
     error: Optional[str] = None
-    details: dict = field(default_factory=dict)
+    details: Dict[str, Any] = field(default_factory=dict)
 
 
 # The keyword arguments of Link.connect and Link.listen that configure the
@@ -109,7 +121,7 @@ _SETTINGS = {
 }
 
 
-def _settings(args: dict) -> "_native._LinkSettings":
+def _settings(args: Dict[str, Any]) -> "_native._LinkSettings":
     """The link settings among a call's arguments, checked once in Rust."""
     return _native._LinkSettings(**{native: args[name] for name, native in _SETTINGS.items()})
 
@@ -141,7 +153,7 @@ class Link:
     ) -> None:
         self._native = native
         self._on_event = on_event
-        self._events: deque = deque()
+        self._events: Deque[Event] = deque()
         self._events_dropped = 0
         self._paused = False
         self._closed = False
@@ -388,7 +400,7 @@ class Link:
         return self._events_dropped + self._native.events_dropped
 
     @property
-    def stats(self) -> Optional[dict]:
+    def stats(self) -> Optional[Dict[str, Any]]:
         """A snapshot of the link's state and counters, ``None`` before its
         first tick. Times are seconds. Keys include ``phase``, ``period``,
         ``ns``, ``queue_len``, ``queue_range``, ``last_nrtt``, the counters
@@ -633,7 +645,7 @@ class Listener:
         return self._native.refused
 
     @property
-    def stats(self) -> dict:
+    def stats(self) -> Dict[str, Any]:
         """The listener's counters by reason: ``accepted``; TLS:
         ``refused_certificate``, ``refused_no_certificate``,
         ``refused_version``; ndr's handshake: ``refused_role``,
