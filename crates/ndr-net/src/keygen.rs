@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use crate::tls::{DEFAULT_SERVER_NAME, Fingerprint};
 
-/// A certificate written by [`write`].
+/// A certificate written by [`write()`].
 #[derive(Clone, Debug)]
 pub struct KeyPair {
     /// The certificate (PEM).

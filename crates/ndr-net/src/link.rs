@@ -1,4 +1,4 @@
-//! A regulated link over TCP: the sans-IO [`Endpoint`] driven for real.
+//! A regulated link over TCP: the sans-IO [`Endpoint`](ndr_core::endpoint::Endpoint) driven for real.
 //!
 //! Three parties per link:
 //!

@@ -15,7 +15,8 @@
 //!   certificate. This is what a lab pair made by `ndr keygen` uses, given
 //!   either the peer's certificate file or its printed fingerprint.
 //! - **CA**: its chain leads to one of the given roots (webpki), and a
-//!   server's certificate names [`TlsConfig::server_name`].
+//!   server's certificate names the `server_name` given to
+//!   [`TlsConfig::from_files_with_ca`].
 //!
 //! Only TLS 1.3 is offered and accepted, with the `ring` provider.
 
@@ -109,7 +110,7 @@ impl std::str::FromStr for Fingerprint {
 #[derive(Clone, Debug)]
 pub enum Trust {
     /// Its chain leads to one of these roots (and a server's certificate
-    /// names [`TlsConfig::server_name`]).
+    /// names the `server_name` of [`TlsConfig::from_files_with_ca`]).
     Ca(Vec<CertificateDer<'static>>),
     /// Its certificate's SHA-256 is one of these.
     Pinned(Vec<Fingerprint>),

@@ -2,7 +2,7 @@
 //! shares with the relay.
 //!
 //! The run happens without the GIL; the summary comes back as the JSON of
-//! `ndr sim --json`, with `null` for what nothing measured (see [`summary`];
+//! `ndr sim --json`, with `null` for what nothing measured (see `summary`;
 //! the Python side parses it into a dict), and the per-tick series as float64
 //! arrays, one per column of `ndr sim --out`.
 
