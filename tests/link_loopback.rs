@@ -8,7 +8,7 @@ use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Config, LinkError, Status};
 use ndr::core::time::Duration;
-use ndr::core::wire::Role;
+use ndr::core::wire::{Role, close_reason};
 use ndr::net::{Link, LinkConfig, Listener, NetError};
 
 fn runtime() -> tokio::runtime::Runtime {
@@ -197,4 +197,70 @@ fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others()
     std::thread::sleep(StdDuration::from_millis(500));
     let after = count.load(std::sync::atomic::Ordering::Relaxed);
     assert!(after >= before + 30, "{before} → {after}");
+}
+
+#[test]
+fn a_blocking_listener_serves_bases_one_after_another_without_a_runtime() {
+    let _serial = common::serial();
+    let listener = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
+    let addr = listener.local_addr().unwrap();
+    // The robot: echoes each command until its base closes, for two bases.
+    let robot = std::thread::spawn(move || {
+        let mut served = Vec::new();
+        for _ in 0..2 {
+            let mut link = listener.accept_blocking().expect("a base");
+            let mut seqs = Vec::new();
+            let end = loop {
+                match link.recv() {
+                    Ok(command) => {
+                        seqs.push(command.seq);
+                        link.send(command.values()).expect("send");
+                    }
+                    Err(e) => break e,
+                }
+            };
+            served.push((seqs, end));
+        }
+        served
+    });
+    for _ in 0..2 {
+        let mut base = Link::connect_blocking(addr, config()).expect("connect");
+        let mut states = 0;
+        while states < 30 {
+            base.send(&[1.0, 2.0]).unwrap();
+            let state = base.recv().expect("a state");
+            if state.status == Status::Fresh && state.values() == [1.0, 2.0] {
+                states += 1;
+            }
+        }
+        base.close();
+    }
+    let served = robot.join().expect("the robot's thread");
+    for (seqs, end) in served {
+        // Every command once, in order, and the base's close as the end.
+        assert!(seqs.len() >= 30, "{} commands", seqs.len());
+        assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
+        assert!(
+            matches!(
+                end,
+                NetError::Link(LinkError::PeerClosed {
+                    reason: close_reason::NORMAL
+                })
+            ),
+            "{end}"
+        );
+    }
+}
+
+#[test]
+fn accept_blocking_on_a_listener_of_the_callers_runtime_says_to_await_accept() {
+    let rt = runtime();
+    let listener = rt
+        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+        .unwrap();
+    let err = listener.accept_blocking().unwrap_err();
+    assert!(err.to_string().contains("accept().await"), "{err}");
+    // A blocking listener dropped inside async code does not panic.
+    let blocking = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
+    rt.block_on(async move { drop(blocking) });
 }

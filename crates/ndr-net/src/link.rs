@@ -680,6 +680,19 @@ pub struct Listener {
     /// Handshakes in flight (TLS if configured, then ndr's Hello), a task
     /// each (aborted with the listener).
     handshakes: tokio::sync::Mutex<JoinSet<Option<Link>>>,
+    /// The runtime of a listener made by [`Listener::bind_blocking`]: its
+    /// accepts and handshakes run there.
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl Drop for Listener {
+    fn drop(&mut self) {
+        // Without waiting for its threads: a blocking listener may still be
+        // dropped from async code.
+        if let Some(rt) = self.runtime.take() {
+            rt.shutdown_background();
+        }
+    }
 }
 
 /// Connections a [`Listener`] refused before they became links, by reason.
@@ -801,7 +814,58 @@ impl Listener {
             tls,
             stats: Arc::new(Mutex::new(ListenerStats::default())),
             handshakes: tokio::sync::Mutex::new(JoinSet::new()),
+            runtime: None,
         })
+    }
+
+    /// [`bind`](Self::bind) for programs without a tokio runtime: the
+    /// listener gets a small runtime of its own (one `ndr-io` thread), on
+    /// which [`accept_blocking`](Self::accept_blocking) runs the handshakes.
+    /// The links it accepts need no runtime: their hub drives them.
+    ///
+    /// ```no_run
+    /// use ndr_core::endpoint::Config;
+    /// use ndr_core::time::Duration;
+    /// use ndr_core::wire::Role;
+    /// use ndr_net::{LinkConfig, Listener};
+    ///
+    /// let mut endpoint = Config::new(Role::Remote);
+    /// endpoint.axes = 2;
+    /// endpoint.period = Duration::from_millis(10);
+    /// let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, LinkConfig::new(endpoint))?;
+    /// loop {
+    ///     let mut link = listener.accept_blocking()?; // one base after another
+    ///     while let Ok(command) = link.recv() {
+    ///         let state: Vec<f64> = command.values().iter().map(|c| 0.5 * c).collect();
+    ///         link.send(&state)?;
+    ///     }
+    /// }
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn bind_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        plain_allowed(addr, &config)?;
+        Listener::bind_blocking_with(addr, config, None)
+    }
+
+    /// [`bind_tls`](Self::bind_tls) for programs without a tokio runtime
+    /// (see [`bind_blocking`](Self::bind_blocking)).
+    pub fn bind_blocking_tls(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Listener, NetError> {
+        Listener::bind_blocking_with(addr, config, Some(tls.clone()))
+    }
+
+    fn bind_blocking_with(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: Option<TlsConfig>,
+    ) -> Result<Listener, NetError> {
+        let rt = own_runtime()?;
+        let mut listener = rt.block_on(Listener::bind_with(addr, config, tls))?;
+        listener.runtime = Some(rt);
+        Ok(listener)
     }
 
     /// What it accepted and refused so far.
@@ -919,6 +983,20 @@ impl Listener {
                     });
                 }
             }
+        }
+    }
+
+    /// [`accept`](Self::accept) on the calling thread, for a listener made
+    /// by [`bind_blocking`](Self::bind_blocking); one made on a tokio
+    /// runtime (by [`bind`](Self::bind)) is refused with an error that
+    /// says to `.await` [`accept`](Self::accept) instead.
+    pub fn accept_blocking(&self) -> Result<Link, NetError> {
+        match &self.runtime {
+            Some(rt) => rt.block_on(self.accept()),
+            None => Err(NetError::Io(io::Error::other(
+                "accept_blocking needs a listener made by Listener::bind_blocking; \
+                 this one runs on the caller's tokio runtime: use accept().await",
+            ))),
         }
     }
 
