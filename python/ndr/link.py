@@ -207,9 +207,11 @@ class Link:
                 a late sample is dropped and counted).
             watchdog: seconds without a fresh sample before a
                 ``"link_lost"`` event; ``None`` disables it.
-            handshake_timeout: seconds the handshake and each
-                initialization pattern may take (a pause of the dynamic
-                mode re-runs the pattern: over a slow network, raise it).
+            handshake_timeout: seconds the handshake and the first
+                initialization pattern may take. A pause of the dynamic
+                mode and the pattern it re-runs get this or three times
+                what they need (ten probes at the new period plus the
+                slowest round trip seen), whichever is longer.
             connect_timeout: seconds to wait for the TCP connection
                 (``None``: the operating system's limit).
             queue: released samples and events that may wait for the

@@ -205,10 +205,10 @@ impl fmt::Display for LinkError {
                  give it a larger queue capacity or bound the period"
             ),
             LinkError::Timeout => f.write_str(
-                "the handshake or an initialization pattern did not finish within the handshake \
-                 timeout: check that the peer is reachable, speaks ndr and takes the other role \
-                 (one base, one remote); on a slow network (a pause of the dynamic mode re-runs \
-                 the pattern) raise the handshake timeout",
+                "the handshake or an initialization pattern did not finish in time: check that \
+                 the peer is reachable, speaks ndr and takes the other role (one base, one \
+                 remote); on a slow network raise the handshake timeout (a pause of the dynamic \
+                 mode also gets three times its probes and slowest round trip)",
             ),
             LinkError::PeerClosed { reason } => write!(
                 f,

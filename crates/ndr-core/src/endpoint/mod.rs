@@ -74,6 +74,11 @@ const HYSTERESIS: f64 = 0.5;
 /// falls, a tick of delay every 10 releases): no sample is skipped.
 pub const RELEASE_SLEW_STEPS: u64 = 10;
 
+/// A pause or a re-run initialization pattern may take this many times
+/// what it needs (its probes at the period, plus the slowest round trip
+/// seen) before it times out, if that is longer than the handshake timeout.
+pub const PATTERN_SLACK: u64 = 3;
+
 /// The smallest skew estimate for which a remote's ticks follow the base's grid.
 pub const GRID_SKEW_MIN: f64 = 2e-6;
 
@@ -818,8 +823,22 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.phase = Phase::Init;
         self.pattern.clear();
         self.init_started = now;
-        self.deadline = Some(now + self.config.handshake_timeout);
+        self.deadline = Some(self.pattern_deadline(now));
         self.next_tick = Some(self.next_grid_tick(now));
+    }
+
+    /// The deadline of a pause or of an initialization pattern that starts
+    /// at `now`: the handshake timeout, or longer when the pattern itself
+    /// needs more — [`INIT_EXCHANGES`] probes at the current period and the
+    /// slowest round trip seen so far, with a margin of [`PATTERN_SLACK`].
+    /// The dynamic mode's period law (`NRTT/3`) makes a slow network's
+    /// pattern long: at NRTT 2.6 s it takes 11 s, and a fixed limit ended
+    /// the link there.
+    fn pattern_deadline(&self, now: Instant) -> Instant {
+        let probes = self.period * (INIT_EXCHANGES as u64 + 1);
+        let slowest = Duration::from_secs_f64(self.stats.nrtt.max());
+        let need = (probes + slowest).saturating_mul(PATTERN_SLACK);
+        now + self.config.handshake_timeout.max(need)
     }
 
     fn discard_queue(&mut self) {
@@ -1340,7 +1359,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.discard_queue();
         self.pending = Some((period, ns));
         self.phase = Phase::Pausing;
-        self.deadline = Some(t + self.config.handshake_timeout);
+        self.deadline = Some(self.pattern_deadline(t));
         self.stats.pauses += 1;
         self.queue_tx(Tx::Control {
             op: control_op::PAUSE_REQUEST,
