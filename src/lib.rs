@@ -1,4 +1,56 @@
-//! ndr: regulated teleoperation link (facade over `ndr-core` and `ndr-net`).
+//! ndr: a regulated teleoperation link — a controller drives a robot over an
+//! ordinary IP network as if the delay were constant and known.
+//!
+//! Periodic samples travel both ways over TCP, and a Network Delay Regulator
+//! at each input (a FIFO released at a constant period, or a playout policy
+//! that releases each sample at its send time plus a chosen delay) absorbs
+//! the network's jitter. This crate gathers the two layers under one name
+//! and carries the `ndr` command line:
+//!
+//! - [`core`] (`ndr-core`, `no_std` and allocation-free): the building
+//!   blocks of the paper (the regulator, queue sizing, the Kalman network
+//!   predictor, RLS identification and state estimation), the wire codec,
+//!   and the link [`Endpoint`](core::endpoint::Endpoint): a sans-IO state
+//!   machine that takes time as an argument (its drive loop is documented in
+//!   [`core::endpoint`]). With `std`, [`core::sim`] drives two endpoints over
+//!   a simulated network in deterministic time.
+//! - [`net`] (`ndr-net`): the endpoint over real TCP (optionally mutual TLS
+//!   1.3). A [`Hub`](net::Hub) thread owns the sockets and keeps every
+//!   link's deadlines to the microsecond; the application holds a
+//!   [`Link`](net::Link) (its drive loop is documented in [`net`]).
+//!
+//! A robot and its operator, neither with a tokio runtime of its own
+//! (`examples/teleop.rs` runs both on loopback):
+//!
+//! ```no_run
+//! use ndr::core::{endpoint::Config, time::Duration, wire::Role};
+//! use ndr::net::{Link, LinkConfig, Listener};
+//!
+//! fn config(role: Role) -> LinkConfig {
+//!     let mut c = Config::new(role);
+//!     (c.axes, c.period) = (2, Duration::from_millis(10)); // both sides agree
+//!     LinkConfig::new(c)
+//! }
+//!
+//! // The robot's side.
+//! let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, config(Role::Remote))?;
+//! let mut link = listener.accept_blocking()?;
+//! while let Ok(command) = link.recv() {
+//!     // Each command at its release tick, the delay constant.
+//!     let state: Vec<f64> = command.values().iter().map(|u| 0.5 * u).collect();
+//!     link.send(&state)?; // goes out at the next tick
+//! }
+//!
+//! // The operator's side, in another program.
+//! let mut link = Link::connect_blocking("127.0.0.1:7300".parse()?, config(Role::Base))?;
+//! link.send(&[0.1, 0.2])?;
+//! let state = link.recv()?; // .values(), .seq, .status, .grtt
+//! # let _ = state;
+//! link.close();
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+#![forbid(unsafe_code)]
+
 pub use ndr_core as core;
 pub use ndr_net as net;
 /// Certificate pairs for a lab setup (`ndr keygen`); lives in `ndr-net`.
