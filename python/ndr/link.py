@@ -207,11 +207,11 @@ class Link:
                 a late sample is dropped and counted).
             watchdog: seconds without a fresh sample before a
                 ``"link_lost"`` event; ``None`` disables it.
-            handshake_timeout: seconds the handshake and the first
-                initialization pattern may take. A pause of the dynamic
-                mode and the pattern it re-runs get this or three times
-                what they need (ten probes at the new period plus the
-                slowest round trip seen), whichever is longer.
+            handshake_timeout: seconds the handshake and each
+                initialization pattern may take, at least: a pattern (and a
+                pause of the dynamic mode) gets three times what it needs
+                when that is longer (its probes at the period plus the
+                slowest round trip seen).
             connect_timeout: seconds to wait for the TCP connection
                 (``None``: the operating system's limit).
             queue: released samples and events that may wait for the

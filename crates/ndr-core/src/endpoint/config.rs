@@ -193,10 +193,10 @@ pub struct Config {
     /// simulation, or hosts synchronized by PTP or GPS) share one grid, the
     /// paper's "clock common to the whole structure".
     pub tick_origin: Instant,
-    /// How long the handshake and each initialization pattern may take; a
-    /// pause of the dynamic mode and the pattern it re-runs get longer when
-    /// the new period and the round trips seen need it
-    /// ([`PATTERN_SLACK`](super::PATTERN_SLACK)).
+    /// How long the handshake and each initialization pattern may take, at
+    /// least: a pattern (and a pause of the dynamic mode) gets three times
+    /// what it needs when that is longer — its probes at the period plus
+    /// the slowest round trip seen ([`PATTERN_SLACK`](super::PATTERN_SLACK)).
     pub handshake_timeout: Duration,
     /// While running, raise [`Event::LinkLost`](super::Event::LinkLost) when no
     /// fresh sample has been released for this long; `None` disables it.
