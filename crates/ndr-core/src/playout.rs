@@ -614,8 +614,18 @@ const UNIT_NS: u64 = 50_000;
 /// Linear buckets below 128 units; then 64 per octave (1.6 % wide).
 const LINEAR: u64 = 128;
 const PER_OCTAVE: u64 = 64;
-/// The histogram's window: [`ADAPTIVE_BLOCKS`] blocks of this (90–120 s).
+/// The histogram's window: [`ADAPTIVE_BLOCKS`] blocks of this (90–120 s),
+/// or longer at long periods (see [`ADAPTIVE_BLOCK_MAX`]).
 pub const ADAPTIVE_BLOCK: Duration = Duration::from_secs(30);
+/// The longest block. At a long period the blocks grow so that the
+/// window's full blocks hold [`ADAPTIVE_WINDOW_DELAYS`] delays, up to this
+/// (a window of 15–20 minutes).
+pub const ADAPTIVE_BLOCK_MAX: Duration = Duration::from_secs(300);
+/// The delays the window's full blocks hold at least (below `1/ε` of them
+/// the target keeps a warm-up margin of up to a period, which at the
+/// paper's 200 ms would cost a whole tick of delay for good): `1/ε` at the
+/// default ε = 0.1 %. 30 s blocks hold them at periods up to 90 ms.
+pub const ADAPTIVE_WINDOW_DELAYS: u64 = 1000;
 /// Blocks in the window.
 pub const ADAPTIVE_BLOCKS: usize = 4;
 /// The target may fall by this fraction of a period per sample (a skipped
@@ -676,6 +686,8 @@ pub struct Adaptive {
     sum: f64,
     current: usize,
     block_start: Option<Instant>,
+    /// How long a block lasts ([`ADAPTIVE_BLOCK`] to [`ADAPTIVE_BLOCK_MAX`]).
+    block: Duration,
     goal: Option<Duration>,
     applied: Option<f64>,
 }
@@ -686,9 +698,13 @@ impl Adaptive {
     #[must_use]
     pub fn new(period: Duration, epsilon: f64) -> Self {
         let epsilon = if epsilon.is_finite() { epsilon } else { 1e-3 };
+        let epsilon = epsilon.clamp(1e-6, 0.5);
+        // The full blocks: all but the current one.
+        let block = (period * ADAPTIVE_WINDOW_DELAYS.div_ceil(ADAPTIVE_BLOCKS as u64 - 1))
+            .clamp(ADAPTIVE_BLOCK, ADAPTIVE_BLOCK_MAX);
         Adaptive {
             period: period.as_secs_f64(),
-            epsilon: epsilon.clamp(1e-6, 0.5),
+            epsilon,
             blocks: [[0; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
             total: [0; ADAPTIVE_BUCKETS],
             count: 0,
@@ -697,6 +713,7 @@ impl Adaptive {
             sum: 0.0,
             current: 0,
             block_start: None,
+            block,
             goal: None,
             applied: None,
         }
@@ -726,7 +743,7 @@ impl Adaptive {
             .block_counts
             .get(self.current)
             .is_some_and(|&n| n >= u64::from(u16::MAX));
-        if sent_at < start + ADAPTIVE_BLOCK && !full {
+        if sent_at < start + self.block && !full {
             return;
         }
         self.block_start = Some(sent_at);

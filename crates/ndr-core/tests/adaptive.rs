@@ -169,3 +169,22 @@ fn the_delay_falls_by_sliding_the_releases_without_skipping_a_sample() {
     assert!(fall > 0.2, "the delay fell by {fall} s at most");
     assert!(sliding >= 100, "{sliding} releases sliding forward");
 }
+
+/// At the paper's 200 ms period the window's 30 s blocks held 600 delays,
+/// fewer than the 1/ε = 1000 that end the warm-up margin, so the margin (up
+/// to a period) stayed and the delay never came down from its start at two
+/// ticks (400 ms each way for a 12 ms network). The blocks now grow with
+/// the period, and the delay settles at one tick.
+#[test]
+fn at_a_long_period_the_delay_settles_once_the_window_holds_enough_delays() {
+    let t = Duration::from_millis(200);
+    let cfg = sim_config(&named("lan-75km", 600), ADAPTIVE, 1, t);
+    let r = run(&cfg).expect("the run").report;
+    assert!(
+        (r.playout_delay_fwd_s - 0.2).abs() < 1e-9,
+        "delay {} s",
+        r.playout_delay_fwd_s
+    );
+    assert_eq!(r.late_samples, 0);
+    assert_eq!(r.pauses, 0);
+}
