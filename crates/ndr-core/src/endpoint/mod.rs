@@ -79,9 +79,6 @@ pub const RELEASE_SLEW_STEPS: u64 = 10;
 /// seen) before it times out, if that is longer than the handshake timeout.
 pub const PATTERN_SLACK: u64 = 3;
 
-/// The smallest skew estimate for which a remote's ticks follow the base's grid.
-pub const GRID_SKEW_MIN: f64 = 2e-6;
-
 /// A remote following the base's grid moves its next tick by at most
 /// `T / GRID_SLEW` from one period after the last: an update of the offset
 /// estimate is caught up over several ticks instead of in one.
@@ -174,9 +171,6 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     /// Adaptive playout, remote side: the send stamp (peer clock) and
     /// sequence number of a sample, which anchor the peer's tick grid.
     peer_grid: Option<(Instant, u64)>,
-    /// Whether the ticks follow the peer's grid (set once the skew is
-    /// [`GRID_SKEW_MIN`] or more).
-    slaved: bool,
     predictor: NetworkPredictor,
     pattern: InitPattern,
     next_tick: Option<Instant>,
@@ -243,7 +237,6 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             slew: Duration::ZERO,
             next_release: None,
             peer_grid: None,
-            slaved: false,
             predictor,
             pattern: InitPattern::new(),
             next_tick: None,
@@ -1192,11 +1185,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// the base's grid (the send stamps of its samples, one period apart)
     /// mapped to the local clock by the offset estimate, so that the two
     /// grids do not slide under skew and each delay keeps its quantization.
-    /// The next tick is 0.95 to 1.05 periods away: a grid that moved (the
-    /// offset estimate changed) is caught up by [`GRID_SLEW`] at most.
-    /// Below [`GRID_SKEW_MIN`] of skew the local grid stays (its slide is a
-    /// tick every 2.8 h at 20 ms, and the estimate's own noise would move
-    /// the grid more than the skew does).
+    /// At any skew: two hubs start their grids anywhere within a period of
+    /// each other, and a grid left apart by `φ` made each direction's true
+    /// delay its announced one plus or minus `φ` (the sum was right). The
+    /// next tick is 0.95 to 1.05 periods away: a grid that moved (the offset
+    /// estimate changed, or the first one put it in place) is caught up by
+    /// [`GRID_SLEW`] at most.
     ///
     /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
     fn following_tick(&mut self, t: Instant) -> Instant {
@@ -1206,10 +1200,6 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         else {
             return plain;
         };
-        self.slaved |= libm::fabs(self.sync.skew()) >= GRID_SKEW_MIN;
-        if !self.slaved {
-            return plain;
-        }
         let Some(theta) = self.sync.offset_at(t) else {
             return plain;
         };

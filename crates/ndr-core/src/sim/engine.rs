@@ -75,6 +75,11 @@ pub struct SimConfig {
     /// base's (the network's). Each side reads its own clock, so stamps and
     /// delays seen across the link carry the skew.
     pub remote_skew_ppm: f64,
+    /// How long after the base's the remote's tick grid starts (on its own
+    /// clock): 0 puts both on one grid, the paper's "clock common to the
+    /// whole structure"; the two hubs of a real link start anywhere within
+    /// a period of each other.
+    pub remote_phase: Duration,
     /// The initial period.
     pub period: Duration,
     /// Simulated time.
@@ -104,6 +109,7 @@ impl SimConfig {
             underflow: Underflow::Hold,
             playout: Playout::Fifo,
             remote_skew_ppm: 0.0,
+            remote_phase: Duration::ZERO,
             period: Duration::from_millis(200),
             duration: Duration::from_secs(600),
             seed: 1,
@@ -287,8 +293,12 @@ fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         c.mode = cfg.mode;
         c.underflow = cfg.underflow;
         c.playout = cfg.playout;
-        // One clock for the whole structure, as in the paper.
-        c.tick_origin = Instant::ZERO;
+        // One clock for the whole structure, as in the paper, unless the
+        // remote's grid is set apart.
+        c.tick_origin = match role {
+            Role::Base => Instant::ZERO,
+            Role::Remote => Instant::ZERO + cfg.remote_phase,
+        };
         Ok(Box::new(
             SimEndpoint::new(c, Instant::ZERO).map_err(SimError::Config)?,
         ))
