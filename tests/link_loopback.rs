@@ -253,14 +253,27 @@ fn a_blocking_listener_serves_bases_one_after_another_without_a_runtime() {
 }
 
 #[test]
-fn accept_blocking_on_a_listener_of_the_callers_runtime_says_to_await_accept() {
+fn blocking_calls_on_a_runtime_or_an_async_listener_say_what_to_await() {
     let rt = runtime();
     let listener = rt
         .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
         .unwrap();
     let err = listener.accept_blocking().unwrap_err();
     assert!(err.to_string().contains("accept().await"), "{err}");
-    // A blocking listener dropped inside async code does not panic.
+    // A blocking listener dropped inside async code does not panic, and the
+    // blocking calls made there are refused, not a panic of tokio's.
     let blocking = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
-    rt.block_on(async move { drop(blocking) });
+    let addr = listener.local_addr().unwrap();
+    rt.block_on(async move {
+        let err = blocking.accept_blocking().unwrap_err();
+        assert!(err.to_string().contains("accept().await"), "{err}");
+        drop(blocking);
+        let err = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap_err();
+        assert!(
+            err.to_string().contains("Listener::bind(..).await"),
+            "{err}"
+        );
+        let err = Link::connect_blocking(addr, config()).unwrap_err();
+        assert!(err.to_string().contains("Link::connect(..).await"), "{err}");
+    });
 }

@@ -237,6 +237,7 @@ impl Link {
         config: LinkConfig,
         tls: Option<&TlsConfig>,
     ) -> Result<Link, NetError> {
+        not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
         let rt = own_runtime()?;
         let hub = Hub::new(config.spin_margin)?;
         let mut link = rt.block_on(hub.connect_with(addr, config, tls))?;
@@ -660,6 +661,19 @@ impl LinkSender {
     }
 }
 
+/// A blocking call made on a tokio runtime's thread would block that
+/// runtime (and tokio refuses to run a runtime inside another): an error
+/// that names the async call to make instead, rather than tokio's panic.
+fn not_in_a_runtime(call: &str, instead: &str) -> Result<(), NetError> {
+    match Handle::try_current() {
+        Ok(_) => Err(NetError::Io(io::Error::other(format!(
+            "{call} was called on a tokio runtime's thread, which it would block: \
+             use {instead} there"
+        )))),
+        Err(_) => Ok(()),
+    }
+}
+
 fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
     Ok(tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -683,6 +697,18 @@ pub struct Listener {
     /// The runtime of a listener made by [`Listener::bind_blocking`]: its
     /// accepts and handshakes run there.
     runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl fmt::Debug for Listener {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Listener")
+            .field("local_addr", &self.listener.local_addr().ok())
+            .field("role", &self.role)
+            .field("tls", &self.tls.is_some())
+            .field("blocking", &self.runtime.is_some())
+            .field("stats", &self.stats())
+            .finish()
+    }
 }
 
 impl Drop for Listener {
@@ -862,6 +888,7 @@ impl Listener {
         config: LinkConfig,
         tls: Option<TlsConfig>,
     ) -> Result<Listener, NetError> {
+        not_in_a_runtime("Listener::bind_blocking", "Listener::bind(..).await")?;
         let rt = own_runtime()?;
         let mut listener = rt.block_on(Listener::bind_with(addr, config, tls))?;
         listener.runtime = Some(rt);
@@ -992,7 +1019,10 @@ impl Listener {
     /// says to `.await` [`accept`](Self::accept) instead.
     pub fn accept_blocking(&self) -> Result<Link, NetError> {
         match &self.runtime {
-            Some(rt) => rt.block_on(self.accept()),
+            Some(rt) => {
+                not_in_a_runtime("Listener::accept_blocking", "accept().await")?;
+                rt.block_on(self.accept())
+            }
             None => Err(NetError::Io(io::Error::other(
                 "accept_blocking needs a listener made by Listener::bind_blocking; \
                  this one runs on the caller's tokio runtime: use accept().await",
