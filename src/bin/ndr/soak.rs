@@ -218,7 +218,14 @@ struct Remote {
 
 impl Remote {
     fn start(addr: SocketAddr, period_ms: f64) -> Result<Remote, String> {
-        let exe = std::env::current_exe().map_err(|e| format!("cannot find ndr itself: {e}"))?;
+        // This very binary: on Linux through /proc, which still reaches it
+        // when a build has replaced (unlinked) the file it started from.
+        let proc_exe = std::path::Path::new("/proc/self/exe");
+        let exe = if proc_exe.exists() {
+            proc_exe.to_path_buf()
+        } else {
+            std::env::current_exe().map_err(|e| format!("cannot find ndr itself: {e}"))?
+        };
         let mut child = Command::new(exe)
             .args(["soak", "--serve", &addr.to_string()])
             .args(["--period-ms", &period_ms.to_string()])
