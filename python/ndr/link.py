@@ -87,7 +87,9 @@ class Event:
       one was repeated (``seq`` is the repeated sample's);
     - ``"delay_changed"``: a target-delay playout (``"adaptive"``, …)
       changed the constant delay it holds, now ``delay`` seconds, ``ticks``
-      periods (no pause: the change is smooth);
+      periods rounded up (no pause: the change is smooth; at periods over
+      20 ms the adaptive delay moves in fractions of a period, and its
+      samples are released between ticks);
     - ``"link_lost"``: no fresh sample for the watchdog time
       (``silent_for``): hold the robot safely; ``"link_restored"`` follows;
     - ``"closed"``: the link ended (``error`` says why; ``details["normal"]``

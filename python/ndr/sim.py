@@ -169,7 +169,7 @@ class SimSummary(TypedDict):
     one_way_bwd_mean_s: float
     """Mean one-way delay remote → base as the base estimates it."""
     delay_changes_fwd: int
-    """Changes of the remote's playout delay, in ticks (target policies)."""
+    """Changes of the remote's playout delay (target policies)."""
     delay_events_fwd: int
     """``delay_changed`` events the remote's application received."""
     playout_delay_fwd_s: float

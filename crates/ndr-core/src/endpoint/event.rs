@@ -123,13 +123,16 @@ pub enum Event<const C: usize> {
         silent_for: Duration,
     },
     /// Target-delay playout: the end-to-end delay of the released samples
-    /// changed by at least a tick (the adaptive policy slews it without a
-    /// pause: a repeated tick when it rises, a skipped sample when it falls).
+    /// changed: by at least a tick for the fixed policies; by whole quanta
+    /// for the adaptive one (periods up to 20 ms, `T/⌈T/20 ms⌉` beyond,
+    /// [`DELAY_QUANTUM`](super::DELAY_QUANTUM)), without a pause: a repeated
+    /// sample when it rises, releases brought forward when it falls.
     DelayChanged {
         /// The new delay (release on this side's clock − send on the peer's,
         /// offset-corrected for the adaptive policy).
         delay: Duration,
-        /// The same in periods, rounded up.
+        /// The same in periods, rounded up (a sub-tick delay of the adaptive
+        /// policy at a long period counts as one).
         ticks: u64,
     },
     /// Fresh samples flow again after a [`Event::LinkLost`].

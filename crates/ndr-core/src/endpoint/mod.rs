@@ -65,24 +65,45 @@ use crate::wire::{
 use event::Head;
 
 /// The adaptive delay starts to fall only when its need is this many
-/// periods below it: a quantile that wobbles must not move the delay back
-/// and forth (each rise repeats a sample).
+/// quanta ([`DELAY_QUANTUM`]) below the quantum under it: a quantile that
+/// wobbles must not move the delay back and forth (each rise repeats a
+/// sample).
 const HYSTERESIS: f64 = 0.5;
 
-/// The adaptive delay falls by sliding its releases ahead of the ticks by
+/// The adaptive delay falls by bringing its releases forward by
 /// `T / RELEASE_SLEW_STEPS` per release (releases every 0.9·T while it
-/// falls, a tick of delay every 10 releases): no sample is skipped.
+/// falls): no sample is skipped.
 pub const RELEASE_SLEW_STEPS: u64 = 10;
+
+/// The release schedule of the adaptive playout follows the clock
+/// estimate by at most `T / MAPPING_SLEW` per release: an update of the
+/// offset estimate moves the releases over several periods, not in one.
+pub const MAPPING_SLEW: u64 = 20;
+
+/// The adaptive delay is a whole number of quanta `q = T/⌈T/20 ms⌉`: whole
+/// periods up to 20 ms, a fraction of the period beyond (10 ms at
+/// `T = 30 ms`, 20 ms at the paper's 200 ms). The quantum is the policy's
+/// dead band: the delay rises to the quantum over its need and falls a
+/// quantum only when the need is 1.5 quanta under it, so that a quantile
+/// that wobbles by a few milliseconds leaves it constant. At long periods
+/// whole ticks would waste up to a period each way (200 ms on the paper's
+/// LAN, whose need is 25 ms).
+pub const DELAY_QUANTUM: Duration = Duration::from_millis(20);
 
 /// A pause or a re-run initialization pattern may take this many times
 /// what it needs (its probes at the period, plus the slowest round trip
 /// seen) before it times out, if that is longer than the handshake timeout.
 pub const PATTERN_SLACK: u64 = 3;
 
-/// A remote following the base's grid moves its next tick by at most
-/// `T / GRID_SLEW` from one period after the last: an update of the offset
-/// estimate is caught up over several ticks instead of in one.
-pub const GRID_SLEW: u64 = 20;
+
+/// The quantum of the adaptive delay at period `T`: `T/⌈T/20 ms⌉` (see
+/// [`DELAY_QUANTUM`]); `T` itself up to 20 ms.
+#[must_use]
+pub fn delay_quantum(period: Duration) -> Duration {
+    let per = period.as_nanos().max(1);
+    let parts = per.div_ceil(DELAY_QUANTUM.as_nanos().max(1)).max(1);
+    Duration::from_nanos(per / parts)
+}
 
 fn ns_i64(t: Instant) -> i64 {
     i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
@@ -161,16 +182,26 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     passed: Option<Instant>,
     /// The peer's clock offset and skew.
     sync: ClockSync,
-    /// Target-delay playout: the constant end-to-end delay now, in ticks.
+    /// Target-delay playout: the constant end-to-end delay now, in ticks
+    /// (rounded up).
     delay_ticks: Option<u64>,
-    /// Adaptive playout: how far releases run ahead of the ticks (less than
-    /// a period); the delay is `delay_ticks·T − slew`.
-    slew: Duration,
-    /// Adaptive playout: the next release, apart from the ticks (which send).
+    /// Adaptive playout: the end-to-end delay now (while it falls, the
+    /// step it is at).
+    adaptive_delay: Option<Duration>,
+    /// Adaptive playout: the delay a fall under way ends at.
+    falling_to: Option<Duration>,
+    /// Adaptive playout: the delay last announced with an event.
+    announced: Option<Duration>,
+    /// Adaptive playout: the next release, apart from the base's ticks
+    /// (which send); a remote ticks with its releases.
     next_release: Option<Instant>,
-    /// Adaptive playout, remote side: the send stamp (peer clock) and
-    /// sequence number of a sample, which anchor the peer's tick grid.
-    peer_grid: Option<(Instant, u64)>,
+    /// Adaptive playout: the last release's scheduled time, and the peer's
+    /// send stamp its slot was for (the next slot's is a period later).
+    last_slot: Option<(Instant, Instant)>,
+    /// Adaptive playout: the clock mapping the release schedule uses (ns):
+    /// the offset estimate's, followed by [`MAPPING_SLEW`] at most per
+    /// release.
+    slot_mapping: Option<i64>,
     predictor: NetworkPredictor,
     pattern: InitPattern,
     next_tick: Option<Instant>,
@@ -234,9 +265,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             passed: None,
             sync: ClockSync::new(),
             delay_ticks: None,
-            slew: Duration::ZERO,
+            adaptive_delay: None,
+            falling_to: None,
+            announced: None,
             next_release: None,
-            peer_grid: None,
+            last_slot: None,
+            slot_mapping: None,
             predictor,
             pattern: InitPattern::new(),
             next_tick: None,
@@ -749,12 +783,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             self.stats.late += 1;
             return Ok(());
         }
-        if self.peer_grid.is_none() {
-            self.peer_grid = Some((slot.head.sent_at, slot.head.seq));
-        }
         if self.regulator.push(slot).is_err() {
             self.stats.rejected += 1;
         }
+        self.reschedule_release();
         Ok(())
     }
 
@@ -882,9 +914,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.grtt_acked = self.next_seq.checked_sub(1);
         self.due_seq = None;
         self.passed = None;
-        self.slew = Duration::ZERO;
+        self.falling_to = None;
         self.next_release = None;
-        self.peer_grid = None;
+        self.last_slot = None;
+        self.slot_mapping = None;
         self.ticks_running = 0;
         self.deadline = None;
         self.phase = Phase::Running;
@@ -907,10 +940,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             }
             Phase::Running => {
                 if self.is_adaptive() {
-                    // Its releases have their own schedule: the next one is
-                    // this tick's successor, less the slew.
+                    // Its releases have their own schedule, each at its
+                    // sample's slot; until the delay is set, the ticks.
                     if self.next_release.is_none() {
-                        self.next_release = self.next_tick.map(|n| (n - self.slew).max(at));
+                        self.next_release = self.next_slot(at).or(self.next_tick);
                     }
                 } else {
                     self.track_delay(t);
@@ -951,10 +984,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         matches!(self.target, Some(Target::Adaptive(_)))
     }
 
-    /// Adaptive playout: one release, `slew` ahead of its tick. The delay
-    /// rises at once (by whole ticks, a repeated tick for each) before it,
+    /// Adaptive playout: one release, at its sample's slot. The delay rises
+    /// at once before it (a repeated sample when the slot moves past it),
     /// and falls after it by `T / RELEASE_SLEW_STEPS`, so that releases
-    /// stay one sample each and none is skipped.
+    /// stay one sample each and none is skipped. The next release is then
+    /// scheduled at the next sample's slot.
     fn release_apart(&mut self, at: Instant, t: Instant) {
         self.next_release = None;
         if self.phase != Phase::Running {
@@ -962,65 +996,155 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         let need = self.adaptive_need(t);
         if let Some(need) = need {
-            self.rise_to(t, need);
+            self.rise_to(need);
         }
+        let expected = self.expected_stamp();
         self.release(at, t);
         self.watch(t);
         if let Some(need) = need {
             self.fall_from(need);
         }
+        let stamp = match self.last_release.filter(|r| r.released_at == t && r.status == Status::Fresh) {
+            Some(r) => Some(r.sent_at),
+            None => expected,
+        };
+        if self.adaptive_delay.is_some()
+            && let Some(stamp) = stamp
+        {
+            self.last_slot = Some((at, stamp));
+        }
+        if let Some(map) = self.mapping_ns(t) {
+            let most = i64::try_from((self.period / MAPPING_SLEW).as_nanos()).unwrap_or(i64::MAX);
+            self.slot_mapping = Some(match self.slot_mapping {
+                Some(m) => m.saturating_add(map.saturating_sub(m).clamp(-most, most)),
+                None => map,
+            });
+        }
+        self.next_release = self.next_slot(at);
     }
 
-    /// Adaptive: rises to `need` (s) at once, in whole ticks (a fall under
-    /// way is given up: the releases go back to the ticks).
-    fn rise_to(&mut self, t: Instant, need: f64) {
-        let per = self.period.as_secs_f64();
+    /// Adaptive: the quantum of the delay (see [`DELAY_QUANTUM`]).
+    fn quantum(&self) -> Duration {
+        delay_quantum(self.period)
+    }
+
+    /// Adaptive: the peer's send stamp the next slot is for, when no sample
+    /// is queued: a period after the last slot's.
+    fn expected_stamp(&self) -> Option<Instant> {
+        self.last_slot.map(|(_, stamp)| stamp + self.period)
+    }
+
+    /// Adaptive: when the next release is due, after the one scheduled at
+    /// `at`: the slot of the oldest sample queued (its send stamp mapped to
+    /// the local clock, plus the delay), or of the one expected a period
+    /// after the last; at least half a period after `at`.
+    fn next_slot(&self, at: Instant) -> Option<Instant> {
+        let d = self.adaptive_delay?;
+        let stamp = match self.regulator.front() {
+            Some(s) => s.head.sent_at,
+            None => self.expected_stamp()?,
+        };
+        let map = self.slot_mapping.or_else(|| self.mapping_ns(at))?;
+        let slot = ns_i64(stamp)
+            .saturating_add(map)
+            .saturating_add(i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+        let slot = Instant::from_nanos(u64::try_from(slot).unwrap_or(0));
+        Some(slot.max(at + self.period / 2))
+    }
+
+    /// Adaptive, base side: a sample that arrives first in the queue
+    /// moves the next release to its slot, if that is within half a period
+    /// of the slot expected: the remote's ticks move with its delay, and a
+    /// release at the expected slot would take its sample a little early
+    /// or late.
+    fn reschedule_release(&mut self) {
+        let (Role::Base, true, Some(next), Some((at, _))) = (
+            self.config.role,
+            self.is_adaptive() && self.regulator.len() == 1,
+            self.next_release,
+            self.last_slot,
+        ) else {
+            return;
+        };
+        if let Some(slot) = self.next_slot(at)
+            && slot.signed_nanos_since(next).unsigned_abs() < self.period.as_nanos() / 2
+        {
+            self.next_release = Some(slot);
+        }
+    }
+
+    /// Adaptive: rises to the quantum at or above `need` (s) at once (a
+    /// fall under way is given up).
+    fn rise_to(&mut self, need: f64) {
         if self
-            .current_delay(t)
+            .adaptive_delay
             .is_some_and(|d| need <= d.as_secs_f64())
         {
             return;
         }
-        let goal = (libm::ceil(need / per).max(1.0) as u64).max(self.delay_ticks.unwrap_or(0));
-        self.slew = Duration::ZERO;
-        self.announce_adaptive(goal);
+        let q = self.quantum();
+        let quanta = libm::ceil(need / q.as_secs_f64()).max(1.0) as u64;
+        self.falling_to = None;
+        self.set_adaptive_delay(q * quanta);
+        self.announce_adaptive();
     }
 
-    /// Adaptive: the delay falls a whole tick at a time, by sliding the
-    /// releases ahead by `T / RELEASE_SLEW_STEPS` per release; a fall starts
-    /// when the need is [`HYSTERESIS`] periods below the tick under the
-    /// delay. At rest the releases are on the ticks.
+    /// Adaptive: the delay falls a quantum at a time, by `T /
+    /// RELEASE_SLEW_STEPS` per release (the releases come that much
+    /// earlier); a fall starts when the need is [`HYSTERESIS`] quanta under
+    /// the quantum below the delay.
     fn fall_from(&mut self, need: f64) {
-        let Some(cur) = self.delay_ticks.filter(|&c| c > 1) else {
+        let Some(d) = self.adaptive_delay else {
             return;
         };
-        let per = self.period.as_secs_f64();
-        if self.slew.is_zero() && need > (cur - 1) as f64 * per - HYSTERESIS * per {
-            return;
+        let q = self.quantum();
+        let to = match self.falling_to {
+            Some(to) => to,
+            None => {
+                // The quantum strictly below the delay, at least one.
+                let to = q * (d.as_nanos().saturating_sub(1) / q.as_nanos().max(1));
+                if to < q || need > to.as_secs_f64() - HYSTERESIS * q.as_secs_f64() {
+                    return;
+                }
+                self.falling_to = Some(to);
+                to
+            }
+        };
+        let step = (self.period / RELEASE_SLEW_STEPS).min(d - to);
+        self.set_adaptive_delay(d - step);
+        if d - step <= to {
+            self.falling_to = None;
+            self.announce_adaptive();
         }
-        let step = self.period / RELEASE_SLEW_STEPS;
-        let slew = self.slew + step;
-        if slew + step / 2 < self.period {
-            self.slew = slew;
-            self.stats.playout_delay_s = (self.period * cur - slew).as_secs_f64();
-            return;
-        }
-        // A period ahead: the next release is the next tick's own.
-        self.slew = Duration::ZERO;
-        self.announce_adaptive(cur - 1);
-        self.next_release = self.next_tick;
     }
 
-    fn announce_adaptive(&mut self, ticks: u64) {
-        self.announce(self.period * ticks - self.slew, ticks);
+    fn set_adaptive_delay(&mut self, d: Duration) {
+        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        self.adaptive_delay = Some(d);
+        self.delay_ticks = Some(ticks);
+        self.stats.playout_delay_s = d.as_secs_f64();
+        self.stats.playout_delay_ticks = ticks;
+    }
+
+    /// Adaptive: an event for a delay at rest that is not the last one
+    /// announced.
+    fn announce_adaptive(&mut self) {
+        let (Some(delay), Some(ticks)) = (self.adaptive_delay, self.delay_ticks) else {
+            return;
+        };
+        if self.announced != Some(delay) {
+            self.announced = Some(delay);
+            self.stats.delay_changes += 1;
+            self.emit(Event::DelayChanged { delay, ticks });
+        }
     }
 
     /// The release scheduled at `at`, run (and stamped) at `t`.
     fn release(&mut self, at: Instant, t: Instant) {
         let adaptive = self.is_adaptive();
         let outcome = match self.target.as_ref().map(TargetDelay::target) {
-            // Adaptive: nothing is due before the delay in ticks is set.
-            Some(_) if adaptive && self.delay_ticks.is_none() => self.not_started(),
+            // Adaptive: nothing is due before the delay is set.
+            Some(_) if adaptive && self.adaptive_delay.is_none() => self.not_started(),
             Some(target) => self.release_target(at, target),
             None => self.release_fifo(),
         };
@@ -1062,10 +1186,17 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 .iter()
                 .take_while(|s| s.head.sent_at <= cutoff)
                 .count() as u64;
+            let second = self.regulator.iter().nth(1).map(|s| s.head.sent_at);
             if due > 1
-                && let Some(cur) = self.delay_ticks
+                && let (Some(cur), Some(second)) = (self.adaptive_delay, second)
             {
-                self.announce_adaptive(cur + due - 1);
+                // Just enough quanta that the second is not due.
+                let q = self.quantum();
+                let short = (cutoff - second) + Duration::from_nanos(1);
+                let quanta = (cur + short).as_nanos().div_ceil(q.as_nanos().max(1));
+                self.falling_to = None;
+                self.set_adaptive_delay(q * quanta);
+                self.announce_adaptive();
                 cutoff = self.release_cutoff(t, d);
                 oldest = true;
             }
@@ -1100,14 +1231,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// Frames sent (peer clock) at or before this have their slot at or
     /// before the tick `t` for a target delay `d`.
     fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
-        match (self.mapping_ns(t), self.delay_ticks) {
+        match (self.slot_mapping.or_else(|| self.mapping_ns(t)), self.adaptive_delay) {
             // Adaptive: due when the send time mapped to the local clock
-            // plus the delay (whole ticks less the slew, less half a period
-            // so that the estimate's noise cannot move a sample across a
-            // release) is past.
-            (Some(map), Some(ticks)) => {
-                let d = self.period * ticks - self.slew;
-                let d = i64::try_from((d - self.period / 2).as_nanos()).unwrap_or(i64::MAX);
+            // plus the delay (less half a period, so that the estimate's
+            // noise cannot move a sample across a release) is past.
+            (Some(map), Some(d)) => {
+                let d = i64::try_from(d.as_nanos()).unwrap_or(i64::MAX)
+                    - i64::try_from((self.period / 2).as_nanos()).unwrap_or(i64::MAX);
                 let c = ns_i64(t).saturating_sub(map).saturating_sub(d);
                 Instant::from_nanos(u64::try_from(c).unwrap_or(0))
             }
@@ -1137,11 +1267,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// The end-to-end delay a sample released at `t` gets: for the adaptive
-    /// policy the whole ticks it keeps less the slew, for the others their
-    /// target.
+    /// policy the delay it keeps, for the others their target.
     fn current_delay(&self, _t: Instant) -> Option<Duration> {
         match self.target {
-            Some(Target::Adaptive(_)) => Some(self.period * self.delay_ticks? - self.slew),
+            Some(Target::Adaptive(_)) => self.adaptive_delay,
             _ => self.target.as_ref()?.target(),
         }
     }
@@ -1181,42 +1310,30 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// The tick after the one scheduled at `t`. The base's clock is the
-    /// structure's: a remote under [`Playout::Adaptive`] puts its ticks on
-    /// the base's grid (the send stamps of its samples, one period apart)
-    /// mapped to the local clock by the offset estimate, so that the two
-    /// grids do not slide under skew and each delay keeps its quantization.
-    /// At any skew: two hubs start their grids anywhere within a period of
+    /// structure's: a remote under [`Playout::Adaptive`] ticks with its
+    /// releases, which are the base's send stamps mapped to the local clock
+    /// plus its delay, so that the state answering a command leaves as the
+    /// command is released, and the two grids do not slide under skew. At
+    /// any phase: two hubs start their grids anywhere within a period of
     /// each other, and a grid left apart by `φ` made each direction's true
     /// delay its announced one plus or minus `φ` (the sum was right). The
-    /// next tick is 0.95 to 1.05 periods away: a grid that moved (the offset
-    /// estimate changed, or the first one put it in place) is caught up by
-    /// [`GRID_SLEW`] at most.
+    /// next tick is the release point nearest to a period away, so half a
+    /// period to one and a half away.
     ///
     /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
-    fn following_tick(&mut self, t: Instant) -> Instant {
+    fn following_tick(&self, t: Instant) -> Instant {
         let plain = t + self.period;
-        let (Role::Remote, Some(Target::Adaptive(_)), Some((anchor, _))) =
-            (self.config.role, &self.target, self.peer_grid)
+        let (Role::Remote, Some(Target::Adaptive(_)), Some(release)) =
+            (self.config.role, &self.target, self.next_release)
         else {
             return plain;
         };
-        let Some(theta) = self.sync.offset_at(t) else {
-            return plain;
-        };
-        let period = i64::try_from(self.period.as_nanos())
+        let per = i64::try_from(self.period.as_nanos())
             .unwrap_or(i64::MAX)
             .max(1);
-        let theta = (theta * 1e9) as i64;
-        let peer_now = ns_i64(t).saturating_sub(theta).saturating_add(period / 2);
-        let k = peer_now.saturating_sub(ns_i64(anchor)).div_euclid(period) + 1;
-        let next = ns_i64(anchor)
-            .saturating_add(k.saturating_mul(period))
-            .saturating_add(theta);
-        let Ok(next) = u64::try_from(next) else {
-            return plain;
-        };
-        let slew = self.period / GRID_SLEW;
-        Instant::from_nanos(next).clamp(plain - slew, plain + slew)
+        let apart = release.signed_nanos_since(plain);
+        let shift = (apart + per / 2).rem_euclid(per) - per / 2;
+        u64::try_from(ns_i64(plain).saturating_add(shift)).map_or(plain, Instant::from_nanos)
     }
 
     fn last_tick(&self) -> Option<Instant> {

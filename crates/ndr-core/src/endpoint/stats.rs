@@ -136,7 +136,9 @@ pub struct Stats {
     pub playout_delay_s: f64,
     /// The same in ticks (periods, rounded up).
     pub playout_delay_ticks: u64,
-    /// Changes of `playout_delay_ticks` (each one an [`Event::DelayChanged`]).
+    /// Changes of the playout delay (each one an [`Event::DelayChanged`]):
+    /// of `playout_delay_ticks` for the fixed policies, of
+    /// `playout_delay_s` at rest for the adaptive one.
     ///
     /// [`Event::DelayChanged`]: super::Event::DelayChanged
     pub delay_changes: u64,

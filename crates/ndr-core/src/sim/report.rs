@@ -134,7 +134,7 @@ pub struct Report {
     pub one_way_fwd_mean_s: f64,
     /// Mean one-way delay remote → base as the base estimates it, s.
     pub one_way_bwd_mean_s: f64,
-    /// Changes of the remote's playout delay, in ticks (target policies).
+    /// Changes of the remote's playout delay (target policies).
     pub delay_changes_fwd: u64,
     /// `DelayChanged` events the remote's application received.
     pub delay_events_fwd: u64,

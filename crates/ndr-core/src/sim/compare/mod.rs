@@ -47,7 +47,7 @@ pub use matched::{
 use super::engine::{ForwardLog, SimConfig, run};
 use super::oracle::{Arrival, Oracle, OraclePoint};
 use super::percentile;
-use crate::endpoint::{Mode, Underflow};
+use crate::endpoint::{Mode, Underflow, delay_quantum};
 use crate::playout::{DEFAULT_FIXED_LATENCY, Playout};
 use crate::time::{Duration, Instant};
 
@@ -314,7 +314,9 @@ pub fn measure(
             arrived_at: c.arrived_at,
         })
         .collect();
-    let oracle = Oracle::new(&arrivals, Instant::ZERO, period);
+    // On the grid of the adaptive delay's quantum: the period up to 20 ms,
+    // finer beyond, where the adaptive playout releases between ticks.
+    let oracle = Oracle::new(&arrivals, Instant::ZERO, delay_quantum(period));
     m.oracle_ratio = ratio(m.mean_delay_s, oracle.constant(m.late_rate).mean_delay_s);
     m.piecewise_ratio = ratio(
         m.mean_delay_s,
