@@ -95,7 +95,6 @@ pub const DELAY_QUANTUM: Duration = Duration::from_millis(20);
 /// seen) before it times out, if that is longer than the handshake timeout.
 pub const PATTERN_SLACK: u64 = 3;
 
-
 /// The quantum of the adaptive delay at period `T`: `T/⌈T/20 ms⌉` (see
 /// [`DELAY_QUANTUM`]); `T` itself up to 20 ms.
 #[must_use]
@@ -1004,7 +1003,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(need) = need {
             self.fall_from(need);
         }
-        let stamp = match self.last_release.filter(|r| r.released_at == t && r.status == Status::Fresh) {
+        let stamp = match self
+            .last_release
+            .filter(|r| r.released_at == t && r.status == Status::Fresh)
+        {
             Some(r) => Some(r.sent_at),
             None => expected,
         };
@@ -1076,10 +1078,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// Adaptive: rises to the quantum at or above `need` (s) at once (a
     /// fall under way is given up).
     fn rise_to(&mut self, need: f64) {
-        if self
-            .adaptive_delay
-            .is_some_and(|d| need <= d.as_secs_f64())
-        {
+        if self.adaptive_delay.is_some_and(|d| need <= d.as_secs_f64()) {
             return;
         }
         let q = self.quantum();
@@ -1231,7 +1230,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// Frames sent (peer clock) at or before this have their slot at or
     /// before the tick `t` for a target delay `d`.
     fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
-        match (self.slot_mapping.or_else(|| self.mapping_ns(t)), self.adaptive_delay) {
+        match (
+            self.slot_mapping.or_else(|| self.mapping_ns(t)),
+            self.adaptive_delay,
+        ) {
             // Adaptive: due when the send time mapped to the local clock
             // plus the delay (less half a period, so that the estimate's
             // noise cannot move a sample across a release) is past.
