@@ -998,17 +998,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             self.rise_to(need);
         }
         let expected = self.expected_stamp();
+        let fresh = self.stats.released_fresh;
         self.release(at, t);
         self.watch(t);
         if let Some(need) = need {
             self.fall_from(need);
         }
-        let stamp = match self
-            .last_release
-            .filter(|r| r.released_at == t && r.status == Status::Fresh)
-        {
-            Some(r) => Some(r.sent_at),
-            None => expected,
+        // The slot was that of the sample released, or of the one expected.
+        let stamp = match self.last_release {
+            Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
+            _ => expected,
         };
         if self.adaptive_delay.is_some()
             && let Some(stamp) = stamp
