@@ -674,6 +674,9 @@ fn bucket_upper(b: usize) -> Duration {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Adaptive {
     period: f64,
+    /// The quantum of the delay the endpoint holds (s), the least margin
+    /// of the warm-up.
+    quantum: f64,
     epsilon: f64,
     /// Counts per block in `u16` (8 KiB, not 16: the state is inline in
     /// every endpoint); a block ends early when it holds `u16::MAX` delays.
@@ -704,6 +707,7 @@ impl Adaptive {
             .clamp(ADAPTIVE_BLOCK, ADAPTIVE_BLOCK_MAX);
         Adaptive {
             period: period.as_secs_f64(),
+            quantum: crate::endpoint::delay_quantum(period).as_secs_f64(),
             epsilon,
             blocks: [[0; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
             total: [0; ADAPTIVE_BUCKETS],
@@ -772,8 +776,10 @@ impl Adaptive {
     /// their maximum, which later delays pass (the next of `n` draws is the
     /// largest with odds `1/(n+1)`): the goal extrapolates the tail as an
     /// exponential one, `s·ln(1/(n·ε))` above the maximum with the scale
-    /// `s = (max − mean)/ln n`, and at least `(1 − n·ε)·T`. Both vanish at
-    /// `n = 1/ε`.
+    /// `s = (max − mean)/ln n`, and at least `(1 − n·ε)·q`, `q` the delay's
+    /// quantum (the period up to 20 ms). Both vanish at `n = 1/ε`. (With a
+    /// whole period at `T = 200 ms` the warm-up cost up to 200 ms each way
+    /// for its 200 s.)
     fn warmup_margin(&self, q: Duration) -> Duration {
         let n = self.count as f64;
         let filled = self.epsilon * n;
@@ -783,7 +789,7 @@ impl Adaptive {
         let mean = self.sum / n;
         let scale = (q.as_secs_f64() - mean).max(0.0) / libm::log(n.max(2.0));
         let tail = scale * libm::log(1.0 / filled);
-        Duration::from_secs_f64(tail.max((1.0 - filled) * self.period))
+        Duration::from_secs_f64(tail.max((1.0 - filled) * self.quantum))
     }
 
     fn quantile(&self) -> Option<Duration> {

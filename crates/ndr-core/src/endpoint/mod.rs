@@ -1234,11 +1234,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             self.adaptive_delay,
         ) {
             // Adaptive: due when the send time mapped to the local clock
-            // plus the delay (less half a period, so that the estimate's
-            // noise cannot move a sample across a release) is past.
+            // plus the delay (less half a quantum, so that the estimate's
+            // noise cannot move a sample across a release) is past. Half a
+            // period at a sub-tick delay would run ahead of the arrivals: a
+            // release would pass, and so drop as late, samples still on
+            // their way to slots after it.
             (Some(map), Some(d)) => {
                 let d = i64::try_from(d.as_nanos()).unwrap_or(i64::MAX)
-                    - i64::try_from((self.period / 2).as_nanos()).unwrap_or(i64::MAX);
+                    - i64::try_from((self.quantum() / 2).as_nanos()).unwrap_or(i64::MAX);
                 let c = ns_i64(t).saturating_sub(map).saturating_sub(d);
                 Instant::from_nanos(u64::try_from(c).unwrap_or(0))
             }
