@@ -994,8 +994,24 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             return;
         }
         let need = self.adaptive_need(t);
+        let before = self.adaptive_delay;
         if let Some(need) = need {
             self.rise_to(need);
+        }
+        // A rise of up to half a period just brings the release later (a
+        // remote's tick with it, so that its state still answers the
+        // command); a larger one repeats the last sample now.
+        if let (Some(b), Some(a)) = (before, self.adaptive_delay)
+            && a > b
+            && let Some(slot) = self.front_slot(at)
+            && slot > t
+            && slot <= at + self.period / 2
+        {
+            self.next_release = Some(slot);
+            if self.config.role == Role::Remote && self.next_tick == Some(at) {
+                self.next_tick = Some(slot);
+            }
+            return;
         }
         let expected = self.expected_stamp();
         let fresh = self.stats.released_fresh;
@@ -1039,7 +1055,20 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// `at`: the slot of the oldest sample queued (its send stamp mapped to
     /// the local clock, plus the delay), or of the one expected a period
     /// after the last; at least half a period after `at`.
+    /// A slot further than one and a half periods away (the delay rose by
+    /// more than half a period) gets a release a period after `at` first,
+    /// which repeats the last sample: one release per period or so.
     fn next_slot(&self, at: Instant) -> Option<Instant> {
+        let slot = self.front_slot(at)?;
+        if slot > at + self.period + self.period / 2 {
+            return Some(at + self.period);
+        }
+        Some(slot.max(at + self.period / 2))
+    }
+
+    /// Adaptive: the slot of the oldest sample queued, or of the one
+    /// expected a period after the last.
+    fn front_slot(&self, at: Instant) -> Option<Instant> {
         let d = self.adaptive_delay?;
         let stamp = match self.regulator.front() {
             Some(s) => s.head.sent_at,
@@ -1049,8 +1078,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let slot = ns_i64(stamp)
             .saturating_add(map)
             .saturating_add(i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
-        let slot = Instant::from_nanos(u64::try_from(slot).unwrap_or(0));
-        Some(slot.max(at + self.period / 2))
+        Some(Instant::from_nanos(u64::try_from(slot).unwrap_or(0)))
     }
 
     /// Adaptive, base side: a sample that arrives first in the queue
