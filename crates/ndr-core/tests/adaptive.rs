@@ -211,7 +211,11 @@ fn at_a_long_period_the_delay_settles_between_the_ticks() {
     // rises of a quantum move the releases later without repeating one.
     assert_eq!(r.late_samples, 0);
     assert_eq!(r.underflows, 0);
-    assert!(r.e2e_bwd_mean_s < 0.045, "states {} s late", r.e2e_bwd_mean_s);
+    assert!(
+        r.e2e_bwd_mean_s < 0.045,
+        "states {} s late",
+        r.e2e_bwd_mean_s
+    );
     assert_eq!(r.skipped, 0);
     assert_eq!(r.pauses, 0);
 }

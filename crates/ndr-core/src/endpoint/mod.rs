@@ -81,7 +81,7 @@ pub const RELEASE_SLEW_STEPS: u64 = 10;
 pub const MAPPING_SLEW: u64 = 20;
 
 /// The adaptive delay is a whole number of quanta `q = T/⌈T/20 ms⌉`: whole
-/// periods up to 20 ms, a fraction of the period beyond (10 ms at
+/// periods up to 20 ms, a fraction of the period beyond (15 ms at
 /// `T = 30 ms`, 20 ms at the paper's 200 ms). The quantum is the policy's
 /// dead band: the delay rises to the quantum over its need and falls a
 /// quantum only when the need is 1.5 quanta under it, so that a quantile
@@ -984,10 +984,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// Adaptive playout: one release, at its sample's slot. The delay rises
-    /// at once before it (a repeated sample when the slot moves past it),
-    /// and falls after it by `T / RELEASE_SLEW_STEPS`, so that releases
-    /// stay one sample each and none is skipped. The next release is then
-    /// scheduled at the next sample's slot.
+    /// at once before it (the release comes later, or for a rise of more
+    /// than half a period repeats the last sample), and falls after it by
+    /// `T / RELEASE_SLEW_STEPS`, so that releases stay one sample each and
+    /// none is skipped. The next release is then scheduled at the next
+    /// sample's slot.
     fn release_apart(&mut self, at: Instant, t: Instant) {
         self.next_release = None;
         if self.phase != Phase::Running {
@@ -1055,6 +1056,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// `at`: the slot of the oldest sample queued (its send stamp mapped to
     /// the local clock, plus the delay), or of the one expected a period
     /// after the last; at least half a period after `at`.
+    ///
     /// A slot further than one and a half periods away (the delay rose by
     /// more than half a period) gets a release a period after `at` first,
     /// which repeats the last sample: one release per period or so.

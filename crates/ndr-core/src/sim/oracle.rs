@@ -13,7 +13,11 @@
 //! on-time sample then has the same end-to-end delay, a whole number of
 //! periods: `D*` rounded up to the grid. The policies' delays are measured
 //! the same way (receiver's release tick − sender's stamp), so the oracle
-//! and the policies are compared on the same grid.
+//! and the policies are compared on the same grid. The comparison harness
+//! builds it on the grid of the adaptive delay's quantum
+//! ([`delay_quantum`](crate::endpoint::delay_quantum): the period up to
+//! 20 ms, a fraction of it beyond), where the adaptive playout releases
+//! between ticks.
 
 use std::vec::Vec;
 
