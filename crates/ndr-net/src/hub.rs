@@ -740,8 +740,10 @@ fn transmit(e: &mut Entry, now: Instant, buf: &mut [u8]) -> bool {
     wants_write
 }
 
-/// Events to the application; after a tick, the stats first (so the
-/// application reads the stats of the tick it got). Releases go to the
+/// Events to the application, the stats first (so the application reads
+/// the stats of the tick or event it got: after a tick always, otherwise
+/// just before the first event delivered; published after it, a closed
+/// link's last stats raced the application that woke on its Closed event). Releases go to the
 /// link's handler if it has one; `true` if the handler panicked (the link
 /// is then aborted, its Close frame queued).
 fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: LatenessStats) -> bool {
@@ -749,6 +751,7 @@ fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: Laten
         publish(e, lateness, releases);
     }
     let mut delivered = false;
+    let mut published = ticked;
     let mut panicked = false;
     while let Some(event) = e.endpoint.poll_event() {
         let d = match event {
@@ -770,14 +773,15 @@ fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: Laten
             }
             other => Delivery::Event(other),
         };
+        if !published {
+            publish(e, lateness, releases);
+            published = true;
+        }
         match e.deliveries.try_send(d) {
             Ok(()) => delivered = true,
             Err(Refused::Full) => e.app_dropped += 1,
             Err(Refused::Gone) => {}
         }
-    }
-    if delivered && !ticked {
-        publish(e, lateness, releases);
     }
     if delivered {
         e.shared.notify.notify_one();
