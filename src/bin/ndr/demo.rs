@@ -534,6 +534,19 @@ fn print_table(r: &DemoReport) {
         "  samples    {} sent · {} released · {} late · {} underflows · {} link-lost alarms",
         r.samples_sent, r.samples_released, r.late_samples, r.underflows, r.link_lost
     );
+    if r.playout != "fifo" {
+        // A target-delay playout: the constant delay each side holds now,
+        // beside the one-way network delays its clock estimate measures.
+        println!(
+            "  playout    delay {} forward · {} back (network one-way {} / {}; remote clock {:+.3} ms, {:+.1} ppm)",
+            ms(r.playout_delay_fwd_s),
+            ms(r.playout_delay_bwd_s),
+            ms(r.one_way_fwd_mean_s),
+            ms(r.one_way_bwd_mean_s),
+            r.remote_clock_offset_s * 1e3,
+            r.remote_clock_skew_ppm
+        );
+    }
     let us = |s: f64| format!("{:.0} µs", s * 1e6);
     let remote_clock = if r.queue_remote_max.is_some() {
         format!(
