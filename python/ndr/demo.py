@@ -351,6 +351,14 @@ def _report(
         "clock_base_p99_s": b.get("lateness", {}).get("p99", math.nan),
         "clock_remote_p50_s": r.get("lateness", {}).get("p50", math.nan),
         "clock_remote_p99_s": r.get("lateness", {}).get("p99", math.nan),
+        # What a target-delay playout holds, and the clock estimate under it
+        # (the names of `ndr demo --json`).
+        "playout_delay_fwd_s": r.get("playout_delay", math.nan),
+        "playout_delay_bwd_s": b.get("playout_delay", math.nan),
+        "one_way_fwd_mean_s": r.get("one_way_rx", {}).get("mean", math.nan),
+        "one_way_bwd_mean_s": b.get("one_way_rx", {}).get("mean", math.nan),
+        "remote_clock_offset_s": r.get("clock_offset", math.nan),
+        "remote_clock_skew_ppm": r.get("clock_skew_ppm", math.nan),
         "relay_frames_fwd": relay["forward"]["frames_delivered"],
         "relay_frames_bwd": relay["backward"]["frames_delivered"],
         "robot_error": rb.error,
@@ -391,6 +399,13 @@ def print_table(r: Dict[str, Any], file: Optional[TextIO] = None) -> None:
         f"  samples    {r['samples_sent']} sent · {r['samples_released']} released · "
         f"{r['late_samples']} late · {r['underflows']} underflows · {r['link_lost']} link-lost alarms"
     )
+    if r["playout"] != "fifo":
+        p(
+            f"  playout    delay {ms(r['playout_delay_fwd_s'])} forward · "
+            f"{ms(r['playout_delay_bwd_s'])} back (network one-way {ms(r['one_way_fwd_mean_s'])} / "
+            f"{ms(r['one_way_bwd_mean_s'])}; remote clock {r['remote_clock_offset_s'] * 1e3:+.3f} ms, "
+            f"{r['remote_clock_skew_ppm']:+.1f} ppm)"
+        )
     p(
         f"  clock      release lateness p50 / p99: base {us(r['clock_base_p50_s'])} / "
         f"{us(r['clock_base_p99_s'])} · remote {us(r['clock_remote_p50_s'])} / {us(r['clock_remote_p99_s'])}"

@@ -34,6 +34,23 @@ def test_the_adaptive_playout_runs_in_the_demo(tmp_path):
     report = json.loads(proc.stdout)
     assert report["playout"] == "adaptive"
     assert report["samples_released"] > 100
+    # The delay each side holds: whole 20 ms ticks over the relay's 12 ms
+    # or so each way (or more while the window warms up).
+    for way in ("fwd", "bwd"):
+        d = report[f"playout_delay_{way}_s"]
+        assert 0.02 <= d <= 0.2 and abs(d / 0.02 - round(d / 0.02)) < 1e-6, report
+        assert 0.005 < report[f"one_way_{way}_mean_s"] < d, report
+
+
+def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "ndr", "demo", "--duration-s", "2", "--period-ms", "20",
+         "--playout", "adaptive", "--out", str(tmp_path / "d.csv")],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    line = next(l for l in proc.stdout.splitlines() if l.strip().startswith("playout"))
+    assert "forward" in line and "back" in line and "ppm" in line, line
 
 
 def test_bad_options_exit_with_a_message():
