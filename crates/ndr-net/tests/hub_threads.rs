@@ -60,7 +60,8 @@ fn a_dropped_listener_ends_its_hub_thread() {
             .expect("bind");
         drop(l);
     }
-    assert_eq!(settles_to(before), before);
+    let after = settles_to(before);
+    assert!(after <= before, "{after} hub threads, {before} before");
 }
 
 #[test]
@@ -70,18 +71,21 @@ fn a_dropped_hub_ends_its_thread() {
     for _ in 0..5 {
         drop(ndr_net::Hub::with_defaults().expect("hub"));
     }
-    assert_eq!(settles_to(before), before);
+    let after = settles_to(before);
+    assert!(after <= before, "{after} hub threads, {before} before");
 }
 
 #[test]
 fn closed_links_and_their_listener_leave_no_hub_thread() {
     let _serial = serial();
+    // Counted before the runtime starts: its worker is named like this
+    // thread until it names itself, and may not have yet.
+    let before = hub_threads();
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
         .build()
         .expect("runtime");
-    let before = hub_threads();
     for _ in 0..3 {
         let listener = rt
             .block_on(Listener::bind(
@@ -102,7 +106,8 @@ fn closed_links_and_their_listener_leave_no_hub_thread() {
         let _ = remote.close();
         let _ = base.close();
     }
-    assert_eq!(settles_to(before), before);
+    let after = settles_to(before);
+    assert!(after <= before, "{after} hub threads, {before} before");
 }
 
 #[test]
@@ -117,5 +122,6 @@ fn a_dropped_blocking_listener_ends_its_threads() {
         .expect("bind");
         drop(l);
     }
-    assert_eq!(settles_to(before), before);
+    let after = settles_to(before);
+    assert!(after <= before, "{after} hub threads, {before} before");
 }
