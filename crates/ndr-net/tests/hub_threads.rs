@@ -31,14 +31,19 @@ fn hub_threads() -> usize {
     mine.saturating_sub(1)
 }
 
-/// Waits (2 s at most) for the count of hub threads to come down to `n`.
-fn settles_to(n: usize) -> usize {
+/// Waits (2 s at most) for the count of hub threads to come down to `n`,
+/// and fails if it does not.
+fn settles_to(n: usize) {
     let end = std::time::Instant::now() + std::time::Duration::from_secs(2);
     loop {
         let now = hub_threads();
-        if now <= n || std::time::Instant::now() > end {
-            return now;
+        if now <= n {
+            return;
         }
+        assert!(
+            std::time::Instant::now() <= end,
+            "{now} hub threads, {n} before"
+        );
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
 }
@@ -60,8 +65,7 @@ fn a_dropped_listener_ends_its_hub_thread() {
             .expect("bind");
         drop(l);
     }
-    let after = settles_to(before);
-    assert!(after <= before, "{after} hub threads, {before} before");
+    settles_to(before);
 }
 
 #[test]
@@ -71,8 +75,7 @@ fn a_dropped_hub_ends_its_thread() {
     for _ in 0..5 {
         drop(ndr_net::Hub::with_defaults().expect("hub"));
     }
-    let after = settles_to(before);
-    assert!(after <= before, "{after} hub threads, {before} before");
+    settles_to(before);
 }
 
 #[test]
@@ -106,8 +109,7 @@ fn closed_links_and_their_listener_leave_no_hub_thread() {
         let _ = remote.close();
         let _ = base.close();
     }
-    let after = settles_to(before);
-    assert!(after <= before, "{after} hub threads, {before} before");
+    settles_to(before);
 }
 
 #[test]
@@ -122,6 +124,5 @@ fn a_dropped_blocking_listener_ends_its_threads() {
         .expect("bind");
         drop(l);
     }
-    let after = settles_to(before);
-    assert!(after <= before, "{after} hub threads, {before} before");
+    settles_to(before);
 }
