@@ -433,7 +433,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--mode", default="paper-static", choices=("paper-static", "paper-dynamic"))
     parser.add_argument("--playout", default="fifo", help="when each side releases a sample: "
                         "fifo (the paper's queue), ramjee-1, ramjee-4, neteq, fixed[:MS], "
-                        "constant:MS, adaptive[:PERCENT]")
+                        "constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]")
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 8)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")

@@ -199,10 +199,13 @@ class Link:
             playout: how this side's regulator picks each sample's release
                 tick: ``"fifo"`` (the paper's queue, the default),
                 ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``,
-                ``"constant:MS"`` or ``"adaptive[:PERCENT]"`` (a target delay
-                above the sample's send time; ``"adaptive"`` holds the
-                smallest constant delay with a late rate of 0.1 %, or
-                ``PERCENT``; see docs/algorithms.md §9). Local to each side.
+                ``"constant:MS"`` or ``"adaptive[:PERCENT[:QUANTUM_MS]]"`` (a
+                target delay above the sample's send time; ``"adaptive"``
+                holds the smallest constant delay with a late rate of 0.1 %,
+                or ``PERCENT``, in steps of 20 ms or the period when shorter,
+                or ``QUANTUM_MS``: a finer step holds a lower delay that
+                changes more often; see docs/algorithms.md §9–10). Local to
+                each side.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:

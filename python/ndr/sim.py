@@ -41,7 +41,10 @@ UNDERFLOWS = ("hold", "drop-late")
 #: smallest delay), ``"constant:MS"`` (a constant target delay of MS ms
 #: above the send time; no bare ``"constant"``) and ``"adaptive:PERCENT"``
 #: (a target late rate, 0 < PERCENT < 100), e.g. ``"fixed:150"``,
-#: ``"constant:120"``, ``"adaptive:0.5"``.
+#: ``"constant:120"``, ``"adaptive:0.5"``; ``"adaptive:PERCENT:QUANTUM_MS"``
+#: also sets the step the delay is held in (1 to 10 000 ms; by default
+#: 20 ms, or the period when shorter), e.g. ``"adaptive:0.1:10"``: a finer
+#: step holds a lower delay that changes more often.
 PLAYOUTS = ("fifo", "ramjee-1", "ramjee-4", "neteq", "fixed", "adaptive")
 
 
@@ -230,7 +233,8 @@ def run(
         mode: ``"paper-static"`` or ``"paper-dynamic"``.
         playout: both regulators' release policy: ``"fifo"`` (the paper's),
             ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``,
-            ``"constant:MS"``, ``"adaptive[:PERCENT]"`` (:data:`PLAYOUTS`).
+            ``"constant:MS"``, ``"adaptive[:PERCENT[:QUANTUM_MS]]"``
+            (:data:`PLAYOUTS`).
         underflow: ``"hold"`` or ``"drop-late"``.
         period: the sampling period, seconds (the paper's 0.2).
         duration: simulated time, seconds.

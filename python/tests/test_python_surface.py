@@ -219,7 +219,8 @@ def test_the_playout_list_names_adaptive_and_documents_the_parameterized_forms()
     source = pathlib.Path(ndr.sim.__file__).read_text(encoding="utf-8")
     for form in ('"fixed:MS"', '"constant:MS"', '"adaptive:PERCENT"'):
         assert form in source
-    for example in ("fixed:150", "constant:120", "adaptive:0.5"):
+    assert '"adaptive:PERCENT:QUANTUM_MS"' in source
+    for example in ("fixed:150", "constant:120", "adaptive:0.5", "adaptive:0.1:10"):
         ndr.sim.run("lan-75km", playout=example, duration=5, series=False)
 
 

@@ -55,6 +55,21 @@ def test_playout_policies_run_and_a_bad_name_is_refused():
         ndr.sim.run(duration=10, playout="lifo")
 
 
+def test_the_adaptive_playout_takes_the_step_of_its_delay():
+    def run(playout):
+        return ndr.sim.run("lan-75km", period=0.02, duration=120, series=False,
+                           underflow="drop-late", playout=playout)
+    default, fine = run("adaptive"), run("adaptive:0.1:10")
+    assert fine["playout"] == "adaptive:0.1:10"
+    # The LAN needs about 25 ms each way: 40 in steps of 20 ms, 30 in 10.
+    assert default["playout_delay_fwd_s"] == pytest.approx(0.04)
+    assert fine["playout_delay_fwd_s"] == pytest.approx(0.03)
+    assert fine["late_samples"] == 0
+    for bad in ("adaptive:0.1:0.5", "adaptive:0.1:20000", "adaptive::10", "adaptive:0.1:x"):
+        with pytest.raises(ValueError, match="QUANTUM_MS"):
+            ndr.sim.run(duration=10, playout=bad)
+
+
 def test_a_trace_file_drives_the_network(tmp_path):
     trace = tmp_path / "trace.csv"
     trace.write_text("t_s,fwd_ms,bwd_ms\n0,10,20\n30,40,40\n")

@@ -56,8 +56,20 @@ pub enum Playout {
     Adaptive {
         /// The target late rate ε, in parts per million (1000 = 0.1 %).
         epsilon_ppm: u32,
+        /// The step of the delay asked for, `None` for the default
+        /// [`DELAY_QUANTUM`](crate::endpoint::DELAY_QUANTUM) (see
+        /// [`delay_quantum_for`](crate::endpoint::delay_quantum_for)): a
+        /// finer one holds a lower delay that changes more often.
+        quantum: Option<Duration>,
     },
 }
+
+/// The finest quantum [`Playout::Adaptive`] takes: below it the delay would
+/// follow every wobble of its quantile.
+pub const MIN_QUANTUM: Duration = Duration::from_millis(1);
+/// The coarsest quantum the command line takes (any beyond the period is
+/// the period).
+pub const MAX_QUANTUM: Duration = Duration::from_secs(10);
 
 /// The adaptive policy's default late rate, 0.1 % in parts per million.
 pub const DEFAULT_EPSILON_PPM: u32 = 1000;
@@ -100,15 +112,36 @@ impl Playout {
                 Target::FixedAboveMin(FixedAboveMin::new(latency))
             }
             Playout::Constant { delay } => Target::Constant(delay),
-            Playout::Adaptive { epsilon_ppm } => Target::Adaptive(
-                A::build(period, f64::from(epsilon_ppm) * 1e-6).ok_or(NoAdaptiveRoom)?,
+            Playout::Adaptive {
+                epsilon_ppm,
+                quantum,
+            } => Target::Adaptive(
+                A::build(
+                    period,
+                    f64::from(epsilon_ppm) * 1e-6,
+                    crate::endpoint::delay_quantum_for(period, quantum),
+                )
+                .ok_or(NoAdaptiveRoom)?,
             ),
         }))
     }
 
-    /// The adaptive policy at its default late rate.
+    /// The quantum the adaptive delay is held in at `period`, `None` for the
+    /// other policies.
+    #[must_use]
+    pub fn quantum(self, period: Duration) -> Option<Duration> {
+        match self {
+            Playout::Adaptive { quantum, .. } => {
+                Some(crate::endpoint::delay_quantum_for(period, quantum))
+            }
+            _ => None,
+        }
+    }
+
+    /// The adaptive policy at its default late rate and quantum.
     pub const ADAPTIVE: Playout = Playout::Adaptive {
         epsilon_ppm: DEFAULT_EPSILON_PPM,
+        quantum: None,
     };
 }
 
@@ -151,10 +184,21 @@ impl fmt::Display for PlayoutName {
             }
             Playout::Adaptive {
                 epsilon_ppm: DEFAULT_EPSILON_PPM,
+                quantum: None,
             } => f.write_str("adaptive"),
-            Playout::Adaptive { epsilon_ppm } => {
+            Playout::Adaptive {
+                epsilon_ppm,
+                quantum,
+            } => {
                 f.write_str("adaptive:")?;
-                write_decimal(f, u64::from(epsilon_ppm), 4)
+                write_decimal(f, u64::from(epsilon_ppm), 4)?;
+                match quantum {
+                    Some(q) => {
+                        f.write_str(":")?;
+                        ms(f, q)
+                    }
+                    None => Ok(()),
+                }
             }
         }
     }
@@ -174,8 +218,9 @@ impl fmt::Display for UnknownPlayout {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(
             "unknown playout policy; valid: fifo, ramjee-1, ramjee-4, neteq, fixed[:MS], \
-             constant:MS (milliseconds, finite, not negative), adaptive[:PERCENT] (the \
-             target late rate, 0 < PERCENT < 100, default 0.1)",
+             constant:MS (milliseconds, finite, not negative), \
+             adaptive[:PERCENT[:QUANTUM_MS]] (the target late rate, 0 < PERCENT < 100, \
+             default 0.1; the delay's step, 1 to 10000 ms, default 20 ms or the period)",
         )
     }
 }
@@ -210,12 +255,25 @@ impl FromStr for Playout {
                 latency: millis(v)?,
             }),
             Some(("constant", v)) => Ok(Playout::Constant { delay: millis(v)? }),
-            Some(("adaptive", v)) => match v.trim().parse::<f64>() {
-                Ok(pc) if pc > 0.0 && pc < 100.0 => Ok(Playout::Adaptive {
-                    epsilon_ppm: libm::round(pc * 1e4).max(1.0) as u32,
-                }),
-                _ => Err(UnknownPlayout),
-            },
+            Some(("adaptive", v)) => {
+                let (pc, quantum) = match v.split_once(':') {
+                    Some((pc, q)) => {
+                        let q = millis(q)?;
+                        if q < MIN_QUANTUM || q > MAX_QUANTUM {
+                            return Err(UnknownPlayout);
+                        }
+                        (pc, Some(q))
+                    }
+                    None => (v, None),
+                };
+                match pc.trim().parse::<f64>() {
+                    Ok(pc) if pc > 0.0 && pc < 100.0 => Ok(Playout::Adaptive {
+                        epsilon_ppm: libm::round(pc * 1e4).max(1.0) as u32,
+                        quantum,
+                    }),
+                    _ => Err(UnknownPlayout),
+                }
+            }
             Some(_) => Err(UnknownPlayout),
         }
     }
@@ -233,14 +291,14 @@ pub trait TargetDelay {
 /// itself (about 12 KiB, the default), or [`NoAdaptive`], nothing, for an
 /// endpoint that never runs that policy and should not carry its histogram.
 pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
-    /// The state for `period` and late rate `epsilon`; `None` if this slot
-    /// holds none.
-    fn build(period: Duration, epsilon: f64) -> Option<Self>;
+    /// The state for `period`, late rate `epsilon` and the delay's
+    /// `quantum`; `None` if this slot holds none.
+    fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self>;
 }
 
 impl AdaptiveSlot for Adaptive {
-    fn build(period: Duration, epsilon: f64) -> Option<Self> {
-        Some(Adaptive::new(period, epsilon))
+    fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self> {
+        Some(Adaptive::with_quantum(period, epsilon, quantum))
     }
 }
 
@@ -261,7 +319,7 @@ impl TargetDelay for NoAdaptive {
 }
 
 impl AdaptiveSlot for NoAdaptive {
-    fn build(_: Duration, _: f64) -> Option<Self> {
+    fn build(_: Duration, _: f64, _: Duration) -> Option<Self> {
         None
     }
 }
@@ -697,9 +755,16 @@ pub struct Adaptive {
 
 impl Adaptive {
     /// An empty window for `period` and late rate `epsilon` (clamped to
-    /// 10⁻⁶..0.5).
+    /// 10⁻⁶..0.5), for the default quantum of the delay.
     #[must_use]
     pub fn new(period: Duration, epsilon: f64) -> Self {
+        Self::with_quantum(period, epsilon, crate::endpoint::delay_quantum(period))
+    }
+
+    /// [`Adaptive::new`] for a delay held in steps of `quantum` (the
+    /// warm-up's least margin).
+    #[must_use]
+    pub fn with_quantum(period: Duration, epsilon: f64, quantum: Duration) -> Self {
         let epsilon = if epsilon.is_finite() { epsilon } else { 1e-3 };
         let epsilon = epsilon.clamp(1e-6, 0.5);
         // The full blocks: all but the current one.
@@ -707,7 +772,7 @@ impl Adaptive {
             .clamp(ADAPTIVE_BLOCK, ADAPTIVE_BLOCK_MAX);
         Adaptive {
             period: period.as_secs_f64(),
-            quantum: crate::endpoint::delay_quantum(period).as_secs_f64(),
+            quantum: quantum.as_secs_f64(),
             epsilon,
             blocks: [[0; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
             total: [0; ADAPTIVE_BUCKETS],
@@ -1040,12 +1105,12 @@ mod tests {
             Playout::FixedAboveMin { latency: ms(200) },
             Playout::Constant { delay: ms(120) },
             Playout::ADAPTIVE,
-            Playout::Adaptive { epsilon_ppm: 5000 },
-            Playout::Adaptive { epsilon_ppm: 7000 },
-            Playout::Adaptive { epsilon_ppm: 1 },
-            Playout::Adaptive {
-                epsilon_ppm: 123_456,
-            },
+            adaptive(5000, None),
+            adaptive(7000, None),
+            adaptive(1, None),
+            adaptive(123_456, None),
+            adaptive(1000, Some(ms(10))),
+            adaptive(5000, Some(Duration::from_micros(2500))),
         ] {
             let name = std::format!("{p}");
             assert_eq!(name.parse::<Playout>(), Ok(p), "{name}");
@@ -1055,9 +1120,12 @@ mod tests {
             (1, "adaptive:0.0001"),
             (120_500, "adaptive:12.05"),
         ] {
-            let p = Playout::Adaptive { epsilon_ppm: ppm };
-            assert_eq!(std::format!("{p}"), name);
+            assert_eq!(std::format!("{}", adaptive(ppm, None)), name);
         }
+        assert_eq!(
+            std::format!("{}", adaptive(1000, Some(ms(10)))),
+            "adaptive:0.1:10"
+        );
         for (given, name) in [
             ("constant:124", "constant:124"),
             ("constant:0.1", "constant:0.1"),
@@ -1075,11 +1143,60 @@ mod tests {
         );
         assert!("constant:-1".parse::<Playout>().is_err());
         assert!("oracle".parse::<Playout>().is_err());
-        assert_eq!(
-            "adaptive:0.5".parse::<Playout>(),
-            Ok(Playout::Adaptive { epsilon_ppm: 5000 })
-        );
+        assert_eq!("adaptive:0.5".parse::<Playout>(), Ok(adaptive(5000, None)));
         assert!("adaptive:0".parse::<Playout>().is_err());
         assert!("adaptive:100".parse::<Playout>().is_err());
+        assert_eq!(
+            "adaptive:0.5:7.5".parse::<Playout>(),
+            Ok(adaptive(5000, Some(Duration::from_micros(7500))))
+        );
+        // The quantum: milliseconds from 1 to 10 000, and a late rate too.
+        for bad in [
+            "adaptive:0.1:0.5",
+            "adaptive:0.1:0",
+            "adaptive:0.1:-10",
+            "adaptive:0.1:10001",
+            "adaptive:0.1:nan",
+            "adaptive:0.1:",
+            "adaptive::10",
+            "adaptive:0.1:10:1",
+        ] {
+            assert!(bad.parse::<Playout>().is_err(), "{bad}");
+        }
+    }
+
+    fn adaptive(epsilon_ppm: u32, quantum: Option<Duration>) -> Playout {
+        Playout::Adaptive {
+            epsilon_ppm,
+            quantum,
+        }
+    }
+
+    #[test]
+    fn the_quantum_asked_for_divides_the_period() {
+        use crate::endpoint::delay_quantum_for;
+        // Defaults: the period up to 20 ms, then T/⌈T/20 ms⌉.
+        assert_eq!(Playout::ADAPTIVE.quantum(ms(20)), Some(ms(20)));
+        assert_eq!(Playout::ADAPTIVE.quantum(ms(10)), Some(ms(10)));
+        assert_eq!(Playout::ADAPTIVE.quantum(ms(200)), Some(ms(20)));
+        assert_eq!(Playout::Fifo.quantum(ms(20)), None);
+        // Asked: the period cut in the fewest equal parts no longer than that.
+        assert_eq!(adaptive(1000, Some(ms(10))).quantum(ms(20)), Some(ms(10)));
+        assert_eq!(
+            adaptive(1000, Some(ms(8))).quantum(ms(20)),
+            Some(Duration::from_nanos(6_666_666))
+        );
+        assert_eq!(adaptive(1000, Some(ms(50))).quantum(ms(20)), Some(ms(20)));
+        assert_eq!(delay_quantum_for(ms(50), Some(ms(10))), ms(10));
+        assert_eq!(
+            delay_quantum_for(ms(50), None),
+            Duration::from_nanos(16_666_666)
+        );
+        // The target's warm-up floor is a quantum, the one asked for.
+        let Some(Target::Adaptive(a)) = adaptive(1000, Some(ms(5))).target(ms(20)) else {
+            panic!("not adaptive");
+        };
+        assert_eq!(a, Adaptive::with_quantum(ms(20), 1e-3, ms(5)));
+        assert_ne!(a, Adaptive::new(ms(20), 1e-3));
     }
 }

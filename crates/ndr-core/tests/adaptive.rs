@@ -220,6 +220,52 @@ fn at_a_long_period_the_delay_settles_between_the_ticks() {
     assert_eq!(r.pauses, 0);
 }
 
+/// A quantum asked for (`adaptive:0.1:10`) holds the delay in its own
+/// steps: on the paper's LAN at `T = 20 ms` the need (about 25 ms) rounds
+/// up to 30 ms each way instead of the default's 40, released half-way
+/// between the ticks, with no more late samples.
+#[test]
+fn a_finer_quantum_holds_a_lower_delay_in_its_steps() {
+    let family = named("lan-75km", 300);
+    let delay_with = |playout: &str| {
+        let p: Playout = playout.parse().expect("a playout");
+        let out = run(&sim_config(&family, Policy::Target(p), 1, T)).expect("the run");
+        let settled: Vec<f64> = out
+            .forward
+            .samples
+            .iter()
+            .filter(|c| (120.0..290.0).contains(&c.sent_at.as_secs_f64()))
+            .map(|c| (c.released_at.expect("released") - c.sent_at).as_secs_f64())
+            .collect();
+        (out.report, settled)
+    };
+    let (default, _) = delay_with("adaptive");
+    let (fine, settled) = delay_with("adaptive:0.1:10");
+    assert!(
+        (default.playout_delay_fwd_s - 0.04).abs() < 1e-9,
+        "default: {} s",
+        default.playout_delay_fwd_s
+    );
+    assert!(
+        (fine.playout_delay_fwd_s - 0.03).abs() < 1e-9,
+        "10 ms quanta: {} s",
+        fine.playout_delay_fwd_s
+    );
+    // Every command settled takes that delay, to the offset estimate's error.
+    assert!(settled.len() > 8000, "{} commands", settled.len());
+    let lo = settled.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = settled.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert!(lo > 0.029 && hi < 0.031, "commands {lo} to {hi} s late");
+    assert_eq!(fine.late_samples, 0);
+    assert_eq!(fine.skipped, 0);
+    assert_eq!(fine.pauses, 0);
+    assert!(
+        fine.delay_changes_fwd <= 4,
+        "{} changes",
+        fine.delay_changes_fwd
+    );
+}
+
 /// The two hubs of a real link start their grids anywhere within a period
 /// of each other. A remote that kept its own grid made each direction's
 /// true delay its announced one plus or minus that phase (on `step`: 238 to

@@ -584,6 +584,37 @@ fn abort_reports_the_drivers_error_and_sends_no_close_for_a_lost_connection() {
 }
 
 #[test]
+fn an_adaptive_quantum_out_of_range_is_refused_with_the_range() {
+    use ndr_core::endpoint::ConfigError;
+    use ndr_core::playout::Playout;
+    let with = |quantum| {
+        let mut c = config(Role::Base);
+        c.playout = Playout::Adaptive {
+            epsilon_ppm: 1000,
+            quantum,
+        };
+        Ep::new(c, Instant::ZERO).err()
+    };
+    for bad in [
+        Duration::ZERO,
+        Duration::from_micros(999),
+        Duration::from_secs(11),
+    ] {
+        let refused = with(Some(bad));
+        assert_eq!(refused, Some(ConfigError::Quantum(bad)));
+        let message = refused.unwrap().to_string();
+        assert!(message.contains("1.000ms to 10.000s"), "{message}");
+    }
+    for good in [
+        None,
+        Some(Duration::from_millis(1)),
+        Some(Duration::from_secs(10)),
+    ] {
+        assert_eq!(with(good), None);
+    }
+}
+
+#[test]
 fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_playout() {
     use ndr_core::endpoint::ConfigError;
     use ndr_core::playout::{NoAdaptive, NoAdaptiveRoom, Playout};

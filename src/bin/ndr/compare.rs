@@ -61,7 +61,7 @@ pub struct CompareArgs {
     pub families: Vec<String>,
     /// Policies to run (repeatable; default all): paper-static,
     /// paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
-    /// adaptive[:PERCENT].
+    /// adaptive[:PERCENT[:QUANTUM_MS]].
     #[arg(long = "policy", value_name = "NAME")]
     pub policies: Vec<String>,
     /// Seeds per family (1..=N).
@@ -100,7 +100,7 @@ fn policy(name: &str) -> Result<Policy, String> {
     match name.parse::<Playout>() {
         Ok(Playout::Fifo) | Err(_) => Err(format!(
             "unknown policy `{name}`; valid: paper-static, paper-dynamic, ramjee-1, ramjee-4, \
-             neteq, fixed[:MS], constant:MS, adaptive[:PERCENT]"
+             neteq, fixed[:MS], constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]"
         )),
         Ok(p) => Ok(Policy::Target(p)),
     }

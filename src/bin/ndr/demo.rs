@@ -33,7 +33,8 @@ pub struct LinkArgs {
     pub mode: LinkMode,
     /// When this side releases each sample: fifo (the paper's queue, sized
     /// by the mode), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
-    /// adaptive[:PERCENT] (default: adaptive with `--mode adaptive`, else fifo).
+    /// adaptive[:PERCENT[:QUANTUM_MS]] (default: adaptive with `--mode
+    /// adaptive`, else fifo).
     #[arg(long)]
     pub playout: Option<Playout>,
     /// The regulator's policy when a sample is missing at its tick.

@@ -87,8 +87,8 @@ pub struct SimArgs {
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
     /// When the regulators release each sample: fifo (the paper's queue),
-    /// ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS, adaptive[:PERCENT]
-    /// (see `ndr compare`).
+    /// ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
+    /// adaptive[:PERCENT[:QUANTUM_MS]] (see `ndr compare`).
     #[arg(long, default_value = "fifo")]
     pub playout: Playout,
     /// The remote's clock runs this many ppm fast (negative: slow).

@@ -244,6 +244,13 @@ impl Config {
         if self.handshake_timeout.is_zero() {
             return Err(ConfigError::Timeout);
         }
+        if let crate::playout::Playout::Adaptive {
+            quantum: Some(q), ..
+        } = self.playout
+            && !(crate::playout::MIN_QUANTUM..=crate::playout::MAX_QUANTUM).contains(&q)
+        {
+            return Err(ConfigError::Quantum(q));
+        }
         Ok(())
     }
 
@@ -282,6 +289,10 @@ pub enum ConfigError {
     /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) on an
     /// endpoint built without room for its state.
     NoAdaptiveRoom(crate::playout::NoAdaptiveRoom),
+    /// The adaptive playout's quantum asked for is outside
+    /// [`MIN_QUANTUM`](crate::playout::MIN_QUANTUM) to
+    /// [`MAX_QUANTUM`](crate::playout::MAX_QUANTUM).
+    Quantum(Duration),
 }
 
 impl fmt::Display for ConfigError {
@@ -305,6 +316,13 @@ impl fmt::Display for ConfigError {
             ConfigError::Timeout => f.write_str("the handshake timeout must be positive"),
             ConfigError::Predictor(e) => write!(f, "{e}"),
             ConfigError::NoAdaptiveRoom(e) => write!(f, "{e}"),
+            ConfigError::Quantum(q) => write!(
+                f,
+                "the adaptive playout's quantum {q} is outside {} to {}; ask for a step in \
+                 that range, or none for the default",
+                crate::playout::MIN_QUANTUM,
+                crate::playout::MAX_QUANTUM
+            ),
         }
     }
 }

@@ -99,8 +99,19 @@ pub const PATTERN_SLACK: u64 = 3;
 /// [`DELAY_QUANTUM`]); `T` itself up to 20 ms.
 #[must_use]
 pub fn delay_quantum(period: Duration) -> Duration {
+    delay_quantum_for(period, None)
+}
+
+/// The quantum of the adaptive delay at period `T` when `asked` is asked
+/// for ([`Playout::Adaptive`](crate::playout::Playout::Adaptive)'s
+/// `quantum`, `None` for [`DELAY_QUANTUM`]): `T/⌈T/asked⌉`, the period cut
+/// in the fewest equal parts no longer than `asked` (the period itself when
+/// `asked` is longer), so that the releases keep to a lattice of the ticks.
+#[must_use]
+pub fn delay_quantum_for(period: Duration, asked: Option<Duration>) -> Duration {
+    let asked = asked.unwrap_or(DELAY_QUANTUM);
     let per = period.as_nanos().max(1);
-    let parts = per.div_ceil(DELAY_QUANTUM.as_nanos().max(1)).max(1);
+    let parts = per.div_ceil(asked.as_nanos().max(1)).max(1);
     Duration::from_nanos(per / parts)
 }
 
@@ -1043,7 +1054,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     /// Adaptive: the quantum of the delay (see [`DELAY_QUANTUM`]).
     fn quantum(&self) -> Duration {
-        delay_quantum(self.period)
+        self.config
+            .playout
+            .quantum(self.period)
+            .unwrap_or_else(|| delay_quantum(self.period))
     }
 
     /// Adaptive: the peer's send stamp the next slot is for, when no sample

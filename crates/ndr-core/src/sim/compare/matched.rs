@@ -174,7 +174,10 @@ fn adaptive_run(
     seed: u64,
     times: (Duration, Duration),
 ) -> Option<(f64, f64)> {
-    let p = super::Policy::Target(Playout::Adaptive { epsilon_ppm });
+    let p = super::Policy::Target(Playout::Adaptive {
+        epsilon_ppm,
+        quantum: None,
+    });
     let r = run_one(family, p, seed, times).ok()?.metrics;
     Some((r.mean_delay_s, r.late_rate))
 }
