@@ -329,6 +329,45 @@ fn the_search_keeps_the_lowest_delay_met() {
 }
 
 #[test]
+fn the_matched_search_keeps_the_quantum_asked_for() {
+    let adaptive = |quantum| {
+        Policy::Target(Playout::Adaptive {
+            epsilon_ppm: 1000,
+            quantum,
+        })
+    };
+    let five = Some(Duration::from_millis(5));
+    let paper = Policy::Paper(Mode::PaperStatic);
+    assert_eq!(compare::matched_quantum(&[paper, adaptive(five)]), five);
+    assert_eq!(
+        compare::matched_quantum(&[adaptive(None), adaptive(five)]),
+        None
+    );
+    assert_eq!(compare::matched_quantum(&[paper]), None);
+    // 30 ms each way: the default steps hold 40 ms, steps of 5 ms 35 ms.
+    let delay_with = |quantum| {
+        let mut cfg = CompareConfig::new(vec![constant_family(30)]);
+        cfg.policies = vec![paper, adaptive(quantum)];
+        cfg.seeds = 1;
+        cfg.matched = true;
+        let r = compare::compare(&cfg);
+        let a = r.matched[0].runs[0].adaptive.expect("a match");
+        assert_eq!(a.late_rate, 0.0);
+        (a.mean_delay_s, r.notes)
+    };
+    let (default, notes) = delay_with(None);
+    assert!((default - 0.040).abs() < 1e-9, "{default}");
+    assert!(notes.is_empty(), "{notes:?}");
+    let (fine, notes) = delay_with(five);
+    // (The first samples, in the warm-up, a step higher.)
+    assert!((fine - 0.035).abs() < 1e-4, "{fine}");
+    assert!(
+        notes.iter().any(|n| n.contains("steps of 5.000 ms")),
+        "{notes:?}"
+    );
+}
+
+#[test]
 fn matched_against_the_paper_modes() {
     // 30 ms each way, then a trace stepping from 30 to 200 ms at 20 s.
     let families = vec![constant_family(30), trace_family(&[(0, 30), (20, 200)])];

@@ -85,7 +85,8 @@ pub struct CompareArgs {
     pub threads: Option<usize>,
     /// Also compare the adaptive policy with each paper mode asked for at an
     /// equal or lower late rate, per seed (ε searched by bisection, up to 10
-    /// adaptive runs per paper run).
+    /// adaptive runs per paper run; in the steps of the first
+    /// `adaptive:PERCENT:QUANTUM_MS` asked for, if any).
     #[arg(long)]
     pub matched: bool,
     /// Print one JSON object instead of the tables.

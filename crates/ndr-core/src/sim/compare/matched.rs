@@ -167,29 +167,45 @@ pub type Runs = BTreeMap<u32, Option<(f64, f64)>>;
 /// What [`match_seed`] gives: the matches and the runs made.
 pub type SeedMatches = (Vec<Option<MatchedSeed>>, Runs);
 
-/// One adaptive run of `family` at ε = `epsilon_ppm`·10⁻⁶.
+/// The quantum of the adaptive policy the matched comparison searches: that
+/// of the first `adaptive` among `policies` (`None`, the default, if it
+/// asks for none or there is none), so that `--policy adaptive:0.1:10
+/// --matched` matches the policy asked for.
+#[must_use]
+pub fn matched_quantum(policies: &[super::Policy]) -> Option<Duration> {
+    policies.iter().find_map(|p| match *p {
+        super::Policy::Target(Playout::Adaptive { quantum, .. }) => Some(quantum),
+        _ => None,
+    })?
+}
+
+/// One adaptive run of `family` at ε = `epsilon_ppm`·10⁻⁶, its delay held
+/// in steps of `quantum` (`None`: the default).
 fn adaptive_run(
     family: &Family,
     epsilon_ppm: u32,
     seed: u64,
     times: (Duration, Duration),
+    quantum: Option<Duration>,
 ) -> Option<(f64, f64)> {
     let p = super::Policy::Target(Playout::Adaptive {
         epsilon_ppm,
-        quantum: None,
+        quantum,
     });
     let r = run_one(family, p, seed, times).ok()?.metrics;
     Some((r.mean_delay_s, r.late_rate))
 }
 
 /// The searches of one family and seed against each paper run's late rate,
-/// sharing their adaptive runs: the matches, in the order of `paper`, and
-/// the adaptive runs made.
+/// sharing their adaptive runs (the delay in steps of `quantum`, `None` for
+/// the default): the matches, in the order of `paper`, and the adaptive runs
+/// made.
 pub fn match_seed(
     family: &Family,
     seed: u64,
     paper: &[Option<RunMetrics>],
     times: (Duration, Duration),
+    quantum: Option<Duration>,
 ) -> SeedMatches {
     let mut runs = Runs::new();
     let matches = paper
@@ -199,7 +215,7 @@ pub fn match_seed(
             let adaptive = search(m.late_rate, |ppm| {
                 *runs
                     .entry(ppm)
-                    .or_insert_with(|| adaptive_run(family, ppm, seed, times))
+                    .or_insert_with(|| adaptive_run(family, ppm, seed, times, quantum))
             });
             Some(MatchedSeed {
                 seed,
@@ -263,6 +279,7 @@ pub(super) fn match_all(
     jobs: &[super::Job],
     outcomes: &[Option<super::Outcome>],
 ) -> Vec<Matched> {
+    let quantum = matched_quantum(&cfg.policies);
     let mut papers: Vec<super::Policy> = Vec::new();
     for &p in &cfg.policies {
         if matches!(p, super::Policy::Paper(_)) && !papers.contains(&p) {
@@ -288,7 +305,13 @@ pub(super) fn match_all(
         let family = cfg.families.get(f)?;
         let paper: Vec<Option<RunMetrics>> =
             papers.iter().map(|&p| paper_run(f, seed, p)).collect();
-        Some(match_seed(family, seed, &paper, (cfg.period, cfg.window)))
+        Some(match_seed(
+            family,
+            seed,
+            &paper,
+            (cfg.period, cfg.window),
+            quantum,
+        ))
     });
     let mut out = Vec::new();
     for (f, family) in cfg.families.iter().enumerate() {
@@ -346,6 +369,7 @@ fn one_epsilon(
     let limit = matched.iter().map(|m| m.paper_late_rate).sum::<f64>() / n;
     let paper_delay = matched.iter().map(|m| m.paper_delay_s).sum::<f64>() / n;
     let times = (cfg.period, cfg.window);
+    let quantum = matched_quantum(&cfg.policies);
     let mut at = |ppm: u32| -> Option<Vec<(f64, f64)>> {
         let missing: Vec<u64> = matched
             .iter()
@@ -355,7 +379,7 @@ fn one_epsilon(
         let order: Vec<usize> = (0..missing.len()).collect();
         let new = super::parallel(cfg.threads, &order, |i| {
             let seed = *missing.get(i)?;
-            Some(adaptive_run(family, ppm, seed, times))
+            Some(adaptive_run(family, ppm, seed, times, quantum))
         });
         for (seed, r) in missing.iter().zip(new) {
             runs.insert((ppm, *seed), r.flatten());

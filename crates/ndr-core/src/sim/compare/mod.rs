@@ -41,13 +41,13 @@ pub use families::{
 };
 pub use matched::{
     BRACKET, MATCH_PROBES, Matched, MatchedSeed, OneEpsilon, Probe, Runs, STRIDE, SeedMatches,
-    match_seed, search,
+    match_seed, matched_quantum, search,
 };
 
 use super::engine::{ForwardLog, SimConfig, run};
 use super::oracle::{Arrival, Oracle, OraclePoint};
 use super::percentile;
-use crate::endpoint::{Mode, Underflow, delay_quantum};
+use crate::endpoint::{Mode, Underflow, delay_quantum, delay_quantum_for};
 use crate::playout::{DEFAULT_FIXED_LATENCY, Playout};
 use crate::time::{Duration, Instant};
 
@@ -603,6 +603,13 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
     let mut notes = Vec::new();
     if cfg.matched && !cfg.policies.iter().any(|p| matches!(p, Policy::Paper(_))) {
         notes.push("--matched: no paper mode among the policies, nothing matched".to_string());
+    }
+    if let (true, Some(q)) = (cfg.matched, matched::matched_quantum(&cfg.policies)) {
+        notes.push(std::format!(
+            "--matched: the adaptive policy searched is the first one asked for, its delay in \
+             steps of {:.3} ms",
+            delay_quantum_for(cfg.period, Some(q)).as_secs_f64() * 1e3
+        ));
     }
     let families = cfg
         .families
