@@ -71,5 +71,9 @@ fn demo_runs_the_adaptive_playout() {
     for key in ["playout_delay_fwd_s", "playout_delay_bwd_s"] {
         assert!(r[key].as_f64().unwrap() > 0.0, "{key}: {r}");
     }
+    // Its first delay and every change after it, each an event.
+    for key in ["delay_changes_fwd", "delay_changes_bwd"] {
+        assert!(r[key].as_u64().unwrap() >= 1, "{key}: {r}");
+    }
     let _ = std::fs::remove_file(csv);
 }

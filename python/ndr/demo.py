@@ -355,6 +355,8 @@ def _report(
         # (the names of `ndr demo --json`).
         "playout_delay_fwd_s": r.get("playout_delay", math.nan),
         "playout_delay_bwd_s": b.get("playout_delay", math.nan),
+        "delay_changes_fwd": get(r, "delay_changes"),
+        "delay_changes_bwd": get(b, "delay_changes"),
         "one_way_fwd_mean_s": r.get("one_way_rx", {}).get("mean", math.nan),
         "one_way_bwd_mean_s": b.get("one_way_rx", {}).get("mean", math.nan),
         "remote_clock_offset_s": r.get("clock_offset", math.nan),
@@ -402,7 +404,8 @@ def print_table(r: Dict[str, Any], file: Optional[TextIO] = None) -> None:
     if r["playout"] != "fifo":
         p(
             f"  playout    delay {ms(r['playout_delay_fwd_s'])} forward · "
-            f"{ms(r['playout_delay_bwd_s'])} back (network one-way {ms(r['one_way_fwd_mean_s'])} / "
+            f"{ms(r['playout_delay_bwd_s'])} back · delays announced {r['delay_changes_fwd']} / "
+            f"{r['delay_changes_bwd']} (network one-way {ms(r['one_way_fwd_mean_s'])} / "
             f"{ms(r['one_way_bwd_mean_s'])}; remote clock {r['remote_clock_offset_s'] * 1e3:+.3f} ms, "
             f"{r['remote_clock_skew_ppm']:+.1f} ppm)"
         )

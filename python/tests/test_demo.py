@@ -40,6 +40,8 @@ def test_the_adaptive_playout_runs_in_the_demo(tmp_path):
         d = report[f"playout_delay_{way}_s"]
         assert 0.02 <= d <= 0.2 and abs(d / 0.02 - round(d / 0.02)) < 1e-6, report
         assert 0.005 < report[f"one_way_{way}_mean_s"] < d, report
+        # Its first delay and every change after it, each an event.
+        assert report[f"delay_changes_{way}"] >= 1, report
 
 
 def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
@@ -51,6 +53,7 @@ def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
     assert proc.returncode == 0, proc.stderr
     line = next(l for l in proc.stdout.splitlines() if l.strip().startswith("playout"))
     assert "forward" in line and "back" in line and "ppm" in line, line
+    assert "delays announced" in line, line
 
 
 def test_bad_options_exit_with_a_message():

@@ -171,6 +171,10 @@ struct DemoReport {
     /// Target-delay playouts: each side's delay at the end (0 for the FIFO).
     playout_delay_fwd_s: f64,
     playout_delay_bwd_s: f64,
+    /// Target-delay playouts: how many delays each side announced (its
+    /// first, then each change, made without a pause).
+    delay_changes_fwd: u64,
+    delay_changes_bwd: u64,
     clock_base_p50_s: f64,
     clock_base_p99_s: f64,
     clock_remote_p50_s: f64,
@@ -487,6 +491,8 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         remote_clock_skew_ppm: er.clock_skew_ppm,
         playout_delay_fwd_s: er.playout_delay_s,
         playout_delay_bwd_s: eb.playout_delay_s,
+        delay_changes_fwd: er.delay_changes,
+        delay_changes_bwd: eb.delay_changes,
         clock_base_p50_s: clock(b, |l| l.p50),
         clock_base_p99_s: clock(b, |l| l.p99),
         clock_remote_p50_s: clock(remote, |l| l.p50),
@@ -539,9 +545,11 @@ fn print_table(r: &DemoReport) {
         // A target-delay playout: the constant delay each side holds now,
         // beside the one-way network delays its clock estimate measures.
         println!(
-            "  playout    delay {} forward · {} back (network one-way {} / {}; remote clock {:+.3} ms, {:+.1} ppm)",
+            "  playout    delay {} forward · {} back · delays announced {} / {} (network one-way {} / {}; remote clock {:+.3} ms, {:+.1} ppm)",
             ms(r.playout_delay_fwd_s),
             ms(r.playout_delay_bwd_s),
+            r.delay_changes_fwd,
+            r.delay_changes_bwd,
             ms(r.one_way_fwd_mean_s),
             ms(r.one_way_bwd_mean_s),
             r.remote_clock_offset_s * 1e3,
