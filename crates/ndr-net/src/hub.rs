@@ -584,6 +584,11 @@ impl Driver {
                 self.releases.record(now - t);
                 take_sample(e);
                 e.endpoint.handle_timeout(now);
+                if e.endpoint.is_closed() {
+                    // Its last stats go out with its Closed event (below).
+                    self.lateness_stats = self.lateness.stats();
+                    self.release_stats = self.releases.stats();
+                }
                 if releases_first {
                     // A panicked handler's Close frame goes with the frames below.
                     let _ = deliver(e, true, self.lateness_stats, self.release_stats);
@@ -620,6 +625,13 @@ impl Driver {
         // waking its thread first would delay the frame by the wake-up.
         let now = Instant::from_std(self.origin, StdInstant::now());
         let mut wants_write = transmit(e, now, &mut self.buf);
+        if e.endpoint.is_closed() {
+            // The link's last stats: the clock's figures up to now, not as
+            // of the last periodic refresh (a short run has had only one),
+            // published before its Closed event wakes the application.
+            self.lateness_stats = self.lateness.stats();
+            self.release_stats = self.releases.stats();
+        }
         if deliver(e, ticked, self.lateness_stats, self.release_stats) {
             // The handler panicked: the endpoint queued its Close frame.
             wants_write |= transmit(e, now, &mut self.buf);
@@ -637,8 +649,7 @@ impl Driver {
             );
         }
         if e.endpoint.is_closed() {
-            // The link's last stats: the clock's figures up to now, not as
-            // of the last periodic refresh (a short run has had only one).
+            // Again if it closed above (a panicked handler) or had no event.
             self.lateness_stats = self.lateness.stats();
             self.release_stats = self.releases.stats();
             publish(e, self.lateness_stats, self.release_stats);
