@@ -191,6 +191,14 @@ fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
     let out = ndr(&["compare", "--policy", "fifo"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown policy"));
+    // A known policy with a value out of range says which value.
+    let out = ndr(&["compare", "--policy", "adaptive:0.1:0.5"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("policy `adaptive:0.1:0.5`: adaptive:PERCENT:QUANTUM_MS takes the step"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -210,14 +210,46 @@ impl fmt::Display for Playout {
     }
 }
 
-/// A name that is not a [`Playout`].
+/// A name that is not a [`Playout`], or a known one with a value out of
+/// its range (the message says which).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct UnknownPlayout;
+pub struct UnknownPlayout(Why);
+
+/// What was wrong with a playout's name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Why {
+    Name,
+    Millis,
+    Percent,
+    Quantum,
+}
+
+const UNKNOWN: UnknownPlayout = UnknownPlayout(Why::Name);
+
+impl UnknownPlayout {
+    /// The name itself is unknown (not a value out of a known policy's range).
+    #[must_use]
+    pub fn is_unknown_name(self) -> bool {
+        self.0 == Why::Name
+    }
+}
 
 impl fmt::Display for UnknownPlayout {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self.0 {
+            Why::Name => "unknown playout policy",
+            Why::Millis => "fixed:MS and constant:MS take milliseconds, finite and not negative",
+            Why::Percent => {
+                "adaptive:PERCENT takes the target late rate in percent, 0 < PERCENT < 100 \
+                 (0.1 by default)"
+            }
+            Why::Quantum => {
+                "adaptive:PERCENT:QUANTUM_MS takes the step of the delay in milliseconds, \
+                 1 to 10000 (e.g. 10)"
+            }
+        })?;
         f.write_str(
-            "unknown playout policy; valid: fifo, ramjee-1, ramjee-4, neteq, fixed[:MS], \
+            "; valid: fifo, ramjee-1, ramjee-4, neteq, fixed[:MS], \
              constant:MS (milliseconds, finite, not negative), \
              adaptive[:PERCENT[:QUANTUM_MS]] (the target late rate, 0 < PERCENT < 100, \
              default 0.1; the delay's step, 1 to 10000 ms, default 20 ms or the period)",
@@ -236,7 +268,7 @@ impl FromStr for Playout {
                 Ok(ms) if ms.is_finite() && ms >= 0.0 => {
                     Ok(Duration::from_nanos(libm::round(ms * 1e6) as u64))
                 }
-                _ => Err(UnknownPlayout),
+                _ => Err(UnknownPlayout(Why::Millis)),
             }
         };
         match s.trim().split_once(':') {
@@ -249,7 +281,7 @@ impl FromStr for Playout {
                 "fixed" => Ok(Playout::FixedAboveMin {
                     latency: DEFAULT_FIXED_LATENCY,
                 }),
-                _ => Err(UnknownPlayout),
+                _ => Err(UNKNOWN),
             },
             Some(("fixed", v)) => Ok(Playout::FixedAboveMin {
                 latency: millis(v)?,
@@ -257,13 +289,10 @@ impl FromStr for Playout {
             Some(("constant", v)) => Ok(Playout::Constant { delay: millis(v)? }),
             Some(("adaptive", v)) => {
                 let (pc, quantum) = match v.split_once(':') {
-                    Some((pc, q)) => {
-                        let q = millis(q)?;
-                        if q < MIN_QUANTUM || q > MAX_QUANTUM {
-                            return Err(UnknownPlayout);
-                        }
-                        (pc, Some(q))
-                    }
+                    Some((pc, q)) => match millis(q) {
+                        Ok(q) if (MIN_QUANTUM..=MAX_QUANTUM).contains(&q) => (pc, Some(q)),
+                        _ => return Err(UnknownPlayout(Why::Quantum)),
+                    },
                     None => (v, None),
                 };
                 match pc.trim().parse::<f64>() {
@@ -271,10 +300,10 @@ impl FromStr for Playout {
                         epsilon_ppm: libm::round(pc * 1e4).max(1.0) as u32,
                         quantum,
                     }),
-                    _ => Err(UnknownPlayout),
+                    _ => Err(UnknownPlayout(Why::Percent)),
                 }
             }
-            Some(_) => Err(UnknownPlayout),
+            Some(_) => Err(UNKNOWN),
         }
     }
 }
@@ -1162,6 +1191,26 @@ mod tests {
             "adaptive:0.1:10:1",
         ] {
             assert!(bad.parse::<Playout>().is_err(), "{bad}");
+        }
+        // Each error says what was wrong, then what is valid.
+        let says = |name: &str| std::format!("{}", name.parse::<Playout>().unwrap_err());
+        assert!(says("lifo").starts_with("unknown playout policy; valid: fifo"));
+        assert!("lifo".parse::<Playout>().unwrap_err().is_unknown_name());
+        assert!(
+            !"adaptive:0"
+                .parse::<Playout>()
+                .unwrap_err()
+                .is_unknown_name()
+        );
+        assert!(says("constant:-1").starts_with("fixed:MS and constant:MS take milliseconds"));
+        assert!(says("adaptive:100").starts_with("adaptive:PERCENT takes the target late rate"));
+        for bad in ["adaptive:0.1:0.5", "adaptive:0.1:x", "adaptive:0.1:10:1"] {
+            let m = says(bad);
+            assert!(
+                m.starts_with("adaptive:PERCENT:QUANTUM_MS takes the step"),
+                "{m}"
+            );
+            assert!(m.contains("; valid: fifo"), "{m}");
         }
     }
 

@@ -99,6 +99,7 @@ fn policy(name: &str) -> Result<Policy, String> {
         return Ok(Policy::Paper(mode));
     }
     match name.parse::<Playout>() {
+        Err(e) if !e.is_unknown_name() => Err(format!("policy `{name}`: {e}")),
         Ok(Playout::Fifo) | Err(_) => Err(format!(
             "unknown policy `{name}`; valid: paper-static, paper-dynamic, ramjee-1, ramjee-4, \
              neteq, fixed[:MS], constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]"
