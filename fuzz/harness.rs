@@ -148,6 +148,12 @@ pub fn endpoint(data: &[u8]) {
             delay: Duration::from_millis(u64::from(input.byte())),
         },
         5 => Playout::ADAPTIVE,
+        // A late rate and a step of its own (1 to 64 ms, against periods of
+        // 1 to 50 ms).
+        6 => Playout::Adaptive {
+            epsilon_ppm: 1 + u32::from(input.byte()) * 1000,
+            quantum: Some(Duration::from_millis(1 + u64::from(input.byte() % 64))),
+        },
         _ => Playout::Fifo,
     };
     cfg.watchdog = match pick % 3 {
