@@ -21,6 +21,24 @@ fn named(name: &str, secs: u64) -> Family {
     f
 }
 
+/// The end-to-end delay (release − send) of each command sent within `sent`
+/// (seconds); every one must have been released.
+fn command_delays(out: &ndr_core::sim::SimOutput, sent: std::ops::Range<f64>) -> Vec<f64> {
+    out.forward
+        .samples
+        .iter()
+        .filter(|c| sent.contains(&c.sent_at.as_secs_f64()))
+        .map(|c| (c.released_at.expect("released") - c.sent_at).as_secs_f64())
+        .collect()
+}
+
+/// The smallest and the largest of `xs`.
+fn span(xs: &[f64]) -> (f64, f64) {
+    let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = xs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (lo, hi)
+}
+
 #[test]
 fn skew_and_offset_estimates_match_the_simulator_after_10_minutes() {
     for (name, ppm) in [("skew+100ppm", 100.0), ("skew-100ppm", -100.0)] {
@@ -192,18 +210,11 @@ fn at_a_long_period_the_delay_settles_between_the_ticks() {
     // Once the window holds 1/ε delays (200 s at 5 Hz), every command takes
     // exactly that delay: its release is 40 ms after its send, 160 ms
     // before the next tick.
-    let settled: Vec<f64> = out
-        .forward
-        .samples
-        .iter()
-        .filter(|c| (300.0..590.0).contains(&c.sent_at.as_secs_f64()))
-        .map(|c| (c.released_at.expect("released") - c.sent_at).as_secs_f64())
-        .collect();
+    let settled = command_delays(&out, 300.0..590.0);
     // Exactly, but for the offset estimate's error (a fraction of a
     // millisecond: half the asymmetry of the two paths' fastest frames).
     assert!(settled.len() > 1400, "{} commands", settled.len());
-    let lo = settled.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = settled.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let (lo, hi) = span(&settled);
     assert!(lo > 0.039 && hi < 0.041, "commands {lo} to {hi} s late");
     assert!(hi - lo < 5e-4, "commands {lo} to {hi} s late");
     // Both ways (the base's cutoff once ran half a period ahead of the
@@ -230,13 +241,7 @@ fn a_finer_quantum_holds_a_lower_delay_in_its_steps() {
     let delay_with = |playout: &str| {
         let p: Playout = playout.parse().expect("a playout");
         let out = run(&sim_config(&family, Policy::Target(p), 1, T)).expect("the run");
-        let settled: Vec<f64> = out
-            .forward
-            .samples
-            .iter()
-            .filter(|c| (120.0..290.0).contains(&c.sent_at.as_secs_f64()))
-            .map(|c| (c.released_at.expect("released") - c.sent_at).as_secs_f64())
-            .collect();
+        let settled = command_delays(&out, 120.0..290.0);
         (out.report, settled)
     };
     let (default, _) = delay_with("adaptive");
@@ -253,8 +258,7 @@ fn a_finer_quantum_holds_a_lower_delay_in_its_steps() {
     );
     // Every command settled takes that delay, to the offset estimate's error.
     assert!(settled.len() > 8000, "{} commands", settled.len());
-    let lo = settled.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = settled.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let (lo, hi) = span(&settled);
     assert!(lo > 0.029 && hi < 0.031, "commands {lo} to {hi} s late");
     assert_eq!(fine.late_samples, 0);
     assert_eq!(fine.skipped, 0);
