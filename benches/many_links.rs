@@ -1,15 +1,17 @@
-//! Many concurrent links on loopback at 100 Hz: CPU and memory per link.
+//! Many concurrent links on loopback at 100 Hz (or another period): CPU and
+//! memory per link.
 //!
 //! Both ends of every link run in this process: the bases on one hub (or a
 //! pool of them), the remotes on another, one application thread echoing
 //! the remotes' commands and draining the bases' states and every link's
-//! events; tokio (2 workers) only connects and accepts. CPU is read from
-//! /proc/self/stat over a window after start-up, memory as the growth of the
-//! resident set from before the first link.
+//! events; tokio (2 workers) only connects and accepts. CPU is the
+//! scheduler's count of the process's threads over a window after start-up
+//! (see [`Cpu`]), memory the growth of the resident set from before the
+//! first link.
 //!
 //! The baseline, in the same run after the links are gone: as many raw
 //! tokio TCP connections on loopback carrying the same bytes (one 1-axis
-//! Data frame each way every 10 ms), one thread and current-thread runtime
+//! Data frame each way every period), one thread and current-thread runtime
 //! a side, as our two hubs are, a writer and a reader task a socket. It is
 //! what the frames cost in the kernel and in an ordinary event loop: the
 //! share of the CPU left to the links' own work is the difference.
@@ -18,14 +20,16 @@
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
 //! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
 //! NDR_HUBS, hubs in each side's pool, default 1; NDR_PLAYOUT, the playout
-//! policy by its command-line name, default `fifo`; the process needs
+//! policy by its command-line name, default `fifo`; NDR_PERIOD_MS, the
+//! period, default 10; NDR_SPIN=fixed, hubs that spin the whole default
+//! margin instead of learning a shorter one; the process needs
 //! 2·NDR_LINKS + 50 file descriptors).
 
 mod common;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use common::frame;
@@ -33,6 +37,7 @@ use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
+use ndr::net::spin::SpinMargin;
 use ndr::net::{HubPool, Link, LinkConfig, Listener};
 
 fn env(name: &str, default: f64) -> f64 {
@@ -54,25 +59,92 @@ fn rss_kib() -> u64 {
         .unwrap_or(0)
 }
 
-/// User + system CPU time (seconds, USER_HZ = 100) in a /proc `stat` line.
-fn stat_cpu_s(stat: &str) -> f64 {
-    let after = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<u64> = after
-        .split_whitespace()
-        .filter_map(|x| x.parse().ok())
-        .collect();
-    // Fields 14 and 15 of the line are the 12th and 13th after the name.
-    (f.get(10).copied().unwrap_or(0) + f.get(11).copied().unwrap_or(0)) as f64 / 100.0
+/// CPU time of this process, seconds.
+///
+/// The total is the scheduler's exact count (`schedstat`, nanoseconds on
+/// the CPU, summed over the threads). The split between user space and the
+/// kernel is the tick-sampled one of `stat` (USER_HZ = 100), which a load
+/// that wakes at 100 Hz, as the links do, can alias: it is reported as the
+/// kernel's share of the sampled time, the total is not taken from it.
+#[derive(Clone, Copy)]
+struct Cpu {
+    total: f64,
+    user_ticks: f64,
+    system_ticks: f64,
 }
 
-/// CPU time of this process, seconds.
-fn cpu_s() -> f64 {
-    stat_cpu_s(&std::fs::read_to_string("/proc/self/stat").unwrap_or_default())
+/// The times of a /proc `stat` line: user and system, seconds.
+fn stat_times(stat: &str) -> Option<(f64, f64)> {
+    let (_, after) = stat.rsplit_once(')')?;
+    // By position: fields before the times can be negative (the terminal's
+    // process group is -1 without a terminal), so a filter on what parses as
+    // unsigned would shift them (it did: until 2026-11-24 this bench read
+    // the kernel time, and the children's, 0, as its CPU). Fields 14 and 15
+    // are utime and stime; the first after the name is field 3.
+    let mut times = after.split_whitespace().skip(14 - 3);
+    let mut next = || times.next()?.parse::<u64>().ok().map(|t| t as f64 / 100.0);
+    Some((next()?, next()?))
+}
+
+/// The exact CPU time (s) of this process's threads whose name `keep`s.
+fn run_time_s(keep: impl Fn(&str) -> bool) -> f64 {
+    let tasks = std::fs::read_dir("/proc/self/task").expect("/proc/self/task");
+    tasks
+        .filter_map(Result::ok)
+        .filter(|t| {
+            std::fs::read_to_string(t.path().join("comm")).is_ok_and(|c| keep(c.trim_end()))
+        })
+        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .map(|ns| ns as f64 * 1e-9)
+        .sum()
+}
+
+impl Cpu {
+    /// This process's.
+    fn now() -> Cpu {
+        let stat = std::fs::read_to_string("/proc/self/stat").expect("/proc/self/stat");
+        let (user_ticks, system_ticks) =
+            stat_times(&stat).unwrap_or_else(|| panic!("no CPU times in /proc/self/stat: {stat}"));
+        Cpu {
+            total: run_time_s(|_| true),
+            user_ticks,
+            system_ticks,
+        }
+    }
+
+    /// From `self` to `later` over `elapsed` s: the share of the machine
+    /// (%) and the kernel's part of it (%).
+    fn shares(self, later: Cpu, elapsed: f64, cpus: usize) -> Share {
+        let (user, system) = (
+            later.user_ticks - self.user_ticks,
+            later.system_ticks - self.system_ticks,
+        );
+        Share {
+            machine: 100.0 * (later.total - self.total) / elapsed / cpus as f64,
+            kernel: 100.0 * system / (user + system).max(f64::MIN_POSITIVE),
+        }
+    }
+}
+
+/// A share of the machine over a window.
+#[derive(Clone, Copy)]
+struct Share {
+    /// % of all the CPUs.
+    machine: f64,
+    /// % of that in the kernel (tick-sampled).
+    kernel: f64,
 }
 
 /// One side of the baseline: on this thread's own current-thread runtime,
-/// every socket writes `frame` every 10 ms and reads the peer's, until `end`.
-fn raw_side(sockets: Vec<std::net::TcpStream>, end: StdInstant) {
+/// every socket writes `frame` every `period` and reads the peer's, until
+/// `end`, counting the frames it reads in `received`.
+fn raw_side(
+    sockets: Vec<std::net::TcpStream>,
+    period: StdDuration,
+    end: StdInstant,
+    received: Arc<AtomicU64>,
+) {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -85,13 +157,16 @@ fn raw_side(sockets: Vec<std::net::TcpStream>, end: StdInstant) {
             let s = tokio::net::TcpStream::from_std(s).unwrap();
             let (mut rd, mut wr) = s.into_split();
             let len = msg.len();
+            let received = Arc::clone(&received);
             tokio::spawn(async move {
                 let mut buf = vec![0; len];
-                while rd.read_exact(&mut buf).await.is_ok() {}
+                while rd.read_exact(&mut buf).await.is_ok() {
+                    received.fetch_add(1, Ordering::Relaxed);
+                }
             });
             let msg = msg.clone();
             tokio::spawn(async move {
-                let mut every = tokio::time::interval(StdDuration::from_millis(10));
+                let mut every = tokio::time::interval(period);
                 every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
                 loop {
                     every.tick().await;
@@ -105,9 +180,10 @@ fn raw_side(sockets: Vec<std::net::TcpStream>, end: StdInstant) {
     });
 }
 
-/// The baseline's CPU share of the machine over a `seconds` window (after
-/// a second's start), `n` connections.
-fn raw_cpu(n: usize, seconds: f64, cpus: usize) -> f64 {
+/// The baseline's CPU shares of the machine over a `seconds` window (after
+/// a second's start), `n` connections, and the frames it moved a second
+/// (when the machine cannot keep up, its intervals skip ticks).
+fn raw_cpu(n: usize, period: StdDuration, seconds: f64, cpus: usize) -> (Share, f64) {
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
     let (mut a, mut b) = (Vec::with_capacity(n), Vec::with_capacity(n));
@@ -120,32 +196,30 @@ fn raw_cpu(n: usize, seconds: f64, cpus: usize) -> f64 {
         b.push(s);
     }
     let end = StdInstant::now() + StdDuration::from_secs_f64(seconds + 2.0);
-    let sides = [a, b].map(|socks| std::thread::spawn(move || raw_side(socks, end)));
+    let received = Arc::new(AtomicU64::new(0));
+    let sides = [a, b].map(|socks| {
+        let received = Arc::clone(&received);
+        std::thread::spawn(move || raw_side(socks, period, end, received))
+    });
     std::thread::sleep(StdDuration::from_secs(1));
-    let (cpu0, t0) = (cpu_s(), StdInstant::now());
+    let (cpu0, frames0, t0) = (
+        Cpu::now(),
+        received.load(Ordering::Relaxed),
+        StdInstant::now(),
+    );
     std::thread::sleep(StdDuration::from_secs_f64(seconds));
-    let (cpu1, elapsed) = (cpu_s(), t0.elapsed().as_secs_f64());
+    let (cpu1, frames1, elapsed) = (
+        Cpu::now(),
+        received.load(Ordering::Relaxed),
+        t0.elapsed().as_secs_f64(),
+    );
     for side in sides {
         side.join().unwrap();
     }
-    100.0 * (cpu1 - cpu0) / elapsed / cpus as f64
-}
-
-/// CPU time (seconds) of this process's threads named `name` (the hubs:
-/// `ndr-hub`), from /proc/self/task.
-fn threads_cpu_s(name: &str) -> f64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
-        return 0.0;
-    };
-    tasks
-        .filter_map(Result::ok)
-        .filter_map(|t| std::fs::read_to_string(t.path().join("stat")).ok())
-        .filter(|stat| {
-            let comm = stat.split_once('(').and_then(|(_, r)| r.rsplit_once(')'));
-            comm.is_some_and(|(comm, _)| comm == name)
-        })
-        .map(|stat| stat_cpu_s(&stat))
-        .sum()
+    (
+        cpu0.shares(cpu1, elapsed, cpus),
+        (frames1 - frames0) as f64 / elapsed,
+    )
 }
 
 fn main() {
@@ -160,7 +234,14 @@ fn main() {
         .unwrap();
     let mut c = Config::new(Role::Base);
     c.axes = 1;
-    c.period = Duration::from_millis(10);
+    let period_ms = env("NDR_PERIOD_MS", 10.0);
+    c.period = Duration::from_secs_f64(period_ms / 1e3);
+    // NDR_SPIN=fixed: the hubs spin the whole default margin at every tick
+    // instead of learning a shorter one.
+    let spin = match std::env::var("NDR_SPIN").as_deref() {
+        Ok("fixed") => SpinMargin::fixed(DEFAULT_SPIN_MARGIN),
+        _ => SpinMargin::adaptive(DEFAULT_SPIN_MARGIN),
+    };
     let mut config = LinkConfig::new(c);
     config.app_queue = env("NDR_APP_QUEUE", 16.0) as usize;
     config.queue_capacity = env("NDR_QUEUE", ndr::net::link::QUEUE as f64) as usize;
@@ -170,8 +251,8 @@ fn main() {
         .unwrap_or_else(|_| panic!("NDR_PLAYOUT={playout}: not a playout policy"));
     let rss0 = rss_kib();
     let (bases, remotes) = rt.block_on(async {
-        let remote_hubs = HubPool::new(hubs, DEFAULT_SPIN_MARGIN).unwrap();
-        let base_hubs = HubPool::new(hubs, DEFAULT_SPIN_MARGIN).unwrap();
+        let remote_hubs = HubPool::new(hubs, spin).unwrap();
+        let base_hubs = HubPool::new(hubs, spin).unwrap();
         let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
         let listener = Listener::bind(any, config)
             .await
@@ -193,12 +274,29 @@ fn main() {
     });
     let setup_rss = rss_kib();
     let stop = Arc::new(AtomicBool::new(false));
+    // The frames the links have received so far, summed by the application
+    // thread (which holds them) when `count` is raised, into `counted`.
+    let (count, counted) = (
+        Arc::new(AtomicBool::new(false)),
+        Arc::new(AtomicU64::new(0)),
+    );
     let app = {
         let stop = Arc::clone(&stop);
+        let (count, counted) = (Arc::clone(&count), Arc::clone(&counted));
         std::thread::spawn(move || {
             let (mut bases, mut remotes) = (bases, remotes);
             let mut released = 0u64;
             while !stop.load(Ordering::Relaxed) {
+                if count.load(Ordering::Acquire) {
+                    let frames: u64 = bases
+                        .iter()
+                        .chain(&remotes)
+                        .filter_map(Link::stats)
+                        .map(|s| s.endpoint.frames_received)
+                        .sum();
+                    counted.store(frames, Ordering::Relaxed);
+                    count.store(false, Ordering::Release);
+                }
                 for r in &mut remotes {
                     while let Ok(Some(s)) = r.try_recv() {
                         let _ = r.send(s.values());
@@ -221,13 +319,26 @@ fn main() {
     };
     // Start-up: handshake, 10-probe pattern and pre-fill, all under a second.
     std::thread::sleep(StdDuration::from_secs(3));
-    let (cpu0, hubs0, t0) = (cpu_s(), threads_cpu_s("ndr-hub"), StdInstant::now());
+    let frames_so_far = || {
+        count.store(true, Ordering::Release);
+        while count.load(Ordering::Acquire) {
+            std::thread::sleep(StdDuration::from_millis(1));
+        }
+        counted.load(Ordering::Relaxed)
+    };
+    let frames0 = frames_so_far();
+    let (cpu0, hubs0, t0) = (
+        Cpu::now(),
+        run_time_s(|name| name == "ndr-hub"),
+        StdInstant::now(),
+    );
     std::thread::sleep(StdDuration::from_secs_f64(seconds));
     let (cpu1, hubs1, elapsed) = (
-        cpu_s(),
-        threads_cpu_s("ndr-hub"),
+        Cpu::now(),
+        run_time_s(|name| name == "ndr-hub"),
         t0.elapsed().as_secs_f64(),
     );
+    let frames = (frames_so_far() - frames0) as f64 / elapsed;
     let rss = rss_kib();
     stop.store(true, Ordering::Relaxed);
     let (bases, remotes, released) = app.join().unwrap();
@@ -244,15 +355,25 @@ fn main() {
         .filter_map(Link::stats)
         .map(|s| s.endpoint.grtt.std())
         .fold(0.0, f64::max);
-    let machine = 100.0 * (cpu1 - cpu0) / elapsed / cpus as f64;
+    let share = cpu0.shares(cpu1, elapsed, cpus);
+    let machine = share.machine;
     println!(
-        "{n} links at 100 Hz on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}",
-        config.queue_capacity, config.app_queue, config.endpoint.playout
+        "{n} links at T = {} on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}, spin margin {}",
+        c.period,
+        config.queue_capacity,
+        config.app_queue,
+        config.endpoint.playout,
+        if spin.is_adaptive() {
+            "learned"
+        } else {
+            "fixed"
+        }
     );
     println!("  endpoints running            {running} of {}", 2 * n);
     println!(
-        "  CPU                          {machine:.1} % of the machine ({:.1} µs per link per second); the hubs {:.1} %, the bench's application loop and tokio the rest",
-        1e6 * (cpu1 - cpu0) / elapsed / n as f64,
+        "  CPU                          {machine:.1} % of the machine ({:.0} % of it in the kernel; {:.1} µs per link per second); the hubs {:.1} %, the bench's application loop and tokio the rest",
+        share.kernel,
+        1e6 * (cpu1.total - cpu0.total) / elapsed / n as f64,
         100.0 * (hubs1 - hubs0) / elapsed / cpus as f64
     );
     println!(
@@ -280,13 +401,14 @@ fn main() {
             continue;
         };
         println!(
-            "  {side:<9} worst hub: wake lateness p50 {} · p99 {} · max {}; release lateness p50 {} · p99 {} · max {}",
+            "  {side:<9} worst hub: wake lateness p50 {} · p99 {} · max {}; release lateness p50 {} · p99 {} · max {}; spin margin learned {}",
             s.lateness.p50,
             s.lateness.p99,
             s.lateness.max,
             s.release_lateness.p50,
             s.release_lateness.p99,
-            s.release_lateness.max
+            s.release_lateness.max,
+            s.spin_margin
         );
     }
     let lag: Vec<f64> = stats.iter().map(|s| s.rx_lag.mean()).collect();
@@ -298,9 +420,20 @@ fn main() {
     drop((bases, remotes));
     // Let the hubs close their sockets and end before the baseline.
     std::thread::sleep(StdDuration::from_secs(1));
-    let raw = raw_cpu(n, seconds, cpus);
+    let (raw, raw_frames) = raw_cpu(n, c.period.into(), seconds, cpus);
+    // CPU time per frame moved (sent by one end and read by the other), µs.
+    let per_frame = |share: f64, fps: f64| share / 100.0 * cpus as f64 * 1e6 / fps;
     println!(
-        "  baseline: raw tokio TCP      {raw:.1} % of the machine ({n} connections, the same frame each way every 10 ms, a thread a side); links / raw {:.2}",
-        machine / raw
+        "  baseline: raw tokio TCP      {:.1} % of the machine ({:.0} % of it in the kernel; {n} connections, the same frame each way every period, a thread a side); links / raw {:.2}",
+        raw.machine,
+        raw.kernel,
+        machine / raw.machine,
+    );
+    println!(
+        "  frames moved                 links {frames:.0}/s, {:.2} µs of CPU each · raw {raw_frames:.0}/s, {:.2} µs each (of {} due a second); links / raw per frame {:.2}",
+        per_frame(machine, frames),
+        per_frame(raw.machine, raw_frames),
+        (2.0 * n as f64 * 1e3 / period_ms).round(),
+        per_frame(machine, frames) / per_frame(raw.machine, raw_frames)
     );
 }

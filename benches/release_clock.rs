@@ -11,7 +11,9 @@
 //! ```
 //!
 //! `NDR_CLOCK_TICKS` sets N (default 5000), `NDR_CLOCK_MARGIN_US` the clock's
-//! spin margin (default: the library's). Under a real-time policy (start the
+//! spin margin (default: the library's). Our clock runs twice, one run after
+//! the other: learning its margin from its sleeps up to that one (the
+//! default), and spinning the whole of it; each run reports its thread's CPU. Under a real-time policy (start the
 //! built binary with `chrt -f 50`) both sides run `SCHED_FIFO`.
 
 use std::ops::ControlFlow;
@@ -51,13 +53,15 @@ fn machine() -> String {
     )
 }
 
-/// ndr's clock thread: the lateness of each of `n` ticks.
-fn ndr_clock(n: u64) -> (LatenessHistogram, String, bool) {
+/// ndr's clock thread, its spin margin learned (`adaptive`) or fixed: the
+/// lateness of each of `n` ticks.
+fn ndr_clock(n: u64, adaptive: bool) -> (LatenessHistogram, String, bool) {
     let mut clock = ReleaseClock::new(
         StdInstant::now() + std::time::Duration::from_millis(20),
         PERIOD,
     )
-    .expect("a 1 ms period is valid");
+    .expect("a 1 ms period is valid")
+    .with_adaptive_spin(adaptive);
     if let Some(us) = env_u64("NDR_CLOCK_MARGIN_US") {
         clock = clock
             .with_spin_margin(Duration::from_micros(us))
@@ -92,9 +96,18 @@ fn ndr_clock(n: u64) -> (LatenessHistogram, String, bool) {
     let slack = setup
         .timer_slack
         .map_or("unknown".to_owned(), |s| s.to_string());
+    let margin = if adaptive {
+        format!(
+            "learned, up to {}: {} at the end",
+            clock.spin_margin(),
+            report.spin_margin
+        )
+    } else {
+        format!("fixed, {}", clock.spin_margin())
+    };
     let info = format!(
-        "ndr clock: spin margin {}, timer slack {slack}, policy {policy}, thread CPU {cpu}",
-        clock.spin_margin()
+        "ndr clock ({}): spin margin {margin}, timer slack {slack}, policy {policy}, thread CPU {cpu}",
+        if adaptive { "learned" } else { "fixed" }
     );
     let realtime = setup.policy.is_some_and(SchedPolicy::is_realtime);
     (report.histogram, info, realtime)
@@ -170,13 +183,15 @@ fn main() {
     );
     println!("T = {PERIOD}, N = {n} ticks each, lateness vs the ideal deadline t0 + k·T, in µs\n");
 
-    let (ours, info, realtime) = ndr_clock(n);
+    let (ours, info, realtime) = ndr_clock(n, true);
+    let (fixed, fixed_info, _) = ndr_clock(n, false);
     let (theirs, early) = tokio_interval(n);
     let (a, b) = (ours.stats(), theirs.stats());
 
     println!("| clock | p50 | p99 | p99.9 | max | mean | < 20 µs | missed |");
     println!("|---|---|---|---|---|---|---|---|");
-    println!("{}", row("ndr clock thread", &ours));
+    println!("{}", row("ndr clock thread (margin learned)", &ours));
+    println!("{}", row("ndr clock thread (margin fixed)", &fixed));
     println!("{}", row("tokio interval (current thread, Burst)", &theirs));
     println!(
         "| tokio / ndr | {} | {} | {} | {} | {} | | |",
@@ -190,6 +205,7 @@ fn main() {
         "\npercentiles are the upper edges of 1 µs buckets (capped by the max); means are exact"
     );
     println!("{info}");
+    println!("{fixed_info}");
     if !realtime {
         println!(
             "note: the clock thread ran under the default policy: on a loaded machine its tail is \

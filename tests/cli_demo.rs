@@ -35,8 +35,15 @@ fn demo_runs_and_reports_in_json() {
         "underflows",
         "clock_base_p50_s",
         "clock_base_p99_s",
+        "spin_margin_base_s",
+        "spin_margin_remote_s",
     ] {
         assert!(r[key].is_number(), "missing {key}");
+    }
+    // Each hub's spin margin, learned from its timer: within 20–200 µs.
+    for side in ["base", "remote"] {
+        let m = r[format!("spin_margin_{side}_s")].as_f64().unwrap();
+        assert!((20e-6..=200e-6).contains(&m), "{side}: {m}");
     }
     assert_eq!(r["profile"], "lan-75km");
     assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");

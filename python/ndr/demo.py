@@ -351,6 +351,8 @@ def _report(
         "clock_base_p99_s": b.get("lateness", {}).get("p99", math.nan),
         "clock_remote_p50_s": r.get("lateness", {}).get("p50", math.nan),
         "clock_remote_p99_s": r.get("lateness", {}).get("p99", math.nan),
+        "spin_margin_base_s": b.get("spin_margin", math.nan),
+        "spin_margin_remote_s": r.get("spin_margin", math.nan),
         # What a target-delay playout holds, and the clock estimate under it
         # (the names of `ndr demo --json`).
         "playout_delay_fwd_s": r.get("playout_delay", math.nan),
@@ -411,7 +413,8 @@ def print_table(r: Dict[str, Any], file: Optional[TextIO] = None) -> None:
         )
     p(
         f"  clock      release lateness p50 / p99: base {us(r['clock_base_p50_s'])} / "
-        f"{us(r['clock_base_p99_s'])} · remote {us(r['clock_remote_p50_s'])} / {us(r['clock_remote_p99_s'])}"
+        f"{us(r['clock_base_p99_s'])} · remote {us(r['clock_remote_p50_s'])} / {us(r['clock_remote_p99_s'])} "
+        f"(spin margin learned {us(r['spin_margin_base_s'])} / {us(r['spin_margin_remote_s'])})"
     )
     p(f"  relay      {r['relay_frames_fwd']} frames forward, {r['relay_frames_bwd']} back")
     p(

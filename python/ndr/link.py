@@ -416,7 +416,9 @@ class Link:
         ``nrtt`` and ``grtt`` (count, mean, std, min, max), ``lateness`` of
         the hub's wake-ups for its deadlines and ``release_lateness`` of
         the releases themselves (p50, p99, p999, max, mean; over all links
-        of the hub), and ``app_dropped``."""
+        of the hub), ``spin_margin`` (how long before a deadline the hub
+        stops sleeping and spins, learned from how late its timer wakes),
+        and ``app_dropped``."""
         return self._native.stats()
 
     def now(self) -> float:

@@ -19,6 +19,9 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["grtt_std_s"] < 0.25 * report["period_s"]
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
+    # Each hub's spin margin, learned from its timer, within its bounds.
+    for side in ("base", "remote"):
+        assert 20e-6 <= report[f"spin_margin_{side}_s"] <= 200e-6
     header = out.read_text().splitlines()[0]
     assert header == "t_s,seq,status,grtt_s,command,state,x3e"
 

@@ -427,6 +427,8 @@ def test_stats_and_properties():
             assert key in s, key
         assert s["period"] == pytest.approx(0.02)
         assert set(s["lateness"]) >= {"p50", "p99", "max"}
+        # Learned from the hub's timer, within its bounds (20 µs to 200 µs).
+        assert 20e-6 <= s["spin_margin"] <= 200e-6
         assert p.base.axes == 3 and p.base.period == pytest.approx(0.02)
         assert p.base.peer[0] == "127.0.0.1"
         assert p.base.now() > 0

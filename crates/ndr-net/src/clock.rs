@@ -10,7 +10,8 @@
 //! - [`ReleaseClock::wait_until`] sleeps natively until a *spin margin*
 //!   before the deadline, then spins on [`std::time::Instant::now`] (about
 //!   30 ns a call here) until the deadline has passed, and returns how late
-//!   it woke;
+//!   it woke; the clock's thread learns the margin from how late its sleeps
+//!   wake ([`crate::spin`]), up to the one configured;
 //! - [`ReleaseClock::spawn`] runs a closure on every tick on a thread named
 //!   `ndr-clock` and records each tick's lateness in a fixed
 //!   [`LatenessHistogram`], allocated once when the thread starts.
@@ -51,8 +52,12 @@ use std::time::Instant as StdInstant;
 
 use ndr_core::time::{Duration, Instant};
 
+use crate::spin::SpinMargin;
+
 /// The spin margin of a new clock (clamped to half the period): how long
-/// before a deadline the native sleep ends and the spin begins.
+/// before a deadline the native sleep ends and the spin begins. A clock
+/// thread or a hub takes it as the longest margin and learns a shorter one
+/// from its sleeps' overshoots ([`crate::spin::SpinMargin`]).
 ///
 /// Chosen by measurement on the project's 2-core VM at T = 1 ms (5000 ticks,
 /// `benches/release_clock.rs`): a native sleep with a 1 µs timer slack
@@ -134,6 +139,7 @@ pub struct ReleaseClock {
     origin: StdInstant,
     period: Duration,
     spin_margin: Duration,
+    adaptive_spin: bool,
     timer_slack: Option<Duration>,
 }
 
@@ -153,11 +159,14 @@ impl ReleaseClock {
             origin,
             period,
             spin_margin: DEFAULT_SPIN_MARGIN.min(period / 2),
+            adaptive_spin: true,
             timer_slack: Some(DEFAULT_TIMER_SLACK),
         })
     }
 
-    /// The same clock with another spin margin (zero: sleep only, no spin).
+    /// The same clock with another spin margin (zero: sleep only, no spin):
+    /// the longest its thread uses, learning a shorter one from its sleeps
+    /// unless [`with_adaptive_spin(false)`](Self::with_adaptive_spin).
     ///
     /// # Errors
     ///
@@ -172,6 +181,18 @@ impl ReleaseClock {
         }
         self.spin_margin = margin;
         Ok(self)
+    }
+
+    /// The same clock whose thread ([`spawn`](Self::spawn)) learns its spin
+    /// margin from its sleeps' overshoots, up to [`spin_margin`]
+    /// (`true`, the default), or always spins the whole of it (`false`).
+    /// [`wait_until`](Self::wait_until) always spins the whole margin.
+    ///
+    /// [`spin_margin`]: Self::spin_margin
+    #[must_use]
+    pub fn with_adaptive_spin(mut self, adaptive: bool) -> Self {
+        self.adaptive_spin = adaptive;
+        self
     }
 
     /// The same clock whose thread ([`spawn`](Self::spawn)) sets its timer
@@ -198,10 +219,17 @@ impl ReleaseClock {
         self.period
     }
 
-    /// How long before a deadline the sleep ends and the spin begins.
+    /// How long before a deadline the sleep ends and the spin begins: the
+    /// longest margin, when the thread learns a shorter one.
     #[must_use]
     pub fn spin_margin(&self) -> Duration {
         self.spin_margin
+    }
+
+    /// Whether the thread learns its spin margin from its sleeps.
+    #[must_use]
+    pub fn adaptive_spin(&self) -> bool {
+        self.adaptive_spin
     }
 
     /// The timer slack the clock thread asks for, if any.
@@ -242,7 +270,8 @@ impl ReleaseClock {
     ///
     /// A deadline already past returns at once with its lateness.
     pub fn wait_until(&self, deadline: StdInstant) -> Duration {
-        wait(deadline, self.spin_margin, None, std::thread::sleep).unwrap_or(Duration::ZERO)
+        let mut margin = SpinMargin::fixed(self.spin_margin);
+        wait(deadline, &mut margin, None, std::thread::sleep).unwrap_or(Duration::ZERO)
     }
 
     /// Starts a thread named [`THREAD_NAME`] that waits for the deadline of
@@ -277,15 +306,16 @@ impl ReleaseClock {
     }
 }
 
-/// Waits for `deadline`: `sleep` until the margin before it, then spins.
-/// `None` if `stop` was raised first.
+/// Waits for `deadline`: `sleep` until the margin before it, then spins;
+/// each sleep's overshoot goes to `margin`. `None` if `stop` was raised
+/// first.
 fn wait(
     deadline: StdInstant,
-    margin: Duration,
+    margin: &mut SpinMargin,
     stop: Option<&AtomicBool>,
     mut sleep: impl FnMut(std::time::Duration),
 ) -> Option<Duration> {
-    let margin = std::time::Duration::from(margin);
+    let spin = std::time::Duration::from(margin.current());
     loop {
         let now = StdInstant::now();
         if now >= deadline {
@@ -295,8 +325,10 @@ fn wait(
             return None;
         }
         let remaining = deadline.duration_since(now);
-        if remaining > margin {
-            sleep(remaining - margin);
+        if remaining > spin {
+            let until = deadline - spin;
+            sleep(until - now);
+            margin.record(StdInstant::now().saturating_duration_since(until).into());
         } else {
             std::hint::spin_loop();
         }
@@ -416,6 +448,9 @@ pub struct ClockReport {
     pub next_tick: u64,
     /// The scheduling the thread ran with.
     pub setup: ThreadSetup,
+    /// The spin margin the thread was using at its end (learned from its
+    /// sleeps, or the one configured).
+    pub spin_margin: Duration,
 }
 
 impl ClockReport {
@@ -569,6 +604,11 @@ where
         timer_slack_refused,
     };
     let mut histogram = LatenessHistogram::new(clock.period);
+    let mut margin = if clock.adaptive_spin {
+        SpinMargin::adaptive(clock.spin_margin)
+    } else {
+        SpinMargin::fixed(clock.spin_margin)
+    };
     let mut k = first;
     let end = loop {
         if shared.stop.load(Ordering::Acquire) {
@@ -579,7 +619,7 @@ where
         };
         let Some(lateness) = wait(
             deadline,
-            clock.spin_margin,
+            &mut margin,
             Some(&shared.stop),
             std::thread::park_timeout,
         ) else {
@@ -603,6 +643,7 @@ where
         end,
         next_tick: k,
         setup,
+        spin_margin: margin.current(),
     }
 }
 

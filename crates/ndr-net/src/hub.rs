@@ -29,6 +29,7 @@ use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, 
 use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
 use crate::link::{LinkStats, Sample};
+use crate::spin::SpinMargin;
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
@@ -115,15 +116,17 @@ impl std::fmt::Debug for Hub {
 }
 
 impl Hub {
-    /// A hub with its driver thread (`ndr-hub`), spinning the last
-    /// `spin_margin` before each deadline.
-    pub fn new(spin_margin: Duration) -> io::Result<Hub> {
-        Hub::with_origin(spin_margin, StdInstant::now())
+    /// A hub with its driver thread (`ndr-hub`), spinning at most the last
+    /// `spin_margin` before each deadline: given as a [`Duration`], it learns
+    /// a shorter margin from how late its timer wakes ([`crate::spin`]);
+    /// [`SpinMargin::fixed`] spins the whole of it.
+    pub fn new(spin_margin: impl Into<SpinMargin>) -> io::Result<Hub> {
+        Hub::with_origin(spin_margin.into(), StdInstant::now())
     }
 
     /// A hub whose tick grid starts at `origin` (hubs of one pool share it,
     /// so their links tick at the same instants, in parallel).
-    pub(crate) fn with_origin(spin_margin: Duration, origin: StdInstant) -> io::Result<Hub> {
+    pub(crate) fn with_origin(spin: SpinMargin, origin: StdInstant) -> io::Result<Hub> {
         let (tx, rx) = mpsc::channel();
         let poll = Poll::new()?;
         let waker = Arc::new(Waker::new(poll.registry(), WAKER)?);
@@ -133,14 +136,18 @@ impl Hub {
             poll,
             timer,
             origin,
-            margin: spin_margin.into(),
+            spin,
+            armed: None,
             input: rx,
             entries: HashMap::new(),
             timers: BTreeSet::new(),
             lateness: LatenessHistogram::new(Duration::from_millis(1)),
-            lateness_stats: LatenessStats::default(),
             releases: LatenessHistogram::new(Duration::from_millis(1)),
-            release_stats: LatenessStats::default(),
+            figures: HubFigures {
+                lateness: LatenessStats::default(),
+                release_lateness: LatenessStats::default(),
+                spin_margin: spin.current(),
+            },
             wakes: 0,
             backlog: VecDeque::new(),
             events: Events::with_capacity(1024),
@@ -218,6 +225,14 @@ struct Ready {
     writable: bool,
 }
 
+/// What every link's stats show of its hub.
+#[derive(Clone, Copy)]
+struct HubFigures {
+    lateness: LatenessStats,
+    release_lateness: LatenessStats,
+    spin_margin: Duration,
+}
+
 /// What a look at the poll set found besides sockets.
 #[derive(Clone, Copy, Default)]
 struct Woke {
@@ -225,6 +240,8 @@ struct Woke {
     any: bool,
     /// The waker: links added or closed.
     messages: bool,
+    /// The timer.
+    timer: bool,
 }
 
 /// How long a piece of the hub's work takes: a peak that decays by 1/32 at
@@ -260,17 +277,21 @@ struct Driver {
     /// A nanosecond timer in the poll set, where the platform has one.
     timer: Option<precise::Timer>,
     origin: StdInstant,
-    margin: std::time::Duration,
+    /// How long before a deadline the poll's timer ends and the spin starts,
+    /// learned from how late the timer wakes.
+    spin: SpinMargin,
+    /// When the timer was armed to end, while the thread waits in the poll.
+    armed: Option<StdInstant>,
     input: Receiver<Msg>,
     entries: HashMap<u64, Entry>,
     timers: BTreeSet<(Instant, u64)>,
     /// How late the hub woke for its deadlines.
     lateness: LatenessHistogram,
-    /// Recomputed every so often: percentiles cost a histogram scan.
-    lateness_stats: LatenessStats,
     /// How late each link's deadline was served (its release stamp).
     releases: LatenessHistogram,
-    release_stats: LatenessStats,
+    /// What every link's stats show of the hub: recomputed every so often
+    /// (percentiles cost a histogram scan) and for a link's last stats.
+    figures: HubFigures,
     wakes: u64,
     /// Sockets reported ready and not served yet, in order.
     backlog: VecDeque<Ready>,
@@ -295,14 +316,14 @@ impl Driver {
                 .timers
                 .first()
                 .and_then(|&(t, _)| t.to_std(self.origin));
-            let wait = deadline.map(|d| {
-                d.saturating_duration_since(StdInstant::now())
-                    .saturating_sub(self.margin)
-            });
+            let margin = std::time::Duration::from(self.spin.current());
+            let now = StdInstant::now();
+            let wait = deadline.map(|d| d.saturating_duration_since(now).saturating_sub(margin));
             let timeout = match (&self.timer, wait) {
                 // The timer wakes the poll to the nanosecond.
                 (Some(timer), Some(w)) => {
                     timer.arm(w);
+                    self.armed = (!w.is_zero()).then(|| now + w);
                     None
                 }
                 // epoll counts whole milliseconds and rounds up: ask it for
@@ -317,6 +338,12 @@ impl Driver {
             let Ok(woke) = self.poll_ready(timeout) else {
                 return;
             };
+            // The timer armed just now ended this wait: how late it woke is
+            // what the spin margin must cover.
+            if let Some(end) = self.armed.take().filter(|_| woke.timer) {
+                let overshoot = StdInstant::now().saturating_duration_since(end);
+                self.spin.record(overshoot.into());
+            }
             if woke.messages && !self.messages() {
                 return;
             }
@@ -327,7 +354,7 @@ impl Driver {
             // Serve what woke us until the spin should start (the tick serves
             // the rest as it fits): a burst of frames just before a deadline
             // must not make it late.
-            let target = d.checked_sub(self.margin).unwrap_or(d);
+            let target = d.checked_sub(margin).unwrap_or(d);
             while let Some(r) = self.backlog.pop_front() {
                 self.serve_timed(r);
                 if StdInstant::now() >= target {
@@ -371,6 +398,7 @@ impl Driver {
             match ev.token() {
                 WAKER => woke.messages = true,
                 TIMER => {
+                    woke.timer = true;
                     if let Some(timer) = &self.timer {
                         timer.clear();
                     }
@@ -397,7 +425,7 @@ impl Driver {
     fn serve_timed(&mut self, r: Ready) {
         let start = StdInstant::now();
         self.serve(r);
-        self.service.record(start.elapsed(), self.margin);
+        self.service.record(start.elapsed(), self.spin.max().into());
     }
 
     /// Reads and writes for one ready socket.
@@ -548,7 +576,7 @@ impl Driver {
                 }
             } else if self.polling.fits(now, d) {
                 let woke = self.poll_ready(Some(std::time::Duration::ZERO));
-                self.polling.record(now.elapsed(), self.margin);
+                self.polling.record(now.elapsed(), self.spin.max().into());
                 messages |= woke.is_ok_and(|w| w.messages);
                 continue;
             }
@@ -559,8 +587,7 @@ impl Driver {
             .record(StdInstant::now().saturating_duration_since(d).into());
         self.wakes += 1;
         if self.wakes % 64 == 1 {
-            self.lateness_stats = self.lateness.stats();
-            self.release_stats = self.releases.stats();
+            self.figures = figures(&self.lateness, &self.releases, self.spin);
         }
         // Frames that arrived before the deadline belong before the releases.
         let woke = self.poll_ready(Some(std::time::Duration::ZERO));
@@ -586,12 +613,11 @@ impl Driver {
                 e.endpoint.handle_timeout(now);
                 if e.endpoint.is_closed() {
                     // Its last stats go out with its Closed event (below).
-                    self.lateness_stats = self.lateness.stats();
-                    self.release_stats = self.releases.stats();
+                    self.figures = figures(&self.lateness, &self.releases, self.spin);
                 }
                 if releases_first {
                     // A panicked handler's Close frame goes with the frames below.
-                    let _ = deliver(e, true, self.lateness_stats, self.release_stats);
+                    let _ = deliver(e, true, self.figures);
                 }
             }
             if !releases_first {
@@ -629,10 +655,9 @@ impl Driver {
             // The link's last stats: the clock's figures up to now, not as
             // of the last periodic refresh (a short run has had only one),
             // published before its Closed event wakes the application.
-            self.lateness_stats = self.lateness.stats();
-            self.release_stats = self.releases.stats();
+            self.figures = figures(&self.lateness, &self.releases, self.spin);
         }
-        if deliver(e, ticked, self.lateness_stats, self.release_stats) {
+        if deliver(e, ticked, self.figures) {
             // The handler panicked: the endpoint queued its Close frame.
             wants_write |= transmit(e, now, &mut self.buf);
         }
@@ -650,9 +675,8 @@ impl Driver {
         }
         if e.endpoint.is_closed() {
             // Again if it closed above (a panicked handler) or had no event.
-            self.lateness_stats = self.lateness.stats();
-            self.release_stats = self.releases.stats();
-            publish(e, self.lateness_stats, self.release_stats);
+            self.figures = figures(&self.lateness, &self.releases, self.spin);
+            publish(e, self.figures);
         }
         let next = e.endpoint.poll_timeout();
         if next != e.deadline {
@@ -757,9 +781,9 @@ fn transmit(e: &mut Entry, now: Instant, buf: &mut [u8]) -> bool {
 /// link's last stats raced the application that woke on its Closed event). Releases go to the
 /// link's handler if it has one; `true` if the handler panicked (the link
 /// is then aborted, its Close frame queued).
-fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: LatenessStats) -> bool {
+fn deliver(e: &mut Entry, ticked: bool, hub: HubFigures) -> bool {
     if ticked {
-        publish(e, lateness, releases);
+        publish(e, hub);
     }
     let mut delivered = false;
     let mut published = ticked;
@@ -785,7 +809,7 @@ fn deliver(e: &mut Entry, ticked: bool, lateness: LatenessStats, releases: Laten
             other => Delivery::Event(other),
         };
         if !published {
-            publish(e, lateness, releases);
+            publish(e, hub);
             published = true;
         }
         match e.deliveries.try_send(d) {
@@ -870,7 +894,20 @@ pub(crate) fn write_or_queue(socket: &mut MioStream, pending: &mut Vec<u8>, byte
     true
 }
 
-fn publish(e: &Entry, lateness: LatenessStats, release_lateness: LatenessStats) {
+/// The hub's figures now: a scan of each histogram.
+fn figures(
+    lateness: &LatenessHistogram,
+    releases: &LatenessHistogram,
+    spin: SpinMargin,
+) -> HubFigures {
+    HubFigures {
+        lateness: lateness.stats(),
+        release_lateness: releases.stats(),
+        spin_margin: spin.current(),
+    }
+}
+
+fn publish(e: &Entry, hub: HubFigures) {
     let ep = &e.endpoint;
     let stats = LinkStats {
         phase: ep.phase(),
@@ -880,8 +917,9 @@ fn publish(e: &Entry, lateness: LatenessStats, release_lateness: LatenessStats) 
         queue_range: ep.occupancy().map(|o| (o.min, o.max)),
         last_nrtt: ep.last_nrtt(),
         endpoint: ep.stats(),
-        lateness,
-        release_lateness,
+        lateness: hub.lateness,
+        release_lateness: hub.release_lateness,
+        spin_margin: hub.spin_margin,
         app_dropped: e.app_dropped,
         rx_lag: e.rx_lag,
     };

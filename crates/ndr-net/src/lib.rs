@@ -45,6 +45,7 @@ pub mod keygen;
 pub mod link;
 pub mod pool;
 pub mod relay;
+pub mod spin;
 pub mod tls;
 mod tls_io;
 

@@ -53,7 +53,9 @@ pub struct LinkConfig {
     /// The endpoint's configuration; its `role` is set by
     /// [`Link::connect`] (base) and [`Listener::accept`] (remote).
     pub endpoint: Config,
-    /// How long before a deadline the link thread stops sleeping and spins.
+    /// How long before a deadline the link's hub stops sleeping and spins,
+    /// at most: it learns a shorter margin from how late its timer wakes
+    /// ([`crate::spin`]; [`LinkStats::spin_margin`] shows it).
     pub spin_margin: Duration,
     /// Released samples and events that may wait for the application; when
     /// it does not read, the newest are dropped and counted. Memory follows
@@ -162,6 +164,10 @@ pub struct LinkStats {
     /// the frames that arrived before it and the links served before it),
     /// over all its links.
     pub release_lateness: LatenessStats,
+    /// How long before a deadline the hub stops sleeping and spins, as it
+    /// has learned from how late its timer wakes (at most
+    /// [`LinkConfig::spin_margin`]).
+    pub spin_margin: Duration,
     /// Samples and events dropped because the application did not read them.
     pub app_dropped: u64,
     /// Receive path, in seconds: from a frame's arrival (the kernel's stamp

@@ -12,11 +12,10 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Instant as StdInstant;
 
-use ndr_core::time::Duration;
-
 use crate::clock::DEFAULT_SPIN_MARGIN;
 use crate::hub::Hub;
 use crate::link::{Link, LinkConfig, NetError};
+use crate::spin::SpinMargin;
 use crate::tls::TlsConfig;
 
 /// Hubs that share a tick grid; a new link goes to the one with the fewest
@@ -30,9 +29,10 @@ pub struct HubPool {
 }
 
 impl HubPool {
-    /// `hubs` hubs (at least one), spinning the last `spin_margin` before
-    /// each deadline.
-    pub fn new(hubs: usize, spin_margin: Duration) -> io::Result<HubPool> {
+    /// `hubs` hubs (at least one), spinning at most the last `spin_margin`
+    /// before each deadline (see [`Hub::new`]).
+    pub fn new(hubs: usize, spin_margin: impl Into<SpinMargin>) -> io::Result<HubPool> {
+        let spin_margin = spin_margin.into();
         let origin = StdInstant::now();
         let first = Hub::with_origin(spin_margin, origin)?;
         let mut all = vec![first.clone()];

@@ -486,6 +486,8 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
     // When the hub woke for its deadlines, and when each release happened.
     d.set_item("lateness", lateness(&s.lateness)?)?;
     d.set_item("release_lateness", lateness(&s.release_lateness)?)?;
+    // How long before a deadline the hub spins, learned from its timer.
+    d.set_item("spin_margin", secs(s.spin_margin))?;
     Ok(d)
 }
 

@@ -179,6 +179,10 @@ struct DemoReport {
     clock_base_p99_s: f64,
     clock_remote_p50_s: f64,
     clock_remote_p99_s: f64,
+    /// How long before a deadline each side's hub spins, as learned from
+    /// its timer at the end.
+    spin_margin_base_s: f64,
+    spin_margin_remote_s: f64,
     relay_frames_fwd: Option<u64>,
     relay_frames_bwd: Option<u64>,
     csv: String,
@@ -497,6 +501,8 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         clock_base_p99_s: clock(b, |l| l.p99),
         clock_remote_p50_s: clock(remote, |l| l.p50),
         clock_remote_p99_s: clock(remote, |l| l.p99),
+        spin_margin_base_s: b.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
+        spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
         relay_frames_bwd: relay.map(|r| r.backward.frames_delivered),
         csv: run.out.display().to_string(),
@@ -557,19 +563,23 @@ fn print_table(r: &DemoReport) {
         );
     }
     let us = |s: f64| format!("{:.0} µs", s * 1e6);
-    let remote_clock = if r.queue_remote_max.is_some() {
-        format!(
-            " · remote {} / {}",
-            us(r.clock_remote_p50_s),
-            us(r.clock_remote_p99_s)
+    let (remote_clock, remote_spin) = if r.queue_remote_max.is_some() {
+        (
+            format!(
+                " · remote {} / {}",
+                us(r.clock_remote_p50_s),
+                us(r.clock_remote_p99_s)
+            ),
+            format!(" / {}", us(r.spin_margin_remote_s)),
         )
     } else {
-        String::new()
+        (String::new(), String::new())
     };
     println!(
-        "  clock      release lateness p50 / p99: base {} / {}{remote_clock}",
+        "  clock      release lateness p50 / p99: base {} / {}{remote_clock} (spin margin learned {}{remote_spin})",
         us(r.clock_base_p50_s),
         us(r.clock_base_p99_s),
+        us(r.spin_margin_base_s),
     );
     if let (Some(f), Some(b)) = (r.relay_frames_fwd, r.relay_frames_bwd) {
         println!("  relay      {f} frames forward, {b} back");
