@@ -328,7 +328,12 @@ fn wait(
         if remaining > spin {
             let until = deadline - spin;
             sleep(until - now);
-            margin.record(StdInstant::now().saturating_duration_since(until).into());
+            // A park can end early (a stop, or spuriously): only a sleep that
+            // ran its course says how late it wakes.
+            let woke = StdInstant::now();
+            if woke >= until {
+                margin.record((woke - until).into());
+            }
         } else {
             std::hint::spin_loop();
         }

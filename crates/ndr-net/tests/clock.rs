@@ -141,6 +141,36 @@ fn the_thread_serves_every_deadline_once_in_order() {
     assert_eq!(stats.missed, missed as u64);
 }
 
+/// Runs a clock at 1 ms for `n` ticks; its report.
+fn run_for(clock: ReleaseClock, n: u64) -> ndr_net::clock::ClockReport {
+    let thread = clock
+        .spawn(0, move |tick| {
+            if tick.index + 1 == n {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+        .expect("thread starts");
+    thread.join().expect("no panic")
+}
+
+#[test]
+fn the_thread_learns_its_spin_margin_within_bounds_unless_told_not_to() {
+    let clock = ReleaseClock::new(StdInstant::now() + ms(2), MS).expect("1 ms");
+    assert!(clock.adaptive_spin());
+    // Two blocks of sleeps: the margin is learned by then, whatever this
+    // machine's timer does, and never leaves its bounds.
+    let n = 2 * u64::from(ndr_net::spin::BLOCK) + 10;
+    let learned = run_for(clock, n).spin_margin;
+    assert!(
+        (ndr_net::spin::MIN_SPIN_MARGIN..=DEFAULT_SPIN_MARGIN).contains(&learned),
+        "{learned}"
+    );
+    let fixed = run_for(clock.with_adaptive_spin(false), 50).spin_margin;
+    assert_eq!(fixed, DEFAULT_SPIN_MARGIN);
+}
+
 #[test]
 fn stop_ends_a_sleeping_or_ticking_thread_promptly() {
     // Asleep for a 10 s period: stop must not wait for the deadline.
