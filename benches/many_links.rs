@@ -22,7 +22,9 @@
 //! NDR_HUBS, hubs in each side's pool, default 1; NDR_PLAYOUT, the playout
 //! policy by its command-line name, default `fifo`; NDR_PERIOD_MS, the
 //! period, default 10; NDR_SPIN=fixed, hubs that spin the whole default
-//! margin instead of learning a shorter one; the process needs
+//! margin instead of learning a shorter one; NDR_APP=handlers, the control
+//! loops on the hubs (`Link::on_release`) instead of an application thread
+//! polling every link; the process needs
 //! 2·NDR_LINKS + 50 file descriptors).
 
 mod common;
@@ -273,6 +275,29 @@ fn main() {
         (bases, accept.await.unwrap())
     });
     let setup_rss = rss_kib();
+    // NDR_APP=handlers: the control loops run on the hubs (`on_release`), as
+    // a controller of many links would; the application thread then only
+    // reads the events.
+    let handlers = std::env::var("NDR_APP").as_deref() == Ok("handlers");
+    let handled = Arc::new(AtomicU64::new(0));
+    let (mut bases, mut remotes) = (bases, remotes);
+    if handlers {
+        for r in &mut remotes {
+            let (tx, handled) = (r.sender(), Arc::clone(&handled));
+            r.on_release(move |s| {
+                let _ = tx.send(s.values());
+                handled.fetch_add(1, Ordering::Relaxed);
+            })
+            .unwrap();
+        }
+        for b in &mut bases {
+            let handled = Arc::clone(&handled);
+            b.on_release(move |_| {
+                handled.fetch_add(1, Ordering::Relaxed);
+            })
+            .unwrap();
+        }
+    }
     let stop = Arc::new(AtomicBool::new(false));
     // The frames the links have received so far, summed by the application
     // thread (which holds them) when `count` is raised, into `counted`.
@@ -284,7 +309,6 @@ fn main() {
         let stop = Arc::clone(&stop);
         let (count, counted) = (Arc::clone(&count), Arc::clone(&counted));
         std::thread::spawn(move || {
-            let (mut bases, mut remotes) = (bases, remotes);
             let mut released = 0u64;
             while !stop.load(Ordering::Relaxed) {
                 if count.load(Ordering::Acquire) {
@@ -342,6 +366,7 @@ fn main() {
     let rss = rss_kib();
     stop.store(true, Ordering::Relaxed);
     let (bases, remotes, released) = app.join().unwrap();
+    let released = released + handled.load(Ordering::Relaxed);
     let stats: Vec<_> = bases
         .iter()
         .chain(&remotes)
@@ -358,7 +383,7 @@ fn main() {
     let share = cpu0.shares(cpu1, elapsed, cpus);
     let machine = share.machine;
     println!(
-        "{n} links at T = {} on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}, spin margin {}",
+        "{n} links at T = {} on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}, spin margin {}, control loops {}",
         c.period,
         config.queue_capacity,
         config.app_queue,
@@ -367,6 +392,11 @@ fn main() {
             "learned"
         } else {
             "fixed"
+        },
+        if handlers {
+            "on the hubs"
+        } else {
+            "on an application thread"
         }
     );
     println!("  endpoints running            {running} of {}", 2 * n);
