@@ -351,15 +351,17 @@ impl Driver {
                 self.serve_backlog();
                 continue;
             };
-            // Serve what woke us until the spin should start (the tick serves
-            // the rest as it fits): a burst of frames just before a deadline
-            // must not make it late.
+            // Serve what woke us while a service fits before the spin should
+            // start (the tick serves the rest as it fits): a burst of frames
+            // just before a deadline must not make it late, however short
+            // the learned margin.
             let target = d.checked_sub(margin).unwrap_or(d);
-            while let Some(r) = self.backlog.pop_front() {
-                self.serve_timed(r);
-                if StdInstant::now() >= target {
+            while let Some(&r) = self.backlog.front() {
+                if !self.service.fits(StdInstant::now(), target) {
                     break;
                 }
+                self.backlog.pop_front();
+                self.serve_timed(r);
             }
             // The timer fires at the target, never before: a tick is due
             // exactly when the target has passed.
