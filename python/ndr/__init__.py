@@ -19,7 +19,8 @@ The building blocks, with the names Python users already know:
   :func:`envelope`.
 
 The link (:mod:`ndr.link`): :class:`Link` (``Link.connect``,
-``Link.listen``), :class:`Listener`, :class:`Tick`, :class:`Event`, the
+``Link.listen``), :class:`Listener`, :class:`Tick`, :class:`Event`,
+:class:`LinkStats` (what ``Link.stats`` holds, typed), the
 delaying :class:`Relay`, :class:`TlsConfig` (mutual TLS 1.3; plain links
 off loopback need ``insecure=True``), and the exceptions, all ``ConnectionError``
 subclasses: :class:`LinkError`, :class:`HandshakeError`,
@@ -76,7 +77,7 @@ from ._native import (
     set_log_level,
 )
 from . import sim
-from .link import Event, Link, Listener
+from .link import Event, LatenessStats, Link, LinkStats, Listener, RunningStats
 
 __all__ = [
     "ESTIMATOR_HISTORY",
@@ -90,9 +91,11 @@ __all__ = [
     "Event",
     "HandshakeError",
     "Kalman3",
+    "LatenessStats",
     "Link",
     "LinkClosedError",
     "LinkError",
+    "LinkStats",
     "Listener",
     "LowPass",
     "NetworkPredictor",
@@ -103,6 +106,7 @@ __all__ = [
     "RegulatorFull",
     "Relay",
     "Rls",
+    "RunningStats",
     "Signal",
     "Tf2",
     "Tf2State",

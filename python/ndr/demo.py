@@ -19,12 +19,23 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, List, Optional, Sequence, TextIO, Tuple, TypedDict
+from typing import (
+    Any,
+    Callable,
+    Dict,
+    List,
+    Mapping,
+    Optional,
+    Sequence,
+    TextIO,
+    Tuple,
+    TypedDict,
+)
 
 import numpy as np
 
 from ._native import Estimator, LinkError, Relay, Signal, Tf2, Tf2State
-from .link import Link, _is_normal_end
+from .link import Link, LinkStats, _is_normal_end
 
 __all__ = ["DemoResult", "operator", "robot", "run", "main"]
 
@@ -44,7 +55,7 @@ class RobotLog:
 
     t: List[float] = field(default_factory=list)
     state: List[float] = field(default_factory=list)
-    stats: Optional[Dict[str, Any]] = None
+    stats: Optional[LinkStats] = None
     error: Optional[str] = None
 
 
@@ -90,7 +101,7 @@ class OperatorLog:
     command: List[float] = field(default_factory=list)
     state: List[float] = field(default_factory=list)
     x3e: List[float] = field(default_factory=list)
-    stats: Optional[Dict[str, Any]] = None
+    stats: Optional[LinkStats] = None
 
 
 def _delays(grtt: float, period: float) -> Tuple[int, int]:
@@ -134,7 +145,8 @@ def operator(
                 estimator = None  # new period: new delays in ticks
         held = tick.status == "held"
         if estimator is None and tick.grtt is not None:
-            period = (link.stats or {}).get("period", link.period)
+            stats = link.stats
+            period = link.period if stats is None else stats["period"]
             fwd, bwd = _delays(tick.grtt, period)
             estimator = Estimator(fwd, bwd, dt=period, lam=0.999)
         y = float(tick.sample[0])
@@ -198,7 +210,7 @@ class DemoResult:
 
 
 def _status_line(t: float, link: Link, log: OperatorLog) -> None:
-    s = link.stats or {}
+    s: Mapping[str, Any] = link.stats or {}
     nrtt = s.get("last_nrtt")
     grtt = next((g for g in reversed(log.grtt[-50:]) if not math.isnan(g)), math.nan)
 
@@ -312,13 +324,13 @@ def _report(
     relay: Dict[str, Any],
     out: Optional[str],
 ) -> Dict[str, Any]:
-    b: Dict[str, Any] = op.stats or {}
-    r: Dict[str, Any] = rb.stats or {}
+    b: Mapping[str, Any] = op.stats or {}
+    r: Mapping[str, Any] = rb.stats or {}
     grtts = np.asarray([g for g in op.grtt if not math.isnan(g)])
     qb = b.get("queue_range") or (0, 0)
     qr = r.get("queue_range") or (0, 0)
 
-    def get(s: Dict[str, Any], k: str) -> Any:
+    def get(s: Mapping[str, Any], k: str) -> Any:
         return s.get(k, 0)
 
     report = {

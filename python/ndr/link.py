@@ -48,6 +48,7 @@ from typing import (
     Optional,
     Sequence,
     Tuple,
+    TypedDict,
     Union,
 )
 
@@ -56,7 +57,16 @@ import numpy as np
 from . import _native
 from ._native import LinkClosedError, PeerClosedError, Tick, TlsConfig
 
-__all__ = ["Event", "Link", "Listener", "Tick", "TlsConfig"]
+__all__ = [
+    "Event",
+    "LatenessStats",
+    "Link",
+    "LinkStats",
+    "Listener",
+    "RunningStats",
+    "Tick",
+    "TlsConfig",
+]
 
 _log = logging.getLogger("ndr.link")
 
@@ -121,6 +131,87 @@ _SETTINGS = {
     "queue": "app_queue",
     "insecure": "insecure",
 }
+
+
+class RunningStats(TypedDict):
+    """A running summary of a measure, in seconds (count 0: the others 0)."""
+
+    count: int
+    mean: float
+    std: float
+    min: float
+    max: float
+
+
+class LatenessStats(TypedDict):
+    """How late a hub met its deadlines, in seconds, over all its links."""
+
+    count: int
+    missed: int
+    """Deadlines met a whole period or more late."""
+    p50: float
+    p99: float
+    p999: float
+    max: float
+    mean: float
+
+
+class LinkStats(TypedDict):
+    """A snapshot of a link (:attr:`Link.stats`); times are seconds."""
+
+    phase: str
+    """Where the protocol is: ``"handshake"``, ``"init"``, ``"running"``,
+    ``"pausing"`` or ``"closed"``."""
+    period: float
+    ns: int
+    """The regulator's nominal size."""
+    queue_len: int
+    """Samples in the regulator now."""
+    queue_range: Optional[Tuple[int, int]]
+    """Occupancy before a release in the current regime, (min, max)."""
+    last_nrtt: Optional[float]
+    app_dropped: int
+    """Releases and events dropped because the application did not read them."""
+    frames_sent: int
+    frames_received: int
+    samples_sent: int
+    samples_repeated: int
+    """Ticks that sent the previous sample again (none was given)."""
+    samples_received: int
+    released_fresh: int
+    released_held: int
+    underflows: int
+    late: int
+    rejected: int
+    discarded: int
+    skipped: int
+    pauses: int
+    resizes: int
+    link_lost: int
+    tx_dropped: int
+    nrtt: RunningStats
+    """The network round trip."""
+    grtt: RunningStats
+    """The round trip the controller sees."""
+    one_way_rx: RunningStats
+    """One-way delay of what this side receives (from the clock estimate)."""
+    one_way_tx: RunningStats
+    """One-way delay of what this side sends."""
+    clock_offset: float
+    """The peer's clock offset from this side's."""
+    clock_skew_ppm: float
+    playout_delay: float
+    """The delay a target-delay playout holds now (0 for the FIFO)."""
+    playout_delay_ticks: int
+    delay_changes: int
+    rx_lag: RunningStats
+    """From a frame's arrival (the kernel's stamp) to its endpoint."""
+    lateness: LatenessStats
+    """How late the hub's thread woke for its deadlines."""
+    release_lateness: LatenessStats
+    """How late each release was stamped."""
+    spin_margin: float
+    """How long before a deadline the hub spins, learned from its timer."""
 
 
 def _settings(args: Dict[str, Any]) -> "_native._LinkSettings":
@@ -407,9 +498,9 @@ class Link:
         return self._events_dropped + self._native.events_dropped
 
     @property
-    def stats(self) -> Optional[Dict[str, Any]]:
-        """A snapshot of the link's state and counters, ``None`` before its
-        first tick. Times are seconds. Keys include ``phase``, ``period``,
+    def stats(self) -> Optional[LinkStats]:
+        """A snapshot of the link's state and counters (:class:`LinkStats`),
+        ``None`` before its first tick. Times are seconds. Keys include ``phase``, ``period``,
         ``ns``, ``queue_len``, ``queue_range``, ``last_nrtt``, the counters
         (``samples_sent``, ``samples_received``, ``released_fresh``,
         ``released_held``, ``underflows``, ``late``, ``pauses``, …),

@@ -429,6 +429,12 @@ def test_stats_and_properties():
         assert set(s["lateness"]) >= {"p50", "p99", "max"}
         # Learned from the hub's timer, within its bounds (20 µs to 200 µs).
         assert 20e-6 <= s["spin_margin"] <= 200e-6
+        # Exactly the keys ndr.LinkStats declares, nested ones too.
+        assert set(s) == set(ndr.LinkStats.__annotations__)
+        for key in ("nrtt", "grtt", "one_way_rx", "one_way_tx", "rx_lag"):
+            assert set(s[key]) == set(ndr.RunningStats.__annotations__), key
+        for key in ("lateness", "release_lateness"):
+            assert set(s[key]) == set(ndr.LatenessStats.__annotations__), key
         assert p.base.axes == 3 and p.base.period == pytest.approx(0.02)
         assert p.base.peer[0] == "127.0.0.1"
         assert p.base.now() > 0
