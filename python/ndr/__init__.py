@@ -77,7 +77,16 @@ from ._native import (
     set_log_level,
 )
 from . import sim
-from .link import Event, LatenessStats, Link, LinkStats, Listener, RunningStats
+from .link import (
+    Event,
+    LatenessStats,
+    Link,
+    LinkStats,
+    Listener,
+    RelayDirectionStats,
+    RelayStats,
+    RunningStats,
+)
 
 __all__ = [
     "ESTIMATOR_HISTORY",
@@ -105,6 +114,8 @@ __all__ = [
     "Regulator",
     "RegulatorFull",
     "Relay",
+    "RelayDirectionStats",
+    "RelayStats",
     "Rls",
     "RunningStats",
     "Signal",

@@ -35,7 +35,7 @@ from typing import (
 import numpy as np
 
 from ._native import Estimator, LinkError, Relay, Signal, Tf2, Tf2State
-from .link import Link, LinkStats, _is_normal_end
+from .link import Link, LinkStats, RelayStats, _is_normal_end
 
 __all__ = ["DemoResult", "operator", "robot", "run", "main"]
 
@@ -321,7 +321,7 @@ def _report(
     axes: int,
     op: OperatorLog,
     rb: RobotLog,
-    relay: Dict[str, Any],
+    relay: RelayStats,
     out: Optional[str],
 ) -> Dict[str, Any]:
     b: Mapping[str, Any] = op.stats or {}

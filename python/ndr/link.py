@@ -63,6 +63,8 @@ __all__ = [
     "Link",
     "LinkStats",
     "Listener",
+    "RelayDirectionStats",
+    "RelayStats",
     "RunningStats",
     "Tick",
     "TlsConfig",
@@ -154,6 +156,33 @@ class LatenessStats(TypedDict):
     p999: float
     max: float
     mean: float
+
+
+class RelayDirectionStats(TypedDict):
+    """One direction of an :class:`ndr.Relay` (``forward``: towards the
+    upstream)."""
+
+    frames_received: int
+    frames_delivered: int
+    bytes_delivered: int
+    held_back: int
+    """Frames waiting for their delay now."""
+
+
+class RelayStats(TypedDict):
+    """The counters of an :class:`ndr.Relay` (``relay.stats``)."""
+
+    connections: int
+    active: int
+    finished: int
+    upstream_failures: int
+    framing_errors: int
+    """Connections cut for a frame the relay could not read."""
+    queue_overflows: int
+    io_errors: int
+    closed_by_shutdown: int
+    forward: RelayDirectionStats
+    backward: RelayDirectionStats
 
 
 class LinkStats(TypedDict):

@@ -378,6 +378,11 @@ def test_events_are_logged_and_rust_logs_reach_logging(caplog):
             assert [e.kind for e in events][:2] == ["connected", "started"]
             assert events[1].ns >= 2 and events[1].period == pytest.approx(0.02)
         assert relay.stats["connections"] == 1
+        # Exactly the keys ndr.RelayStats declares, nested ones too.
+        rs = relay.stats
+        assert set(rs) == set(ndr.RelayStats.__annotations__)
+        for side in ("forward", "backward"):
+            assert set(rs[side]) == set(ndr.RelayDirectionStats.__annotations__)
     ndr.flush_logs()
     names = {r.name for r in caplog.records}
     assert "ndr.link" in names
