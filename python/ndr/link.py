@@ -150,7 +150,7 @@ class LatenessStats(TypedDict):
 
     count: int
     missed: int
-    """Deadlines met a whole period or more late."""
+    """Deadlines met 1 ms or more late."""
     p50: float
     p99: float
     p999: float
