@@ -13,8 +13,9 @@
 //! `NDR_CLOCK_TICKS` sets N (default 5000), `NDR_CLOCK_MARGIN_US` the clock's
 //! spin margin (default: the library's). Our clock runs twice, one run after
 //! the other: learning its margin from its sleeps up to that one (the
-//! default), and spinning the whole of it; each run reports its thread's CPU. Under a real-time policy (start the
-//! built binary with `chrt -f 50`) both sides run `SCHED_FIFO`.
+//! default), and spinning the whole of it; each run reports its thread's
+//! CPU. Under a real-time policy (start the built binary with `chrt -f 50`)
+//! both sides run `SCHED_FIFO`.
 
 use std::ops::ControlFlow;
 use std::time::Instant as StdInstant;
@@ -106,8 +107,7 @@ fn ndr_clock(n: u64, adaptive: bool) -> (LatenessHistogram, String, bool) {
         format!("fixed, {}", clock.spin_margin())
     };
     let info = format!(
-        "ndr clock ({}): spin margin {margin}, timer slack {slack}, policy {policy}, thread CPU {cpu}",
-        if adaptive { "learned" } else { "fixed" }
+        "ndr clock: spin margin {margin}, timer slack {slack}, policy {policy}, thread CPU {cpu}"
     );
     let realtime = setup.policy.is_some_and(SchedPolicy::is_realtime);
     (report.histogram, info, realtime)
