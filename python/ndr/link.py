@@ -218,6 +218,9 @@ class LinkStats(TypedDict):
     resizes: int
     link_lost: int
     tx_dropped: int
+    outage_delays: int
+    """Adaptive playout: frames after a silence longer than the watchdog
+    (and the burst held behind them) left out of its delay window."""
     nrtt: RunningStats
     """The network round trip."""
     grtt: RunningStats

@@ -330,3 +330,56 @@ fn at_long_periods_the_states_fare_as_the_commands() {
         }
     }
 }
+
+#[test]
+fn an_outage_is_not_a_delay_to_cover_for_minutes() {
+    use ndr_core::endpoint::Underflow;
+    use ndr_core::sim::compare::WAN;
+    use ndr_core::sim::delay::{DelayModel, EventKind, EventParams};
+    // One 5 s stall of the forward path at 30 s: the frame is held 5 s and
+    // every frame behind it comes in its burst. The watchdog (1 s) calls
+    // the link lost; the delay then goes back to what the jitter needs,
+    // instead of covering 5 s for the window's two minutes.
+    let mut family = named("tcp-stall", 120);
+    family.model = DelayModel::Events(EventParams {
+        jitter: WAN,
+        kind: EventKind::Stalls {
+            first_s: 30.0,
+            every_s: 1000.0,
+            stall_s: 5.0,
+        },
+    });
+    for underflow in [Underflow::DropLate, Underflow::Hold] {
+        let mut cfg = sim_config(&family, ADAPTIVE, 2, T);
+        cfg.underflow = underflow;
+        let out = run(&cfg).expect("the run");
+        let fresh = |sent: std::ops::Range<f64>| -> Vec<f64> {
+            out.forward
+                .samples
+                .iter()
+                .filter(|c| sent.contains(&c.sent_at.as_secs_f64()))
+                .filter_map(|c| Some((c.released_at? - c.sent_at).as_secs_f64()))
+                .collect()
+        };
+        let (_, before_max) = span(&fresh(20.0..29.0));
+        let (_, after_max) = span(&fresh(45.0..110.0));
+        assert!(
+            after_max <= before_max + 0.021,
+            "{underflow:?}: {before_max} s before the outage, up to {after_max} s after"
+        );
+        assert!(
+            out.report.link_lost >= 1,
+            "{underflow:?}: the watchdog said nothing"
+        );
+        // Nothing is replayed from the outage under hold: its stale samples
+        // are discarded (counted), none is released seconds late.
+        let released_late = out
+            .forward
+            .samples
+            .iter()
+            .filter_map(|c| Some((c.released_at? - c.sent_at).as_secs_f64()))
+            .filter(|&d| d > 1.5)
+            .count();
+        assert_eq!(released_late, 0, "{underflow:?}");
+    }
+}

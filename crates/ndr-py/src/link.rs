@@ -444,6 +444,7 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
         ("resizes", e.resizes),
         ("link_lost", e.link_lost),
         ("tx_dropped", e.tx_dropped),
+        ("outage_delays", e.outage_delays),
     ] {
         d.set_item(k, v)?;
     }

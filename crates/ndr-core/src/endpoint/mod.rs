@@ -231,6 +231,8 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     newest_rx: Option<(Instant, Instant)>,
     /// Previous Data frame received, for the reception gap.
     prev_data_rx: Option<(Instant, Instant)>,
+    /// Adaptive: the frames now arriving drain an outage's backlog.
+    outage_burst: bool,
     /// Newest of our frames an NRTT was measured on.
     newest_echo: Option<Instant>,
     init_started: Instant,
@@ -295,6 +297,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             sent_ticks: [(u64::MAX, Instant::ZERO); N],
             newest_rx: None,
             prev_data_rx: None,
+            outage_burst: false,
             newest_echo: None,
             init_started: now,
             last_nrtt: None,
@@ -658,14 +661,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         match frame.payload() {
             Payload::Hello(hello) => self.receive_hello(now, hello),
             Payload::Data(channels) => {
-                if let Some((prev_sent, prev_arrived)) = self.prev_data_rx {
+                let prev = self.prev_data_rx.replace((sent_at, now));
+                if let Some((prev_sent, prev_arrived)) = prev {
                     // How much later than its schedule this frame came,
                     // relative to the previous one (never negative).
                     let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
                     self.predictor.observe_gap(gap);
                 }
-                self.prev_data_rx = Some((sent_at, now));
-                self.observe_one_way(sent_at, now);
+                self.observe_one_way(sent_at, now, prev);
                 if channels.is_empty() {
                     self.stats.probes_received += 1;
                     return match self.phase {
@@ -691,7 +694,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     len: self.config.axes,
                     values,
                 };
-                self.receive_sample(slot)
+                self.receive_sample(now, slot)
             }
             Payload::Control(control) => self.receive_control(now, control),
             Payload::Close(close) => Err(LinkError::PeerClosed {
@@ -775,7 +778,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         Ok(())
     }
 
-    fn receive_sample(&mut self, slot: Slot<C>) -> Result<(), LinkError> {
+    fn receive_sample(&mut self, now: Instant, slot: Slot<C>) -> Result<(), LinkError> {
         // Before the handshake a Data frame is a protocol error, not a sample.
         if self.phase == Phase::Handshake {
             return Err(self.unexpected(Kind::Data));
@@ -791,6 +794,17 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
             self.stats.late += 1;
+            return Ok(());
+        }
+        // Adaptive under hold: a sample held behind an outage, past its
+        // slot, is stale; kept, it would stretch the delay to the outage's
+        // length and replay the outage's commands.
+        if self.outage_burst
+            && self
+                .slot_at(slot.head.sent_at, now)
+                .is_some_and(|s| s < now)
+        {
+            self.stats.discarded += 1;
             return Ok(());
         }
         if self.regulator.push(slot).is_err() {
@@ -1085,11 +1099,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// Adaptive: the slot of the oldest sample queued, or of the one
     /// expected a period after the last.
     fn front_slot(&self, at: Instant) -> Option<Instant> {
-        let d = self.adaptive_delay?;
         let stamp = match self.regulator.front() {
             Some(s) => s.head.sent_at,
             None => self.expected_stamp()?,
         };
+        self.slot_at(stamp, at)
+    }
+
+    /// Adaptive: the slot of the sample sent at `stamp` (peer clock).
+    fn slot_at(&self, stamp: Instant, at: Instant) -> Option<Instant> {
+        let d = self.adaptive_delay?;
         let map = self.slot_mapping.or_else(|| self.mapping_ns(at))?;
         let slot = ns_i64(stamp)
             .saturating_add(map)
@@ -1393,7 +1412,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// the two clocks meet: the adaptive policy gets the delay above the
     /// floor of the clock estimate; the others take the clocks as one (a
     /// simulation, or hosts synchronized by PTP or GPS).
-    fn observe_one_way(&mut self, sent_at: Instant, arrived: Instant) {
+    fn observe_one_way(
+        &mut self,
+        sent_at: Instant,
+        arrived: Instant,
+        prev: Option<(Instant, Instant)>,
+    ) {
         if let Some(d) = self.sync.one_way_rx(sent_at, arrived) {
             self.stats.one_way_rx.push(d);
         }
@@ -1401,7 +1425,24 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             // Adaptive: the delay above the floor, whatever the clocks.
             Some(floor) => {
                 let raw = ns_i64(arrived).saturating_sub(ns_i64(sent_at));
-                Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0))
+                let above =
+                    Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0));
+                // A frame after a silence longer than the watchdog allows
+                // ends an outage, not a delay; so does the burst of frames
+                // held behind it, which come faster than they were sent.
+                // Counted as delays, they would fill the window's tail, and
+                // the target would cover the outage for the window's length
+                // (after a 5 s stall, 5 s of delay for two minutes).
+                self.outage_burst = prev.is_some_and(|(ps, pa)| {
+                    let silence = arrived - pa;
+                    self.config.watchdog.is_some_and(|w| silence > w)
+                        || (self.outage_burst && silence * 2 < sent_at - ps)
+                });
+                if self.outage_burst {
+                    self.stats.outage_delays += 1;
+                    return;
+                }
+                above
             }
             None => arrived - sent_at,
         };

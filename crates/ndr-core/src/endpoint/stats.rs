@@ -98,7 +98,10 @@ pub struct Stats {
     pub late: u64,
     /// Samples refused because the regulator was full.
     pub rejected: u64,
-    /// Samples discarded because they belonged to a stream that a pause ended.
+    /// Samples discarded because they belonged to a stream that a pause
+    /// ended, or (adaptive playout under `hold`) came after an outage past
+    /// their slot: stale, and kept they would stretch the delay to the
+    /// outage's length.
     pub discarded: u64,
     /// Target-delay playout: samples passed over because the target fell and
     /// a newer sample was due at the same tick.
@@ -142,4 +145,11 @@ pub struct Stats {
     ///
     /// [`Event::DelayChanged`]: super::Event::DelayChanged
     pub delay_changes: u64,
+    /// Adaptive playout: frames left out of the target's delay window
+    /// because they ended a silence longer than the watchdog time, or came
+    /// in the burst held behind such a frame (an outage, which the watchdog
+    /// reports as [`Event::LinkLost`], not a delay to cover for minutes).
+    ///
+    /// [`Event::LinkLost`]: super::Event::LinkLost
+    pub outage_delays: u64,
 }
