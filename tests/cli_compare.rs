@@ -72,6 +72,7 @@ fn every_policy_on_every_family() {
     let report = json(&["compare", "--json", "--seeds", "1", "--period-ms", "100"]);
     assert_eq!(report["period_s"], 0.1);
     assert_eq!(report["schema"], "ndr-compare/1");
+    assert_eq!(report["underflow"], "drop-late");
     let families = names(&report["families"]);
     for f in BUILTIN {
         assert!(families.contains(&f), "{f} missing from {families:?}");
@@ -186,6 +187,14 @@ fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         err.contains("unknown family `mars`") && err.contains("lan-75km"),
+        "{err}"
+    );
+    // Late rates do not compare under hold: said before anything runs.
+    let out = ndr(&["compare", "--matched", "--underflow", "hold"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--matched compares late rates") && err.contains("--underflow hold"),
         "{err}"
     );
     let out = ndr(&["compare", "--policy", "fifo"]);

@@ -323,11 +323,18 @@ pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
     /// The state for `period`, late rate `epsilon` and the delay's
     /// `quantum`; `None` if this slot holds none.
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self>;
+    /// The floor the delays are measured above moved by `by` (up if
+    /// `rose`): see [`Adaptive::rebase`].
+    fn rebase(&mut self, by: Duration, rose: bool);
 }
 
 impl AdaptiveSlot for Adaptive {
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self> {
         Some(Adaptive::with_quantum(period, epsilon, quantum))
+    }
+
+    fn rebase(&mut self, by: Duration, rose: bool) {
+        Adaptive::rebase(self, by, rose);
     }
 }
 
@@ -350,6 +357,10 @@ impl TargetDelay for NoAdaptive {
 impl AdaptiveSlot for NoAdaptive {
     fn build(_: Duration, _: f64, _: Duration) -> Option<Self> {
         None
+    }
+
+    fn rebase(&mut self, _: Duration, _: bool) {
+        match *self {}
     }
 }
 
@@ -886,6 +897,47 @@ impl Adaptive {
         Duration::from_secs_f64(tail.max((1.0 - filled) * self.quantum))
     }
 
+    /// The floor the delays are measured above moved by `by`, up if
+    /// `rose` (a level shift of the path, found some seconds after it
+    /// happened): every delay in the window, and the target, move the other
+    /// way, so that the delays seen since the shift, measured above the old
+    /// floor, are not counted above the new one too. Those from before the
+    /// shift that fall under the new floor count as no delay above it.
+    pub fn rebase(&mut self, by: Duration, rose: bool) {
+        let by_s = by.as_secs_f64();
+        let moved = |d: f64| if rose { (d - by_s).max(0.0) } else { d + by_s };
+        for (block, (n, sum)) in self
+            .blocks
+            .iter_mut()
+            .zip(self.block_counts.iter().zip(self.block_sums.iter_mut()))
+        {
+            let mut next = [0u16; ADAPTIVE_BUCKETS];
+            for (b, &c) in block.iter().enumerate() {
+                if c == 0 {
+                    continue;
+                }
+                let lower = b.checked_sub(1).map_or(Duration::ZERO, bucket_upper);
+                let mid = (lower + bucket_upper(b)).as_secs_f64() / 2.0;
+                if let Some(cell) = next.get_mut(bucket_of(Duration::from_secs_f64(moved(mid)))) {
+                    *cell = cell.saturating_add(c);
+                }
+            }
+            *block = next;
+            let signed = if rose { -by_s } else { by_s };
+            *sum = (*sum + signed * *n as f64).max(0.0);
+        }
+        for (b, t) in self.total.iter_mut().enumerate() {
+            *t = self
+                .blocks
+                .iter()
+                .map(|block| u32::from(block.get(b).copied().unwrap_or(0)))
+                .sum();
+        }
+        self.sum = self.block_sums.iter().sum();
+        self.applied = self.applied.map(moved);
+        self.goal = self.quantile().map(|q| q + self.warmup_margin(q));
+    }
+
     fn quantile(&self) -> Option<Duration> {
         let allowed = (self.epsilon * self.count as f64) as u64;
         let mut above = 0u64;
@@ -1104,6 +1156,33 @@ mod tests {
         p.observe(Instant::from_millis(200_000), ms(500));
         p.observe(Instant::from_millis(200_020), ms(500));
         assert!(p.target().unwrap() <= q + ms(40) + Duration::from_nanos(2));
+    }
+
+    #[test]
+    fn adaptive_rebase_moves_the_window_and_the_target() {
+        // 1000 delays: 989 at 10 ms, 11 at 160 ms (measured above a floor
+        // 150 ms too low). The floor rises by 150 ms: they are 10 ms above
+        // it, and the others fall under it.
+        let mut p = Adaptive::new(ms(20), 0.01);
+        for k in 0..1000u64 {
+            let d = if (500..511).contains(&k) { 160 } else { 10 };
+            p.observe(Instant::from_millis(k * 20), ms(d));
+        }
+        let (goal, target, count) = (p.goal().unwrap(), p.target().unwrap(), p.count());
+        assert!(goal > ms(160) && goal < ms(163), "{goal:?}");
+        p.rebase(ms(150), true);
+        assert_eq!(p.count(), count, "no delay lost");
+        let q = p.goal().unwrap();
+        assert!(q > ms(10) && q < ms(12), "{q:?}");
+        assert!(
+            (target.as_secs_f64() - 0.150 - p.target().unwrap().as_secs_f64()).abs() < 1e-9,
+            "the target moves with the floor: {target:?} then {:?}",
+            p.target()
+        );
+        // And back down: every delay 150 ms higher above the lower floor.
+        p.rebase(ms(150), false);
+        let q = p.goal().unwrap();
+        assert!(q > ms(159) && q < ms(163), "{q:?}");
     }
 
     #[test]

@@ -383,3 +383,31 @@ fn an_outage_is_not_a_delay_to_cover_for_minutes() {
         assert_eq!(released_late, 0, "{underflow:?}");
     }
 }
+
+#[test]
+fn a_level_shift_is_counted_once() {
+    // A +150 ms step of the forward path at 60 s. The clock estimate takes
+    // it for a level shift a block or two later; until then the delays
+    // were measured above the old floor. Rebased, the window does not
+    // count the step again on top of the new floor: the delay settles at
+    // what it held before plus the step (it had stayed 150 ms higher, at
+    // 390 ms, to the end of the run).
+    for seed in 1..=3 {
+        let cfg = sim_config(&named("step", 120), ADAPTIVE, seed, T);
+        let out = run(&cfg).expect("the run");
+        let fresh = |sent: std::ops::Range<f64>| -> Vec<f64> {
+            out.forward
+                .samples
+                .iter()
+                .filter(|c| sent.contains(&c.sent_at.as_secs_f64()))
+                .filter_map(|c| Some((c.released_at? - c.sent_at).as_secs_f64()))
+                .collect()
+        };
+        let (_, before) = span(&fresh(40.0..59.0));
+        let (_, after) = span(&fresh(80.0..110.0));
+        assert!(
+            after <= before + 0.150 + 0.041,
+            "seed {seed}: {before} s before the step, up to {after} s after"
+        );
+    }
+}

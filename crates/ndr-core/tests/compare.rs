@@ -432,3 +432,67 @@ fn matched_against_the_paper_modes() {
     cfg.matched = false;
     assert!(compare::compare(&cfg).matched.is_empty());
 }
+
+#[test]
+fn under_hold_nothing_is_lost_and_the_fifo_only_grows() {
+    // tcp-stall, 70 s: stalls at 30 and 50 s. Dropping late samples, the
+    // paper's static FIFO keeps its delay and loses each stall's samples;
+    // holding them (the paper's own NDR), it loses none and its delay
+    // grows by the stall and stays there. The adaptive policy under hold
+    // loses none either, and its delay comes back down after each stall.
+    let family = short(named("tcp-stall"), 70);
+    let mut cfg = CompareConfig::new(vec![family]);
+    cfg.seeds = 2;
+    cfg.threads = 1;
+    cfg.policies = vec![
+        Policy::Paper(Mode::PaperStatic),
+        Policy::Target(Playout::ADAPTIVE),
+    ];
+    cfg.matched = true;
+    let dropped = compare::compare(&cfg);
+    cfg.underflow = ndr_core::endpoint::Underflow::Hold;
+    let held = compare::compare(&cfg);
+    assert_eq!((dropped.underflow, held.underflow), ("drop-late", "hold"));
+    let row = |r: &compare::CompareReport, p: &str| {
+        r.families[0]
+            .policies
+            .iter()
+            .find(|x| x.policy == p)
+            .cloned()
+            .expect("the policy's row")
+    };
+    let (fifo_drop, fifo_hold) = (row(&dropped, "paper-static"), row(&held, "paper-static"));
+    assert!(
+        fifo_drop.late_rate.mean > 0.005,
+        "{:?}",
+        fifo_drop.late_rate
+    );
+    assert_eq!(fifo_hold.late_rate.mean, 0.0);
+    assert!(
+        fifo_drop.std_delay_s.mean < 1e-9,
+        "{:?}",
+        fifo_drop.std_delay_s
+    );
+    // Grown by most of a 300 ms stall over most of the run.
+    assert!(
+        fifo_hold.mean_delay_s.mean > fifo_drop.mean_delay_s.mean + 0.1,
+        "{:?} against {:?}",
+        fifo_hold.mean_delay_s,
+        fifo_drop.mean_delay_s
+    );
+    let adaptive = row(&held, "adaptive");
+    assert_eq!(adaptive.late_rate.mean, 0.0);
+    assert!(
+        adaptive.delay_changes.mean >= 2.0,
+        "{:?}",
+        adaptive.delay_changes
+    );
+    // Late rates do not compare under hold: no match, and a note says why.
+    assert!(!dropped.matched.is_empty());
+    assert!(held.matched.is_empty());
+    assert!(
+        held.notes.iter().any(|n| n.contains("not run under hold")),
+        "{:?}",
+        held.notes
+    );
+}

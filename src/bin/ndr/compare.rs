@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::time::Instant as WallClock;
 
-use ndr::core::endpoint::Mode;
+use ndr::core::endpoint::{Mode, Underflow};
 use ndr::core::playout::Playout;
 use ndr::core::sim::compare::{
     self, CompareConfig, CompareReport, Family, Matched, Policy, PolicyResult, Stat, TC_DIRS,
@@ -16,7 +16,7 @@ use crate::size::millis;
 /// The layout of `ndr compare --json`, shown by `ndr compare --help`.
 const JSON_HELP: &str = "\
 JSON (--json): one object, schema \"ndr-compare/1\":
-  { schema, period_s, seeds, epsilon, window_s, margin_s,
+  { schema, period_s, seeds, epsilon, underflow, window_s, margin_s,
     policies: [name, ...],
     families: [ { name, description, duration_s, seeds, events_s: [s, ...],
                   policies: [ { policy, runs, failed,
@@ -89,6 +89,12 @@ pub struct CompareArgs {
     /// `adaptive:PERCENT:QUANTUM_MS` asked for, if any).
     #[arg(long)]
     pub matched: bool,
+    /// What every regulator does with a late sample: drop-late (a constant
+    /// delay; the sample is lost) or hold (the paper's FIFO: nothing is
+    /// lost, the delay stretches; no late rate to match, so not with
+    /// --matched).
+    #[arg(long, default_value = "drop-late")]
+    pub underflow: Underflow,
     /// Print one JSON object instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -175,6 +181,13 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
     if args.seeds == 0 {
         return Err("--seeds must be at least 1".into());
     }
+    if args.matched && args.underflow == Underflow::Hold {
+        return Err(
+            "--matched compares late rates, and under --underflow hold no sample is \
+                    late (each stretches the delay instead): drop one of the two"
+                .into(),
+        );
+    }
     let (families, skipped) = families(args)?;
     let mut cfg = CompareConfig::new(families);
     if !args.policies.is_empty() {
@@ -189,6 +202,7 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
     cfg.epsilon = args.epsilon;
     cfg.window = Duration::from_secs_f64(args.window_s);
     cfg.matched = args.matched;
+    cfg.underflow = args.underflow;
     cfg.threads = args.threads.unwrap_or_else(|| {
         std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get)
     });
@@ -246,10 +260,11 @@ fn row(p: &PolicyResult) -> String {
 /// Markdown: one table per family.
 pub fn print_tables(r: &CompareReport) {
     println!(
-        "T = {:.0} ms · {} seeds · oracle rows at ε = {} · piecewise window {:.0} s · \
+        "T = {:.0} ms · {} seeds · {} · oracle rows at ε = {} · piecewise window {:.0} s · \
          mean ± 95 % CI over seeds",
         r.period_s * 1e3,
         r.seeds,
+        r.underflow,
         r.epsilon,
         r.window_s
     );

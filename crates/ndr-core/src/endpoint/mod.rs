@@ -649,7 +649,21 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
+        let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
         self.sync.observe_arrival(sent_at, now);
+        // A level shift of the received floor (a route change): the delays
+        // in the adaptive window since the shift were measured above the
+        // old floor, and would count the shift twice on top of the new one
+        // (a +150 ms step held the delay 150 ms too high for two minutes).
+        if self.sync.rx().shifts() != shifts
+            && let (Some(before), Some(after), Some(Target::Adaptive(a))) =
+                (floor, self.floor_ns(now), &mut self.target)
+        {
+            a.rebase(
+                Duration::from_nanos(after.saturating_sub(before).unsigned_abs()),
+                after > before,
+            );
+        }
         if let Some(theta) = self.sync.offset_at(now) {
             self.stats.clock_offset_s = theta;
         }

@@ -125,6 +125,11 @@ pub struct CompareConfig {
     /// (the report's `matched`; costs up to [`MATCH_PROBES`] adaptive runs
     /// per paper run).
     pub matched: bool,
+    /// What every regulator does with a late sample: [`Underflow::DropLate`]
+    /// by default (a constant delay, a late sample lost); under
+    /// [`Underflow::Hold`] nothing is lost and the delay stretches instead,
+    /// so late rates are not comparable and `matched` is not run.
+    pub underflow: Underflow,
 }
 
 impl CompareConfig {
@@ -140,6 +145,7 @@ impl CompareConfig {
             window: DEFAULT_WINDOW,
             threads: 2,
             matched: false,
+            underflow: Underflow::DropLate,
         }
     }
 }
@@ -349,14 +355,29 @@ fn oracle_metrics(o: &OraclePoint, samples: usize, family: &Family) -> RunMetric
     }
 }
 
-/// The simulation of one policy on one family and seed.
+/// The simulation of one policy on one family and seed, dropping late
+/// samples (the comparison's default).
 #[must_use]
 pub fn sim_config(family: &Family, policy: Policy, seed: u64, period: Duration) -> SimConfig {
+    sim_config_under(family, policy, seed, period, Underflow::DropLate)
+}
+
+/// [`sim_config`] under the given [`Underflow`] policy (`hold`: the paper's
+/// FIFO keeps every sample and its delay grows at each underflow; a target
+/// policy releases a late sample at the next release).
+#[must_use]
+pub fn sim_config_under(
+    family: &Family,
+    policy: Policy,
+    seed: u64,
+    period: Duration,
+    underflow: Underflow,
+) -> SimConfig {
     let mut cfg = SimConfig::paper(family.model.clone());
     let (mode, playout) = policy.mode_playout();
     cfg.mode = mode;
     cfg.playout = playout;
-    cfg.underflow = Underflow::DropLate;
+    cfg.underflow = underflow;
     cfg.period = period;
     cfg.duration = family.duration;
     cfg.seed = seed;
@@ -374,9 +395,24 @@ pub fn run_one(
     family: &Family,
     policy: Policy,
     seed: u64,
-    (period, window): (Duration, Duration),
+    times: (Duration, Duration),
 ) -> Result<Measured, String> {
-    let cfg = sim_config(family, policy, seed, period);
+    run_one_under(family, policy, seed, times, Underflow::DropLate)
+}
+
+/// [`run_one`] under the given [`Underflow`] policy.
+///
+/// # Errors
+///
+/// The simulator's error, as text.
+pub fn run_one_under(
+    family: &Family,
+    policy: Policy,
+    seed: u64,
+    (period, window): (Duration, Duration),
+    underflow: Underflow,
+) -> Result<Measured, String> {
+    let cfg = sim_config_under(family, policy, seed, period, underflow);
     let out = run(&cfg).map_err(|e| e.to_string())?;
     Ok(measure(
         &out.forward,
@@ -491,6 +527,8 @@ pub struct CompareReport {
     pub seeds: u64,
     /// The oracle rows' late rate.
     pub epsilon: f64,
+    /// What the regulators did with a late sample: `drop-late` or `hold`.
+    pub underflow: &'static str,
     /// The piecewise oracle's window, s.
     pub window_s: f64,
     /// Commands sent in the last `margin_s` of a run are not measured.
@@ -513,7 +551,13 @@ type Outcome = Result<(RunMetrics, Option<[RunMetrics; 2]>), String>;
 
 fn job_outcome(cfg: &CompareConfig, (f, policy, seed): Job, oracle_of: Option<Policy>) -> Outcome {
     let family = cfg.families.get(f).ok_or("no such family")?;
-    let m = run_one(family, policy, seed, (cfg.period, cfg.window))?;
+    let m = run_one_under(
+        family,
+        policy,
+        seed,
+        (cfg.period, cfg.window),
+        cfg.underflow,
+    )?;
     let oracles = (oracle_of == Some(policy)).then(|| {
         let n = m.oracle.len();
         [
@@ -595,16 +639,24 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
     let outcomes = parallel(cfg.threads, &order, |i| {
         jobs.get(i).map(|&job| job_outcome(cfg, job, oracle_of))
     });
-    let matched = if cfg.matched {
+    let matching = cfg.matched && cfg.underflow == Underflow::DropLate;
+    let matched = if matching {
         matched::match_all(cfg, &jobs, &outcomes)
     } else {
         Vec::new()
     };
     let mut notes = Vec::new();
+    if cfg.matched && !matching {
+        notes.push(
+            "--matched: not run under hold, where no sample is late (each stretches the delay \
+             instead); run it under drop-late"
+                .to_string(),
+        );
+    }
     if cfg.matched && !cfg.policies.iter().any(|p| matches!(p, Policy::Paper(_))) {
         notes.push("--matched: no paper mode among the policies, nothing matched".to_string());
     }
-    if let (true, Some(q)) = (cfg.matched, matched::matched_quantum(&cfg.policies)) {
+    if let (true, Some(q)) = (matching, matched::matched_quantum(&cfg.policies)) {
         notes.push(std::format!(
             "--matched: the adaptive policy searched is the first one asked for, its delay in \
              steps of {:.3} ms",
@@ -666,6 +718,7 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
         period_s: cfg.period.as_secs_f64(),
         seeds: cfg.seeds,
         epsilon: cfg.epsilon,
+        underflow: cfg.underflow.name(),
         window_s: cfg.window.as_secs_f64(),
         margin_s: MARGIN.as_secs_f64(),
         policies: cfg.policies.iter().map(|p| p.name()).collect(),
