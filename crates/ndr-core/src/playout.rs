@@ -935,7 +935,44 @@ impl Adaptive {
         }
         self.sum = self.block_sums.iter().sum();
         self.applied = self.applied.map(moved);
-        self.goal = self.quantile().map(|q| q + self.warmup_margin(q));
+        self.goal = self.goal_now();
+    }
+
+    /// The quantile plus the warm-up's margin, moved by the drift of the
+    /// level: how far the mean of the last block's length of delays is
+    /// from the window's mean. The window lags a level that drifts (the
+    /// paper's slow sines: a quarter of the late samples came while a
+    /// rising sine outran the window's two minutes); its shape is still
+    /// the noise's, so the quantile moves with the level.
+    fn goal_now(&self) -> Option<Duration> {
+        let q = self.quantile()?;
+        let goal = (q + self.warmup_margin(q)).as_secs_f64() + self.drift();
+        Some(Duration::from_secs_f64(goal.max(0.0)))
+    }
+
+    /// The mean of the last block's length of delays (the current block,
+    /// and the share of the previous one a sliding block would still
+    /// hold) less the window's mean (s).
+    fn drift(&self) -> f64 {
+        let prev = (self.current + ADAPTIVE_BLOCKS - 1) % ADAPTIVE_BLOCKS;
+        let (Some(&n), Some(&sum), Some(&np), Some(&sp)) = (
+            self.block_counts.get(self.current),
+            self.block_sums.get(self.current),
+            self.block_counts.get(prev),
+            self.block_sums.get(prev),
+        ) else {
+            return 0.0;
+        };
+        if self.count == 0 || n == 0 {
+            return 0.0;
+        }
+        let w = if np > n {
+            1.0 - n as f64 / np as f64
+        } else {
+            0.0
+        };
+        let recent = (sum + sp * w) / (n as f64 + np as f64 * w);
+        recent - self.sum / self.count as f64
     }
 
     fn quantile(&self) -> Option<Duration> {
@@ -970,7 +1007,7 @@ impl TargetDelay for Adaptive {
             self.count += 1;
             self.sum += delay.as_secs_f64();
         }
-        self.goal = self.quantile().map(|q| q + self.warmup_margin(q));
+        self.goal = self.goal_now();
         let Some(goal) = self.goal.map(Duration::as_secs_f64) else {
             return;
         };
