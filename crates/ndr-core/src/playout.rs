@@ -940,10 +940,10 @@ impl Adaptive {
 
     /// The quantile plus the warm-up's margin, moved by the drift of the
     /// level: how far the mean of the last block's length of delays is
-    /// from the window's mean. The window lags a level that drifts (the
-    /// paper's slow sines: a quarter of the late samples came while a
-    /// rising sine outran the window's two minutes); its shape is still
-    /// the noise's, so the quantile moves with the level.
+    /// from the window's mean. The window lags a level that drifts (on the
+    /// paper's slow sines the late samples came in clusters while a sine
+    /// rose); the quantile of a window is that of its average level plus
+    /// the noise's, so it moves by the level's drift.
     fn goal_now(&self) -> Option<Duration> {
         let q = self.quantile()?;
         let goal = (q + self.warmup_margin(q)).as_secs_f64() + self.drift();

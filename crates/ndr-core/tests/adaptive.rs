@@ -32,6 +32,17 @@ fn command_delays(out: &ndr_core::sim::SimOutput, sent: std::ops::Range<f64>) ->
         .collect()
 }
 
+/// The end-to-end delay of each command sent within `sent` (seconds) that
+/// was released fresh.
+fn fresh_delays(out: &ndr_core::sim::SimOutput, sent: std::ops::Range<f64>) -> Vec<f64> {
+    out.forward
+        .samples
+        .iter()
+        .filter(|c| sent.contains(&c.sent_at.as_secs_f64()))
+        .filter_map(|c| Some((c.released_at? - c.sent_at).as_secs_f64()))
+        .collect()
+}
+
 /// The smallest and the largest of `xs`.
 fn span(xs: &[f64]) -> (f64, f64) {
     let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
@@ -353,16 +364,8 @@ fn an_outage_is_not_a_delay_to_cover_for_minutes() {
         let mut cfg = sim_config(&family, ADAPTIVE, 2, T);
         cfg.underflow = underflow;
         let out = run(&cfg).expect("the run");
-        let fresh = |sent: std::ops::Range<f64>| -> Vec<f64> {
-            out.forward
-                .samples
-                .iter()
-                .filter(|c| sent.contains(&c.sent_at.as_secs_f64()))
-                .filter_map(|c| Some((c.released_at? - c.sent_at).as_secs_f64()))
-                .collect()
-        };
-        let (_, before_max) = span(&fresh(20.0..29.0));
-        let (_, after_max) = span(&fresh(45.0..110.0));
+        let (_, before_max) = span(&fresh_delays(&out, 20.0..29.0));
+        let (_, after_max) = span(&fresh_delays(&out, 45.0..110.0));
         assert!(
             after_max <= before_max + 0.021,
             "{underflow:?}: {before_max} s before the outage, up to {after_max} s after"
@@ -395,16 +398,8 @@ fn a_level_shift_is_counted_once() {
     for seed in 1..=3 {
         let cfg = sim_config(&named("step", 120), ADAPTIVE, seed, T);
         let out = run(&cfg).expect("the run");
-        let fresh = |sent: std::ops::Range<f64>| -> Vec<f64> {
-            out.forward
-                .samples
-                .iter()
-                .filter(|c| sent.contains(&c.sent_at.as_secs_f64()))
-                .filter_map(|c| Some((c.released_at? - c.sent_at).as_secs_f64()))
-                .collect()
-        };
-        let (_, before) = span(&fresh(40.0..59.0));
-        let (_, after) = span(&fresh(80.0..110.0));
+        let (_, before) = span(&fresh_delays(&out, 40.0..59.0));
+        let (_, after) = span(&fresh_delays(&out, 80.0..110.0));
         assert!(
             after <= before + 0.150 + 0.041,
             "seed {seed}: {before} s before the step, up to {after} s after"

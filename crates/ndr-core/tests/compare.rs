@@ -2,7 +2,7 @@
 //! harness: hand-checked delays on constant traces, the oracle reproduced by
 //! the endpoint, the oracle never beaten, determinism.
 
-use ndr_core::endpoint::Mode;
+use ndr_core::endpoint::{Mode, Underflow};
 use ndr_core::playout::Playout;
 use ndr_core::sim::compare::{self, CompareConfig, Family, Policy, builtin, run_one};
 use ndr_core::sim::delay::DelayModel;
@@ -439,7 +439,7 @@ fn under_hold_nothing_is_lost_and_the_fifo_only_grows() {
     // paper's static FIFO keeps its delay and loses each stall's samples;
     // holding them (the paper's own NDR), it loses none and its delay
     // grows by the stall and stays there. The adaptive policy under hold
-    // loses none either, and its delay comes back down after each stall.
+    // loses none either; its delay moves (up at a stall, down after).
     let family = short(named("tcp-stall"), 70);
     let mut cfg = CompareConfig::new(vec![family]);
     cfg.seeds = 2;
@@ -450,7 +450,7 @@ fn under_hold_nothing_is_lost_and_the_fifo_only_grows() {
     ];
     cfg.matched = true;
     let dropped = compare::compare(&cfg);
-    cfg.underflow = ndr_core::endpoint::Underflow::Hold;
+    cfg.underflow = Underflow::Hold;
     let held = compare::compare(&cfg);
     assert_eq!((dropped.underflow, held.underflow), ("drop-late", "hold"));
     let row = |r: &compare::CompareReport, p: &str| {
