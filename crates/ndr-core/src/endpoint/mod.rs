@@ -1359,7 +1359,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// Adaptive: the end-to-end delay the target needs (s): the floor's
     /// one-way delay plus the policy's target above it, steered ahead by
     /// the paper's predictor (half the rise of the mean round trip it
-    /// forecasts over its horizon).
+    /// forecasts over its horizon, at most a quantum: a forecast may move
+    /// the delay a step early, the measured delays decide the rest; after
+    /// a 5 s outage its forecast alone held the delay 0.56 s high for 5 s).
     fn adaptive_need(&self, t: Instant) -> Option<f64> {
         let d = self.target.as_ref()?.target()?;
         let min_one_way = (self.floor_ns(t)? - self.mapping_ns(t)?) as f64 * 1e-9;
@@ -1367,7 +1369,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             .predictor
             .last()
             .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
-        Some(min_one_way + d.as_secs_f64() + lead)
+        Some(min_one_way + d.as_secs_f64() + lead.min(self.quantum().as_secs_f64()))
     }
 
     /// A target playout other than the adaptive one: sets the delay and
@@ -1442,15 +1444,18 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 let above =
                     Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0));
                 // A frame after a silence longer than the watchdog allows
-                // ends an outage, not a delay; so does the burst of frames
-                // held behind it, which come faster than they were sent.
-                // Counted as delays, they would fill the window's tail, and
-                // the target would cover the outage for the window's length
-                // (after a 5 s stall, 5 s of delay for two minutes).
+                // ends an outage, not a delay; so do the frames after it
+                // while they are still held longer than the watchdog, or
+                // come in the burst held behind them (faster than they
+                // were sent). Counted as delays, they would fill the
+                // window's tail, and the target would cover the outage for
+                // the window's length (after a 5 s stall, 5 s of delay for
+                // two minutes).
+                let over = |d: Duration| self.config.watchdog.is_some_and(|w| d > w);
                 self.outage_burst = prev.is_some_and(|(ps, pa)| {
                     let silence = arrived - pa;
-                    self.config.watchdog.is_some_and(|w| silence > w)
-                        || (self.outage_burst && silence * 2 < sent_at - ps)
+                    over(silence)
+                        || (self.outage_burst && (over(above) || silence * 2 < sent_at - ps))
                 });
                 if self.outage_burst {
                     self.stats.outage_delays += 1;

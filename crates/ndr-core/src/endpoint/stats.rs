@@ -147,8 +147,9 @@ pub struct Stats {
     pub delay_changes: u64,
     /// Adaptive playout: frames left out of the target's delay window
     /// because they ended a silence longer than the watchdog time, or came
-    /// in the burst held behind such a frame (an outage, which the watchdog
-    /// reports as [`Event::LinkLost`], not a delay to cover for minutes).
+    /// after such a frame still held longer than that, or in the burst held
+    /// behind them (an outage, which the watchdog reports as
+    /// [`Event::LinkLost`], not a delay to cover for minutes).
     ///
     /// [`Event::LinkLost`]: super::Event::LinkLost
     pub outage_delays: u64,
