@@ -354,7 +354,9 @@ fn an_outage_is_not_a_delay_to_cover_for_minutes() {
     // instead of covering 5 s for the window's two minutes. Two shapes:
     // one frame held 5 s and every frame behind it in its burst; and the
     // frames of 100 ms each held 5 s (they come a period apart, then the
-    // burst of those held behind them).
+    // burst of those held behind them). The predictor's forecast from the
+    // outage's round trips may move the delay by a quantum at most (from
+    // 36 s on: unbounded, it held the delay 0.56 s high for 5 s).
     let mut stall = named("tcp-stall", 120);
     stall.model = DelayModel::Events(EventParams {
         jitter: WAN,
