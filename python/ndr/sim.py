@@ -130,11 +130,14 @@ class SimSummary(TypedDict):
     rejected: int
     """Samples refused by a full regulator, both directions."""
     discarded: int
-    """Samples discarded by pauses, both directions."""
+    """Samples discarded by pauses, or (adaptive playout under hold) held past
+    their slot by an outage, both directions."""
     skipped: int
     """Samples skipped when a target delay fell by a tick at once, both directions."""
     link_lost: int
     """Watchdog alarms (no fresh sample for a second), both sides."""
+    outage_delays: int
+    """Adaptive playout: frames of outages left out of the delay window, both directions."""
     resizes: int
     """Parameter changes."""
     pauses: int

@@ -88,13 +88,17 @@ pub struct Report {
     pub underflows: u64,
     /// Samples refused by a full regulator, both directions.
     pub rejected: u64,
-    /// Samples discarded by pauses, both directions.
+    /// Samples discarded by pauses, or (adaptive playout under hold) held
+    /// past their slot by an outage, both directions.
     pub discarded: u64,
     /// Samples skipped when a target delay fell by a tick at once, both
     /// directions (the adaptive policy slides instead: none).
     pub skipped: u64,
     /// Watchdog alarms (no fresh sample for a second), both sides.
     pub link_lost: u64,
+    /// Adaptive playout: frames of outages (after a silence longer than
+    /// the watchdog) left out of the delay window, both directions.
+    pub outage_delays: u64,
     /// Parameter changes.
     pub resizes: u64,
     /// Pauses.
@@ -423,6 +427,7 @@ impl Collector {
             discarded: bs.discarded + rs.discarded,
             skipped: bs.skipped + rs.skipped,
             link_lost: bs.link_lost + rs.link_lost,
+            outage_delays: bs.outage_delays + rs.outage_delays,
             resizes: bs.resizes,
             pauses: bs.pauses,
             relation_grtt_s: relation,
