@@ -334,7 +334,10 @@ class Link:
                 every sample) or ``"drop-late"`` (keep the delay constant:
                 a late sample is dropped and counted).
             watchdog: seconds without a fresh sample before a
-                ``"link_lost"`` event; ``None`` disables it.
+                ``"link_lost"`` event; ``None`` disables it. Under
+                ``playout="adaptive"`` a silence longer than this is an
+                outage, not a delay to cover: its frames stay out of the
+                delay's estimate (``stats["outage_delays"]``).
             handshake_timeout: seconds the handshake and each
                 initialization pattern may take, at least: a pattern (and a
                 pause of the dynamic mode) gets three times what it needs
