@@ -6,7 +6,8 @@
 //! policies of a family see the same forward delays (the paper's dynamic
 //! mode changes the period, and so its send times). Every regulator drops
 //! late samples ([`Underflow::DropLate`]): a tick whose sample is missing
-//! repeats the last one. The commands (base → remote) are measured, on the
+//! repeats the last one; [`CompareConfig::underflow`] can hold them
+//! instead, as the paper's NDR does (nothing is late, the delay stretches). The commands (base → remote) are measured, on the
 //! remote's clock against the base's send stamps.
 //!
 //! Per run: the commands sent until [`MARGIN`] before the end (so that each
