@@ -111,6 +111,17 @@ fn every_policy_on_every_family() {
                 f["name"],
                 p["policy"]
             );
+            // The split oracle cuts at the first event: only with events.
+            assert_eq!(
+                p["split_ratio"].is_object(),
+                events && measured,
+                "{} {}",
+                f["name"],
+                p["policy"]
+            );
+            if p["split_ratio"].is_object() {
+                assert!(p["split_ratio"]["mean"].as_f64().unwrap() > 0.0);
+            }
         }
     }
 }

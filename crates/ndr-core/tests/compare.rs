@@ -6,7 +6,7 @@ use ndr_core::endpoint::{Mode, Underflow};
 use ndr_core::playout::Playout;
 use ndr_core::sim::compare::{self, CompareConfig, Family, Policy, builtin, run_one};
 use ndr_core::sim::delay::DelayModel;
-use ndr_core::time::Duration;
+use ndr_core::time::{Duration, Instant};
 
 const T: Duration = Duration::from_millis(20);
 const WINDOW: Duration = Duration::from_secs(10);
@@ -161,6 +161,46 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
             assert!(w.mean_delay_s <= c.mean_delay_s + 1e-9);
         }
     }
+}
+
+#[test]
+fn the_split_oracle_sits_between_the_piecewise_and_the_constant_one() {
+    // On a trace with events: cut at the first one, never above the
+    // constant oracle (the same target on both sides is a pair), within the
+    // late rate, and cut outside the trace it is the constant oracle.
+    for name in ["step", "tcp-stall"] {
+        let f = named(name);
+        let first = f.events_s.first().copied().expect("an event");
+        let at = Instant::ZERO + Duration::from_secs_f64(first);
+        let m = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW)).unwrap();
+        for eps in [0.001, 0.01, 0.05] {
+            let c = m.oracle.constant(eps);
+            let s = m.oracle.split(eps, at);
+            assert!(s.late_rate <= eps + 1e-12, "{name} {eps}");
+            assert!(s.mean_delay_s <= c.mean_delay_s + 1e-9, "{name} {eps}");
+            let whole = m.oracle.split(eps, Instant::ZERO + f.duration * 2);
+            assert!(
+                (whole.mean_delay_s - c.mean_delay_s).abs() < 1e-9,
+                "{name} {eps}"
+            );
+        }
+        // After the step, a constant covers the higher level all along; the
+        // split oracle covers the lower one before it.
+        if name == "step" {
+            let (c, s) = (m.oracle.constant(0.01), m.oracle.split(0.01, at));
+            assert!(s.mean_delay_s < c.mean_delay_s - 0.05, "{s:?} {c:?}");
+        }
+        // The report carries the ratio on families with events only.
+        assert!(m.metrics.split_ratio.is_some_and(|r| r > 0.0));
+    }
+    let m = run_one(
+        &short(named("lan-75km"), 30),
+        Policy::Target(Playout::ADAPTIVE),
+        1,
+        (T, WINDOW),
+    )
+    .unwrap();
+    assert_eq!(m.metrics.split_ratio, None);
 }
 
 #[test]

@@ -25,6 +25,30 @@ use crate::time::{Duration, Instant};
 
 /// Most targets each window of the piecewise oracle chooses among.
 pub const PIECEWISE_OPTIONS: usize = 64;
+/// Most targets each side of the split oracle chooses among.
+pub const SPLIT_OPTIONS: usize = 512;
+
+/// A window's target and what it gives: late samples, and the sum (ns) and
+/// count of the on-time samples' delays; or the sum of several windows',
+/// with the largest target.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Choice {
+    late: usize,
+    sum: i128,
+    on_time: usize,
+    target: i128,
+}
+
+impl Choice {
+    fn and(self, other: &Choice) -> Choice {
+        Choice {
+            late: self.late + other.late,
+            sum: self.sum + other.sum,
+            on_time: self.on_time + other.on_time,
+            target: self.target.max(other.target),
+        }
+    }
+}
 
 /// One sample of a trace as a receiver sees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -159,14 +183,86 @@ impl Oracle {
     /// that may change once per window, with late rate ≤ `ε`.
     #[must_use]
     pub fn piecewise(&self, epsilon: f64, window: Duration) -> OraclePoint {
-        let n = self.samples.len();
-        let budget = ((epsilon.clamp(0.0, 1.0) * n as f64) + 1e-9).floor() as usize;
+        let budget = self.budget(epsilon);
         let w = window.as_nanos().max(1);
-        // Per window: (late, sum of on-time delays, on time, target) options.
-        let mut windows: Vec<Vec<(usize, i128, usize, i128)>> = Vec::new();
+        let windows = self.windows(|s| s.as_nanos() / w, budget, PIECEWISE_OPTIONS);
+        let choose = |lambda: f64| -> Choice {
+            let mut total = Choice::default();
+            for options in &windows {
+                let best = options.iter().min_by(|a, b| {
+                    let cost = |o: &Choice| o.sum as f64 + lambda * o.late as f64;
+                    cost(a).total_cmp(&cost(b)).then(a.late.cmp(&b.late))
+                });
+                if let Some(best) = best {
+                    total = total.and(best);
+                }
+            }
+            total
+        };
+        // The smallest price of a late sample that keeps within the budget.
+        let (mut lo, mut hi) = (0.0f64, 1e18f64);
+        for _ in 0..100 {
+            let mid = 0.5 * (lo + hi);
+            if choose(mid).late <= budget {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        let c = choose(hi);
+        self.point(c.target, c.late, c.sum, c.on_time)
+    }
+
+    /// The split oracle: one constant target for the samples sent before
+    /// `at`, another for the rest, the pair with the least mean delay whose
+    /// late rate is at most `ε` (an exhaustive search over up to
+    /// [`SPLIT_OPTIONS`] targets each side). At the onset of a trace's first
+    /// event, no delay that learns of the events only when the first one
+    /// comes, and holds a constant afterwards, does better: one that does
+    /// changes in step with the later events, which takes foreseeing them.
+    #[must_use]
+    pub fn split(&self, epsilon: f64, at: Instant) -> OraclePoint {
+        let budget = self.budget(epsilon);
+        let windows = self.windows(|s| u64::from(s >= at), budget, SPLIT_OPTIONS);
+        let none = [Choice::default()];
+        let (before, after) = match windows.as_slice() {
+            [only] => (only.as_slice(), none.as_slice()),
+            [before, after] => (before.as_slice(), after.as_slice()),
+            _ => return self.point(0, 0, 0, 0),
+        };
+        let mean = |c: &Choice| {
+            if c.on_time == 0 {
+                f64::INFINITY
+            } else {
+                c.sum as f64 / c.on_time as f64
+            }
+        };
+        let best = before
+            .iter()
+            .flat_map(|x| after.iter().map(move |y| x.and(y)))
+            .filter(|c| c.late <= budget)
+            .min_by(|a, b| mean(a).total_cmp(&mean(b)));
+        match best {
+            Some(c) => self.point(c.target, c.late, c.sum, c.on_time),
+            None => self.point(0, 0, 0, 0),
+        }
+    }
+
+    /// The late samples allowed at `ε`: `floor(ε·N)`.
+    fn budget(&self, epsilon: f64) -> usize {
+        ((epsilon.clamp(0.0, 1.0) * self.samples.len() as f64) + 1e-9).floor() as usize
+    }
+
+    /// The runs of consecutive samples with the same `key` of their send
+    /// stamps (non-decreasing along the trace), each with its options: a
+    /// target for each number of late samples up to `budget` (at most `cap`
+    /// of them, evenly spaced).
+    fn windows(&self, key: impl Fn(Instant) -> u64, budget: usize, cap: usize) -> Vec<Vec<Choice>> {
+        let n = self.samples.len();
+        let mut windows = Vec::new();
         let mut start = 0;
         while start < n {
-            let key = |i: usize| self.samples.get(i).map(|&(s, _)| s.as_nanos() / w);
+            let key = |i: usize| self.samples.get(i).map(|&(s, _)| key(s));
             let k = key(start);
             let mut end = start;
             while end < n && key(end) == k {
@@ -185,8 +281,8 @@ impl Oracle {
             let mut lates: Vec<usize> = (0..=len.min(budget))
                 .filter(|&l| l == 0 || l == len || sorted.get(len - l - 1) != sorted.get(len - l))
                 .collect();
-            if lates.len() > PIECEWISE_OPTIONS {
-                let step = lates.len().div_ceil(PIECEWISE_OPTIONS);
+            if lates.len() > cap {
+                let step = lates.len().div_ceil(cap);
                 lates = lates.into_iter().step_by(step).collect();
             }
             let options = lates
@@ -197,37 +293,18 @@ impl Oracle {
                         None => 0,
                     };
                     let (late, sum, on_time) = self.tally(start..end, d);
-                    (late, sum, on_time, d)
+                    Choice {
+                        late,
+                        sum,
+                        on_time,
+                        target: d,
+                    }
                 })
                 .collect();
             windows.push(options);
             start = end;
         }
-        let choose = |lambda: f64| -> (usize, i128, usize, i128) {
-            let mut total = (0, 0, 0, 0);
-            for options in &windows {
-                let best = options.iter().min_by(|a, b| {
-                    let cost = |o: &(usize, i128, usize, i128)| o.1 as f64 + lambda * o.0 as f64;
-                    cost(a).total_cmp(&cost(b)).then(a.0.cmp(&b.0))
-                });
-                if let Some(&(l, s, o, d)) = best {
-                    total = (total.0 + l, total.1 + s, total.2 + o, total.3.max(d));
-                }
-            }
-            total
-        };
-        // The smallest price of a late sample that keeps within the budget.
-        let (mut lo, mut hi) = (0.0f64, 1e18f64);
-        for _ in 0..100 {
-            let mid = 0.5 * (lo + hi);
-            if choose(mid).0 <= budget {
-                hi = mid;
-            } else {
-                lo = mid;
-            }
-        }
-        let (late, sum, on_time, top) = choose(hi);
-        self.point(top, late, sum, on_time)
+        windows
     }
 
     /// The lower convex envelope of the constant oracle's (late rate, mean
@@ -344,5 +421,41 @@ mod tests {
         let p = o.piecewise(0.0, Duration::from_millis(200));
         assert!((p.mean_delay_s - 0.060).abs() < 1e-12 && p.late_rate == 0.0);
         assert!((p.target_s - 0.080_000_001).abs() < 1e-12);
+        // Cut at the step, the split oracle is the same schedule; cut
+        // anywhere else, one side must cover both levels.
+        let at = Instant::from_millis(200);
+        let split = o.split(0.0, at);
+        assert!((split.mean_delay_s - 0.060).abs() < 1e-12 && split.late_rate == 0.0);
+        let late_cut = o.split(0.0, Instant::from_millis(300));
+        assert!(late_cut.mean_delay_s > split.mean_delay_s + 0.01);
+        // A cut outside the trace leaves one constant.
+        let p = o.split(0.0, Instant::from_millis(10_000));
+        assert!((p.mean_delay_s - 0.100).abs() < 1e-12);
+    }
+
+    #[test]
+    fn split_oracle_shares_the_late_budget_between_its_sides() {
+        // Before the cut at 200 ms: 10 samples at 15 ms but one at 95; after
+        // it: 10 at 15 ms. One late allowed (ε = 0.05 of 20): spent before
+        // the cut, both sides hold 20 ms, the best; a constant holds 20 ms
+        // too, but one late there is all it can afford.
+        let mut d = std::vec![15u64; 20];
+        if let Some(x) = d.get_mut(3) {
+            *x = 95;
+        }
+        let o = Oracle::new(&trace(&d, 20), Instant::ZERO, Duration::from_millis(20));
+        let at = Instant::from_millis(200);
+        let p = o.split(0.05, at);
+        assert!((p.mean_delay_s - 0.020).abs() < 1e-12);
+        assert!((p.late_rate - 0.05).abs() < 1e-12);
+        // No late allowed: the side with the 95 ms sample holds 100 ms, the
+        // other 20 ms: (10·100 + 10·20)/20 = 60 ms, below a constant's 100.
+        let p = o.split(0.0, at);
+        assert!((p.mean_delay_s - 0.060).abs() < 1e-12 && p.late_rate == 0.0);
+        assert!((o.constant(0.0).mean_delay_s - 0.100).abs() < 1e-12);
+        // Never above the constant oracle, at any ε.
+        for eps in [0.0, 0.05, 0.1, 0.5] {
+            assert!(o.split(eps, at).mean_delay_s <= o.constant(eps).mean_delay_s + 1e-12);
+        }
     }
 }

@@ -217,6 +217,10 @@ pub struct RunMetrics {
     /// Mean delay / the constant oracle's convex envelope (time-sharing two
     /// constant targets) at the same late rate.
     pub hull_ratio: f64,
+    /// Mean delay / the split oracle's ([`Oracle::split`], one constant
+    /// before the family's first event, another after) at the same late
+    /// rate; `None` without events.
+    pub split_ratio: Option<f64>,
 }
 
 /// One sample's fate: its send time and, if released fresh, its delay (s).
@@ -271,6 +275,7 @@ fn metrics(fates: &[Fate], underflows: usize, period_s: f64, events: &[f64]) -> 
         oracle_ratio: 1.0,
         piecewise_ratio: 1.0,
         hull_ratio: 1.0,
+        split_ratio: (!events.is_empty()).then_some(1.0),
     }
 }
 
@@ -330,6 +335,10 @@ pub fn measure(
         oracle.piecewise(m.late_rate, window).mean_delay_s,
     );
     m.hull_ratio = ratio(m.mean_delay_s, oracle.hull(m.late_rate));
+    m.split_ratio = family.events_s.first().map(|&first| {
+        let at = Instant::ZERO + Duration::from_secs_f64(first);
+        ratio(m.mean_delay_s, oracle.split(m.late_rate, at).mean_delay_s)
+    });
     let released = fates.iter().filter(|f| f.1.is_some()).count();
     Measured {
         metrics: m,
@@ -353,6 +362,7 @@ fn oracle_metrics(o: &OraclePoint, samples: usize, family: &Family) -> RunMetric
         oracle_ratio: 1.0,
         piecewise_ratio: 1.0,
         hull_ratio: 1.0,
+        split_ratio: (!family.events_s.is_empty()).then_some(1.0),
     }
 }
 
@@ -462,6 +472,9 @@ pub struct PolicyResult {
     pub piecewise_ratio: Stat,
     /// Mean delay / the constant oracle's convex envelope at the same late rate.
     pub hull_ratio: Stat,
+    /// Mean delay / the split oracle's at the same late rate; `null` for
+    /// families without events.
+    pub split_ratio: Option<Stat>,
     /// The plot's point: (mean delay, late rate) averaged over seeds.
     pub point: Point,
 }
@@ -491,6 +504,12 @@ impl PolicyResult {
             oracle_ratio: stat(&|r| r.oracle_ratio),
             piecewise_ratio: stat(&|r| r.piecewise_ratio),
             hull_ratio: stat(&|r| r.hull_ratio),
+            split_ratio: runs
+                .iter()
+                .map(|r| r.split_ratio)
+                .collect::<Option<Vec<f64>>>()
+                .filter(|v| !v.is_empty())
+                .map(|v| Stat::of(&v)),
             point: Point {
                 mean_delay_s: mean_delay_s.mean,
                 late_rate: late_rate.mean,
