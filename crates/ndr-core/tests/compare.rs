@@ -164,14 +164,14 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
 }
 
 #[test]
-fn the_split_oracle_sits_between_the_piecewise_and_the_constant_one() {
+fn the_split_oracle_cuts_at_the_first_event_and_never_exceeds_the_constant_one() {
     // On a trace with events: cut at the first one, never above the
     // constant oracle (the same target on both sides is a pair), within the
     // late rate, and cut outside the trace it is the constant oracle.
     for name in ["step", "tcp-stall"] {
         let f = named(name);
         let first = f.events_s.first().copied().expect("an event");
-        let at = Instant::ZERO + Duration::from_secs_f64(first);
+        let at = Instant::from_secs_f64(first);
         let m = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW)).unwrap();
         for eps in [0.001, 0.01, 0.05] {
             let c = m.oracle.constant(eps);

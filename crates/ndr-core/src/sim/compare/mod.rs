@@ -336,7 +336,7 @@ pub fn measure(
     );
     m.hull_ratio = ratio(m.mean_delay_s, oracle.hull(m.late_rate));
     m.split_ratio = family.events_s.first().map(|&first| {
-        let at = Instant::ZERO + Duration::from_secs_f64(first);
+        let at = Instant::from_secs_f64(first);
         ratio(m.mean_delay_s, oracle.split(m.late_rate, at).mean_delay_s)
     });
     let released = fates.iter().filter(|f| f.1.is_some()).count();
