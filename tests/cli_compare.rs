@@ -257,7 +257,10 @@ fn matched_is_deterministic_and_only_when_asked() {
         assert!(one["adaptive_late_rate"]["mean"].as_f64().unwrap() <= paper + 1e-12);
         let runs = m["runs"].as_array().unwrap();
         assert_eq!(runs.len() as u64 + m["paper_failed"].as_u64().unwrap(), 2);
+        // lan-75km has no event to cut the split oracle at.
+        assert!(m["paper_split_ratio"].is_null());
         for r in runs {
+            assert!(r["paper_split_ratio"].is_null());
             let limit = r["paper_late_rate"].as_f64().unwrap();
             if let Some(a) = r["adaptive"].as_object() {
                 assert!(a["late_rate"].as_f64().unwrap() <= limit);

@@ -409,8 +409,11 @@ fn the_matched_search_keeps_the_quantum_asked_for() {
 
 #[test]
 fn matched_against_the_paper_modes() {
-    // 30 ms each way, then a trace stepping from 30 to 200 ms at 20 s.
-    let families = vec![constant_family(30), trace_family(&[(0, 30), (20, 200)])];
+    // 30 ms each way, then a trace stepping from 30 to 200 ms at 20 s (an
+    // event there, for the split oracle).
+    let mut steps = trace_family(&[(0, 30), (20, 200)]);
+    steps.events_s = vec![20.0];
+    let families = vec![constant_family(30), steps];
     let mut cfg = CompareConfig::new(families);
     cfg.policies = vec![
         Policy::Paper(Mode::PaperStatic),
@@ -461,6 +464,12 @@ fn matched_against_the_paper_modes() {
     let s = m.runs[0];
     assert!((s.paper_late_rate - 0.6).abs() < 0.01, "{s:?}");
     assert!((s.paper_delay_s - 0.080).abs() < 1e-9);
+    // In hindsight, at that late rate: 40 ms before the step, every sample
+    // after it late; the FIFO's 80 ms is twice that.
+    let split = s.paper_split_ratio.unwrap();
+    assert!(split > 1.8 && split < 2.05, "{split}");
+    assert_eq!(m.paper_split_ratio.map(|r| r.mean), Some(split));
+    assert_eq!(row("constant", "paper-static").paper_split_ratio, None);
     let a = s.adaptive.unwrap();
     assert!(a.late_rate < 0.2 && a.mean_delay_s > 0.1, "{a:?}");
     // One seed: the one-ε match is the per-seed one.

@@ -28,10 +28,12 @@ JSON (--json): one object, schema \"ndr-compare/1\":
     matched: [ { family, against, seeds, paper_failed, matched, wins, win,
                  paper_delay_s, paper_late_rate, adaptive_delay_s,
                  adaptive_late_rate, epsilon, delay_gain_s: {mean, ci95},
+                 paper_split_ratio: {mean, ci95} or null,
                  one_epsilon: { epsilon, adaptive_delay_s, adaptive_late_rate,
                                 win } or null,
                  adaptive_runs,
-                 runs: [ { seed, paper_delay_s, paper_late_rate, win,
+                 runs: [ { seed, paper_delay_s, paper_late_rate,
+                           paper_split_ratio (or null), win,
                            adaptive: {epsilon, mean_delay_s, late_rate} or null } ] } ]
              (only with --matched),
     notes: [text, ...] }
@@ -43,7 +45,9 @@ seconds; `late_rate` counts every sample never released fresh; `point` is the
 asked for: the adaptive policy's lowest delay at a late rate <= the paper run's,
 per seed (ε searched on the same seed); `delay_gain_s` = paper delay - adaptive
 delay, paired per matched seed; `win` = a match on every seed and a lower mean
-delay; `one_epsilon`: one ε for all those seeds, the lowest mean delay at a mean
+delay; `paper_split_ratio` = the paper run's delay / the split oracle's at its
+late rate (one constant delay before the family's first event, one after, in
+hindsight), the room a policy that learns at the first event has; `one_epsilon`: one ε for all those seeds, the lowest mean delay at a mean
 late rate <= the paper mode's. docs/algorithms.md §9 defines every measure.";
 
 #[derive(clap::Args)]
@@ -297,13 +301,15 @@ fn print_matched(matched: &[Matched]) {
     println!(
         "\n**adaptive at an equal or lower late rate** — per seed, the lowest-delay \
          adaptive run (ε searched) with a late rate ≤ the paper run's; gain = paper − \
-         adaptive delay, paired per seed; n.s.: its 95 % interval includes 0\n"
+         adaptive delay, paired per seed; n.s.: its 95 % interval includes 0; paper ÷ \
+         split: the paper run's delay ÷ the best two constants, before and after the \
+         first event, in hindsight at its late rate\n"
     );
     println!(
-        "| family | against | paper delay ms | paper late % | adaptive delay ms | \
-         adaptive late % | ε % | gain ms | seeds won | wins |"
+        "| family | against | paper delay ms | paper late % | paper ÷ split | \
+         adaptive delay ms | adaptive late % | ε % | gain ms | seeds won | wins |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let pct = |s: Stat| format!("{:.4} ± {:.4}", s.mean * 100.0, s.ci95 * 100.0);
     for m in matched {
         let unmatched = m.seeds - m.matched;
@@ -315,11 +321,15 @@ fn print_matched(matched: &[Matched]) {
             }
         };
         println!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
             m.family,
             m.against,
             ms(m.paper_delay_s),
             pct(m.paper_late_rate),
+            m.paper_split_ratio.map_or_else(
+                || "–".to_string(),
+                |s| format!("{:.2} ± {:.2}", s.mean, s.ci95)
+            ),
             adaptive(ms(m.adaptive_delay_s)),
             pct(m.adaptive_late_rate),
             pct(m.epsilon),

@@ -102,6 +102,11 @@ pub struct MatchedSeed {
     pub paper_delay_s: f64,
     /// The paper run's late rate: the limit.
     pub paper_late_rate: f64,
+    /// The paper run's delay ÷ the split oracle's at its late rate
+    /// ([`RunMetrics::split_ratio`]): how much lower a delay that learns of
+    /// the events at the first one could go, in hindsight; `null` for a
+    /// family without events.
+    pub paper_split_ratio: Option<f64>,
     /// The adaptive match; `null` when no ε reached the limit.
     pub adaptive: Option<Probe>,
     /// A match with a lower delay than the paper run's.
@@ -142,6 +147,9 @@ pub struct Matched {
     pub paper_delay_s: Stat,
     /// The paper mode's late rate.
     pub paper_late_rate: Stat,
+    /// The paper runs' [`MatchedSeed::paper_split_ratio`]; `null` for a
+    /// family without events.
+    pub paper_split_ratio: Option<Stat>,
     /// The matches' mean delay, s (matched seeds only).
     pub adaptive_delay_s: Stat,
     /// The matches' late rate.
@@ -221,6 +229,7 @@ pub fn match_seed(
                 seed,
                 paper_delay_s: m.mean_delay_s,
                 paper_late_rate: m.late_rate,
+                paper_split_ratio: m.split_ratio,
                 adaptive,
                 win: adaptive.is_some_and(|a| a.mean_delay_s < m.mean_delay_s),
             })
@@ -256,6 +265,12 @@ impl Matched {
                 && adaptive_delay_s.mean < paper_delay_s.mean,
             paper_delay_s,
             paper_late_rate: stat(runs.iter().map(|r| r.paper_late_rate).collect()),
+            paper_split_ratio: runs
+                .iter()
+                .map(|r| r.paper_split_ratio)
+                .collect::<Option<Vec<f64>>>()
+                .filter(|v| !v.is_empty())
+                .map(stat),
             adaptive_delay_s,
             adaptive_late_rate: stat(found.iter().map(|a| a.late_rate).collect()),
             epsilon: stat(found.iter().map(|a| a.epsilon).collect()),
