@@ -1,13 +1,16 @@
 //! Costs of the paper's building blocks: the NDR queue, the Kalman filter and
 //! the whole network predictor. Targets (issue 2): ≤ 10 ns, ≤ 50 ns, ≤ 300 ns.
+//! And of the adaptive playout's target (issue 7): one delay observed, per
+//! received sample.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use ndr::core::kalman::Kalman3;
+use ndr::core::playout::{Adaptive, TargetDelay};
 use ndr::core::predictor::{NetworkPredictor, PredictorConfig};
 use ndr::core::regulator::{Regulator, Tick};
-use ndr::core::time::Duration;
+use ndr::core::time::{Duration, Instant};
 
 const T: Duration = Duration::from_millis(200);
 
@@ -56,5 +59,41 @@ fn predictor(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, queue, kalman, predictor);
+fn adaptive(c: &mut Criterion) {
+    // At T = 20 ms and ε = 0.1 %: exponential jitter (10 ms mean) above the
+    // floor and a 300 ms stall every 1 000 samples, the window filled first
+    // (4 blocks of 30 s).
+    let period = Duration::from_millis(20);
+    let mut a = Adaptive::new(period, 1e-3);
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut k = 0u64;
+    let mut next = || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        k += 1;
+        let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+        let jitter = -(1.0 - u).ln() * 0.010;
+        let delay = if k % 1000 < 15 {
+            0.300 - (k % 1000) as f64 * 0.020
+        } else {
+            jitter
+        };
+        let at = Instant::from_nanos(period.as_nanos().saturating_mul(k));
+        (at, Duration::from_secs_f64(delay))
+    };
+    for _ in 0..6000 {
+        let (at, d) = next();
+        a.observe(at, d);
+    }
+    c.bench_function("adaptive target observe (T = 20 ms, ε = 0.1 %)", |b| {
+        b.iter(|| {
+            let (at, d) = next();
+            a.observe(black_box(at), black_box(d));
+            black_box(a.target())
+        })
+    });
+}
+
+criterion_group!(benches, queue, kalman, predictor, adaptive);
 criterion_main!(benches);

@@ -791,6 +791,9 @@ pub struct Adaptive {
     block: Duration,
     goal: Option<Duration>,
     applied: Option<f64>,
+    /// One past the highest bucket holding a delay: the quantile's scan
+    /// starts there, not at the histogram's top (the tail is short).
+    top: usize,
 }
 
 impl Adaptive {
@@ -825,6 +828,7 @@ impl Adaptive {
             block,
             goal: None,
             applied: None,
+            top: 0,
         }
     }
 
@@ -874,6 +878,14 @@ impl Adaptive {
                 self.sum - *sum
             };
             *sum = 0.0;
+        }
+        self.lower_top();
+    }
+
+    /// Brings [`Adaptive::top`] down past the buckets emptied.
+    fn lower_top(&mut self) {
+        while self.top > 0 && self.total.get(self.top - 1).is_none_or(|&c| c == 0) {
+            self.top -= 1;
         }
     }
 
@@ -934,6 +946,8 @@ impl Adaptive {
                 .sum();
         }
         self.sum = self.block_sums.iter().sum();
+        self.top = ADAPTIVE_BUCKETS;
+        self.lower_top();
         self.applied = self.applied.map(moved);
         self.goal = self.goal_now();
     }
@@ -978,7 +992,8 @@ impl Adaptive {
     fn quantile(&self) -> Option<Duration> {
         let allowed = (self.epsilon * self.count as f64) as u64;
         let mut above = 0u64;
-        for (b, &c) in self.total.iter().enumerate().rev() {
+        let held = self.total.get(..self.top).unwrap_or(&self.total);
+        for (b, &c) in held.iter().enumerate().rev() {
             above += u64::from(c);
             if above > allowed {
                 return Some(bucket_upper(b));
@@ -1002,6 +1017,7 @@ impl TargetDelay for Adaptive {
         {
             *c = c.saturating_add(1);
             *t = t.saturating_add(1);
+            self.top = self.top.max(b + 1);
             *n += 1;
             *sum += delay.as_secs_f64();
             self.count += 1;
@@ -1193,6 +1209,46 @@ mod tests {
         p.observe(Instant::from_millis(200_000), ms(500));
         p.observe(Instant::from_millis(200_020), ms(500));
         assert!(p.target().unwrap() <= q + ms(40) + Duration::from_nanos(2));
+    }
+
+    #[test]
+    fn adaptive_quantile_scans_from_the_highest_delay_held() {
+        // The scan starts at the highest bucket in the window: the same
+        // quantile as a scan of the whole histogram, as blocks with the
+        // largest delays leave the window and a level shift moves them.
+        let full_scan = |a: &Adaptive| {
+            let allowed = (a.epsilon * a.count as f64) as u64;
+            let mut above = 0u64;
+            for (b, &c) in a.total.iter().enumerate().rev() {
+                above += u64::from(c);
+                if above > allowed {
+                    return Some(bucket_upper(b));
+                }
+            }
+            None
+        };
+        let mut a = Adaptive::new(ms(20), 1e-2);
+        let mut state = 7u64;
+        for k in 0..40_000u64 {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            // Large delays only in the first 3 minutes, then small ones.
+            let scale = if k < 9_000 { 2_000 } else { 50 };
+            let d = ms((state >> 33) % scale);
+            a.observe(Instant::from_millis(20 * k), d);
+            if k % 97 == 0 {
+                assert_eq!(a.quantile(), full_scan(&a), "sample {k}");
+            }
+            if k == 20_000 {
+                a.rebase(ms(30), true);
+                assert_eq!(a.quantile(), full_scan(&a));
+                a.rebase(ms(500), false);
+                assert_eq!(a.quantile(), full_scan(&a));
+            }
+        }
+        // The large delays have left the window: the scan starts low.
+        assert!(a.top < bucket_of(ms(1_000)), "{}", a.top);
     }
 
     #[test]
