@@ -222,6 +222,37 @@ fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
 }
 
 #[test]
+fn the_families_run_as_long_as_asked() {
+    // 70 s of tcp-stall: its stalls at 30 and 50 s, the run measured.
+    let report = json(&[
+        "compare",
+        "--json",
+        "--seeds",
+        "1",
+        "--family",
+        "tcp-stall",
+        "--policy",
+        "paper-static",
+        "--duration-s",
+        "70",
+    ]);
+    let f = &report["families"][0];
+    assert_eq!(f["duration_s"], 70.0);
+    assert_eq!(f["events_s"], serde_json::json!([30.0, 50.0]));
+    assert!(f["policies"][0]["mean_delay_s"]["mean"].as_f64().unwrap() > 0.0);
+    // Too short to measure, or too long to hold in memory: said, not run.
+    for bad in ["5", "7200", "nan"] {
+        let out = ndr(&["compare", "--duration-s", bad]);
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("--duration-s must be 20 to 3600 seconds"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
 fn matched_is_deterministic_and_only_when_asked() {
     let mut args = SHORT.to_vec();
     args.extend([

@@ -204,6 +204,30 @@ fn the_split_oracle_cuts_at_the_first_event_and_never_exceeds_the_constant_one()
 }
 
 #[test]
+fn a_family_run_longer_keeps_its_events_recurring() {
+    // Stalls every 20 s from 30 s: until 600 s, 29 of them.
+    let f = named("tcp-stall").with_duration(Duration::from_secs(600));
+    assert_eq!(f.duration, Duration::from_secs(600));
+    assert_eq!(f.events_s.len(), 29);
+    assert_eq!(f.events_s.last().copied(), Some(590.0));
+    // paper-fig6's step at 720 s: gone in 600 s, back in 1200 s.
+    let fig6 = named("paper-fig6");
+    assert!(
+        fig6.clone()
+            .with_duration(Duration::from_secs(600))
+            .events_s
+            .is_empty()
+    );
+    let back = fig6
+        .with_duration(Duration::from_secs(600))
+        .with_duration(Duration::from_secs(1200));
+    assert_eq!(back.events_s, vec![720.0]);
+    // Shorter: the events before the end only.
+    let step = named("step").with_duration(Duration::from_secs(40));
+    assert!(step.events_s.is_empty());
+}
+
+#[test]
 fn recovery_after_a_step() {
     // The paper's static NDR never follows a step up (its delay is fixed at
     // the start): every sample after it is late, up to the horizon.

@@ -63,6 +63,25 @@ pub const TC_DIRS: [&str; 6] = [
     "/usr/share/tc",
 ];
 
+impl Family {
+    /// The same family run for `duration` instead: its events (an event
+    /// family's, recurring; paper-fig6's step) are those before the end.
+    #[must_use]
+    pub fn with_duration(mut self, duration: Duration) -> Family {
+        let until = duration.as_secs_f64();
+        self.events_s = match &self.model {
+            DelayModel::Events(p) => p.onsets(until),
+            DelayModel::PaperFig6 => [FIG6_STEP_AT_S]
+                .into_iter()
+                .filter(|&t| t < until)
+                .collect(),
+            _ => self.events_s.into_iter().filter(|&t| t < until).collect(),
+        };
+        self.duration = duration;
+        self
+    }
+}
+
 fn family(name: &str, description: &str, model: DelayModel) -> Family {
     Family {
         name: name.to_string(),
