@@ -53,8 +53,9 @@ per seed (ε searched on the same seed); `delay_gain_s` = paper delay - adaptive
 delay, paired per matched seed; `win` = a match on every seed and a lower mean
 delay; `paper_split_ratio` = the paper run's delay / the split oracle's at its
 late rate (one constant delay before the family's first event, one after, in
-hindsight), the room a policy that learns at the first event has; `one_epsilon`: one ε for all those seeds, the lowest mean delay at a mean
-late rate <= the paper mode's. docs/algorithms.md §9 defines every measure.";
+hindsight), the room a policy that learns at the first event has;
+`one_epsilon`: one ε for all those seeds, the lowest mean delay at a mean late
+rate <= the paper mode's. docs/algorithms.md §9 defines every measure.";
 
 #[derive(clap::Args)]
 #[command(after_long_help = JSON_HELP)]
@@ -260,6 +261,11 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
     Ok(())
 }
 
+/// A ratio's mean ± half-width.
+fn ratio(s: Stat) -> String {
+    format!("{:.2} ± {:.2}", s.mean, s.ci95)
+}
+
 fn ms(s: Stat) -> String {
     format!("{:.0} ± {:.0}", s.mean * 1e3, s.ci95 * 1e3)
 }
@@ -267,7 +273,6 @@ fn ms(s: Stat) -> String {
 fn row(p: &PolicyResult) -> String {
     let pct = |s: Stat| format!("{:.2} ± {:.2}", s.mean * 100.0, s.ci95 * 100.0);
     let num = |s: Stat| format!("{:.1} ± {:.1}", s.mean, s.ci95);
-    let ratio = |s: Stat| format!("{:.2} ± {:.2}", s.mean, s.ci95);
     let recovery = p.recovery_s.map_or_else(
         || "–".to_string(),
         |s| format!("{:.2} ± {:.2}", s.mean, s.ci95),
@@ -353,10 +358,7 @@ fn print_matched(matched: &[Matched]) {
             m.against,
             ms(m.paper_delay_s),
             pct(m.paper_late_rate),
-            m.paper_split_ratio.map_or_else(
-                || "–".to_string(),
-                |s| format!("{:.2} ± {:.2}", s.mean, s.ci95)
-            ),
+            m.paper_split_ratio.map_or_else(|| "–".to_string(), ratio),
             adaptive(ms(m.adaptive_delay_s)),
             pct(m.adaptive_late_rate),
             pct(m.epsilon),

@@ -265,12 +265,7 @@ impl Matched {
                 && adaptive_delay_s.mean < paper_delay_s.mean,
             paper_delay_s,
             paper_late_rate: stat(runs.iter().map(|r| r.paper_late_rate).collect()),
-            paper_split_ratio: runs
-                .iter()
-                .map(|r| r.paper_split_ratio)
-                .collect::<Option<Vec<f64>>>()
-                .filter(|v| !v.is_empty())
-                .map(stat),
+            paper_split_ratio: Stat::of_all(runs.iter().map(|r| r.paper_split_ratio)),
             adaptive_delay_s,
             adaptive_late_rate: stat(found.iter().map(|a| a.late_rate).collect()),
             epsilon: stat(found.iter().map(|a| a.epsilon).collect()),

@@ -7,8 +7,9 @@
 //! mode changes the period, and so its send times). Every regulator drops
 //! late samples ([`Underflow::DropLate`]): a tick whose sample is missing
 //! repeats the last one; [`CompareConfig::underflow`] can hold them
-//! instead, as the paper's NDR does (nothing is late, the delay stretches). The commands (base → remote) are measured, on the
-//! remote's clock against the base's send stamps.
+//! instead, as the paper's NDR does (nothing is late, the delay
+//! stretches). The commands (base → remote) are measured, on the remote's
+//! clock against the base's send stamps.
 //!
 //! Per run: the commands sent until [`MARGIN`] before the end (so that each
 //! has had its chance to be released) are the run's samples. Their
@@ -188,6 +189,14 @@ impl Stat {
             mean,
             ci95: t * (var / n as f64).sqrt(),
         }
+    }
+
+    /// [`Stat::of`] a measure every run has; `None` if one lacks it or
+    /// there is no run.
+    #[must_use]
+    pub fn of_all(xs: impl IntoIterator<Item = Option<f64>>) -> Option<Stat> {
+        let xs: Vec<f64> = xs.into_iter().collect::<Option<_>>()?;
+        (!xs.is_empty()).then(|| Stat::of(&xs))
     }
 }
 
@@ -504,12 +513,7 @@ impl PolicyResult {
             oracle_ratio: stat(&|r| r.oracle_ratio),
             piecewise_ratio: stat(&|r| r.piecewise_ratio),
             hull_ratio: stat(&|r| r.hull_ratio),
-            split_ratio: runs
-                .iter()
-                .map(|r| r.split_ratio)
-                .collect::<Option<Vec<f64>>>()
-                .filter(|v| !v.is_empty())
-                .map(|v| Stat::of(&v)),
+            split_ratio: Stat::of_all(runs.iter().map(|r| r.split_ratio)),
             point: Point {
                 mean_delay_s: mean_delay_s.mean,
                 late_rate: late_rate.mean,
