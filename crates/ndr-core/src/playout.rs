@@ -52,7 +52,9 @@ pub enum Playout {
     /// mapped to the local clock by the offset and skew estimate
     /// ([`ClockSync`](crate::sync::ClockSync)), plus the `1 − ε` quantile of
     /// the delays above the floor over the last 90–120 s; the target slews
-    /// at a bounded rate.
+    /// at a bounded rate. Once the window's lost samples reach `ε` of its
+    /// delays, a silence past a slot (a stall, whose frames come in a
+    /// burst) holds the delay ahead of it instead of losing more.
     Adaptive {
         /// The target late rate ε, in parts per million (1000 = 0.1 %).
         epsilon_ppm: u32,
@@ -326,6 +328,10 @@ pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
     /// The floor the delays are measured above moved by `by` (up if
     /// `rose`): see [`Adaptive::rebase`].
     fn rebase(&mut self, by: Duration, rose: bool);
+    /// A sample came after its slot: see [`Adaptive::note_late`].
+    fn note_late(&mut self);
+    /// See [`Adaptive::over_budget`].
+    fn over_budget(&self, more: u64) -> bool;
 }
 
 impl AdaptiveSlot for Adaptive {
@@ -335,6 +341,14 @@ impl AdaptiveSlot for Adaptive {
 
     fn rebase(&mut self, by: Duration, rose: bool) {
         Adaptive::rebase(self, by, rose);
+    }
+
+    fn note_late(&mut self) {
+        Adaptive::note_late(self);
+    }
+
+    fn over_budget(&self, more: u64) -> bool {
+        Adaptive::over_budget(self, more)
     }
 }
 
@@ -360,6 +374,14 @@ impl AdaptiveSlot for NoAdaptive {
     }
 
     fn rebase(&mut self, _: Duration, _: bool) {
+        match *self {}
+    }
+
+    fn note_late(&mut self) {
+        match *self {}
+    }
+
+    fn over_budget(&self, _: u64) -> bool {
         match *self {}
     }
 }
@@ -782,6 +804,10 @@ pub struct Adaptive {
     total: [u32; ADAPTIVE_BUCKETS],
     count: u64,
     block_counts: [u64; ADAPTIVE_BLOCKS],
+    /// Samples lost per block (late or skipped, as the endpoint reports
+    /// them), and in the window: the late rate spent.
+    block_late: [u64; ADAPTIVE_BLOCKS],
+    late: u64,
     /// Sum of the delays (s), per block and in the window.
     block_sums: [f64; ADAPTIVE_BLOCKS],
     sum: f64,
@@ -821,6 +847,8 @@ impl Adaptive {
             total: [0; ADAPTIVE_BUCKETS],
             count: 0,
             block_counts: [0; ADAPTIVE_BLOCKS],
+            block_late: [0; ADAPTIVE_BLOCKS],
+            late: 0,
             block_sums: [0.0; ADAPTIVE_BLOCKS],
             sum: 0.0,
             current: 0,
@@ -850,6 +878,25 @@ impl Adaptive {
         self.count
     }
 
+    /// A sample was lost: it came after its slot, or a fall of the delay
+    /// skipped it. Counted in the current block, and leaves the window
+    /// with it.
+    pub fn note_late(&mut self) {
+        if let Some(l) = self.block_late.get_mut(self.current) {
+            *l += 1;
+            self.late += 1;
+        }
+    }
+
+    /// Whether `more` lost samples would take the window's past `ε` of its
+    /// delays: the late rate is spent, and the endpoint holds its delay
+    /// ahead of a silence instead of letting more go (see
+    /// [`Playout::Adaptive`]).
+    #[must_use]
+    pub fn over_budget(&self, more: u64) -> bool {
+        (self.late + more) as f64 > self.epsilon * self.count as f64
+    }
+
     fn rotate(&mut self, sent_at: Instant) {
         let start = *self.block_start.get_or_insert(sent_at);
         let full = self
@@ -872,6 +919,10 @@ impl Adaptive {
             }
             self.count = self.count.saturating_sub(*n);
             *n = 0;
+            if let Some(l) = self.block_late.get_mut(self.current) {
+                self.late = self.late.saturating_sub(*l);
+                *l = 0;
+            }
             self.sum = if self.count == 0 {
                 0.0
             } else {
@@ -1249,6 +1300,32 @@ mod tests {
         }
         // The large delays have left the window: the scan starts low.
         assert!(a.top < bucket_of(ms(1_000)), "{}", a.top);
+    }
+
+    #[test]
+    fn adaptive_late_budget_is_epsilon_of_the_window_and_leaves_with_it() {
+        let mut a = Adaptive::new(ms(20), 1e-2);
+        // 30 s blocks at 20 ms: 1 500 delays each.
+        for k in 0..3_000u64 {
+            a.observe(Instant::from_millis(20 * k), ms(5));
+        }
+        // ε·n = 30: 30 lost samples are within it, 31 are not.
+        assert!(!a.over_budget(30) && a.over_budget(31));
+        for _ in 0..25 {
+            a.note_late();
+        }
+        assert!(!a.over_budget(5) && a.over_budget(6));
+        // They were counted in the second block; when it is reused (4
+        // blocks, three rotations on) they leave the window with its delays.
+        for k in 3_000..6_000u64 {
+            a.observe(Instant::from_millis(20 * k), ms(5));
+        }
+        assert!(!a.over_budget(35) && a.over_budget(36), "{}", a.late);
+        for k in 6_000..7_501u64 {
+            a.observe(Instant::from_millis(20 * k), ms(5));
+        }
+        assert_eq!(a.count(), 4_500 + 1);
+        assert!(!a.over_budget(45) && a.over_budget(46), "{}", a.late);
     }
 
     #[test]

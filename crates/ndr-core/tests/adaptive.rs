@@ -84,12 +84,14 @@ fn skew_and_offset_estimates_match_the_simulator_after_10_minutes() {
 #[test]
 fn the_delay_is_near_the_oracle_and_the_late_rate_near_epsilon() {
     // (family, largest late rate): ε = 0.1 %, plus the start (the first
-    // quantiles come from few samples).
+    // quantiles come from few samples). paris-newyork's episodes are held
+    // once the late rate is spent (0.79 % late before, letting every
+    // episode the window did not cover go).
     for (name, secs, late) in [
         ("lan-75km", 120, 0.002),
         ("skew+100ppm", 120, 0.002),
         ("skew-100ppm", 120, 0.002),
-        ("paris-newyork", 120, 0.015),
+        ("paris-newyork", 120, 0.002),
     ] {
         let m = run_one(&named(name, secs), ADAPTIVE, 1, (T, WINDOW))
             .expect("the run")
@@ -434,6 +436,49 @@ fn a_level_shift_is_counted_once() {
             after <= before + 0.150 + 0.041,
             "seed {seed}: {before} s before the step, up to {after} s after"
         );
+    }
+}
+
+#[test]
+fn the_late_rate_stays_within_epsilon_through_stalls_and_episodes() {
+    // Stalls, spikes, congestion episodes and a step: events the window's
+    // quantile covers only after it has seen them. Once the window's lost
+    // samples reach ε of its delays, a silence past a slot holds the delay
+    // ahead of it (the stalled frames are released in order, later) instead
+    // of losing more. Without it, at ε = 0.1 % on seed 1: tcp-stall 0.31 %,
+    // spikes 0.34 %, paris-newyork 0.79 %, step 0.21 % late; at 1 %, 1.0–
+    // 1.2 % on all but step.
+    for name in ["tcp-stall", "spikes", "paris-newyork", "step"] {
+        for epsilon_ppm in [1_000, 10_000] {
+            let policy = Policy::Target(Playout::Adaptive {
+                epsilon_ppm,
+                quantum: None,
+            });
+            let cfg = sim_config(&named(name, 120), policy, 1, T);
+            let out = run(&cfg).expect("the run");
+            let epsilon = f64::from(epsilon_ppm) * 1e-6;
+            let m = run_one(&named(name, 120), policy, 1, (T, WINDOW))
+                .expect("the run")
+                .metrics;
+            assert!(
+                m.late_rate <= epsilon,
+                "{name} at ε = {epsilon}: late rate {}",
+                m.late_rate
+            );
+            // Held, not reordered: the commands are released in the order
+            // they were sent.
+            let released: Vec<f64> = out
+                .forward
+                .samples
+                .iter()
+                .filter_map(|c| Some(c.released_at?.as_secs_f64()))
+                .collect();
+            assert!(
+                released.windows(2).all(|w| w[0] < w[1]),
+                "{name} at ε = {epsilon}: a release out of order"
+            );
+            assert_eq!(out.report.pauses, 0);
+        }
     }
 }
 

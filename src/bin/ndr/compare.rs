@@ -101,7 +101,7 @@ pub struct CompareArgs {
     #[arg(long)]
     pub threads: Option<usize>,
     /// Also compare the adaptive policy with each paper mode asked for at an
-    /// equal or lower late rate, per seed (ε searched by bisection, up to 10
+    /// equal or lower late rate, per seed (ε searched by bisection, up to 16
     /// adaptive runs per paper run; in the steps of the first
     /// `adaptive:PERCENT:QUANTUM_MS` asked for, if any).
     #[arg(long)]

@@ -202,6 +202,9 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     falling_to: Option<Duration>,
     /// Adaptive playout: the delay last announced with an event.
     announced: Option<Duration>,
+    /// Adaptive playout: the delay before the silence being followed (see
+    /// `silence_need`), to go back to if the silence turns into an outage.
+    before_silence: Option<Duration>,
     /// Adaptive playout: the next release, apart from the base's ticks
     /// (which send); a remote ticks with its releases.
     next_release: Option<Instant>,
@@ -282,6 +285,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             announced: None,
             next_release: None,
             last_slot: None,
+            before_silence: None,
             slot_mapping: None,
             predictor,
             pattern: InitPattern::new(),
@@ -808,6 +812,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
             self.stats.late += 1;
+            if let Some(Target::Adaptive(a)) = &mut self.target {
+                a.note_late();
+            }
             return Ok(());
         }
         // Adaptive under hold: a sample held behind an outage, past its
@@ -1033,7 +1040,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if self.phase != Phase::Running {
             return;
         }
-        let need = self.adaptive_need(t);
+        let silence = self.silence_need(t);
+        self.end_silence(t, silence.is_some());
+        let need = self
+            .adaptive_need(t)
+            .map(|n| silence.map_or(n, |s| s.max(n)));
         let before = self.adaptive_delay;
         if let Some(need) = need {
             self.rise_to(need);
@@ -1063,6 +1074,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         // The slot was that of the sample released, or of the one expected.
         let stamp = match self.last_release {
             Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
+            // Following a silence, the next slot stays the missing
+            // sample's: the burst's first is released at its slot, not at a
+            // release scheduled for a later stamp (a period late, and the
+            // next one a period early).
+            _ if silence.is_some() => self.prev_data_rx.map(|(sent, _)| sent),
             _ => expected,
         };
         if self.adaptive_delay.is_some()
@@ -1078,6 +1094,79 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             });
         }
         self.next_release = self.next_slot(at);
+    }
+
+    /// Adaptive: the delay that holds the next sample's slot a period
+    /// ahead (s), while nothing is queued, its slot has passed, and the
+    /// window's late samples have used up its late rate; `None` otherwise.
+    ///
+    /// A silence past the slot is a stall of the path (a retransmission, a
+    /// congestion episode): its frames come later, in a burst. Dropped as
+    /// late, each would be lost; with the delay held ahead of the silence
+    /// (the ticks repeat the last sample, as they would anyway), they are
+    /// released in order, and the delay falls back as after any rise. Up to
+    /// `ε` of the samples are let go first: the window's quantile sits
+    /// under that many on purpose, and stretching for them would only hold
+    /// the delay higher. A silence longer than the watchdog is an outage,
+    /// not a delay, and is not followed.
+    fn silence_need(&self, t: Instant) -> Option<f64> {
+        let Some(Target::Adaptive(a)) = &self.target else {
+            return None;
+        };
+        // An outage's backlog still draining is no silence to follow.
+        if !self.regulator.is_empty() || self.outage_burst {
+            return None;
+        }
+        let (sent, arrived) = self.prev_data_rx?;
+        if self.config.watchdog.is_some_and(|w| t - arrived >= w) {
+            return None;
+        }
+        let map = self.slot_mapping.or_else(|| self.mapping_ns(t))?;
+        // The delay at which the newest sample's slot would be now: the
+        // next one's is then a period ahead.
+        let need = ns_i64(t).saturating_sub(ns_i64(sent)).saturating_sub(map);
+        let behind = need.saturating_sub(i64::try_from(self.adaptive_delay?.as_nanos()).ok()?);
+        // The samples after the newest that this release would pass (due
+        // half a quantum before their slot, `release_cutoff`): lost if the
+        // delay stays.
+        let half = i64::try_from((self.quantum() / 2).as_nanos()).ok()?;
+        let per = i64::try_from(self.period.as_nanos()).ok()?.max(1);
+        let missed = u64::try_from(behind.saturating_add(half) / per).ok()?;
+        (missed >= 1 && a.over_budget(missed)).then_some(need as f64 * 1e-9)
+    }
+
+    /// Adaptive: notes where a followed silence started, and ends it: when
+    /// a sample is queued again (the delay then falls as after any rise),
+    /// or when the silence outlasts the watchdog. An outage is not a delay
+    /// to cover: the delay goes back at once to where it was (nothing is
+    /// queued, so no sample is skipped), instead of falling for as long as
+    /// it rose.
+    fn end_silence(&mut self, t: Instant, following: bool) {
+        if following {
+            if self.before_silence.is_none() {
+                self.before_silence = self.adaptive_delay;
+            }
+            return;
+        }
+        let Some(before) = self.before_silence else {
+            return;
+        };
+        if !self.regulator.is_empty() {
+            self.before_silence = None;
+            return;
+        }
+        let outage = match (self.config.watchdog, self.prev_data_rx) {
+            (Some(w), Some((_, arrived))) => t - arrived >= w,
+            _ => false,
+        };
+        if outage {
+            self.before_silence = None;
+            if self.adaptive_delay.is_some_and(|d| d > before) {
+                self.falling_to = None;
+                self.set_adaptive_delay(before);
+                self.announce_adaptive();
+            }
+        }
     }
 
     /// Adaptive: the quantum of the delay (see [`DELAY_QUANTUM`]).
@@ -1283,6 +1372,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             while self.regulator.iter().nth(1).is_some_and(due) {
                 let _ = self.regulator.discard_front();
                 self.stats.skipped += 1;
+                if let Some(Target::Adaptive(a)) = &mut self.target {
+                    a.note_late();
+                }
             }
             self.passed = Some(self.passed.map_or(cutoff, |p| p.max(cutoff)));
         }

@@ -34,11 +34,11 @@ use crate::playout::Playout;
 use crate::time::Duration;
 
 /// Adaptive runs per search, at most.
-pub const MATCH_PROBES: usize = 10;
+pub const MATCH_PROBES: usize = 16;
 /// The search widens its bracket by this factor of ε per run.
 pub const STRIDE: u32 = 8;
 /// The search stops when its bracket's ends are within this ratio.
-pub const BRACKET: f64 = 1.1;
+pub const BRACKET: f64 = 1.02;
 /// ε's range in parts per million (the policy clamps to 10⁻⁶..0.5).
 const PPM: (u32, u32) = (1, 500_000);
 
