@@ -1117,8 +1117,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if !self.regulator.is_empty() || self.outage_burst {
             return None;
         }
-        let (sent, arrived) = self.prev_data_rx?;
-        if self.config.watchdog.is_some_and(|w| t - arrived >= w) {
+        let (sent, _) = self.prev_data_rx?;
+        if self.past_watchdog(t) {
             return None;
         }
         let map = self.slot_mapping.or_else(|| self.mapping_ns(t))?;
@@ -1155,17 +1155,33 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             self.before_silence = None;
             return;
         }
-        let outage = match (self.config.watchdog, self.prev_data_rx) {
-            (Some(w), Some((_, arrived))) => t - arrived >= w,
-            _ => false,
-        };
-        if outage {
+        if self.past_watchdog(t) {
             self.before_silence = None;
             if self.adaptive_delay.is_some_and(|d| d > before) {
                 self.falling_to = None;
                 self.set_adaptive_delay(before);
                 self.announce_adaptive();
             }
+            // The next slot was held on the missing sample's: back to the
+            // stamp due now, or the releases would repeat the last sample
+            // twice a period until the expected stamps caught up.
+            let map = self.slot_mapping.or_else(|| self.mapping_ns(t));
+            if let (Some((at, stamp)), Some(map)) = (self.last_slot, map) {
+                let due = ns_i64(t)
+                    .saturating_sub(map)
+                    .saturating_sub(i64::try_from(before.as_nanos()).unwrap_or(i64::MAX));
+                let per = self.period.as_nanos().max(1);
+                let behind = u64::try_from(due.saturating_sub(ns_i64(stamp))).unwrap_or(0);
+                self.last_slot = Some((at, stamp + self.period * (behind / per)));
+            }
+        }
+    }
+
+    /// Nothing received for as long as the watchdog allows.
+    fn past_watchdog(&self, t: Instant) -> bool {
+        match (self.config.watchdog, self.prev_data_rx) {
+            (Some(w), Some((_, arrived))) => t - arrived >= w,
+            _ => false,
         }
     }
 
