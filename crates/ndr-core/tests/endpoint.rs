@@ -702,3 +702,74 @@ fn an_adaptive_link_takes_a_late_sender_as_delay_not_as_a_ratchet() {
     assert!(late.delay_changes <= 12, "{late:?}");
     assert_eq!(late.skipped, 0, "{late:?}");
 }
+
+#[test]
+fn an_adaptive_link_holds_a_stall_once_its_late_rate_is_spent_but_not_an_outage() {
+    // 10 ms each way at T = 20 ms, and two silences of the forward path,
+    // their frames held to the end and then delivered at once: 300 ms at
+    // about 30 s (a TCP stall), 5 s at about 60 s (an outage: past the 1 s
+    // watchdog). ε = 0.1 % of some 1 500 delays lets one sample go; the
+    // rest of the stall is held, and released in order. The outage is let
+    // go: the delay is back where it was once the watchdog fires, and the
+    // ticks repeat the last sample once a period through it.
+    use ndr_core::playout::Playout;
+    let t = Duration::from_millis(20);
+    let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+    for c in [&mut base, &mut remote] {
+        c.period = t;
+        c.playout = Playout::ADAPTIVE;
+        c.underflow = Underflow::DropLate;
+    }
+    let held = move |n: u64, from: u64, to: u64| (from..to).contains(&n).then(|| t * (to - n));
+    let fwd = Box::new(move |n: u64| {
+        Duration::from_millis(10)
+            + held(n, 1500, 1515)
+                .or(held(n, 3000, 3250))
+                .unwrap_or(Duration::ZERO)
+    });
+    let mut p = Pair::new(base, remote, fwd, Box::new(|_| Duration::from_millis(10)));
+    p.run_until(secs(90));
+    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    let released = Pair::releases(&p.remote_events);
+    let fresh: Vec<_> = released
+        .iter()
+        .filter(|r| r.status == Status::Fresh)
+        .collect();
+    assert!(fresh.windows(2).all(|w| w[0].seq < w[1].seq));
+    // The stall's 15 samples (the frames held, sent before the outage):
+    // all but one released.
+    let kept = fresh
+        .iter()
+        .filter(|r| r.sent_at < secs(45) && r.arrived_at - r.sent_at > t)
+        .count();
+    assert!(
+        (14..=15).contains(&kept),
+        "{kept} of the stall's 15 released"
+    );
+    let stats = p.remote.stats();
+    assert!(stats.outage_delays > 0, "{stats:?}");
+    // Through the outage (held, then let go when the watchdog fires): a
+    // repeat once a period, not two while the next slot catches up.
+    let repeats: Vec<Instant> = released
+        .iter()
+        .filter(|r| r.status == Status::Held)
+        .map(|r| r.released_at)
+        .filter(|&at| at > secs(60) && at < secs(65))
+        .collect();
+    assert!(repeats.len() >= 200, "{} repeats", repeats.len());
+    for w in repeats.windows(2) {
+        assert!(w[1] - w[0] >= t * 9 / 10, "repeats {:?} apart", w[1] - w[0]);
+    }
+    // Right after the outage the delay is what it was before it (300 ms),
+    // not what is left of the second it had followed before the watchdog
+    // fired (falling from 554 ms when it was left to slide back).
+    let after = fresh
+        .iter()
+        .filter(|r| (secs(60)..secs(68)).contains(&r.sent_at))
+        .map(|r| r.released_at - r.sent_at)
+        .max();
+    assert!(
+        after.is_some_and(|d| d <= Duration::from_millis(300)),
+        "{after:?}"
+    );
+}
