@@ -328,7 +328,7 @@ pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
     /// The floor the delays are measured above moved by `by` (up if
     /// `rose`): see [`Adaptive::rebase`].
     fn rebase(&mut self, by: Duration, rose: bool);
-    /// A sample came after its slot: see [`Adaptive::note_late`].
+    /// A sample was lost: see [`Adaptive::note_late`].
     fn note_late(&mut self);
     /// See [`Adaptive::over_budget`].
     fn over_budget(&self, more: u64) -> bool;
