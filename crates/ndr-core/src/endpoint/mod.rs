@@ -812,9 +812,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
             self.stats.late += 1;
-            if let Some(Target::Adaptive(a)) = &mut self.target {
-                a.note_late();
-            }
+            self.note_lost();
             return Ok(());
         }
         // Adaptive under hold: a sample held behind an outage, past its
@@ -1121,18 +1119,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if self.past_watchdog(t) {
             return None;
         }
-        let map = self.slot_mapping.or_else(|| self.mapping_ns(t))?;
-        // The delay at which the newest sample's slot would be now: the
-        // next one's is then a period ahead.
-        let need = ns_i64(t).saturating_sub(ns_i64(sent)).saturating_sub(map);
-        let behind = need.saturating_sub(i64::try_from(self.adaptive_delay?.as_nanos()).ok()?);
-        // The samples after the newest that this release would pass (due
-        // half a quantum before their slot, `release_cutoff`): lost if the
-        // delay stays.
-        let half = i64::try_from((self.quantum() / 2).as_nanos()).ok()?;
-        let per = i64::try_from(self.period.as_nanos()).ok()?.max(1);
-        let missed = u64::try_from(behind.saturating_add(half) / per).ok()?;
-        (missed >= 1 && a.over_budget(missed)).then_some(need as f64 * 1e-9)
+        let d = self.adaptive_delay?;
+        // The samples after the newest that this release would pass: lost
+        // if the delay stays.
+        let passed = self.release_cutoff(t, d).checked_duration_since(sent)?;
+        let missed = passed.as_nanos() / self.period.as_nanos().max(1);
+        // The delay at which the newest sample's slot would be now (the
+        // cutoff is half a quantum past the slots): the next one's is then
+        // a period ahead.
+        let need = (passed + d).saturating_sub(self.quantum() / 2);
+        (missed >= 1 && a.over_budget(missed)).then_some(need.as_nanos() as f64 * 1e-9)
     }
 
     /// Adaptive: notes where a followed silence started, and ends it: when
@@ -1174,6 +1170,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 let behind = u64::try_from(due.saturating_sub(ns_i64(stamp))).unwrap_or(0);
                 self.last_slot = Some((at, stamp + self.period * (behind / per)));
             }
+        }
+    }
+
+    /// Adaptive: a sample lost (late or skipped) spends the late rate.
+    fn note_lost(&mut self) {
+        if let Some(Target::Adaptive(a)) = &mut self.target {
+            a.note_late();
         }
     }
 
@@ -1388,9 +1391,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             while self.regulator.iter().nth(1).is_some_and(due) {
                 let _ = self.regulator.discard_front();
                 self.stats.skipped += 1;
-                if let Some(Target::Adaptive(a)) = &mut self.target {
-                    a.note_late();
-                }
+                self.note_lost();
             }
             self.passed = Some(self.passed.map_or(cutoff, |p| p.max(cutoff)));
         }
