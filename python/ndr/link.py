@@ -327,9 +327,12 @@ class Link:
                 holds the smallest constant delay with a late rate of 0.1 %,
                 or ``PERCENT``, in steps of 20 ms or the period when shorter,
                 or ``QUANTUM_MS``: a finer step holds a lower delay that
-                changes more often; once that late rate is spent, a stall
-                of the network is held, its samples released in order, not
-                dropped; see docs/algorithms.md §9–10). Local to each side.
+                changes more often; a stall of the network is held, its
+                samples released in order, not dropped, while that costs
+                less delay per sample kept than a higher constant delay
+                (once half that late rate is used), and always once it
+                is spent; see
+                docs/algorithms.md §9–10). Local to each side.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:

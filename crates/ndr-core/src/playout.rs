@@ -52,9 +52,11 @@ pub enum Playout {
     /// mapped to the local clock by the offset and skew estimate
     /// ([`ClockSync`](crate::sync::ClockSync)), plus the `1 − ε` quantile of
     /// the delays above the floor over the last 90–120 s; the target slews
-    /// at a bounded rate. Once the window's lost samples reach `ε` of its
-    /// delays, a silence past a slot (a stall, whose frames come in a
-    /// burst) holds the delay ahead of it instead of losing more.
+    /// at a bounded rate. A silence past a slot (a stall, whose frames come
+    /// in a burst) holds the delay ahead of it while the rise costs less
+    /// per sample kept than the quantile would ([`Adaptive::sample_cost`])
+    /// once half the late budget is used, and whatever it costs once the
+    /// window's lost samples reach `ε` of its delays.
     Adaptive {
         /// The target late rate ε, in parts per million (1000 = 0.1 %).
         epsilon_ppm: u32,
@@ -330,8 +332,10 @@ pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
     fn rebase(&mut self, by: Duration, rose: bool);
     /// A sample was lost: see [`Adaptive::note_late`].
     fn note_late(&mut self);
-    /// See [`Adaptive::over_budget`].
-    fn over_budget(&self, more: u64) -> bool;
+    /// See [`Adaptive::budget_used`].
+    fn budget_used(&self, more: u64) -> f64;
+    /// See [`Adaptive::sample_cost`].
+    fn sample_cost(&self) -> Duration;
 }
 
 impl AdaptiveSlot for Adaptive {
@@ -347,8 +351,12 @@ impl AdaptiveSlot for Adaptive {
         Adaptive::note_late(self);
     }
 
-    fn over_budget(&self, more: u64) -> bool {
-        Adaptive::over_budget(self, more)
+    fn budget_used(&self, more: u64) -> f64 {
+        Adaptive::budget_used(self, more)
+    }
+
+    fn sample_cost(&self) -> Duration {
+        Adaptive::sample_cost(self)
     }
 }
 
@@ -381,7 +389,11 @@ impl AdaptiveSlot for NoAdaptive {
         match *self {}
     }
 
-    fn over_budget(&self, _: u64) -> bool {
+    fn budget_used(&self, _: u64) -> f64 {
+        match *self {}
+    }
+
+    fn sample_cost(&self) -> Duration {
         match *self {}
     }
 }
@@ -891,10 +903,23 @@ impl Adaptive {
     /// Whether `more` lost samples would take the window's past `ε` of its
     /// delays: the late rate is spent, and the endpoint holds its delay
     /// ahead of a silence instead of letting more go (see
-    /// [`Playout::Adaptive`]).
+    /// [`Playout::Adaptive`]). A window younger than a block counts a
+    /// block's delays: else the first seconds' budget is a handful of
+    /// samples, and the first stall or episode, held whole, keeps the
+    /// delay high while it falls back (about 10 s for paris-newyork's
+    /// 0.9 s).
     #[must_use]
     pub fn over_budget(&self, more: u64) -> bool {
-        (self.late + more) as f64 > self.epsilon * self.count as f64
+        self.budget_used(more) > 1.0
+    }
+
+    /// The share of the late budget that `more` lost samples would bring
+    /// the window to: 1 is `ε` of its delays (see
+    /// [`Adaptive::over_budget`]).
+    #[must_use]
+    pub fn budget_used(&self, more: u64) -> f64 {
+        let block = self.block.as_secs_f64() / self.period;
+        (self.late + more) as f64 / (self.epsilon * (self.count as f64).max(block))
     }
 
     fn rotate(&mut self, sent_at: Instant) {
@@ -1041,7 +1066,27 @@ impl Adaptive {
     }
 
     fn quantile(&self) -> Option<Duration> {
-        let allowed = (self.epsilon * self.count as f64) as u64;
+        self.quantile_at(self.epsilon)
+    }
+
+    /// What one late sample fewer costs through the quantile: the delay
+    /// added to every sample released (s, summed) for the quantile to let
+    /// one fewer through, `(1 − ε)/f`, `f` the density of the delays at the
+    /// quantile, taken over the window's quantiles at `ε` and `ε/2`. The
+    /// endpoint holds a silence while holding it costs less per sample (see
+    /// [`Playout::Adaptive`]); zero while the window is empty.
+    #[must_use]
+    pub fn sample_cost(&self) -> Duration {
+        let half = self.epsilon / 2.0;
+        let (Some(q), Some(q2)) = (self.quantile_at(self.epsilon), self.quantile_at(half)) else {
+            return Duration::ZERO;
+        };
+        let cost = q2.saturating_sub(q).as_secs_f64() * (1.0 - self.epsilon) / half;
+        Duration::from_secs_f64(cost)
+    }
+
+    fn quantile_at(&self, epsilon: f64) -> Option<Duration> {
+        let allowed = (epsilon * self.count as f64) as u64;
         let mut above = 0u64;
         let held = self.total.get(..self.top).unwrap_or(&self.total);
         for (b, &c) in held.iter().enumerate().rev() {
@@ -1326,6 +1371,49 @@ mod tests {
         }
         assert_eq!(a.count(), 4_500 + 1);
         assert!(!a.over_budget(45) && a.over_budget(46), "{}", a.late);
+    }
+
+    #[test]
+    fn adaptive_late_budget_counts_a_block_while_the_window_is_younger() {
+        let mut a = Adaptive::new(ms(20), 1e-2);
+        // No delay yet: a 30 s block's 1 500 at 20 ms, ε·1 500 = 15.
+        assert!(!a.over_budget(15) && a.over_budget(16));
+        for k in 0..100u64 {
+            a.observe(Instant::from_millis(20 * k), ms(5));
+        }
+        assert!(!a.over_budget(15) && a.over_budget(16));
+        a.note_late();
+        assert!((a.budget_used(0) - 1.0 / 15.0).abs() < 1e-12);
+        assert!((a.budget_used(14) - 1.0).abs() < 1e-12);
+        // Past a block's delays, the window's own count.
+        for k in 100..2_000u64 {
+            a.observe(Instant::from_millis(20 * k), ms(5));
+        }
+        assert!(!a.over_budget(19) && a.over_budget(20));
+    }
+
+    #[test]
+    fn adaptive_sample_cost_is_the_delay_the_quantile_adds_per_sample_kept() {
+        let mut a = Adaptive::new(ms(20), 0.1);
+        assert_eq!(a.sample_cost(), Duration::ZERO, "an empty window");
+        // 2 000 delays spread evenly over 0–100 ms: a density of 10 per
+        // second of delay. One sample fewer late takes the quantile up by
+        // 1/(10·n) s, for the n·(1 − ε) released: 90 ms in all.
+        for k in 0..2_000u64 {
+            a.observe(Instant::from_millis(20 * k), Duration::from_micros(k * 50));
+        }
+        // Within the buckets' width (about 1 ms here) on the 5 ms between
+        // the two quantiles.
+        let c = a.sample_cost().as_secs_f64();
+        assert!((c - 0.090).abs() < 0.009, "{c}");
+        // Equal delays: the quantile saves no sample at any price short of
+        // all of them (a zero difference), and a held silence is then worth
+        // only what it costs nothing to hold.
+        let mut b = Adaptive::new(ms(20), 0.1);
+        for k in 0..2_000u64 {
+            b.observe(Instant::from_millis(20 * k), ms(30));
+        }
+        assert_eq!(b.sample_cost(), Duration::ZERO);
     }
 
     #[test]

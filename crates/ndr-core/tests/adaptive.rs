@@ -147,6 +147,10 @@ fn an_hour_at_100_ppm_keeps_the_delay_and_the_late_rate() {
         let mean = delays.iter().sum::<f64>() / n;
         let std = (delays.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
         assert!(std <= 1e-3, "{name}: std {std} around {mean}");
+        // Measured 0.12 ms. Holding every cheap silence with the late
+        // budget nearly unspent made it 0.90 ms: each one a quantum's rise
+        // falling back over ten releases.
+        assert!(std <= 0.3e-3, "{name}: std {std} around {mean}");
         let late_rate = f64::from(late) / (n + f64::from(late));
         eprintln!("{name}: true delay {mean:.6} s, std {std:.6} s, late rate {late_rate:.6}");
         assert!(late_rate < 0.002, "{name}: late rate {late_rate}");
@@ -308,8 +312,10 @@ fn each_direction_keeps_its_announced_delay_whatever_the_remote_grids_phase() {
                 "phase {phase_ms} ms: {what} {got} s, aligned {want} s"
             );
         }
+        // Within 3 of the ~6 000 samples: a held silence may keep one the
+        // other run lets go (the fault above was 0.13 %, 8 samples).
         assert!(
-            (r.late_rate_fwd - aligned.late_rate_fwd).abs() < 2e-4,
+            (r.late_rate_fwd - aligned.late_rate_fwd).abs() < 5e-4,
             "phase {phase_ms} ms: late {} against {}",
             r.late_rate_fwd,
             aligned.late_rate_fwd

@@ -75,6 +75,11 @@ const HYSTERESIS: f64 = 0.5;
 /// falls): no sample is skipped.
 pub const RELEASE_SLEW_STEPS: u64 = 10;
 
+/// The share of its late budget the adaptive window must have used before
+/// a silence is held for being cheap (see `Endpoint::silence_need`): below
+/// it, the late rate is under its target anyway.
+const BINDING: f64 = 0.5;
+
 /// The release schedule of the adaptive playout follows the clock
 /// estimate by at most `T / MAPPING_SLEW` per release: an update of the
 /// offset estimate moves the releases over several periods, not in one.
@@ -1077,6 +1082,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             // release scheduled for a later stamp (a period late, and the
             // next one a period early).
             _ if silence.is_some() => self.prev_data_rx.map(|(sent, _)| sent),
+            // A silence followed, then let go: the rise may have put the
+            // missing sample's slot after this release, which then passes
+            // nothing.
+            _ if self.before_silence.is_some()
+                && expected
+                    .and_then(|s| self.slot_at(s, at))
+                    .is_some_and(|slot| slot > t) =>
+            {
+                self.last_slot.map(|(_, stamp)| stamp)
+            }
             _ => expected,
         };
         if self.adaptive_delay.is_some()
@@ -1095,18 +1110,23 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// Adaptive: the delay that holds the next sample's slot a period
-    /// ahead (s), while nothing is queued, its slot has passed, and the
-    /// window's late samples have used up its late rate; `None` otherwise.
+    /// ahead (s), while nothing is queued, its slot has passed, and either
+    /// the rise is cheaper per sample saved than the quantile's way of
+    /// saving one ([`Adaptive::sample_cost`](crate::playout::Adaptive::sample_cost))
+    /// with half the late budget used, or the window's late samples have
+    /// used up its late rate; `None` otherwise.
     ///
     /// A silence past the slot is a stall of the path (a retransmission, a
     /// congestion episode): its frames come later, in a burst. Dropped as
     /// late, each would be lost; with the delay held ahead of the silence
     /// (the ticks repeat the last sample, as they would anyway), they are
-    /// released in order, and the delay falls back as after any rise. Up to
-    /// `ε` of the samples are let go first: the window's quantile sits
-    /// under that many on purpose, and stretching for them would only hold
-    /// the delay higher. A silence longer than the watchdog is an outage,
-    /// not a delay, and is not followed.
+    /// released in order, and the delay falls back as after any rise. A
+    /// short rise costs little (the cost grows with its square), so it is
+    /// held whatever the budget; a longer one only once `ε` of the samples
+    /// have been let go: the window's quantile sits under that many on
+    /// purpose, and stretching for them would only hold the delay higher.
+    /// A silence longer than the watchdog is an outage, not a delay, and is
+    /// not followed.
     fn silence_need(&self, t: Instant) -> Option<f64> {
         let Some(Target::Adaptive(a)) = &self.target else {
             return None;
@@ -1128,7 +1148,19 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         // cutoff is half a quantum past the slots): the next one's is then
         // a period ahead.
         let need = (passed + d).saturating_sub(self.quantum() / 2);
-        (missed >= 1 && a.over_budget(missed)).then_some(need.as_nanos() as f64 * 1e-9)
+        // Holding a rise `h` saves `h/T` samples and, as the delay falls
+        // back by `T/RELEASE_SLEW_STEPS` per release, costs
+        // `h²·RELEASE_SLEW_STEPS/(2T)` of delay summed over the releases:
+        // the last sample saved, `h·RELEASE_SLEW_STEPS`. Worth it while
+        // that is below what the quantile pays for one. A lost sample costs
+        // that only while the budget binds: with most of it unspent, the
+        // quantile is already above what the late rate asks, and a hold
+        // would only make the delay vary.
+        let rise = need.saturating_sub(self.before_silence.unwrap_or(d));
+        let used = a.budget_used(missed);
+        let cheap = rise.saturating_mul(RELEASE_SLEW_STEPS) <= a.sample_cost();
+        (missed >= 1 && ((cheap && used >= BINDING) || used > 1.0))
+            .then_some(need.as_nanos() as f64 * 1e-9)
     }
 
     /// Adaptive: notes where a followed silence started, and ends it: when
