@@ -1044,13 +1044,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             return;
         }
         let silence = self.silence_need(t);
-        self.end_silence(t, silence.is_some());
+        let resumed = self.end_silence(t, silence.is_some());
         let need = self
             .adaptive_need(t)
             .map(|n| silence.map_or(n, |s| s.max(n)));
         let before = self.adaptive_delay;
         if let Some(need) = need {
             self.rise_to(need);
+        }
+        if let (Some(was), Some(need)) = (resumed, need) {
+            self.fall_back(was, need);
         }
         // A rise of up to half a period just brings the release later (a
         // remote's tick with it, so that its state still answers the
@@ -1169,19 +1172,19 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// to cover: the delay goes back at once to where it was (nothing is
     /// queued, so no sample is skipped), instead of falling for as long as
     /// it rose.
-    fn end_silence(&mut self, t: Instant, following: bool) {
+    ///
+    /// Returns the delay before the silence when its burst has come.
+    fn end_silence(&mut self, t: Instant, following: bool) -> Option<Duration> {
         if following {
             if self.before_silence.is_none() {
                 self.before_silence = self.adaptive_delay;
             }
-            return;
+            return None;
         }
-        let Some(before) = self.before_silence else {
-            return;
-        };
+        let before = self.before_silence?;
         if !self.regulator.is_empty() {
             self.before_silence = None;
-            return;
+            return Some(before);
         }
         if self.past_watchdog(t) {
             self.before_silence = None;
@@ -1202,6 +1205,24 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 let behind = u64::try_from(due.saturating_sub(ns_i64(stamp))).unwrap_or(0);
                 self.last_slot = Some((at, stamp + self.period * (behind / per)));
             }
+        }
+        None
+    }
+
+    /// Adaptive: a held silence's burst has come. The delay falls back to
+    /// where it was before the silence (or to the quantum over the need, if
+    /// that is higher), by `T / RELEASE_SLEW_STEPS` per release: the rise
+    /// was for the silence's samples only, and the hysteresis would keep a
+    /// rise of a quantum for good.
+    fn fall_back(&mut self, was: Duration, need: f64) {
+        let Some(d) = self.adaptive_delay else {
+            return;
+        };
+        let q = self.quantum();
+        let over_need = q * (libm::ceil(need / q.as_secs_f64()).max(1.0) as u64);
+        let to = was.max(over_need);
+        if to < d {
+            self.falling_to = Some(to);
         }
     }
 
