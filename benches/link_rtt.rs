@@ -172,7 +172,8 @@ fn link_nrtt(
     tls: Option<&(TlsConfig, TlsConfig)>,
     handlers: bool,
 ) -> LinkRun {
-    let mut c = Config::new(Role::Base);
+    // The paper's FIFO, as in the runs of docs/benchmarks.md.
+    let mut c = Config::paper(Role::Base);
     c.axes = 1;
     c.period = Duration::from_millis(period_ms);
     let config = LinkConfig::new(c);

@@ -3,7 +3,9 @@
 //!
 //! The robot (the remote) listens, applies each released command to a
 //! first-order plant and sends its state back; the operator (the base)
-//! follows a sine and reads the states. Neither needs a tokio runtime of its
+//! follows a sine and reads the states. Each side holds the default
+//! playout, a delay chosen from the measured one-way delays (`Config::new`;
+//! `Config::paper` for the paper's FIFO). Neither needs a tokio runtime of its
 //! own: `Listener::bind_blocking` and `Link::connect_blocking` bring one for
 //! the connection, and each link is then driven by its hub thread. Across
 //! two hosts, the same code with an address that is not loopback takes
@@ -86,8 +88,10 @@ fn main() -> Result<(), Box<dyn Error>> {
     if let Some(s) = stats {
         let nrtt = s.last_nrtt.map_or(f64::NAN, |d| d.as_secs_f64() * 1e3);
         println!(
-            "queue size ns = {}, last network round trip {nrtt:.3} ms, release lateness p99 {}",
-            s.ns, s.release_lateness.p99
+            "playout delay {:.1} ms ({} changes), last network round trip {nrtt:.3} ms, release lateness p99 {}",
+            s.endpoint.playout_delay_s * 1e3,
+            s.endpoint.delay_changes,
+            s.release_lateness.p99
         );
     }
     Ok(())

@@ -46,15 +46,32 @@ fn demo_runs_and_reports_in_json() {
         assert!((20e-6..=200e-6).contains(&m), "{side}: {m}");
     }
     assert_eq!(r["profile"], "lan-75km");
+    // The default: the adaptive playout on the static handshake.
+    assert_eq!(
+        (&r["mode"], &r["playout"]),
+        (&"adaptive".into(), &"adaptive".into())
+    );
     assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");
-    // A regulated link: the round trip the controller sees barely moves —
-    // well under a period even on a loaded machine (the ≤ 1 ms bound is
-    // checked by tests/link_relay.rs).
-    let period = r["period_s"].as_f64().unwrap();
-    assert!(r["grtt_std_s"].as_f64().unwrap() < 0.25 * period, "{r}");
     let rows = std::fs::read_to_string(&csv).unwrap();
     assert!(rows.starts_with("t_s,seq,status,grtt_s,command,state"));
     assert!(rows.lines().count() > 50);
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn the_paper_modes_round_trip_barely_moves() {
+    // The paper's static FIFO: the round trip the controller sees barely
+    // moves from the first release — well under a period even on a loaded
+    // machine (the ≤ 1 ms bound is checked by tests/link_relay.rs). The
+    // adaptive default moves it at each announced change of its delay.
+    let csv = std::env::temp_dir().join(format!("ndr-demo-static-{}.csv", std::process::id()));
+    let r = demo(&["--mode", "paper-static"], &csv);
+    assert_eq!(
+        (&r["mode"], &r["playout"]),
+        (&"paper-static".into(), &"fifo".into())
+    );
+    let period = r["period_s"].as_f64().unwrap();
+    assert!(r["grtt_std_s"].as_f64().unwrap() < 0.25 * period, "{r}");
     let _ = std::fs::remove_file(csv);
 }
 

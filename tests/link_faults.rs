@@ -13,7 +13,7 @@ use std::sync::Arc;
 use ndr::net::{Link, LinkConfig, Listener, ListenerStats, NetError};
 
 fn config() -> LinkConfig {
-    let mut c = Config::new(Role::Base);
+    let mut c = Config::paper(Role::Base);
     c.axes = 1;
     c.period = Duration::from_millis(10);
     LinkConfig::new(c)

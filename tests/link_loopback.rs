@@ -20,7 +20,7 @@ fn runtime() -> tokio::runtime::Runtime {
 }
 
 fn config() -> LinkConfig {
-    let mut c = Config::new(Role::Base);
+    let mut c = Config::paper(Role::Base);
     c.axes = 2;
     c.period = Duration::from_millis(10);
     LinkConfig::new(c)

@@ -14,7 +14,7 @@ use ndr::net::{Link, LinkConfig, Listener, NetError, Relay, RelayHandle};
 const T: Duration = Duration::from_millis(10);
 
 fn config() -> LinkConfig {
-    let mut c = Config::new(Role::Base);
+    let mut c = Config::paper(Role::Base);
     c.axes = 1;
     c.period = T;
     LinkConfig::new(c)

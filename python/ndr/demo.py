@@ -241,7 +241,7 @@ def run(
     period: float = 0.05,
     duration: float = 20.0,
     mode: str = "paper-static",
-    playout: str = "fifo",
+    playout: str = "adaptive",
     underflow: str = "hold",
     axes: int = 1,
     seed: int = 1,
@@ -449,9 +449,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--period-ms", type=float, default=50.0, help="sampling period, ms")
     parser.add_argument("--duration-s", type=float, default=20.0, help="how long to run, s")
     parser.add_argument("--mode", default="paper-static", choices=("paper-static", "paper-dynamic"))
-    parser.add_argument("--playout", default="fifo", help="when each side releases a sample: "
-                        "fifo (the paper's queue), ramjee-1, ramjee-4, neteq, fixed[:MS], "
-                        "constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]")
+    parser.add_argument("--playout", default="adaptive", help="when each side releases a sample: "
+                        "adaptive[:PERCENT[:QUANTUM_MS]] (the default), fifo (the paper's "
+                        "queue), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS")
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 8)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")

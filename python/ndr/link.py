@@ -299,7 +299,7 @@ class Link:
         axes: int = 1,
         period: float = 0.05,
         mode: str = "paper-static",
-        playout: str = "fifo",
+        playout: str = "adaptive",
         underflow: str = "hold",
         watchdog: Optional[float] = None,
         handshake_timeout: float = 10.0,
@@ -320,10 +320,9 @@ class Link:
             mode: ``"paper-static"`` (queues sized once) or
                 ``"paper-dynamic"`` (the network predictor resizes them).
             playout: how this side's regulator picks each sample's release
-                tick: ``"fifo"`` (the paper's queue, the default),
-                ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``,
-                ``"constant:MS"`` or ``"adaptive[:PERCENT[:QUANTUM_MS]]"`` (a
-                target delay above the sample's send time; ``"adaptive"``
+                tick: ``"adaptive[:PERCENT[:QUANTUM_MS]]"`` (the default: a
+                target delay above the sample's send time, lower than the
+                paper's FIFO at the same late rate; ``"adaptive"``
                 holds the smallest constant delay with a late rate of 0.1 %,
                 or ``PERCENT``, in steps of 20 ms or the period when shorter,
                 or ``QUANTUM_MS``: a finer step holds a lower delay that
@@ -331,8 +330,10 @@ class Link:
                 samples released in order, not dropped, while that costs
                 less delay per sample kept than a higher constant delay
                 (once half that late rate is used), and always once it
-                is spent; see
-                docs/algorithms.md §9–10). Local to each side.
+                is spent; see docs/algorithms.md §9–10), ``"fifo"`` (the
+                paper's queue, sized by ``mode``), ``"ramjee-1"``,
+                ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"`` or
+                ``"constant:MS"``. Local to each side.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:
@@ -381,7 +382,7 @@ class Link:
         axes: int = 1,
         period: float = 0.05,
         mode: str = "paper-static",
-        playout: str = "fifo",
+        playout: str = "adaptive",
         underflow: str = "hold",
         watchdog: Optional[float] = None,
         handshake_timeout: float = 10.0,

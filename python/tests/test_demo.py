@@ -16,7 +16,9 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     report = json.loads(proc.stdout)
     assert report["profile"] == "lan-75km"
     assert report["grtt_count"] > 20
-    assert report["grtt_std_s"] < 0.25 * report["period_s"]
+    # The default: the adaptive playout, each side's delay announced.
+    assert report["playout"] == "adaptive"
+    assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
     # Each hub's spin margin, learned from its timer, within its bounds.

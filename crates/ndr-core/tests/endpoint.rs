@@ -45,7 +45,7 @@ struct Pair {
 }
 
 fn config(role: Role) -> Config {
-    let mut c = Config::new(role);
+    let mut c = Config::paper(role);
     c.axes = 2;
     c.period = T;
     c

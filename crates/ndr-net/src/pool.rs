@@ -115,7 +115,7 @@ mod tests {
             .enable_all()
             .build()
             .expect("runtime");
-        let mut c = Config::new(Role::Base);
+        let mut c = Config::paper(Role::Base);
         c.axes = 1;
         let config = LinkConfig::new(c);
         let bases = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");

@@ -27,9 +27,10 @@ use crate::size::millis;
 /// The link's settings, shared by `demo`, `base` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct LinkArgs {
-    /// Regulation mode: paper-static, paper-dynamic, or adaptive (the
-    /// static handshake with `--playout adaptive`).
-    #[arg(long, default_value = "paper-static", value_parser = link_mode)]
+    /// Regulation mode: adaptive (the default: the static handshake with
+    /// `--playout adaptive`, lower delay than the paper's modes at the same
+    /// late rate), paper-static or paper-dynamic (the paper's FIFO).
+    #[arg(long, default_value = "adaptive", value_parser = link_mode)]
     pub mode: LinkMode,
     /// When this side releases each sample: fifo (the paper's queue, sized
     /// by the mode), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,

@@ -141,7 +141,8 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
 }
 
 fn link_config(period: Duration) -> Result<LinkConfig, String> {
-    let mut endpoint = Config::new(Role::Base);
+    // The paper's FIFO: what docs/reliability.md's soak runs measured.
+    let mut endpoint = Config::paper(Role::Base);
     endpoint.axes = 4;
     endpoint.period = period;
     // A delay spike then costs late samples (dropped and counted) instead of

@@ -183,9 +183,11 @@ pub struct Config {
     pub mode: Mode,
     /// What this side's regulator does when a sample is missing at its tick.
     pub underflow: Underflow,
-    /// When this side's regulator releases each sample: the paper's FIFO
-    /// (the default) or a target delay ([`Playout`]). Each side chooses its
-    /// own; the peer is not told.
+    /// When this side's regulator releases each sample: at a target delay
+    /// above its send time chosen from the measured one-way delays
+    /// ([`Playout::ADAPTIVE`], the default of [`Config::new`]), in the
+    /// paper's FIFO ([`Playout::Fifo`], that of [`Config::paper`]), or by
+    /// another [`Playout`]. Each side chooses its own; the peer is not told.
     pub playout: Playout,
     /// The sizing laws (η, `T_min`).
     pub sizing: Sizing,
@@ -209,9 +211,21 @@ pub struct Config {
 }
 
 impl Config {
-    /// The paper's setup for `role`: 1 axis, `T = 200 ms`, static, hold, FIFO.
+    /// ndr's default for `role`: the paper's setup ([`Config::paper`]) with
+    /// the adaptive playout at a late rate of 0.1 % ([`Playout::ADAPTIVE`]),
+    /// which holds a lower delay than the paper's FIFO at an equal or lower
+    /// late rate on every family of `ndr compare` (docs/benchmarks.md).
     #[must_use]
     pub fn new(role: Role) -> Self {
+        Config {
+            playout: Playout::ADAPTIVE,
+            ..Config::paper(role)
+        }
+    }
+
+    /// The paper's setup for `role`: 1 axis, `T = 200 ms`, static, hold, FIFO.
+    #[must_use]
+    pub fn paper(role: Role) -> Self {
         let period = Duration::from_millis(200);
         Config {
             role,

@@ -287,7 +287,7 @@ fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         return Err(SimError::Axes(cfg.axes));
     }
     let endpoint = |role| -> Result<Box<SimEndpoint>, SimError> {
-        let mut c = Config::new(role);
+        let mut c = Config::paper(role);
         c.axes = cfg.axes;
         c.period = cfg.period;
         c.mode = cfg.mode;
