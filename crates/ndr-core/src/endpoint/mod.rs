@@ -1123,11 +1123,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// congestion episode): its frames come later, in a burst. Dropped as
     /// late, each would be lost; with the delay held ahead of the silence
     /// (the ticks repeat the last sample, as they would anyway), they are
-    /// released in order, and the delay falls back as after any rise. A
+    /// released in order, and the delay falls back to where it was. A
     /// short rise costs little (the cost grows with its square), so it is
-    /// held whatever the budget; a longer one only once `ε` of the samples
-    /// have been let go: the window's quantile sits under that many on
-    /// purpose, and stretching for them would only hold the delay higher.
+    /// held once half the late budget is used; a longer one only once `ε`
+    /// of the samples have been let go: the window's quantile sits under
+    /// that many on purpose, and stretching for them would only hold the
+    /// delay higher.
     /// A silence longer than the watchdog is an outage, not a delay, and is
     /// not followed.
     fn silence_need(&self, t: Instant) -> Option<f64> {
