@@ -321,7 +321,7 @@ pub trait TargetDelay {
 }
 
 /// Where a [`Target`] keeps [`Playout::Adaptive`]'s state: [`Adaptive`]
-/// itself (about 12 KiB, the default), or [`NoAdaptive`], nothing, for an
+/// itself (about 7 KiB, the default), or [`NoAdaptive`], nothing, for an
 /// endpoint that never runs that policy and should not carry its histogram.
 pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
     /// The state for `period`, late rate `epsilon` and the delay's
@@ -739,8 +739,11 @@ impl TargetDelay for FixedAboveMin {
     }
 }
 
-/// Buckets of the adaptive policy's histogram (log-linear, module docs).
-pub const ADAPTIVE_BUCKETS: usize = 1024;
+/// Buckets of the adaptive policy's histogram (log-linear, module docs):
+/// delays above the floor up to 13.1 s, the last bucket holding any
+/// longer one (a path that slow is an outage to report, not a delay to
+/// hold; 1 024 buckets, up to 105 s, were 1.5 KiB more per endpoint).
+pub const ADAPTIVE_BUCKETS: usize = 832;
 /// The histogram's unit: 50 µs.
 const UNIT_NS: u64 = 50_000;
 /// Linear buckets below 128 units; then 64 per octave (1.6 % wide).
@@ -799,7 +802,7 @@ fn bucket_upper(b: usize) -> Duration {
 /// quantile of the delays above the floor (given by the endpoint, which
 /// knows the clocks), over a sliding window of [`ADAPTIVE_BLOCKS`] ×
 /// [`ADAPTIVE_BLOCK`], in a log-linear histogram (50 µs linear up to 6.4 ms,
-/// then 64 buckets per octave, up to 105 s), in bounded memory. The target
+/// then 64 buckets per octave, up to 13 s), in bounded memory. The target
 /// is the upper edge of the smallest bucket with at most `⌊ε·n⌋` of the `n`
 /// delays above it (with fewer than 1/ε delays, the largest), and moves
 /// towards it by at most [`SLEW_UP`] or [`SLEW_DOWN`] periods per sample.
@@ -810,10 +813,13 @@ pub struct Adaptive {
     /// of the warm-up.
     quantum: f64,
     epsilon: f64,
-    /// Counts per block in `u16` (8 KiB, not 16: the state is inline in
+    /// Counts per block in `u16` (6.5 KiB, not 13: the state is inline in
     /// every endpoint); a block ends early when it holds `u16::MAX` delays.
+    /// The window's count of a bucket is summed over the blocks when the
+    /// quantile's scan reaches it ([`Adaptive::held`]): a running total
+    /// would be 4 KiB more in every endpoint, and put a link with both ends
+    /// over 64 KiB now that this policy is the default.
     blocks: [[u16; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
-    total: [u32; ADAPTIVE_BUCKETS],
     count: u64,
     block_counts: [u64; ADAPTIVE_BLOCKS],
     /// Samples lost per block (late or skipped, as the endpoint reports
@@ -856,7 +862,6 @@ impl Adaptive {
             quantum: quantum.as_secs_f64(),
             epsilon,
             blocks: [[0; ADAPTIVE_BUCKETS]; ADAPTIVE_BLOCKS],
-            total: [0; ADAPTIVE_BUCKETS],
             count: 0,
             block_counts: [0; ADAPTIVE_BLOCKS],
             block_late: [0; ADAPTIVE_BLOCKS],
@@ -938,10 +943,7 @@ impl Adaptive {
             self.block_counts.get_mut(self.current),
             self.block_sums.get_mut(self.current),
         ) {
-            for (t, o) in self.total.iter_mut().zip(old.iter_mut()) {
-                *t = t.saturating_sub(u32::from(*o));
-                *o = 0;
-            }
+            *old = [0; ADAPTIVE_BUCKETS];
             self.count = self.count.saturating_sub(*n);
             *n = 0;
             if let Some(l) = self.block_late.get_mut(self.current) {
@@ -960,9 +962,17 @@ impl Adaptive {
 
     /// Brings [`Adaptive::top`] down past the buckets emptied.
     fn lower_top(&mut self) {
-        while self.top > 0 && self.total.get(self.top - 1).is_none_or(|&c| c == 0) {
+        while self.top > 0 && self.held(self.top - 1) == 0 {
             self.top -= 1;
         }
+    }
+
+    /// The window's delays in bucket `b`.
+    fn held(&self, b: usize) -> u32 {
+        self.blocks
+            .iter()
+            .map(|block| u32::from(block.get(b).copied().unwrap_or(0)))
+            .sum()
     }
 
     /// While the window holds fewer than `1/ε` delays its quantile is only
@@ -1013,13 +1023,6 @@ impl Adaptive {
             *block = next;
             let signed = if rose { -by_s } else { by_s };
             *sum = (*sum + signed * *n as f64).max(0.0);
-        }
-        for (b, t) in self.total.iter_mut().enumerate() {
-            *t = self
-                .blocks
-                .iter()
-                .map(|block| u32::from(block.get(b).copied().unwrap_or(0)))
-                .sum();
         }
         self.sum = self.block_sums.iter().sum();
         self.top = ADAPTIVE_BUCKETS;
@@ -1088,9 +1091,8 @@ impl Adaptive {
     fn quantile_at(&self, epsilon: f64) -> Option<Duration> {
         let allowed = (epsilon * self.count as f64) as u64;
         let mut above = 0u64;
-        let held = self.total.get(..self.top).unwrap_or(&self.total);
-        for (b, &c) in held.iter().enumerate().rev() {
-            above += u64::from(c);
+        for b in (0..self.top.min(ADAPTIVE_BUCKETS)).rev() {
+            above += u64::from(self.held(b));
             if above > allowed {
                 return Some(bucket_upper(b));
             }
@@ -1104,15 +1106,13 @@ impl TargetDelay for Adaptive {
     fn observe(&mut self, sent_at: Instant, delay: Duration) {
         self.rotate(sent_at);
         let b = bucket_of(delay);
-        if let (Some(block), Some(t), Some(n), Some(sum)) = (
+        if let (Some(block), Some(n), Some(sum)) = (
             self.blocks.get_mut(self.current),
-            self.total.get_mut(b),
             self.block_counts.get_mut(self.current),
             self.block_sums.get_mut(self.current),
         ) && let Some(c) = block.get_mut(b)
         {
             *c = c.saturating_add(1);
-            *t = t.saturating_add(1);
             self.top = self.top.max(b + 1);
             *n += 1;
             *sum += delay.as_secs_f64();
@@ -1253,15 +1253,7 @@ mod tests {
     #[test]
     fn adaptive_buckets_cover_their_delays() {
         for us in [
-            0u64,
-            49,
-            50,
-            6_399,
-            6_400,
-            6_450,
-            99_999,
-            1_234_567,
-            104_000_000,
+            0u64, 49, 50, 6_399, 6_400, 6_450, 99_999, 1_234_567, 13_000_000,
         ] {
             let d = Duration::from_micros(us);
             let b = bucket_of(d);
@@ -1274,6 +1266,12 @@ mod tests {
         let b = bucket_of(ms(500));
         let width = bucket_upper(b) - bucket_upper(b - 1);
         assert!(width.as_secs_f64() <= 0.016 * 0.5, "{width:?}");
+        // The last bucket ends at 13.1 s and holds any longer delay.
+        assert_eq!(
+            bucket_upper(ADAPTIVE_BUCKETS - 1),
+            Duration::from_micros(13_107_200)
+        );
+        assert_eq!(bucket_of(Duration::from_secs(14)), ADAPTIVE_BUCKETS - 1);
         assert_eq!(bucket_of(Duration::from_secs(1000)), ADAPTIVE_BUCKETS - 1);
     }
 
@@ -1315,8 +1313,8 @@ mod tests {
         let full_scan = |a: &Adaptive| {
             let allowed = (a.epsilon * a.count as f64) as u64;
             let mut above = 0u64;
-            for (b, &c) in a.total.iter().enumerate().rev() {
-                above += u64::from(c);
+            for b in (0..ADAPTIVE_BUCKETS).rev() {
+                above += u64::from(a.held(b));
                 if above > allowed {
                     return Some(bucket_upper(b));
                 }
@@ -1453,7 +1451,7 @@ mod tests {
             let d = if k % 500 == 7 { ms(30) } else { ms(2) };
             p.observe(Instant::from_nanos(k * 100_000), d);
         }
-        let total: u64 = p.total.iter().map(|&c| u64::from(c)).sum();
+        let total: u64 = (0..ADAPTIVE_BUCKETS).map(|b| u64::from(p.held(b))).sum();
         assert_eq!(total, p.count());
         assert!(p.count() > 3 * 65_535 - 1, "{}", p.count());
         // 0.2 % of the delays are 30 ms: the quantile is just above 30 ms.

@@ -640,7 +640,9 @@ fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_pl
         assert!(Lean::new(c, Instant::ZERO).is_ok(), "{playout}");
     }
     let (lean, full) = (size_of::<Lean>(), size_of::<Endpoint<4, 16>>());
-    assert!(lean + 10 * 1024 <= full, "{lean} {full}");
+    // The histogram's 6.5 KiB and the window's counters, less NetEQ's 2 KiB
+    // that the target's room holds anyway.
+    assert!(lean + 4 * 1024 <= full, "{lean} {full}");
 }
 
 /// The remote's stats after 300 s of an adaptive link, 10 ms each way on a

@@ -180,7 +180,7 @@ const EVENT_QUEUE: usize = 32;
 ///
 /// The endpoint holds `N` queued samples of `C` values inline (no heap):
 /// about `N·(8·C + 48)` bytes. Box it when `N` is large. `A` holds the
-/// adaptive playout's histogram (about 12 KiB): an endpoint that never runs
+/// adaptive playout's histogram (about 7 KiB): an endpoint that never runs
 /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) can drop it with
 /// [`NoAdaptive`](crate::playout::NoAdaptive).
 #[derive(Clone, Debug)]
