@@ -1160,10 +1160,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         // that only while the budget binds: with most of it unspent, the
         // quantile is already above what the late rate asks, and a hold
         // would only make the delay vary.
+        // (The cost's two scans of the histogram only when it can decide.)
         let rise = need.saturating_sub(self.before_silence.unwrap_or(d));
         let used = a.budget_used(missed);
-        let cheap = rise.saturating_mul(RELEASE_SLEW_STEPS) <= a.sample_cost();
-        (missed >= 1 && ((cheap && used >= BINDING) || used > 1.0))
+        let cheap = || rise.saturating_mul(RELEASE_SLEW_STEPS) <= a.sample_cost();
+        (missed >= 1 && (used > 1.0 || (used >= BINDING && cheap())))
             .then_some(need.as_nanos() as f64 * 1e-9)
     }
 
@@ -1219,9 +1220,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let Some(d) = self.adaptive_delay else {
             return;
         };
-        let q = self.quantum();
-        let over_need = q * (libm::ceil(need / q.as_secs_f64()).max(1.0) as u64);
-        let to = was.max(over_need);
+        let to = was.max(self.quanta_over(need));
         if to < d {
             self.falling_to = Some(to);
         }
@@ -1319,11 +1318,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if self.adaptive_delay.is_some_and(|d| need <= d.as_secs_f64()) {
             return;
         }
-        let q = self.quantum();
-        let quanta = libm::ceil(need / q.as_secs_f64()).max(1.0) as u64;
         self.falling_to = None;
-        self.set_adaptive_delay(q * quanta);
+        self.set_adaptive_delay(self.quanta_over(need));
         self.announce_adaptive();
+    }
+
+    /// Adaptive: the delay in whole quanta at or over `need` (s), one at
+    /// least.
+    fn quanta_over(&self, need: f64) -> Duration {
+        let q = self.quantum();
+        q * (libm::ceil(need / q.as_secs_f64()).max(1.0) as u64)
     }
 
     /// Adaptive: the delay falls a quantum at a time, by `T /
