@@ -336,6 +336,8 @@ pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
     fn budget_used(&self, more: u64) -> f64;
     /// See [`Adaptive::sample_cost`].
     fn sample_cost(&self) -> Duration;
+    /// See [`Adaptive::margin`].
+    fn margin(&self) -> Duration;
 }
 
 impl AdaptiveSlot for Adaptive {
@@ -357,6 +359,10 @@ impl AdaptiveSlot for Adaptive {
 
     fn sample_cost(&self) -> Duration {
         Adaptive::sample_cost(self)
+    }
+
+    fn margin(&self) -> Duration {
+        Adaptive::margin(self)
     }
 }
 
@@ -394,6 +400,10 @@ impl AdaptiveSlot for NoAdaptive {
     }
 
     fn sample_cost(&self) -> Duration {
+        match *self {}
+    }
+
+    fn margin(&self) -> Duration {
         match *self {}
     }
 }
@@ -1070,6 +1080,17 @@ impl Adaptive {
 
     fn quantile(&self) -> Option<Duration> {
         self.quantile_at(self.epsilon)
+    }
+
+    /// The part of the goal no delay measured asks for: the warm-up margin
+    /// while the window holds fewer than `1/ε` delays, zero after. The
+    /// endpoint raises its delay only when the measured part of the goal
+    /// passes it: a margin that shrinks as the window fills must not make
+    /// the delay rise by itself (each rise repeats a sample).
+    #[must_use]
+    pub fn margin(&self) -> Duration {
+        self.quantile()
+            .map_or(Duration::ZERO, |q| self.warmup_margin(q))
     }
 
     /// What one late sample fewer costs through the quantile: the delay

@@ -307,8 +307,13 @@ fn each_direction_keeps_its_announced_delay_whatever_the_remote_grids_phase() {
             ("commands' delay", r.e2e_fwd_mean_s, aligned.e2e_fwd_mean_s),
             ("states' delay", r.e2e_bwd_mean_s, aligned.e2e_bwd_mean_s),
         ] {
+            // The fault this guards put each direction ±φ off its delay for
+            // the whole run (5 to 15 ms here). Where the first estimates
+            // fall against a quantum boundary may hold the warm-up's delay
+            // a quantum lower for some seconds in one phase and not in
+            // another: up to 1.7 ms on the run's mean.
             assert!(
-                (got - want).abs() < 0.5e-3,
+                (got - want).abs() < 2.5e-3,
                 "phase {phase_ms} ms: {what} {got} s, aligned {want} s"
             );
         }

@@ -775,3 +775,69 @@ fn an_adaptive_link_holds_a_stall_once_its_late_rate_is_spent_but_not_an_outage(
         "{after:?}"
     );
 }
+
+/// A xorshift stream of delays `base_us + (0..spread_us)`, one per frame.
+fn jittered(seed: u64, base_us: u64, spread_us: u64) -> DelayFn {
+    let mut x = seed;
+    Box::new(move |_| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        Duration::from_micros(base_us + x % spread_us.max(1))
+    })
+}
+
+#[test]
+fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
+    // A loopback link (50 to 150 µs each way) at T = 10 ms, its remote's
+    // grid anywhere within a period of the base's. Its first delay holds:
+    // it used to rise a quantum right after the first release (a repeat),
+    // when the warm-up margin put the need a hair under a quantum boundary
+    // that the first clock estimates crossed, or when the remote's first
+    // states went out on its grid before it moved to its releases.
+    use ndr_core::playout::Playout;
+    let t = Duration::from_millis(10);
+    for phase_us in (0..10_000).step_by(500) {
+        for spread_us in [1, 100, 200] {
+            let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+            for c in [&mut base, &mut remote] {
+                c.period = t;
+                c.playout = Playout::ADAPTIVE;
+            }
+            remote.tick_origin = Instant::ZERO + Duration::from_micros(phase_us);
+            let fwd = jittered(12345 + spread_us, 50, spread_us);
+            let bwd = jittered(999 + spread_us, 50, spread_us);
+            let mut p = Pair::new(base, remote, fwd, bwd);
+            p.run_until(secs(5));
+            let case = format!("phase {phase_us} µs, jitter {spread_us} µs");
+            assert!(
+                p.base_errors.is_empty() && p.remote_errors.is_empty(),
+                "{case}"
+            );
+            for (side, events) in [("base", &p.base_events), ("remote", &p.remote_events)] {
+                let released = Pair::releases(events);
+                assert!(
+                    released.len() > 400,
+                    "{case}: {side} released {}",
+                    released.len()
+                );
+                assert!(
+                    released.iter().all(|r| r.status == Status::Fresh)
+                        && released.windows(2).all(|w| w[1].seq == w[0].seq + 1),
+                    "{case}: {side} repeated or skipped a sample"
+                );
+                let delays: Vec<Duration> = events
+                    .iter()
+                    .filter_map(|e| match e {
+                        Event::DelayChanged { delay, .. } => Some(*delay),
+                        _ => None,
+                    })
+                    .collect();
+                assert!(
+                    delays.windows(2).all(|w| w[1] <= w[0]),
+                    "{case}: {side}'s delay rose: {delays:?}"
+                );
+            }
+        }
+    }
+}

@@ -225,6 +225,9 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     next_tick: Option<Instant>,
     deadline: Option<Instant>,
     ticks_running: u64,
+    /// Running: the ticks send samples (an adaptive remote's only once its
+    /// grid has moved to its releases).
+    grid_settled: bool,
     started_once: bool,
     /// Dynamic mode: the parameters the current pause will resume with.
     pending: Option<(Duration, usize)>,
@@ -297,6 +300,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             next_tick: None,
             deadline: Some(now + config.handshake_timeout),
             ticks_running: 0,
+            grid_settled: false,
             started_once: false,
             pending: None,
             tx: Deque::new(),
@@ -967,6 +971,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.last_slot = None;
         self.slot_mapping = None;
         self.ticks_running = 0;
+        self.grid_settled = false;
         self.deadline = None;
         self.phase = Phase::Running;
         if self.started_once {
@@ -991,6 +996,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     // Its releases have their own schedule, each at its
                     // sample's slot; until the delay is set, the ticks.
                     if self.next_release.is_none() {
+                        // The delay set as soon as it can be, so that the
+                        // first release is at its sample's slot rather than
+                        // at a tick past it (two due there: a rise).
+                        if self.adaptive_delay.is_none()
+                            && let Some(need) = self.adaptive_need(t)
+                        {
+                            self.rise_to(need, None);
+                        }
                         self.next_release = self.next_slot(at).or(self.next_tick);
                     }
                 } else {
@@ -999,7 +1012,24 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     self.watch(t);
                 }
                 let seq = self.take_seq(at);
-                self.queue_tx(Tx::Sample { seq });
+                // An adaptive remote ticks with its releases: its grid moves
+                // to them after the first ones. States sent from a tick
+                // before that, on the old grid, would reach the base closer
+                // than a period to the next (a rise and a repeat there), and
+                // answer no command yet: probes go out until a tick falls on
+                // a release and the next release is a period later.
+                if !self.grid_settled
+                    && (self.config.role == Role::Base
+                        || !self.is_adaptive()
+                        || self.on_release_grid(at))
+                {
+                    self.grid_settled = true;
+                }
+                if self.grid_settled {
+                    self.queue_tx(Tx::Sample { seq });
+                } else {
+                    self.queue_tx(Tx::Probe { seq });
+                }
                 self.ticks_running += 1;
             }
             Phase::Handshake | Phase::Closed => return,
@@ -1028,6 +1058,18 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         seq
     }
 
+    /// Adaptive: the tick scheduled at `at` falls on the release just run,
+    /// and the next release is about a period after it.
+    fn on_release_grid(&self, at: Instant) -> bool {
+        let close = |a: Instant, b: Instant| {
+            a.signed_nanos_since(b).unsigned_abs() <= (self.quantum() / 4).as_nanos()
+        };
+        self.last_slot.is_some_and(|(r, _)| r == at)
+            && self
+                .next_release
+                .is_some_and(|n| close(n, at + self.period))
+    }
+
     fn is_adaptive(&self) -> bool {
         matches!(self.target, Some(Target::Adaptive(_)))
     }
@@ -1050,7 +1092,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             .map(|n| silence.map_or(n, |s| s.max(n)));
         let before = self.adaptive_delay;
         if let Some(need) = need {
-            self.rise_to(need);
+            self.rise_to(need, silence);
         }
         if let (Some(was), Some(need)) = (resumed, need) {
             self.fall_back(was, need);
@@ -1313,10 +1355,25 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// Adaptive: rises to the quantum at or above `need` (s) at once (a
-    /// fall under way is given up).
-    fn rise_to(&mut self, need: f64) {
-        if self.adaptive_delay.is_some_and(|d| need <= d.as_secs_f64()) {
-            return;
+    /// fall under way is given up), once a delay is set only when what the
+    /// delays measured ask for passes it: `need` less the policy's warm-up
+    /// margin, or the `silence` followed. The margin shrinks as the window
+    /// fills; with the need a hair under a quantum boundary, the first
+    /// estimates of the clocks crossed it, and the rise repeated a sample
+    /// at start-up that no late sample called for.
+    fn rise_to(&mut self, need: f64, silence: Option<f64>) {
+        if let Some(d) = self.adaptive_delay.map(Duration::as_secs_f64) {
+            if need <= d {
+                return;
+            }
+            let margin = match &self.target {
+                Some(Target::Adaptive(a)) => a.margin().as_secs_f64(),
+                _ => 0.0,
+            };
+            let measured = silence.map_or(need - margin, |s| s.max(need - margin));
+            if measured <= d {
+                return;
+            }
         }
         self.falling_to = None;
         self.set_adaptive_delay(self.quanta_over(need));
