@@ -12,9 +12,12 @@
 //!   frames with fuzzed fields (to get past the handshake), time steps, the
 //!   application's calls, any playout policy — drained like a driver does. The endpoint writes
 //!   only valid frames, its counters never go back, every received sample is
-//!   accounted for, and once closed it stays closed.
+//!   accounted for, a release never repeats a fresh sample or goes back (a
+//!   held one repeats the last fresh one), and once closed it stays closed.
 
-use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Underflow};
+use ndr_core::endpoint::{
+    Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Status, Underflow,
+};
 use ndr_core::playout::Playout;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
@@ -165,7 +168,12 @@ pub fn endpoint(data: &[u8]) {
         return;
     };
     let mut ep = Box::new(ep);
-    let mut peer_seq = 0u64;
+    let mut peer = Peer {
+        seq: 0,
+        sent: None,
+        period: cfg.period,
+    };
+    let mut last_fresh = None;
     let mut last = ep.stats();
     let mut was_closed = false;
     let mut frame = [0u8; MAX_FRAME_LEN];
@@ -204,7 +212,7 @@ pub fn endpoint(data: &[u8]) {
                     &mut ep,
                     now,
                     &mut input,
-                    &mut peer_seq,
+                    &mut peer,
                     &Message::Hello(hello),
                     &mut frame,
                 );
@@ -220,7 +228,7 @@ pub fn endpoint(data: &[u8]) {
                     *v = f64::from(input.u16() as i16) / 64.0;
                 }
                 let msg = Message::Data(&values[..count]);
-                send(&mut ep, now, &mut input, &mut peer_seq, &msg, &mut frame);
+                send(&mut ep, now, &mut input, &mut peer, &msg, &mut frame);
             }
             4 => {
                 let control = Control {
@@ -232,7 +240,7 @@ pub fn endpoint(data: &[u8]) {
                     &mut ep,
                     now,
                     &mut input,
-                    &mut peer_seq,
+                    &mut peer,
                     &Message::Control(control),
                     &mut frame,
                 );
@@ -245,7 +253,7 @@ pub fn endpoint(data: &[u8]) {
                     &mut ep,
                     now,
                     &mut input,
-                    &mut peer_seq,
+                    &mut peer,
                     &Message::Close(close),
                     &mut frame,
                 );
@@ -273,7 +281,7 @@ pub fn endpoint(data: &[u8]) {
                 _ => ep.abort(LinkError::Disconnected),
             },
         }
-        drain(&mut ep, now, &mut frame);
+        drain(&mut ep, now, &mut frame, &mut last_fresh);
         let stats = ep.stats();
         counters_never_go_back(&last, &stats);
         received_samples_are_accounted_for(&stats, ep.queue_len(), cfg.underflow);
@@ -286,28 +294,44 @@ pub fn endpoint(data: &[u8]) {
     }
 }
 
+/// The peer as the script plays it: mostly honest (its Data frames in
+/// sequence, a period apart at least), so that the endpoint gets past its
+/// receive checks, and sometimes not.
+struct Peer {
+    seq: u64,
+    sent: Option<Instant>,
+    period: Duration,
+}
+
 /// Encodes `msg` from the peer, with header fields the input picks, and
 /// hands it to the endpoint.
 fn send(
     ep: &mut Ep,
     now: Instant,
     input: &mut Input<'_>,
-    peer_seq: &mut u64,
+    peer: &mut Peer,
     msg: &Message<'_>,
     buf: &mut [u8; MAX_FRAME_LEN],
 ) {
     let seq = if input.byte() % 8 == 0 {
         input.u64()
     } else {
-        *peer_seq
+        peer.seq
     };
-    if let Message::Data(_) = msg {
-        *peer_seq = peer_seq.wrapping_add(1);
-    }
     let back = Duration::from_micros(u64::from(input.u16()));
+    let mut sent_at = now.checked_sub(back).unwrap_or(Instant::ZERO);
+    if let Message::Data(_) = msg {
+        peer.seq = peer.seq.wrapping_add(1);
+        if input.byte() % 8 != 0
+            && let Some(next) = peer.sent.and_then(|s| s.checked_add(peer.period))
+        {
+            sent_at = sent_at.max(next);
+        }
+        peer.sent = Some(sent_at);
+    }
     let header = Header {
         seq,
-        sent_at: now.checked_sub(back).unwrap_or(Instant::ZERO),
+        sent_at,
         echo: match input.byte() % 3 {
             0 => None,
             _ => Some(Echo {
@@ -329,7 +353,8 @@ fn send(
 }
 
 /// Takes everything the endpoint has to send and to say, as a driver does.
-fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN]) {
+/// `last_fresh`: the sequence number of the last fresh release.
+fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN], last_fresh: &mut Option<u64>) {
     loop {
         match ep.poll_transmit(now, buf) {
             Ok(Some(n)) => {
@@ -348,6 +373,21 @@ fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN]) {
                 r.values().iter().all(|v| v.is_finite()),
                 "released values are finite"
             );
+            match r.status {
+                Status::Fresh => {
+                    assert!(
+                        last_fresh.is_none_or(|l| r.seq > l),
+                        "a fresh release after {last_fresh:?} repeats or goes back: {}",
+                        r.seq
+                    );
+                    *last_fresh = Some(r.seq);
+                }
+                Status::Held => assert_eq!(
+                    Some(r.seq),
+                    *last_fresh,
+                    "a held release repeats the last fresh one"
+                ),
+            }
         }
     }
 }

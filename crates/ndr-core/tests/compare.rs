@@ -161,7 +161,12 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
             let c = m.oracle.constant(r.late_rate);
             let w = m.oracle.piecewise(r.late_rate, WINDOW);
             assert!(w.late_rate <= r.late_rate + 1e-12);
-            assert!(w.mean_delay_s <= c.mean_delay_s + 1e-9);
+            assert!(
+                w.mean_delay_s <= c.mean_delay_s + 1e-9,
+                "{} seed {seed}: piecewise {w:?} constant {c:?} at {}",
+                p.name(),
+                r.late_rate
+            );
         }
     }
 }

@@ -42,6 +42,8 @@ struct Pair {
     wakes: [u64; 2],
     /// Each side's deadline being waited for, and how late it will be served.
     lagged: [Option<(Instant, Duration)>; 2],
+    /// The last Data frame each side was handed.
+    last_data: [Vec<u8>; 2],
 }
 
 fn config(role: Role) -> Config {
@@ -72,6 +74,7 @@ impl Pair {
             lag: [Box::new(|_| Duration::ZERO), Box::new(|_| Duration::ZERO)],
             wakes: [0; 2],
             lagged: [None; 2],
+            last_data: [Vec::new(), Vec::new()],
         }
     }
 
@@ -169,6 +172,11 @@ impl Pair {
                 break;
             }
             let (dest, bytes) = entry.remove();
+            if let Ok(f) = wire::Frame::new_checked(&bytes[..])
+                && matches!(f.payload(), wire::Payload::Data(ch) if !ch.is_empty())
+            {
+                self.last_data[dest as usize] = bytes.clone();
+            }
             let now = self.now;
             if let Err(e) = self.ep(dest).handle_frame(now, &bytes) {
                 match dest {
@@ -840,4 +848,183 @@ fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
             }
         }
     }
+}
+
+/// The last sample the remote was handed, re-encoded with `edit` applied
+/// to its header: what a peer that repeats, replays or forges frames sends.
+fn forged(p: &Pair, edit: impl FnOnce(&mut wire::Header)) -> Vec<u8> {
+    let bytes = &p.last_data[Side::Remote as usize];
+    let f = wire::Frame::new_checked(&bytes[..]).expect("a sample was delivered");
+    let mut header = wire::Header {
+        seq: f.seq(),
+        sent_at: f.sent_at(),
+        echo: f.echo(),
+        released: f.released(),
+    };
+    edit(&mut header);
+    let values: Vec<f64> = match f.payload() {
+        wire::Payload::Data(ch) => ch.iter().collect(),
+        _ => unreachable!("a Data frame"),
+    };
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let n = wire::encode(&header, &wire::Message::Data(&values), &mut buf).unwrap();
+    buf[..n].to_vec()
+}
+
+/// What a forged frame is, what it does to the header, which error it
+/// gets, and its Close reason.
+type ForgeCase = (
+    &'static str,
+    Box<dyn Fn(&mut wire::Header)>,
+    fn(&LinkError) -> bool,
+    u16,
+);
+
+#[test]
+fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
+    let next = |h: &mut wire::Header| {
+        h.seq += 1;
+        h.sent_at += T;
+    };
+    let cases: Vec<ForgeCase> = vec![
+        (
+            "the same frame again",
+            Box::new(|_| {}),
+            |e| matches!(e, LinkError::OutOfSequence { .. }),
+            close_reason::SEQUENCE,
+        ),
+        (
+            "five back",
+            Box::new(|h| {
+                h.seq -= 5;
+                h.sent_at -= T * 5;
+            }),
+            |e| matches!(e, LinkError::OutOfSequence { .. }),
+            close_reason::SEQUENCE,
+        ),
+        (
+            "2^63 ahead",
+            Box::new(move |h| {
+                next(h);
+                h.seq += 1 << 63;
+            }),
+            |e| matches!(e, LinkError::OutOfSequence { .. }),
+            close_reason::SEQUENCE,
+        ),
+        (
+            "stamped 2^63 ns",
+            Box::new(move |h| {
+                next(h);
+                h.sent_at = Instant::from_nanos(1 << 63);
+            }),
+            |e| matches!(e, LinkError::StampAhead { .. }),
+            close_reason::STAMP,
+        ),
+        (
+            "stamped a minute ahead",
+            Box::new(move |h| {
+                next(h);
+                h.sent_at += Duration::from_secs(60);
+            }),
+            |e| matches!(e, LinkError::StampAhead { .. }),
+            close_reason::STAMP,
+        ),
+        (
+            "the next one stamped in the past",
+            Box::new(move |h| {
+                next(h);
+                h.sent_at -= T * 3;
+            }),
+            |e| matches!(e, LinkError::StampBehind { .. }),
+            close_reason::STAMP,
+        ),
+    ];
+    for (what, edit, is_it, reason) in cases {
+        let mut p = Pair::constant(10);
+        p.run_until(secs(10));
+        assert_eq!(p.remote.phase(), Phase::Running, "{what}");
+        let bad = forged(&p, |h| edit(h));
+        let now = p.now;
+        let err = p.remote.handle_frame(now, &bad).expect_err(what);
+        assert!(is_it(&err), "{what}: {err:?}");
+        assert_eq!(err.close_reason(), reason, "{what}");
+        assert!(p.remote.is_closed(), "{what}");
+        // The Close frame with its reason goes out; no release follows.
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let mut closes = Vec::new();
+        while let Some(n) = p.remote.poll_transmit(now, &mut buf).unwrap() {
+            if let wire::Payload::Close(c) = wire::Frame::new_checked(&buf[..n]).unwrap().payload()
+            {
+                closes.push(c.reason);
+            }
+        }
+        assert_eq!(closes, [reason], "{what}");
+        let mut released = Pair::releases(&p.remote_events);
+        while let Some(e) = p.remote.poll_event() {
+            if let Event::Released(r) = e {
+                released.push(r);
+            }
+        }
+        assert!(
+            released.windows(2).all(|w| w[0].seq < w[1].seq),
+            "{what}: a release repeated or went back"
+        );
+    }
+}
+
+#[test]
+fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
+    // 10 ms each way at T = 200 ms; at 30 s the base stops (a hung
+    // operator): the remote raises LinkLost after the watchdog (1 s), then
+    // ends the link after its liveness time (3 s here) with PeerSilent, and
+    // its Close goes out.
+    let (base, mut remote) = (config(Role::Base), config(Role::Remote));
+    remote.liveness = Some(Duration::from_secs(3));
+    let d = Duration::from_millis(10);
+    let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
+    p.run_until(secs(30));
+    assert_eq!(p.remote.phase(), Phase::Running);
+    // The base's process stops: nothing of it runs or arrives any more.
+    p.wire.retain(|_, (dest, _)| *dest == Side::Base);
+    let mut now = p.now;
+    let mut closed_at = None;
+    for _ in 0..10_000 {
+        if now >= secs(40) || closed_at.is_some() {
+            break;
+        }
+        // At least a microsecond on: a deadline that stays past must not
+        // hold the test.
+        now = p
+            .remote
+            .poll_timeout()
+            .expect("a deadline")
+            .max(now + Duration::from_micros(1));
+        p.remote.handle_timeout(now);
+        while let Some(e) = p.remote.poll_event() {
+            if let Event::Closed { error } = e {
+                closed_at = Some((now, error));
+            }
+            p.remote_events.push(e);
+        }
+    }
+    let (at, error) = closed_at.expect("the remote closed the link");
+    assert!(
+        matches!(error, Some(LinkError::PeerSilent { silent_for }) if silent_for >= Duration::from_secs(3)),
+        "{error:?}"
+    );
+    // Within a period of the liveness time after the last frame.
+    assert!(at <= secs(30) + Duration::from_secs(3) + T, "{at:?}");
+    assert!(
+        p.remote_events
+            .iter()
+            .any(|e| matches!(e, Event::LinkLost { .. }))
+    );
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let mut reasons = Vec::new();
+    while let Some(n) = p.remote.poll_transmit(at, &mut buf).unwrap() {
+        if let wire::Payload::Close(c) = wire::Frame::new_checked(&buf[..n]).unwrap().payload() {
+            reasons.push(c.reason);
+        }
+    }
+    assert_eq!(reasons, [close_reason::TIMEOUT]);
 }

@@ -170,6 +170,9 @@ impl Default for Adaptation {
     }
 }
 
+/// [`Config::liveness`]'s default: a peer silent this long is gone.
+pub const DEFAULT_LIVENESS: Duration = Duration::from_secs(10);
+
 /// Everything an [`Endpoint`](super::Endpoint) needs to know before it starts.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Config {
@@ -203,6 +206,13 @@ pub struct Config {
     /// While running, raise [`Event::LinkLost`](super::Event::LinkLost) when no
     /// fresh sample has been released for this long; `None` disables it.
     pub watchdog: Option<Duration>,
+    /// After the handshake, end the link with
+    /// [`LinkError::PeerSilent`](super::LinkError::PeerSilent) when no frame
+    /// has come from the peer for this long (a hung peer, a half-open
+    /// connection), so that a listener can serve the next one; `None`
+    /// waits for ever. Longer than the watchdog, which raises
+    /// [`Event::LinkLost`](super::Event::LinkLost) first.
+    pub liveness: Option<Duration>,
     /// Dynamic mode's decision rule.
     pub adaptation: Adaptation,
     /// The network predictor's time constants, in periods, and horizon
@@ -238,6 +248,7 @@ impl Config {
             tick_origin: Instant::ZERO,
             handshake_timeout: Duration::from_secs(10),
             watchdog: Some(Duration::from_secs(1)),
+            liveness: Some(DEFAULT_LIVENESS),
             adaptation: Adaptation::default(),
             predictor: PredictorConfig::paper(period),
         }
@@ -257,6 +268,9 @@ impl Config {
         }
         if self.handshake_timeout.is_zero() {
             return Err(ConfigError::Timeout);
+        }
+        if self.liveness.is_some_and(|l| l.is_zero()) {
+            return Err(ConfigError::Liveness);
         }
         if let crate::playout::Playout::Adaptive {
             quantum: Some(q), ..
@@ -298,6 +312,8 @@ pub enum ConfigError {
     Band,
     /// The handshake timeout must be positive.
     Timeout,
+    /// The liveness time must be positive (or `None`).
+    Liveness,
     /// The predictor's constants are invalid.
     Predictor(crate::predictor::PredictorError),
     /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) on an
@@ -328,6 +344,9 @@ impl fmt::Display for ConfigError {
                 f.write_str("the adaptation band must be finite and positive (e.g. 0.25)")
             }
             ConfigError::Timeout => f.write_str("the handshake timeout must be positive"),
+            ConfigError::Liveness => f.write_str(
+                "the liveness time must be positive; use None to wait for a silent peer for ever",
+            ),
             ConfigError::Predictor(e) => write!(f, "{e}"),
             ConfigError::NoAdaptiveRoom(e) => write!(f, "{e}"),
             ConfigError::Quantum(q) => write!(

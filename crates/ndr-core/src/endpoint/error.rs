@@ -2,7 +2,7 @@
 
 use core::fmt;
 
-use crate::time::Duration;
+use crate::time::{Duration, Instant};
 use crate::wire::{self, Kind, Role, WireError, close_reason};
 
 use super::config::Mode;
@@ -68,6 +68,39 @@ pub enum LinkError {
     },
     /// The handshake or an initialization pattern did not finish in time (ends the link).
     Timeout,
+    /// Nothing came from the peer for [`Config::liveness`](super::Config::liveness)
+    /// after the handshake: a hung peer or a half-open connection (ends
+    /// the link; [`Event::LinkLost`](super::Event::LinkLost) came first).
+    PeerSilent {
+        /// How long nothing came.
+        silent_for: Duration,
+    },
+    /// This side serves as many peers as it may: the peer was refused
+    /// after its handshake (sent by a listener; ends the link).
+    Busy,
+    /// A Data frame that is not the next one (ends the link): over a
+    /// stream every frame is the one after the previous, so a repeated,
+    /// skipped or replayed sequence number is an error, never a release.
+    OutOfSequence {
+        /// The sequence number due.
+        expected: u64,
+        /// The one the frame carried.
+        got: u64,
+    },
+    /// A Data frame stamped less than half a period after the previous one
+    /// (a repeat or a step back of the peer's clock; ends the link).
+    StampBehind {
+        /// The earliest stamp the frame could carry.
+        earliest: Instant,
+        /// The stamp it carried.
+        got: Instant,
+    },
+    /// A Data frame stamped after it arrived, by more than the clocks
+    /// allow (ends the link): its stamp would freeze the release schedule.
+    StampAhead {
+        /// How far past its arrival, on the peer's clock as estimated.
+        ahead: Duration,
+    },
     /// The peer closed the link, with its reason code.
     PeerClosed {
         /// The [`close_reason`] code.
@@ -123,7 +156,10 @@ impl LinkError {
             LinkError::AxesMismatch { .. } => close_reason::AXES_MISMATCH,
             LinkError::PeriodMismatch { .. } => close_reason::PERIOD_MISMATCH,
             LinkError::ModeMismatch { .. } => close_reason::MODE_MISMATCH,
-            LinkError::Timeout => close_reason::TIMEOUT,
+            LinkError::Timeout | LinkError::PeerSilent { .. } => close_reason::TIMEOUT,
+            LinkError::Busy => close_reason::BUSY,
+            LinkError::OutOfSequence { .. } => close_reason::SEQUENCE,
+            LinkError::StampBehind { .. } | LinkError::StampAhead { .. } => close_reason::STAMP,
             LinkError::PeerClosed { reason } => *reason,
             LinkError::Closed => close_reason::NORMAL,
             LinkError::HandlerPanicked | LinkError::Abandoned => close_reason::APPLICATION,
@@ -209,6 +245,35 @@ impl fmt::Display for LinkError {
                  the peer is reachable, speaks ndr and takes the other role (one base, one \
                  remote); on a slow network raise the handshake timeout (a pause of the dynamic \
                  mode also gets three times its probes and slowest round trip)",
+            ),
+            LinkError::PeerSilent { silent_for } => write!(
+                f,
+                "nothing came from the peer for {silent_for}: it hung, or the connection is \
+                 half-open (its host or network went away); the link was closed so that \
+                 another peer can be served"
+            ),
+            LinkError::Busy => f.write_str(
+                "the listener serves as many peers as it may (a robot serves one base at a \
+                 time): try again once the other peer is done",
+            ),
+            LinkError::OutOfSequence { expected, got } => write!(
+                f,
+                "protocol error: a Data frame with sequence number {got} where {expected} was due \
+                 (a repeated, lost or replayed frame); nothing of it was released"
+            ),
+            LinkError::StampBehind { earliest, got } => write!(
+                f,
+                "protocol error: a Data frame stamped {got} where {earliest} or later was due \
+                 (a repeat or a step back of the peer's clock); nothing of it was released"
+            ),
+            LinkError::StampAhead { ahead } => write!(
+                f,
+                "protocol error: a Data frame stamped {ahead} after it arrived (a stamp from the \
+                 future); nothing of it was released"
+            ),
+            LinkError::PeerClosed { reason } if reason == close_reason::BUSY => f.write_str(
+                "the peer is busy serving another peer (a robot serves one base at a time): \
+                 try again once it is done",
             ),
             LinkError::PeerClosed { reason } => write!(
                 f,

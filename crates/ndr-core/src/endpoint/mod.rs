@@ -44,11 +44,14 @@
 mod config;
 mod error;
 mod event;
+mod rx_check;
 mod stats;
 
 use heapless::Deque;
 
-pub use config::{Adaptation, Config, ConfigError, MIN_PERIOD, Mode, Underflow, UnknownName};
+pub use config::{
+    Adaptation, Config, ConfigError, DEFAULT_LIVENESS, MIN_PERIOD, Mode, Underflow, UnknownName,
+};
 pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
@@ -63,6 +66,7 @@ use crate::wire::{
     self, Control, Echo, Frame, Header, Hello, Kind, Message, Payload, Role, control_op,
 };
 use event::Head;
+use rx_check::RxCheck;
 
 /// The adaptive delay starts to fall only when its need is this many
 /// quanta ([`DELAY_QUANTUM`]) below the quantum under it: a quantile that
@@ -238,6 +242,8 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     /// Scheduled time of each tick that sent a sample or probe, by `seq mod
     /// N`: its frame's send stamp, and the start of its GRTT.
     sent_ticks: [(u64, Instant); N],
+    /// What the next frames from the peer may be.
+    rx_check: RxCheck,
     /// Newest frame received: (its `sent_at`, our arrival time), echoed back.
     newest_rx: Option<(Instant, Instant)>,
     /// Previous Data frame received, for the reception gap.
@@ -308,6 +314,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             sample: [0.0; C],
             sample_fresh: false,
             sent_ticks: [(u64::MAX, Instant::ZERO); N],
+            rx_check: RxCheck::new(config.period),
             newest_rx: None,
             prev_data_rx: None,
             outage_burst: false,
@@ -381,16 +388,23 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         if self.deadline.is_some_and(|d| d <= now) {
             self.fail(LinkError::Timeout);
+        } else if let Some(silent_for) = self.silent_past_liveness(now) {
+            self.fail(LinkError::PeerSilent { silent_for });
         }
     }
 
     /// The next time [`handle_timeout`](Self::handle_timeout) must be called.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        [self.next_tick, self.next_release, self.deadline]
-            .into_iter()
-            .flatten()
-            .min()
+        [
+            self.next_tick,
+            self.next_release,
+            self.deadline,
+            self.liveness_deadline(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
     }
 
     /// Writes the next frame to send into `buf` (use [`wire::MAX_FRAME_LEN`]
@@ -662,8 +676,24 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
+        // Checked before anything of the frame is used (see `rx_check`).
+        if let Some(echo) = frame.echo() {
+            self.rx_check
+                .observe_echo(echo.sent_at, echo.hold, sent_at, now);
+        }
+        self.rx_check.check_stamp(sent_at, now)?;
+        if let Payload::Data(_) = frame.payload() {
+            if self.phase == Phase::Handshake {
+                return Err(self.unexpected(Kind::Data));
+            }
+            self.rx_check.accept_data(frame.seq(), sent_at)?;
+        }
         let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
-        self.sync.observe_arrival(sent_at, now);
+        // A stamp nothing could check yet (the first Hello) stays out of the
+        // clock estimate.
+        if self.rx_check.bounded() {
+            self.sync.observe_arrival(sent_at, now);
+        }
         // A level shift of the received floor (a route change): the delays
         // in the adaptive window since the shift were measured above the
         // old floor, and would count the shift twice on top of the new one
@@ -890,6 +920,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     fn change_period(&mut self, period: Duration) -> Result<(), LinkError> {
         self.period = period;
+        self.rx_check.period_changed(period);
         self.predictor
             .set_period(period)
             .map_err(|_| LinkError::BadParameters { ns: 0, period })
@@ -901,7 +932,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.pattern.clear();
         self.init_started = now;
         self.deadline = Some(self.pattern_deadline(now));
-        self.next_tick = Some(self.next_grid_tick(now));
+        // Half a period after the last frame sent at least, whatever the
+        // new grid: the peer refuses a stamp closer than that.
+        let from = match self.next_seq.checked_sub(1).and_then(|s| self.tick_of(s)) {
+            Some(last) => now.max(last + self.period / 2),
+            None => now,
+        };
+        self.next_tick = Some(self.next_grid_tick(from));
     }
 
     /// The deadline of a pause or of an initialization pattern that starts
@@ -1273,6 +1310,24 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(Target::Adaptive(a)) = &mut self.target {
             a.note_late();
         }
+    }
+
+    /// When the peer will have been silent for [`Config::liveness`], after
+    /// the handshake.
+    fn liveness_deadline(&self) -> Option<Instant> {
+        if matches!(self.phase, Phase::Handshake | Phase::Closed) {
+            return None;
+        }
+        let (_, arrived) = self.newest_rx?;
+        Some(arrived + self.config.liveness?)
+    }
+
+    /// How long the peer has been silent, once that is past
+    /// [`Config::liveness`].
+    fn silent_past_liveness(&self, now: Instant) -> Option<Duration> {
+        let due = self.liveness_deadline()?;
+        let (_, arrived) = self.newest_rx?;
+        (now >= due).then(|| now - arrived)
     }
 
     /// Nothing received for as long as the watchdog allows.

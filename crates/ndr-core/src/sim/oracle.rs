@@ -210,7 +210,16 @@ impl Oracle {
             }
         }
         let c = choose(hi);
-        self.point(c.target, c.late, c.sum, c.on_time)
+        let split = self.point(c.target, c.late, c.sum, c.on_time);
+        // The same target in every window is a choice too, which the
+        // Lagrangian split (convex in the price) can miss between two
+        // prices: never worse than the constant oracle.
+        let constant = self.constant(epsilon);
+        if constant.mean_delay_s < split.mean_delay_s {
+            constant
+        } else {
+            split
+        }
     }
 
     /// The split oracle: one constant target for the samples sent before

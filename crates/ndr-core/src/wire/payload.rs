@@ -277,6 +277,14 @@ pub mod close_reason {
     /// The sender's application failed (its code on the link's driver
     /// thread panicked).
     pub const APPLICATION: u16 = 8;
+    /// The listener serves as many peers as it may: try again later.
+    pub const BUSY: u16 = 9;
+    /// A Data frame that is not the next one in sequence (a repeat, a gap
+    /// or a replay).
+    pub const SEQUENCE: u16 = 10;
+    /// A Data frame whose send stamp does not advance as the sender's
+    /// clock can: a step back, or a stamp from the future.
+    pub const STAMP: u16 = 11;
 
     /// A short name for `code`, `"unknown"` for codes this build does not know.
     #[must_use]
@@ -291,6 +299,9 @@ pub mod close_reason {
             PROTOCOL_ERROR => "protocol error",
             TIMEOUT => "timeout",
             APPLICATION => "application failure",
+            BUSY => "busy: serving another peer",
+            SEQUENCE => "frame out of sequence",
+            STAMP => "send stamp out of time",
             _ => "unknown",
         }
     }
