@@ -44,6 +44,17 @@ struct Pair {
     lagged: [Option<(Instant, Duration)>; 2],
     /// The last Data frame each side was handed.
     last_data: [Vec<u8>; 2],
+    /// A side whose process is stopped from one instant to another (a
+    /// SIGSTOP): it runs nothing, and what arrives for it waits.
+    frozen: Option<(Side, Instant, Instant)>,
+    /// Frames that waited for a stopped side, by order: when they arrived
+    /// (the kernel stamps them then; the driver reads them later).
+    waited: BTreeMap<u64, Instant>,
+    /// Whether those frames carry the time they came (a kernel stamp), or
+    /// that time only when it is less than a second old and else the time
+    /// the stopped side reads them (a driver that takes an older stamp for
+    /// a step of the wall clock).
+    kernel_stamps: bool,
 }
 
 fn config(role: Role) -> Config {
@@ -75,6 +86,9 @@ impl Pair {
             wakes: [0; 2],
             lagged: [None; 2],
             last_data: [Vec::new(), Vec::new()],
+            frozen: None,
+            waited: BTreeMap::new(),
+            kernel_stamps: true,
         }
     }
 
@@ -82,6 +96,10 @@ impl Pair {
     fn wake(&mut self, side: Side) -> Option<Instant> {
         let t = self.ep(side).poll_timeout()?;
         let i = side as usize;
+        let t = match self.frozen {
+            Some((s, from, to)) if s == side && t >= from && t < to => to,
+            _ => t,
+        };
         let lag = match self.lagged[i] {
             Some((d, lag)) if d == t => lag,
             _ => {
@@ -171,13 +189,27 @@ impl Pair {
             if entry.key().0 > self.now {
                 break;
             }
-            let (dest, bytes) = entry.remove();
+            let ((_, order), (dest, bytes)) = entry.remove_entry();
+            if let Some((s, from, to)) = self.frozen
+                && s == dest
+                && self.now >= from
+                && self.now < to
+            {
+                self.waited.entry(order).or_insert(self.now);
+                self.wire.insert((to, order), (dest, bytes));
+                continue;
+            }
             if let Ok(f) = wire::Frame::new_checked(&bytes[..])
                 && matches!(f.payload(), wire::Payload::Data(ch) if !ch.is_empty())
             {
                 self.last_data[dest as usize] = bytes.clone();
             }
-            let now = self.now;
+            // Stamped by the kernel when it came, read when the side runs.
+            let now = self
+                .waited
+                .remove(&order)
+                .filter(|&at| self.kernel_stamps || self.now - at < Duration::from_secs(1))
+                .unwrap_or(self.now);
             if let Err(e) = self.ep(dest).handle_frame(now, &bytes) {
                 match dest {
                     Side::Base => self.base_errors.push(e),
@@ -1027,4 +1059,79 @@ fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
         }
     }
     assert_eq!(reasons, [close_reason::TIMEOUT]);
+}
+
+/// An adaptive link at T = 50 ms, 10 ms each way, whose remote's process
+/// stops from 30 s to 33 s (a SIGSTOP): the base's frames wait in the
+/// kernel, and the remote runs the ticks it missed when it resumes. The
+/// base's GRTTs before the stop and from 34 s, and both sides' delays
+/// before and at 60 s.
+fn stopped_remote(kernel_stamps: bool) -> (Vec<f64>, Vec<f64>, (f64, f64), (f64, f64)) {
+    use ndr_core::playout::Playout;
+    let t = Duration::from_millis(50);
+    let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+    for c in [&mut base, &mut remote] {
+        c.period = t;
+        c.playout = Playout::ADAPTIVE;
+    }
+    let mut p = Pair::new(
+        base,
+        remote,
+        jittered(5, 10_000, 2_000),
+        jittered(6, 10_000, 2_000),
+    );
+    p.frozen = Some((Side::Remote, secs(30), secs(33)));
+    p.kernel_stamps = kernel_stamps;
+    p.run_until(secs(30));
+    let delays = |p: &Pair| {
+        (
+            p.base.stats().playout_delay_s,
+            p.remote.stats().playout_delay_s,
+        )
+    };
+    let before = delays(&p);
+    p.run_until(secs(60));
+    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    let grtts = |from: Instant, to: Instant| -> Vec<f64> {
+        Pair::releases(&p.base_events)
+            .iter()
+            .filter(|r| r.released_at >= from && r.released_at < to)
+            .filter_map(|r| r.grtt.map(Duration::as_secs_f64))
+            .collect()
+    };
+    (
+        grtts(secs(20), secs(30)),
+        grtts(secs(34), secs(60)),
+        before,
+        delays(&p),
+    )
+}
+
+#[test]
+fn a_side_whose_process_stopped_for_3_s_is_back_on_its_delay_at_once() {
+    // Samples that were on time to the kernel are no delay to cover: the
+    // delays stay where the network puts them, and the round trip is back
+    // within a second. So it is when the driver stamps the older ones with
+    // the time it read them, three seconds late: the endpoint sees that the
+    // driver missed its deadlines, and takes them for an outage (the real
+    // link held 650 ms for good).
+    for kernel_stamps in [true, false] {
+        let (settled, back, before, after) = stopped_remote(kernel_stamps);
+        assert_eq!(after, before, "kernel stamps {kernel_stamps}");
+        let (lo, hi) = span(&settled);
+        assert!(!back.is_empty());
+        for g in back {
+            assert!(
+                g >= lo - 1e-9 && g <= hi + 1e-9,
+                "kernel stamps {kernel_stamps}: {g} outside {lo}..{hi}"
+            );
+        }
+    }
+}
+
+/// The smallest and the largest of `xs`.
+fn span(xs: &[f64]) -> (f64, f64) {
+    let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = xs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (lo, hi)
 }

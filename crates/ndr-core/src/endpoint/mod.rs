@@ -676,6 +676,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
+        // A frame handed over a watchdog's time after a deadline the driver
+        // missed: the driver itself stalled (its process stopped), and what
+        // the frame's arrival says is the stall's, not the network's.
+        let stalled = match (self.config.watchdog, self.poll_timeout()) {
+            (Some(w), Some(due)) => now >= due + w,
+            _ => false,
+        };
         // Checked before anything of the frame is used (see `rx_check`).
         if let Some(echo) = frame.echo() {
             self.rx_check
@@ -686,7 +693,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             if self.phase == Phase::Handshake {
                 return Err(self.unexpected(Kind::Data));
             }
-            self.rx_check.accept_data(frame.seq(), sent_at)?;
+            self.stats.frames_missing += self.rx_check.accept_data(frame.seq(), sent_at)?;
         }
         let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
         // A stamp nothing could check yet (the first Hello) stays out of the
@@ -725,7 +732,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
                     self.predictor.observe_gap(gap);
                 }
-                self.observe_one_way(sent_at, now, prev);
+                self.observe_one_way(sent_at, now, prev, stalled);
                 if channels.is_empty() {
                     self.stats.probes_received += 1;
                     return match self.phase {
@@ -1712,6 +1719,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         sent_at: Instant,
         arrived: Instant,
         prev: Option<(Instant, Instant)>,
+        stalled: bool,
     ) {
         if let Some(d) = self.sync.one_way_rx(sent_at, arrived) {
             self.stats.one_way_rx.push(d);
@@ -1729,13 +1737,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 // were sent). Counted as delays, they would fill the
                 // window's tail, and the target would cover the outage for
                 // the window's length (after a 5 s stall, 5 s of delay for
-                // two minutes).
+                // two minutes). So do the frames a stalled driver hands over
+                // late, stamped when it read them.
                 let over = |d: Duration| self.config.watchdog.is_some_and(|w| d > w);
-                self.outage_burst = prev.is_some_and(|(ps, pa)| {
-                    let silence = arrived - pa;
-                    over(silence)
-                        || (self.outage_burst && (over(above) || silence * 2 < sent_at - ps))
-                });
+                self.outage_burst = stalled
+                    || prev.is_some_and(|(ps, pa)| {
+                        let silence = arrived - pa;
+                        over(silence)
+                            || (self.outage_burst
+                                && (over(above) || silence * 2 < sent_at - ps))
+                    });
                 if self.outage_burst {
                     self.stats.outage_delays += 1;
                     return;

@@ -4,6 +4,10 @@
 //! its `seq` is one more, and its send stamp — its tick's scheduled time on
 //! the peer's clock — at least half a period later (a remote's ticks move
 //! with its releases by up to half a period; see `Endpoint::following_tick`).
+//! `seq` numbers the sender's ticks: one whose driver stalled for more ticks
+//! than its transmit queue holds gave up the oldest frames (and counted
+//! them), so a later `seq` passes when its stamp leaves room for the ticks
+//! it skipped; a repeat, a step back or an unexplained jump does not.
 //! And no frame can arrive before it was sent: once an echo has bounded the
 //! offset between the clocks, a stamp later than its arrival by more than
 //! the skew allows is from the future. A frame that breaks one of these is
@@ -83,27 +87,41 @@ impl RxCheck {
     }
 
     /// A Data frame `seq` stamped `sent_at`: an error unless it is the next
-    /// one. Remembered when it is.
-    pub(super) fn accept_data(&mut self, seq: u64, sent_at: Instant) -> Result<(), LinkError> {
-        if let Some(expected) = self.next_seq
-            && seq != expected
-        {
-            return Err(LinkError::OutOfSequence { expected, got: seq });
-        }
-        if let Some(last) = self.last_stamp {
-            let earliest = last
-                .checked_add(self.smallest_period / 2)
-                .unwrap_or(Instant::from_nanos(u64::MAX));
-            if sent_at < earliest {
-                return Err(LinkError::StampBehind {
-                    earliest,
-                    got: sent_at,
-                });
+    /// one, or a later one whose stamp leaves room for the ticks between
+    /// (a sender whose driver stalled past its transmit queue gave up the
+    /// oldest frames: `seq` numbers its ticks). Remembered when it passes;
+    /// returns how many frames were missing before it.
+    pub(super) fn accept_data(&mut self, seq: u64, sent_at: Instant) -> Result<u64, LinkError> {
+        let mut missing = 0;
+        if let (Some(expected), Some(last)) = (self.next_seq, self.last_stamp) {
+            // Ticks are half the shortest period apart at least.
+            let step = (self.smallest_period / 2).max(Duration::from_nanos(1));
+            let earliest = |ticks: u64| {
+                step.as_nanos()
+                    .checked_mul(ticks)
+                    .and_then(|n| last.checked_add(Duration::from_nanos(n)))
+            };
+            if seq < expected {
+                return Err(LinkError::OutOfSequence { expected, got: seq });
+            }
+            missing = seq - expected;
+            match earliest(missing + 1) {
+                Some(e) if sent_at >= e => {}
+                // A gap its stamp does not explain: not a stall.
+                _ if missing > 0 => {
+                    return Err(LinkError::OutOfSequence { expected, got: seq });
+                }
+                e => {
+                    return Err(LinkError::StampBehind {
+                        earliest: e.unwrap_or(Instant::from_nanos(u64::MAX)),
+                        got: sent_at,
+                    });
+                }
             }
         }
         self.next_seq = Some(seq.wrapping_add(1));
         self.last_stamp = Some(sent_at);
-        Ok(())
+        Ok(missing)
     }
 
     /// The peer echoed our frame sent at `ours` (our clock), holding it for
@@ -142,8 +160,8 @@ mod tests {
     #[test]
     fn the_next_frame_passes_and_a_repeat_a_gap_or_a_step_back_do_not() {
         let mut c = RxCheck::new(T);
-        assert_eq!(c.accept_data(7, at_ms(100)), Ok(()));
-        assert_eq!(c.accept_data(8, at_ms(110)), Ok(()));
+        assert_eq!(c.accept_data(7, at_ms(100)), Ok(0));
+        assert_eq!(c.accept_data(8, at_ms(110)), Ok(0));
         assert_eq!(
             c.accept_data(8, at_ms(120)),
             Err(LinkError::OutOfSequence {
@@ -173,9 +191,19 @@ mod tests {
                 got: at_ms(114)
             })
         );
-        assert_eq!(c.accept_data(9, at_ms(115)), Ok(()));
+        assert_eq!(c.accept_data(9, at_ms(115)), Ok(0));
         // A failed check remembers nothing.
-        assert_eq!(c.accept_data(10, at_ms(125)), Ok(()));
+        assert_eq!(c.accept_data(10, at_ms(125)), Ok(0));
+        // A sender that stalled and gave up frames 11 to 13: its stamp is
+        // four ticks on at least.
+        assert_eq!(
+            c.accept_data(14, at_ms(144)),
+            Err(LinkError::OutOfSequence {
+                expected: 11,
+                got: 14
+            })
+        );
+        assert_eq!(c.accept_data(14, at_ms(145)), Ok(3));
     }
 
     #[test]
@@ -183,8 +211,8 @@ mod tests {
         let mut c = RxCheck::new(T);
         c.period_changed(Duration::from_millis(4));
         c.period_changed(Duration::from_millis(50));
-        assert_eq!(c.accept_data(0, at_ms(100)), Ok(()));
-        assert_eq!(c.accept_data(1, at_ms(102)), Ok(()));
+        assert_eq!(c.accept_data(0, at_ms(100)), Ok(0));
+        assert_eq!(c.accept_data(1, at_ms(102)), Ok(0));
     }
 
     #[test]

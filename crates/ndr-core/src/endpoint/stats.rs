@@ -118,6 +118,9 @@ pub struct Stats {
     pub clamped: u64,
     /// Frames given up because the driver did not drain `poll_transmit`.
     pub tx_dropped: u64,
+    /// Data frames the peer numbered but never sent: its `tx_dropped`, seen
+    /// from here as a gap in `seq` (its driver stalled).
+    pub frames_missing: u64,
     /// Round trips whose start had left the send-time history.
     pub grtt_unmeasured: u64,
     /// Network round-trip times, in seconds.
