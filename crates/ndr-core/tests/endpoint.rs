@@ -1061,12 +1061,15 @@ fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
     assert_eq!(reasons, [close_reason::TIMEOUT]);
 }
 
+/// GRTTs before and after, both sides' delays before and after (s).
+type Stopped = (Vec<f64>, Vec<f64>, (f64, f64), (f64, f64));
+
 /// An adaptive link at T = 50 ms, 10 ms each way, whose remote's process
 /// stops from 30 s to 33 s (a SIGSTOP): the base's frames wait in the
 /// kernel, and the remote runs the ticks it missed when it resumes. The
 /// base's GRTTs before the stop and from 34 s, and both sides' delays
 /// before and at 60 s.
-fn stopped_remote(kernel_stamps: bool) -> (Vec<f64>, Vec<f64>, (f64, f64), (f64, f64)) {
+fn stopped_remote(kernel_stamps: bool) -> Stopped {
     use ndr_core::playout::Playout;
     let t = Duration::from_millis(50);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
