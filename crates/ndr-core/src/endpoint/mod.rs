@@ -1417,10 +1417,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// Adaptive: rises to the quantum at or above `need` (s) at once (a
-    /// fall under way is given up), once a delay is set only when what the
-    /// delays measured ask for passes it: `need` less the policy's warm-up
-    /// margin, or the `silence` followed. The margin shrinks as the window
-    /// fills; with the need a hair under a quantum boundary, the first
+    /// fall under way is given up): once a delay is set, when what the
+    /// delays measured ask for passes it — `need` less the policy's warm-up
+    /// margin, or the `silence` followed — or when `need` passes it by
+    /// [`HYSTERESIS`] quanta. A rise repeats a sample, and the margin is a
+    /// guess: with the need a hair under a quantum boundary, the first
     /// estimates of the clocks crossed it, and the rise repeated a sample
     /// at start-up that no late sample called for.
     fn rise_to(&mut self, need: f64, silence: Option<f64>) {
@@ -1433,7 +1434,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 _ => 0.0,
             };
             let measured = silence.map_or(need - margin, |s| s.max(need - margin));
-            if measured <= d {
+            let band = HYSTERESIS * self.quantum().as_secs_f64();
+            if measured <= d && need <= d + band {
                 return;
             }
         }
