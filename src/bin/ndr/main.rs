@@ -3,9 +3,13 @@
 mod compare;
 mod demo;
 mod keygen;
+mod logging;
 mod paper;
 mod peers;
 mod relay;
+mod report;
+mod robot;
+mod signals;
 mod sim;
 mod size;
 mod soak;
@@ -23,6 +27,11 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Log more on stderr: -v for info (handshakes, link events), -vv for
+    /// debug. Without it, warnings and errors only (refused peers, lost
+    /// links, timeouts). RUST_LOG (e.g. ndr_net=debug) filters further.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
 }
 
 #[derive(Subcommand)]
@@ -35,10 +44,12 @@ enum Command {
     /// TCP; a live status line, then NRTT beside GRTT and everything counted.
     Demo(demo::DemoArgs),
     /// The operator's side as its own process: connect to a remote (or a
-    /// relay), follow a signal, report like `ndr demo`.
+    /// relay), follow a signal, report like `ndr demo`. Exits non-zero, with
+    /// the report still written, when no link came up or the link failed.
     Base(peers::BaseArgs),
     /// The robot's side as its own process: serve bases one after another,
-    /// each driving the simulated plant.
+    /// each driving the simulated plant; a line for each base's end. SIGUSR1
+    /// prints the listener's counters; SIGINT or SIGTERM stops it in order.
     Remote(peers::RemoteArgs),
     /// Simulate the link (base, remote with its plant, and the network) in
     /// deterministic simulated time, and report what a controller would see.
@@ -63,6 +74,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    logging::init(cli.verbose);
     let result = match &cli.command {
         Command::Size(args) => size::run(args),
         Command::Demo(args) => demo::run(args),

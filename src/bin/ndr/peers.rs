@@ -1,14 +1,16 @@
 //! `ndr base` and `ndr remote`: the two peers as separate processes or hosts.
 
 use std::net::SocketAddr;
-use std::sync::Mutex;
-use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::LinkError;
-use ndr::net::{Link, LinkStats, Listener, NetError};
+use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 
-use crate::demo::{LinkArgs, Outcome, RunArgs, check_duration, finish, operator, robot, runtime};
+use crate::demo::{LinkArgs, RunArgs, check_duration, operator, runtime, with_series_error};
 use crate::keygen::SecurityArgs;
+use crate::report::{End, Outcome, Series, finish};
+use crate::robot::{PlantArgs, robot};
+use crate::signals::{self, Stop, counters};
 
 #[derive(clap::Args)]
 pub struct BaseArgs {
@@ -32,34 +34,70 @@ pub struct RemoteArgs {
     pub link: LinkArgs,
     #[command(flatten)]
     pub security: SecurityArgs,
-    /// Serve one base, then exit (by default it serves one after another).
+    #[command(flatten)]
+    pub plant: PlantArgs,
+    /// Serve one base, then exit: with status 0 if the base closed the link
+    /// in order (by default it serves one after another, until SIGINT or
+    /// SIGTERM, and exits 0 then; SIGUSR1 prints the listener's counters).
     #[arg(long)]
     pub once: bool,
 }
 
+/// The operator's side: runs `--duration-s` over the link, then reports how
+/// it ended; fails (after the report) when no link came up or it failed.
 pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
     check_duration(&args.run)?;
-    let link = match &tls {
-        Some(tls) => Link::connect_blocking_tls(args.connect, config, tls),
-        None => Link::connect_blocking(args.connect, config),
+    // Refused as the link would refuse it, before the series is created.
+    if tls.is_none() && !tls::plain_allowed(args.connect.ip(), config.insecure) {
+        return Err(NetError::Insecure(args.connect).to_string());
     }
-    .map_err(|e| format!("cannot connect to {}: {e}", args.connect))?;
-    let (stats, rows) = operator(link, &args.run, args.link.axes, None)?;
+    let mut series = Series::create(&args.run.out)?;
+    let rt = runtime()?;
+    let run_for = StdDuration::from_secs_f64(args.run.duration_s);
+    let until = StdInstant::now() + run_for;
+    let connect = async {
+        match &tls {
+            Some(tls) => Link::connect_tls(args.connect, config, tls).await,
+            None => Link::connect(args.connect, config).await,
+        }
+    };
+    // The connection counts in the run's duration: a peer that never
+    // answers the SYN must not hold the base beyond it.
+    let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
+    let (stats, end) = match connected {
+        Ok(Ok(link)) => operator(link, &args.run, args.link.axes, until, None, &mut series),
+        Ok(Err(e)) => (
+            None,
+            End::NeverConnected(format!("cannot connect to {}: {e}", args.connect)),
+        ),
+        Err(_) => (
+            None,
+            End::NeverConnected(format!(
+                "no connection to {} within the {} s run",
+                args.connect, args.run.duration_s
+            )),
+        ),
+    };
+    let (series, error) = series.close();
     let outcome = Outcome {
         profile: format!("tcp {}", args.connect),
         base: stats,
         remote: None,
         relay: None,
-        rows,
+        series,
+        end,
     };
-    finish(&args.link, &args.run, &outcome)
+    finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
 
+/// The robot's side: serves bases one after another (or one with
+/// `--once`), a line for each base's end, the listener's counters at exit.
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
+    let max_command = args.plant.max_command()?;
     let rt = runtime()?;
     let listener = rt
         .block_on(async {
@@ -69,40 +107,82 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
             }
         })
         .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?;
+    let listener = Arc::new(listener);
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
-    eprintln!("ndr remote: waiting for a base on {addr}");
+    let stop = Arc::new(Stop::default());
+    signals::watch(&rt, Arc::clone(&listener), Arc::clone(&stop))?;
+    eprintln!(
+        "ndr remote: waiting for a base on {addr} (SIGUSR1: print the counters; \
+         SIGINT or SIGTERM: stop)"
+    );
+    let failure = serve(
+        args,
+        &rt,
+        &listener,
+        &stop,
+        config.endpoint.period,
+        max_command,
+    );
+    eprintln!("ndr remote: {}", counters(&listener.stats()));
+    failure.map_or(Ok(()), Err)
+}
+
+/// Serves bases until stopped (or after one with `--once`); the failure
+/// that makes the exit status non-zero, if any.
+fn serve(
+    args: &RemoteArgs,
+    rt: &tokio::runtime::Runtime,
+    listener: &Listener,
+    stop: &Stop,
+    period: ndr::core::time::Duration,
+    max_command: f64,
+) -> Option<String> {
     loop {
-        let link = match rt.block_on(listener.accept()) {
-            Ok(link) => link,
-            // One failed accept (a peer that vanished at once) must not stop the robot.
-            Err(NetError::Io(e)) => {
-                eprintln!("ndr remote: accept failed: {e}");
+        let accepted = rt.block_on(async {
+            tokio::select! {
+                biased;
+                () = stop.wait() => None,
+                accepted = listener.accept() => Some(accepted),
+            }
+        });
+        let link = match accepted {
+            None => return None,
+            Some(Ok(link)) => link,
+            // One failed accept (a peer that vanished at once) must not
+            // stop the robot; refused handshakes are logged by the listener.
+            Some(Err(e)) => {
+                tracing::warn!("accept failed: {e}");
+                // An error that persists (out of file descriptors) must not spin.
+                std::thread::sleep(StdDuration::from_millis(100));
                 continue;
             }
-            Err(e) => return Err(e.to_string()),
         };
         let peer = link.peer_addr();
         eprintln!("ndr remote: base {peer} connected");
         let stats = Mutex::new(None::<LinkStats>);
-        robot(
+        let end = robot(
             link,
             usize::from(args.link.axes),
-            config.endpoint.period,
-            &AtomicBool::new(false),
+            period,
+            max_command,
+            stop.flag(),
             &stats,
         );
         let last = *stats
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        match last {
-            Some(s) => eprintln!(
-                "ndr remote: base {peer} gone after {} samples released ({} underflows, {} late)",
+        let counted = last.map_or_else(String::new, |s| {
+            format!(
+                " after {} samples released ({} underflows, {} late)",
                 s.endpoint.released_fresh, s.endpoint.underflows, s.endpoint.late
-            ),
-            None => eprintln!("ndr remote: base {peer} gone ({})", LinkError::Closed),
-        }
+            )
+        });
+        eprintln!("ndr remote: base {peer}: {end}{counted}");
         if args.once {
-            return Ok(());
+            return (!end.ok()).then(|| format!("base {peer}: {end}"));
+        }
+        if stop.is_set() {
+            return None;
         }
     }
 }

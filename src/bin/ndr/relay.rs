@@ -4,6 +4,7 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::net::relay::{BlockingRelay, DirectionStats, RelayEvent, RelayStats, StopWhen};
+use ndr::net::tls;
 
 use crate::sim::NetArgs;
 
@@ -27,6 +28,11 @@ pub struct RelayArgs {
     /// Print one JSON object of the counters instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// Allow --listen on a non-loopback address: the relay passes plain
+    /// links through unencrypted, so it would expose a remote that only
+    /// listens on loopback to the network.
+    #[arg(long)]
+    pub insecure: bool,
 }
 
 /// The first address `text` resolves to.
@@ -43,6 +49,13 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
     let model = args.net.model("paris-newyork")?;
     let listen = resolve("--listen", &args.listen)?;
     let upstream = resolve("--upstream", &args.upstream)?;
+    if !tls::plain_allowed(listen.ip(), args.insecure) {
+        return Err(format!(
+            "refusing to listen on {listen}: it is not loopback, and the relay passes links \
+             through as they are, so a plain link to a remote on loopback would be open to the \
+             network; listen on 127.0.0.1, or pass --insecure to allow it"
+        ));
+    }
     let after = match args.duration_s {
         None => None,
         Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => Some(StdDuration::from_secs_f64(s)),

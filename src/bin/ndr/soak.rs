@@ -8,9 +8,13 @@
 //! the base run here. The faults take turns, one every `--fault-every-s`:
 //! the relay is restarted (every connection through it is cut), garbage is
 //! sent to the remote (a random stream, a wrong version, an absurd length),
-//! and the remote process is killed (SIGKILL) and started again. Throughout,
-//! the relay's delay trace adds a 150 ms spike every 0.7 fault periods. After a cut the
-//! base connects again; each connection is checked on its own.
+//! the remote process is killed (SIGKILL) and started again, a crowd of idle
+//! connections is held open on the remote, a base completes its handshake
+//! and then hangs (the remote must drop it within its liveness time), and a
+//! base sends a stale frame (a repeated sequence number: refused, never
+//! released). Throughout, the relay's delay trace adds a 150 ms spike every
+//! 0.7 fault periods. After a cut the base connects again; each connection
+//! is checked on its own.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpListener as StdListener, TcpStream as StdStream};
@@ -23,7 +27,10 @@ use ndr::core::endpoint::{Config, Status, Underflow};
 use ndr::core::sim::delay::{DelayModel, Trace, TraceRow};
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::Role;
-use ndr::net::{Hub, Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayHandle};
+use ndr::core::wire::{self, Header, Hello, Message, close_reason};
+use ndr::net::{
+    Deframer, Hub, Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayHandle,
+};
 use serde::Serialize;
 
 use crate::demo::runtime;
@@ -37,7 +44,8 @@ pub struct SoakArgs {
     /// The link's period, in ms (1: a 1 kHz link).
     #[arg(long, default_value_t = 1.0)]
     pub period_ms: f64,
-    /// Seconds between two faults (relay restart, garbage, remote killed, in turn).
+    /// Seconds between two faults (relay restart, garbage, remote killed,
+    /// idle connections, a hung base, a stale frame, in turn).
     #[arg(long, default_value_t = 10.0)]
     pub fault_every_s: f64,
     /// Print one JSON object instead of the table.
@@ -54,6 +62,10 @@ const SPIKE_EVERY_FAULTS: f64 = 0.7;
 const SPIKE_LEN_S: f64 = 0.2;
 const SPIKE_DELAY_MS: u64 = 150;
 const BASE_DELAY_US: u64 = 500;
+/// The links' liveness time: a hung base is dropped after it.
+const LIVENESS: Duration = Duration::from_secs(2);
+/// Idle connections held open on the remote during that fault.
+const IDLE_CONNECTIONS: usize = 200;
 
 /// What `ndr soak --json` prints.
 #[derive(Serialize, Default)]
@@ -94,6 +106,16 @@ struct SoakReport {
     faults_remote_killed: u64,
     faults_spikes: u64,
     garbage_cut_off: u64,
+    /// Crowds of idle connections held open on the remote.
+    faults_idle_crowds: u64,
+    /// Connections of that crowd the remote had accepted (TCP) at the end.
+    idle_connections_held: u64,
+    faults_hung_bases: u64,
+    /// Hung bases the remote closed within its liveness time and 3 s.
+    hung_bases_dropped: u64,
+    faults_stale_frames: u64,
+    /// Stale frames the remote refused with Close "frame out of sequence".
+    stale_frames_refused: u64,
     panics: u64,
     remote_crashes: u64,
     rss_start_kib: u64,
@@ -149,6 +171,7 @@ fn link_config(period: Duration) -> Result<LinkConfig, String> {
     // a delay that grows by the spike's length each time.
     endpoint.underflow = Underflow::DropLate;
     endpoint.watchdog = Some(Duration::from_millis(500));
+    endpoint.liveness = Some(LIVENESS);
     endpoint.validate().map_err(|e| e.to_string())?;
     Ok(LinkConfig::new(endpoint))
 }
@@ -351,7 +374,19 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     let mut fault = 0u64;
     let mut link: Option<(Link, Conn)> = None;
     let mut command = 0.0f64;
+    let period = config.endpoint.period;
+    // The idle crowd, held until the next fault; the hung base's check.
+    let mut idle: Vec<StdStream> = Vec::new();
+    let mut hung: Option<std::thread::JoinHandle<bool>> = None;
     while StdInstant::now() < end {
+        if hung
+            .as_ref()
+            .is_some_and(std::thread::JoinHandle::is_finished)
+            && let Some(h) = hung.take()
+            && h.join().unwrap_or(false)
+        {
+            r.hung_bases_dropped += 1;
+        }
         let now = StdInstant::now();
         if now >= next_sample {
             next_sample += StdDuration::from_secs(1);
@@ -364,7 +399,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
         }
         if now >= next_fault {
             next_fault += every;
-            match fault % 3 {
+            match fault % 6 {
                 0 => {
                     if let Some(h) = relay.take() {
                         r.faults_spikes += spikes_within(relay_started.elapsed(), spike_every);
@@ -380,11 +415,29 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                         r.garbage_cut_off += 1;
                     }
                 }
-                _ => {
+                2 => {
                     if remote.restart(args.period_ms)? {
                         r.remote_crashes += 1;
                     }
                     r.faults_remote_killed += 1;
+                }
+                3 => {
+                    r.faults_idle_crowds += 1;
+                    idle = idle_crowd(remote_addr);
+                    r.idle_connections_held += idle.len() as u64;
+                }
+                4 => {
+                    idle.clear();
+                    r.faults_hung_bases += 1;
+                    hung = Some(std::thread::spawn(move || {
+                        hung_base(remote_addr, period, LIVENESS)
+                    }));
+                }
+                _ => {
+                    r.faults_stale_frames += 1;
+                    if stale_frame(remote_addr, period) {
+                        r.stale_frames_refused += 1;
+                    }
                 }
             }
             fault += 1;
@@ -424,6 +477,12 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     if let Some((l, conn)) = link.take() {
         finish_conn(&mut r, &conn, l.close());
     }
+    drop(idle);
+    if let Some(h) = hung.take()
+        && h.join().unwrap_or(false)
+    {
+        r.hung_bases_dropped += 1;
+    }
     if let Some(h) = relay.take() {
         r.faults_spikes += spikes_within(relay_started.elapsed(), spike_every);
         let _ = rt.block_on(h.shutdown());
@@ -438,6 +497,8 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     // Collapse the reasons connections ended into counts.
     r.ended_by = summarize(&r.ended_by);
     r.ok = r.lost + r.duplicated + r.reordered + r.corrupted + r.remote_anomalies == 0
+        && r.hung_bases_dropped == r.faults_hung_bases
+        && r.stale_frames_refused == r.faults_stale_frames
         && r.panics == 0
         && r.remote_crashes == 0
         && r.samples_released > 0
@@ -547,6 +608,134 @@ fn inject_garbage(addr: SocketAddr, kind: u64) -> bool {
     false
 }
 
+/// Opens [`IDLE_CONNECTIONS`] connections to the remote that send nothing
+/// (a crowd a stranger holds open); those that connected.
+fn idle_crowd(addr: SocketAddr) -> Vec<StdStream> {
+    (0..IDLE_CONNECTIONS)
+        .filter_map(|_| StdStream::connect_timeout(&addr, StdDuration::from_millis(200)).ok())
+        .collect()
+}
+
+/// A base's Hello for the soak's link (4 axes at `period`, the paper's
+/// static mode), framed.
+fn base_hello(period: Duration) -> Vec<u8> {
+    let header = Header {
+        seq: 0,
+        sent_at: Instant::ZERO,
+        echo: None,
+        released: None,
+    };
+    let hello = Hello {
+        role: Role::Base,
+        mode: wire::mode::PAPER_STATIC,
+        underflow: wire::underflow::DROP_LATE,
+        axes: 4,
+        period,
+    };
+    let mut buf = [0u8; wire::MAX_FRAME_LEN];
+    let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap_or(0);
+    buf[..n].to_vec()
+}
+
+/// Connects to the remote and completes the handshake as a base: the
+/// stream, once the remote's Hello has come.
+fn handshake(addr: SocketAddr, period: Duration) -> Option<(StdStream, Deframer)> {
+    let mut s = StdStream::connect_timeout(&addr, StdDuration::from_secs(1)).ok()?;
+    s.write_all(&base_hello(period)).ok()?;
+    let mut deframer = Deframer::new();
+    let _ = s.set_read_timeout(Some(StdDuration::from_secs(2)));
+    let mut buf = [0u8; 512];
+    loop {
+        match deframer.next_frame() {
+            Ok(Some(f)) if matches!(f.payload(), wire::Payload::Hello(_)) => {
+                return Some((s, deframer));
+            }
+            Ok(Some(_)) => {}
+            Ok(None) => {
+                let n = s.read(&mut buf).ok().filter(|&n| n > 0)?;
+                if deframer.extend(&buf[..n]) < n {
+                    return None;
+                }
+            }
+            Err(_) => return None,
+        }
+    }
+}
+
+/// Reads until the remote ends the connection; the Close reason it sent,
+/// if any, and `None` if it did not end it by `deadline`.
+fn await_close(
+    s: &mut StdStream,
+    deframer: &mut Deframer,
+    deadline: StdInstant,
+) -> Option<Option<u16>> {
+    let mut buf = [0u8; 512];
+    let mut reason = None;
+    while StdInstant::now() < deadline {
+        while let Ok(Some(f)) = deframer.next_frame() {
+            if let wire::Payload::Close(c) = f.payload() {
+                reason = Some(c.reason);
+            }
+        }
+        let left = deadline.saturating_duration_since(StdInstant::now());
+        let _ = s.set_read_timeout(Some(left.max(StdDuration::from_millis(1))));
+        match s.read(&mut buf) {
+            Ok(0) => return Some(reason),
+            Ok(n) => {
+                // Frames past a full deframer do not matter here: only the end does.
+                let _ = deframer.extend(&buf[..n]);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(_) => return Some(reason),
+        }
+    }
+    None
+}
+
+/// A base that completes its handshake and then sends nothing (a hung
+/// operator): `true` if the remote ended the connection within its
+/// liveness time and 3 s.
+fn hung_base(addr: SocketAddr, period: Duration, liveness: Duration) -> bool {
+    let Some((mut s, mut deframer)) = handshake(addr, period) else {
+        return false;
+    };
+    let deadline = StdInstant::now() + StdDuration::from(liveness) + StdDuration::from_secs(3);
+    await_close(&mut s, &mut deframer, deadline).is_some()
+}
+
+/// A base that completes its handshake, sends a probe, then the same
+/// probe again: `true` if the remote refused it with Close "frame out of
+/// sequence" within a second.
+fn stale_frame(addr: SocketAddr, period: Duration) -> bool {
+    let Some((mut s, mut deframer)) = handshake(addr, period) else {
+        return false;
+    };
+    let header = Header {
+        seq: 0,
+        sent_at: Instant::ZERO + period,
+        echo: None,
+        released: None,
+    };
+    let mut buf = [0u8; wire::MAX_FRAME_LEN];
+    let Ok(n) = wire::encode(&header, &Message::Data(&[]), &mut buf) else {
+        return false;
+    };
+    let probe = buf[..n].to_vec();
+    if s.write_all(&probe)
+        .and_then(|()| s.write_all(&probe))
+        .is_err()
+    {
+        return false;
+    }
+    let deadline = StdInstant::now() + StdDuration::from_secs(1);
+    await_close(&mut s, &mut deframer, deadline) == Some(Some(close_reason::SEQUENCE))
+}
+
 fn free_port() -> Result<SocketAddr, String> {
     let l = StdListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
     l.local_addr().map_err(|e| e.to_string())
@@ -622,6 +811,16 @@ fn print_table(r: &SoakReport) {
         r.garbage_cut_off,
         r.faults_remote_killed,
         r.faults_spikes
+    );
+    println!(
+        "               {} idle crowds ({} connections held) · {} hung bases ({} dropped) · \
+         {} stale frames ({} refused)",
+        r.faults_idle_crowds,
+        r.idle_connections_held,
+        r.faults_hung_bases,
+        r.hung_bases_dropped,
+        r.faults_stale_frames,
+        r.stale_frames_refused
     );
     println!(
         "  connections  {} ({} reconnections, {} failed attempts) · ended by: {}",

@@ -1,0 +1,449 @@
+//! What `ndr demo` and `ndr base` report: how the run ended, the per-tick
+//! series (streamed to CSV as it comes) and the table or JSON at the end.
+
+use std::fmt;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use ndr::core::time::Duration;
+use ndr::net::clock::LatenessStats;
+use ndr::net::{LinkStats, RelayStats};
+use serde::Serialize;
+
+use crate::demo::{LinkArgs, RunArgs};
+
+/// How a run of the operator ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum End {
+    /// It ran its duration over a link that released samples; closed in order.
+    Completed,
+    /// No link came up: no connection, or no sample was ever released.
+    NeverConnected(String),
+    /// The link came up, then ended before the run did.
+    LinkFailed(String),
+    /// This side failed (its command refused, its series unwritable): the
+    /// link was ended as an application failure.
+    AppFailure(String),
+}
+
+impl End {
+    /// Whether the run is a success (the exit status says so).
+    pub fn ok(&self) -> bool {
+        *self == End::Completed
+    }
+}
+
+impl fmt::Display for End {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            End::Completed => f.write_str("completed"),
+            End::NeverConnected(why) => write!(f, "never connected: {why}"),
+            End::LinkFailed(why) => write!(f, "link failed: {why}"),
+            End::AppFailure(why) => write!(f, "application failure: {why}"),
+        }
+    }
+}
+
+/// One released state, as a row of the series.
+pub struct Row {
+    pub t_s: f64,
+    pub seq: u64,
+    pub held: bool,
+    pub grtt_s: Option<f64>,
+    pub command: f64,
+    pub state: f64,
+}
+
+/// The base's per-tick series: each row goes to the CSV as it comes, and
+/// only bounded summaries stay in memory, so a run of hours stays flat.
+pub struct Series {
+    path: PathBuf,
+    out: BufWriter<File>,
+    rows: u64,
+    grtt: LogHistogram,
+}
+
+/// What the series kept of its rows.
+pub struct SeriesSummary {
+    /// Rows written.
+    pub rows: u64,
+    /// The 99th percentile of the rows' GRTTs, seconds (0 for none).
+    pub grtt_p99_s: f64,
+}
+
+impl Series {
+    /// Creates the CSV (before any link, so a bad path fails at once) and
+    /// writes its header.
+    pub fn create(path: &Path) -> Result<Series, String> {
+        let file = File::create(path).map_err(|e| write_error(path, &e))?;
+        let mut series = Series {
+            path: path.to_path_buf(),
+            out: BufWriter::new(file),
+            rows: 0,
+            grtt: LogHistogram::new(),
+        };
+        writeln!(series.out, "t_s,seq,status,grtt_s,command,state")
+            .map_err(|e| write_error(path, &e))?;
+        Ok(series)
+    }
+
+    /// Appends a row.
+    pub fn push(&mut self, r: &Row) -> Result<(), String> {
+        let status = if r.held { "held" } else { "fresh" };
+        let written = match r.grtt_s {
+            Some(g) => writeln!(
+                self.out,
+                "{:.6},{},{status},{g:.6},{:.6},{:.6}",
+                r.t_s, r.seq, r.command, r.state
+            ),
+            None => writeln!(
+                self.out,
+                "{:.6},{},{status},,{:.6},{:.6}",
+                r.t_s, r.seq, r.command, r.state
+            ),
+        };
+        written.map_err(|e| write_error(&self.path, &e))?;
+        if let Some(g) = r.grtt_s {
+            self.grtt.record(g);
+        }
+        self.rows += 1;
+        Ok(())
+    }
+
+    /// Flushes the CSV; the summary, and the error if the flush failed.
+    pub fn close(mut self) -> (SeriesSummary, Option<String>) {
+        let error = self.out.flush().err().map(|e| write_error(&self.path, &e));
+        let summary = SeriesSummary {
+            rows: self.rows,
+            grtt_p99_s: self.grtt.quantile(0.99),
+        };
+        (summary, error)
+    }
+}
+
+fn write_error(path: &Path, e: &std::io::Error) -> String {
+    format!(
+        "cannot write {}: {e}; give a writable file with --out",
+        path.display()
+    )
+}
+
+/// A histogram of positive values in logarithmic buckets of fixed number:
+/// quantiles within half a bucket (0.5 %) in constant memory, however many
+/// values it saw.
+struct LogHistogram {
+    counts: Vec<u64>,
+    n: u64,
+    min: f64,
+    max: f64,
+}
+
+impl LogHistogram {
+    /// The smallest and largest values told apart, seconds.
+    const LOW: f64 = 1e-6;
+    const HIGH: f64 = 1e3;
+    /// Each bucket's upper bound over its lower one.
+    const RATIO: f64 = 1.01;
+
+    fn new() -> LogHistogram {
+        let buckets = ((Self::HIGH / Self::LOW).ln() / Self::RATIO.ln()).ceil() as usize + 1;
+        LogHistogram {
+            counts: vec![0; buckets],
+            n: 0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+        }
+    }
+
+    fn record(&mut self, x: f64) {
+        if !x.is_finite() {
+            return;
+        }
+        let last = self.counts.len() - 1;
+        let i = if x <= Self::LOW {
+            0
+        } else {
+            (((x / Self::LOW).ln() / Self::RATIO.ln()) as usize).min(last)
+        };
+        self.counts[i] += 1;
+        self.n += 1;
+        self.min = self.min.min(x);
+        self.max = self.max.max(x);
+    }
+
+    /// The `q` quantile by nearest rank (as `ndr::core::sim::percentile`),
+    /// as its bucket's geometric middle within the values seen; 0 for none.
+    fn quantile(&self, q: f64) -> f64 {
+        if self.n == 0 {
+            return 0.0;
+        }
+        let rank = ((q * self.n as f64).ceil() as u64).clamp(1, self.n);
+        let mut seen = 0;
+        for (i, &c) in self.counts.iter().enumerate() {
+            seen += c;
+            if seen >= rank {
+                let middle = Self::LOW * Self::RATIO.powf(i as f64 + 0.5);
+                return middle.clamp(self.min, self.max);
+            }
+        }
+        self.max
+    }
+}
+
+/// What a run of the operator ended with.
+pub struct Outcome<'a> {
+    /// Where the delays came from (a profile) or whom the base talked to.
+    pub profile: String,
+    /// The base's final counters (none if no link was made).
+    pub base: Option<LinkStats>,
+    /// The remote's, when it ran in this process.
+    pub remote: Option<LinkStats>,
+    /// The relay's, when it ran in this process.
+    pub relay: Option<&'a RelayStats>,
+    /// What the series kept.
+    pub series: SeriesSummary,
+    /// How the run ended.
+    pub end: End,
+}
+
+/// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
+#[derive(Serialize)]
+struct DemoReport {
+    command: &'static str,
+    /// Whether the run completed over a link (the exit status is 0 then).
+    ok: bool,
+    /// How it ended: `completed`, `never connected: …`, `link failed: …`
+    /// or `application failure: …`.
+    end: String,
+    profile: String,
+    mode: &'static str,
+    playout: String,
+    underflow: &'static str,
+    period_s: f64,
+    duration_s: f64,
+    axes: u16,
+    ns: usize,
+    nrtt_mean_s: f64,
+    nrtt_std_s: f64,
+    grtt_mean_s: f64,
+    grtt_std_s: f64,
+    grtt_p99_s: f64,
+    grtt_count: u64,
+    queue_base_min: usize,
+    queue_base_max: usize,
+    queue_remote_min: Option<usize>,
+    queue_remote_max: Option<usize>,
+    samples_sent: u64,
+    samples_released: u64,
+    late_samples: u64,
+    underflows: u64,
+    link_lost: u64,
+    pauses: u64,
+    /// The remote's estimates: one-way delay base → remote, clock offset
+    /// (remote − base), skew (ppm); the base's: one-way delay back.
+    one_way_fwd_mean_s: f64,
+    one_way_bwd_mean_s: f64,
+    remote_clock_offset_s: f64,
+    remote_clock_skew_ppm: f64,
+    /// Target-delay playouts: each side's delay at the end (0 for the FIFO).
+    playout_delay_fwd_s: f64,
+    playout_delay_bwd_s: f64,
+    /// Target-delay playouts: how many delays each side announced (its
+    /// first, then each change, made without a pause).
+    delay_changes_fwd: u64,
+    delay_changes_bwd: u64,
+    clock_base_p50_s: f64,
+    clock_base_p99_s: f64,
+    clock_remote_p50_s: f64,
+    clock_remote_p99_s: f64,
+    /// How long before a deadline each side's hub spins, as learned from
+    /// its timer at the end.
+    spin_margin_base_s: f64,
+    spin_margin_remote_s: f64,
+    relay_frames_fwd: Option<u64>,
+    relay_frames_bwd: Option<u64>,
+    csv: String,
+    /// Rows in the CSV (one per state released to the base).
+    csv_rows: u64,
+}
+
+/// Prints the report (table or JSON), whatever the end; then the end as
+/// the error when the run failed, for a non-zero exit status.
+pub fn finish(link: &LinkArgs, run: &RunArgs, outcome: &Outcome<'_>) -> Result<(), String> {
+    let report = report(link, run, outcome);
+    if run.json {
+        println!(
+            "{}",
+            serde_json::to_string(&report).map_err(|e| e.to_string())?
+        );
+    } else {
+        print_table(&report);
+    }
+    if outcome.end.ok() {
+        Ok(())
+    } else {
+        Err(outcome.end.to_string())
+    }
+}
+
+fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
+    let (b, remote, relay) = (o.base.as_ref(), o.remote.as_ref(), o.relay);
+    let eb = b.map(|s| s.endpoint).unwrap_or_default();
+    let er = remote.map(|s| s.endpoint).unwrap_or_default();
+    let range = |s: Option<&LinkStats>| s.and_then(|s| s.queue_range).unwrap_or((0, 0));
+    let clock = |s: Option<&LinkStats>, p: fn(&LatenessStats) -> Duration| {
+        s.map_or(0.0, |s| p(&s.lateness).as_secs_f64())
+    };
+    DemoReport {
+        command: if relay.is_some() { "demo" } else { "base" },
+        ok: o.end.ok(),
+        end: o.end.to_string(),
+        profile: o.profile.clone(),
+        mode: link.mode.name(),
+        playout: link
+            .config()
+            .map_or_else(|_| String::new(), |c| c.endpoint.playout.to_string()),
+        underflow: link.underflow.name(),
+        // The link's (a dynamic mode may change it), else the one asked for.
+        period_s: b.map_or(link.period_ms / 1e3, |s| s.period.as_secs_f64()),
+        duration_s: run.duration_s,
+        axes: link.axes,
+        ns: b.map_or(0, |s| s.ns),
+        nrtt_mean_s: eb.nrtt.mean(),
+        nrtt_std_s: eb.nrtt.std(),
+        grtt_mean_s: eb.grtt.mean(),
+        grtt_std_s: eb.grtt.std(),
+        grtt_p99_s: o.series.grtt_p99_s,
+        grtt_count: eb.grtt.count(),
+        queue_base_min: range(b).0,
+        queue_base_max: range(b).1,
+        queue_remote_min: remote.map(|_| range(remote).0),
+        queue_remote_max: remote.map(|_| range(remote).1),
+        samples_sent: eb.samples_sent + er.samples_sent,
+        samples_released: eb.released_fresh + er.released_fresh,
+        late_samples: eb.late + er.late,
+        underflows: eb.underflows + er.underflows,
+        link_lost: eb.link_lost + er.link_lost,
+        pauses: eb.pauses,
+        one_way_fwd_mean_s: er.one_way_rx.mean(),
+        one_way_bwd_mean_s: eb.one_way_rx.mean(),
+        remote_clock_offset_s: er.clock_offset_s,
+        remote_clock_skew_ppm: er.clock_skew_ppm,
+        playout_delay_fwd_s: er.playout_delay_s,
+        playout_delay_bwd_s: eb.playout_delay_s,
+        delay_changes_fwd: er.delay_changes,
+        delay_changes_bwd: eb.delay_changes,
+        clock_base_p50_s: clock(b, |l| l.p50),
+        clock_base_p99_s: clock(b, |l| l.p99),
+        clock_remote_p50_s: clock(remote, |l| l.p50),
+        clock_remote_p99_s: clock(remote, |l| l.p99),
+        spin_margin_base_s: b.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
+        spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
+        relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
+        relay_frames_bwd: relay.map(|r| r.backward.frames_delivered),
+        csv: run.out.display().to_string(),
+        csv_rows: o.series.rows,
+    }
+}
+
+fn print_table(r: &DemoReport) {
+    let ms = |s: f64| format!("{:.2} ms", s * 1e3);
+    println!(
+        "ndr {} · {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        r.command,
+        r.profile,
+        r.mode,
+        r.playout,
+        r.underflow,
+        ms(r.period_s),
+        r.duration_s,
+        r.axes
+    );
+    println!("  end        {}", r.end);
+    println!("                     mean          std");
+    println!(
+        "  NRTT       {:>12} {:>12}   (the network, both ways)",
+        ms(r.nrtt_mean_s),
+        ms(r.nrtt_std_s)
+    );
+    println!(
+        "  GRTT       {:>12} {:>12}   (as the controller sees it; p99 {}, {} round trips)",
+        ms(r.grtt_mean_s),
+        ms(r.grtt_std_s),
+        ms(r.grtt_p99_s),
+        r.grtt_count
+    );
+    let remote_queue = match (r.queue_remote_min, r.queue_remote_max) {
+        (Some(lo), Some(hi)) => format!(" · remote {lo}–{hi}"),
+        _ => String::new(),
+    };
+    println!(
+        "  queues     ns {} · base {}–{}{remote_queue} (occupancy before a release)",
+        r.ns, r.queue_base_min, r.queue_base_max
+    );
+    println!(
+        "  samples    {} sent · {} released · {} late · {} underflows · {} link-lost alarms",
+        r.samples_sent, r.samples_released, r.late_samples, r.underflows, r.link_lost
+    );
+    if r.playout != "fifo" {
+        // A target-delay playout: the constant delay each side holds now,
+        // beside the one-way network delays its clock estimate measures.
+        println!(
+            "  playout    delay {} forward · {} back · delays announced {} / {} (network one-way {} / {}; remote clock {:+.3} ms, {:+.1} ppm)",
+            ms(r.playout_delay_fwd_s),
+            ms(r.playout_delay_bwd_s),
+            r.delay_changes_fwd,
+            r.delay_changes_bwd,
+            ms(r.one_way_fwd_mean_s),
+            ms(r.one_way_bwd_mean_s),
+            r.remote_clock_offset_s * 1e3,
+            r.remote_clock_skew_ppm
+        );
+    }
+    let us = |s: f64| format!("{:.0} µs", s * 1e6);
+    let (remote_clock, remote_spin) = if r.queue_remote_max.is_some() {
+        (
+            format!(
+                " · remote {} / {}",
+                us(r.clock_remote_p50_s),
+                us(r.clock_remote_p99_s)
+            ),
+            format!(" / {}", us(r.spin_margin_remote_s)),
+        )
+    } else {
+        (String::new(), String::new())
+    };
+    println!(
+        "  clock      release lateness p50 / p99: base {} / {}{remote_clock} (spin margin learned {}{remote_spin})",
+        us(r.clock_base_p50_s),
+        us(r.clock_base_p99_s),
+        us(r.spin_margin_base_s),
+    );
+    if let (Some(f), Some(b)) = (r.relay_frames_fwd, r.relay_frames_bwd) {
+        println!("  relay      {f} frames forward, {b} back");
+    }
+    println!("  series     {} ({} rows)", r.csv, r.csv_rows);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_histogram_quantile_is_within_half_a_bucket_of_the_exact_one() {
+        let xs: Vec<f64> = (1..=10_000).map(|i| 1e-3 * f64::from(i).sqrt()).collect();
+        let mut h = LogHistogram::new();
+        xs.iter().for_each(|&x| h.record(x));
+        for q in [0.5, 0.9, 0.99, 1.0] {
+            let exact = ndr::core::sim::percentile(&xs, q);
+            let got = h.quantile(q);
+            assert!((got / exact - 1.0).abs() < 0.006, "q {q}: {got} vs {exact}");
+        }
+        // A constant series reports its value exactly.
+        let mut h = LogHistogram::new();
+        (0..100).for_each(|_| h.record(0.0423));
+        assert_eq!(h.quantile(0.99), 0.0423);
+        assert_eq!(LogHistogram::new().quantile(0.99), 0.0);
+    }
+}

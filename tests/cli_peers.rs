@@ -1,0 +1,407 @@
+//! `ndr base`, `ndr remote` and `ndr relay` as separate processes, as a user
+//! runs them: each run ends with a report that says how it ended, and a
+//! non-zero exit status when no link came up or the link failed.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// The tests run one at a time: each runs real-time links, which a
+/// neighbour's processes on two cores would only slow down.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// A running `ndr`, killed if the test ends (or fails) before it does;
+/// its stdout and stderr are collected as they come.
+struct Proc {
+    child: Child,
+    stdout: Arc<Mutex<String>>,
+    stderr: Arc<Mutex<String>>,
+    readers: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl Proc {
+    fn spawn(args: &[&str]) -> Proc {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_ndr"))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("ndr starts");
+        let (stdout, stderr) = (Arc::default(), Arc::default());
+        let readers = vec![
+            collect(child.stdout.take().unwrap(), Arc::clone(&stdout)),
+            collect(child.stderr.take().unwrap(), Arc::clone(&stderr)),
+        ];
+        Proc {
+            child,
+            stdout,
+            stderr,
+            readers,
+        }
+    }
+
+    fn stderr(&self) -> String {
+        self.stderr.lock().unwrap().clone()
+    }
+
+    /// The first stderr line containing `text`, waiting for it until `limit`.
+    fn line_with(&mut self, text: &str, limit: Duration) -> String {
+        let end = Instant::now() + limit;
+        loop {
+            if let Some(line) = self.stderr().lines().find(|l| l.contains(text)) {
+                return line.to_string();
+            }
+            let exited = self.child.try_wait().unwrap();
+            assert!(
+                exited.is_none() && Instant::now() < end,
+                "no line with {text:?} (exit {exited:?}); stderr:\n{}",
+                self.stderr()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// How many stderr lines contain `text`.
+    fn count(&self, text: &str) -> usize {
+        self.stderr().lines().filter(|l| l.contains(text)).count()
+    }
+
+    fn signal(&self, name: &str) {
+        let status = Command::new("kill")
+            .args([&format!("-{name}"), &self.child.id().to_string()])
+            .status()
+            .expect("kill runs");
+        assert!(status.success(), "kill -{name}");
+    }
+
+    /// Waits for the exit until `limit` (then kills it and fails): its
+    /// status, stdout and stderr.
+    fn wait(mut self, limit: Duration) -> (ExitStatus, String, String) {
+        let end = Instant::now() + limit;
+        let status = loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                break status;
+            }
+            if Instant::now() >= end {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                panic!(
+                    "ndr still running after {limit:?}; stderr:\n{}",
+                    self.stderr()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        for reader in self.readers.drain(..) {
+            let _ = reader.join();
+        }
+        let stdout = self.stdout.lock().unwrap().clone();
+        (status, stdout, self.stderr())
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn collect(
+    mut from: impl Read + Send + 'static,
+    into: Arc<Mutex<String>>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let mut reader = BufReader::new(&mut from);
+        let mut line = String::new();
+        while reader.read_line(&mut line).is_ok_and(|n| n > 0) {
+            into.lock().unwrap().push_str(&line);
+            line.clear();
+        }
+    })
+}
+
+/// The address a process printed after `prefix` on a stderr line, up to
+/// the next space.
+fn address_after(line: &str, prefix: &str) -> String {
+    let at = line.find(prefix).unwrap() + prefix.len();
+    line[at..].split_whitespace().next().unwrap().to_string()
+}
+
+/// `ndr remote` on a free loopback port, with `extra` arguments; its address.
+fn remote(extra: &[&str]) -> (Proc, String) {
+    let mut args = vec!["remote", "--listen", "127.0.0.1:0", "--period-ms", "20"];
+    args.extend_from_slice(extra);
+    let mut remote = Proc::spawn(&args);
+    let line = remote.line_with("waiting for a base on", Duration::from_secs(20));
+    let addr = address_after(&line, "waiting for a base on ");
+    (remote, addr)
+}
+
+fn csv_path(name: &str) -> PathBuf {
+    std::env::temp_dir().join(format!("ndr-cli-peers-{name}-{}.csv", std::process::id()))
+}
+
+/// `ndr base --json` to `addr` for `seconds`: its exit status, its JSON, its stderr.
+fn base(addr: &str, seconds: &str, csv: &Path, extra: &[&str]) -> (ExitStatus, Value, String) {
+    let mut args = vec![
+        "base",
+        "--connect",
+        addr,
+        "--duration-s",
+        seconds,
+        "--period-ms",
+        "20",
+        "--json",
+        "--out",
+    ];
+    args.push(csv.to_str().unwrap());
+    args.extend_from_slice(extra);
+    let (status, stdout, stderr) = Proc::spawn(&args).wait(Duration::from_secs(60));
+    (status, json(&stdout, &stderr), stderr)
+}
+
+type Value = serde_json::Value;
+
+fn json(stdout: &str, stderr: &str) -> Value {
+    serde_json::from_str(stdout)
+        .unwrap_or_else(|e| panic!("no JSON report ({e}): {stdout:?}; stderr:\n{stderr}"))
+}
+
+/// The CSV's data rows, checked against the report's count.
+fn csv_rows(csv: &Path, report: &Value) -> u64 {
+    let text = std::fs::read_to_string(csv).expect("the CSV is written");
+    assert!(text.starts_with("t_s,seq,status,grtt_s,command,state\n"));
+    let rows = text.lines().count() as u64 - 1;
+    assert_eq!(report["csv_rows"], rows, "{report}");
+    rows
+}
+
+#[test]
+fn a_base_whose_peer_never_answers_says_so_and_fails() {
+    let _serial = serial();
+    // Accepts the connection and holds it, silent: the handshake never ends.
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let (done, held) = std::sync::mpsc::channel::<()>();
+    let holder = std::thread::spawn(move || {
+        let socket = listener.accept();
+        let _ = held.recv_timeout(Duration::from_secs(60));
+        drop(socket);
+    });
+    let csv = csv_path("silent");
+    let started = Instant::now();
+    let (status, r, stderr) = base(&addr, "1", &csv, &[]);
+    assert!(!status.success(), "{r}");
+    assert_eq!(r["ok"], false, "{r}");
+    let end = r["end"].as_str().unwrap();
+    assert!(
+        end.starts_with("never connected: no sample was released"),
+        "{end}"
+    );
+    assert!(stderr.contains("ndr: error: never connected"), "{stderr}");
+    assert_eq!(csv_rows(&csv, &r), 0);
+    // Within the run, not the handshake's 10 s timeout.
+    assert!(
+        started.elapsed() < Duration::from_secs(8),
+        "{:?}",
+        started.elapsed()
+    );
+    let _ = done.send(());
+    holder.join().unwrap();
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn a_base_that_cannot_connect_still_reports() {
+    let _serial = serial();
+    // A port nobody listens on: bound, then closed.
+    let addr = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .to_string();
+    let csv = csv_path("refused");
+    let (status, r, _) = base(&addr, "1", &csv, &[]);
+    assert!(!status.success(), "{r}");
+    assert_eq!(r["ok"], false, "{r}");
+    let end = r["end"].as_str().unwrap();
+    assert!(end.starts_with("never connected: cannot connect"), "{end}");
+    assert_eq!(csv_rows(&csv, &r), 0);
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn a_base_run_to_its_end_completes_and_streams_its_rows() {
+    let _serial = serial();
+    let (remote, addr) = remote(&["--once"]);
+    let csv = csv_path("completed");
+    let (status, r, stderr) = base(&addr, "4", &csv, &[]);
+    assert!(status.success(), "{r}\n{stderr}");
+    assert_eq!((&r["ok"], &r["end"]), (&true.into(), &"completed".into()));
+    // One row per tick once the link runs: at most 4 s / 20 ms, and most of
+    // them after the handshake and the initialization pattern.
+    let rows = csv_rows(&csv, &r);
+    assert!((100..=202).contains(&rows), "{rows} rows: {r}");
+    assert!(r["grtt_p99_s"].as_f64().unwrap() > 0.0, "{r}");
+    // The remote served its one base, said how it ended, and exits 0.
+    let (status, _, stderr) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{stderr}");
+    assert!(stderr.contains("closed in order by the base"), "{stderr}");
+    let counters = stderr
+        .lines()
+        .find(|l| l.contains("listener counters"))
+        .unwrap();
+    assert!(counters.contains("accepted: 1,"), "{stderr}");
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn a_base_whose_relay_dies_reports_the_failed_link() {
+    let _serial = serial();
+    let (mut remote, remote_addr) = remote(&[]);
+    let mut relay = Proc::spawn(&[
+        "relay",
+        "--listen",
+        "127.0.0.1:0",
+        "--upstream",
+        &remote_addr,
+        "--profile",
+        "constant:2",
+    ]);
+    let line = relay.line_with(" -> ", Duration::from_secs(20));
+    let relay_addr = address_after(&line, "ndr relay: ");
+    let csv = csv_path("relay-killed");
+    let mut base = Proc::spawn(&[
+        "base",
+        "--connect",
+        &relay_addr,
+        "--duration-s",
+        "30",
+        "--period-ms",
+        "20",
+        "--json",
+        "--out",
+        csv.to_str().unwrap(),
+        "-v",
+    ]);
+    // Samples flow; a second more and the base has released some.
+    base.line_with("samples flow", Duration::from_secs(20));
+    std::thread::sleep(Duration::from_secs(1));
+    relay.child.kill().unwrap();
+    let (status, stdout, stderr) = base.wait(Duration::from_secs(20));
+    let r = json(&stdout, &stderr);
+    assert!(!status.success(), "{r}");
+    assert_eq!(r["ok"], false, "{r}");
+    let end = r["end"].as_str().unwrap();
+    assert!(end.starts_with("link failed: "), "{end}");
+    assert!(stderr.contains("ndr: error: link failed"), "{stderr}");
+    assert!(csv_rows(&csv, &r) > 0, "{r}");
+    // The remote's line for that base says it lost the link; it goes on
+    // serving until told to stop.
+    remote.line_with("link lost", Duration::from_secs(20));
+    remote.signal("TERM");
+    let (status, _, stderr) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{stderr}");
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn a_remote_logs_refusals_prints_its_counters_on_sigusr1_and_stops_on_sigterm() {
+    let _serial = serial();
+    let (mut remote, addr) = remote(&[]);
+    // A peer that does not speak ndr: refused, and the refusal shows
+    // without any flag.
+    let mut stranger = std::net::TcpStream::connect(&addr).unwrap();
+    std::io::Write::write_all(
+        &mut stranger,
+        b"GET / HTTP/1.1\r\n\r\n".repeat(4).as_slice(),
+    )
+    .unwrap();
+    remote.line_with("link refused", Duration::from_secs(20));
+    drop(stranger);
+    remote.signal("USR1");
+    let line = remote.line_with("listener counters", Duration::from_secs(20));
+    for field in [
+        "accepted: 0",
+        "refused_certificate: 0",
+        "refused_protocol: 1",
+    ] {
+        assert!(line.contains(field), "{line}");
+    }
+    remote.signal("USR1");
+    let end = Instant::now() + Duration::from_secs(20);
+    while remote.count("listener counters") < 2 {
+        assert!(Instant::now() < end, "{}", remote.stderr());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    remote.signal("TERM");
+    let (status, _, stderr) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{status}: {stderr}");
+    assert!(stderr.contains("SIGTERM: stopping"), "{stderr}");
+    assert_eq!(stderr.matches("listener counters").count(), 3, "{stderr}");
+}
+
+#[test]
+fn a_remote_saturates_its_commands_and_never_streams_a_broken_state() {
+    let _serial = serial();
+    // Saturated to ±1000 by default: a huge command moves the robot to 1000.
+    let (remote_default, addr) = remote(&["--once"]);
+    let csv = csv_path("saturated");
+    let (status, r, stderr) = base(&addr, "3", &csv, &["--signal", "constant:1e300"]);
+    assert!(status.success(), "{r}\n{stderr}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let states: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert!(states.iter().all(|s| s.abs() <= 1100.0), "{states:?}");
+    assert!(states.iter().any(|&s| s > 0.0), "{states:?}");
+    let (status, _, _) = remote_default.wait(Duration::from_secs(20));
+    assert!(status.success());
+    // Let through, a command at the edge of f64 drives the plant to
+    // infinity: the remote ends the session as an application failure
+    // instead of streaming a stale state.
+    let (remote, addr) = remote(&["--once", "--max-command", "1.7e308"]);
+    let (status, r, stderr) = base(&addr, "10", &csv, &["--signal", "constant:1.7e308"]);
+    assert!(!status.success(), "{r}");
+    let end = r["end"].as_str().unwrap();
+    assert!(
+        end.starts_with("link failed: ") && end.contains("application failure"),
+        "{end}\n{stderr}"
+    );
+    let (status, _, stderr) = remote.wait(Duration::from_secs(20));
+    assert!(!status.success(), "{stderr}");
+    assert!(
+        stderr.contains("application failure: the simulated plant's state"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn a_relay_off_loopback_needs_insecure() {
+    let _serial = serial();
+    let relay = Proc::spawn(&[
+        "relay",
+        "--listen",
+        "0.0.0.0:0",
+        "--upstream",
+        "127.0.0.1:9",
+        "--duration-s",
+        "2",
+    ]);
+    let (status, _, stderr) = relay.wait(Duration::from_secs(20));
+    assert!(!status.success(), "{stderr}");
+    assert!(stderr.contains("--insecure"), "{stderr}");
+}
