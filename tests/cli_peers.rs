@@ -405,3 +405,107 @@ fn a_relay_off_loopback_needs_insecure() {
     assert!(!status.success(), "{stderr}");
     assert!(stderr.contains("--insecure"), "{stderr}");
 }
+
+/// The CSV's GRTTs (s) of the rows released within `from..to` seconds.
+fn grtts(csv: &Path, from: f64, to: f64) -> Vec<f64> {
+    let text = std::fs::read_to_string(csv).expect("the CSV is written");
+    text.lines()
+        .skip(1)
+        .filter_map(|line| {
+            let cols: Vec<&str> = line.split(',').collect();
+            let t: f64 = cols.first()?.parse().ok()?;
+            let g: f64 = cols.get(3)?.parse().ok()?;
+            (t >= from && t < to).then_some(g)
+        })
+        .collect()
+}
+
+fn median(mut xs: Vec<f64>) -> f64 {
+    assert!(!xs.is_empty(), "no GRTT in the window");
+    xs.sort_by(f64::total_cmp);
+    xs[xs.len() / 2]
+}
+
+#[test]
+fn a_remote_stopped_for_3_s_is_back_on_its_round_trip_within_2_s() {
+    let _serial = serial();
+    // The remote's process stopped (SIGSTOP) for 3 s mid-run: on resume, the
+    // base's frames that waited are an outage, not delays to cover. The
+    // adaptive round trip held 650 ms for good (and once 3 s, falling at
+    // 0.1 s/s) after such a stop.
+    let (remote, addr) = remote(&["--once"]);
+    let csv = csv_path("stall");
+    let base = Proc::spawn(&[
+        "base",
+        "--connect",
+        &addr,
+        "--duration-s",
+        "14",
+        "--period-ms",
+        "20",
+        "--json",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    std::thread::sleep(Duration::from_secs(5));
+    remote.signal("STOP");
+    std::thread::sleep(Duration::from_secs(3));
+    remote.signal("CONT");
+    let (status, stdout, stderr) = base.wait(Duration::from_secs(60));
+    let report = json(&stdout, &stderr);
+    assert!(status.success(), "{report}\n{stderr}");
+    let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{remote_err}");
+    let before = median(grtts(&csv, 2.0, 5.0));
+    let after = median(grtts(&csv, 10.0, 14.0));
+    let _ = std::fs::remove_file(&csv);
+    // A period or two either way for the host's own jitter.
+    assert!(
+        after <= before + 0.05,
+        "GRTT {:.1} ms from 2 s after the stop, {:.1} ms before it",
+        after * 1e3,
+        before * 1e3
+    );
+}
+
+#[test]
+fn a_hung_base_is_dropped_and_the_next_one_served() {
+    let _serial = serial();
+    // A base that completes its handshake and then stops (SIGSTOP): the
+    // remote, which serves one base at a time, drops it after its liveness
+    // time (10 s by default) and serves the next base.
+    let (remote, addr) = remote(&[]);
+    let hung = Proc::spawn(&[
+        "base",
+        "--connect",
+        &addr,
+        "--duration-s",
+        "60",
+        "--period-ms",
+        "20",
+        "--out",
+        csv_path("hung").to_str().unwrap(),
+    ]);
+    let mut remote = remote;
+    remote.line_with("connected", Duration::from_secs(10));
+    std::thread::sleep(Duration::from_secs(1));
+    hung.signal("STOP");
+    let stopped = Instant::now();
+    let line = remote.line_with("silent", Duration::from_secs(20));
+    let dropped = stopped.elapsed();
+    assert!(
+        dropped >= Duration::from_secs(9) && dropped <= Duration::from_secs(14),
+        "dropped after {dropped:?}: {line}"
+    );
+    let csv = csv_path("after-hung");
+    let (status, report, stderr) = base(&addr, "2", &csv, &[]);
+    assert!(status.success(), "{report}\n{stderr}");
+    assert_eq!(report["end"], "completed");
+    let _ = std::fs::remove_file(&csv);
+    let _ = std::fs::remove_file(csv_path("hung"));
+    hung.signal("CONT");
+    drop(hung);
+    remote.signal("TERM");
+    let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{remote_err}");
+}
