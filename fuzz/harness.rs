@@ -375,10 +375,12 @@ fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN], last_fresh: &
         }
     }
     // Events the endpoint had no room for (a long time step runs many
-    // ticks): until the next fresh one, a held release may repeat a fresh
-    // one not seen here.
-    if ep.events_dropped() != last_fresh.dropped {
-        last_fresh.dropped = ep.events_dropped();
+    // ticks): the queue kept the oldest, so what comes here is a prefix,
+    // and until a fresh release comes in a whole batch, a held one may
+    // repeat a fresh one not seen here.
+    let cut = ep.events_dropped() != last_fresh.dropped;
+    last_fresh.dropped = ep.events_dropped();
+    if cut {
         last_fresh.exact = false;
     }
     while let Some(event) = ep.poll_event() {
@@ -397,7 +399,7 @@ fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN], last_fresh: &
                         r.seq
                     );
                     last_fresh.seq = Some(r.seq);
-                    last_fresh.exact = true;
+                    last_fresh.exact = !cut;
                 }
                 Status::Held if last_fresh.exact => assert_eq!(
                     Some(r.seq),
