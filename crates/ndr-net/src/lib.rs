@@ -42,8 +42,10 @@ pub mod clock;
 mod delivery;
 pub mod framing;
 pub mod hub;
+mod keepalive;
 pub mod keygen;
 pub mod link;
+mod listener;
 pub mod pool;
 pub mod relay;
 pub mod spin;
@@ -54,9 +56,8 @@ pub use capacity::QUEUE_CAPACITIES;
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
-pub use link::{
-    Link, LinkConfig, LinkSender, LinkStats, Listener, ListenerStats, NetError, Sample,
-};
+pub use link::{Link, LinkConfig, LinkSender, LinkStats, NetError, Sample};
+pub use listener::{Admission, Listener, ListenerStats};
 pub use pool::HubPool;
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};

@@ -22,22 +22,25 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{Config, ConfigError, Event, LinkError, Phase, Release, Running, Stats};
+use ndr_core::endpoint::{
+    Config, ConfigError, DEFAULT_LIVENESS, Event, LinkError, Phase, Release, Running, Stats,
+};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{HEADER_LEN, Role};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
-use tokio::task::JoinSet;
 
 use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
 use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
 use crate::hub::{Entry, Hub, Msg, Shared};
-use crate::pool::HubPool;
+use crate::listener::Seat;
 use crate::tls::{HandshakeError, TlsConfig};
 use crate::tls_io::Session;
+
+pub use crate::listener::{Admission, Listener, ListenerStats};
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
@@ -72,6 +75,10 @@ pub struct LinkConfig {
     /// `--insecure` switch). Off by default: such a link is refused with
     /// [`NetError::Insecure`]; loopback links may always be plain.
     pub insecure: bool,
+    /// How a [`Listener`] admits connections before they authenticate, so
+    /// that peers who never will cannot starve one who does (unused by
+    /// [`Link::connect`]).
+    pub admission: Admission,
 }
 
 impl LinkConfig {
@@ -84,6 +91,7 @@ impl LinkConfig {
             app_queue: 1024,
             queue_capacity: QUEUE,
             insecure: false,
+            admission: Admission::default(),
         }
     }
 }
@@ -187,6 +195,9 @@ pub struct Link {
     peer: SocketAddr,
     // The hub driving it (a link's own, or shared).
     hub: Hub,
+    /// Its place among the links its listener serves at once, given back
+    /// when the link is dropped (after it is closed).
+    seat: Option<Seat>,
     _runtime: Option<tokio::runtime::Runtime>,
 }
 
@@ -263,7 +274,7 @@ impl Link {
         Link::start(stream, role, config, Handle::current(), hub, None)
     }
 
-    fn start(
+    pub(crate) fn start(
         stream: TcpStream,
         role: Role,
         config: LinkConfig,
@@ -282,6 +293,11 @@ impl Link {
             }));
         }
         stream.set_nodelay(true)?;
+        // Best effort: the endpoint's liveness ends a silent link anyway.
+        let user_timeout = cfg.liveness.unwrap_or(DEFAULT_LIVENESS).into();
+        if let Err(e) = crate::keepalive::enable(&stream, user_timeout) {
+            tracing::debug!("no TCP keepalive on the link's socket: {e}");
+        }
         let peer = stream.peer_addr()?;
         // The hub owns the socket from here: it reads and writes it itself.
         let _guard = rt.enter();
@@ -330,8 +346,27 @@ impl Link {
             shut: false,
             peer,
             hub: hub.clone(),
+            seat: None,
             _runtime: None,
         })
+    }
+
+    /// Ends the link with `error`, whose close reason the peer gets,
+    /// without waiting for the hub to let it go: for the listener's tasks,
+    /// which must not block their runtime.
+    pub(crate) fn dismiss(mut self, error: LinkError) {
+        self.shut = true;
+        let _ = self.hub.send(Msg::Fail(self.id, error));
+    }
+
+    /// Keeps `seat` until the link is dropped.
+    pub(crate) fn hold(&mut self, seat: Seat) {
+        self.seat = Some(seat);
+    }
+
+    /// What the link's handle and its hub share.
+    pub(crate) fn shared(&self) -> &Arc<Shared> {
+        &self.shared
     }
 
     /// The peer's address.
@@ -566,7 +601,7 @@ impl Link {
     /// exception leaves its `with` block or the link is dropped unclosed.
     /// Waits as [`shutdown`](Self::shutdown) does; a no-op once closed.
     pub fn abort(&mut self) {
-        self.end(Msg::Abort(self.id));
+        self.end(Msg::Fail(self.id, LinkError::Abandoned));
     }
 
     fn end(&mut self, how: Msg) {
@@ -670,7 +705,7 @@ impl LinkSender {
 /// A blocking call made on a tokio runtime's thread would block that
 /// runtime (and tokio refuses to run a runtime inside another): an error
 /// that names the async call to make instead, rather than tokio's panic.
-fn not_in_a_runtime(call: &str, instead: &str) -> Result<(), NetError> {
+pub(crate) fn not_in_a_runtime(call: &str, instead: &str) -> Result<(), NetError> {
     match Handle::try_current() {
         Ok(_) => Err(NetError::Io(io::Error::other(format!(
             "{call} was called on a tokio runtime's thread, which it would block: \
@@ -680,7 +715,7 @@ fn not_in_a_runtime(call: &str, instead: &str) -> Result<(), NetError> {
     }
 }
 
-fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
+pub(crate) fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
     Ok(tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .thread_name("ndr-io")
@@ -689,360 +724,8 @@ fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
         .build()?)
 }
 
-/// Accepts links as the remote side, one per connecting base.
-pub struct Listener {
-    listener: TcpListener,
-    config: LinkConfig,
-    hubs: Hubs,
-    role: Role,
-    tls: Option<TlsConfig>,
-    stats: Arc<Mutex<ListenerStats>>,
-    /// Handshakes in flight (TLS if configured, then ndr's Hello), a task
-    /// each (aborted with the listener).
-    handshakes: tokio::sync::Mutex<JoinSet<Option<Link>>>,
-    /// The runtime of a listener made by [`Listener::bind_blocking`]: its
-    /// accepts and handshakes run there.
-    runtime: Option<tokio::runtime::Runtime>,
-}
-
-impl fmt::Debug for Listener {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Listener")
-            .field("local_addr", &self.listener.local_addr().ok())
-            .field("role", &self.role)
-            .field("tls", &self.tls.is_some())
-            .field("blocking", &self.runtime.is_some())
-            .field("stats", &self.stats())
-            .finish()
-    }
-}
-
-impl Drop for Listener {
-    fn drop(&mut self) {
-        // Without waiting for its threads: a blocking listener may still be
-        // dropped from async code.
-        if let Some(rt) = self.runtime.take() {
-            rt.shutdown_background();
-        }
-    }
-}
-
-/// Connections a [`Listener`] refused before they became links, by reason.
-/// None of them reached the application.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ListenerStats {
-    /// Links accepted (handed to the application).
-    pub accepted: u64,
-    /// TLS handshakes refused for an unknown (untrusted, unpinned)
-    /// certificate.
-    pub refused_certificate: u64,
-    /// TLS handshakes refused because the peer presented no certificate.
-    pub refused_no_certificate: u64,
-    /// TLS handshakes refused because the peer does not speak TLS 1.3 (an
-    /// older TLS, or a plain link).
-    pub refused_version: u64,
-    /// TLS handshakes that did not finish within the timeout.
-    pub timeouts: u64,
-    /// Handshakes that failed otherwise (the peer closed, a reset).
-    pub failed_other: u64,
-    /// ndr handshakes refused: the peer claims this side's role.
-    pub refused_role: u64,
-    /// ndr handshakes refused: the peer has another number of axes.
-    pub refused_axes: u64,
-    /// ndr handshakes refused: another period, regulation mode or
-    /// parameters this side cannot take.
-    pub refused_settings: u64,
-    /// ndr handshakes refused: the peer speaks another wire version.
-    pub refused_wire_version: u64,
-    /// ndr handshakes refused: the peer sent bytes that are not ndr frames.
-    pub refused_protocol: u64,
-}
-
-impl ListenerStats {
-    /// Counts a link whose ndr handshake failed, by reason.
-    fn count_link(&mut self, e: &NetError) {
-        use ndr_core::wire::close_reason as why;
-        let counter = match e {
-            NetError::Link(LinkError::RoleMismatch { .. })
-            | NetError::Link(LinkError::PeerClosed {
-                reason: why::ROLE_MISMATCH,
-            }) => &mut self.refused_role,
-            NetError::Link(LinkError::AxesMismatch { .. })
-            | NetError::Link(LinkError::PeerClosed {
-                reason: why::AXES_MISMATCH,
-            }) => &mut self.refused_axes,
-            NetError::Link(
-                LinkError::PeriodMismatch { .. }
-                | LinkError::ModeMismatch { .. }
-                | LinkError::BadParameters { .. }
-                | LinkError::PeerClosed {
-                    reason: why::PERIOD_MISMATCH | why::MODE_MISMATCH,
-                },
-            ) => &mut self.refused_settings,
-            NetError::Link(
-                LinkError::VersionMismatch { .. }
-                | LinkError::PeerClosed {
-                    reason: why::VERSION_MISMATCH,
-                },
-            ) => &mut self.refused_wire_version,
-            NetError::Link(
-                LinkError::Wire(_) | LinkError::Unexpected { .. } | LinkError::ChannelCount { .. },
-            ) => &mut self.refused_protocol,
-            NetError::Link(LinkError::Timeout) | NetError::Timeout => &mut self.timeouts,
-            _ => &mut self.failed_other,
-        };
-        *counter += 1;
-    }
-
-    fn count(&mut self, e: &HandshakeError) {
-        let counter = match e {
-            HandshakeError::UnknownCertificate(_) => &mut self.refused_certificate,
-            HandshakeError::NoCertificate => &mut self.refused_no_certificate,
-            HandshakeError::Version(_) => &mut self.refused_version,
-            HandshakeError::Timeout(_) => &mut self.timeouts,
-            HandshakeError::Other(_) => &mut self.failed_other,
-        };
-        *counter += 1;
-    }
-}
-
-/// Where a listener puts the links it accepts.
-enum Hubs {
-    One(Hub),
-    Pool(HubPool),
-}
-
-impl Listener {
-    /// Listens on `addr` for plain links; the links it accepts share one
-    /// hub of their own. Refused with [`NetError::Insecure`] unless `addr`
-    /// is loopback (then no other host can connect) or
-    /// [`LinkConfig::insecure`].
-    pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
-        plain_allowed(addr, &config)?;
-        Listener::bind_with(addr, config, None).await
-    }
-
-    /// Listens on `addr` for links over mutual TLS 1.3: a peer whose
-    /// handshake fails is counted ([`stats`](Self::stats)), logged and
-    /// dropped, and never returned by [`accept`](Self::accept).
-    pub async fn bind_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Listener, NetError> {
-        Listener::bind_with(addr, config, Some(tls.clone())).await
-    }
-
-    async fn bind_with(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: Option<TlsConfig>,
-    ) -> Result<Listener, NetError> {
-        Ok(Listener {
-            listener: TcpListener::bind(addr).await?,
-            hubs: Hubs::One(Hub::new(config.spin_margin)?),
-            config,
-            role: Role::Remote,
-            tls,
-            stats: Arc::new(Mutex::new(ListenerStats::default())),
-            handshakes: tokio::sync::Mutex::new(JoinSet::new()),
-            runtime: None,
-        })
-    }
-
-    /// [`bind`](Self::bind) for programs without a tokio runtime: the
-    /// listener gets a small runtime of its own (one `ndr-io` thread), on
-    /// which [`accept_blocking`](Self::accept_blocking) runs the handshakes.
-    /// The links it accepts need no runtime: their hub drives them.
-    ///
-    /// ```no_run
-    /// use ndr_core::endpoint::Config;
-    /// use ndr_core::time::Duration;
-    /// use ndr_core::wire::Role;
-    /// use ndr_net::{LinkConfig, Listener};
-    ///
-    /// let mut endpoint = Config::new(Role::Remote);
-    /// endpoint.axes = 2;
-    /// endpoint.period = Duration::from_millis(10);
-    /// let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, LinkConfig::new(endpoint))?;
-    /// loop {
-    ///     let mut link = listener.accept_blocking()?; // one base after another
-    ///     while let Ok(command) = link.recv() {
-    ///         let state: Vec<f64> = command.values().iter().map(|c| 0.5 * c).collect();
-    ///         link.send(&state)?;
-    ///     }
-    /// }
-    /// # Ok::<(), Box<dyn std::error::Error>>(())
-    /// ```
-    pub fn bind_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
-        plain_allowed(addr, &config)?;
-        Listener::bind_blocking_with(addr, config, None)
-    }
-
-    /// [`bind_tls`](Self::bind_tls) for programs without a tokio runtime
-    /// (see [`bind_blocking`](Self::bind_blocking)).
-    pub fn bind_blocking_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Listener, NetError> {
-        Listener::bind_blocking_with(addr, config, Some(tls.clone()))
-    }
-
-    fn bind_blocking_with(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: Option<TlsConfig>,
-    ) -> Result<Listener, NetError> {
-        not_in_a_runtime("Listener::bind_blocking", "Listener::bind(..).await")?;
-        let rt = own_runtime()?;
-        let mut listener = rt.block_on(Listener::bind_with(addr, config, tls))?;
-        listener.runtime = Some(rt);
-        Ok(listener)
-    }
-
-    /// What it accepted and refused so far.
-    #[must_use]
-    pub fn stats(&self) -> ListenerStats {
-        *self.stats.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-
-    /// Takes `role` in the links it accepts instead of the remote's (a base
-    /// that waits for its robot to dial in).
-    #[must_use]
-    pub fn with_role(mut self, role: Role) -> Listener {
-        self.role = role;
-        self
-    }
-
-    /// Puts the links it accepts on `hub` (shared with other listeners or
-    /// connections) instead of a hub of its own.
-    #[must_use]
-    pub fn with_hub(mut self, hub: Hub) -> Listener {
-        self.hubs = Hubs::One(hub);
-        self
-    }
-
-    /// Spreads the links it accepts over a pool of hubs (each to the least
-    /// loaded one) instead of a hub of its own.
-    #[must_use]
-    pub fn with_pool(mut self, pool: HubPool) -> Listener {
-        self.hubs = Hubs::Pool(pool);
-        self
-    }
-
-    /// The address it listens on.
-    pub fn local_addr(&self) -> Result<SocketAddr, NetError> {
-        Ok(self.listener.local_addr()?)
-    }
-
-    /// The next peer that connects and completes its handshakes, as a
-    /// running link (this side is the remote unless
-    /// [`with_role`](Self::with_role) said otherwise). Handshakes run side by
-    /// side (at most [`TlsConfig::max_pending_handshakes`], or
-    /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
-    /// without TLS; further connections wait in the kernel's accept queue):
-    /// first TLS's, if the listener has it, then ndr's Hello, each bounded
-    /// by its timeout. A peer whose handshake fails (unknown
-    /// certificate, another role, other axes, period or mode, no answer…) is
-    /// logged, counted in [`stats`](Self::stats) and dropped: it never
-    /// reaches the application, and the listener keeps serving.
-    pub async fn accept(&self) -> Result<Link, NetError> {
-        let mut handshakes = self.handshakes.lock().await;
-        // At least one, or no branch below could ever run.
-        let max = self
-            .tls
-            .as_ref()
-            .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
-                t.max_pending_handshakes
-            })
-            .max(1);
-        loop {
-            tokio::select! {
-                biased;
-                Some(done) = handshakes.join_next(), if !handshakes.is_empty() => match done {
-                    Ok(Some(link)) => {
-                        self.count(|s| &mut s.accepted);
-                        return Ok(link);
-                    }
-                    Ok(None) => {}
-                    Err(e) => {
-                        tracing::warn!("link refused: its handshake task failed: {e}");
-                        self.count(|s| &mut s.failed_other);
-                    }
-                },
-                // With `max` handshakes in flight, the next connections wait
-                // in the kernel's accept queue (bounded by its backlog)
-                // until one ends: a burst of peers is served, not refused.
-                accepted = self.listener.accept(), if handshakes.len() < max => {
-                    let (stream, peer) = accepted?;
-                    let hub = match &self.hubs {
-                        Hubs::One(hub) => hub.clone(),
-                        Hubs::Pool(pool) => pool.least_loaded().clone(),
-                    };
-                    let (tls, stats) = (self.tls.clone(), Arc::clone(&self.stats));
-                    let (role, config) = (self.role, self.config);
-                    handshakes.spawn(async move {
-                        let (stream, conn) = match tls {
-                            None => (stream, None),
-                            Some(tls) => match tls.accept(stream).await {
-                                Ok((stream, conn)) => (stream, Some(conn)),
-                                Err(e) => {
-                                    tracing::warn!(%peer, "link refused: {e}");
-                                    stats.lock().unwrap_or_else(PoisonError::into_inner).count(&e);
-                                    return None;
-                                }
-                            },
-                        };
-                        let limit: std::time::Duration = config.endpoint.handshake_timeout.into();
-                        let handshake = async {
-                            let mut link =
-                                Link::start(stream, role, config, Handle::current(), &hub, conn)?;
-                            link.handshake().await?;
-                            Ok::<Link, NetError>(link)
-                        };
-                        let outcome = match tokio::time::timeout(limit, handshake).await {
-                            Ok(outcome) => outcome,
-                            Err(_) => Err(NetError::Timeout),
-                        };
-                        match outcome {
-                            Ok(link) => Some(link),
-                            Err(e) => {
-                                tracing::warn!(%peer, "link refused: {e}");
-                                stats.lock().unwrap_or_else(PoisonError::into_inner).count_link(&e);
-                                None
-                            }
-                        }
-                    });
-                }
-            }
-        }
-    }
-
-    /// [`accept`](Self::accept) on the calling thread, for a listener made
-    /// by [`bind_blocking`](Self::bind_blocking); one made on a tokio
-    /// runtime (by [`bind`](Self::bind)) is refused with an error that
-    /// says to `.await` [`accept`](Self::accept) instead.
-    pub fn accept_blocking(&self) -> Result<Link, NetError> {
-        match &self.runtime {
-            Some(rt) => {
-                not_in_a_runtime("Listener::accept_blocking", "accept().await")?;
-                rt.block_on(self.accept())
-            }
-            None => Err(NetError::Io(io::Error::other(
-                "accept_blocking needs a listener made by Listener::bind_blocking; \
-                 this one runs on the caller's tokio runtime: use accept().await",
-            ))),
-        }
-    }
-
-    fn count(&self, counter: impl FnOnce(&mut ListenerStats) -> &mut u64) {
-        *counter(&mut self.stats.lock().unwrap_or_else(PoisonError::into_inner)) += 1;
-    }
-}
-
 /// Refuses a plain link with a non-loopback address unless insecure.
-fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(), NetError> {
+pub(crate) fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(), NetError> {
     if crate::tls::plain_allowed(addr.ip(), config.insecure) {
         Ok(())
     } else {

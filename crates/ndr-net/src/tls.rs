@@ -1,11 +1,14 @@
 //! Mutual TLS 1.3 on a link: both peers present a certificate.
 //!
 //! The handshake runs on tokio (tokio-rustls) when the link connects or is
-//! accepted, bounded by [`TlsConfig::handshake_timeout`]; then the rustls
-//! connection state goes with the socket to the hub, which carries on with
-//! rustls's sans-IO calls (`read_tls`, `process_new_packets`, `reader`,
-//! `writer`, `write_tls`) in its own read and write path. A handshake that
-//! fails never becomes a [`Link`](crate::Link).
+//! accepted, bounded by [`TlsConfig::handshake_timeout`] (and, on a
+//! listener, by its pre-authentication budget,
+//! [`Admission::preauth_timeout`](crate::Admission::preauth_timeout)); then
+//! the rustls connection state goes with the socket to the hub, which
+//! carries on with rustls's sans-IO calls (`read_tls`,
+//! `process_new_packets`, `reader`, `writer`, `write_tls`) in its own read
+//! and write path. A handshake that fails never becomes a
+//! [`Link`](crate::Link).
 //!
 //! A peer is trusted in one of two ways ([`Trust`]):
 //!
@@ -39,7 +42,8 @@ use tokio::net::TcpStream;
 
 /// Default bound on a TLS handshake.
 pub const DEFAULT_HANDSHAKE_TIMEOUT: StdDuration = StdDuration::from_secs(5);
-/// Default bound on the handshakes a listener runs at once.
+/// Default bound on the handshakes a listener runs at once (with or
+/// without TLS).
 pub const DEFAULT_MAX_PENDING_HANDSHAKES: usize = 64;
 /// The name a server's certificate is checked against under [`Trust::Ca`]
 /// unless told otherwise (`ndr keygen` puts it in every certificate).
@@ -175,10 +179,18 @@ pub struct TlsConfig {
     server_name: ServerName<'static>,
     server_verifier: Arc<dyn ServerCertVerifier>,
     fingerprint: Fingerprint,
-    /// Longest a handshake may take before the connection is dropped.
+    /// Longest a handshake may take before the connection is dropped; a
+    /// listener also waits at most this long for the peer's ClientHello,
+    /// and its pre-authentication budget
+    /// ([`Admission::preauth_timeout`](crate::Admission::preauth_timeout),
+    /// 3 s by default) bounds TLS and ndr's Hello together.
     pub handshake_timeout: StdDuration,
-    /// Most handshakes a listener runs at once (at least one); further
-    /// connections wait in the kernel's accept queue until one ends.
+    /// Most handshakes a listener runs at once (at least one). When all
+    /// are taken, a new connection takes the slot of one that has stopped
+    /// getting further (counted in
+    /// [`ListenerStats::evicted`](crate::ListenerStats::evicted)): peers
+    /// that never authenticate cannot hold them all. Read when the
+    /// listener is bound.
     pub max_pending_handshakes: usize,
 }
 

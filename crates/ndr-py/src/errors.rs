@@ -85,11 +85,16 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
         // The peer's TLS refused our certificate after our side's handshake
         // was over (TLS 1.3 checks the client's last): a TLS handshake failure.
         | CoreError::CertificateRefused => HandshakeError::new_err(msg),
-        CoreError::Wire(_) | CoreError::Unexpected { .. } | CoreError::ChannelCount { .. } => {
-            ProtocolError::new_err(msg)
-        }
+        CoreError::Wire(_)
+        | CoreError::Unexpected { .. }
+        | CoreError::ChannelCount { .. }
+        | CoreError::OutOfSequence { .. }
+        | CoreError::StampBehind { .. }
+        | CoreError::StampAhead { .. } => ProtocolError::new_err(msg),
         CoreError::PeerClosed { reason } => peer_closed(py, msg, reason),
-        CoreError::Disconnected => DisconnectedError::new_err(msg),
+        // A peer silent past the liveness time: hung, or the connection
+        // half-open; for the application, the connection is gone.
+        CoreError::Disconnected | CoreError::PeerSilent { .. } => DisconnectedError::new_err(msg),
         CoreError::Closed => LinkClosedError::new_err(msg),
         CoreError::SampleShape { .. }
         | CoreError::NonFinite { .. }

@@ -444,7 +444,11 @@ fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
         ("resizes", e.resizes),
         ("link_lost", e.link_lost),
         ("tx_dropped", e.tx_dropped),
+        ("frames_missing", e.frames_missing),
         ("outage_delays", e.outage_delays),
+        ("clamped", e.clamped),
+        ("grtt_unmeasured", e.grtt_unmeasured),
+        ("probes_received", e.probes_received),
     ] {
         d.set_item(k, v)?;
     }
@@ -503,7 +507,7 @@ pub struct PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, period, mode, playout, underflow, watchdog, handshake_timeout, app_queue, insecure))]
+    #[pyo3(signature = (*, role, axes, period, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         role: &str,
@@ -513,6 +517,7 @@ impl PyLinkSettings {
         playout: &str,
         underflow: &str,
         watchdog: Option<f64>,
+        liveness: Option<f64>,
         handshake_timeout: f64,
         app_queue: &Bound<'_, PyAny>,
         insecure: bool,
@@ -543,6 +548,7 @@ impl PyLinkSettings {
             .parse::<Playout>()
             .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
         endpoint.watchdog = watchdog.map(|w| positive("watchdog", w)).transpose()?;
+        endpoint.liveness = liveness.map(|l| positive("liveness", l)).transpose()?;
         endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;
         endpoint
             .validate()
@@ -766,8 +772,9 @@ impl PyListener {
     }
 
     /// Peers refused: their TLS handshake failed (unknown or missing
-    /// certificate, old TLS, timeout, too many at once) or their ndr
-    /// handshake did (another role, other settings, no answer).
+    /// certificate, old TLS, timeout) or their ndr handshake did (another
+    /// role, other settings, no answer), or the listener turned them away
+    /// (evicted, too many from one source, busy, never taken).
     #[getter]
     fn refused(&self, py: Python<'_>) -> u64 {
         let s = self.tls_stats(py);
@@ -781,6 +788,10 @@ impl PyListener {
             + s.refused_settings
             + s.refused_wire_version
             + s.refused_protocol
+            + s.evicted
+            + s.refused_per_source
+            + s.refused_busy
+            + s.unclaimed
     }
 
     /// What the listener counted, by reason.
@@ -799,6 +810,11 @@ impl PyListener {
         d.set_item("refused_settings", s.refused_settings)?;
         d.set_item("refused_wire_version", s.refused_wire_version)?;
         d.set_item("refused_protocol", s.refused_protocol)?;
+        d.set_item("evicted", s.evicted)?;
+        d.set_item("refused_per_source", s.refused_per_source)?;
+        d.set_item("refused_busy", s.refused_busy)?;
+        d.set_item("unclaimed", s.unclaimed)?;
+        d.set_item("accept_errors", s.accept_errors)?;
         Ok(d)
     }
 }

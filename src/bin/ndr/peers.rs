@@ -106,7 +106,9 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
                 None => Listener::bind(args.listen, config).await,
             }
         })
-        .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?;
+        .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?
+        // One base at a time: the next one is told the robot is busy.
+        .with_max_links(1);
     let listener = Arc::new(listener);
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
     let stop = Arc::new(Stop::default());
@@ -148,14 +150,9 @@ fn serve(
         let link = match accepted {
             None => return None,
             Some(Ok(link)) => link,
-            // One failed accept (a peer that vanished at once) must not
-            // stop the robot; refused handshakes are logged by the listener.
-            Some(Err(e)) => {
-                tracing::warn!("accept failed: {e}");
-                // An error that persists (out of file descriptors) must not spin.
-                std::thread::sleep(StdDuration::from_millis(100));
-                continue;
-            }
+            // Refused peers are logged and counted by the listener, which
+            // fails only when its socket does.
+            Some(Err(e)) => return Some(format!("the listener stopped: {e}")),
         };
         let peer = link.peer_addr();
         eprintln!("ndr remote: base {peer} connected");

@@ -108,7 +108,8 @@ struct SoakReport {
     garbage_cut_off: u64,
     /// Crowds of idle connections held open on the remote.
     faults_idle_crowds: u64,
-    /// Connections of that crowd the remote had accepted (TCP) at the end.
+    /// Connections of those crowds that connected (the remote refuses most:
+    /// one source may hold only a few pending handshakes).
     idle_connections_held: u64,
     faults_hung_bases: u64,
     /// Hung bases the remote closed within its liveness time and 3 s.
@@ -376,7 +377,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     let mut command = 0.0f64;
     let period = config.endpoint.period;
     // The idle crowd, held until the next fault; the hung base's check.
-    let mut idle: Vec<StdStream> = Vec::new();
+    let mut idle: Vec<tokio::net::TcpStream> = Vec::new();
     let mut hung: Option<std::thread::JoinHandle<bool>> = None;
     while StdInstant::now() < end {
         if hung
@@ -423,7 +424,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                 }
                 3 => {
                     r.faults_idle_crowds += 1;
-                    idle = idle_crowd(remote_addr);
+                    idle = idle_crowd(&rt, remote_addr);
                     r.idle_connections_held += idle.len() as u64;
                 }
                 4 => {
@@ -608,12 +609,27 @@ fn inject_garbage(addr: SocketAddr, kind: u64) -> bool {
     false
 }
 
-/// Opens [`IDLE_CONNECTIONS`] connections to the remote that send nothing
-/// (a crowd a stranger holds open); those that connected.
-fn idle_crowd(addr: SocketAddr) -> Vec<StdStream> {
-    (0..IDLE_CONNECTIONS)
-        .filter_map(|_| StdStream::connect_timeout(&addr, StdDuration::from_millis(200)).ok())
-        .collect()
+/// Opens [`IDLE_CONNECTIONS`] connections to the remote that send nothing,
+/// from 25 addresses other than the base's (127.0.0.2 to .26: strangers
+/// that fill the remote's pending handshakes); those that connected.
+fn idle_crowd(rt: &tokio::runtime::Runtime, addr: SocketAddr) -> Vec<tokio::net::TcpStream> {
+    rt.block_on(async {
+        let mut held = Vec::new();
+        for i in 0..IDLE_CONNECTIONS {
+            let Ok(socket) = tokio::net::TcpSocket::new_v4() else {
+                break;
+            };
+            let host = 2 + u8::try_from(i % 25).unwrap_or(0);
+            if socket.bind(([127, 0, 0, host], 0).into()).is_err() {
+                break;
+            }
+            let connect = tokio::time::timeout(StdDuration::from_millis(200), socket.connect(addr));
+            if let Ok(Ok(stream)) = connect.await {
+                held.push(stream);
+            }
+        }
+        held
+    })
 }
 
 /// A base's Hello for the soak's link (4 axes at `period`, the paper's

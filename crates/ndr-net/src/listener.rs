@@ -1,0 +1,510 @@
+//! The remote's side of connecting: a [`Listener`] accepts peers and hands
+//! the application running links.
+//!
+//! Its accept loop runs in the background from the moment it is bound, so
+//! connections are accepted and handshaken while the application is busy
+//! with a link; finished links wait in a short queue for
+//! [`Listener::accept`]. Before a peer has authenticated (TLS, if any, and
+//! ndr's Hello), it gets little: a short budget of time
+//! ([`Admission::preauth_timeout`]), one of a fixed number of handshake
+//! slots, at most a few of them per source
+//! ([`Admission::max_pending_per_source`]), and its slot goes to a newcomer
+//! when all are taken. Peers that never authenticate therefore cannot lock
+//! out one who does. Every refusal is counted by reason
+//! ([`ListenerStats`]) and logged, at most one line per reason a second.
+
+mod first;
+mod gate;
+mod handshake;
+mod ledger;
+mod seats;
+
+use std::fmt;
+use std::io;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use ndr_core::endpoint::Phase;
+use ndr_core::time::Duration;
+use ndr_core::wire::Role;
+use tokio::net::{TcpListener, TcpSocket};
+use tokio::runtime::Handle;
+use tokio::sync::mpsc;
+
+use crate::hub::Hub;
+use crate::link::{Link, LinkConfig, NetError, not_in_a_runtime, own_runtime, plain_allowed};
+use crate::pool::HubPool;
+use crate::tls::TlsConfig;
+
+use ledger::{Ledger, Refusal};
+pub(crate) use seats::Seat;
+use seats::Seats;
+
+/// How a [`Listener`] admits connections before they authenticate
+/// ([`LinkConfig::admission`]). Start from the defaults and change fields:
+///
+/// ```
+/// # use ndr_core::endpoint::Config;
+/// # use ndr_core::wire::Role;
+/// # use ndr_net::LinkConfig;
+/// let mut config = LinkConfig::new(Config::new(Role::Remote));
+/// config.admission.preauth_timeout = ndr_core::time::Duration::from_secs(1);
+/// config.admission.max_pending_per_source = 4;
+/// ```
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Admission {
+    /// The pre-authentication budget: a connection must finish TLS (if the
+    /// listener has it) and ndr's Hello within this time, counted from its
+    /// accept, or it is closed and counted in [`ListenerStats::timeouts`].
+    /// Default 3 s; raise it for a peer behind a slow, lossy path. Zero
+    /// leaves only each step's own timeout
+    /// ([`TlsConfig::handshake_timeout`], the endpoint's
+    /// `handshake_timeout`).
+    pub preauth_timeout: Duration,
+    /// Most handshakes pending at once from one source (an IPv4 address,
+    /// or an IPv6 /64); a connection beyond it is closed at once and
+    /// counted in [`ListenerStats::refused_per_source`]. Default 8 (at
+    /// least 1). Peers behind one NAT share a source: raise it for many
+    /// operators behind one address.
+    pub max_pending_per_source: usize,
+    /// The kernel's queue of connections not yet accepted (`listen`'s
+    /// backlog; the kernel caps it at `net.core.somaxconn`). Default 1024.
+    pub backlog: u32,
+    /// Links that completed their handshake and wait for
+    /// [`Listener::accept`]; one that finds the queue full is closed (its
+    /// peer told the listener is busy) and counted in
+    /// [`ListenerStats::unclaimed`]. Default 16 (at least 1).
+    pub accept_queue: usize,
+}
+
+impl Default for Admission {
+    fn default() -> Self {
+        Admission {
+            preauth_timeout: Duration::from_secs(3),
+            max_pending_per_source: 8,
+            backlog: 1024,
+            accept_queue: 16,
+        }
+    }
+}
+
+/// Connections a [`Listener`] accepted, and those it refused before they
+/// became links, by reason. None of the refused reached the application.
+/// New counters may be added: read the fields, do not build the struct.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ListenerStats {
+    /// Links accepted (handed to the application).
+    pub accepted: u64,
+    /// TLS handshakes refused for an unknown (untrusted, unpinned)
+    /// certificate.
+    pub refused_certificate: u64,
+    /// TLS handshakes refused because the peer presented no certificate.
+    pub refused_no_certificate: u64,
+    /// TLS handshakes refused because the peer does not speak TLS 1.3 (an
+    /// older TLS, or a plain link).
+    pub refused_version: u64,
+    /// Handshakes (TLS, then ndr's Hello) that did not finish within the
+    /// pre-authentication budget ([`Admission::preauth_timeout`]) or their
+    /// own timeout.
+    pub timeouts: u64,
+    /// Handshakes that failed otherwise (the peer closed, a reset).
+    pub failed_other: u64,
+    /// ndr handshakes refused: the peer claims this side's role.
+    pub refused_role: u64,
+    /// ndr handshakes refused: the peer has another number of axes.
+    pub refused_axes: u64,
+    /// ndr handshakes refused: another period, regulation mode or
+    /// parameters this side cannot take.
+    pub refused_settings: u64,
+    /// ndr handshakes refused: the peer speaks another wire version.
+    pub refused_wire_version: u64,
+    /// ndr handshakes refused: the peer sent bytes that are not ndr frames.
+    pub refused_protocol: u64,
+    /// Pending handshakes closed to make room for a new connection, every
+    /// slot being taken ([`TlsConfig::max_pending_handshakes`]): the oldest
+    /// of the source holding the most slots goes. Many mean a flood of
+    /// connections that do not authenticate.
+    pub evicted: u64,
+    /// Connections closed at once because their source already had
+    /// [`Admission::max_pending_per_source`] handshakes pending.
+    pub refused_per_source: u64,
+    /// Peers refused after their handshake because the listener served as
+    /// many links as [`Listener::with_max_links`] allows: each got a Close
+    /// with reason `BUSY`.
+    pub refused_busy: u64,
+    /// Links that completed their handshake but that the application did
+    /// not take: the accept queue was full ([`Admission::accept_queue`]; the
+    /// peer was told the listener is busy), or the link ended while it
+    /// waited.
+    pub unclaimed: u64,
+    /// Times the kernel could not hand over a connection (out of file
+    /// descriptors or memory); the listener waits a moment and goes on.
+    /// Raise the process's open-file limit if this grows.
+    pub accept_errors: u64,
+}
+
+/// Where a listener puts the links it accepts.
+enum Hubs {
+    One(Hub),
+    Pool(HubPool),
+}
+
+/// What the builders set after binding, read by each handshake as it starts.
+struct Setup {
+    role: Role,
+    hubs: Hubs,
+}
+
+/// What the listener, its accept loop and its handshakes share.
+pub(crate) struct Common {
+    config: LinkConfig,
+    tls: Option<TlsConfig>,
+    setup: Mutex<Setup>,
+    seats: Arc<Seats>,
+    ledger: Mutex<Ledger>,
+    /// Why the accept loop stopped, once it has.
+    stopped: Mutex<Option<String>>,
+}
+
+impl Common {
+    /// The role and the hub for a link starting now.
+    fn setup(&self) -> (Role, Hub) {
+        let setup = self.setup.lock().unwrap_or_else(PoisonError::into_inner);
+        let hub = match &setup.hubs {
+            Hubs::One(hub) => hub.clone(),
+            Hubs::Pool(pool) => pool.least_loaded().clone(),
+        };
+        (setup.role, hub)
+    }
+
+    fn refuse(&self, why: Refusal, peer: impl Into<Option<SocketAddr>>, what: &dyn fmt::Display) {
+        ledger::refuse(&self.ledger, why, peer.into(), what);
+    }
+}
+
+/// Accepts links as the remote side, one per connecting base.
+///
+/// From [`bind`](Self::bind) on, a task on the listener's runtime accepts
+/// connections and runs their handshakes, whether or not the application is
+/// in [`accept`](Self::accept): a peer that comes while the application
+/// serves another is answered at once (queued, or refused as busy with
+/// [`with_max_links`](Self::with_max_links)) instead of waiting unseen in
+/// the kernel. Dropping the listener stops listening and ends the
+/// handshakes under way and the links nobody took; links already taken go
+/// on.
+pub struct Listener {
+    local: SocketAddr,
+    common: Arc<Common>,
+    /// Links whose handshake is done, for [`Listener::accept`].
+    ready: tokio::sync::Mutex<mpsc::Receiver<Link>>,
+    /// The accept loop, aborted with the listener.
+    gate: tokio::task::AbortHandle,
+    /// The listening socket's other descriptor, to stop listening at once
+    /// on drop whether or not the runtime gets to cancel the accept loop.
+    listening: Option<std::os::fd::OwnedFd>,
+    /// The runtime of a listener made by [`Listener::bind_blocking`]: its
+    /// accepts and handshakes run there.
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl fmt::Debug for Listener {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Listener")
+            .field("local_addr", &self.local)
+            .field("tls", &self.common.tls.is_some())
+            .field("blocking", &self.runtime.is_some())
+            .field("stats", &self.stats())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Drop for Listener {
+    fn drop(&mut self) {
+        if let Some(fd) = self.listening.take() {
+            stop_listening(&fd);
+        }
+        self.gate.abort();
+        // Without waiting for its threads: a blocking listener may still be
+        // dropped from async code.
+        if let Some(rt) = self.runtime.take() {
+            rt.shutdown_background();
+        }
+    }
+}
+
+/// Makes the kernel refuse new connections on a listening socket now
+/// (Linux: `shutdown` on a listening socket stops it listening).
+#[cfg(target_os = "linux")]
+fn stop_listening(fd: &std::os::fd::OwnedFd) {
+    use std::os::fd::AsRawFd;
+    let _ = nix::sys::socket::shutdown(fd.as_raw_fd(), nix::sys::socket::Shutdown::Both);
+}
+
+#[cfg(not(target_os = "linux"))]
+fn stop_listening(_: &std::os::fd::OwnedFd) {}
+
+/// A listening socket with `backlog`, reusing the address as
+/// [`TcpListener::bind`] does (a restarted robot binds its port at once).
+fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
+    let socket = if addr.is_ipv4() {
+        TcpSocket::new_v4()?
+    } else {
+        TcpSocket::new_v6()?
+    };
+    #[cfg(unix)]
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(backlog.max(1))
+}
+
+impl Listener {
+    /// Listens on `addr` for plain links; the links it accepts share one
+    /// hub of their own. Refused with [`NetError::Insecure`] unless `addr`
+    /// is loopback (then no other host can connect) or
+    /// [`LinkConfig::insecure`]. The accept loop runs on the current tokio
+    /// runtime (on a current-thread runtime, only while it runs).
+    pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        plain_allowed(addr, &config)?;
+        Listener::bind_with(addr, config, None).await
+    }
+
+    /// Listens on `addr` for links over mutual TLS 1.3: a peer whose
+    /// handshake fails is counted ([`stats`](Self::stats)), logged and
+    /// dropped, and never returned by [`accept`](Self::accept).
+    pub async fn bind_tls(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Listener, NetError> {
+        Listener::bind_with(addr, config, Some(tls.clone())).await
+    }
+
+    async fn bind_with(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: Option<TlsConfig>,
+    ) -> Result<Listener, NetError> {
+        let socket = listen(addr, config.admission.backlog)?;
+        let local = socket.local_addr()?;
+        let listening = std::os::fd::AsFd::as_fd(&socket).try_clone_to_owned().ok();
+        let slots = tls
+            .as_ref()
+            .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
+                t.max_pending_handshakes
+            });
+        let common = Arc::new(Common {
+            config,
+            tls,
+            setup: Mutex::new(Setup {
+                role: Role::Remote,
+                hubs: Hubs::One(Hub::new(config.spin_margin)?),
+            }),
+            seats: Arc::new(Seats::default()),
+            ledger: Mutex::new(Ledger::default()),
+            stopped: Mutex::new(None),
+        });
+        let (tx, rx) = mpsc::channel(config.admission.accept_queue.max(1));
+        let gate = gate::Gate::new(socket, &common, tx, slots);
+        let gate = Handle::current().spawn(gate.run()).abort_handle();
+        Ok(Listener {
+            local,
+            common,
+            ready: tokio::sync::Mutex::new(rx),
+            gate,
+            listening,
+            runtime: None,
+        })
+    }
+
+    /// [`bind`](Self::bind) for programs without a tokio runtime: the
+    /// listener gets a small runtime of its own (one `ndr-io` thread), on
+    /// which it accepts and runs the handshakes.
+    /// The links it accepts need no runtime: their hub drives them.
+    ///
+    /// ```no_run
+    /// use ndr_core::endpoint::Config;
+    /// use ndr_core::time::Duration;
+    /// use ndr_core::wire::Role;
+    /// use ndr_net::{LinkConfig, Listener};
+    ///
+    /// let mut endpoint = Config::new(Role::Remote);
+    /// endpoint.axes = 2;
+    /// endpoint.period = Duration::from_millis(10);
+    /// // One base at a time: another is told the robot is busy.
+    /// let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, LinkConfig::new(endpoint))?
+    ///     .with_max_links(1);
+    /// loop {
+    ///     let mut link = listener.accept_blocking()?; // one base after another
+    ///     while let Ok(command) = link.recv() {
+    ///         let state: Vec<f64> = command.values().iter().map(|c| 0.5 * c).collect();
+    ///         link.send(&state)?;
+    ///     }
+    /// }
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn bind_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        plain_allowed(addr, &config)?;
+        Listener::bind_blocking_with(addr, config, None)
+    }
+
+    /// [`bind_tls`](Self::bind_tls) for programs without a tokio runtime
+    /// (see [`bind_blocking`](Self::bind_blocking)).
+    pub fn bind_blocking_tls(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Listener, NetError> {
+        Listener::bind_blocking_with(addr, config, Some(tls.clone()))
+    }
+
+    fn bind_blocking_with(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: Option<TlsConfig>,
+    ) -> Result<Listener, NetError> {
+        not_in_a_runtime("Listener::bind_blocking", "Listener::bind(..).await")?;
+        let rt = own_runtime()?;
+        let mut listener = rt.block_on(Listener::bind_with(addr, config, tls))?;
+        listener.runtime = Some(rt);
+        Ok(listener)
+    }
+
+    /// What it accepted and refused so far.
+    #[must_use]
+    pub fn stats(&self) -> ListenerStats {
+        self.common
+            .ledger
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .stats
+    }
+
+    /// Takes `role` in the links it accepts instead of the remote's (a base
+    /// that waits for its robot to dial in). Like the other `with_`
+    /// settings, it applies to the handshakes that start after it: set it
+    /// right after binding.
+    #[must_use]
+    pub fn with_role(self, role: Role) -> Listener {
+        self.common
+            .setup
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .role = role;
+        self
+    }
+
+    /// Puts the links it accepts on `hub` (shared with other listeners or
+    /// connections) instead of a hub of its own.
+    #[must_use]
+    pub fn with_hub(self, hub: Hub) -> Listener {
+        self.common
+            .setup
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .hubs = Hubs::One(hub);
+        self
+    }
+
+    /// Spreads the links it accepts over a pool of hubs (each to the least
+    /// loaded one) instead of a hub of its own.
+    #[must_use]
+    pub fn with_pool(self, pool: HubPool) -> Listener {
+        self.common
+            .setup
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .hubs = Hubs::Pool(pool);
+        self
+    }
+
+    /// Serves at most `n` links at once (at least 1; no limit by default):
+    /// a peer whose handshake completes while `n` links this listener
+    /// accepted are alive (queued for [`accept`](Self::accept), or taken and
+    /// neither dropped nor ended) is refused at once with
+    /// [`LinkError::Busy`](ndr_core::endpoint::LinkError::Busy): it gets a
+    /// Close with reason `BUSY` right after its handshake, so it can say
+    /// the robot is busy rather than wait. Counted in
+    /// [`ListenerStats::refused_busy`]. A robot that serves one base at a
+    /// time takes 1.
+    #[must_use]
+    pub fn with_max_links(self, n: usize) -> Listener {
+        self.common.seats.set_max(n.max(1));
+        self
+    }
+
+    /// The address it listens on.
+    pub fn local_addr(&self) -> Result<SocketAddr, NetError> {
+        Ok(self.local)
+    }
+
+    /// The next peer that connected and completed its handshakes, as a
+    /// running link (this side is the remote unless
+    /// [`with_role`](Self::with_role) said otherwise), waiting until there
+    /// is one.
+    ///
+    /// The handshakes run in the background from [`bind`](Self::bind), side
+    /// by side (at most [`TlsConfig::max_pending_handshakes`], or
+    /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
+    /// without TLS): first TLS's, if the listener has it, then ndr's Hello,
+    /// both within [`Admission::preauth_timeout`]. A peer whose handshake
+    /// fails (unknown certificate, another role, other axes, period or
+    /// mode, no answer in time…) or that [`Admission`] turns away is
+    /// logged, counted in [`stats`](Self::stats) and dropped: it never
+    /// reaches the application, and the listener keeps serving. A link that
+    /// ended while it waited here is skipped (counted as
+    /// [`unclaimed`](ListenerStats::unclaimed)).
+    ///
+    /// An error only if the listener stopped listening (its socket failed).
+    pub async fn accept(&self) -> Result<Link, NetError> {
+        let mut ready = self.ready.lock().await;
+        loop {
+            let Some(link) = ready.recv().await else {
+                let why = self
+                    .common
+                    .stopped
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .clone()
+                    .unwrap_or_else(|| "it was shut down".into());
+                return Err(NetError::Io(io::Error::other(format!(
+                    "the listener on {} stopped listening: {why}; bind a new one",
+                    self.local
+                ))));
+            };
+            if link.stats().is_some_and(|s| s.phase == Phase::Closed) {
+                self.common.refuse(
+                    Refusal::Unclaimed,
+                    link.peer_addr(),
+                    &"its link ended while it waited to be accepted",
+                );
+                continue;
+            }
+            self.common
+                .ledger
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .stats
+                .accepted += 1;
+            return Ok(link);
+        }
+    }
+
+    /// [`accept`](Self::accept) on the calling thread, for a listener made
+    /// by [`bind_blocking`](Self::bind_blocking); one made on a tokio
+    /// runtime (by [`bind`](Self::bind)) is refused with an error that
+    /// says to `.await` [`accept`](Self::accept) instead.
+    pub fn accept_blocking(&self) -> Result<Link, NetError> {
+        match &self.runtime {
+            Some(rt) => {
+                not_in_a_runtime("Listener::accept_blocking", "accept().await")?;
+                rt.block_on(self.accept())
+            }
+            None => Err(NetError::Io(io::Error::other(
+                "accept_blocking needs a listener made by Listener::bind_blocking; \
+                 this one runs on the caller's tokio runtime: use accept().await",
+            ))),
+        }
+    }
+}

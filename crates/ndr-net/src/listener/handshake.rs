@@ -1,0 +1,238 @@
+//! One connection's handshakes before it reaches the application: its
+//! first message, TLS if the listener has it, then ndr's Hello, all within
+//! the pre-authentication budget; then a seat and a place in the accept
+//! queue, or a refusal as busy.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU8, AtomicU64, AtomicUsize, Ordering};
+use std::time::{Duration as StdDuration, Instant as StdInstant};
+
+use ndr_core::endpoint::LinkError;
+use ndr_core::wire::Role;
+use tokio::net::TcpStream;
+use tokio::runtime::Handle;
+use tokio::sync::mpsc;
+use tokio::time::Instant as TokioInstant;
+
+use super::first::{self, Heard};
+use super::{Common, Refusal};
+use crate::link::Link;
+use crate::tls::HandshakeError;
+
+/// The stages of a handshake, in order.
+mod stage {
+    use super::Heard;
+
+    /// Accepted; the peer has sent nothing yet.
+    pub(super) const SILENT: u8 = 0;
+    /// Part of its first message (TLS's ClientHello, or ndr's Hello).
+    pub(super) const SPEAKING: u8 = 1;
+    /// All of its first message.
+    pub(super) const SPOKEN: u8 = 2;
+    /// On the hub, past TLS if the listener has it: ndr's Hello exchange.
+    pub(super) const ON_HUB: u8 = 3;
+
+    pub(super) fn of(heard: Heard) -> u8 {
+        match heard {
+            Heard::Nothing => SILENT,
+            Heard::Part(_) => SPEAKING,
+            Heard::Whole => SPOKEN,
+        }
+    }
+}
+
+/// How far a handshake has got and when it last got further: told by its
+/// task, read by the gate when it must evict.
+pub(super) struct Progress {
+    stage: AtomicU8,
+    /// Bytes of the first message seen.
+    bytes: AtomicUsize,
+    /// When it last got further, in µs since `epoch`.
+    moved: AtomicU64,
+    epoch: StdInstant,
+}
+
+impl Progress {
+    pub(super) fn new(epoch: StdInstant, heard: Heard) -> Progress {
+        let p = Progress {
+            stage: AtomicU8::new(stage::of(heard)),
+            bytes: AtomicUsize::new(0),
+            moved: AtomicU64::new(0),
+            epoch,
+        };
+        p.moved
+            .store(p.micros(StdInstant::now()), Ordering::Relaxed);
+        p
+    }
+
+    fn micros(&self, at: StdInstant) -> u64 {
+        u64::try_from(at.saturating_duration_since(self.epoch).as_micros()).unwrap_or(u64::MAX)
+    }
+
+    /// It reached `stage` with `bytes` of its first message seen.
+    fn advance(&self, to: u8, bytes: usize) {
+        let (was, had) = (
+            self.stage.fetch_max(to, Ordering::Relaxed),
+            self.bytes.fetch_max(bytes, Ordering::Relaxed),
+        );
+        if to > was || bytes > had {
+            self.moved
+                .store(self.micros(StdInstant::now()), Ordering::Relaxed);
+        }
+    }
+
+    /// Its [`stage`].
+    pub(super) fn stage(&self) -> u8 {
+        self.stage.load(Ordering::Relaxed)
+    }
+
+    /// How long it has not got any further, at `now`.
+    pub(super) fn stuck_for(&self, now: StdInstant) -> StdDuration {
+        let moved = self.moved.load(Ordering::Relaxed);
+        StdDuration::from_micros(self.micros(now).saturating_sub(moved))
+    }
+}
+
+/// A link whose handshake is under way: if its task is cancelled (the
+/// slot evicted, the listener dropped), the link ends at once and its
+/// peer is told the listener is busy.
+struct Unfinished(Option<Link>);
+
+impl Drop for Unfinished {
+    fn drop(&mut self) {
+        if let Some(link) = self.0.take() {
+            link.dismiss(LinkError::Busy);
+        }
+    }
+}
+
+/// `future` within `deadline` (none: as long as it takes); `None` if the
+/// deadline passed first.
+async fn within<F: std::future::Future>(
+    deadline: Option<TokioInstant>,
+    future: F,
+) -> Option<F::Output> {
+    match deadline {
+        Some(d) => tokio::time::timeout_at(d, future).await.ok(),
+        None => Some(future.await),
+    }
+}
+
+/// Why a handshake failed: the counter, and what the log says.
+type Failed = (Refusal, String);
+
+/// One connection's handshakes, then its place in the accept queue.
+pub(super) async fn handshake(
+    common: Arc<Common>,
+    stream: TcpStream,
+    peer: SocketAddr,
+    progress: Arc<Progress>,
+    ready: mpsc::Sender<Link>,
+) {
+    match preauth(&common, stream, &progress).await {
+        Ok(link) => enqueue(&common, link, peer, &ready),
+        Err((why, what)) => common.refuse(why, peer, &what),
+    }
+}
+
+/// TLS (if any) and ndr's Hello, within the pre-authentication budget,
+/// telling `progress` how far it got.
+async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Result<Link, Failed> {
+    let budget: StdDuration = common.config.admission.preauth_timeout.into();
+    let start = TokioInstant::now();
+    let deadline = (!budget.is_zero()).then(|| start + budget);
+    // TLS's own timeout bounds the wait for the ClientHello too.
+    let tls_timeout = common.tls.as_ref().map(|t| t.handshake_timeout);
+    let tls_first = tls_timeout.filter(|&t| deadline.is_none_or(|d| start + t < d));
+    let speak_by = tls_first.map(|t| start + t).or(deadline);
+    let late = || {
+        (
+            Refusal::Timeout,
+            format!(
+                "no handshake within {budget:?} (the pre-authentication budget, \
+                 LinkConfig::admission.preauth_timeout)"
+            ),
+        )
+    };
+    let (role, hub) = common.setup();
+    // The peer speaks first under TLS (its ClientHello) and on a plain link
+    // to a remote (the base's Hello): until its first message is whole, its
+    // connection stays off TLS and the hub (it costs a socket and a task).
+    let tls = common.tls.is_some();
+    if tls || role == Role::Remote {
+        let told = |heard, bytes| progress.advance(stage::of(heard), bytes);
+        match within(speak_by, first::wait_whole(&stream, tls, told)).await {
+            None => {
+                return Err(match tls_first {
+                    Some(t) => (Refusal::Timeout, HandshakeError::Timeout(t).to_string()),
+                    None => late(),
+                });
+            }
+            Some(Ok(false)) => {
+                return Err((Refusal::Other, "it closed before its first message".into()));
+            }
+            Some(Ok(true)) => {}
+            Some(Err(e)) => return Err((Refusal::Other, e.to_string())),
+        }
+    }
+    let (stream, conn) = match &common.tls {
+        None => (stream, None),
+        Some(tls) => match within(deadline, tls.accept(stream)).await {
+            None => return Err(late()),
+            Some(Err(e)) => return Err((Refusal::of_tls(&e), e.to_string())),
+            Some(Ok((stream, conn))) => (stream, Some(conn)),
+        },
+    };
+    let link = Link::start(stream, role, common.config, Handle::current(), &hub, conn)
+        .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
+    progress.advance(stage::ON_HUB, 0);
+    let mut unfinished = Unfinished(Some(link));
+    let Some(link) = unfinished.0.as_mut() else {
+        return Err((Refusal::Other, "lost its link".into()));
+    };
+    let outcome = within(deadline, link.handshake()).await;
+    match outcome {
+        None => {
+            if let Some(link) = unfinished.0.take() {
+                link.dismiss(LinkError::Timeout);
+            }
+            Err(late())
+        }
+        Some(Err(e)) => Err((Refusal::of_link(&e), e.to_string())),
+        Some(Ok(())) => unfinished
+            .0
+            .take()
+            .ok_or_else(|| (Refusal::Other, "lost its link".into())),
+    }
+}
+
+/// A link whose handshake is done: to the accept queue if a seat is free
+/// and the queue has room, else ended as busy.
+fn enqueue(common: &Common, mut link: Link, peer: SocketAddr, ready: &mpsc::Sender<Link>) {
+    let Some(seat) = common.seats.take(link.shared()) else {
+        link.dismiss(LinkError::Busy);
+        common.refuse(
+            Refusal::Busy,
+            peer,
+            &"the listener serves as many links as it may (Listener::with_max_links): \
+              the peer was told it is busy",
+        );
+        return;
+    };
+    link.hold(seat);
+    match ready.try_send(link) {
+        Ok(()) => {}
+        Err(mpsc::error::TrySendError::Full(link)) => {
+            link.dismiss(LinkError::Busy);
+            common.refuse(
+                Refusal::Unclaimed,
+                peer,
+                &"the application did not take the links before it (the accept queue, \
+                  LinkConfig::admission.accept_queue, is full): the peer was told it is busy",
+            );
+        }
+        // The listener is gone.
+        Err(mpsc::error::TrySendError::Closed(link)) => link.dismiss(LinkError::Closed),
+    }
+}
