@@ -1746,8 +1746,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     || prev.is_some_and(|(ps, pa)| {
                         let silence = arrived - pa;
                         over(silence)
-                            || (self.outage_burst
-                                && (over(above) || silence * 2 < sent_at - ps))
+                            || (self.outage_burst && (over(above) || silence * 2 < sent_at - ps))
                     });
                 if self.outage_burst {
                     self.stats.outage_delays += 1;
