@@ -73,12 +73,7 @@ fn hello_bytes(version: u8) -> Vec<u8> {
 }
 
 fn hello_from(version: u8, role: Role, axes: u16) -> Vec<u8> {
-    let header = Header {
-        seq: 0,
-        sent_at: Instant::ZERO,
-        echo: None,
-        released: None,
-    };
+    let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
         role,
         mode: 0,
@@ -248,12 +243,7 @@ fn a_data_frame_with_more_channels_than_the_link_carries_ends_it_with_that_error
         let mut s = TcpStream::connect(addr).unwrap();
         s.set_read_timeout(Some(StdDuration::from_secs(3))).unwrap();
         s.write_all(&hello_bytes(wire::VERSION)).unwrap();
-        let header = Header {
-            seq: 0,
-            sent_at: Instant::from_millis(1),
-            echo: None,
-            released: None,
-        };
+        let header = Header::new(0, Instant::from_millis(1));
         let mut buf = vec![0; MAX_FRAME_LEN];
         let values = vec![0.5; channels];
         let n = wire::encode(&header, &Message::Data(&values), &mut buf).unwrap();

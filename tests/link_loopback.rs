@@ -11,14 +11,6 @@ use ndr::core::time::Duration;
 use ndr::core::wire::{Role, close_reason};
 use ndr::net::{Link, LinkConfig, Listener, NetError};
 
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap()
-}
-
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base);
     c.axes = 2;
@@ -48,7 +40,7 @@ impl<T> Pipe for T {}
 #[test]
 fn loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     let _serial = common::serial();
-    let rt = runtime();
+    let rt = common::runtime();
     let run = common::assert_regulated(|| {
         let (base, remote) = pair(&rt);
         common::echo_run(base, remote)
@@ -67,7 +59,7 @@ fn loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
 #[test]
 fn a_closed_peer_is_reported_and_recv_stops_waiting() {
     let _serial = common::serial();
-    let rt = runtime();
+    let rt = common::runtime();
     let (base, mut remote) = pair(&rt);
     // Let the link start, then close the base.
     std::thread::sleep(StdDuration::from_millis(300));
@@ -102,7 +94,7 @@ fn a_closed_peer_is_reported_and_recv_stops_waiting() {
 #[test]
 fn a_release_handler_on_the_hub_thread_gets_every_sample_once_in_order_and_its_answers_go_out() {
     let _serial = common::serial();
-    let rt = runtime();
+    let rt = common::runtime();
     common::assert_regulated(|| {
         let (mut base, mut remote) = pair(&rt);
         // The remote's "plant" runs on its hub's thread: no thread woken per tick.
@@ -141,7 +133,7 @@ fn a_release_handler_on_the_hub_thread_gets_every_sample_once_in_order_and_its_a
 #[test]
 fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others() {
     let _serial = common::serial();
-    let rt = runtime();
+    let rt = common::runtime();
     let hub = ndr::net::Hub::with_defaults().unwrap();
     let listener = rt
         .block_on(Listener::bind(
@@ -254,7 +246,7 @@ fn a_blocking_listener_serves_bases_one_after_another_without_a_runtime() {
 
 #[test]
 fn blocking_calls_on_a_runtime_or_an_async_listener_say_what_to_await() {
-    let rt = runtime();
+    let rt = common::runtime();
     let listener = rt
         .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
         .unwrap();

@@ -14,14 +14,6 @@ use ndr::core::wire::Role;
 use ndr::keygen::{self, KeyPair};
 use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
 
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap()
-}
-
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base);
     c.axes = 2;
@@ -68,7 +60,7 @@ fn lab(test: &str, handshake_timeout: Option<StdDuration>) -> Lab {
         pair_of(&dir, "remote"),
         pair_of(&dir, "other"),
     );
-    let rt = runtime();
+    let rt = common::runtime();
     let mut remote_tls = tls(&remote, &base);
     if let Some(t) = handshake_timeout {
         remote_tls.handshake_timeout = t;
@@ -224,7 +216,7 @@ fn a_pin_mismatch_is_refused_by_the_client() {
 #[test]
 fn plain_links_off_loopback_are_refused_unless_insecure() {
     let _serial = common::serial();
-    let rt = runtime();
+    let rt = common::runtime();
     // TEST-NET-1: never routed; the refusal must come before any connect.
     let far: SocketAddr = "192.0.2.1:9".parse().unwrap();
     let start = std::time::Instant::now();
@@ -312,7 +304,7 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
     let _serial = common::serial();
     let dir = certs("relay");
     let (b, r) = (pair_of(&dir, "base"), pair_of(&dir, "remote"));
-    let rt = runtime();
+    let rt = common::runtime();
     let model = DelayModel::Constant {
         fwd: Duration::from_millis(15),
         bwd: Duration::from_millis(15),
@@ -395,7 +387,7 @@ fn peers_trusted_through_a_ca_link_and_a_wrong_server_name_is_refused() {
     let remote = TlsConfig::from_files_with_ca(&rc, &rk, &ca_file, "ndr").unwrap();
     let base = TlsConfig::from_files_with_ca(&bc, &bk, &ca_file, "ndr").unwrap();
     let misnamed = TlsConfig::from_files_with_ca(&bc, &bk, &ca_file, "robot").unwrap();
-    let rt = runtime();
+    let rt = common::runtime();
     rt.block_on(async {
         let listener = Listener::bind_tls(loopback(), config(), &remote)
             .await

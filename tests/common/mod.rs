@@ -183,3 +183,13 @@ fn assert_constant_grtt(r: &Run, stalls: u64) {
     );
     assert!((0.039..=0.061).contains(&mean), "GRTT mean {mean}");
 }
+
+/// A tokio runtime for a test's connects and accepts (the links' hubs do
+/// the rest).
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap()
+}

@@ -635,12 +635,7 @@ fn idle_crowd(rt: &tokio::runtime::Runtime, addr: SocketAddr) -> Vec<tokio::net:
 /// A base's Hello for the soak's link (4 axes at `period`, the paper's
 /// static mode), framed.
 fn base_hello(period: Duration) -> Vec<u8> {
-    let header = Header {
-        seq: 0,
-        sent_at: Instant::ZERO,
-        echo: None,
-        released: None,
-    };
+    let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
         role: Role::Base,
         mode: wire::mode::PAPER_STATIC,
@@ -731,12 +726,7 @@ fn stale_frame(addr: SocketAddr, period: Duration) -> bool {
     let Some((mut s, mut deframer)) = handshake(addr, period) else {
         return false;
     };
-    let header = Header {
-        seq: 0,
-        sent_at: Instant::ZERO + period,
-        echo: None,
-        released: None,
-    };
+    let header = Header::new(0, Instant::ZERO + period);
     let mut buf = [0u8; wire::MAX_FRAME_LEN];
     let Ok(n) = wire::encode(&header, &Message::Data(&[]), &mut buf) else {
         return false;

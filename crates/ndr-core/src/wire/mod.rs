@@ -168,6 +168,20 @@ pub struct Header {
     pub released: Option<u64>,
 }
 
+impl Header {
+    /// A header that echoes nothing and names no release: a sender's first
+    /// frames (its Hello), or a frame written by hand.
+    #[must_use]
+    pub const fn new(seq: u64, sent_at: Instant) -> Header {
+        Header {
+            seq,
+            sent_at,
+            echo: None,
+            released: None,
+        }
+    }
+}
+
 /// Total length of the frame starting at `prefix`, from its 4-byte length field.
 ///
 /// Returns `Ok(None)` while fewer than [`PREFIX_LEN`] bytes are available.

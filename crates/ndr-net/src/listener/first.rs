@@ -139,12 +139,7 @@ mod tests {
     use ndr_core::wire::{Header, Hello, Message, Role};
 
     fn hello() -> Vec<u8> {
-        let header = Header {
-            seq: 0,
-            sent_at: Instant::ZERO,
-            echo: None,
-            released: None,
-        };
+        let header = Header::new(0, Instant::ZERO);
         let hello = Hello {
             role: Role::Base,
             mode: 0,

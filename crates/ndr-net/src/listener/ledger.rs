@@ -37,7 +37,25 @@ pub(crate) enum Refusal {
 }
 
 impl Refusal {
-    const COUNT: usize = 15;
+    /// Every reason, in the order of their counters.
+    const ALL: [Refusal; 15] = [
+        Refusal::Certificate,
+        Refusal::NoCertificate,
+        Refusal::TlsVersion,
+        Refusal::Timeout,
+        Refusal::Other,
+        Refusal::Role,
+        Refusal::Axes,
+        Refusal::Settings,
+        Refusal::WireVersion,
+        Refusal::Protocol,
+        Refusal::Evicted,
+        Refusal::PerSource,
+        Refusal::Busy,
+        Refusal::Unclaimed,
+        Refusal::AcceptError,
+    ];
+    const COUNT: usize = Refusal::ALL.len();
 
     /// A ndr handshake that failed, by reason.
     pub(crate) fn of_link(e: &NetError) -> Refusal {
@@ -218,25 +236,7 @@ mod tests {
 
     #[test]
     fn every_reason_has_its_own_counter_and_name() {
-        use Refusal::*;
-        let all = [
-            Certificate,
-            NoCertificate,
-            TlsVersion,
-            Timeout,
-            Other,
-            Role,
-            Axes,
-            Settings,
-            WireVersion,
-            Protocol,
-            Evicted,
-            PerSource,
-            Busy,
-            Unclaimed,
-            AcceptError,
-        ];
-        assert_eq!(all.len(), Refusal::COUNT);
+        let all = Refusal::ALL;
         let mut ledger = Ledger::default();
         for (i, why) in all.iter().enumerate() {
             assert_eq!(*why as usize, i);
