@@ -485,7 +485,10 @@ def test_a_peer_silent_past_the_liveness_time_is_dropped():
             start = time.monotonic()
             with pytest.raises(ndr.DisconnectedError, match="nothing came from the peer"):
                 while time.monotonic() - start < 10:
-                    link.recv(timeout=1)
+                    try:
+                        link.recv(timeout=0.2)
+                    except TimeoutError:
+                        pass  # still up: the liveness time has not passed
             silent = time.monotonic() - start
         assert 0.5 <= silent <= 3.0, silent
         assert link.stats["phase"] == "closed"
