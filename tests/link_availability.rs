@@ -458,7 +458,7 @@ impl Attack {
         let command = |program: &std::ffi::OsStr, nice: bool| {
             let mut c = Command::new(program);
             if nice {
-                c.args(["-n", "19"]).arg(&exe);
+                c.args(["-n", "10"]).arg(&exe);
             }
             c.args(["--exact", "flood_attacker", "--ignored", "--nocapture"])
                 .env(ATTACK, &spec)
@@ -583,11 +583,12 @@ fn served_through_a_flood(name: &str, tls: Option<Certs>, holders: Holders) {
         runs.iter().map(|r| r.served_in).collect::<Vec<_>>(),
         runs.iter().filter(|r| !host_stalled(&r.stats)).count()
     );
-    // It was a flood (the attacker runs at a low priority: on a busy host
-    // it gets less done than asked), the listener turned connections away,
-    // and only the real bases reached the application.
+    // It was a flood (the attacker runs at a lower priority than the test:
+    // on a host that also compiles it gets far less done than asked, 2 000
+    // a second on a quiet one), the listener turned connections away, and
+    // only the real bases reached the application.
     assert!(
-        churned as f64 > 100.0 * flooded_for.as_secs_f64(),
+        churned as f64 > 20.0 * flooded_for.as_secs_f64(),
         "{name}: {churned} connections reset over {flooded_for:?}"
     );
     assert!(stats.evicted > 0, "{name}: {stats:?}");

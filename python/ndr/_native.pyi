@@ -749,7 +749,9 @@ class Relay:
     the delays. A context manager.
 
     Raises ``OSError`` (with ``errno``, e.g. ``errno.EADDRINUSE``) when it
-    cannot listen on ``listen``."""
+    cannot listen on ``listen``, and ``ValueError`` for an address that is
+    not loopback without ``insecure=True`` (the relay passes plain links
+    through to the network)."""
 
     def __new__(
         cls,
@@ -762,6 +764,7 @@ class Relay:
         mean: Optional[float] = None,
         std: Optional[float] = None,
         seed: int = 1,
+        insecure: bool = False,
     ) -> "Relay": ...
     @property
     def address(self) -> Tuple[str, int]: ...

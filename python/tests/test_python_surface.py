@@ -381,3 +381,10 @@ def test_the_relay_documents_its_default_delay_model():
     assert "lan-75km" in relay_stub[: relay_stub.index("def __new__")]
     with ndr.Relay(LOOPBACK, ("127.0.0.1", 9)) as relay:
         assert relay.model == "lan-75km"
+
+
+def test_a_relay_off_loopback_needs_insecure():
+    with pytest.raises(ValueError, match="insecure"):
+        ndr.Relay(("0.0.0.0", 0), ("127.0.0.1", 9))
+    with ndr.Relay(("0.0.0.0", 0), ("127.0.0.1", 9), insecure=True) as relay:
+        assert relay.address[0] == "0.0.0.0"

@@ -318,8 +318,36 @@ impl Relay {
     ///
     /// # Errors
     ///
-    /// The listening socket cannot be bound (address in use, no permission…).
+    /// The listening socket cannot be bound (address in use, no
+    /// permission…), or `listen` is not a loopback address
+    /// (`PermissionDenied`): the relay passes plain links through, and
+    /// would put a remote that trusts its loopback on the network; use
+    /// [`bind_insecure`](Self::bind_insecure) to mean it.
     pub async fn bind(
+        listen: SocketAddr,
+        upstream: SocketAddr,
+        model: DelayModel,
+        seed: u64,
+    ) -> io::Result<Relay> {
+        if !crate::tls::plain_allowed(listen.ip(), false) {
+            return Err(io::Error::new(
+                io::ErrorKind::PermissionDenied,
+                format!(
+                    "relay: refusing to listen on {listen}: it is not loopback, and the relay \
+                     passes plain links through to the network; listen on 127.0.0.1, or pass \
+                     --insecure (Python: insecure=True; Rust: Relay::bind_insecure)"
+                ),
+            ));
+        }
+        Relay::bind_insecure(listen, upstream, model, seed).await
+    }
+
+    /// [`bind`](Self::bind) on any address, loopback or not.
+    ///
+    /// # Errors
+    ///
+    /// The listening socket cannot be bound (address in use, no permission…).
+    pub async fn bind_insecure(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,

@@ -358,3 +358,26 @@ async fn a_queue_over_its_bound_cuts_the_connection() {
     assert_eq!(stats.forward.frames_delivered, 0, "{stats:?}");
     let _ = relay.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_relay_off_loopback_needs_bind_insecure() {
+    // The relay passes plain links through: off loopback it would put a
+    // remote that trusts its loopback on the network.
+    let any: SocketAddr = "0.0.0.0:0".parse().unwrap();
+    let upstream: SocketAddr = "127.0.0.1:9".parse().unwrap();
+    let e = Relay::bind(any, upstream, DelayModel::Lan75km, 1)
+        .await
+        .expect_err("refused off loopback");
+    assert_eq!(e.kind(), std::io::ErrorKind::PermissionDenied);
+    assert!(e.to_string().contains("insecure"), "{e}");
+    let relay = Relay::bind_insecure(any, upstream, DelayModel::Lan75km, 1)
+        .await
+        .expect("bind_insecure listens anywhere");
+    assert!(relay.local_addr().ip().is_unspecified());
+    let lo: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    assert!(
+        Relay::bind(lo, upstream, DelayModel::Lan75km, 1)
+            .await
+            .is_ok()
+    );
+}

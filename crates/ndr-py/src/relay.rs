@@ -7,6 +7,7 @@ use std::sync::{Mutex, PoisonError};
 
 use ndr_net::relay::DirectionStats;
 use ndr_net::{Relay, RelayHandle, RelayStats};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -31,7 +32,7 @@ pub struct PyRelay {
 #[pymethods]
 impl PyRelay {
     #[new]
-    #[pyo3(signature = (listen, upstream, *, profile = None, trace = None, dist = None, mean = None, std = None, seed = 1))]
+    #[pyo3(signature = (listen, upstream, *, profile = None, trace = None, dist = None, mean = None, std = None, seed = 1, insecure = false))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -43,15 +44,30 @@ impl PyRelay {
         mean: Option<f64>,
         std: Option<f64>,
         seed: i128,
+        insecure: bool,
     ) -> PyResult<Self> {
         let seed = in_range("seed", seed, 0, u64::MAX)?;
         let model = delay_model(profile, trace, dist, mean, std, "lan-75km")?;
         let name = model.name();
         let listen = blocking::address(py, listen)?;
         let upstream = blocking::address(py, upstream)?;
+        // As a plain link off loopback: a ValueError that names the switch.
+        if !ndr_net::tls::plain_allowed(listen.ip(), insecure) {
+            return Err(PyValueError::new_err(format!(
+                "refusing to listen on {listen}: it is not loopback, and the relay passes plain \
+                 links through to the network; listen on 127.0.0.1, or pass insecure=True"
+            )));
+        }
         let rt = blocking::runtime()?;
         let handle = py.detach(|| {
-            rt.block_on(async { Relay::bind(listen, upstream, model, seed).await?.spawn() })
+            rt.block_on(async {
+                let relay = if insecure {
+                    Relay::bind_insecure(listen, upstream, model, seed).await?
+                } else {
+                    Relay::bind(listen, upstream, model, seed).await?
+                };
+                relay.spawn()
+            })
         });
         log::flush(py);
         let handle = handle.map_err(|e| os_error(py, &e, None))?;

@@ -4,7 +4,6 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::net::relay::{BlockingRelay, DirectionStats, RelayEvent, RelayStats, StopWhen};
-use ndr::net::tls;
 
 use crate::sim::NetArgs;
 
@@ -49,13 +48,6 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
     let model = args.net.model("paris-newyork")?;
     let listen = resolve("--listen", &args.listen)?;
     let upstream = resolve("--upstream", &args.upstream)?;
-    if !tls::plain_allowed(listen.ip(), args.insecure) {
-        return Err(format!(
-            "refusing to listen on {listen}: it is not loopback, and the relay passes links \
-             through as they are, so a plain link to a remote on loopback would be open to the \
-             network; listen on 127.0.0.1, or pass --insecure to allow it"
-        ));
-    }
     let after = match args.duration_s {
         None => None,
         Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => Some(StdDuration::from_secs_f64(s)),
@@ -66,7 +58,12 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
         }
     };
     let model_name = model.name();
-    let relay = BlockingRelay::bind(listen, upstream, model, args.seed)
+    let bind = if args.insecure {
+        BlockingRelay::bind_insecure
+    } else {
+        BlockingRelay::bind
+    };
+    let relay = bind(listen, upstream, model, args.seed)
         .map_err(|e| e.to_string())?
         .on_event(print_event);
     let local = relay.local_addr();

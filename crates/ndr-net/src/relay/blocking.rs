@@ -56,12 +56,43 @@ impl BlockingRelay {
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Self> {
+        BlockingRelay::bind_with(listen, upstream, model, seed, false)
+    }
+
+    /// [`bind`](Self::bind) on any address, loopback or not (see
+    /// [`Relay::bind_insecure`]).
+    ///
+    /// # Errors
+    ///
+    /// The runtime cannot start, or the listening socket cannot be bound.
+    pub fn bind_insecure(
+        listen: SocketAddr,
+        upstream: SocketAddr,
+        model: DelayModel,
+        seed: u64,
+    ) -> io::Result<Self> {
+        BlockingRelay::bind_with(listen, upstream, model, seed, true)
+    }
+
+    fn bind_with(
+        listen: SocketAddr,
+        upstream: SocketAddr,
+        model: DelayModel,
+        seed: u64,
+        insecure: bool,
+    ) -> io::Result<Self> {
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .enable_all()
             .thread_name("ndr-relay")
             .build()
             .map_err(|e| io::Error::new(e.kind(), format!("relay: cannot start tokio: {e}")))?;
-        let relay = runtime.block_on(Relay::bind(listen, upstream, model, seed))?;
+        let relay = runtime.block_on(async {
+            if insecure {
+                Relay::bind_insecure(listen, upstream, model, seed).await
+            } else {
+                Relay::bind(listen, upstream, model, seed).await
+            }
+        })?;
         Ok(BlockingRelay { runtime, relay })
     }
 
