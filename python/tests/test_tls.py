@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import ndr
+from realtime import assert_constant, no_gap, regulated
 
 LOOPBACK = ("127.0.0.1", 0)
 
@@ -34,26 +35,39 @@ def test_keygen_writes_a_pair_and_never_overwrites_a_key(tmp_path):
 
 
 def test_a_link_over_mutual_tls_runs_with_a_constant_delay(certs):
-    with ndr.Link.listen(LOOPBACK, period=0.01, tls=tls(certs, "robot", "base")) as lst:
-        got = []
-        t = threading.Thread(target=lambda: got.append(lst.accept(timeout=5)), daemon=True)
-        t.start()
-        with ndr.Link.connect(lst.address, period=0.01, tls=tls(certs, "base", "robot")) as base:
-            t.join(5)
-            remote = got[0]
-            grtt, seqs = [], []
-            for i in range(150):
-                base.send(float(i))
-                tick = base.recv(timeout=2)
-                remote.try_recv()
-                remote.send(1.0)
-                seqs.append(tick.seq)
-                if tick.grtt is not None:
-                    grtt.append(tick.grtt)
-            remote.close()
-        assert (np.diff(seqs) == 1).all()
-        assert len(grtt) > 100 and np.std(grtt) <= 1e-3
-        assert lst.stats["accepted"] == 1
+    # The paper's FIFO, whose delay is set once (the adaptive default's
+    # follows the jitter, which a busy host brings).
+    def run():
+        with ndr.Link.listen(
+            LOOPBACK, period=0.01, playout="fifo", tls=tls(certs, "robot", "base")
+        ) as lst:
+            got = []
+            t = threading.Thread(target=lambda: got.append(lst.accept(timeout=5)), daemon=True)
+            t.start()
+            with ndr.Link.connect(
+                lst.address, period=0.01, playout="fifo", tls=tls(certs, "base", "robot")
+            ) as base:
+                t.join(5)
+                remote = got[0]
+                grtt, ticks = [], []
+                for i in range(150):
+                    base.send(float(i))
+                    tick = base.recv(timeout=2)
+                    remote.try_recv()
+                    remote.send(1.0)
+                    ticks.append(tick)
+                    if tick.grtt is not None:
+                        grtt.append(tick.grtt)
+                stats = [base.stats, remote.stats]
+                remote.close()
+            assert lst.stats["accepted"] == 1
+        assert no_gap(ticks), [(t.seq, t.status) for t in ticks]
+        return (grtt, ticks), stats
+
+    (grtt, ticks), stalls = regulated(run)
+    if not stalls:
+        assert all(t.status == "fresh" for t in ticks)
+    assert_constant(grtt, stalls, "GRTT")
 
 
 def test_a_stranger_is_refused_and_never_reaches_the_application(certs):

@@ -14,7 +14,7 @@
 use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
 use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
@@ -673,10 +673,36 @@ impl From<std::io::Error> for Step {
 /// The native listener (`ndr.Listener` wraps it).
 #[pyclass(frozen, module = "ndr._native", name = "_Listener")]
 pub struct PyListener {
-    listener: Mutex<Option<Listener>>,
+    listener: Mutex<Option<Arc<Listener>>>,
+    /// The accept under way on the runtime, kept across calls that gave
+    /// up (a timeout, Ctrl-C), so that a peer it accepts is not lost.
+    pending: Mutex<Option<PendingAccept>>,
     local: SocketAddr,
     period: Duration,
     role: Role,
+}
+
+impl Drop for PyListener {
+    /// A listener dropped unclosed: its pending accept must not keep it
+    /// listening.
+    fn drop(&mut self) {
+        if let Some(p) = self
+            .pending
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take()
+        {
+            p.task.abort();
+        }
+    }
+}
+
+/// An accept running as a task on the binding's runtime: the caller waits
+/// on a plain channel (its own clock, no runtime timer), and the task is
+/// aborted when the listener closes.
+struct PendingAccept {
+    result: mpsc::Receiver<Result<Link, NetError>>,
+    task: tokio::task::JoinHandle<()>,
 }
 
 /// Listens for peers (over mutual TLS with `tls`).
@@ -705,7 +731,8 @@ pub fn listen(
         .with_role(role);
     let local = listener.local_addr().map_err(|e| net_error(py, e))?;
     Ok(PyListener {
-        listener: Mutex::new(Some(listener)),
+        listener: Mutex::new(Some(Arc::new(listener))),
+        pending: Mutex::new(None),
         local,
         period: config.endpoint.period,
         role,
@@ -719,7 +746,7 @@ impl PyListener {
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
                 .as_ref()
-                .map(Listener::stats)
+                .map(|l| l.stats())
                 .unwrap_or_default()
         })
     }
@@ -734,21 +761,43 @@ impl PyListener {
     fn accept(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Option<PyLink>> {
         let limit = blocking::timeout("timeout", timeout)?;
         let rt = blocking::runtime()?;
-        let attempt = |slice: StdDuration| {
+        let pending = py.detach(|| {
+            let mut slot = self.pending.lock().unwrap_or_else(PoisonError::into_inner);
+            if let Some(p) = slot.take() {
+                return Ok(p);
+            }
             let guard = self.listener.lock().unwrap_or_else(PoisonError::into_inner);
-            let Some(listener) = guard.as_ref() else {
+            let Some(listener) = guard.as_ref().map(Arc::clone) else {
                 return Err(NetError::Link(CoreError::Closed));
             };
-            rt.block_on(async {
-                match tokio::time::timeout(slice, listener.accept()).await {
-                    Ok(Ok(link)) => Ok(Some(link)),
-                    Ok(Err(e)) => Err(e),
-                    Err(_) => Ok(None),
-                }
-            })
+            let (tx, rx) = mpsc::sync_channel(1);
+            let task = rt.spawn(async move {
+                let _ = tx.send(listener.accept().await);
+            });
+            Ok(PendingAccept { result: rx, task })
+        });
+        let pending = match pending {
+            Ok(p) => p,
+            Err(e) => return Err(net_error(py, e)),
         };
-        let got = wait(py, limit, attempt);
+        let mut pending = pending;
+        let result = &mut pending.result;
+        let got = wait(py, limit, move |slice| match result.recv_timeout(slice) {
+            Ok(Ok(link)) => Ok(Some(link)),
+            Ok(Err(e)) => Err(e),
+            Err(mpsc::RecvTimeoutError::Timeout) => Ok(None),
+            Err(mpsc::RecvTimeoutError::Disconnected) => Err(NetError::Link(CoreError::Closed)),
+        });
         log::flush(py);
+        let got = match got {
+            Ok(Ok(None)) | Err(_) => {
+                // Not done (timed out, or a signal): the next call waits on
+                // the same accept.
+                *self.pending.lock().unwrap_or_else(PoisonError::into_inner) = Some(pending);
+                got
+            }
+            done => done,
+        };
         match got? {
             Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.period))),
             Err(e) => Err(net_error(py, e)),
@@ -758,6 +807,16 @@ impl PyListener {
     /// Stops listening; links already accepted go on.
     fn close(&self, py: Python<'_>) {
         py.detach(|| {
+            // The pending accept's task holds the listener too: abort it,
+            // so that the listener (and its socket) goes now.
+            if let Some(p) = self
+                .pending
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+            {
+                p.task.abort();
+            }
             self.listener
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
