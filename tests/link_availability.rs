@@ -182,9 +182,7 @@ fn base_run(addr: SocketAddr, tls: Option<&TlsConfig>, ticks: u32) -> BaseRun {
 /// Whether the host, not the link, held the base half a period or more:
 /// its hub served a deadline or a release that late, or a frame took that
 /// long across loopback (an idle loopback takes tens of microseconds).
-/// `common::assert_regulated` excuses a whole period; a flood on two cores
-/// leaves less slack, and a frame held half a period can already cross the
-/// peer's tick.
+/// A frame held half a period can already cross the peer's tick.
 fn host_stalled(s: &LinkStats) -> bool {
     let half = s.period.as_secs_f64() / 2.0;
     [
