@@ -3,6 +3,16 @@
 use std::path::Path;
 use std::process::Command;
 
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Held for the whole test: each demo runs two spinning hubs and a relay,
+/// and two at once on a 2-core host hold each other's hubs late.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// `ndr demo` for 3 s at 20 ms with `extra` arguments, its CSV in `csv`.
 fn demo(extra: &[&str], csv: &Path) -> serde_json::Value {
     let out = Command::new(env!("CARGO_BIN_EXE_ndr"))
@@ -22,6 +32,7 @@ fn demo(extra: &[&str], csv: &Path) -> serde_json::Value {
 
 #[test]
 fn demo_runs_and_reports_in_json() {
+    let _serial = serial();
     let csv = std::env::temp_dir().join(format!("ndr-demo-test-{}.csv", std::process::id()));
     let r = demo(&[], &csv);
     for key in [
@@ -35,6 +46,8 @@ fn demo_runs_and_reports_in_json() {
         "underflows",
         "clock_base_p50_s",
         "clock_base_p99_s",
+        "clock_base_max_s",
+        "clock_remote_max_s",
         "spin_margin_base_s",
         "spin_margin_remote_s",
     ] {
@@ -61,22 +74,39 @@ fn demo_runs_and_reports_in_json() {
 #[test]
 fn the_paper_modes_round_trip_barely_moves() {
     // The paper's static FIFO: the round trip the controller sees barely
-    // moves from the first release — well under a period even on a loaded
-    // machine (the ≤ 1 ms bound is checked by tests/link_relay.rs). The
-    // adaptive default moves it at each announced change of its delay.
+    // moves from the first release — well under a period (the ≤ 1 ms bound
+    // is checked by tests/link_relay.rs). The adaptive default moves it at
+    // each announced change of its delay.
+    //
+    // A shared host sometimes holds a hub for a millisecond or more; past
+    // the queue's slack the FIFO's delay then steps up a period, by design.
+    // The bound is judged on a run whose hubs were served on time, five
+    // runs at most; the last is judged whatever its hubs saw.
+    let _serial = serial();
     let csv = std::env::temp_dir().join(format!("ndr-demo-static-{}.csv", std::process::id()));
-    let r = demo(&["--mode", "paper-static"], &csv);
-    assert_eq!(
-        (&r["mode"], &r["playout"]),
-        (&"paper-static".into(), &"fifo".into())
-    );
-    let period = r["period_s"].as_f64().unwrap();
-    assert!(r["grtt_std_s"].as_f64().unwrap() < 0.25 * period, "{r}");
+    for attempt in 1..=5 {
+        let r = demo(&["--mode", "paper-static"], &csv);
+        assert_eq!(
+            (&r["mode"], &r["playout"]),
+            (&"paper-static".into(), &"fifo".into())
+        );
+        let stalled = ["clock_base_max_s", "clock_remote_max_s"]
+            .iter()
+            .any(|k| r[k].as_f64().unwrap() >= 1e-3);
+        if stalled && attempt < 5 {
+            eprintln!("run {attempt}: a hub was served 1 ms late or more; judged on another: {r}");
+            continue;
+        }
+        let period = r["period_s"].as_f64().unwrap();
+        assert!(r["grtt_std_s"].as_f64().unwrap() < 0.25 * period, "{r}");
+        break;
+    }
     let _ = std::fs::remove_file(csv);
 }
 
 #[test]
 fn demo_runs_the_adaptive_playout() {
+    let _serial = serial();
     // `--mode adaptive`: the static handshake, the adaptive playout on both
     // sides of a real link through the relay.
     let csv = std::env::temp_dir().join(format!("ndr-demo-adaptive-{}.csv", std::process::id()));

@@ -363,6 +363,8 @@ def _report(
         "clock_base_p99_s": b.get("lateness", {}).get("p99", math.nan),
         "clock_remote_p50_s": r.get("lateness", {}).get("p50", math.nan),
         "clock_remote_p99_s": r.get("lateness", {}).get("p99", math.nan),
+        "clock_base_max_s": b.get("lateness", {}).get("max", math.nan),
+        "clock_remote_max_s": r.get("lateness", {}).get("max", math.nan),
         "spin_margin_base_s": b.get("spin_margin", math.nan),
         "spin_margin_remote_s": r.get("spin_margin", math.nan),
         # What a target-delay playout holds, and the clock estimate under it

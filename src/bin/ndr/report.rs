@@ -257,6 +257,10 @@ struct DemoReport {
     clock_base_p99_s: f64,
     clock_remote_p50_s: f64,
     clock_remote_p99_s: f64,
+    /// The latest each hub served a deadline: a host that held the process
+    /// shows here first.
+    clock_base_max_s: f64,
+    clock_remote_max_s: f64,
     /// How long before a deadline each side's hub spins, as learned from
     /// its timer at the end.
     spin_margin_base_s: f64,
@@ -338,6 +342,8 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         clock_base_p99_s: clock(b, |l| l.p99),
         clock_remote_p50_s: clock(remote, |l| l.p50),
         clock_remote_p99_s: clock(remote, |l| l.p99),
+        clock_base_max_s: clock(b, |l| l.max),
+        clock_remote_max_s: clock(remote, |l| l.max),
         spin_margin_base_s: b.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
