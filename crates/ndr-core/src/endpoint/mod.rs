@@ -56,6 +56,11 @@ pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
 
+pub use crate::playout::schedule::{
+    DELAY_QUANTUM, MAPPING_SLEW, RELEASE_SLEW_STEPS, delay_quantum, delay_quantum_for,
+};
+
+use crate::playout::schedule::{self, Context, Plan, Queued, Schedule};
 use crate::playout::{Adaptive, AdaptiveSlot, Target, TargetDelay};
 use crate::predictor::{NetworkPredictor, Prediction};
 use crate::regulator::{self, Occupancy, Regulator, Tick};
@@ -68,61 +73,10 @@ use crate::wire::{
 use event::Head;
 use rx_check::RxCheck;
 
-/// The adaptive delay starts to fall only when its need is this many
-/// quanta ([`DELAY_QUANTUM`]) below the quantum under it: a quantile that
-/// wobbles must not move the delay back and forth (each rise repeats a
-/// sample).
-const HYSTERESIS: f64 = 0.5;
-
-/// The adaptive delay falls by bringing its releases forward by
-/// `T / RELEASE_SLEW_STEPS` per release (releases every 0.9·T while it
-/// falls): no sample is skipped.
-pub const RELEASE_SLEW_STEPS: u64 = 10;
-
-/// The share of its late budget the adaptive window must have used before
-/// a silence is held for being cheap (see `Endpoint::silence_need`): below
-/// it, the late rate is under its target anyway.
-const BINDING: f64 = 0.5;
-
-/// The release schedule of the adaptive playout follows the clock
-/// estimate by at most `T / MAPPING_SLEW` per release: an update of the
-/// offset estimate moves the releases over several periods, not in one.
-pub const MAPPING_SLEW: u64 = 20;
-
-/// The adaptive delay is a whole number of quanta `q = T/⌈T/20 ms⌉`: whole
-/// periods up to 20 ms, a fraction of the period beyond (15 ms at
-/// `T = 30 ms`, 20 ms at the paper's 200 ms). The quantum is the policy's
-/// dead band: the delay rises to the quantum over its need and falls a
-/// quantum only when the need is 1.5 quanta under it, so that a quantile
-/// that wobbles by a few milliseconds leaves it constant. At long periods
-/// whole ticks would waste up to a period each way (200 ms on the paper's
-/// LAN, whose need is 25 ms).
-pub const DELAY_QUANTUM: Duration = Duration::from_millis(20);
-
 /// A pause or a re-run initialization pattern may take this many times
 /// what it needs (its probes at the period, plus the slowest round trip
 /// seen) before it times out, if that is longer than the handshake timeout.
 pub const PATTERN_SLACK: u64 = 3;
-
-/// The quantum of the adaptive delay at period `T`: `T/⌈T/20 ms⌉` (see
-/// [`DELAY_QUANTUM`]); `T` itself up to 20 ms.
-#[must_use]
-pub fn delay_quantum(period: Duration) -> Duration {
-    delay_quantum_for(period, None)
-}
-
-/// The quantum of the adaptive delay at period `T` when `asked` is asked
-/// for ([`Playout::Adaptive`](crate::playout::Playout::Adaptive)'s
-/// `quantum`, `None` for [`DELAY_QUANTUM`]): `T/⌈T/asked⌉`, the period cut
-/// in the fewest equal parts no longer than `asked` (the period itself when
-/// `asked` is longer), so that the releases keep to a lattice of the ticks.
-#[must_use]
-pub fn delay_quantum_for(period: Duration, asked: Option<Duration>) -> Duration {
-    let asked = asked.unwrap_or(DELAY_QUANTUM);
-    let per = period.as_nanos().max(1);
-    let parts = per.div_ceil(asked.as_nanos().max(1)).max(1);
-    Duration::from_nanos(per / parts)
-}
 
 fn ns_i64(t: Instant) -> i64 {
     i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
@@ -201,29 +155,11 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     passed: Option<Instant>,
     /// The peer's clock offset and skew.
     sync: ClockSync,
-    /// Target-delay playout: the constant end-to-end delay now, in ticks
-    /// (rounded up).
+    /// A target playout other than the adaptive one: the constant
+    /// end-to-end delay now, in ticks (rounded up).
     delay_ticks: Option<u64>,
-    /// Adaptive playout: the end-to-end delay now (while it falls, the
-    /// step it is at).
-    adaptive_delay: Option<Duration>,
-    /// Adaptive playout: the delay a fall under way ends at.
-    falling_to: Option<Duration>,
-    /// Adaptive playout: the delay last announced with an event.
-    announced: Option<Duration>,
-    /// Adaptive playout: the delay before the silence being followed (see
-    /// `silence_need`), to go back to if the silence turns into an outage.
-    before_silence: Option<Duration>,
-    /// Adaptive playout: the next release, apart from the base's ticks
-    /// (which send); a remote ticks with its releases.
-    next_release: Option<Instant>,
-    /// Adaptive playout: the last release's scheduled time, and the peer's
-    /// send stamp its slot was for (the next slot's is a period later).
-    last_slot: Option<(Instant, Instant)>,
-    /// Adaptive playout: the clock mapping the release schedule uses (ns):
-    /// the offset estimate's, followed by [`MAPPING_SLEW`] at most per
-    /// release.
-    slot_mapping: Option<i64>,
+    /// Adaptive playout: its release schedule.
+    schedule: Option<Schedule>,
     predictor: NetworkPredictor,
     pattern: InitPattern,
     next_tick: Option<Instant>,
@@ -294,13 +230,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             passed: None,
             sync: ClockSync::new(),
             delay_ticks: None,
-            adaptive_delay: None,
-            falling_to: None,
-            announced: None,
-            next_release: None,
-            last_slot: None,
-            before_silence: None,
-            slot_mapping: None,
+            schedule: None,
             predictor,
             pattern: InitPattern::new(),
             next_tick: None,
@@ -333,6 +263,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             stats: Stats::default(),
             config,
         };
+        if ep.is_adaptive() {
+            ep.schedule = Some(Schedule::new(
+                config.role,
+                config.period,
+                ep.quantum_at(config.period),
+                config.watchdog,
+            ));
+        }
         if config.role == Role::Base {
             ep.queue_tx(Tx::Hello);
         }
@@ -373,7 +311,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             // neither bunches the send stamps of two ticks (which the
             // adaptive playout would take for two samples due at once) nor
             // makes a late release find the next sample due too.
-            match (self.next_release.filter(|&r| r <= now), tick) {
+            let release = self.schedule.as_ref().and_then(Schedule::next_release);
+            match (release.filter(|&r| r <= now), tick) {
                 (Some(r), Some(t)) if r <= t => self.release_apart(r, now),
                 (Some(r), None) => self.release_apart(r, now),
                 (_, Some(t)) => {
@@ -398,7 +337,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     pub fn poll_timeout(&self) -> Option<Instant> {
         [
             self.next_tick,
-            self.next_release,
+            self.schedule.as_ref().and_then(Schedule::next_release),
             self.deadline,
             self.liveness_deadline(),
         ]
@@ -561,7 +500,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// The counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        self.stats
+        let mut stats = self.stats;
+        if let Some(s) = &self.schedule
+            && let (Some(d), Some(ticks)) = (s.delay(), s.delay_ticks())
+        {
+            stats.playout_delay_s = d.as_secs_f64();
+            stats.playout_delay_ticks = ticks;
+        }
+        stats
     }
 
     /// Events the application did not drain in time (the queue holds 32).
@@ -658,7 +604,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     fn enter_closed(&mut self, error: Option<LinkError>) {
         self.phase = Phase::Closed;
         self.next_tick = None;
-        self.next_release = None;
+        if let Some(s) = &mut self.schedule {
+            s.stop();
+        }
         self.deadline = None;
         self.emit(Event::Closed { error });
     }
@@ -866,7 +814,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         // length and replay the outage's commands.
         if self.outage_burst
             && self
-                .slot_at(slot.head.sent_at, now)
+                .schedule
+                .as_ref()
+                .and_then(|s| s.slot_at(slot.head.sent_at, now, &self.sync))
                 .is_some_and(|s| s < now)
         {
             self.stats.discarded += 1;
@@ -875,7 +825,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if self.regulator.push(slot).is_err() {
             self.stats.rejected += 1;
         }
-        self.reschedule_release();
+        if let Some((s, cx)) = self.adaptive() {
+            s.on_queued(&cx);
+        }
         Ok(())
     }
 
@@ -927,6 +879,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     fn change_period(&mut self, period: Duration) -> Result<(), LinkError> {
         self.period = period;
+        let quantum = self.quantum_at(period);
+        if let Some(s) = &mut self.schedule {
+            s.set_period(period, quantum);
+        }
         self.rx_check.period_changed(period);
         self.predictor
             .set_period(period)
@@ -1010,10 +966,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.grtt_acked = self.next_seq.checked_sub(1);
         self.due_seq = None;
         self.passed = None;
-        self.falling_to = None;
-        self.next_release = None;
-        self.last_slot = None;
-        self.slot_mapping = None;
+        if let Some(s) = &mut self.schedule {
+            s.restart();
+        }
         self.ticks_running = 0;
         self.grid_settled = false;
         self.deadline = None;
@@ -1036,20 +991,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 self.queue_tx(Tx::Probe { seq });
             }
             Phase::Running => {
-                if self.is_adaptive() {
+                let next_tick = self.next_tick;
+                if let Some((s, cx)) = self.adaptive() {
                     // Its releases have their own schedule, each at its
                     // sample's slot; until the delay is set, the ticks.
-                    if self.next_release.is_none() {
-                        // The delay set as soon as it can be, so that the
-                        // first release is at its sample's slot rather than
-                        // at a tick past it (two due there: a rise).
-                        if self.adaptive_delay.is_none()
-                            && let Some(need) = self.adaptive_need(t)
-                        {
-                            self.rise_to(need, None);
-                        }
-                        self.next_release = self.next_slot(at).or(self.next_tick);
-                    }
+                    s.on_tick(at, t, next_tick, &cx);
+                    self.delay_events();
                 } else {
                     self.track_delay(t);
                     self.release(at, t);
@@ -1064,8 +1011,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 // a release and the next release is a period later.
                 if !self.grid_settled
                     && (self.config.role == Role::Base
-                        || !self.is_adaptive()
-                        || self.on_release_grid(at))
+                        || self.schedule.as_ref().is_none_or(|s| s.on_release_grid(at)))
                 {
                     self.grid_settled = true;
                 }
@@ -1102,214 +1048,96 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         seq
     }
 
-    /// Adaptive: the tick scheduled at `at` falls on the release just run,
-    /// and the next release is about a period after it.
-    fn on_release_grid(&self, at: Instant) -> bool {
-        let close = |a: Instant, b: Instant| {
-            a.signed_nanos_since(b).unsigned_abs() <= (self.quantum() / 4).as_nanos()
-        };
-        self.last_slot.is_some_and(|(r, _)| r == at)
-            && self
-                .next_release
-                .is_some_and(|n| close(n, at + self.period))
-    }
-
     fn is_adaptive(&self) -> bool {
         matches!(self.target, Some(Target::Adaptive(_)))
     }
 
-    /// Adaptive playout: one release, at its sample's slot. The delay rises
-    /// at once before it (the release comes later, or for a rise of more
-    /// than half a period repeats the last sample), and falls after it by
-    /// `T / RELEASE_SLEW_STEPS`, so that releases stay one sample each and
-    /// none is skipped. The next release is then scheduled at the next
-    /// sample's slot.
-    fn release_apart(&mut self, at: Instant, t: Instant) {
-        self.next_release = None;
-        if self.phase != Phase::Running {
-            return;
-        }
-        let silence = self.silence_need(t);
-        let resumed = self.end_silence(t, silence.is_some());
-        let need = self
-            .adaptive_need(t)
-            .map(|n| silence.map_or(n, |s| s.max(n)));
-        let before = self.adaptive_delay;
-        if let Some(need) = need {
-            self.rise_to(need, silence);
-        }
-        if let (Some(was), Some(need)) = (resumed, need) {
-            self.fall_back(was, need);
-        }
-        // A rise of up to half a period just brings the release later (a
-        // remote's tick with it, so that its state still answers the
-        // command); a larger one repeats the last sample now.
-        if let (Some(b), Some(a)) = (before, self.adaptive_delay)
-            && a > b
-            && let Some(slot) = self.front_slot(at)
-            && slot > t
-            && slot <= at + self.period / 2
+    /// The adaptive schedule and what it decides on now, `None` under
+    /// another playout.
+    fn adaptive(&mut self) -> Option<(&mut Schedule, Context<'_, A>)> {
+        let (Some(schedule), Some(Target::Adaptive(policy))) = (&mut self.schedule, &self.target)
+        else {
+            return None;
+        };
+        let mut queue = self.regulator.iter().map(|s| s.head.sent_at);
+        let queued = Queued {
+            front: queue.next(),
+            second: queue.next(),
+            len: self.regulator.len(),
+        };
+        // The paper's predictor steers the delay ahead: half the rise of the
+        // mean round trip it forecasts over its horizon.
+        let lead = self
+            .predictor
+            .last()
+            .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
+        let cx = Context {
+            policy,
+            sync: &self.sync,
+            queued,
+            newest: self.prev_data_rx,
+            outage: self.outage_burst,
+            lead,
+        };
+        Some((schedule, cx))
+    }
+
+    /// Each delay the adaptive schedule settled on, as an event.
+    fn delay_events(&mut self) {
+        while let Some((delay, ticks)) = self
+            .schedule
+            .as_mut()
+            .and_then(Schedule::poll_delay_changed)
         {
-            self.next_release = Some(slot);
-            if self.config.role == Role::Remote && self.next_tick == Some(at) {
-                self.next_tick = Some(slot);
-            }
-            return;
+            self.stats.delay_changes += 1;
+            self.emit(Event::DelayChanged { delay, ticks });
         }
-        let expected = self.expected_stamp();
+    }
+
+    /// The adaptive delay's quantum at `period`.
+    fn quantum_at(&self, period: Duration) -> Duration {
+        self.config
+            .playout
+            .quantum(period)
+            .unwrap_or_else(|| delay_quantum(period))
+    }
+
+    /// Adaptive playout: one release, at its sample's slot, the schedule
+    /// deciding when and at what delay (see [`Schedule`]).
+    fn release_apart(&mut self, at: Instant, t: Instant) {
+        let running = self.phase == Phase::Running;
+        let Some((s, cx)) = self.adaptive() else {
+            return;
+        };
+        let plan = if running {
+            s.before_release(at, t, &cx)
+        } else {
+            s.stop();
+            return;
+        };
+        self.delay_events();
+        let pending = match plan {
+            Plan::Later(slot) => {
+                // A remote's tick moves with its release, so that its state
+                // still answers the command.
+                if self.config.role == Role::Remote && self.next_tick == Some(at) {
+                    self.next_tick = Some(slot);
+                }
+                return;
+            }
+            Plan::Now(pending) => pending,
+        };
         let fresh = self.stats.released_fresh;
         self.release(at, t);
         self.watch(t);
-        if let Some(need) = need {
-            self.fall_from(need);
-        }
-        // The slot was that of the sample released, or of the one expected.
         let stamp = match self.last_release {
             Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
-            // Following a silence, the next slot stays the missing
-            // sample's: the burst's first is released at its slot, not at a
-            // release scheduled for a later stamp (a period late, and the
-            // next one a period early).
-            _ if silence.is_some() => self.prev_data_rx.map(|(sent, _)| sent),
-            // A silence followed, then let go: the rise may have put the
-            // missing sample's slot after this release, which then passes
-            // nothing.
-            _ if self.before_silence.is_some()
-                && expected
-                    .and_then(|s| self.slot_at(s, at))
-                    .is_some_and(|slot| slot > t) =>
-            {
-                self.last_slot.map(|(_, stamp)| stamp)
-            }
-            _ => expected,
+            _ => None,
         };
-        if self.adaptive_delay.is_some()
-            && let Some(stamp) = stamp
-        {
-            self.last_slot = Some((at, stamp));
+        if let Some((s, cx)) = self.adaptive() {
+            s.after_release(at, t, pending, stamp, &cx);
         }
-        if let Some(map) = self.mapping_ns(t) {
-            let most = i64::try_from((self.period / MAPPING_SLEW).as_nanos()).unwrap_or(i64::MAX);
-            self.slot_mapping = Some(match self.slot_mapping {
-                Some(m) => m.saturating_add(map.saturating_sub(m).clamp(-most, most)),
-                None => map,
-            });
-        }
-        self.next_release = self.next_slot(at);
-    }
-
-    /// Adaptive: the delay that holds the next sample's slot a period
-    /// ahead (s), while nothing is queued, its slot has passed, and either
-    /// the rise is cheaper per sample saved than the quantile's way of
-    /// saving one ([`Adaptive::sample_cost`](crate::playout::Adaptive::sample_cost))
-    /// with half the late budget used, or the window's late samples have
-    /// used up its late rate; `None` otherwise.
-    ///
-    /// A silence past the slot is a stall of the path (a retransmission, a
-    /// congestion episode): its frames come later, in a burst. Dropped as
-    /// late, each would be lost; with the delay held ahead of the silence
-    /// (the ticks repeat the last sample, as they would anyway), they are
-    /// released in order, and the delay falls back to where it was. A
-    /// short rise costs little (the cost grows with its square), so it is
-    /// held once half the late budget is used; a longer one only once `ε`
-    /// of the samples have been let go: the window's quantile sits under
-    /// that many on purpose, and stretching for them would only hold the
-    /// delay higher.
-    /// A silence longer than the watchdog is an outage, not a delay, and is
-    /// not followed.
-    fn silence_need(&self, t: Instant) -> Option<f64> {
-        let Some(Target::Adaptive(a)) = &self.target else {
-            return None;
-        };
-        // An outage's backlog still draining is no silence to follow.
-        if !self.regulator.is_empty() || self.outage_burst {
-            return None;
-        }
-        let (sent, _) = self.prev_data_rx?;
-        if self.past_watchdog(t) {
-            return None;
-        }
-        let d = self.adaptive_delay?;
-        // The samples after the newest that this release would pass: lost
-        // if the delay stays.
-        let passed = self.release_cutoff(t, d).checked_duration_since(sent)?;
-        let missed = passed.as_nanos() / self.period.as_nanos().max(1);
-        // The delay at which the newest sample's slot would be now (the
-        // cutoff is half a quantum past the slots): the next one's is then
-        // a period ahead.
-        let need = (passed + d).saturating_sub(self.quantum() / 2);
-        // Holding a rise `h` saves `h/T` samples and, as the delay falls
-        // back by `T/RELEASE_SLEW_STEPS` per release, costs
-        // `h²·RELEASE_SLEW_STEPS/(2T)` of delay summed over the releases:
-        // the last sample saved, `h·RELEASE_SLEW_STEPS`. Worth it while
-        // that is below what the quantile pays for one. A lost sample costs
-        // that only while the budget binds: with most of it unspent, the
-        // quantile is already above what the late rate asks, and a hold
-        // would only make the delay vary.
-        // (The cost's two scans of the histogram only when it can decide.)
-        let rise = need.saturating_sub(self.before_silence.unwrap_or(d));
-        let used = a.budget_used(missed);
-        let cheap = || rise.saturating_mul(RELEASE_SLEW_STEPS) <= a.sample_cost();
-        (missed >= 1 && (used > 1.0 || (used >= BINDING && cheap())))
-            .then_some(need.as_nanos() as f64 * 1e-9)
-    }
-
-    /// Adaptive: notes where a followed silence started, and ends it: when
-    /// a sample is queued again (the delay then falls as after any rise),
-    /// or when the silence outlasts the watchdog. An outage is not a delay
-    /// to cover: the delay goes back at once to where it was (nothing is
-    /// queued, so no sample is skipped), instead of falling for as long as
-    /// it rose.
-    ///
-    /// Returns the delay before the silence when its burst has come.
-    fn end_silence(&mut self, t: Instant, following: bool) -> Option<Duration> {
-        if following {
-            if self.before_silence.is_none() {
-                self.before_silence = self.adaptive_delay;
-            }
-            return None;
-        }
-        let before = self.before_silence?;
-        if !self.regulator.is_empty() {
-            self.before_silence = None;
-            return Some(before);
-        }
-        if self.past_watchdog(t) {
-            self.before_silence = None;
-            if self.adaptive_delay.is_some_and(|d| d > before) {
-                self.falling_to = None;
-                self.set_adaptive_delay(before);
-                self.announce_adaptive();
-            }
-            // The next slot was held on the missing sample's: back to the
-            // stamp due now, or the releases would repeat the last sample
-            // twice a period until the expected stamps caught up.
-            let map = self.slot_mapping.or_else(|| self.mapping_ns(t));
-            if let (Some((at, stamp)), Some(map)) = (self.last_slot, map) {
-                let due = ns_i64(t)
-                    .saturating_sub(map)
-                    .saturating_sub(i64::try_from(before.as_nanos()).unwrap_or(i64::MAX));
-                let per = self.period.as_nanos().max(1);
-                let behind = u64::try_from(due.saturating_sub(ns_i64(stamp))).unwrap_or(0);
-                self.last_slot = Some((at, stamp + self.period * (behind / per)));
-            }
-        }
-        None
-    }
-
-    /// Adaptive: a held silence's burst has come. The delay falls back to
-    /// where it was before the silence (or to the quantum over the need, if
-    /// that is higher), by `T / RELEASE_SLEW_STEPS` per release: the rise
-    /// was for the silence's samples only, and the hysteresis would keep a
-    /// rise of a quantum for good.
-    fn fall_back(&mut self, was: Duration, need: f64) {
-        let Some(d) = self.adaptive_delay else {
-            return;
-        };
-        let to = was.max(self.quanta_over(need));
-        if to < d {
-            self.falling_to = Some(to);
-        }
+        self.delay_events();
     }
 
     /// Adaptive: a sample lost (late or skipped) spends the late rate.
@@ -1337,176 +1165,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         (now >= due).then(|| now - arrived)
     }
 
-    /// Nothing received for as long as the watchdog allows.
-    fn past_watchdog(&self, t: Instant) -> bool {
-        match (self.config.watchdog, self.prev_data_rx) {
-            (Some(w), Some((_, arrived))) => t - arrived >= w,
-            _ => false,
-        }
-    }
-
-    /// Adaptive: the quantum of the delay (see [`DELAY_QUANTUM`]).
-    fn quantum(&self) -> Duration {
-        self.config
-            .playout
-            .quantum(self.period)
-            .unwrap_or_else(|| delay_quantum(self.period))
-    }
-
-    /// Adaptive: the peer's send stamp the next slot is for, when no sample
-    /// is queued: a period after the last slot's.
-    fn expected_stamp(&self) -> Option<Instant> {
-        self.last_slot.map(|(_, stamp)| stamp + self.period)
-    }
-
-    /// Adaptive: when the next release is due, after the one scheduled at
-    /// `at`: the slot of the oldest sample queued (its send stamp mapped to
-    /// the local clock, plus the delay), or of the one expected a period
-    /// after the last; at least half a period after `at`.
-    ///
-    /// A slot further than one and a half periods away (the delay rose by
-    /// more than half a period) gets a release a period after `at` first,
-    /// which repeats the last sample: one release per period or so.
-    fn next_slot(&self, at: Instant) -> Option<Instant> {
-        let slot = self.front_slot(at)?;
-        if slot > at + self.period + self.period / 2 {
-            return Some(at + self.period);
-        }
-        Some(slot.max(at + self.period / 2))
-    }
-
-    /// Adaptive: the slot of the oldest sample queued, or of the one
-    /// expected a period after the last.
-    fn front_slot(&self, at: Instant) -> Option<Instant> {
-        let stamp = match self.regulator.front() {
-            Some(s) => s.head.sent_at,
-            None => self.expected_stamp()?,
-        };
-        self.slot_at(stamp, at)
-    }
-
-    /// Adaptive: the slot of the sample sent at `stamp` (peer clock).
-    fn slot_at(&self, stamp: Instant, at: Instant) -> Option<Instant> {
-        let d = self.adaptive_delay?;
-        let map = self.slot_mapping.or_else(|| self.mapping_ns(at))?;
-        let slot = ns_i64(stamp)
-            .saturating_add(map)
-            .saturating_add(i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
-        Some(Instant::from_nanos(u64::try_from(slot).unwrap_or(0)))
-    }
-
-    /// Adaptive, base side: a sample that arrives first in the queue
-    /// moves the next release to its slot, if that is within half a period
-    /// of the slot expected: the remote's ticks move with its delay, and a
-    /// release at the expected slot would take its sample a little early
-    /// or late.
-    fn reschedule_release(&mut self) {
-        let (Role::Base, true, Some(next), Some((at, _))) = (
-            self.config.role,
-            self.is_adaptive() && self.regulator.len() == 1,
-            self.next_release,
-            self.last_slot,
-        ) else {
-            return;
-        };
-        if let Some(slot) = self.next_slot(at)
-            && slot.signed_nanos_since(next).unsigned_abs() < self.period.as_nanos() / 2
-        {
-            self.next_release = Some(slot);
-        }
-    }
-
-    /// Adaptive: rises to the quantum at or above `need` (s) at once (a
-    /// fall under way is given up): once a delay is set, when what the
-    /// delays measured ask for passes it — `need` less the policy's warm-up
-    /// margin, or the `silence` followed — or when `need` passes it by
-    /// [`HYSTERESIS`] quanta. A rise repeats a sample, and the margin is a
-    /// guess: with the need a hair under a quantum boundary, the first
-    /// estimates of the clocks crossed it, and the rise repeated a sample
-    /// at start-up that no late sample called for.
-    fn rise_to(&mut self, need: f64, silence: Option<f64>) {
-        if let Some(d) = self.adaptive_delay.map(Duration::as_secs_f64) {
-            if need <= d {
-                return;
-            }
-            let margin = match &self.target {
-                Some(Target::Adaptive(a)) => a.margin().as_secs_f64(),
-                _ => 0.0,
-            };
-            let measured = silence.map_or(need - margin, |s| s.max(need - margin));
-            let band = HYSTERESIS * self.quantum().as_secs_f64();
-            if measured <= d && need <= d + band {
-                return;
-            }
-        }
-        self.falling_to = None;
-        self.set_adaptive_delay(self.quanta_over(need));
-        self.announce_adaptive();
-    }
-
-    /// Adaptive: the delay in whole quanta at or over `need` (s), one at
-    /// least.
-    fn quanta_over(&self, need: f64) -> Duration {
-        let q = self.quantum();
-        q * (libm::ceil(need / q.as_secs_f64()).max(1.0) as u64)
-    }
-
-    /// Adaptive: the delay falls a quantum at a time, by `T /
-    /// RELEASE_SLEW_STEPS` per release (the releases come that much
-    /// earlier); a fall starts when the need is [`HYSTERESIS`] quanta under
-    /// the quantum below the delay.
-    fn fall_from(&mut self, need: f64) {
-        let Some(d) = self.adaptive_delay else {
-            return;
-        };
-        let q = self.quantum();
-        let to = match self.falling_to {
-            Some(to) => to,
-            None => {
-                // The quantum strictly below the delay, at least one.
-                let to = q * (d.as_nanos().saturating_sub(1) / q.as_nanos().max(1));
-                if to < q || need > to.as_secs_f64() - HYSTERESIS * q.as_secs_f64() {
-                    return;
-                }
-                self.falling_to = Some(to);
-                to
-            }
-        };
-        let step = (self.period / RELEASE_SLEW_STEPS).min(d - to);
-        self.set_adaptive_delay(d - step);
-        if d - step <= to {
-            self.falling_to = None;
-            self.announce_adaptive();
-        }
-    }
-
-    fn set_adaptive_delay(&mut self, d: Duration) {
-        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
-        self.adaptive_delay = Some(d);
-        self.delay_ticks = Some(ticks);
-        self.stats.playout_delay_s = d.as_secs_f64();
-        self.stats.playout_delay_ticks = ticks;
-    }
-
-    /// Adaptive: an event for a delay at rest that is not the last one
-    /// announced.
-    fn announce_adaptive(&mut self) {
-        let (Some(delay), Some(ticks)) = (self.adaptive_delay, self.delay_ticks) else {
-            return;
-        };
-        if self.announced != Some(delay) {
-            self.announced = Some(delay);
-            self.stats.delay_changes += 1;
-            self.emit(Event::DelayChanged { delay, ticks });
-        }
-    }
-
     /// The release scheduled at `at`, run (and stamped) at `t`.
     fn release(&mut self, at: Instant, t: Instant) {
-        let adaptive = self.is_adaptive();
+        let unset = self.schedule.as_ref().map(Schedule::delay) == Some(None);
         let outcome = match self.target.as_ref().map(TargetDelay::target) {
             // Adaptive: nothing is due before the delay is set.
-            Some(_) if adaptive && self.adaptive_delay.is_none() => self.not_started(),
+            Some(_) if unset => self.not_started(),
             Some(target) => self.release_target(at, target),
             None => self.release_fifo(),
         };
@@ -1542,26 +1206,20 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         // it to take none, the same samples would be due again at the next
         // release, and the delay would rise without end.
         let mut oldest = false;
-        if self.is_adaptive() {
-            let due = self
+        let bunched = self.schedule.is_some()
+            && self
                 .regulator
                 .iter()
                 .take_while(|s| s.head.sent_at <= cutoff)
-                .count() as u64;
-            let second = self.regulator.iter().nth(1).map(|s| s.head.sent_at);
-            if due > 1
-                && let (Some(cur), Some(second)) = (self.adaptive_delay, second)
-            {
-                // Just enough quanta that the second is not due.
-                let q = self.quantum();
-                let short = (cutoff - second) + Duration::from_nanos(1);
-                let quanta = (cur + short).as_nanos().div_ceil(q.as_nanos().max(1));
-                self.falling_to = None;
-                self.set_adaptive_delay(q * quanta);
-                self.announce_adaptive();
-                cutoff = self.release_cutoff(t, d);
-                oldest = true;
-            }
+                .count()
+                > 1;
+        let second = self.regulator.iter().nth(1).map(|s| s.head.sent_at);
+        if let (Some(s), true, Some(second)) = (&mut self.schedule, bunched, second)
+            && s.rise_past(cutoff, second)
+        {
+            self.delay_events();
+            cutoff = self.release_cutoff(t, d);
+            oldest = true;
         }
         let due = |s: &Slot<C>| s.head.sent_at <= cutoff;
         if self.config.underflow == Underflow::DropLate {
@@ -1591,73 +1249,31 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
     }
 
-    /// Frames sent (peer clock) at or before this have their slot at or
-    /// before the tick `t` for a target delay `d`.
-    fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
-        match (
-            self.slot_mapping.or_else(|| self.mapping_ns(t)),
-            self.adaptive_delay,
-        ) {
-            // Adaptive: due when the send time mapped to the local clock
-            // plus the delay (less half a quantum, so that the estimate's
-            // noise cannot move a sample across a release) is past. Half a
-            // period at a sub-tick delay would run ahead of the arrivals: a
-            // release would pass, and so drop as late, samples still on
-            // their way to slots after it.
-            (Some(map), Some(d)) => {
-                let d = i64::try_from(d.as_nanos()).unwrap_or(i64::MAX)
-                    - i64::try_from((self.quantum() / 2).as_nanos()).unwrap_or(i64::MAX);
-                let c = ns_i64(t).saturating_sub(map).saturating_sub(d);
-                Instant::from_nanos(u64::try_from(c).unwrap_or(0))
-            }
-            // The other policies take the two clocks as one.
-            _ => t - d,
-        }
-    }
-
-    /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive): the floor
-    /// of the raw delays at `t` (ns), to which its target is relative.
-    fn floor_ns(&self, t: Instant) -> Option<i64> {
-        match self.target {
-            Some(Target::Adaptive(_)) => Some((self.sync.floor_at(t)? * 1e9) as i64),
-            _ => None,
-        }
-    }
-
-    /// Adaptive: `local − peer` at `t` (ns), which maps send stamps to the
-    /// local clock; until the offset is known, the floor (as if the fastest
-    /// frame took no time).
-    fn mapping_ns(&self, t: Instant) -> Option<i64> {
-        self.floor_ns(t)?;
-        match self.sync.offset_at(t) {
-            Some(theta) => Some((theta * 1e9) as i64),
-            None => self.floor_ns(t),
-        }
-    }
-
     /// The end-to-end delay a sample released at `t` gets: for the adaptive
     /// policy the delay it keeps, for the others their target.
     fn current_delay(&self, _t: Instant) -> Option<Duration> {
-        match self.target {
-            Some(Target::Adaptive(_)) => self.adaptive_delay,
-            _ => self.target.as_ref()?.target(),
+        match &self.schedule {
+            Some(s) => s.delay(),
+            None => self.target.as_ref()?.target(),
         }
     }
 
-    /// Adaptive: the end-to-end delay the target needs (s): the floor's
-    /// one-way delay plus the policy's target above it, steered ahead by
-    /// the paper's predictor (half the rise of the mean round trip it
-    /// forecasts over its horizon, at most a quantum: a forecast may move
-    /// the delay a step early, the measured delays decide the rest; after
-    /// a 5 s outage its forecast alone held the delay 0.56 s high for 5 s).
-    fn adaptive_need(&self, t: Instant) -> Option<f64> {
-        let d = self.target.as_ref()?.target()?;
-        let min_one_way = (self.floor_ns(t)? - self.mapping_ns(t)?) as f64 * 1e-9;
-        let lead = self
-            .predictor
-            .last()
-            .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
-        Some(min_one_way + d.as_secs_f64() + lead.min(self.quantum().as_secs_f64()))
+    /// Frames sent (peer clock) at or before this have their slot at or
+    /// before the tick `t` for a target delay `d` (the adaptive schedule's
+    /// own delay and clock mapping once it has them; the other policies
+    /// take the two clocks as one).
+    fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
+        match &self.schedule {
+            Some(s) => s.release_cutoff(t, d, &self.sync),
+            None => t - d,
+        }
+    }
+
+    /// Adaptive: the floor of the raw delays at `t` (ns), to which its
+    /// target is relative; `None` under another playout.
+    fn floor_ns(&self, t: Instant) -> Option<i64> {
+        self.schedule.as_ref()?;
+        schedule::floor_ns(&self.sync, t)
     }
 
     /// A target playout other than the adaptive one: sets the delay and
@@ -1680,31 +1296,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
     }
 
-    /// The tick after the one scheduled at `t`. The base's clock is the
-    /// structure's: a remote under [`Playout::Adaptive`] ticks with its
-    /// releases, which are the base's send stamps mapped to the local clock
-    /// plus its delay, so that the state answering a command leaves as the
-    /// command is released, and the two grids do not slide under skew. At
-    /// any phase: two hubs start their grids anywhere within a period of
-    /// each other, and a grid left apart by `φ` made each direction's true
-    /// delay its announced one plus or minus `φ` (the sum was right). The
-    /// next tick is the release point nearest to a period away, so half a
-    /// period to one and a half away.
-    ///
-    /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
+    /// The tick after the one scheduled at `t`: a period later, but for an
+    /// adaptive remote, whose ticks follow its releases
+    /// ([`Schedule::following_tick`]). Two hubs start their grids anywhere
+    /// within a period of each other, and a grid left apart by `φ` made each
+    /// direction's true delay its announced one plus or minus `φ`.
     fn following_tick(&self, t: Instant) -> Instant {
         let plain = t + self.period;
-        let (Role::Remote, Some(Target::Adaptive(_)), Some(release)) =
-            (self.config.role, &self.target, self.next_release)
-        else {
-            return plain;
-        };
-        let per = i64::try_from(self.period.as_nanos())
-            .unwrap_or(i64::MAX)
-            .max(1);
-        let apart = release.signed_nanos_since(plain);
-        let shift = (apart + per / 2).rem_euclid(per) - per / 2;
-        u64::try_from(ns_i64(plain).saturating_add(shift)).map_or(plain, Instant::from_nanos)
+        self.schedule
+            .as_ref()
+            .map_or(plain, |s| s.following_tick(plain))
     }
 
     fn last_tick(&self) -> Option<Instant> {

@@ -21,6 +21,10 @@ use core::str::FromStr;
 
 use crate::time::{Duration, Instant};
 
+pub mod schedule;
+
+pub use schedule::{DELAY_QUANTUM, Schedule, delay_quantum, delay_quantum_for};
+
 /// How a regulator decides when to release each sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Playout {
@@ -61,8 +65,8 @@ pub enum Playout {
         /// The target late rate ε, in parts per million (1000 = 0.1 %).
         epsilon_ppm: u32,
         /// The step of the delay asked for, `None` for the default
-        /// [`DELAY_QUANTUM`](crate::endpoint::DELAY_QUANTUM) (see
-        /// [`delay_quantum_for`](crate::endpoint::delay_quantum_for)): a
+        /// [`DELAY_QUANTUM`] (see
+        /// [`delay_quantum_for`]): a
         /// finer one holds a lower delay that changes more often.
         quantum: Option<Duration>,
     },
@@ -123,7 +127,7 @@ impl Playout {
                 A::build(
                     period,
                     f64::from(epsilon_ppm) * 1e-6,
-                    crate::endpoint::delay_quantum_for(period, quantum),
+                    delay_quantum_for(period, quantum),
                 )
                 .ok_or(NoAdaptiveRoom)?,
             ),
@@ -135,9 +139,7 @@ impl Playout {
     #[must_use]
     pub fn quantum(self, period: Duration) -> Option<Duration> {
         match self {
-            Playout::Adaptive { quantum, .. } => {
-                Some(crate::endpoint::delay_quantum_for(period, quantum))
-            }
+            Playout::Adaptive { quantum, .. } => Some(delay_quantum_for(period, quantum)),
             _ => None,
         }
     }
