@@ -740,3 +740,6 @@ impl Schedule {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;
