@@ -1,0 +1,328 @@
+//! Receiving: what each frame from the peer does to the endpoint.
+
+use super::event::Head;
+use super::{Endpoint, Event, LinkError, Phase, Slot, Tx, Underflow, ns_i64};
+use crate::playout::{AdaptiveSlot, Target, TargetDelay};
+use crate::sizing::INIT_EXCHANGES;
+use crate::time::{Duration, Instant};
+use crate::wire::{Control, Echo, Frame, Hello, Kind, Payload, Role, control_op};
+
+impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
+    pub(super) fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
+        let sent_at = frame.sent_at();
+        // A frame handed over a watchdog's time after a deadline the driver
+        // missed: the driver itself stalled (its process stopped), and what
+        // the frame's arrival says is the stall's, not the network's.
+        let stalled = match (self.config.watchdog, self.poll_timeout()) {
+            (Some(w), Some(due)) => now >= due + w,
+            _ => false,
+        };
+        // Checked before anything of the frame is used (see `rx_check`).
+        if let Some(echo) = frame.echo() {
+            self.rx_check
+                .observe_echo(echo.sent_at, echo.hold, sent_at, now);
+        }
+        self.rx_check.check_stamp(sent_at, now)?;
+        if let Payload::Data(_) = frame.payload() {
+            if self.phase == Phase::Handshake {
+                return Err(self.unexpected(Kind::Data));
+            }
+            self.stats.frames_missing += self.rx_check.accept_data(frame.seq(), sent_at)?;
+        }
+        let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
+        // A stamp nothing could check yet (the first Hello) stays out of the
+        // clock estimate.
+        if self.rx_check.bounded() {
+            self.sync.observe_arrival(sent_at, now);
+        }
+        // A level shift of the received floor (a route change): the delays
+        // in the adaptive window since the shift were measured above the
+        // old floor, and would count the shift twice on top of the new one
+        // (a +150 ms step held the delay 150 ms too high for two minutes).
+        if self.sync.rx().shifts() != shifts
+            && let (Some(before), Some(after), Some(Target::Adaptive(a))) =
+                (floor, self.floor_ns(now), &mut self.target)
+        {
+            a.rebase(
+                Duration::from_nanos(after.saturating_sub(before).unsigned_abs()),
+                after > before,
+            );
+        }
+        if let Some(theta) = self.sync.offset_at(now) {
+            self.stats.clock_offset_s = theta;
+        }
+        self.stats.clock_skew_ppm = self.sync.skew() * 1e6;
+        if let Some(echo) = frame.echo() {
+            self.measure_nrtt(now, echo, sent_at)?;
+        }
+        self.newest_rx = Some((sent_at, now));
+        match frame.payload() {
+            Payload::Hello(hello) => self.receive_hello(now, hello),
+            Payload::Data(channels) => {
+                let prev = self.prev_data_rx.replace((sent_at, now));
+                if let Some((prev_sent, prev_arrived)) = prev {
+                    // How much later than its schedule this frame came,
+                    // relative to the previous one (never negative).
+                    let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
+                    self.predictor.observe_gap(gap);
+                }
+                self.observe_one_way(sent_at, now, prev, stalled);
+                if channels.is_empty() {
+                    self.stats.probes_received += 1;
+                    return match self.phase {
+                        Phase::Handshake => Err(self.unexpected(Kind::Data)),
+                        _ => Ok(()),
+                    };
+                }
+                let mut values = [0.0; C];
+                let axes = usize::from(self.config.axes);
+                if channels.len() != axes || channels.copy_to(&mut values).is_err() {
+                    return Err(LinkError::ChannelCount {
+                        expected: self.config.axes,
+                        got: channels.len(),
+                    });
+                }
+                let slot = Slot {
+                    head: Head {
+                        seq: frame.seq(),
+                        sent_at,
+                        arrived_at: now,
+                    },
+                    peer_released: frame.released(),
+                    len: self.config.axes,
+                    values,
+                };
+                self.receive_sample(now, slot)
+            }
+            Payload::Control(control) => self.receive_control(now, control),
+            Payload::Close(close) => Err(LinkError::PeerClosed {
+                reason: close.reason,
+            }),
+        }
+    }
+
+    pub(super) fn unexpected(&self, kind: Kind) -> LinkError {
+        LinkError::Unexpected {
+            kind,
+            phase: self.phase.name(),
+        }
+    }
+
+    pub(super) fn measure_nrtt(
+        &mut self,
+        now: Instant,
+        echo: Echo,
+        t3: Instant,
+    ) -> Result<(), LinkError> {
+        // Several peer frames can echo the same one of ours: measure once.
+        if self.newest_echo.is_some_and(|t| echo.sent_at <= t) {
+            return Ok(());
+        }
+        let Some(rtt) = now.checked_duration_since(echo.sent_at) else {
+            // An echo of a frame we have not sent yet: the peer is lying.
+            return Err(LinkError::Unexpected {
+                kind: Kind::Data,
+                phase: "an echo from the future",
+            });
+        };
+        self.newest_echo = Some(echo.sent_at);
+        self.sync.observe_echo(echo.sent_at, echo.hold, t3);
+        if let Some(d) = self.sync.one_way_tx(echo.sent_at, echo.hold, t3) {
+            self.stats.one_way_tx.push(d);
+        }
+        let nrtt = rtt.saturating_sub(echo.hold);
+        self.last_nrtt = Some(nrtt);
+        self.stats.nrtt.push_duration(nrtt);
+        self.predictor.observe_nrtt(nrtt);
+        if self.phase == Phase::Init
+            && self.config.role == Role::Base
+            && echo.sent_at >= self.init_started
+        {
+            let _ = self.pattern.record_nrtt(nrtt);
+            if self.pattern.len() >= INIT_EXCHANGES {
+                self.finish_init(now)?;
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn receive_hello(&mut self, now: Instant, hello: Hello) -> Result<(), LinkError> {
+        if self.phase != Phase::Handshake {
+            return Err(self.unexpected(Kind::Hello));
+        }
+        let ours = self.config;
+        if hello.role == ours.role {
+            return Err(LinkError::RoleMismatch { role: ours.role });
+        }
+        if hello.axes != ours.axes {
+            return Err(LinkError::AxesMismatch {
+                ours: ours.axes,
+                theirs: hello.axes,
+            });
+        }
+        if hello.period != ours.period {
+            return Err(LinkError::PeriodMismatch {
+                ours: ours.period,
+                theirs: hello.period,
+            });
+        }
+        if hello.mode != ours.mode.code() {
+            return Err(LinkError::ModeMismatch {
+                ours: ours.mode,
+                theirs: hello.mode,
+            });
+        }
+        self.peer = Some(hello);
+        if ours.role == Role::Remote {
+            self.queue_tx(Tx::Hello);
+        }
+        self.emit(Event::Connected { peer: hello });
+        self.enter_init(now);
+        Ok(())
+    }
+
+    pub(super) fn receive_sample(&mut self, now: Instant, slot: Slot<C>) -> Result<(), LinkError> {
+        // Before the handshake a Data frame is a protocol error, not a sample.
+        if self.phase == Phase::Handshake {
+            return Err(self.unexpected(Kind::Data));
+        }
+        self.stats.samples_received += 1;
+        match self.phase {
+            Phase::Running => {}
+            // A sample of the stream a pause ended, still in flight.
+            _ => {
+                self.stats.discarded += 1;
+                return Ok(());
+            }
+        }
+        if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
+            self.stats.late += 1;
+            self.note_lost();
+            return Ok(());
+        }
+        // Adaptive under hold: a sample held behind an outage, past its
+        // slot, is stale; kept, it would stretch the delay to the outage's
+        // length and replay the outage's commands.
+        if self.outage_burst
+            && self
+                .schedule
+                .as_ref()
+                .and_then(|s| s.slot_at(slot.head.sent_at, now, &self.sync))
+                .is_some_and(|s| s < now)
+        {
+            self.stats.discarded += 1;
+            return Ok(());
+        }
+        if self.regulator.push(slot).is_err() {
+            self.stats.rejected += 1;
+        }
+        if let Some((s, cx)) = self.adaptive() {
+            s.on_queued(&cx);
+        }
+        Ok(())
+    }
+
+    pub(super) fn receive_control(
+        &mut self,
+        now: Instant,
+        control: Control,
+    ) -> Result<(), LinkError> {
+        let role = self.config.role;
+        match (role, control.op, self.phase) {
+            (Role::Remote, control_op::PAUSE_REQUEST, Phase::Running) => {
+                let ns = self.checked_ns(control.ns, control.period)?;
+                self.queue_tx(Tx::Control {
+                    op: control_op::PAUSE_ACK,
+                    ns: control.ns,
+                    period: control.period,
+                });
+                self.stats.pauses += 1;
+                self.emit(Event::Paused {
+                    period: control.period,
+                    ns,
+                });
+                self.change_period(control.period)?;
+                self.enter_init(now);
+                Ok(())
+            }
+            (Role::Base, control_op::PAUSE_ACK, Phase::Pausing) => {
+                let (period, _) = self.pending.ok_or(self.unexpected(Kind::Control))?;
+                self.change_period(period)?;
+                self.enter_init(now);
+                Ok(())
+            }
+            (Role::Remote, control_op::RESUME, Phase::Init) => {
+                let ns = self.checked_ns(control.ns, control.period)?;
+                if control.period != self.period {
+                    return Err(LinkError::BadParameters {
+                        ns: control.ns,
+                        period: control.period,
+                    });
+                }
+                self.start_running(ns);
+                Ok(())
+            }
+            _ => Err(self.unexpected(Kind::Control)),
+        }
+    }
+
+    /// A one-way delay sample for the playout policy, from a frame's send
+    /// stamp (peer clock) and its arrival (local clock). The one place where
+    /// the two clocks meet: the adaptive policy gets the delay above the
+    /// floor of the clock estimate; the others take the clocks as one (a
+    /// simulation, or hosts synchronized by PTP or GPS).
+    pub(super) fn observe_one_way(
+        &mut self,
+        sent_at: Instant,
+        arrived: Instant,
+        prev: Option<(Instant, Instant)>,
+        stalled: bool,
+    ) {
+        if let Some(d) = self.sync.one_way_rx(sent_at, arrived) {
+            self.stats.one_way_rx.push(d);
+        }
+        let delay = match self.floor_ns(arrived) {
+            // Adaptive: the delay above the floor, whatever the clocks.
+            Some(floor) => {
+                let raw = ns_i64(arrived).saturating_sub(ns_i64(sent_at));
+                let above =
+                    Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0));
+                // A frame after a silence longer than the watchdog allows
+                // ends an outage, not a delay; so do the frames after it
+                // while they are still held longer than the watchdog, or
+                // come in the burst held behind them (faster than they
+                // were sent). Counted as delays, they would fill the
+                // window's tail, and the target would cover the outage for
+                // the window's length (after a 5 s stall, 5 s of delay for
+                // two minutes). So do the frames a stalled driver hands over
+                // late, stamped when it read them.
+                let over = |d: Duration| self.config.watchdog.is_some_and(|w| d > w);
+                self.outage_burst = stalled
+                    || prev.is_some_and(|(ps, pa)| {
+                        let silence = arrived - pa;
+                        over(silence)
+                            || (self.outage_burst && (over(above) || silence * 2 < sent_at - ps))
+                    });
+                if self.outage_burst {
+                    self.stats.outage_delays += 1;
+                    return;
+                }
+                above
+            }
+            None => arrived - sent_at,
+        };
+        if let Some(target) = &mut self.target {
+            target.observe(sent_at, delay);
+        }
+    }
+
+    /// Under drop-late: whether `slot` arrived after its release slot.
+    pub(super) fn slot_passed(&self, slot: &Slot<C>) -> bool {
+        if self.target.is_some() {
+            self.released_seq.is_some_and(|r| slot.head.seq <= r)
+                || self.passed.is_some_and(|p| slot.head.sent_at <= p)
+        } else {
+            self.due_seq.is_some_and(|due| slot.head.seq < due)
+        }
+    }
+}

@@ -1,0 +1,157 @@
+//! Regimes: the initialization pattern, the start of a running regime, and the paper's dynamic pause-and-resize.
+
+use super::{Endpoint, Event, LinkError, MIN_PERIOD, Mode, PATTERN_SLACK, Phase, Tx};
+use crate::playout::AdaptiveSlot;
+use crate::predictor::Prediction;
+use crate::sizing::INIT_EXCHANGES;
+use crate::time::{Duration, Instant};
+use crate::wire::{Role, control_op};
+
+impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
+    pub(super) fn checked_ns(&self, ns: u16, period: Duration) -> Result<usize, LinkError> {
+        let fits = usize::from(ns) < N && period >= MIN_PERIOD;
+        fits.then_some(usize::from(ns))
+            .ok_or(LinkError::BadParameters { ns, period })
+    }
+
+    pub(super) fn change_period(&mut self, period: Duration) -> Result<(), LinkError> {
+        self.period = period;
+        let quantum = self.quantum_at(period);
+        if let Some(s) = &mut self.schedule {
+            s.set_period(period, quantum);
+        }
+        self.rx_check.period_changed(period);
+        self.predictor
+            .set_period(period)
+            .map_err(|_| LinkError::BadParameters { ns: 0, period })
+    }
+
+    pub(super) fn enter_init(&mut self, now: Instant) {
+        self.discard_queue();
+        self.phase = Phase::Init;
+        self.pattern.clear();
+        self.init_started = now;
+        self.deadline = Some(self.pattern_deadline(now));
+        // Half a period after the last frame sent at least, whatever the
+        // new grid: the peer refuses a stamp closer than that.
+        let from = match self.next_seq.checked_sub(1).and_then(|s| self.tick_of(s)) {
+            Some(last) => now.max(last + self.period / 2),
+            None => now,
+        };
+        self.next_tick = Some(self.next_grid_tick(from));
+    }
+
+    /// The deadline of a pause or of an initialization pattern that starts
+    /// at `now`: the handshake timeout, or longer when the pattern itself
+    /// needs more — [`INIT_EXCHANGES`] probes at the current period and the
+    /// slowest round trip seen so far, with a margin of [`PATTERN_SLACK`].
+    /// The dynamic mode's period law (`NRTT/3`) makes a slow network's
+    /// pattern long: at NRTT 2.6 s it takes 11 s, and a fixed limit ended
+    /// the link there.
+    pub(super) fn pattern_deadline(&self, now: Instant) -> Instant {
+        let probes = self.period * (INIT_EXCHANGES as u64 + 1);
+        let slowest = Duration::from_secs_f64(self.stats.nrtt.max());
+        let need = (probes + slowest).saturating_mul(PATTERN_SLACK);
+        now + self.config.handshake_timeout.max(need)
+    }
+
+    pub(super) fn discard_queue(&mut self) {
+        self.stats.discarded += self.regulator.clear() as u64;
+    }
+
+    /// Base: the initialization pattern is complete.
+    pub(super) fn finish_init(&mut self, _now: Instant) -> Result<(), LinkError> {
+        let ns = match self.pending.take() {
+            Some((_, ns)) => ns,
+            None => match self.pattern.stats() {
+                Some(s) => self.config.sizing.nominal_size_for(&s, self.period),
+                None => return Err(LinkError::Timeout),
+            },
+        };
+        let ns = self.clamp_ns(ns);
+        self.queue_tx(Tx::Control {
+            op: control_op::RESUME,
+            ns: u16::try_from(ns).unwrap_or(u16::MAX),
+            period: self.period,
+        });
+        self.start_running(ns);
+        Ok(())
+    }
+
+    pub(super) fn clamp_ns(&mut self, ns: usize) -> usize {
+        let limit = (N - 1).min(usize::from(u16::MAX));
+        if ns > limit {
+            self.stats.clamped += 1;
+            limit
+        } else {
+            ns
+        }
+    }
+
+    pub(super) fn start_running(&mut self, ns: usize) {
+        self.discard_queue();
+        // `ns < N` was checked by the caller. A target delay keeps no stock:
+        // each sample waits for its own slot.
+        let stock = if self.target.is_some() { 0 } else { ns };
+        let _ = self.regulator.set_nominal(stock);
+        self.regulator.restart_prefill();
+        // Occupancy statistics describe the current parameters.
+        self.regulator.reset_occupancy();
+        self.ns = ns;
+        // Round trips count from this regime's first sample: an echo of a
+        // sample sent before a pause would measure the pause.
+        self.grtt_acked = self.next_seq.checked_sub(1);
+        self.due_seq = None;
+        self.passed = None;
+        if let Some(s) = &mut self.schedule {
+            s.restart();
+        }
+        self.ticks_running = 0;
+        self.grid_settled = false;
+        self.deadline = None;
+        self.phase = Phase::Running;
+        if self.started_once {
+            self.stats.resizes += 1;
+        }
+        self.started_once = true;
+        self.emit(Event::Started {
+            period: self.period,
+            ns,
+        });
+    }
+
+    /// Dynamic mode, base side: pause and resize when the forecast says so.
+    pub(super) fn maybe_adapt(&mut self, t: Instant, p: Prediction) {
+        let settle = u64::from(self.config.adaptation.settle_periods);
+        if self.config.mode != Mode::PaperDynamic
+            || self.config.role != Role::Base
+            || self.phase != Phase::Running
+            || self.ticks_running < settle
+        {
+            return;
+        }
+        let band = self.config.adaptation.band;
+        // Whole microseconds: a period both peers can state exactly.
+        let period = Duration::from_micros(p.period.as_micros()).max(MIN_PERIOD);
+        let current = self.period.as_secs_f64();
+        let off = |forecast: f64, now: f64| libm::fabs(forecast - now) > band * now;
+        let drift = off(period.as_secs_f64(), current) || off(p.ns as f64, self.ns as f64);
+        // The forecast lag would use up the whole stock: the queue would empty.
+        let drain = p.mt_ahead >= self.ns as f64 * current;
+        if !(drift || drain) {
+            return;
+        }
+        let ns = self.clamp_ns(p.ns);
+        self.discard_queue();
+        self.pending = Some((period, ns));
+        self.phase = Phase::Pausing;
+        self.deadline = Some(self.pattern_deadline(t));
+        self.stats.pauses += 1;
+        self.queue_tx(Tx::Control {
+            op: control_op::PAUSE_REQUEST,
+            ns: u16::try_from(ns).unwrap_or(u16::MAX),
+            period,
+        });
+        self.emit(Event::Paused { period, ns });
+    }
+}

@@ -1,0 +1,305 @@
+//! Releasing: which sample each tick or release hands the application, and the round trips and watchdog that follow from it.
+
+use super::{Endpoint, Event, Phase, Release, Slot, Status, Underflow, delay_quantum};
+use crate::playout::schedule::{self, Context, Plan, Queued, Schedule};
+use crate::playout::{AdaptiveSlot, Target, TargetDelay};
+use crate::regulator::{self, Tick};
+use crate::time::{Duration, Instant};
+use crate::wire::Role;
+
+impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
+    /// The adaptive schedule and what it decides on now, `None` under
+    /// another playout.
+    pub(super) fn adaptive(&mut self) -> Option<(&mut Schedule, Context<'_, A>)> {
+        let (Some(schedule), Some(Target::Adaptive(policy))) = (&mut self.schedule, &self.target)
+        else {
+            return None;
+        };
+        let mut queue = self.regulator.iter().map(|s| s.head.sent_at);
+        let queued = Queued {
+            front: queue.next(),
+            second: queue.next(),
+            len: self.regulator.len(),
+        };
+        // The paper's predictor steers the delay ahead: half the rise of the
+        // mean round trip it forecasts over its horizon.
+        let lead = self
+            .predictor
+            .last()
+            .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
+        let cx = Context {
+            policy,
+            sync: &self.sync,
+            queued,
+            newest: self.prev_data_rx,
+            outage: self.outage_burst,
+            lead,
+        };
+        Some((schedule, cx))
+    }
+
+    /// Each delay the adaptive schedule settled on, as an event.
+    pub(super) fn delay_events(&mut self) {
+        while let Some((delay, ticks)) = self
+            .schedule
+            .as_mut()
+            .and_then(Schedule::poll_delay_changed)
+        {
+            self.stats.delay_changes += 1;
+            self.emit(Event::DelayChanged { delay, ticks });
+        }
+    }
+
+    /// The adaptive delay's quantum at `period`.
+    pub(super) fn quantum_at(&self, period: Duration) -> Duration {
+        self.config
+            .playout
+            .quantum(period)
+            .unwrap_or_else(|| delay_quantum(period))
+    }
+
+    /// Adaptive playout: one release, at its sample's slot, the schedule
+    /// deciding when and at what delay (see [`Schedule`]).
+    pub(super) fn release_apart(&mut self, at: Instant, t: Instant) {
+        let running = self.phase == Phase::Running;
+        let Some((s, cx)) = self.adaptive() else {
+            return;
+        };
+        let plan = if running {
+            s.before_release(at, t, &cx)
+        } else {
+            s.stop();
+            return;
+        };
+        self.delay_events();
+        let pending = match plan {
+            Plan::Later(slot) => {
+                // A remote's tick moves with its release, so that its state
+                // still answers the command.
+                if self.config.role == Role::Remote && self.next_tick == Some(at) {
+                    self.next_tick = Some(slot);
+                }
+                return;
+            }
+            Plan::Now(pending) => pending,
+        };
+        let fresh = self.stats.released_fresh;
+        self.release(at, t);
+        self.watch(t);
+        let stamp = match self.last_release {
+            Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
+            _ => None,
+        };
+        if let Some((s, cx)) = self.adaptive() {
+            s.after_release(at, t, pending, stamp, &cx);
+        }
+        self.delay_events();
+    }
+
+    /// Adaptive: a sample lost (late or skipped) spends the late rate.
+    pub(super) fn note_lost(&mut self) {
+        if let Some(Target::Adaptive(a)) = &mut self.target {
+            a.note_late();
+        }
+    }
+
+    /// The release scheduled at `at`, run (and stamped) at `t`.
+    pub(super) fn release(&mut self, at: Instant, t: Instant) {
+        let unset = self.schedule.as_ref().map(Schedule::delay) == Some(None);
+        let outcome = match self.target.as_ref().map(TargetDelay::target) {
+            // Adaptive: nothing is due before the delay is set.
+            Some(_) if unset => self.not_started(),
+            Some(target) => self.release_target(at, target),
+            None => self.release_fifo(),
+        };
+        self.deliver(t, outcome);
+    }
+
+    pub(super) fn release_fifo(&mut self) -> Tick<Slot<C>> {
+        match (self.config.underflow, self.due_seq) {
+            (Underflow::DropLate, Some(due)) => {
+                while self.regulator.front().is_some_and(|s| s.head.seq < due) {
+                    let _ = self.regulator.discard_front();
+                    self.stats.late += 1;
+                }
+                self.regulator.tick_if(|s| s.head.seq == due)
+            }
+            _ => self.regulator.tick(),
+        }
+    }
+
+    /// One tick of a target-delay playout: the sample whose slot (the first
+    /// tick at or after `sent_at + D`) is this tick is released. Until the
+    /// policy has a target and the first sample is due, ticks release
+    /// nothing and count nothing (like the FIFO's pre-fill).
+    pub(super) fn release_target(&mut self, t: Instant, target: Option<Duration>) -> Tick<Slot<C>> {
+        let Some(d) = target else {
+            return self.not_started();
+        };
+        let mut cutoff = self.release_cutoff(t, d);
+        // Adaptive, more than one due: stamps bunched (a send that left late,
+        // or the clock estimate moved the slots earlier). The delay rises by
+        // as many ticks instead of skipping samples, and this release takes
+        // the oldest of them, so that each later release has one due: were
+        // it to take none, the same samples would be due again at the next
+        // release, and the delay would rise without end.
+        let mut oldest = false;
+        let bunched = self.schedule.is_some()
+            && self
+                .regulator
+                .iter()
+                .take_while(|s| s.head.sent_at <= cutoff)
+                .count()
+                > 1;
+        let second = self.regulator.iter().nth(1).map(|s| s.head.sent_at);
+        if let (Some(s), true, Some(second)) = (&mut self.schedule, bunched, second)
+            && s.rise_past(cutoff, second)
+        {
+            self.delay_events();
+            cutoff = self.release_cutoff(t, d);
+            oldest = true;
+        }
+        let due = |s: &Slot<C>| s.head.sent_at <= cutoff;
+        if self.config.underflow == Underflow::DropLate {
+            // The target fell: older samples share this tick's slot with a
+            // newer one. The newest due is released, the others skipped.
+            while self.regulator.iter().nth(1).is_some_and(due) {
+                let _ = self.regulator.discard_front();
+                self.stats.skipped += 1;
+                self.note_lost();
+            }
+            self.passed = Some(self.passed.map_or(cutoff, |p| p.max(cutoff)));
+        }
+        let release = |s: &Slot<C>| oldest || due(s);
+        if self.regulator.phase() == regulator::Phase::Prefilling
+            && !self.regulator.front().is_some_and(release)
+        {
+            return self.not_started();
+        }
+        self.regulator.tick_if(release)
+    }
+
+    /// Nothing released yet: not an underflow.
+    pub(super) fn not_started(&self) -> Tick<Slot<C>> {
+        Tick::Prefilling {
+            have: self.regulator.len(),
+            need: 1,
+        }
+    }
+
+    /// The end-to-end delay a sample released at `t` gets: for the adaptive
+    /// policy the delay it keeps, for the others their target.
+    pub(super) fn current_delay(&self, _t: Instant) -> Option<Duration> {
+        match &self.schedule {
+            Some(s) => s.delay(),
+            None => self.target.as_ref()?.target(),
+        }
+    }
+
+    /// Frames sent (peer clock) at or before this have their slot at or
+    /// before the tick `t` for a target delay `d` (the adaptive schedule's
+    /// own delay and clock mapping once it has them; the other policies
+    /// take the two clocks as one).
+    pub(super) fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
+        match &self.schedule {
+            Some(s) => s.release_cutoff(t, d, &self.sync),
+            None => t - d,
+        }
+    }
+
+    /// Adaptive: the floor of the raw delays at `t` (ns), to which its
+    /// target is relative; `None` under another playout.
+    pub(super) fn floor_ns(&self, t: Instant) -> Option<i64> {
+        self.schedule.as_ref()?;
+        schedule::floor_ns(&self.sync, t)
+    }
+
+    /// A target playout other than the adaptive one: sets the delay and
+    /// emits [`Event::DelayChanged`] when the delay in ticks changes.
+    pub(super) fn track_delay(&mut self, t: Instant) {
+        let Some(d) = self.current_delay(t) else {
+            return;
+        };
+        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        self.announce(d, ticks);
+    }
+
+    pub(super) fn announce(&mut self, d: Duration, ticks: u64) {
+        self.stats.playout_delay_s = d.as_secs_f64();
+        self.stats.playout_delay_ticks = ticks;
+        if self.delay_ticks != Some(ticks) {
+            self.delay_ticks = Some(ticks);
+            self.stats.delay_changes += 1;
+            self.emit(Event::DelayChanged { delay: d, ticks });
+        }
+    }
+
+    pub(super) fn deliver(&mut self, t: Instant, outcome: Tick<Slot<C>>) {
+        match outcome {
+            Tick::Released(slot) => {
+                self.stats.released_fresh += 1;
+                self.last_fresh = t;
+                self.released_seq = Some(slot.head.seq);
+                self.due_seq = Some(slot.head.seq + 1);
+                let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
+                let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
+                self.last_release = Some(release);
+                self.emit(Event::Released(release));
+            }
+            Tick::Underflow => {
+                self.stats.underflows += 1;
+                if self.config.underflow == Underflow::Hold {
+                    self.stats.late += 1;
+                }
+                if self.target.is_none() {
+                    // FIFO slots are one per tick: this tick's slot is gone.
+                    self.due_seq = self.due_seq.map(|d| d + 1);
+                }
+                if let Some(mut held) = self.last_release {
+                    held.status = Status::Held;
+                    held.released_at = t;
+                    held.grtt = None;
+                    self.stats.released_held += 1;
+                    self.emit(Event::Released(held));
+                }
+            }
+            Tick::Prefilling { .. } => {}
+        }
+    }
+
+    /// The watchdog: an application must know when fresh samples stop.
+    pub(super) fn watch(&mut self, t: Instant) {
+        // Armed from the first release of a regime: pre-fill is silent by design.
+        let (Some(limit), Some(_)) = (self.config.watchdog, self.due_seq) else {
+            return;
+        };
+        let silent_for = t - self.last_fresh;
+        if silent_for >= limit && !self.lost {
+            self.lost = true;
+            self.stats.link_lost += 1;
+            self.emit(Event::LinkLost { silent_for });
+        } else if silent_for.is_zero() && self.lost {
+            self.lost = false;
+            self.emit(Event::LinkRestored);
+        }
+    }
+
+    /// The peer had released our sample `k` when it sent what we release now.
+    pub(super) fn measure_grtt(&mut self, t: Instant, k: u64) -> Option<Duration> {
+        if self.grtt_acked.is_some_and(|a| k <= a) {
+            return None;
+        }
+        self.grtt_acked = Some(k);
+        match self.tick_of(k) {
+            Some(sent) => {
+                let grtt = t - sent;
+                self.stats.grtt.push_duration(grtt);
+                Some(grtt)
+            }
+            _ => {
+                self.stats.grtt_unmeasured += 1;
+                None
+            }
+        }
+    }
+}
