@@ -68,12 +68,13 @@ use crate::playout::schedule::Schedule;
 use crate::playout::{Adaptive, AdaptiveSlot, Target};
 use crate::predictor::{NetworkPredictor, Prediction};
 use crate::regulator::{Occupancy, Regulator};
-use crate::sizing::InitPattern;
 use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
 use crate::wire::{self, Control, Echo, Frame, Header, Hello, Message, Role};
 use event::Head;
-use rx_check::RxCheck;
+use receive::Heard;
+use regime::Regime;
+use release::Released;
 
 /// A pause or a re-run initialization pattern may take this many times
 /// what it needs (its probes at the period, plus the slowest round trip
@@ -152,27 +153,31 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     regulator: Regulator<Slot<C>, N>,
     /// Target-delay playout: the policy's state (`None`: the paper's FIFO).
     target: Option<Target<A>>,
-    /// Target-delay playout: frames sent at or before this (peer clock) had
-    /// their slot at a tick already run.
-    passed: Option<Instant>,
     /// The peer's clock offset and skew.
     sync: ClockSync,
-    /// A target playout other than the adaptive one: the constant
-    /// end-to-end delay now, in ticks (rounded up).
-    delay_ticks: Option<u64>,
     /// Adaptive playout: its release schedule.
     schedule: Option<Schedule>,
     predictor: NetworkPredictor,
-    pattern: InitPattern,
     next_tick: Option<Instant>,
     deadline: Option<Instant>,
-    ticks_running: u64,
-    /// Running: the ticks send samples (an adaptive remote's only once its
-    /// grid has moved to its releases).
-    grid_settled: bool,
-    started_once: bool,
-    /// Dynamic mode: the parameters the current pause will resume with.
-    pending: Option<(Duration, usize)>,
+    /// Where the protocol's regimes stand.
+    regime: Regime,
+    /// What goes to the peer.
+    out: Outbox<C, N>,
+    /// What came from the peer, and when.
+    heard: Heard,
+    /// What was released to the application.
+    rel: Released<C>,
+    peer: Option<Hello>,
+    events: Deque<Event<C>, EVENT_QUEUE>,
+    events_dropped: u64,
+    stats: Stats,
+}
+
+/// What goes to the peer: the frames waiting for the driver, the sample
+/// they carry, and when each recent tick was scheduled.
+#[derive(Clone, Debug)]
+struct Outbox<const C: usize, const N: usize> {
     tx: Deque<Tx, TX_QUEUE>,
     next_seq: u64,
     sample: [f64; C],
@@ -180,29 +185,18 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     /// Scheduled time of each tick that sent a sample or probe, by `seq mod
     /// N`: its frame's send stamp, and the start of its GRTT.
     sent_ticks: [(u64, Instant); N],
-    /// What the next frames from the peer may be.
-    rx_check: RxCheck,
-    /// Newest frame received: (its `sent_at`, our arrival time), echoed back.
-    newest_rx: Option<(Instant, Instant)>,
-    /// Previous Data frame received, for the reception gap.
-    prev_data_rx: Option<(Instant, Instant)>,
-    /// Adaptive: the frames now arriving drain an outage's backlog.
-    outage_burst: bool,
-    /// Newest of our frames an NRTT was measured on.
-    newest_echo: Option<Instant>,
-    init_started: Instant,
-    last_nrtt: Option<Duration>,
-    released_seq: Option<u64>,
-    grtt_acked: Option<u64>,
-    due_seq: Option<u64>,
-    last_release: Option<Release<C>>,
-    /// Last fresh release, or the start of the running phase, for the watchdog.
-    last_fresh: Instant,
-    lost: bool,
-    peer: Option<Hello>,
-    events: Deque<Event<C>, EVENT_QUEUE>,
-    events_dropped: u64,
-    stats: Stats,
+}
+
+impl<const C: usize, const N: usize> Outbox<C, N> {
+    fn new() -> Self {
+        Outbox {
+            tx: Deque::new(),
+            next_seq: 0,
+            sample: [0.0; C],
+            sample_fresh: false,
+            sent_ticks: [(u64::MAX, Instant::ZERO); N],
+        }
+    }
 }
 
 impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
@@ -229,36 +223,15 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 .playout
                 .target_in(config.period)
                 .map_err(ConfigError::NoAdaptiveRoom)?,
-            passed: None,
             sync: ClockSync::new(),
-            delay_ticks: None,
             schedule: None,
             predictor,
-            pattern: InitPattern::new(),
             next_tick: None,
             deadline: Some(now + config.handshake_timeout),
-            ticks_running: 0,
-            grid_settled: false,
-            started_once: false,
-            pending: None,
-            tx: Deque::new(),
-            next_seq: 0,
-            sample: [0.0; C],
-            sample_fresh: false,
-            sent_ticks: [(u64::MAX, Instant::ZERO); N],
-            rx_check: RxCheck::new(config.period),
-            newest_rx: None,
-            prev_data_rx: None,
-            outage_burst: false,
-            newest_echo: None,
-            init_started: now,
-            last_nrtt: None,
-            released_seq: None,
-            grtt_acked: None,
-            due_seq: None,
-            last_release: None,
-            last_fresh: now,
-            lost: false,
+            regime: Regime::new(now),
+            out: Outbox::new(),
+            heard: Heard::new(config.period),
+            rel: Released::new(now),
             peer: None,
             events: Deque::new(),
             events_dropped: 0,
@@ -356,12 +329,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         now: Instant,
         buf: &mut [u8],
     ) -> Result<Option<usize>, LinkError> {
-        let Some(&item) = self.tx.front() else {
+        let Some(&item) = self.out.tx.front() else {
             return Ok(None);
         };
         let (seq, sent_at) = match item {
             Tx::Probe { seq } | Tx::Sample { seq } => (seq, self.tick_of(seq).unwrap_or(now)),
-            _ => (self.next_seq, now),
+            _ => (self.out.next_seq, now),
         };
         let header = Header {
             seq,
@@ -370,19 +343,22 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             // `stamp − hold` is the echoed frame's arrival; a frame that
             // arrived after the stamp (a late driver) is echoed by the next.
             echo: self
-                .newest_rx
+                .heard
+                .newest
                 .filter(|&(_, arrived)| arrived <= sent_at)
                 .map(|(echoed, arrived)| Echo {
                     sent_at: echoed,
                     hold: sent_at - arrived,
                 }),
-            released: self.released_seq,
+            released: self.rel.released_seq,
         };
         let axes = usize::from(self.config.axes);
         let msg = match item {
             Tx::Hello => Message::Hello(self.hello()),
             Tx::Probe { .. } => Message::Data(&[]),
-            Tx::Sample { .. } => Message::Data(self.sample.get(..axes).unwrap_or(&self.sample)),
+            Tx::Sample { .. } => {
+                Message::Data(self.out.sample.get(..axes).unwrap_or(&self.out.sample))
+            }
             Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
             Tx::Close { reason } => Message::Close(wire::Close { reason }),
         };
@@ -395,14 +371,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             // `set_sample`); anything else is a bug worth surfacing, not a panic.
             Err(e) => return Err(LinkError::Wire(e)),
         };
-        let _ = self.tx.pop_front();
+        let _ = self.out.tx.pop_front();
         self.stats.frames_sent += 1;
         if let Tx::Sample { .. } = item {
             self.stats.samples_sent += 1;
-            if !self.sample_fresh {
+            if !self.out.sample_fresh {
                 self.stats.samples_repeated += 1;
             }
-            self.sample_fresh = false;
+            self.out.sample_fresh = false;
         }
         Ok(Some(n))
     }
@@ -430,10 +406,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(index) = values.iter().position(|v| !v.is_finite()) {
             return Err(LinkError::NonFinite { index });
         }
-        if let Some(dst) = self.sample.get_mut(..axes) {
+        if let Some(dst) = self.out.sample.get_mut(..axes) {
             dst.copy_from_slice(values);
         }
-        self.sample_fresh = true;
+        self.out.sample_fresh = true;
         Ok(())
     }
 
@@ -533,7 +509,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// The latest network round trip measured.
     #[must_use]
     pub fn last_nrtt(&self) -> Option<Duration> {
-        self.last_nrtt
+        self.heard.last_nrtt
     }
 
     /// The estimate of the peer's clock offset and skew.
@@ -572,12 +548,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     fn queue_tx(&mut self, item: Tx) {
-        if self.tx.push_back(item).is_err() {
+        if self.out.tx.push_back(item).is_err() {
             // The driver stopped draining: give up the oldest waiting frame
             // rather than the newest, and count it.
-            let _ = self.tx.pop_front();
+            let _ = self.out.tx.pop_front();
             self.stats.tx_dropped += 1;
-            let _ = self.tx.push_back(item);
+            let _ = self.out.tx.push_back(item);
         }
     }
 
@@ -650,18 +626,18 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 // than a period to the next (a rise and a repeat there), and
                 // answer no command yet: probes go out until a tick falls on
                 // a release and the next release is a period later.
-                if !self.grid_settled
+                if !self.regime.grid_settled
                     && (self.config.role == Role::Base
                         || self.schedule.as_ref().is_none_or(|s| s.on_release_grid(at)))
                 {
-                    self.grid_settled = true;
+                    self.regime.grid_settled = true;
                 }
-                if self.grid_settled {
+                if self.regime.grid_settled {
                     self.queue_tx(Tx::Sample { seq });
                 } else {
                     self.queue_tx(Tx::Probe { seq });
                 }
-                self.ticks_running += 1;
+                self.regime.ticks_running += 1;
             }
             Phase::Handshake | Phase::Closed => return,
         }
@@ -674,16 +650,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// The scheduled time of the tick that took `seq`, while it is within
     /// the last `N` ticks.
     fn tick_of(&self, seq: u64) -> Option<Instant> {
-        match self.sent_ticks.get((seq % N as u64) as usize) {
+        match self.out.sent_ticks.get((seq % N as u64) as usize) {
             Some(&(s, at)) if s == seq => Some(at),
             _ => None,
         }
     }
 
     fn take_seq(&mut self, t: Instant) -> u64 {
-        let seq = self.next_seq;
-        self.next_seq += 1;
-        if let Some(cell) = self.sent_ticks.get_mut((seq % N as u64) as usize) {
+        let seq = self.out.next_seq;
+        self.out.next_seq += 1;
+        if let Some(cell) = self.out.sent_ticks.get_mut((seq % N as u64) as usize) {
             *cell = (seq, t);
         }
         seq
@@ -699,7 +675,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if matches!(self.phase, Phase::Handshake | Phase::Closed) {
             return None;
         }
-        let (_, arrived) = self.newest_rx?;
+        let (_, arrived) = self.heard.newest?;
         Some(arrived + self.config.liveness?)
     }
 
@@ -707,7 +683,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// [`Config::liveness`].
     fn silent_past_liveness(&self, now: Instant) -> Option<Duration> {
         let due = self.liveness_deadline()?;
-        let (_, arrived) = self.newest_rx?;
+        let (_, arrived) = self.heard.newest?;
         (now >= due).then(|| now - arrived)
     }
 

@@ -1,6 +1,7 @@
 //! Receiving: what each frame from the peer does to the endpoint.
 
 use super::event::Head;
+use super::rx_check::RxCheck;
 use super::{Endpoint, Event, LinkError, Phase, Slot, Tx, Underflow, ns_i64};
 use crate::playout::{AdaptiveSlot, Target, TargetDelay};
 use crate::sizing::INIT_EXCHANGES;
@@ -19,20 +20,21 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         };
         // Checked before anything of the frame is used (see `rx_check`).
         if let Some(echo) = frame.echo() {
-            self.rx_check
+            self.heard
+                .check
                 .observe_echo(echo.sent_at, echo.hold, sent_at, now);
         }
-        self.rx_check.check_stamp(sent_at, now)?;
+        self.heard.check.check_stamp(sent_at, now)?;
         if let Payload::Data(_) = frame.payload() {
             if self.phase == Phase::Handshake {
                 return Err(self.unexpected(Kind::Data));
             }
-            self.stats.frames_missing += self.rx_check.accept_data(frame.seq(), sent_at)?;
+            self.stats.frames_missing += self.heard.check.accept_data(frame.seq(), sent_at)?;
         }
         let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
         // A stamp nothing could check yet (the first Hello) stays out of the
         // clock estimate.
-        if self.rx_check.bounded() {
+        if self.heard.check.bounded() {
             self.sync.observe_arrival(sent_at, now);
         }
         // A level shift of the received floor (a route change): the delays
@@ -55,11 +57,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(echo) = frame.echo() {
             self.measure_nrtt(now, echo, sent_at)?;
         }
-        self.newest_rx = Some((sent_at, now));
+        self.heard.newest = Some((sent_at, now));
         match frame.payload() {
             Payload::Hello(hello) => self.receive_hello(now, hello),
             Payload::Data(channels) => {
-                let prev = self.prev_data_rx.replace((sent_at, now));
+                let prev = self.heard.prev_data.replace((sent_at, now));
                 if let Some((prev_sent, prev_arrived)) = prev {
                     // How much later than its schedule this frame came,
                     // relative to the previous one (never negative).
@@ -115,7 +117,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         t3: Instant,
     ) -> Result<(), LinkError> {
         // Several peer frames can echo the same one of ours: measure once.
-        if self.newest_echo.is_some_and(|t| echo.sent_at <= t) {
+        if self.heard.newest_echo.is_some_and(|t| echo.sent_at <= t) {
             return Ok(());
         }
         let Some(rtt) = now.checked_duration_since(echo.sent_at) else {
@@ -125,21 +127,21 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 phase: "an echo from the future",
             });
         };
-        self.newest_echo = Some(echo.sent_at);
+        self.heard.newest_echo = Some(echo.sent_at);
         self.sync.observe_echo(echo.sent_at, echo.hold, t3);
         if let Some(d) = self.sync.one_way_tx(echo.sent_at, echo.hold, t3) {
             self.stats.one_way_tx.push(d);
         }
         let nrtt = rtt.saturating_sub(echo.hold);
-        self.last_nrtt = Some(nrtt);
+        self.heard.last_nrtt = Some(nrtt);
         self.stats.nrtt.push_duration(nrtt);
         self.predictor.observe_nrtt(nrtt);
         if self.phase == Phase::Init
             && self.config.role == Role::Base
-            && echo.sent_at >= self.init_started
+            && echo.sent_at >= self.regime.init_started
         {
-            let _ = self.pattern.record_nrtt(nrtt);
-            if self.pattern.len() >= INIT_EXCHANGES {
+            let _ = self.regime.pattern.record_nrtt(nrtt);
+            if self.regime.pattern.len() >= INIT_EXCHANGES {
                 self.finish_init(now)?;
             }
         }
@@ -203,7 +205,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         // Adaptive under hold: a sample held behind an outage, past its
         // slot, is stale; kept, it would stretch the delay to the outage's
         // length and replay the outage's commands.
-        if self.outage_burst
+        if self.heard.outage_burst
             && self
                 .schedule
                 .as_ref()
@@ -246,7 +248,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 Ok(())
             }
             (Role::Base, control_op::PAUSE_ACK, Phase::Pausing) => {
-                let (period, _) = self.pending.ok_or(self.unexpected(Kind::Control))?;
+                let (period, _) = self.regime.pending.ok_or(self.unexpected(Kind::Control))?;
                 self.change_period(period)?;
                 self.enter_init(now);
                 Ok(())
@@ -297,13 +299,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 // two minutes). So do the frames a stalled driver hands over
                 // late, stamped when it read them.
                 let over = |d: Duration| self.config.watchdog.is_some_and(|w| d > w);
-                self.outage_burst = stalled
+                self.heard.outage_burst = stalled
                     || prev.is_some_and(|(ps, pa)| {
                         let silence = arrived - pa;
                         over(silence)
-                            || (self.outage_burst && (over(above) || silence * 2 < sent_at - ps))
+                            || (self.heard.outage_burst
+                                && (over(above) || silence * 2 < sent_at - ps))
                     });
-                if self.outage_burst {
+                if self.heard.outage_burst {
                     self.stats.outage_delays += 1;
                     return;
                 }
@@ -319,10 +322,39 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// Under drop-late: whether `slot` arrived after its release slot.
     pub(super) fn slot_passed(&self, slot: &Slot<C>) -> bool {
         if self.target.is_some() {
-            self.released_seq.is_some_and(|r| slot.head.seq <= r)
-                || self.passed.is_some_and(|p| slot.head.sent_at <= p)
+            self.rel.released_seq.is_some_and(|r| slot.head.seq <= r)
+                || self.rel.passed.is_some_and(|p| slot.head.sent_at <= p)
         } else {
-            self.due_seq.is_some_and(|due| slot.head.seq < due)
+            self.rel.due_seq.is_some_and(|due| slot.head.seq < due)
+        }
+    }
+}
+
+/// What came from the peer, and when.
+#[derive(Clone, Debug)]
+pub(super) struct Heard {
+    /// What the next frames from the peer may be.
+    pub(super) check: RxCheck,
+    /// Newest frame received: (its `sent_at`, our arrival time), echoed back.
+    pub(super) newest: Option<(Instant, Instant)>,
+    /// Previous Data frame received, for the reception gap.
+    pub(super) prev_data: Option<(Instant, Instant)>,
+    /// Adaptive: the frames now arriving drain an outage's backlog.
+    pub(super) outage_burst: bool,
+    /// Newest of our frames an NRTT was measured on.
+    pub(super) newest_echo: Option<Instant>,
+    pub(super) last_nrtt: Option<Duration>,
+}
+
+impl Heard {
+    pub(super) fn new(period: Duration) -> Self {
+        Heard {
+            check: RxCheck::new(period),
+            newest: None,
+            prev_data: None,
+            outage_burst: false,
+            newest_echo: None,
+            last_nrtt: None,
         }
     }
 }

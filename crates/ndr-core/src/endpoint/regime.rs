@@ -3,7 +3,7 @@
 use super::{Endpoint, Event, LinkError, MIN_PERIOD, Mode, PATTERN_SLACK, Phase, Tx};
 use crate::playout::AdaptiveSlot;
 use crate::predictor::Prediction;
-use crate::sizing::INIT_EXCHANGES;
+use crate::sizing::{INIT_EXCHANGES, InitPattern};
 use crate::time::{Duration, Instant};
 use crate::wire::{Role, control_op};
 
@@ -20,7 +20,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(s) = &mut self.schedule {
             s.set_period(period, quantum);
         }
-        self.rx_check.period_changed(period);
+        self.heard.check.period_changed(period);
         self.predictor
             .set_period(period)
             .map_err(|_| LinkError::BadParameters { ns: 0, period })
@@ -29,12 +29,17 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     pub(super) fn enter_init(&mut self, now: Instant) {
         self.discard_queue();
         self.phase = Phase::Init;
-        self.pattern.clear();
-        self.init_started = now;
+        self.regime.pattern.clear();
+        self.regime.init_started = now;
         self.deadline = Some(self.pattern_deadline(now));
         // Half a period after the last frame sent at least, whatever the
         // new grid: the peer refuses a stamp closer than that.
-        let from = match self.next_seq.checked_sub(1).and_then(|s| self.tick_of(s)) {
+        let from = match self
+            .out
+            .next_seq
+            .checked_sub(1)
+            .and_then(|s| self.tick_of(s))
+        {
             Some(last) => now.max(last + self.period / 2),
             None => now,
         };
@@ -61,9 +66,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     /// Base: the initialization pattern is complete.
     pub(super) fn finish_init(&mut self, _now: Instant) -> Result<(), LinkError> {
-        let ns = match self.pending.take() {
+        let ns = match self.regime.pending.take() {
             Some((_, ns)) => ns,
-            None => match self.pattern.stats() {
+            None => match self.regime.pattern.stats() {
                 Some(s) => self.config.sizing.nominal_size_for(&s, self.period),
                 None => return Err(LinkError::Timeout),
             },
@@ -100,20 +105,20 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.ns = ns;
         // Round trips count from this regime's first sample: an echo of a
         // sample sent before a pause would measure the pause.
-        self.grtt_acked = self.next_seq.checked_sub(1);
-        self.due_seq = None;
-        self.passed = None;
+        self.rel.grtt_acked = self.out.next_seq.checked_sub(1);
+        self.rel.due_seq = None;
+        self.rel.passed = None;
         if let Some(s) = &mut self.schedule {
             s.restart();
         }
-        self.ticks_running = 0;
-        self.grid_settled = false;
+        self.regime.ticks_running = 0;
+        self.regime.grid_settled = false;
         self.deadline = None;
         self.phase = Phase::Running;
-        if self.started_once {
+        if self.regime.started_once {
             self.stats.resizes += 1;
         }
-        self.started_once = true;
+        self.regime.started_once = true;
         self.emit(Event::Started {
             period: self.period,
             ns,
@@ -126,7 +131,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if self.config.mode != Mode::PaperDynamic
             || self.config.role != Role::Base
             || self.phase != Phase::Running
-            || self.ticks_running < settle
+            || self.regime.ticks_running < settle
         {
             return;
         }
@@ -143,7 +148,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         let ns = self.clamp_ns(p.ns);
         self.discard_queue();
-        self.pending = Some((period, ns));
+        self.regime.pending = Some((period, ns));
         self.phase = Phase::Pausing;
         self.deadline = Some(self.pattern_deadline(t));
         self.stats.pauses += 1;
@@ -153,5 +158,35 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             period,
         });
         self.emit(Event::Paused { period, ns });
+    }
+}
+
+/// Where the protocol's regimes stand: the initialization pattern, the
+/// pause under way, the running regime's ticks.
+#[derive(Clone, Debug)]
+pub(super) struct Regime {
+    pub(super) pattern: InitPattern,
+    /// When the current pattern started: echoes of frames sent before it
+    /// are not its round trips.
+    pub(super) init_started: Instant,
+    /// Dynamic mode: the parameters the current pause will resume with.
+    pub(super) pending: Option<(Duration, usize)>,
+    pub(super) started_once: bool,
+    pub(super) ticks_running: u64,
+    /// Running: the ticks send samples (an adaptive remote's only once its
+    /// grid has moved to its releases).
+    pub(super) grid_settled: bool,
+}
+
+impl Regime {
+    pub(super) fn new(now: Instant) -> Self {
+        Regime {
+            pattern: InitPattern::new(),
+            init_started: now,
+            pending: None,
+            started_once: false,
+            ticks_running: 0,
+            grid_settled: false,
+        }
     }
 }

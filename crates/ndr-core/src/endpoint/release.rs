@@ -31,8 +31,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             policy,
             sync: &self.sync,
             queued,
-            newest: self.prev_data_rx,
-            outage: self.outage_burst,
+            newest: self.heard.prev_data,
+            outage: self.heard.outage_burst,
             lead,
         };
         Some((schedule, cx))
@@ -86,7 +86,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let fresh = self.stats.released_fresh;
         self.release(at, t);
         self.watch(t);
-        let stamp = match self.last_release {
+        let stamp = match self.rel.last {
             Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
             _ => None,
         };
@@ -116,7 +116,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     pub(super) fn release_fifo(&mut self) -> Tick<Slot<C>> {
-        match (self.config.underflow, self.due_seq) {
+        match (self.config.underflow, self.rel.due_seq) {
             (Underflow::DropLate, Some(due)) => {
                 while self.regulator.front().is_some_and(|s| s.head.seq < due) {
                     let _ = self.regulator.discard_front();
@@ -168,7 +168,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 self.stats.skipped += 1;
                 self.note_lost();
             }
-            self.passed = Some(self.passed.map_or(cutoff, |p| p.max(cutoff)));
+            self.rel.passed = Some(self.rel.passed.map_or(cutoff, |p| p.max(cutoff)));
         }
         let release = |s: &Slot<C>| oldest || due(s);
         if self.regulator.phase() == regulator::Phase::Prefilling
@@ -227,8 +227,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     pub(super) fn announce(&mut self, d: Duration, ticks: u64) {
         self.stats.playout_delay_s = d.as_secs_f64();
         self.stats.playout_delay_ticks = ticks;
-        if self.delay_ticks != Some(ticks) {
-            self.delay_ticks = Some(ticks);
+        if self.rel.delay_ticks != Some(ticks) {
+            self.rel.delay_ticks = Some(ticks);
             self.stats.delay_changes += 1;
             self.emit(Event::DelayChanged { delay: d, ticks });
         }
@@ -238,12 +238,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         match outcome {
             Tick::Released(slot) => {
                 self.stats.released_fresh += 1;
-                self.last_fresh = t;
-                self.released_seq = Some(slot.head.seq);
-                self.due_seq = Some(slot.head.seq + 1);
+                self.rel.last_fresh = t;
+                self.rel.released_seq = Some(slot.head.seq);
+                self.rel.due_seq = Some(slot.head.seq + 1);
                 let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
                 let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
-                self.last_release = Some(release);
+                self.rel.last = Some(release);
                 self.emit(Event::Released(release));
             }
             Tick::Underflow => {
@@ -253,9 +253,9 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 }
                 if self.target.is_none() {
                     // FIFO slots are one per tick: this tick's slot is gone.
-                    self.due_seq = self.due_seq.map(|d| d + 1);
+                    self.rel.due_seq = self.rel.due_seq.map(|d| d + 1);
                 }
-                if let Some(mut held) = self.last_release {
+                if let Some(mut held) = self.rel.last {
                     held.status = Status::Held;
                     held.released_at = t;
                     held.grtt = None;
@@ -270,26 +270,26 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// The watchdog: an application must know when fresh samples stop.
     pub(super) fn watch(&mut self, t: Instant) {
         // Armed from the first release of a regime: pre-fill is silent by design.
-        let (Some(limit), Some(_)) = (self.config.watchdog, self.due_seq) else {
+        let (Some(limit), Some(_)) = (self.config.watchdog, self.rel.due_seq) else {
             return;
         };
-        let silent_for = t - self.last_fresh;
-        if silent_for >= limit && !self.lost {
-            self.lost = true;
+        let silent_for = t - self.rel.last_fresh;
+        if silent_for >= limit && !self.rel.lost {
+            self.rel.lost = true;
             self.stats.link_lost += 1;
             self.emit(Event::LinkLost { silent_for });
-        } else if silent_for.is_zero() && self.lost {
-            self.lost = false;
+        } else if silent_for.is_zero() && self.rel.lost {
+            self.rel.lost = false;
             self.emit(Event::LinkRestored);
         }
     }
 
     /// The peer had released our sample `k` when it sent what we release now.
     pub(super) fn measure_grtt(&mut self, t: Instant, k: u64) -> Option<Duration> {
-        if self.grtt_acked.is_some_and(|a| k <= a) {
+        if self.rel.grtt_acked.is_some_and(|a| k <= a) {
             return None;
         }
-        self.grtt_acked = Some(k);
+        self.rel.grtt_acked = Some(k);
         match self.tick_of(k) {
             Some(sent) => {
                 let grtt = t - sent;
@@ -300,6 +300,40 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 self.stats.grtt_unmeasured += 1;
                 None
             }
+        }
+    }
+}
+
+/// What was released to the application: the sequence numbers the
+/// releases and round trips go by, the last release, the watchdog.
+#[derive(Clone, Debug)]
+pub(super) struct Released<const C: usize> {
+    /// Target-delay playout: frames sent at or before this (peer clock) had
+    /// their slot at a tick already run.
+    pub(super) passed: Option<Instant>,
+    pub(super) released_seq: Option<u64>,
+    pub(super) grtt_acked: Option<u64>,
+    pub(super) due_seq: Option<u64>,
+    pub(super) last: Option<Release<C>>,
+    /// Last fresh release, or the start of the running phase, for the watchdog.
+    pub(super) last_fresh: Instant,
+    pub(super) lost: bool,
+    /// A target playout other than the adaptive one: the constant
+    /// end-to-end delay now, in ticks (rounded up).
+    pub(super) delay_ticks: Option<u64>,
+}
+
+impl<const C: usize> Released<C> {
+    pub(super) fn new(now: Instant) -> Self {
+        Released {
+            passed: None,
+            released_seq: None,
+            grtt_acked: None,
+            due_seq: None,
+            last: None,
+            last_fresh: now,
+            lost: false,
+            delay_ticks: None,
         }
     }
 }
