@@ -44,10 +44,10 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use common::frame;
 use ndr::core::endpoint::Config;
-use ndr::core::sim::percentile;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::{Hub, LinkConfig, LinkStats, Listener, TlsConfig};
+use ndr::sim::percentile;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 

@@ -444,7 +444,7 @@ fn main() {
     let lag: Vec<f64> = stats.iter().map(|s| s.rx_lag.mean()).collect();
     println!(
         "  receive lag (mean per link)  p50 {:.1} µs · max {:.1} µs",
-        1e6 * ndr::core::sim::percentile(&lag, 0.5),
+        1e6 * ndr::sim::percentile(&lag, 0.5),
         1e6 * lag.iter().copied().fold(0.0, f64::max)
     );
     drop((bases, remotes));

@@ -6,9 +6,9 @@ use std::hint::black_box;
 use std::time::Duration as StdDuration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use ndr::core::sim::delay::DelayModel;
-use ndr::core::sim::{SimConfig, run};
 use ndr::core::time::Duration;
+use ndr::sim::delay::DelayModel;
+use ndr::sim::{SimConfig, run};
 
 fn fig6(period: Duration) -> SimConfig {
     let mut cfg = SimConfig::paper(DelayModel::PaperFig6);

@@ -4,20 +4,27 @@
 //! Periodic samples travel both ways over TCP, and a Network Delay Regulator
 //! at each input (a FIFO released at a constant period, or a playout policy
 //! that releases each sample at its send time plus a chosen delay) absorbs
-//! the network's jitter. This crate gathers the two layers under one name
-//! and carries the `ndr` command line:
+//! the network's jitter. This crate gathers the layers under one name and
+//! carries the `ndr` command line:
 //!
 //! - [`core`] (`ndr-core`, `no_std` and allocation-free): the building
 //!   blocks of the paper (the regulator, queue sizing, the Kalman network
 //!   predictor, RLS identification and state estimation), the wire codec,
 //!   and the link [`Endpoint`](core::endpoint::Endpoint): a sans-IO state
 //!   machine that takes time as an argument (its drive loop is documented in
-//!   [`core::endpoint`]). With `std`, [`core::sim`] drives two endpoints over
-//!   a simulated network in deterministic time.
+//!   [`core::endpoint`]).
+//! - [`netem`] (`ndr-netem`): the network's delays as seeded models (the
+//!   paper's profiles, netem tables, trace replay, events) and TCP's
+//!   in-order delivery; the relay and the simulator share them.
+//! - [`sim`] (`ndr-sim`): two endpoints over a simulated network in
+//!   deterministic time, the plant and the operator's signals, the oracle
+//!   and the playout comparison (`ndr sim`, `ndr compare`); its
+//!   [`sim::delay`] is [`netem`].
 //! - [`net`] (`ndr-net`): the endpoint over real TCP (optionally mutual TLS
 //!   1.3). A [`Hub`](net::Hub) thread owns the sockets and keeps every
 //!   link's deadlines to the microsecond; the application holds a
-//!   [`Link`](net::Link) (its drive loop is documented in [`net`]).
+//!   [`Link`](net::Link) (its drive loop is documented in [`net`]). Its
+//!   [`Relay`](net::Relay) delays a real link's frames by a [`netem`] model.
 //!
 //! A robot and its operator, neither with a tokio runtime of its own
 //! (`examples/teleop.rs` runs both on loopback):
@@ -55,3 +62,5 @@ pub use ndr_core as core;
 pub use ndr_net as net;
 /// Certificate pairs for a lab setup (`ndr keygen`); lives in `ndr-net`.
 pub use ndr_net::keygen;
+pub use ndr_netem as netem;
+pub use ndr_sim as sim;

@@ -5,11 +5,11 @@ use std::net::SocketAddr;
 use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Config, LinkError, Status};
-use ndr::core::sim::delay::DelayModel;
-use ndr::core::sim::{SimConfig, run};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::{Link, LinkConfig, Listener, NetError, Relay, RelayHandle};
+use ndr::sim::delay::DelayModel;
+use ndr::sim::{SimConfig, run};
 
 const T: Duration = Duration::from_millis(10);
 

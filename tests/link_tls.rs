@@ -298,8 +298,8 @@ fn a_silent_peer_times_out_and_the_next_one_is_served() {
 
 #[test]
 fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
-    use ndr::core::sim::delay::DelayModel;
     use ndr::net::Relay;
+    use ndr::sim::delay::DelayModel;
 
     let _serial = common::serial();
     let dir = certs("relay");

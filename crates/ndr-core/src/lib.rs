@@ -71,16 +71,17 @@
 //! poll_transmit(now, buf) → the next frame to send
 //! ```
 //!
-//! — so the same code runs in the simulator ([`sim`], deterministic, seeded),
-//! behind tokio sockets (`ndr-net`) and from Python.
+//! — so the same code runs in the simulator (`ndr-sim`, deterministic,
+//! seeded), behind tokio sockets (`ndr-net`) and from Python.
+//!
+//! The simulator and the delay models it shares with `ndr-net`'s relay
+//! (`ndr-netem`) are crates of their own, built on this one: nothing here
+//! draws a random number or needs an allocator.
 //!
 //! ## Features
 //!
 //! - `std` (default): conversions between [`Instant`]/[`Duration`] and
 //!   `std::time`. Without it the crate is `#![no_std]` and uses no `alloc`.
-//! - `sim` (default, implies `std`): the discrete-event simulator and its
-//!   delay models (paper profiles, netem tables, trace replay, events), the
-//!   oracle and the comparison harness of `ndr compare`.
 #![no_std]
 #![forbid(unsafe_code)]
 
@@ -96,8 +97,6 @@ pub mod playout;
 pub mod predictor;
 pub mod regulator;
 pub mod rls;
-#[cfg(feature = "sim")]
-pub mod sim;
 pub mod sizing;
 pub mod sync;
 pub mod time;

@@ -1,7 +1,8 @@
 //! ndr-net: the network side of the ndr link.
 //!
 //! `ndr-core` holds the link as a sans-IO state machine; this crate drives it
-//! over TCP, keeps its release clock and runs the delay relay.
+//! over TCP, keeps its release clock and runs the delay relay (whose delay
+//! models are `ndr-netem`'s, the simulator's, without the simulator).
 //!
 //! # The drive loop
 //!

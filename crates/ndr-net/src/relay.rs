@@ -2,8 +2,9 @@
 //!
 //! The paper's long-distance runs went through "a relay \[that\] delayed
 //! network data with values corresponding to a transmission between Paris
-//! and New York". This is that relay, with any [`DelayModel`] of the
-//! simulator: a built-in profile, a netem table or a trace.
+//! and New York". This is that relay, with any [`DelayModel`] of
+//! `ndr-netem` (the simulator's): a built-in profile, a netem table or a
+//! trace.
 //!
 //! Put it between the two peers: the base connects to the relay's listening
 //! address, and for each client the relay connects to `upstream` (the
@@ -22,14 +23,14 @@
 //! 2. gives each frame the delay `sampler.delay(dir, t)`, `t` being the time
 //!    the frame arrived, counted from the start of the relay;
 //! 3. keeps the stream in order as TCP does, with an
-//!    [`InOrderPath`](ndr_core::sim::delay::InOrderPath):
+//!    [`InOrderPath`](ndr_netem::InOrderPath):
 //!    `release = max(previous release, t + delay)`;
 //! 4. writes the frame when its release time comes. tokio's timers round up
 //!    to the millisecond, so a frame leaves 0–1.5 ms after its release time
 //!    (more on a loaded machine); the regulators downstream absorb it.
 //!
 //! Each connection draws from a fresh
-//! [`DelaySampler`](ndr_core::sim::delay::DelaySampler) seeded with
+//! [`DelaySampler`](ndr_netem::DelaySampler) seeded with
 //! [`connection_seed`]`(seed, index)`, so a run is reproducible: the same
 //! seed and the same send times give the same delays.
 //!
@@ -52,7 +53,7 @@
 //!
 //! ```no_run
 //! # async fn run() -> std::io::Result<()> {
-//! use ndr_core::sim::delay::DelayModel;
+//! use ndr_netem::DelayModel;
 //! use ndr_net::relay::Relay;
 //!
 //! let listen = "127.0.0.1:7000".parse().unwrap();
@@ -80,8 +81,8 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration as StdDuration;
 
-use ndr_core::sim::delay::{DelayModel, Direction};
 use ndr_core::wire::WireError;
+use ndr_netem::{DelayModel, Direction};
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio::task::{JoinHandle, JoinSet};

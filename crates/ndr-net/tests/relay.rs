@@ -8,10 +8,10 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr_core::sim::delay::{DelayModel, Trace};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{self, Header, MAX_FRAME_LEN, Message, PREFIX_LEN};
 use ndr_net::relay::{ConnectionEnd, Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
+use ndr_netem::{DelayModel, Trace};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;

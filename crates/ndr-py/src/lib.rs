@@ -17,6 +17,7 @@
 //!   subclasses) and [`blocking`] (waits without the GIL, Ctrl-C);
 //! - [`relay`]: `Relay`, the delaying proxy;
 //! - [`sim`]: `sim_run`, the simulator behind `ndr.sim.run`;
+//! - [`delay`]: the delay model of either from its keyword arguments;
 //! - [`log`]: Rust's `tracing` records into Python's `logging`.
 //!
 //! Batch functions copy their inputs, then run without the GIL. Waits on
@@ -25,6 +26,7 @@
 pub mod arx;
 pub mod blocking;
 pub mod convert;
+pub mod delay;
 pub mod errors;
 pub mod filters;
 pub mod kalman;

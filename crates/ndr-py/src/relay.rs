@@ -13,9 +13,9 @@ use pyo3::types::PyDict;
 
 use crate::blocking;
 use crate::convert::in_range;
+use crate::delay::delay_model;
 use crate::errors::os_error;
 use crate::log;
-use crate::sim::delay_model;
 
 /// A running relay: listens on `listen` and forwards each connection to
 /// `upstream`, delaying every frame by the chosen delay model: one of

@@ -1,66 +1,22 @@
-//! `ndr.sim.run` (the simulator of `ndr sim`) and the delay models it
-//! shares with the relay.
+//! `ndr.sim.run`: the simulator of `ndr sim`.
 //!
 //! The run happens without the GIL; the summary comes back as the JSON of
 //! `ndr sim --json`, with `null` for what nothing measured (see `summary`;
 //! the Python side parses it into a dict), and the per-tick series as float64
 //! arrays, one per column of `ndr sim --out`.
 
-use std::sync::Arc;
-
 use ndr_core::endpoint::{Mode, Underflow};
 use ndr_core::playout::Playout;
-use ndr_core::sim::delay::{DelayModel, DistTable, Trace};
-use ndr_core::sim::signal::Signal;
-use ndr_core::sim::{self, MAX_SIM_AXES, Report, Row, SimConfig};
+use ndr_sim::signal::Signal;
+use ndr_sim::{MAX_SIM_AXES, Report, Row, SimConfig};
 use numpy::PyArray1;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{finite, in_range, period as positive_period, seconds, value_error};
+use crate::convert::{finite, in_range, period as positive_period, seconds};
+use crate::delay::delay_model;
 use crate::log;
-
-/// The network's delays, from exactly one of a profile, a trace CSV or a
-/// netem table (with its mean and standard deviation, in seconds).
-pub fn delay_model(
-    profile: Option<&str>,
-    trace: Option<&str>,
-    dist: Option<&str>,
-    mean: Option<f64>,
-    std: Option<f64>,
-    default: &str,
-) -> PyResult<DelayModel> {
-    let given = [profile.is_some(), trace.is_some(), dist.is_some()];
-    if given.iter().filter(|&&g| g).count() > 1 {
-        return Err(PyValueError::new_err(
-            "give one of profile, trace and dist, not several",
-        ));
-    }
-    if (mean.is_some() || std.is_some()) && dist.is_none() {
-        return Err(PyValueError::new_err(
-            "mean and std go with dist (a netem table); profiles and traces set their own delays",
-        ));
-    }
-    if let Some(path) = trace {
-        let trace = Trace::from_path(path).map_err(|e| PyValueError::new_err(format!("{e}")))?;
-        return Ok(DelayModel::Trace(Arc::new(trace)));
-    }
-    if let Some(path) = dist {
-        let (Some(mean), Some(std)) = (mean, std) else {
-            return Err(PyValueError::new_err(
-                "dist needs mean and std: the one-way delay's mean and standard deviation, in seconds",
-            ));
-        };
-        let table = DistTable::from_path(path).map_err(value_error)?;
-        return Ok(DelayModel::Dist {
-            table: Arc::new(table),
-            mean: seconds("mean", mean)?,
-            std: seconds("std", std)?,
-        });
-    }
-    DelayModel::profile(profile.unwrap_or(default)).map_err(value_error)
-}
 
 /// One simulation; returns `(summary_json, series)`.
 #[pyfunction]
@@ -109,10 +65,10 @@ pub fn run<'py>(
         .parse::<Signal>()
         .map_err(|e| PyValueError::new_err(format!("signal: {e}")))?;
     cfg.record_series = series;
-    let out = py.detach(|| sim::run(&cfg));
+    let out = py.detach(|| ndr_sim::run(&cfg));
     log::flush(py);
     let out = out.map_err(|e| match e {
-        sim::SimError::Thread(_) => PyRuntimeError::new_err(e.to_string()),
+        ndr_sim::SimError::Thread(_) => PyRuntimeError::new_err(e.to_string()),
         other => PyValueError::new_err(other.to_string()),
     })?;
     let summary = summary(&out.report)

@@ -5,11 +5,11 @@ use std::time::Instant as WallClock;
 
 use ndr::core::endpoint::{Mode, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::sim::compare::{
+use ndr::core::time::Duration;
+use ndr::sim::compare::{
     self, CompareConfig, CompareReport, Family, Matched, Policy, PolicyResult, Stat, TC_DIRS,
 };
-use ndr::core::sim::delay::Trace;
-use ndr::core::time::Duration;
+use ndr::sim::delay::Trace;
 
 use crate::size::millis;
 

@@ -11,10 +11,10 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::{Config, Mode, Status, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::sim::signal::Signal;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay};
+use ndr::sim::signal::Signal;
 
 use crate::report::{End, Outcome, Row, Series, finish};
 use crate::robot::{PlantArgs, robot};

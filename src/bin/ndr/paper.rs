@@ -1,9 +1,9 @@
 //! `ndr sim --paper`: the paper's scenarios, our numbers beside its numbers.
 
 use ndr::core::endpoint::Mode;
-use ndr::core::sim::delay::DelayModel;
-use ndr::core::sim::{self, Report, SimConfig};
 use ndr::core::time::Duration;
+use ndr::sim::delay::DelayModel;
+use ndr::sim::{self, Report, SimConfig};
 use serde::Serialize;
 
 use crate::sim::SimArgs;

@@ -172,7 +172,7 @@ impl LogHistogram {
         self.max = self.max.max(x);
     }
 
-    /// The `q` quantile by nearest rank (as `ndr::core::sim::percentile`),
+    /// The `q` quantile by nearest rank (as `ndr::sim::percentile`),
     /// as its bucket's geometric middle within the values seen; 0 for none.
     fn quantile(&self, q: f64) -> f64 {
         if self.n == 0 {
@@ -442,7 +442,7 @@ mod tests {
         let mut h = LogHistogram::new();
         xs.iter().for_each(|&x| h.record(x));
         for q in [0.5, 0.9, 0.99, 1.0] {
-            let exact = ndr::core::sim::percentile(&xs, q);
+            let exact = ndr::sim::percentile(&xs, q);
             let got = h.quantile(q);
             assert!((got / exact - 1.0).abs() < 0.006, "q {q}: {got} vs {exact}");
         }

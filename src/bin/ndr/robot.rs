@@ -9,10 +9,10 @@ use std::time::Duration as StdDuration;
 
 use ndr::core::arx::{Tf2, Tf2State};
 use ndr::core::endpoint::{Event, LinkError};
-use ndr::core::sim::PlantConfig;
 use ndr::core::time::Duration;
 use ndr::core::wire::close_reason;
 use ndr::net::{Link, LinkStats, NetError};
+use ndr::sim::PlantConfig;
 
 /// The simulated drive's limits, for `demo` and `remote`.
 #[derive(clap::Args, Clone, Debug)]

@@ -7,10 +7,10 @@ use std::sync::Arc;
 
 use ndr::core::endpoint::{Mode, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::sim::delay::{DelayModel, DistTable, Trace};
-use ndr::core::sim::signal::Signal;
-use ndr::core::sim::{self, Report, Row, SimConfig};
 use ndr::core::time::Duration;
+use ndr::sim::delay::{DelayModel, DistTable, Trace};
+use ndr::sim::signal::Signal;
+use ndr::sim::{self, Report, Row, SimConfig};
 
 use crate::size::millis;
 

@@ -24,13 +24,13 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::{Config, Status, Underflow};
-use ndr::core::sim::delay::{DelayModel, Trace, TraceRow};
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::Role;
 use ndr::core::wire::{self, Header, Hello, Message, close_reason};
 use ndr::net::{
     Deframer, Hub, Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayHandle,
 };
+use ndr::sim::delay::{DelayModel, Trace, TraceRow};
 use serde::Serialize;
 
 use crate::demo::runtime;

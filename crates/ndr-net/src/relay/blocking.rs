@@ -4,7 +4,7 @@ use std::io;
 use std::net::SocketAddr;
 use std::time::Duration as StdDuration;
 
-use ndr_core::sim::delay::DelayModel;
+use ndr_netem::DelayModel;
 use tokio::runtime::Runtime;
 
 use super::{Relay, RelayConfig, RelayEvent, RelayStats};
@@ -24,7 +24,7 @@ pub struct StopWhen {
 /// synchronous code (the `ndr relay` command).
 ///
 /// ```no_run
-/// use ndr_core::sim::delay::DelayModel;
+/// use ndr_netem::DelayModel;
 /// use ndr_net::relay::{BlockingRelay, StopWhen};
 ///
 /// let relay = BlockingRelay::bind(

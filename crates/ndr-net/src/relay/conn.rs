@@ -9,9 +9,9 @@
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use ndr_core::sim::delay::{DelaySampler, Direction, InOrderPath};
 use ndr_core::time::Instant;
 use ndr_core::wire::{self, PREFIX_LEN, WireError};
+use ndr_netem::{DelaySampler, Direction, InOrderPath};
 use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::sync::{mpsc, watch};

@@ -2,7 +2,7 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use ndr_core::sim::delay::Direction;
+use ndr_netem::Direction;
 
 use super::ConnectionEnd;
 

@@ -4,9 +4,9 @@
 
 use ndr_core::endpoint::{Mode, Underflow};
 use ndr_core::playout::Playout;
-use ndr_core::sim::compare::{self, CompareConfig, Family, Policy, builtin, run_one};
-use ndr_core::sim::delay::DelayModel;
 use ndr_core::time::{Duration, Instant};
+use ndr_sim::compare::{self, CompareConfig, Family, Policy, builtin, run_one};
+use ndr_sim::delay::DelayModel;
 
 const T: Duration = Duration::from_millis(20);
 const WINDOW: Duration = Duration::from_secs(10);
@@ -294,8 +294,8 @@ fn netem_tables_missing_are_a_note() {
 }
 
 fn trace_family(rows: &[(u64, u64)]) -> Family {
-    use ndr_core::sim::delay::{Trace, TraceRow};
     use ndr_core::time::Instant;
+    use ndr_sim::delay::{Trace, TraceRow};
     let rows = rows
         .iter()
         .map(|&(at_s, d)| TraceRow {

@@ -18,8 +18,9 @@ use std::path::{Path, PathBuf};
 use std::string::String;
 use std::vec::Vec;
 
+use ndr_core::time::{Duration, Instant};
+
 use super::{Direction, Millis, ReadError, read_capped, snippet};
-use crate::time::{Duration, Instant};
 
 /// The header a trace must start with.
 pub const TRACE_HEADER: &str = "t_s,fwd_ms,bwd_ms";

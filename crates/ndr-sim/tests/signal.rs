@@ -1,6 +1,6 @@
 //! The operator's command signals: values, axes, parsing and printing.
 
-use ndr_core::sim::signal::{Signal, SignalError};
+use ndr_sim::signal::{Signal, SignalError};
 
 #[test]
 fn default_is_a_slow_unit_sine() {

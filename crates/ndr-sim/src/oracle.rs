@@ -15,13 +15,13 @@
 //! the same way (receiver's release tick − sender's stamp), so the oracle
 //! and the policies are compared on the same grid. The comparison harness
 //! builds it on the grid of the adaptive delay's quantum
-//! ([`delay_quantum`](crate::endpoint::delay_quantum): the period up to
+//! ([`delay_quantum`](ndr_core::endpoint::delay_quantum): the period up to
 //! 20 ms, a fraction of it beyond), where the adaptive playout releases
 //! between ticks.
 
 use std::vec::Vec;
 
-use crate::time::{Duration, Instant};
+use ndr_core::time::{Duration, Instant};
 
 /// Most targets each window of the piecewise oracle chooses among.
 pub const PIECEWISE_OPTIONS: usize = 64;

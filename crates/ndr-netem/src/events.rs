@@ -4,11 +4,11 @@
 
 use std::vec::Vec;
 
+use ndr_core::time::{Duration, Instant};
 use rand_chacha::ChaCha8Rng;
 
 use super::Direction;
 use super::profiles::{Jitter, JitterParams};
-use crate::time::{Duration, Instant};
 
 /// A delay scenario: per-frame jitter plus events at known times.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -3,12 +3,12 @@
 
 use core::f64::consts::TAU;
 
+use ndr_core::time::{Duration, Instant};
 use rand::{Rng, RngExt};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Gamma};
 
 use super::Direction;
-use crate::time::{Duration, Instant};
 
 /// Per-frame jitter: `base + min(cap, X)` with `X` gamma-distributed, the
 /// waiting time of a few Poisson events ("Poisson-like", paper §3.1).

@@ -5,11 +5,10 @@ use std::collections::VecDeque;
 use std::string::String;
 use std::vec::Vec;
 
+use ndr_core::endpoint::{Endpoint, Release};
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::Role;
 use serde::Serialize;
-
-use crate::endpoint::{Endpoint, Release};
-use crate::time::{Duration, Instant};
-use crate::wire::Role;
 
 use super::delay::{DelayModel, fig6_truth};
 use super::engine::{SimConfig, SimOutput};

@@ -6,11 +6,12 @@ use std::string::{String, ToString};
 use std::sync::Arc;
 use std::vec::Vec;
 
-use crate::sim::delay::{
+use ndr_core::time::Duration;
+
+use crate::delay::{
     DelayModel, DistTable, EventKind, EventParams, FIG6_DURATION, FIG6_STEP_AT_S, JitterParams,
     Trace,
 };
-use crate::time::Duration;
 
 /// One family of traces: a delay model run with several seeds.
 #[derive(Clone, Debug)]

@@ -35,6 +35,9 @@ mod matched;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
+use ndr_core::endpoint::{Mode, Underflow, delay_quantum, delay_quantum_for};
+use ndr_core::playout::{DEFAULT_FIXED_LATENCY, Playout};
+use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
 
 pub use families::{
@@ -49,9 +52,6 @@ pub use matched::{
 use super::engine::{ForwardLog, SimConfig, run};
 use super::oracle::{Arrival, Oracle, OraclePoint};
 use super::percentile;
-use crate::endpoint::{Mode, Underflow, delay_quantum, delay_quantum_for};
-use crate::playout::{DEFAULT_FIXED_LATENCY, Playout};
-use crate::time::{Duration, Instant};
 
 /// The period of the comparison: 20 ms (50 Hz).
 pub const COMPARE_PERIOD: Duration = Duration::from_millis(20);

@@ -12,10 +12,10 @@ use std::path::{Path, PathBuf};
 use std::string::String;
 use std::vec::Vec;
 
+use ndr_core::time::Duration;
 use rand::Rng;
 
 use super::{ReadError, read_capped, snippet};
-use crate::time::Duration;
 
 /// The scale of table entries: `8192` means one standard deviation.
 pub const NETEM_DIST_SCALE: i64 = 8192;

@@ -1,11 +1,11 @@
 //! Delay models: profile names, determinism, independence of the two
 //! directions' streams, in-order delivery, the Fig. 6 generator.
 
-use ndr_core::sim::delay::{
+use ndr_core::time::{Duration, Instant};
+use ndr_netem::{
     DelayError, DelayModel, Direction, EpisodeParams, FIG6_DURATION, InOrderPath, PARIS_NEW_YORK,
     PROFILE_NAMES, fig6_truth,
 };
-use ndr_core::time::{Duration, Instant};
 
 const T_MS: u64 = 200;
 

@@ -17,10 +17,10 @@
 //! delivery releases frames in bursts: only the newest of a burst is echoed.
 //!
 //! Print the numbers with
-//! `cargo test -p ndr-core --release --test sim_delay_calibration -- --nocapture`.
+//! `cargo test -p ndr-netem --release --test calibration -- --nocapture`.
 
-use ndr_core::sim::delay::{DelayModel, Direction, InOrderPath};
 use ndr_core::time::{Duration, Instant};
+use ndr_netem::{DelayModel, Direction, InOrderPath};
 
 const T: Duration = Duration::from_millis(200);
 /// 10 minutes at T = 200 ms.
@@ -261,7 +261,7 @@ fn lan_75km_matches_the_paper() {
 /// The measured NRTT follows twice the generating one-way mean.
 #[test]
 fn paper_fig6_nrtt_tracks_the_truth() {
-    use ndr_core::sim::delay::fig6_truth;
+    use ndr_netem::fig6_truth;
     let r = run(&DelayModel::PaperFig6, 5, T, 6000);
     let mut worst: f64 = 0.0;
     // Two-minute windows of echo samples against the truth at their middle.

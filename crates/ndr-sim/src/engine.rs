@@ -7,11 +7,13 @@ use std::fmt;
 use std::string::ToString;
 use std::vec::Vec;
 
-use crate::arx::{ArxError, Tf2, Tf2State};
-use crate::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Mode, Status, Underflow};
-use crate::playout::Playout;
-use crate::time::{Duration, Instant};
-use crate::wire::{Frame, HEADER_LEN, Payload, Role};
+use ndr_core::arx::{ArxError, Tf2, Tf2State};
+use ndr_core::endpoint::{
+    Config, ConfigError, Endpoint, Event, LinkError, Mode, Status, Underflow,
+};
+use ndr_core::playout::Playout;
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{Frame, HEADER_LEN, Payload, Role};
 
 use super::delay::{DelayModel, DelaySampler, Direction, InOrderPath};
 use super::report::{Collector, Report, Row};
@@ -426,7 +428,7 @@ impl Sim<'_> {
     }
 
     /// The remote released a command (fresh or held) at `t`.
-    fn log_release<const C: usize>(&mut self, r: &crate::endpoint::Release<C>) {
+    fn log_release<const C: usize>(&mut self, r: &ndr_core::endpoint::Release<C>) {
         let Some(log) = &mut self.forward else {
             return;
         };

@@ -1,5 +1,20 @@
-//! Network delay models for the simulator: built-in profiles calibrated on
-//! the paper, netem distribution tables, and trace replay.
+//! # ndr-netem
+//!
+//! The network of the ndr link as a model: seeded one-way delay models
+//! (built-in profiles calibrated on the paper, netem distribution tables,
+//! trace replay, events at known times) and TCP's in-order delivery. Sans-IO
+//! like the core: nothing here reads a clock or touches a socket (the table
+//! and trace loaders read a file), time is an argument and every draw comes
+//! from the seed.
+//!
+//! Two users share it, so that a delay profile means the same thing in both:
+//!
+//! - the simulator (`ndr-sim`, re-exported there as `ndr_sim::delay`) puts a
+//!   sampler and an [`InOrderPath`] per direction between two simulated
+//!   endpoints;
+//! - the relay of `ndr-net` (`ndr relay`) holds each frame of a real TCP link
+//!   for the delay the same model gives, to try a link over a profile on one
+//!   machine.
 //!
 //! A [`DelayModel`] is a cheap-to-clone description; [`DelayModel::sampler`]
 //! turns it and a seed into a [`DelaySampler`], which gives the raw one-way
@@ -8,8 +23,8 @@
 //! (DESIGN §2).
 //!
 //! ```
-//! use ndr_core::sim::delay::{DelayModel, Direction, InOrderPath};
 //! use ndr_core::time::{Duration, Instant};
+//! use ndr_netem::{DelayModel, Direction, InOrderPath};
 //!
 //! let model = DelayModel::profile("lan-75km").unwrap();
 //! let mut sampler = model.sampler(7);
@@ -38,11 +53,11 @@
 //! same grid, each direction is delivered in order, every frame echoes the
 //! newest frame its sender has received, and the base measures a round trip
 //! once per newly echoed frame, the remote's hold taken out (what
-//! `Endpoint` does). `tests/sim_delay_calibration.rs` holds that set-up and
-//! asserts the bands below; print its numbers with
+//! `Endpoint` does). `tests/calibration.rs` holds that set-up and asserts
+//! the bands below; print its numbers with
 //!
 //! ```text
-//! cargo test -p ndr-core --release --test sim_delay_calibration -- --nocapture
+//! cargo test -p ndr-netem --release --test calibration -- --nocapture
 //! ```
 //!
 //! Measured over 20 seeds × 10 minutes, and the initialization pattern over
@@ -122,6 +137,7 @@
 //!
 //! [`DelayModel::Dist`] replays a netem table ([`DistTable`]) and
 //! [`DelayModel::Trace`] a CSV trace ([`Trace`]).
+#![forbid(unsafe_code)]
 
 mod events;
 mod netem;
@@ -149,7 +165,7 @@ pub use trace::{
     TRACE_HEADER, Trace, TraceError, TraceRow,
 };
 
-use crate::time::{Duration, Instant};
+use ndr_core::time::{Duration, Instant};
 
 /// The names [`DelayModel::profile`] knows. `constant` also takes a value in
 /// milliseconds: `constant:30`, or `constant:30,45` for forward and backward.
@@ -486,7 +502,11 @@ impl fmt::Display for Millis {
 }
 
 /// At most 40 characters of `s`, to quote user input in error messages.
-pub(crate) fn snippet(s: &str) -> String {
+///
+/// Public so that the simulator's own parsers (its signals) quote input as
+/// the delay models do.
+#[must_use]
+pub fn snippet(s: &str) -> String {
     const MAX: usize = 40;
     match s.char_indices().nth(MAX) {
         Some((end, _)) => std::format!("{}…", s.get(..end).unwrap_or_default()),

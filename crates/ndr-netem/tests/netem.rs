@@ -3,10 +3,8 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use ndr_core::sim::delay::{
-    DelayModel, Direction, DistError, DistTable, MAX_DIST_ENTRIES, NETEM_DIST_SCALE,
-};
 use ndr_core::time::{Duration, Instant};
+use ndr_netem::{DelayModel, Direction, DistError, DistTable, MAX_DIST_ENTRIES, NETEM_DIST_SCALE};
 
 #[test]
 fn parses_integers_and_comments_like_iproute2() {

@@ -1,9 +1,9 @@
 //! The paper's results, reproduced in the simulator (issue 3's bands).
 
 use ndr_core::endpoint::Mode;
-use ndr_core::sim::delay::DelayModel;
-use ndr_core::sim::{Report, SimConfig, run};
 use ndr_core::time::Duration;
+use ndr_sim::delay::DelayModel;
+use ndr_sim::{Report, SimConfig, run};
 
 fn sim(profile: &str, mode: Mode, seed: u64) -> Report {
     let mut cfg = SimConfig::paper(DelayModel::profile(profile).unwrap());

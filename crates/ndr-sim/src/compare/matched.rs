@@ -27,11 +27,11 @@ use std::collections::BTreeMap;
 use std::string::String;
 use std::vec::Vec;
 
+use ndr_core::playout::Playout;
+use ndr_core::time::Duration;
 use serde::Serialize;
 
 use super::{Family, RunMetrics, Stat, run_one};
-use crate::playout::Playout;
-use crate::time::Duration;
 
 /// Adaptive runs per search, at most.
 pub const MATCH_PROBES: usize = 16;

@@ -2,10 +2,8 @@
 
 use std::sync::Arc;
 
-use ndr_core::sim::delay::{
-    Column, DelayModel, Direction, MAX_TRACE_ROWS, Trace, TraceError, TraceRow,
-};
 use ndr_core::time::{Duration, Instant};
+use ndr_netem::{Column, DelayModel, Direction, MAX_TRACE_ROWS, Trace, TraceError, TraceRow};
 
 fn ms(x: u64) -> Duration {
     Duration::from_millis(x)

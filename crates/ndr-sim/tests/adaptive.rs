@@ -3,9 +3,9 @@
 //! oracle, the late rate near its target, no pause, an event per change.
 
 use ndr_core::playout::Playout;
-use ndr_core::sim::compare::{Family, Policy, builtin, run_one, sim_config};
-use ndr_core::sim::run;
 use ndr_core::time::Duration;
+use ndr_sim::compare::{Family, Policy, builtin, run_one, sim_config};
+use ndr_sim::run;
 
 const T: Duration = Duration::from_millis(20);
 const WINDOW: Duration = Duration::from_secs(10);
@@ -23,7 +23,7 @@ fn named(name: &str, secs: u64) -> Family {
 
 /// The end-to-end delay (release − send) of each command sent within `sent`
 /// (seconds); every one must have been released.
-fn command_delays(out: &ndr_core::sim::SimOutput, sent: std::ops::Range<f64>) -> Vec<f64> {
+fn command_delays(out: &ndr_sim::SimOutput, sent: std::ops::Range<f64>) -> Vec<f64> {
     out.forward
         .samples
         .iter()
@@ -34,7 +34,7 @@ fn command_delays(out: &ndr_core::sim::SimOutput, sent: std::ops::Range<f64>) ->
 
 /// The end-to-end delay of each command sent within `sent` (seconds) that
 /// was released fresh.
-fn fresh_delays(out: &ndr_core::sim::SimOutput, sent: std::ops::Range<f64>) -> Vec<f64> {
+fn fresh_delays(out: &ndr_sim::SimOutput, sent: std::ops::Range<f64>) -> Vec<f64> {
     out.forward
         .samples
         .iter()
@@ -358,10 +358,10 @@ fn at_long_periods_the_states_fare_as_the_commands() {
 #[test]
 fn an_outage_is_not_a_delay_to_cover_for_minutes() {
     use ndr_core::endpoint::Underflow;
-    use ndr_core::sim::compare::WAN;
-    use ndr_core::sim::compare::trace;
-    use ndr_core::sim::delay::{DelayModel, EventKind, EventParams, Trace, TraceRow};
     use ndr_core::time::Instant;
+    use ndr_sim::compare::WAN;
+    use ndr_sim::compare::trace;
+    use ndr_sim::delay::{DelayModel, EventKind, EventParams, Trace, TraceRow};
     // One 5 s outage of the forward path at 30 s. The watchdog (1 s) calls
     // the link lost; the delay then goes back to what the jitter needs,
     // instead of covering 5 s for the window's two minutes. Two shapes:
