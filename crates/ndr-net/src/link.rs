@@ -52,6 +52,7 @@ pub type Sample = Release<MAX_AXES>;
 
 /// What a link is configured with.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct LinkConfig {
     /// The endpoint's configuration; its `role` is set by
     /// [`Link::connect`] (base) and [`Listener::accept`] (remote).
@@ -98,6 +99,7 @@ impl LinkConfig {
 
 /// Why a link could not be set up or used.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum NetError {
     /// The socket failed (connection refused, address in use, …).
     Io(io::Error),
@@ -151,6 +153,7 @@ impl From<io::Error> for NetError {
 
 /// A snapshot of a link's state and counters.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct LinkStats {
     /// Where the protocol is.
     pub phase: Phase,

@@ -25,7 +25,9 @@ use ndr_core::wire::close_reason;
 use ndr_net::NetError;
 use ndr_net::tls::HandshakeError as TlsHandshakeError;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyConnectionError, PyOSError, PyTimeoutError, PyValueError};
+use pyo3::exceptions::{
+    PyConnectionError, PyOSError, PyRuntimeError, PyTimeoutError, PyValueError,
+};
 use pyo3::prelude::*;
 
 create_exception!(
@@ -136,6 +138,7 @@ pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
              tls=ndr.TlsConfig(...) (mutual TLS), or insecure=True to send plain TCP \
              (anyone on the path can read and forge the samples)"
         )),
+        other => PyRuntimeError::new_err(other.to_string()),
     }
 }
 

@@ -373,33 +373,23 @@ fn role_name(role: Role) -> &'static str {
 
 fn event<'py>(py: Python<'py>, e: &Event<MAX_AXES>) -> PyResult<Option<Bound<'py, PyAny>>> {
     let fields = PyDict::new(py);
-    let kind = match e {
+    match e {
         Event::Connected { peer } => {
             fields.set_item("peer_role", role_name(peer.role))?;
             fields.set_item("axes", peer.axes)?;
             fields.set_item("period", peer.period.as_secs_f64())?;
             fields.set_item("mode", Mode::from_code(peer.mode).map(Mode::name))?;
-            "connected"
         }
-        Event::Started { period, ns } => {
+        Event::Started { period, ns } | Event::Paused { period, ns } => {
             fields.set_item("period", period.as_secs_f64())?;
             fields.set_item("ns", ns)?;
-            "started"
-        }
-        Event::Paused { period, ns } => {
-            fields.set_item("period", period.as_secs_f64())?;
-            fields.set_item("ns", ns)?;
-            "paused"
         }
         Event::LinkLost { silent_for } => {
             fields.set_item("silent_for", silent_for.as_secs_f64())?;
-            "link_lost"
         }
-        Event::LinkRestored => "link_restored",
         Event::DelayChanged { delay, ticks } => {
             fields.set_item("delay", delay.as_secs_f64())?;
             fields.set_item("ticks", ticks)?;
-            "delay_changed"
         }
         Event::Closed { error } => {
             let normal = matches!(
@@ -408,12 +398,13 @@ fn event<'py>(py: Python<'py>, e: &Event<MAX_AXES>) -> PyResult<Option<Bound<'py
             );
             fields.set_item("error", error.map(|e| e.to_string()))?;
             fields.set_item("normal", normal)?;
-            "closed"
         }
         // Releases reach Python as ticks, not events.
         Event::Released(_) => return Ok(None),
-    };
-    Ok(Some((kind, fields).into_pyobject(py)?.into_any()))
+        // Its kind, the Rust name, and nothing else yet.
+        _ => {}
+    }
+    Ok(Some((e.kind(), fields).into_pyobject(py)?.into_any()))
 }
 
 fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {

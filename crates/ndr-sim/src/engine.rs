@@ -485,21 +485,14 @@ impl Sim<'_> {
                         }
                     }
                 }
-                // Counted by the endpoints; the simulated operator carries on.
-                Event::Paused { .. }
-                | Event::Connected { .. }
-                | Event::LinkLost { .. }
-                | Event::LinkRestored => {}
-                Event::DelayChanged { .. } => {
-                    if side == Role::Remote {
-                        self.collect.delay_events_fwd += 1;
-                    }
+                Event::DelayChanged { .. } if side == Role::Remote => {
+                    self.collect.delay_events_fwd += 1;
                 }
-                Event::Closed { error } => {
-                    if let Some(e) = error {
-                        return Err(self.link_error(side, e));
-                    }
-                }
+                Event::Closed { error: Some(e) } => return Err(self.link_error(side, e)),
+                // Paused, Connected, LinkLost, LinkRestored, the base's
+                // DelayChanged, a local Closed: counted by the endpoints; the
+                // simulated operator carries on.
+                _ => {}
             }
         }
         if side == Role::Base {

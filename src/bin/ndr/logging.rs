@@ -54,5 +54,6 @@ pub fn event(side: &str, event: &Event<MAX_AXES>) {
         Event::Closed { error: Some(e) } => tracing::info!("{side}: link closed: {e}"),
         Event::Closed { error: None } => tracing::info!("{side}: link closed by this side"),
         Event::Released(_) => {}
+        other => tracing::debug!("{side}: {}", other.kind()),
     }
 }

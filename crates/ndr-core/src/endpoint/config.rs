@@ -175,6 +175,7 @@ pub const DEFAULT_LIVENESS: Duration = Duration::from_secs(10);
 
 /// Everything an [`Endpoint`](super::Endpoint) needs to know before it starts.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Config {
     /// Base (operator side, sends commands) or remote (robot side, sends states).
     pub role: Role,
@@ -296,6 +297,7 @@ pub const MIN_PERIOD: Duration = Duration::from_micros(100);
 
 /// A configuration that cannot run.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum ConfigError {
     /// Axes must be in `1..=256`.
     Axes(u16),

@@ -92,6 +92,7 @@ pub(crate) struct Head {
 /// Something the application should know; drain with
 /// [`Endpoint::poll_event`](super::Endpoint::poll_event).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum Event<const C: usize> {
     /// The handshake succeeded; the initialization pattern starts.
     Connected {
@@ -142,4 +143,23 @@ pub enum Event<const C: usize> {
         /// Why; `None` after a local [`close`](super::Endpoint::close).
         error: Option<LinkError>,
     },
+}
+
+impl<const C: usize> Event<C> {
+    /// The event's name, the same in every binding and report:
+    /// `connected`, `started`, `released`, `paused`, `link_lost`,
+    /// `delay_changed`, `link_restored`, `closed`.
+    #[must_use]
+    pub const fn kind(&self) -> &'static str {
+        match self {
+            Event::Connected { .. } => "connected",
+            Event::Started { .. } => "started",
+            Event::Released(_) => "released",
+            Event::Paused { .. } => "paused",
+            Event::LinkLost { .. } => "link_lost",
+            Event::DelayChanged { .. } => "delay_changed",
+            Event::LinkRestored => "link_restored",
+            Event::Closed { .. } => "closed",
+        }
+    }
 }

@@ -74,6 +74,7 @@ impl Running {
 /// sample is still released, one tick later; `late` counts the underflows it
 /// caused). The fuzz harness (`fuzz/harness.rs`) checks it after every step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[non_exhaustive]
 pub struct Stats {
     /// Frames sent, of any kind.
     pub frames_sent: u64,

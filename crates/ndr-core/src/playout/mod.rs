@@ -27,6 +27,7 @@ pub use schedule::{DELAY_QUANTUM, Schedule, delay_quantum, delay_quantum_for};
 
 /// How a regulator decides when to release each sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub enum Playout {
     /// The paper's FIFO, pre-filled to `ns`, one release per tick.
     #[default]
