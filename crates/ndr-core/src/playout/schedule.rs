@@ -174,7 +174,7 @@ pub struct Pending {
 
 /// Delay changes not yet taken by the owner: a release may settle on a
 /// delay at the end of a silence and rise at once after it.
-const CHANGES: usize = 4;
+const CHANGES: usize = 2;
 
 /// The adaptive playout's release schedule (see the [module](self)).
 #[derive(Clone, Debug)]
@@ -200,7 +200,7 @@ pub struct Schedule {
     /// The clock mapping the schedule uses (ns): the estimate's, followed
     /// by [`MAPPING_SLEW`] at most per release.
     mapping: Option<i64>,
-    changes: Deque<(Duration, u64), CHANGES>,
+    changes: Deque<Duration, CHANGES>,
 }
 
 impl Schedule {
@@ -277,7 +277,7 @@ impl Schedule {
     /// ticks, in order.
     #[must_use]
     pub fn poll_delay_changed(&mut self) -> Option<(Duration, u64)> {
-        self.changes.pop_front()
+        self.changes.pop_front().map(|d| (d, self.ticks(d)))
     }
 
     /// The tick scheduled at `at` ran at `t`, the next tick being
@@ -736,7 +736,7 @@ impl Schedule {
                 // gets here, and the newest delay is what it needs.
                 let _ = self.changes.pop_front();
             }
-            let _ = self.changes.push_back((delay, self.ticks(delay)));
+            let _ = self.changes.push_back(delay);
         }
     }
 }
