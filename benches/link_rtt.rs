@@ -261,10 +261,11 @@ fn link_nrtt(
             let stats = base.stats().unwrap();
             let count = stats.endpoint.nrtt.count();
             // One new NRTT sample per new echo; skip the start-up.
-            if last != Some(count) && ticks > 20 {
-                if let Some(n) = stats.last_nrtt {
-                    nrtt.push(n.as_secs_f64());
-                }
+            if last != Some(count)
+                && ticks > 20
+                && let Some(n) = stats.last_nrtt
+            {
+                nrtt.push(n.as_secs_f64());
             }
             last = Some(count);
         }

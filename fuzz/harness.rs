@@ -313,7 +313,7 @@ fn send(
     msg: &Message<'_>,
     buf: &mut [u8; MAX_FRAME_LEN],
 ) {
-    let seq = if input.byte() % 8 == 0 {
+    let seq = if input.byte().is_multiple_of(8) {
         input.u64()
     } else {
         peer.seq
@@ -322,7 +322,7 @@ fn send(
     let mut sent_at = now.checked_sub(back).unwrap_or(Instant::ZERO);
     if let Message::Data(_) = msg {
         peer.seq = peer.seq.wrapping_add(1);
-        if input.byte() % 8 != 0
+        if !input.byte().is_multiple_of(8)
             && let Some(next) = peer.sent.and_then(|s| s.checked_add(peer.period))
         {
             sent_at = sent_at.max(next);

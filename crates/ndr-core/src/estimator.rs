@@ -300,11 +300,11 @@ impl<const H: usize> Estimator<H> {
                 self.y1 = self.y0;
                 self.y0 = y_hat;
                 self.anchor_at = m;
-                if let Model::Identify(arx) = &mut self.model {
-                    if self.arx_next == Some(m) {
-                        arx.record_substitute(p0, y_hat);
-                        self.arx_next = Some(m + 1);
-                    }
+                if let Model::Identify(arx) = &mut self.model
+                    && self.arx_next == Some(m)
+                {
+                    arx.record_substitute(p0, y_hat);
+                    self.arx_next = Some(m + 1);
                 }
                 return;
             }

@@ -155,10 +155,10 @@ impl Pair {
         let now = self.now;
         while let Some(n) = self.ep(side).poll_transmit(now, &mut buf).unwrap() {
             let frame = wire::Frame::new_checked(&buf[..n]).unwrap();
-            if let wire::Payload::Data(ch) = frame.payload() {
-                if !ch.is_empty() {
-                    self.sent_values[dir].insert(frame.seq(), ch.iter().collect());
-                }
+            if let wire::Payload::Data(ch) = frame.payload()
+                && !ch.is_empty()
+            {
+                self.sent_values[dir].insert(frame.seq(), ch.iter().collect());
             }
             let d = (self.delay[dir])(self.sent[dir]);
             self.sent[dir] += 1;

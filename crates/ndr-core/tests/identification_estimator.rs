@@ -120,7 +120,7 @@ fn estimates_are_held_until_the_model_is_usable() {
 fn missing_samples_in_steady_state() {
     let (df, db) = (3, 4);
     // A burst of six underflows, then one in 37 ticks.
-    let lost = |n: usize| (1500..1506).contains(&n) || (n > 1200 && n % 37 == 0);
+    let lost = |n: usize| (1500..1506).contains(&n) || (n > 1200 && n.is_multiple_of(37));
     let est = run_link(0.2, df, db, 3000, 1000, lost);
     assert_eq!(
         est.arx().unwrap().updates(),
@@ -142,7 +142,7 @@ fn adaptations(df: usize, db: usize, ticks: usize, lost: impl Fn(usize) -> bool)
 fn missing_samples_during_identification_do_not_bias_it() {
     // Frequent losses from the start, while the model is still poor: the
     // substitutes are wrong then, but never adapted on.
-    let lost = |n: usize| n % 5 == 0 || n % 7 == 0;
+    let lost = |n: usize| n.is_multiple_of(5) || n.is_multiple_of(7);
     let est = run_link(0.2, 2, 3, 4000, 2500, lost);
     let expected = adaptations(2, 3, 4000, lost);
     assert_eq!(est.arx().unwrap().updates(), expected);

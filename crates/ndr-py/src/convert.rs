@@ -354,10 +354,11 @@ where
 
 /// A 1-D array of `len` finite floats, or a plain number when `len` is 1.
 pub fn sample(name: &str, obj: &Bound<'_, PyAny>, len: usize) -> PyResult<Vec<f64>> {
-    if len == 1 && obj.cast::<PyUntypedArray>().is_err() {
-        if let Ok(v) = obj.extract::<f64>() {
-            return Ok(vec![finite(name, v)?]);
-        }
+    if len == 1
+        && obj.cast::<PyUntypedArray>().is_err()
+        && let Ok(v) = obj.extract::<f64>()
+    {
+        return Ok(vec![finite(name, v)?]);
     }
     vector(name, obj, Some(len))
 }

@@ -281,11 +281,11 @@ impl Collector {
         let dir = if side == Role::Remote { 0 } else { 1 };
         self.e2e[dir].push(e2e);
         self.last_e2e[dir] = e2e;
-        if side == Role::Base {
-            if let Some(g) = r.grtt {
-                self.last_grtt = g.as_secs_f64();
-                self.grtt.push(self.last_grtt);
-            }
+        if side == Role::Base
+            && let Some(g) = r.grtt
+        {
+            self.last_grtt = g.as_secs_f64();
+            self.grtt.push(self.last_grtt);
         }
     }
 

@@ -403,10 +403,10 @@ pub const fn encoded_len(msg: &Message<'_>) -> usize {
 /// [`ZeroControlOp`](WireError::ZeroControlOp). On error the contents of
 /// `buf` are unspecified.
 pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usize, WireError> {
-    if let Message::Data(values) = msg {
-        if values.len() > MAX_CHANNELS {
-            return Err(WireError::TooManyChannels(values.len()));
-        }
+    if let Message::Data(values) = msg
+        && values.len() > MAX_CHANNELS
+    {
+        return Err(WireError::TooManyChannels(values.len()));
     }
     let (echo, hold) = match header.echo {
         None => (NONE, 0),

@@ -46,7 +46,7 @@ pub struct Channels<'a> {
 impl<'a> Channels<'a> {
     /// Validates a Data payload: whole `f64`s, at most [`MAX_CHANNELS`], all finite.
     pub(super) fn check(bytes: &'a [u8]) -> Result<Self, WireError> {
-        if bytes.len() % 8 != 0 {
+        if !bytes.len().is_multiple_of(8) {
             return Err(WireError::BadPayloadLength {
                 kind: Kind::Data,
                 len: bytes.len(),

@@ -156,16 +156,15 @@ impl Gate {
         };
         let peer = self.pending.iter().find(|p| p.task == id).map(|p| p.peer);
         self.pending.retain(|p| p.task != id);
-        if let Err(e) = done {
-            if e.is_panic() {
-                if let Some(common) = self.common.upgrade() {
-                    common.refuse(
-                        Refusal::Other,
-                        peer,
-                        &format_args!("its handshake task failed: {e}"),
-                    );
-                }
-            }
+        if let Err(e) = done
+            && e.is_panic()
+            && let Some(common) = self.common.upgrade()
+        {
+            common.refuse(
+                Refusal::Other,
+                peer,
+                &format_args!("its handshake task failed: {e}"),
+            );
         }
     }
 
