@@ -261,18 +261,16 @@ fn main() {
             .unwrap()
             .with_pool(remote_hubs);
         let addr = listener.local_addr().unwrap();
-        let accept = tokio::spawn(async move {
-            let mut remotes = Vec::new();
-            for _ in 0..n {
-                remotes.push(listener.accept().await.unwrap());
-            }
-            remotes
-        });
-        let mut bases = Vec::new();
+        // One link at a time, both ends: every base comes from 127.0.0.1,
+        // and a source with more handshakes pending than the listener's
+        // per-source cap has its oldest evicted, as a flood would.
+        let (mut bases, mut remotes) = (Vec::new(), Vec::new());
         for _ in 0..n {
-            bases.push(base_hubs.connect(addr, config).await.unwrap());
+            let (remote, base) = tokio::join!(listener.accept(), base_hubs.connect(addr, config));
+            remotes.push(remote.unwrap());
+            bases.push(base.unwrap());
         }
-        (bases, accept.await.unwrap())
+        (bases, remotes)
     });
     let setup_rss = rss_kib();
     // NDR_APP=handlers: the control loops run on the hubs (`on_release`), as

@@ -111,7 +111,7 @@ def test_end_to_end_delay_is_constant_per_sample():
         with Pair(axes=2, period=0.01, playout="fifo") as p:
             t = threading.Thread(target=echo, args=(p.remote, stop), daemon=True)
             t.start()
-            e2e, ticks = [], []
+            e2e, at, ticks = [], [], []
             for i, tick in enumerate(p.base.ticks(timeout=2)):
                 p.base.send([np.sin(i / 20), -1.0])
                 assert tick.sample.shape == (2,) and tick.sample.dtype == np.float64
@@ -119,6 +119,7 @@ def test_end_to_end_delay_is_constant_per_sample():
                 if tick.status == "fresh":
                     # sent_at is on the remote's clock: a constant offset from ours.
                     e2e.append(tick.released_at - tick.sent_at)
+                    at.append(tick.released_at)
                 ticks.append(tick)
                 if i >= 300:
                     break
@@ -126,12 +127,12 @@ def test_end_to_end_delay_is_constant_per_sample():
             stop.set()
             t.join(2)
         assert no_gap(ticks), [(t.seq, t.status) for t in ticks]
-        return (e2e, ticks), stats
+        return (e2e, at, ticks), stats
 
-    (e2e, ticks), stalls = regulated(run)
+    (e2e, at, ticks), stalls = regulated(run)
     if not stalls:
         assert all(t.status == "fresh" for t in ticks)
-    assert_constant(e2e, stalls, "end-to-end delay")
+    assert_constant(e2e, stalls, "end-to-end delay", released_at=at, period=0.01)
 
 
 def test_a_refused_connection_is_a_connection_error():

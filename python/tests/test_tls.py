@@ -49,7 +49,7 @@ def test_a_link_over_mutual_tls_runs_with_a_constant_delay(certs):
             ) as base:
                 t.join(5)
                 remote = got[0]
-                grtt, ticks = [], []
+                grtt, at, ticks = [], [], []
                 for i in range(150):
                     base.send(float(i))
                     tick = base.recv(timeout=2)
@@ -58,16 +58,17 @@ def test_a_link_over_mutual_tls_runs_with_a_constant_delay(certs):
                     ticks.append(tick)
                     if tick.grtt is not None:
                         grtt.append(tick.grtt)
+                        at.append(tick.released_at)
                 stats = [base.stats, remote.stats]
                 remote.close()
             assert lst.stats["accepted"] == 1
         assert no_gap(ticks), [(t.seq, t.status) for t in ticks]
-        return (grtt, ticks), stats
+        return (grtt, at, ticks), stats
 
-    (grtt, ticks), stalls = regulated(run)
+    (grtt, at, ticks), stalls = regulated(run)
     if not stalls:
         assert all(t.status == "fresh" for t in ticks)
-    assert_constant(grtt, stalls, "GRTT")
+    assert_constant(grtt, stalls, "GRTT", released_at=at, period=0.01)
 
 
 def test_a_stranger_is_refused_and_never_reaches_the_application(certs):
