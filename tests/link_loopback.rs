@@ -3,6 +3,7 @@
 
 mod common;
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::time::Duration as StdDuration;
 
@@ -124,6 +125,7 @@ fn a_release_handler_on_the_hub_thread_gets_every_sample_once_in_order_and_its_a
             remote_seqs,
             grtts,
             echoed,
+            answers_next_tick: false,
             base,
             remote: remote.stats(),
         }
@@ -268,4 +270,107 @@ fn blocking_calls_on_a_runtime_or_an_async_listener_say_what_to_await() {
         let err = Link::connect_blocking(addr, config()).unwrap_err();
         assert!(err.to_string().contains("Link::connect(..).await"), "{err}");
     });
+}
+
+/// The drive contract, across drivers: a remote whose application answers
+/// on its hub's thread (a release handler) answers in the frame of the
+/// tick that released the command, as the simulator's plant does, so a
+/// loopback link and the simulator with the same grids' phase and a
+/// loopback's delay see the same GRTT. A phase within 1.5 ms of the grids
+/// meeting would leave the tick a frame reaches to the loopback's jitter,
+/// and a host that stalls the hubs moves releases: either run is redone.
+#[test]
+fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() {
+    use ndr::sim::delay::DelayModel;
+    use ndr::sim::{SimConfig, run};
+
+    let _serial = common::serial();
+    let rt = common::runtime();
+    let period = 0.010;
+    for attempt in 1..=10 {
+        // Each side's hub starts its grid when it is made: the listener's at
+        // bind, the base's at connect. Half a period apart, the grids are
+        // clear of each other.
+        let listener = rt
+            .block_on(Listener::bind(
+                "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
+                config(),
+            ))
+            .unwrap();
+        let addr = listener.local_addr().unwrap();
+        std::thread::sleep(StdDuration::from_millis(5));
+        let (remote, base) =
+            rt.block_on(async { tokio::join!(listener.accept(), Link::connect(addr, config())) });
+        let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
+        // The remote answers each command with the sequence number of the
+        // frame that brought it, and notes when it released it.
+        let released = std::sync::Arc::new(std::sync::Mutex::new(BTreeMap::new()));
+        let (tx, log) = (remote.sender(), std::sync::Arc::clone(&released));
+        remote
+            .on_release(move |s| {
+                if s.status == Status::Fresh {
+                    log.lock().unwrap().insert(s.seq, s.released_at);
+                    tx.send(&[s.seq as f64, 0.0]).unwrap();
+                }
+            })
+            .unwrap();
+        let (mut grtts, mut answers) = (Vec::new(), Vec::new());
+        for k in 1..=300u32 {
+            base.send(&[f64::from(k), 0.0]).unwrap();
+            let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+            if s.status == Status::Fresh {
+                grtts.extend(s.grtt.map(|g| g.as_secs_f64()));
+                // The answer's frame left at its tick (`sent_at`, the
+                // remote's clock) after the command's release.
+                answers.push((s.values()[0] as u64, s.sent_at));
+            }
+        }
+        let stats = base.close().unwrap();
+        let remote_stats = remote.stats().expect("the remote's stats");
+        let released = released.lock().unwrap();
+        let lags: Vec<f64> = answers
+            .iter()
+            .filter_map(|&(seq, sent)| {
+                let at = released.get(&seq)?;
+                Some(sent.signed_nanos_since(*at) as f64 * 1e-9 / period)
+            })
+            .collect();
+        // The remote's ticks, at k·T on its own clock, fall θ = local − peer
+        // after the base's on the base's clock.
+        let phase = stats.endpoint.clock_offset_s.rem_euclid(period);
+        let clear = (1.5e-3..=period - 1.5e-3).contains(&phase);
+        let stalled = common::host_stalls(&stats) + common::host_stalls(&remote_stats) > 0;
+        if !clear || stalled {
+            eprintln!("run {attempt}: phase {phase} s, {stats:?}: run again");
+            continue;
+        }
+        // Each answer left in the frame of the tick that released its
+        // command (its stamp that tick's, the release a little after it).
+        assert!(lags.len() > 250, "{} answers", lags.len());
+        assert!(
+            lags.iter().all(|&l| l.abs() < 0.5),
+            "answers left this many periods after their command's release: {lags:?}"
+        );
+        let mut real = grtts;
+        real.sort_by(f64::total_cmp);
+        let real = real[real.len() / 2];
+        let one_way = Duration::from_secs_f64(stats.endpoint.nrtt.mean() / 2.0);
+        let mut cfg = SimConfig::paper(DelayModel::Constant {
+            fwd: one_way,
+            bwd: one_way,
+        });
+        cfg.period = Duration::from_secs_f64(period);
+        cfg.remote_phase = Duration::from_secs_f64(phase);
+        cfg.axes = 2;
+        cfg.duration = Duration::from_secs(10);
+        let sim = run(&cfg).unwrap().report;
+        assert!(
+            (sim.grtt_mean_s - real).abs() < 1e-3 && sim.grtt_std_s < 1e-6,
+            "the simulator's GRTT {} s (std {}), the link's {real} s, at phase {phase} s",
+            sim.grtt_mean_s,
+            sim.grtt_std_s
+        );
+        return;
+    }
+    panic!("10 runs with the grids' phase within 1.5 ms of their meeting, or stalled");
 }

@@ -47,7 +47,7 @@
 //! - [`wire`]: the frame codec (spec and test vectors in `docs/wire.md`):
 //!   checked views over `&[u8]`, encoding into `&mut [u8]`; decoding is total.
 //!
-//! ## Drive loop
+//! ## What each peer does
 //!
 //! Each peer runs the same loop, with `now` taken from its own clock:
 //!
@@ -62,17 +62,87 @@
 //!
 //! [`endpoint::Endpoint`] packages this loop, with the handshake, the
 //! initialization pattern and the paper's dynamic pause-and-resize, as a
-//! sans-IO state machine: its driver passes time and bytes in and drains
-//! events and frames out —
+//! sans-IO state machine, so the same code runs in the simulator
+//! (`ndr-sim`, deterministic, seeded), behind sockets (`ndr-net`'s hub), in
+//! the fuzz harness and from Python.
 //!
-//! ```text
-//! handle_frame(now, bytes) · handle_timeout(now) · poll_timeout()
-//! poll_event() → Released / Started / Paused / LinkLost / Closed
-//! poll_transmit(now, buf) → the next frame to send
+//! ## The drive contract
+//!
+//! Every driver moves an endpoint the same way, `now` from its own clock:
+//!
+//! 1. each frame that arrived, in order: [`handle_frame`](endpoint::Endpoint::handle_frame)
+//!    (an error ends the link and queues a Close for the peer);
+//! 2. once [`poll_timeout`](endpoint::Endpoint::poll_timeout) is due:
+//!    [`handle_timeout`](endpoint::Endpoint::handle_timeout) runs every tick
+//!    and release due by `now`;
+//! 3. [`poll_event`](endpoint::Endpoint::poll_event) until `None`: the
+//!    application takes its releases and sets the next sample with
+//!    [`set_sample`](endpoint::Endpoint::set_sample);
+//! 4. [`poll_transmit`](endpoint::Endpoint::poll_transmit) until `None`, each
+//!    frame to the peer;
+//! 5. sleep until `poll_timeout`, or the next frame.
+//!
+//! **A frame carries the sample set last, and names what it answers.** A
+//! Data frame is written by `poll_transmit` with the sample as the
+//! application last set it, and its `released` field names the newest peer
+//! sample released when that sample was set. An application that answers a
+//! release in step 3 (in the driver's loop, or as a release handler on the
+//! hub's thread) answers in the frame of the tick that released it; one on
+//! a thread of its own answers at the next tick. Either way the GRTT the
+//! peer measures is the loop from a command to its answer.
+//!
 //! ```
+//! use std::collections::VecDeque;
 //!
-//! — so the same code runs in the simulator (`ndr-sim`, deterministic,
-//! seeded), behind tokio sockets (`ndr-net`) and from Python.
+//! use ndr_core::endpoint::{Config, Endpoint, Event, Status};
+//! use ndr_core::time::{Duration, Instant};
+//! use ndr_core::wire::{MAX_FRAME_LEN, Role};
+//!
+//! let config = |role| {
+//!     let mut c = Config::paper(role);
+//!     c.period = Duration::from_millis(10);
+//!     c
+//! };
+//! let mut base = Endpoint::<1, 16>::new(config(Role::Base), Instant::ZERO)?;
+//! let mut remote = Endpoint::<1, 16>::new(config(Role::Remote), Instant::ZERO)?;
+//! // An in-order wire each way that takes 3 ms; a remote that echoes each
+//! // command it is given; a base that sends its tick count.
+//! let wire = Duration::from_millis(3);
+//! let mut to = [VecDeque::new(), VecDeque::new()];
+//! let (mut buf, mut now, mut k, mut grtts) = ([0; MAX_FRAME_LEN], Instant::ZERO, 0.0, vec![]);
+//! while now < Instant::from_millis(3000) {
+//!     for (side, ep) in [&mut base, &mut remote].into_iter().enumerate() {
+//!         while to[side].front().is_some_and(|(at, _)| *at <= now) {
+//!             let (_, frame): (Instant, Vec<u8>) = to[side].pop_front().unwrap();
+//!             ep.handle_frame(now, &frame)?;
+//!         }
+//!         if ep.poll_timeout().is_some_and(|t| t <= now) {
+//!             ep.handle_timeout(now);
+//!         }
+//!         while let Some(event) = ep.poll_event() {
+//!             if let Event::Released(r) = event {
+//!                 if side == 0 && r.status == Status::Fresh {
+//!                     grtts.extend(r.grtt);
+//!                 }
+//!                 let answer = if side == 0 { k += 1.0; k } else { r.values()[0] };
+//!                 ep.set_sample(&[answer])?;
+//!             }
+//!         }
+//!         while let Some(n) = ep.poll_transmit(now, &mut buf)? {
+//!             to[1 - side].push_back((now + wire, buf[..n].to_vec()));
+//!         }
+//!     }
+//!     let arrivals = to.iter().filter_map(|q| q.front().map(|(at, _)| *at));
+//!     let deadlines = [base.poll_timeout(), remote.poll_timeout()].into_iter().flatten();
+//!     now = arrivals.chain(deadlines).min().unwrap();
+//! }
+//! // A constant round trip: each way, the wire and the wait to the next
+//! // tick, then the regulator's stock (ns = 2); the answer leaves at once.
+//! assert!(grtts.len() > 250);
+//! assert!(grtts.iter().all(|&g| g == grtts[0]), "{grtts:?}");
+//! assert_eq!(grtts[0], Duration::from_millis(60));
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 //!
 //! The simulator and the delay models it shares with `ndr-net`'s relay
 //! (`ndr-netem`) are crates of their own, built on this one: nothing here

@@ -650,20 +650,34 @@ impl Driver {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
-        // Frames first: the application's answer to this tick's events
-        // cannot make this tick anyway (its sample was taken before), and
-        // waking its thread first would delay the frame by the wake-up.
         let now = Instant::from_std(self.origin, StdInstant::now());
-        let mut wants_write = transmit(e, now, &mut self.buf);
-        if e.endpoint.is_closed() {
-            // The link's last stats: the clock's figures up to now, not as
-            // of the last periodic refresh (a short run has had only one),
-            // published before its Closed event wakes the application.
-            self.figures = figures(&self.lateness, &self.releases, self.spin);
-        }
-        if deliver(e, ticked, self.figures) {
-            // The handler panicked: the endpoint queued its Close frame.
+        let mut wants_write = false;
+        if e.handler.is_some() {
+            // The application runs here: its answer to this tick's releases
+            // goes out in this tick's frame, as the drive contract has it.
+            if e.endpoint.is_closed() {
+                self.figures = figures(&self.lateness, &self.releases, self.spin);
+            }
+            // A panicked handler's Close frame goes with the others.
+            let _ = deliver(e, ticked, self.figures);
+            take_sample(e);
+            wants_write = transmit(e, now, &mut self.buf);
+        } else {
+            // Frames first: an application on a thread of its own answers
+            // at the next tick, and waking it first would delay the frame
+            // by the wake-up.
             wants_write |= transmit(e, now, &mut self.buf);
+            if e.endpoint.is_closed() {
+                // The link's last stats: the clock's figures up to now, not
+                // as of the last periodic refresh (a short run has had only
+                // one), published before its Closed event wakes the
+                // application.
+                self.figures = figures(&self.lateness, &self.releases, self.spin);
+            }
+            if deliver(e, ticked, self.figures) {
+                // Cannot happen without a handler; a Close frame if it did.
+                wants_write |= transmit(e, now, &mut self.buf);
+            }
         }
         if e.pending.len() > MAX_PENDING {
             // The peer does not read: cut it off rather than grow without bound.

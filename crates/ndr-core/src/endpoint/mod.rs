@@ -1,21 +1,10 @@
 //! The link endpoint: a sans-IO state machine for one side of the link.
 //!
-//! An [`Endpoint`] never reads a clock and never touches a socket. Its driver
-//! (the simulator, the tokio link, a test) passes time in and moves bytes:
-//!
-//! ```text
-//! loop {
-//!     bytes arrived  → endpoint.handle_frame(now, frame_bytes)
-//!     deadline hit   → endpoint.handle_timeout(now)
-//!     while let Some(event) = endpoint.poll_event() { app reacts; maybe endpoint.set_sample(..) }
-//!     while let Some(n) = endpoint.poll_transmit(now, &mut buf)? { send buf[..n] }
-//!     sleep until endpoint.poll_timeout()
-//! }
-//! ```
-//!
-//! Events are drained before transmits, so a sample the application sets in
-//! response to a release goes out in the same tick: the remote's state sent
-//! at tick `m` reflects the command released at tick `m`.
+//! An [`Endpoint`] never reads a clock and never touches a socket: its
+//! driver passes time in and moves bytes, following the drive contract of
+//! the [crate docs](crate#the-drive-contract): a frame carries the sample
+//! set last when it is transmitted, tagged with the newest peer sample
+//! released when it was set.
 //!
 //! # Protocol
 //!
@@ -182,6 +171,9 @@ struct Outbox<const C: usize, const N: usize> {
     next_seq: u64,
     sample: [f64; C],
     sample_fresh: bool,
+    /// The newest peer sample released when `sample` was set: what it
+    /// answers.
+    answers: Option<u64>,
     /// Scheduled time of each tick that sent a sample or probe, by `seq mod
     /// N`: its frame's send stamp, and the start of its GRTT.
     sent_ticks: [(u64, Instant); N],
@@ -194,6 +186,7 @@ impl<const C: usize, const N: usize> Outbox<C, N> {
             next_seq: 0,
             sample: [0.0; C],
             sample_fresh: false,
+            answers: None,
             sent_ticks: [(u64::MAX, Instant::ZERO); N],
         }
     }
@@ -350,7 +343,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     sent_at: echoed,
                     hold: sent_at - arrived,
                 }),
-            released: self.rel.released_seq,
+            // A sample names what it answers; other frames the newest release.
+            released: match item {
+                Tx::Sample { .. } => self.out.answers,
+                _ => self.rel.released_seq,
+            },
         };
         let axes = usize::from(self.config.axes);
         let msg = match item {
@@ -391,10 +388,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     // ----- application interface ---------------------------------------------
 
-    /// Sets the sample sent at the next tick (the latest one given wins; if
-    /// none is given before a tick, the previous one is sent again and
-    /// counted in [`Stats::samples_repeated`]). Before the first call the
-    /// sample is all zeros.
+    /// Sets the sample the next frame carries: that of the tick now running
+    /// when the application answers in the driver's loop (the drive
+    /// contract's step 3), else the next tick's. The latest one given wins;
+    /// if none is given, the previous one is sent again and counted in
+    /// [`Stats::samples_repeated`]. Before the first call the sample is all
+    /// zeros. It answers the newest peer sample released so far: its
+    /// frame's `released` names that one, and the peer's GRTT runs from it.
     pub fn set_sample(&mut self, values: &[f64]) -> Result<(), LinkError> {
         let axes = usize::from(self.config.axes);
         if values.len() != axes {
@@ -410,6 +410,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             dst.copy_from_slice(values);
         }
         self.out.sample_fresh = true;
+        self.out.answers = self.rel.released_seq;
         Ok(())
     }
 
