@@ -7,7 +7,7 @@ use core::fmt;
 use super::TargetDelay;
 use crate::time::{Duration, Instant};
 
-/// Where a [`Target`] keeps [`Playout::Adaptive`]'s state: [`Adaptive`]
+/// Where a [`Target`](super::Target) keeps [`Playout::Adaptive`](super::Playout::Adaptive)'s state: [`Adaptive`]
 /// itself (about 7 KiB, the default), or [`NoAdaptive`], nothing, for an
 /// endpoint that never runs that policy and should not carry its histogram.
 pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
@@ -53,9 +53,9 @@ impl AdaptiveSlot for Adaptive {
     }
 }
 
-/// An [`AdaptiveSlot`] with no room: a [`Target<NoAdaptive>`] is the size of
+/// An [`AdaptiveSlot`] with no room: a [`Target<NoAdaptive>`](super::Target) is the size of
 /// the other policies' largest state (NetEQ's 2 KiB), and asking it for
-/// [`Playout::Adaptive`] is a [`NoAdaptiveRoom`] error.
+/// [`Playout::Adaptive`](super::Playout::Adaptive) is a [`NoAdaptiveRoom`] error.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NoAdaptive {}
 
@@ -95,7 +95,7 @@ impl AdaptiveSlot for NoAdaptive {
     }
 }
 
-/// [`Playout::Adaptive`] asked of a [`Target<NoAdaptive>`].
+/// [`Playout::Adaptive`](super::Playout::Adaptive) asked of a [`Target<NoAdaptive>`](super::Target).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NoAdaptiveRoom;
 
@@ -169,7 +169,7 @@ pub(super) fn bucket_upper(b: usize) -> Duration {
     Duration::from_nanos(u.saturating_mul(UNIT_NS))
 }
 
-/// The timestamp-based target of [`Playout::Adaptive`]: the `1 − ε`
+/// The timestamp-based target of [`Playout::Adaptive`](super::Playout::Adaptive): the `1 − ε`
 /// quantile of the delays above the floor (given by the endpoint, which
 /// knows the clocks), over a sliding window of [`ADAPTIVE_BLOCKS`] ×
 /// [`ADAPTIVE_BLOCK`], in a log-linear histogram (50 µs linear up to 6.4 ms,
@@ -279,7 +279,7 @@ impl Adaptive {
     /// Whether `more` lost samples would take the window's past `ε` of its
     /// delays: the late rate is spent, and the endpoint holds its delay
     /// ahead of a silence instead of letting more go (see
-    /// [`Playout::Adaptive`]). A window younger than a block counts a
+    /// [`Playout::Adaptive`](super::Playout::Adaptive)). A window younger than a block counts a
     /// block's delays: else the first seconds' budget is a handful of
     /// samples, and the first stall or episode, held whole, keeps the
     /// delay high while it falls back (about 10 s for paris-newyork's
@@ -459,7 +459,7 @@ impl Adaptive {
     /// one fewer through, `(1 − ε)/f`, `f` the density of the delays at the
     /// quantile, taken over the window's quantiles at `ε` and `ε/2`. The
     /// endpoint holds a silence while holding it costs less per sample (see
-    /// [`Playout::Adaptive`]); zero while the window is empty.
+    /// [`Playout::Adaptive`](super::Playout::Adaptive)); zero while the window is empty.
     #[must_use]
     pub fn sample_cost(&self) -> Duration {
         let half = self.epsilon / 2.0;
