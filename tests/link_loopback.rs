@@ -277,8 +277,9 @@ fn blocking_calls_on_a_runtime_or_an_async_listener_say_what_to_await() {
 /// tick that released the command, as the simulator's plant does, so a
 /// loopback link and the simulator with the same grids' phase and a
 /// loopback's delay see the same GRTT. A phase within 1.5 ms of the grids
-/// meeting would leave the tick a frame reaches to the loopback's jitter,
-/// and a host that stalls the hubs moves releases: either run is redone.
+/// meeting would leave the tick a frame reaches to the loopback's jitter:
+/// such a run is redone, as is one that fails while the host stalled the
+/// hubs (ten runs at most).
 #[test]
 fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() {
     use ndr::sim::delay::DelayModel;
@@ -339,18 +340,16 @@ fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() 
         // after the base's on the base's clock.
         let phase = stats.endpoint.clock_offset_s.rem_euclid(period);
         let clear = (1.5e-3..=period - 1.5e-3).contains(&phase);
-        let stalled = common::host_stalls(&stats) + common::host_stalls(&remote_stats) > 0;
-        if !clear || stalled {
-            eprintln!("run {attempt}: phase {phase} s, {stats:?}: run again");
+        if !clear {
+            eprintln!("run {attempt}: phase {phase} s: run again");
             continue;
         }
+        let stalled = common::host_stalls(&stats) + common::host_stalls(&remote_stats) > 0;
         // Each answer left in the frame of the tick that released its
-        // command (its stamp that tick's, the release a little after it).
-        assert!(lags.len() > 250, "{} answers", lags.len());
-        assert!(
-            lags.iter().all(|&l| l.abs() < 0.5),
-            "answers left this many periods after their command's release: {lags:?}"
-        );
+        // command (its stamp that tick's, the release a little after it),
+        // but where the host held the hub half a period (2 % at most).
+        let late = lags.iter().filter(|&&l| l.abs() >= 0.5).count();
+        let answers_ok = lags.len() > 250 && late <= lags.len() / 50;
         let mut real = grtts;
         real.sort_by(f64::total_cmp);
         let real = real[real.len() / 2];
@@ -364,13 +363,26 @@ fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() 
         cfg.axes = 2;
         cfg.duration = Duration::from_secs(10);
         let sim = run(&cfg).unwrap().report;
+        let grtt_ok = (sim.grtt_mean_s - real).abs() < 1e-3 && sim.grtt_std_s < 1e-6;
+        if answers_ok && grtt_ok {
+            return;
+        }
+        // A host that held the hubs a period moves the FIFO's delay: redone.
+        if stalled && attempt < 10 {
+            eprintln!("run {attempt}: the host stalled the hubs: run again ({stats:?})");
+            continue;
+        }
         assert!(
-            (sim.grtt_mean_s - real).abs() < 1e-3 && sim.grtt_std_s < 1e-6,
-            "the simulator's GRTT {} s (std {}), the link's {real} s, at phase {phase} s",
-            sim.grtt_mean_s,
-            sim.grtt_std_s
+            answers_ok,
+            "{} answers, {late} left half a period or more after their command's release: \
+             {lags:?}",
+            lags.len()
         );
-        return;
+        assert!(
+            grtt_ok,
+            "the simulator's GRTT {} s (std {}), the link's {real} s, at phase {phase} s",
+            sim.grtt_mean_s, sim.grtt_std_s
+        );
     }
-    panic!("10 runs with the grids' phase within 1.5 ms of their meeting, or stalled");
+    panic!("10 runs with the grids' phase within 1.5 ms of their meeting");
 }
