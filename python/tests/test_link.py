@@ -8,6 +8,7 @@ import _thread
 import asyncio
 import logging
 import os
+import signal
 import threading
 import time
 
@@ -376,14 +377,21 @@ def test_a_killed_relay_is_reported_as_disconnected_on_both_ends():
 
 
 def test_ctrl_c_interrupts_a_blocking_receive():
-    lst = ndr.Link.listen(LOOPBACK)
-    timer = threading.Timer(0.2, _thread.interrupt_main)
-    timer.start()
-    start = time.monotonic()
-    with pytest.raises(KeyboardInterrupt):
-        lst.accept()  # nobody will connect: only Ctrl-C ends this
-    assert time.monotonic() - start < 2.0
-    lst.close()
+    # Python's own SIGINT handler, as a program run from a terminal has it:
+    # a shell's background job starts with SIGINT ignored, and Python then
+    # installs none, so Ctrl-C (and interrupt_main) would reach nothing.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        lst = ndr.Link.listen(LOOPBACK)
+        timer = threading.Timer(0.2, _thread.interrupt_main)
+        timer.start()
+        start = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            lst.accept(timeout=10)  # nobody will connect: Ctrl-C ends this
+        assert time.monotonic() - start < 2.0
+        lst.close()
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_events_are_logged_and_rust_logs_reach_logging(caplog):
