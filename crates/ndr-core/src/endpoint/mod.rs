@@ -120,6 +120,10 @@ enum Tx {
     Close { reason: u16 },
 }
 
+/// An adaptive remote sends samples after this many running ticks even if
+/// its grid has not yet moved to its releases.
+const GRID_SETTLE_TICKS: u64 = 50;
+
 /// Transmissions that may wait for the driver: a few ticks' worth.
 const TX_QUEUE: usize = 8;
 /// Events that may wait for the application.
@@ -626,9 +630,12 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 // before that, on the old grid, would reach the base closer
                 // than a period to the next (a rise and a repeat there), and
                 // answer no command yet: probes go out until a tick falls on
-                // a release and the next release is a period later.
+                // a release and the next release is a period later, or for
+                // GRID_SETTLE_TICKS at most (a loaded host can keep the two
+                // apart, and a remote that sends only probes is no link).
                 if !self.regime.grid_settled
                     && (self.config.role == Role::Base
+                        || self.regime.ticks_running >= GRID_SETTLE_TICKS
                         || self.schedule.as_ref().is_none_or(|s| s.on_release_grid(at)))
                 {
                     self.regime.grid_settled = true;
