@@ -107,11 +107,12 @@ class OperatorLog:
 def _delays(grtt: float, period: float) -> Tuple[int, int]:
     """The estimator's one-way delays in ticks, from the GRTT: the link's
     round trip is a whole number of ticks, split evenly (the paper's
-    assumption); the remote's answer leaves one tick after the command it
-    answers, which adds one tick to the way back."""
+    assumption). The GRTT counts the tick a remote that answers from its own
+    thread waits before its answer leaves (the frame names the command its
+    state answers), so nothing is added to it."""
     k = max(int(round(grtt / period)), 0)
     fwd = k // 2
-    return fwd, k - fwd + 1
+    return fwd, k - fwd
 
 
 def operator(
