@@ -20,6 +20,13 @@ fn config() -> LinkConfig {
 }
 
 fn pair(rt: &tokio::runtime::Runtime) -> (Link, Link) {
+    pair_apart(rt, StdDuration::ZERO)
+}
+
+/// A pair whose base connects `gap` after the listener is bound: each
+/// side's hub starts its tick grid when it is made (the listener's at bind,
+/// the base's at connect).
+fn pair_apart(rt: &tokio::runtime::Runtime, gap: StdDuration) -> (Link, Link) {
     let listener = rt
         .block_on(Listener::bind(
             "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
@@ -27,6 +34,7 @@ fn pair(rt: &tokio::runtime::Runtime) -> (Link, Link) {
         ))
         .unwrap();
     let addr = listener.local_addr().unwrap();
+    std::thread::sleep(gap);
     rt.block_on(async { tokio::join!(listener.accept(), Link::connect(addr, config())) })
         .pipe(|(r, b)| (b.unwrap(), r.unwrap()))
 }
@@ -289,20 +297,8 @@ fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() 
     let rt = common::runtime();
     let period = 0.010;
     for attempt in 1..=10 {
-        // Each side's hub starts its grid when it is made: the listener's at
-        // bind, the base's at connect. Half a period apart, the grids are
-        // clear of each other.
-        let listener = rt
-            .block_on(Listener::bind(
-                "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
-                config(),
-            ))
-            .unwrap();
-        let addr = listener.local_addr().unwrap();
-        std::thread::sleep(StdDuration::from_millis(5));
-        let (remote, base) =
-            rt.block_on(async { tokio::join!(listener.accept(), Link::connect(addr, config())) });
-        let (mut base, mut remote) = (base.unwrap(), remote.unwrap());
+        // Half a period apart, the two hubs' grids are clear of each other.
+        let (mut base, mut remote) = pair_apart(&rt, StdDuration::from_millis(5));
         // The remote answers each command with the sequence number of the
         // frame that brought it, and notes when it released it.
         let released = std::sync::Arc::new(std::sync::Mutex::new(BTreeMap::new()));
