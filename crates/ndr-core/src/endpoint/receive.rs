@@ -39,8 +39,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
         // A level shift of the received floor (a route change): the delays
         // in the adaptive window since the shift were measured above the
-        // old floor, and would count the shift twice on top of the new one
-        // (a +150 ms step held the delay 150 ms too high for two minutes).
+        // old floor, and would count the shift twice on top of the new one.
         if self.sync.rx().shifts() != shifts
             && let (Some(before), Some(after), Some(Target::Adaptive(a))) =
                 (floor, self.floor_ns(now), &mut self.target)
@@ -295,8 +294,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 // come in the burst held behind them (faster than they
                 // were sent). Counted as delays, they would fill the
                 // window's tail, and the target would cover the outage for
-                // the window's length (after a 5 s stall, 5 s of delay for
-                // two minutes). So do the frames a stalled driver hands over
+                // the window's length. So do the frames a stalled driver hands over
                 // late, stamped when it read them.
                 let over = |d: Duration| self.config.watchdog.is_some_and(|w| d > w);
                 self.heard.outage_burst = stalled

@@ -51,8 +51,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// needs more — [`INIT_EXCHANGES`] probes at the current period and the
     /// slowest round trip seen so far, with a margin of [`PATTERN_SLACK`].
     /// The dynamic mode's period law (`NRTT/3`) makes a slow network's
-    /// pattern long: at NRTT 2.6 s it takes 11 s, and a fixed limit ended
-    /// the link there.
+    /// pattern long, longer than a fixed limit would allow.
     pub(super) fn pattern_deadline(&self, now: Instant) -> Instant {
         let probes = self.period * (INIT_EXCHANGES as u64 + 1);
         let slowest = Duration::from_secs_f64(self.stats.nrtt.max());
