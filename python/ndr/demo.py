@@ -95,6 +95,8 @@ class OperatorLog:
 
     t: List[float] = field(default_factory=list)
     mono: List[float] = field(default_factory=list)
+    #: When the hub released each state (its clock, seconds).
+    released_at: List[float] = field(default_factory=list)
     seq: List[int] = field(default_factory=list)
     held: List[bool] = field(default_factory=list)
     grtt: List[float] = field(default_factory=list)
@@ -158,6 +160,7 @@ def operator(
                 x3e = math.nan
         log.t.append(t)
         log.mono.append(time.monotonic())
+        log.released_at.append(tick.released_at)
         log.seq.append(tick.seq)
         log.held.append(held)
         log.grtt.append(math.nan if tick.grtt is None else tick.grtt)

@@ -38,16 +38,18 @@ def host_stalls(stats: Iterable[Optional[Mapping[str, Any]]]) -> int:
 def on_schedule(delays: np.ndarray, released_at: Sequence[float], period: float) -> np.ndarray:
     """Each delay less the lateness of the release that measured it: how
     far past the release grid (the median phase of the releases, which are
-    on time but when the host holds the hub) it was released, up to half a
-    period. What the host adds is the hub's lateness, which its own
-    histogram reports; what is left is the link's."""
+    on time but when the host holds the hub) it was released, up to nine
+    tenths of a period (a hub never releases early; a tenth is left for the
+    grid's own spread). What the host adds is the hub's lateness, which its
+    own histogram reports; what is left is the link's."""
     phase = np.mod(np.asarray(released_at, dtype=float), period)
 
     def centred(p, origin):
         return np.mod(p - origin + period / 2, period) - period / 2
 
     grid = phase[0] + float(np.median(centred(phase, phase[0])))
-    return delays - np.maximum(centred(phase, grid), 0.0)
+    late = np.mod(phase - grid + period / 10, period) - period / 10
+    return delays - np.maximum(late, 0.0)
 
 
 def assert_constant(

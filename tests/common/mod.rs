@@ -205,7 +205,8 @@ fn assert_constant_grtt(r: &Run, stalls: u64) {
 /// Each GRTT less the lateness of the release that measured it: how far
 /// past the base's release grid (the median phase of its releases, which
 /// are on time but when the host holds the hub) it was released, up to
-/// half a period. What the host adds is the hub's lateness, which its own
+/// nine tenths of a period (a hub never releases early). What the host adds
+/// is the hub's lateness, which its own
 /// histogram reports; what is left is the link's.
 fn on_schedule(grtts: &[(u64, f64)], period: u64) -> Vec<f64> {
     let period = period.max(1) as i64;
@@ -219,9 +220,12 @@ fn on_schedule(grtts: &[(u64, f64)], period: u64) -> Vec<f64> {
         .collect();
     rel.sort_unstable();
     let grid = first + rel[rel.len() / 2];
+    // A hub never releases early: a phase past the grid is lateness, up to
+    // nine tenths of a period (a tenth is left for the grid's own spread).
+    let late = |p: i64| (p - grid + period / 10).rem_euclid(period) - period / 10;
     grtts
         .iter()
-        .map(|&(at, g)| g - centred(phase(at), grid).max(0) as f64 * 1e-9)
+        .map(|&(at, g)| g - late(phase(at)).max(0) as f64 * 1e-9)
         .collect()
 }
 
