@@ -19,6 +19,7 @@ use ndr_core::endpoint::{
     Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Status, Underflow,
 };
 use ndr_core::playout::Playout;
+use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
     self, Close, Control, Echo, Frame, Header, Hello, MAX_CHANNELS, MAX_FRAME_LEN, Message,
@@ -115,7 +116,8 @@ impl Input<'_> {
     }
 }
 
-type Ep = Endpoint<4, 64>;
+// The drivers' storage: buffers sized from the configuration.
+type Ep = Endpoint<Heap>;
 
 /// A script of frames, time steps and calls for one endpoint.
 pub fn endpoint(data: &[u8]) {
@@ -164,7 +166,7 @@ pub fn endpoint(data: &[u8]) {
         n => Some(cfg.period * u64::from(n) * 5),
     };
     let mut now = Instant::ZERO;
-    let Ok(ep) = Ep::new(cfg, now) else {
+    let Ok(ep) = Ep::with_capacity(cfg, now, 64) else {
         return;
     };
     let mut ep = Box::new(ep);

@@ -2,13 +2,15 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
+use ndr_core::endpoint::{Config, Endpoint, Event};
 use ndr_core::filters::{Envelope, LowPass};
 use ndr_core::kalman::Kalman3;
 use ndr_core::predictor::{NetworkPredictor, PredictorConfig};
 use ndr_core::regulator::{Regulator, Tick};
 use ndr_core::sizing::{InitPattern, Sizing};
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{self, Frame, Header, Message, Payload};
+use ndr_core::storage::Inline;
+use ndr_core::wire::{self, Frame, Header, MAX_FRAME_LEN, Message, Payload, Role};
 use ndr_core::{Arx2, Estimator, Rls, Tf2};
 
 /// Runs one pass of each building block; the result keeps the optimizer honest.
@@ -60,6 +62,35 @@ pub extern "C" fn ndr_nostd_exercise(x: f64) -> f64 {
         if let Ok(frame) = Frame::new_checked(&buf[..n]) {
             if let Payload::Data(ch) = frame.payload() {
                 acc += ch.iter().sum::<f64>();
+            }
+        }
+    }
+    // A base and a remote endpoint in inline storage, wired back to back.
+    let config = |role| {
+        let mut c = Config::new(role);
+        c.axes = 2;
+        c
+    };
+    if let (Ok(mut base), Ok(mut remote)) = (
+        Endpoint::<Inline<2, 16>>::new(config(Role::Base), Instant::ZERO),
+        Endpoint::<Inline<2, 16>>::new(config(Role::Remote), Instant::ZERO),
+    ) {
+        let _ = base.set_sample(&[x, x]);
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        for k in 0..50u64 {
+            let now = Instant::from_millis(k * 10);
+            base.handle_timeout(now);
+            remote.handle_timeout(now);
+            while let Ok(Some(n)) = base.poll_transmit(now, &mut frame) {
+                let _ = remote.handle_frame(now, &frame[..n]);
+            }
+            while let Ok(Some(n)) = remote.poll_transmit(now, &mut frame) {
+                let _ = base.handle_frame(now, &frame[..n]);
+            }
+            while let Some(event) = remote.poll_event() {
+                if let Event::Released(r) = event {
+                    acc += r.values().iter().sum::<f64>();
+                }
             }
         }
     }

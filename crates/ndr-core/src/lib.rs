@@ -21,8 +21,9 @@
 //! - [`time`]: integer-nanosecond [`Instant`] and [`Duration`]; nothing here
 //!   reads a clock, time is always an argument.
 //! - [`regulator`]: the NDR queue, [`Regulator<T, N>`](Regulator): capacity
-//!   `N` fixed at compile time, nominal size `ns` at run time, pre-fill,
-//!   release per tick, underflow and overflow counted, never a silent drop.
+//!   `N` fixed at compile time (or any [`storage::Queue`]), nominal size `ns`
+//!   at run time, pre-fill, release per tick, underflow and overflow counted,
+//!   never a silent drop.
 //! - [`playout`]: when a regulator releases each sample: the paper's FIFO or
 //!   a target delay (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like
 //!   quantile, a fixed latency, a constant, and the adaptive timestamp-based
@@ -54,7 +55,7 @@
 //! 1. on bytes from the network: deframe, [`wire::Frame::new_checked`], push
 //!    the samples into the [`Regulator`], feed NRTT (from the echo) and the
 //!    reception gap to the [`NetworkPredictor`];
-//! 2. on each tick `t0 + k·T`: [`Regulator::tick`] releases one sample to the
+//! 2. on each tick `t0 + k·T`: [`Regulator::tick`](regulator::RegulatorIn::tick) releases one sample to the
 //!    application (or reports pre-fill or underflow), the predictor steps, the
 //!    estimator steps with the command sent and the state released;
 //! 3. on each send tick: [`wire::encode`] the latest sample with the echo of
@@ -95,6 +96,7 @@
 //! use std::collections::VecDeque;
 //!
 //! use ndr_core::endpoint::{Config, Endpoint, Event, Status};
+//! use ndr_core::storage::Inline;
 //! use ndr_core::time::{Duration, Instant};
 //! use ndr_core::wire::{MAX_FRAME_LEN, Role};
 //!
@@ -103,8 +105,8 @@
 //!     c.period = Duration::from_millis(10);
 //!     c
 //! };
-//! let mut base = Endpoint::<1, 16>::new(config(Role::Base), Instant::ZERO)?;
-//! let mut remote = Endpoint::<1, 16>::new(config(Role::Remote), Instant::ZERO)?;
+//! let mut base = Endpoint::<Inline<1, 16>>::new(config(Role::Base), Instant::ZERO)?;
+//! let mut remote = Endpoint::<Inline<1, 16>>::new(config(Role::Remote), Instant::ZERO)?;
 //! // An in-order wire each way that takes 3 ms; a remote that echoes each
 //! // command it is given; a base that sends its tick count.
 //! let wire = Duration::from_millis(3);
@@ -151,12 +153,18 @@
 //! ## Features
 //!
 //! - `std` (default): conversions between [`Instant`]/[`Duration`] and
-//!   `std::time`. Without it the crate is `#![no_std]` and uses no `alloc`.
+//!   `std::time`; implies `alloc`.
+//! - `alloc`: [`storage::Heap`], endpoints whose buffers are sized when they
+//!   are made. Without `std` and `alloc` the crate is `#![no_std]` and uses no
+//!   allocator: endpoints keep their buffers in [`storage::Inline`] arrays.
 #![no_std]
 #![forbid(unsafe_code)]
 
 #[cfg(any(feature = "std", test))]
 extern crate std;
+
+#[cfg(feature = "alloc")]
+extern crate alloc;
 
 pub mod arx;
 pub mod endpoint;
@@ -168,6 +176,7 @@ pub mod predictor;
 pub mod regulator;
 pub mod rls;
 pub mod sizing;
+pub mod storage;
 pub mod sync;
 pub mod time;
 pub mod wire;

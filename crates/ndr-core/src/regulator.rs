@@ -1,7 +1,7 @@
 //! The Network Delay Regulator: a fixed-capacity FIFO released at a constant period.
 //!
-//! Samples are [pushed](Regulator::push) whenever the network delivers them;
-//! one is [released](Regulator::tick) per period on a clock common to both
+//! Samples are [pushed](RegulatorIn::push) whenever the network delivers them;
+//! one is [released](RegulatorIn::tick) per period on a clock common to both
 //! peers. The nominal size `ns` is the stock the queue keeps between
 //! releases: the queue is pre-filled to `ns`, and releases start at the first
 //! tick that finds more than `ns` queued, so `ns` samples stay behind after
@@ -18,10 +18,13 @@
 //! at every moment `arrived = released + len + rejected + discarded`.
 
 use core::fmt;
+use core::marker::PhantomData;
 
 use heapless::Deque;
 
-/// Error of [`Regulator::push`]: the queue is full. It gives the sample back.
+use crate::storage::Queue;
+
+/// Error of [`RegulatorIn::push`]: the queue is full. It gives the sample back.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Full<T>(pub T);
 
@@ -103,13 +106,13 @@ pub enum Tick<T> {
 /// Invariant: `arrived = released + len + rejected + discarded`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counters {
-    /// Samples offered to [`Regulator::push`].
+    /// Samples offered to [`RegulatorIn::push`].
     pub arrived: u64,
     /// Samples released by a tick.
     pub released: u64,
     /// Samples handed back because the queue was full.
     pub rejected: u64,
-    /// Samples removed other than by a release ([`Regulator::discard_front`], [`Regulator::clear`]).
+    /// Samples removed other than by a release ([`RegulatorIn::discard_front`], [`RegulatorIn::clear`]).
     pub discarded: u64,
     /// Running ticks that released nothing.
     pub underflows: u64,
@@ -154,7 +157,9 @@ impl OccupancyAcc {
 }
 
 /// The NDR queue: capacity `N` fixed at compile time, nominal size `ns < N`
-/// chosen at run time.
+/// chosen at run time. (A [`RegulatorIn`] over an array deque; a regulator
+/// whose capacity is chosen at run time takes another
+/// [`Queue`](crate::storage::Queue), such as [`HeapQueue`](crate::storage::HeapQueue).)
 ///
 /// ```
 /// use ndr_core::regulator::{Regulator, Tick};
@@ -171,25 +176,38 @@ impl OccupancyAcc {
 /// assert_eq!(ndr.tick(), Tick::Released(4));
 /// assert_eq!(ndr.tick(), Tick::Underflow);
 /// ```
+pub type Regulator<T, const N: usize> = RegulatorIn<T, Deque<T, N>>;
+
+/// The NDR queue over the queue `Q`, whose capacity bounds the nominal size.
 #[derive(Clone, Debug)]
-pub struct Regulator<T, const N: usize> {
-    queue: Deque<T, N>,
+pub struct RegulatorIn<T, Q> {
+    queue: Q,
     nominal: usize,
     phase: Phase,
     counters: Counters,
     occupancy: OccupancyAcc,
+    item: PhantomData<T>,
 }
 
-impl<T, const N: usize> Regulator<T, N> {
+impl<T, const N: usize> RegulatorIn<T, Deque<T, N>> {
     /// A regulator that keeps a stock of `ns` samples (`ns < N`).
     pub fn new(ns: usize) -> Result<Self, RegulatorError> {
-        check_nominal::<N>(ns)?;
-        Ok(Regulator {
-            queue: Deque::new(),
+        Self::with_queue(Deque::new(), ns)
+    }
+}
+
+impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
+    /// A regulator over the empty `queue` that keeps a stock of `ns`
+    /// samples (`ns` below the queue's capacity).
+    pub fn with_queue(queue: Q, ns: usize) -> Result<Self, RegulatorError> {
+        check_nominal(ns, queue.capacity())?;
+        Ok(RegulatorIn {
+            queue,
             nominal: ns,
             phase: Phase::Prefilling,
             counters: Counters::default(),
             occupancy: OccupancyAcc::default(),
+            item: PhantomData,
         })
     }
 
@@ -258,7 +276,7 @@ impl<T, const N: usize> Regulator<T, N> {
 
     /// Changes the nominal size. Queued samples stay; the phase does not change.
     pub fn set_nominal(&mut self, ns: usize) -> Result<(), RegulatorError> {
-        check_nominal::<N>(ns)?;
+        check_nominal(ns, self.queue.capacity())?;
         self.nominal = ns;
         Ok(())
     }
@@ -286,10 +304,10 @@ impl<T, const N: usize> Regulator<T, N> {
         self.queue.is_empty()
     }
 
-    /// The fixed capacity `N`.
+    /// The queue's capacity.
     #[must_use]
-    pub const fn capacity(&self) -> usize {
-        N
+    pub fn capacity(&self) -> usize {
+        self.queue.capacity()
     }
 
     /// The nominal size `ns`: the stock kept between releases.
@@ -334,9 +352,9 @@ impl<T, const N: usize> Regulator<T, N> {
     }
 }
 
-fn check_nominal<const N: usize>(ns: usize) -> Result<(), RegulatorError> {
-    if ns >= N {
-        Err(RegulatorError::NominalSize { ns, capacity: N })
+fn check_nominal(ns: usize, capacity: usize) -> Result<(), RegulatorError> {
+    if ns >= capacity {
+        Err(RegulatorError::NominalSize { ns, capacity })
     } else {
         Ok(())
     }

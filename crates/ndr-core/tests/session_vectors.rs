@@ -4,6 +4,7 @@
 
 use ndr_core::endpoint::{Config, Endpoint, Mode};
 use ndr_core::playout::Playout;
+use ndr_core::storage::Inline;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{Echo, Header, Hello, MAX_FRAME_LEN, Message, Role, encode, mode, underflow};
 
@@ -62,7 +63,7 @@ fn sessions() -> Vec<Vec<Line>> {
     out
 }
 
-fn remote() -> Endpoint<1, 8> {
+fn remote() -> Endpoint<Inline<1, 8>> {
     let mut c = Config::paper(Role::Remote);
     c.period = T;
     c.mode = Mode::PaperStatic;
@@ -72,7 +73,7 @@ fn remote() -> Endpoint<1, 8> {
 
 /// Hands `line`'s frame to `ep` (the first of a session is the base's
 /// Hello), then lets it send what it answers, stamped at the arrival.
-fn hand(ep: &mut Endpoint<1, 8>, line: &Line, first: bool) -> String {
+fn hand(ep: &mut Endpoint<Inline<1, 8>>, line: &Line, first: bool) -> String {
     let hello = Hello {
         role: Role::Base,
         mode: mode::PAPER_STATIC,

@@ -14,14 +14,12 @@ use std::sync::mpsc::{RecvError, RecvTimeoutError, TryRecvError};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
-use ndr_core::endpoint::Event;
-
-use crate::link::{MAX_AXES, Sample};
+use crate::link::{LinkEvent, Sample};
 
 /// What the hub hands to a link's application.
 pub(crate) enum Delivery {
     Sample(Sample),
-    Event(Event<MAX_AXES>),
+    Event(LinkEvent),
 }
 
 struct State {
@@ -177,7 +175,7 @@ impl Drop for Inbox {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndr_core::endpoint::LinkError;
+    use ndr_core::endpoint::{Event, LinkError};
 
     fn event() -> Delivery {
         Delivery::Event(Event::Closed {

@@ -19,12 +19,12 @@ use std::time::Instant as StdInstant;
 
 use mio::net::TcpStream as MioStream;
 use mio::{Events, Interest, Poll, Token, Waker};
-use ndr_core::endpoint::{Event, LinkError, Running};
+use ndr_core::endpoint::{Endpoint, Event, LinkError, Running};
+use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{HEADER_LEN, MAX_FRAME_LEN};
 use tokio::sync::Notify;
 
-use crate::capacity::SizedEndpoint;
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
 use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
@@ -52,7 +52,7 @@ pub(crate) type Handler = Box<dyn FnMut(&Sample) + Send>;
 
 /// One link as the hub drives it.
 pub(crate) struct Entry {
-    pub endpoint: SizedEndpoint,
+    pub endpoint: Endpoint<Heap>,
     pub shared: Arc<Shared>,
     pub deliveries: Outbox,
     pub socket: MioStream,
@@ -877,7 +877,7 @@ pub(crate) fn handle_frames(e: &mut Entry, origin: StdInstant, at: StdInstant) -
             // Only a Data frame has no fixed length: this one has more
             // channels than the link carries.
             Err(FramingError::TooLong { len, .. }) => {
-                let expected = e.endpoint.axes();
+                let expected = e.endpoint.config().axes;
                 let got = len.saturating_sub(HEADER_LEN) / 8;
                 e.endpoint.abort(LinkError::ChannelCount { expected, got });
                 return false;

@@ -38,7 +38,6 @@
 //! code that is not a link.
 #![forbid(unsafe_code)]
 
-mod capacity;
 pub mod clock;
 mod delivery;
 pub mod framing;
@@ -53,7 +52,6 @@ pub mod spin;
 pub mod tls;
 mod tls_io;
 
-pub use capacity::QUEUE_CAPACITIES;
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;

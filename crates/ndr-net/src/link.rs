@@ -23,15 +23,16 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
 use ndr_core::endpoint::{
-    Config, ConfigError, DEFAULT_LIVENESS, Event, LinkError, Phase, Release, Running, Stats,
+    Config, ConfigError, DEFAULT_LIVENESS, Endpoint, Event, LinkError, Phase, Release, Running,
+    Stats,
 };
+use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{HEADER_LEN, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
-use crate::capacity::SizedEndpoint;
 use crate::clock::LatenessStats;
 use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
@@ -44,11 +45,15 @@ pub use crate::listener::{Admission, Listener, ListenerStats};
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
-/// Capacity of a link's regulator: `ns` up to 255.
+/// Default capacity of a link's regulator: `ns` up to 255.
 pub const QUEUE: usize = 256;
 
-/// A released sample, as the application receives it.
-pub type Sample = Release<MAX_AXES>;
+/// A released sample, as the application receives it: its values are as
+/// many as the link's axes.
+pub type Sample = Release<Box<[f64]>>;
+
+/// What a link's endpoint tells its application.
+pub type LinkEvent = Event<Box<[f64]>>;
 
 /// What a link is configured with.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -65,12 +70,13 @@ pub struct LinkConfig {
     /// it does not read, the newest are dropped and counted. Memory follows
     /// what waits, not this bound.
     pub app_queue: usize,
-    /// Samples the regulator can hold (`ns` ≤ capacity − 1), rounded up to
-    /// one of [`QUEUE_CAPACITIES`](crate::QUEUE_CAPACITIES); default
-    /// [`QUEUE`]. The regulator is inline: about 112 bytes per sample at 8
-    /// channels, so 64 takes 14 KiB per link instead of 38 KiB. Both ends
-    /// need room for the `ns` the base decides (a remote that cannot hold
-    /// it ends the link with [`LinkError::BadParameters`]).
+    /// Samples the regulator can hold (`ns` ≤ capacity − 1, capacity 1 to
+    /// [`MAX_CAPACITY`](ndr_core::storage::MAX_CAPACITY)); default [`QUEUE`].
+    /// Its memory is taken when the link starts: 16 bytes per sample for its
+    /// send times, and the queued samples' values as they arrive. Both ends
+    /// need room for the `ns` the base decides (a base clamps it and counts
+    /// [`Stats::clamped`](ndr_core::endpoint::Stats::clamped); a remote that
+    /// cannot hold it ends the link with [`LinkError::BadParameters`]).
     pub queue_capacity: usize,
     /// Allows a link without TLS to or from a non-loopback address (the
     /// `--insecure` switch). Off by default: such a link is refused with
@@ -191,7 +197,7 @@ pub struct Link {
     id: u64,
     deliveries: Inbox,
     shared: Arc<Shared>,
-    events: VecDeque<Event<MAX_AXES>>,
+    events: VecDeque<LinkEvent>,
     axes: usize,
     closed: Option<LinkError>,
     shut: bool,
@@ -317,8 +323,8 @@ impl Link {
         });
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());
-        let endpoint =
-            SizedEndpoint::new(cfg, now, config.queue_capacity).map_err(NetError::Config)?;
+        let endpoint = Endpoint::<Heap>::with_capacity(cfg, now, config.queue_capacity)
+            .map_err(NetError::Config)?;
         let entry = Entry {
             endpoint,
             shared: Arc::clone(&shared),
@@ -511,7 +517,7 @@ impl Link {
         }
     }
 
-    fn push_event(&mut self, e: Event<MAX_AXES>) {
+    fn push_event(&mut self, e: LinkEvent) {
         if self.events.len() >= 256 {
             self.events.pop_front();
         }
@@ -519,7 +525,7 @@ impl Link {
     }
 
     /// Events seen while receiving (started, paused, link lost, …), oldest first.
-    pub fn drain_events(&mut self) -> impl Iterator<Item = Event<MAX_AXES>> + '_ {
+    pub fn drain_events(&mut self) -> impl Iterator<Item = LinkEvent> + '_ {
         self.events.drain(..)
     }
 

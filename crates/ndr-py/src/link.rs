@@ -21,7 +21,7 @@ use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow}
 use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
-use ndr_net::link::MAX_AXES;
+use ndr_net::link::{LinkEvent, MAX_AXES};
 use ndr_net::{LatenessStats, Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
@@ -121,7 +121,7 @@ struct Rx {
     link: Link,
     /// Samples handed back by an interrupted asynchronous receive; served first.
     stash: VecDeque<Sample>,
-    events: VecDeque<Event<MAX_AXES>>,
+    events: VecDeque<LinkEvent>,
     ended: Option<CoreError>,
 }
 
@@ -158,7 +158,7 @@ pub struct PyLink {
     rx: Mutex<Rx>,
     /// Events moved out of `rx` after each receive, so that reading them
     /// never waits for a receive in progress.
-    events: Mutex<VecDeque<Event<MAX_AXES>>>,
+    events: Mutex<VecDeque<LinkEvent>>,
     pending: AtomicUsize,
     events_dropped: AtomicU64,
     role: Role,
@@ -274,7 +274,7 @@ impl PyLink {
     /// Puts a tick back in front of the queue (an asynchronous receive that
     /// was cancelled after it got the tick gives it back, so nothing is lost).
     fn unrecv(&self, py: Python<'_>, tick: &Bound<'_, PyTick>) {
-        let release = tick.get().release;
+        let release = tick.get().release.clone();
         py.detach(|| lock(&self.rx).stash.push_front(release));
     }
 
@@ -290,7 +290,7 @@ impl PyLink {
 
     /// The events since the last call, oldest first, as `(kind, fields)`.
     fn events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let events: Vec<Event<MAX_AXES>> = {
+        let events: Vec<LinkEvent> = {
             let mut queue = self.events.lock().unwrap_or_else(PoisonError::into_inner);
             self.pending.store(0, Ordering::Release);
             queue.drain(..).collect()
@@ -371,7 +371,7 @@ fn role_name(role: Role) -> &'static str {
     }
 }
 
-fn event<'py>(py: Python<'py>, e: &Event<MAX_AXES>) -> PyResult<Option<Bound<'py, PyAny>>> {
+fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAny>>> {
     let fields = PyDict::new(py);
     match e {
         Event::Connected { peer } => {

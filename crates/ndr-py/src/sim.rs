@@ -67,10 +67,7 @@ pub fn run<'py>(
     cfg.record_series = series;
     let out = py.detach(|| ndr_sim::run(&cfg));
     log::flush(py);
-    let out = out.map_err(|e| match e {
-        ndr_sim::SimError::Thread(_) => PyRuntimeError::new_err(e.to_string()),
-        other => PyValueError::new_err(other.to_string()),
-    })?;
+    let out = out.map_err(|e| PyValueError::new_err(e.to_string()))?;
     let summary = summary(&out.report)
         .map_err(|e| PyRuntimeError::new_err(format!("cannot encode the report: {e}")))?;
     Ok((summary, columns(py, &out.series)?))

@@ -4,14 +4,14 @@
 use std::boxed::Box;
 use std::collections::VecDeque;
 use std::fmt;
-use std::string::ToString;
 use std::vec::Vec;
 
 use ndr_core::arx::{ArxError, Tf2, Tf2State};
 use ndr_core::endpoint::{
-    Config, ConfigError, Endpoint, Event, LinkError, Mode, Status, Underflow,
+    Config, ConfigError, Endpoint, Event, LinkError, Mode, Release, Status, Underflow,
 };
 use ndr_core::playout::Playout;
+use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{Frame, HEADER_LEN, Payload, Role};
 
@@ -26,7 +26,7 @@ pub const MAX_SIM_AXES: usize = 8;
 pub const SIM_QUEUE: usize = 4096;
 const FRAME_BUF: usize = HEADER_LEN + 8 * MAX_SIM_AXES + 16;
 
-type SimEndpoint = Endpoint<MAX_SIM_AXES, SIM_QUEUE>;
+type SimEndpoint = Endpoint<Heap>;
 
 /// The remote's plant: per axis, a second-order low-pass system discretized
 /// at the link's period by the bilinear transform.
@@ -133,8 +133,6 @@ pub enum SimError {
     Config(ConfigError),
     /// The plant parameters are invalid.
     Plant(ArxError),
-    /// The simulation thread could not be started or did not finish.
-    Thread(std::string::String),
     /// The link ended before the run did.
     Link {
         /// Which side saw it.
@@ -154,7 +152,6 @@ impl fmt::Display for SimError {
             }
             SimError::Config(e) => write!(f, "{e}"),
             SimError::Plant(e) => write!(f, "plant: {e}"),
-            SimError::Thread(e) => write!(f, "simulation thread: {e}"),
             SimError::Link { side, at_s, error } => {
                 write!(
                     f,
@@ -248,8 +245,8 @@ struct Flight {
 struct Sim<'a> {
     cfg: &'a SimConfig,
     now: Instant,
-    base: Box<SimEndpoint>,
-    remote: Box<SimEndpoint>,
+    base: SimEndpoint,
+    remote: SimEndpoint,
     sampler: DelaySampler,
     paths: [InOrderPath; 2],
     flights: [VecDeque<Flight>; 2],
@@ -262,33 +259,12 @@ struct Sim<'a> {
     buf: [u8; FRAME_BUF],
 }
 
-/// Stack for the simulation thread: the two endpoints hold their regulators
-/// inline (no heap in `ndr-core`), half a megabyte each, and unoptimized
-/// builds copy them on the way into their boxes.
-const SIM_STACK: usize = 64 << 20;
-
 /// Runs one simulation.
-///
-/// It runs on a thread of its own with a stack sized for the endpoints, so
-/// it is safe to call from any thread, whatever its stack size.
 pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
-    let cfg = cfg.clone();
-    std::thread::Builder::new()
-        .name(std::string::String::from("ndr-sim"))
-        .stack_size(SIM_STACK)
-        .spawn(move || run_here(&cfg))
-        .map_err(|e| SimError::Thread(e.to_string()))?
-        .join()
-        .map_err(|_| {
-            SimError::Thread(std::string::String::from("the simulation thread panicked"))
-        })?
-}
-
-fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     if cfg.axes == 0 || usize::from(cfg.axes) > MAX_SIM_AXES {
         return Err(SimError::Axes(cfg.axes));
     }
-    let endpoint = |role| -> Result<Box<SimEndpoint>, SimError> {
+    let endpoint = |role| -> Result<SimEndpoint, SimError> {
         let mut c = Config::paper(role);
         c.axes = cfg.axes;
         c.period = cfg.period;
@@ -301,9 +277,7 @@ fn run_here(cfg: &SimConfig) -> Result<SimOutput, SimError> {
             Role::Base => Instant::ZERO,
             Role::Remote => Instant::ZERO + cfg.remote_phase,
         };
-        Ok(Box::new(
-            SimEndpoint::new(c, Instant::ZERO).map_err(SimError::Config)?,
-        ))
+        SimEndpoint::with_capacity(c, Instant::ZERO, SIM_QUEUE).map_err(SimError::Config)
     };
     let plant = cfg.plant.discretize(cfg.period).map_err(SimError::Plant)?;
     let axes = usize::from(cfg.axes);
@@ -428,7 +402,7 @@ impl Sim<'_> {
     }
 
     /// The remote released a command (fresh or held) at `t`.
-    fn log_release<const C: usize>(&mut self, r: &ndr_core::endpoint::Release<C>) {
+    fn log_release(&mut self, r: &Release<Box<[f64]>>) {
         let Some(log) = &mut self.forward else {
             return;
         };

@@ -6,6 +6,7 @@ use std::string::String;
 use std::vec::Vec;
 
 use ndr_core::endpoint::{Endpoint, Release};
+use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::Role;
 use serde::Serialize;
@@ -275,7 +276,7 @@ impl Collector {
     }
 
     /// A fresh release on `side`.
-    pub(crate) fn fresh<const C: usize>(&mut self, side: Role, r: &Release<C>) {
+    pub(crate) fn fresh(&mut self, side: Role, r: &Release<Box<[f64]>>) {
         // One clock in the simulator: send and release times compare directly.
         let e2e = (r.released_at - r.sent_at).as_secs_f64();
         let dir = if side == Role::Remote { 0 } else { 1 };
@@ -296,11 +297,11 @@ impl Collector {
         }
     }
 
-    pub(crate) fn base_tick<const C: usize, const N: usize>(
+    pub(crate) fn base_tick(
         &mut self,
         now: Instant,
-        base: &Endpoint<C, N>,
-        remote: &Endpoint<C, N>,
+        base: &Endpoint<Heap>,
+        remote: &Endpoint<Heap>,
     ) {
         let prediction = base.prediction();
         if let Some(p) = prediction {
@@ -349,11 +350,11 @@ impl Collector {
         }
     }
 
-    pub(crate) fn finish<const C: usize, const N: usize>(
+    pub(crate) fn finish(
         self,
         cfg: &SimConfig,
-        base: &Endpoint<C, N>,
-        remote: &Endpoint<C, N>,
+        base: &Endpoint<Heap>,
+        remote: &Endpoint<Heap>,
     ) -> SimOutput {
         let (bs, rs) = (base.stats(), remote.stats());
         let (grtt_mean, grtt_std) = mean_std(&self.grtt);

@@ -4,7 +4,7 @@
 use std::io::IsTerminal;
 
 use ndr::core::endpoint::Event;
-use ndr::net::link::MAX_AXES;
+use ndr::net::link::LinkEvent;
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::filter::LevelFilter;
 
@@ -30,7 +30,7 @@ pub fn init(verbose: u8) {
 
 /// Logs what a link tells its application, at a level by how much it
 /// matters to whoever watches the robot.
-pub fn event(side: &str, event: &Event<MAX_AXES>) {
+pub fn event(side: &str, event: &LinkEvent) {
     match event {
         Event::Connected { peer } => tracing::info!("{side}: handshake done, peer {peer:?}"),
         Event::Started { period, ns } => {

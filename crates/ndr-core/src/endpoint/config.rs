@@ -305,8 +305,15 @@ pub enum ConfigError {
     Channels {
         /// Axes asked for.
         axes: u16,
-        /// Channels the endpoint's `C` holds.
+        /// Channels the endpoint's storage holds.
         capacity: usize,
+    },
+    /// The regulator capacity asked does not fit the endpoint's storage:
+    /// an [`Inline<C, N>`](crate::storage::Inline) holds exactly `N`, a
+    /// [`Heap`](crate::storage::Heap) 1 to [`MAX_CAPACITY`](crate::storage::MAX_CAPACITY).
+    Capacity {
+        /// The capacity asked for.
+        asked: usize,
     },
     /// The period is shorter than [`MIN_PERIOD`].
     Period(Duration),
@@ -336,7 +343,13 @@ impl fmt::Display for ConfigError {
             ConfigError::Channels { axes, capacity } => write!(
                 f,
                 "axes = {axes} but this endpoint's samples hold {capacity} channels; \
-                 use an Endpoint with C >= {axes}"
+                 use an Inline<C, N> storage with C >= {axes}, or a Heap one"
+            ),
+            ConfigError::Capacity { asked } => write!(
+                f,
+                "a regulator capacity of {asked} samples does not fit this endpoint's storage: \
+                 an Inline<C, N> storage holds exactly N, a Heap one 1 to {} samples",
+                crate::storage::MAX_CAPACITY
             ),
             ConfigError::Period(p) => write!(
                 f,

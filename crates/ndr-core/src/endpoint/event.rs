@@ -25,9 +25,10 @@ impl Status {
     }
 }
 
-/// One sample released by the regulator at a tick.
+/// One sample released by the regulator at a tick, its values in `V`
+/// (the endpoint's [`Storage::Values`](crate::storage::Storage::Values)).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Release<const C: usize> {
+pub struct Release<V> {
     /// The sample's sequence number (the peer's Data frame count).
     pub seq: u64,
     /// When the peer sent it, on the peer's clock.
@@ -43,13 +44,13 @@ pub struct Release<const C: usize> {
     /// this one, to now. `None` if this release closes no new round trip.
     pub grtt: Option<Duration>,
     len: u16,
-    values: [f64; C],
+    values: V,
 }
 
-impl<const C: usize> Release<C> {
+impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Release<V> {
     pub(crate) fn fresh(
         head: Head,
-        values: [f64; C],
+        values: V,
         len: u16,
         released_at: Instant,
         grtt: Option<Duration>,
@@ -69,9 +70,25 @@ impl<const C: usize> Release<C> {
     /// The sample's values, one per axis.
     #[must_use]
     pub fn values(&self) -> &[f64] {
-        self.values
-            .get(..usize::from(self.len))
-            .unwrap_or(&self.values)
+        let all = self.values.as_ref();
+        all.get(..usize::from(self.len)).unwrap_or(all)
+    }
+
+    /// Becomes a copy of `other`, in place when the values are as wide
+    /// (no allocation for heap storage).
+    pub(crate) fn copy_from(&mut self, other: &Self) {
+        if self.values.as_ref().len() == other.values.as_ref().len() {
+            self.values.as_mut().copy_from_slice(other.values.as_ref());
+        } else {
+            self.values = other.values.clone();
+        }
+        self.seq = other.seq;
+        self.sent_at = other.sent_at;
+        self.arrived_at = other.arrived_at;
+        self.released_at = other.released_at;
+        self.status = other.status;
+        self.grtt = other.grtt;
+        self.len = other.len;
     }
 
     /// Time spent in the regulator: release − arrival.
@@ -93,7 +110,7 @@ pub(crate) struct Head {
 /// [`Endpoint::poll_event`](super::Endpoint::poll_event).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[non_exhaustive]
-pub enum Event<const C: usize> {
+pub enum Event<V> {
     /// The handshake succeeded; the initialization pattern starts.
     Connected {
         /// The peer's Hello.
@@ -107,7 +124,7 @@ pub enum Event<const C: usize> {
         ns: usize,
     },
     /// A tick released a sample (or repeated the last one).
-    Released(Release<C>),
+    Released(Release<V>),
     /// Dynamic mode: the peers pause to change the parameters; a new
     /// initialization pattern runs, then [`Event::Started`] follows.
     Paused {
@@ -145,7 +162,7 @@ pub enum Event<const C: usize> {
     },
 }
 
-impl<const C: usize> Event<C> {
+impl<V> Event<V> {
     /// The event's name, the same in every binding and report:
     /// `connected`, `started`, `released`, `paused`, `link_lost`,
     /// `delay_changed`, `link_restored`, `closed`.

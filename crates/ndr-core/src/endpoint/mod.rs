@@ -53,10 +53,11 @@ pub use crate::playout::schedule::{
     DELAY_QUANTUM, MAPPING_SLEW, RELEASE_SLEW_STEPS, delay_quantum, delay_quantum_for,
 };
 
+use crate::playout::Target;
 use crate::playout::schedule::Schedule;
-use crate::playout::{Adaptive, AdaptiveSlot, Target};
 use crate::predictor::{NetworkPredictor, Prediction};
-use crate::regulator::{Occupancy, Regulator};
+use crate::regulator::{Occupancy, RegulatorIn};
+use crate::storage::Storage;
 use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
 use crate::wire::{self, Control, Echo, Frame, Header, Hello, Message, Role};
@@ -104,11 +105,11 @@ impl Phase {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Slot<const C: usize> {
+struct Slot<V> {
     head: Head,
     peer_released: Option<u64>,
     len: u16,
-    values: [f64; C],
+    values: V,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -120,6 +121,10 @@ enum Tx {
     Close { reason: u16 },
 }
 
+/// The regulator of an endpoint of storage `S`.
+type SlotRegulator<S> =
+    RegulatorIn<Slot<<S as Storage>::Values>, <S as Storage>::Queue<Slot<<S as Storage>::Values>>>;
+
 /// An adaptive remote sends samples after this many running ticks even if
 /// its grid has not yet moved to its releases.
 const GRID_SETTLE_TICKS: u64 = 50;
@@ -129,23 +134,19 @@ const TX_QUEUE: usize = 8;
 /// Events that may wait for the application.
 const EVENT_QUEUE: usize = 32;
 
-/// One side of a regulated link, with samples of up to `C` channels and a
-/// regulator of capacity `N`.
-///
-/// The endpoint holds `N` queued samples of `C` values inline (no heap):
-/// about `N·(8·C + 48)` bytes. Box it when `N` is large. `A` holds the
-/// adaptive playout's histogram (about 7 KiB): an endpoint that never runs
-/// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) can drop it with
-/// [`NoAdaptive`](crate::playout::NoAdaptive).
+/// One side of a regulated link, its buffers in the storage `S`:
+/// [`Inline<C, N>`](crate::storage::Inline) (no heap: samples of up to `C`
+/// channels, `N` queued) or [`Heap`](crate::storage::Heap) (sized when the
+/// endpoint is made, from the link's width and the capacity asked).
 #[derive(Clone, Debug)]
-pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> {
+pub struct Endpoint<S: Storage> {
     config: Config,
     phase: Phase,
     period: Duration,
     ns: usize,
-    regulator: Regulator<Slot<C>, N>,
+    regulator: SlotRegulator<S>,
     /// Target-delay playout: the policy's state (`None`: the paper's FIFO).
-    target: Option<Target<A>>,
+    target: Option<Target<S::Adaptive>>,
     /// The peer's clock offset and skew.
     sync: ClockSync,
     /// Adaptive playout: its release schedule.
@@ -156,13 +157,13 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
     /// Where the protocol's regimes stand.
     regime: Regime,
     /// What goes to the peer.
-    out: Outbox<C, N>,
+    out: Outbox<S>,
     /// What came from the peer, and when.
     heard: Heard,
     /// What was released to the application.
-    rel: Released<C>,
+    rel: Released<S::Values>,
     peer: Option<Hello>,
-    events: Deque<Event<C>, EVENT_QUEUE>,
+    events: Deque<Event<S::Values>, EVENT_QUEUE>,
     events_dropped: u64,
     stats: Stats,
 }
@@ -170,52 +171,51 @@ pub struct Endpoint<const C: usize, const N: usize, A: AdaptiveSlot = Adaptive> 
 /// What goes to the peer: the frames waiting for the driver, the sample
 /// they carry, and when each recent tick was scheduled.
 #[derive(Clone, Debug)]
-struct Outbox<const C: usize, const N: usize> {
+struct Outbox<S: Storage> {
     tx: Deque<Tx, TX_QUEUE>,
     next_seq: u64,
-    sample: [f64; C],
+    sample: S::Values,
     sample_fresh: bool,
     /// The newest peer sample released when `sample` was set: what it
     /// answers.
     answers: Option<u64>,
-    /// Scheduled time of each tick that sent a sample or probe, by `seq mod
-    /// N`: its frame's send stamp, and the start of its GRTT.
-    sent_ticks: [(u64, Instant); N],
+    /// Scheduled time of each tick that sent a sample or probe, by `seq`
+    /// modulo the capacity: its frame's send stamp, and the start of its GRTT.
+    sent_ticks: S::Ticks,
 }
 
-impl<const C: usize, const N: usize> Outbox<C, N> {
-    fn new() -> Self {
-        Outbox {
-            tx: Deque::new(),
-            next_seq: 0,
-            sample: [0.0; C],
-            sample_fresh: false,
-            answers: None,
-            sent_ticks: [(u64::MAX, Instant::ZERO); N],
-        }
-    }
-}
-
-impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
-    /// An endpoint that starts at `now`. A base queues its Hello at once.
+impl<S: Storage> Endpoint<S> {
+    /// An endpoint that starts at `now`, with the storage's default
+    /// capacity ([`Storage::DEFAULT_CAPACITY`]). A base queues its Hello at once.
     pub fn new(config: Config, now: Instant) -> Result<Self, ConfigError> {
+        Self::with_capacity(config, now, S::DEFAULT_CAPACITY)
+    }
+
+    /// An endpoint that starts at `now` whose regulator holds `capacity`
+    /// samples (its nominal size stays below that). An
+    /// [`Inline<C, N>`](crate::storage::Inline) storage holds exactly `N`.
+    pub fn with_capacity(
+        config: Config,
+        now: Instant,
+        capacity: usize,
+    ) -> Result<Self, ConfigError> {
         config.validate()?;
-        if usize::from(config.axes) > C {
-            return Err(ConfigError::Channels {
-                axes: config.axes,
-                capacity: C,
-            });
-        }
+        let axes = usize::from(config.axes);
+        let sample = S::values(axes).ok_or(ConfigError::Channels {
+            axes: config.axes,
+            capacity: S::values(0).map_or(0, |v| v.as_ref().len()),
+        })?;
+        let no_room = ConfigError::Capacity { asked: capacity };
+        let queue = S::queue(capacity).ok_or(no_room)?;
+        let sent_ticks = S::ticks(capacity, (u64::MAX, Instant::ZERO)).ok_or(no_room)?;
+        let regulator = RegulatorIn::with_queue(queue, 0).map_err(|_| no_room)?;
         let predictor =
             NetworkPredictor::new(config.predictor_config()).map_err(ConfigError::Predictor)?;
         let mut ep = Endpoint {
             phase: Phase::Handshake,
             period: config.period,
             ns: 0,
-            regulator: Regulator::new(0).map_err(|_| ConfigError::Channels {
-                axes: config.axes,
-                capacity: N,
-            })?,
+            regulator,
             target: config
                 .playout
                 .target_in(config.period)
@@ -226,7 +226,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             next_tick: None,
             deadline: Some(now + config.handshake_timeout),
             regime: Regime::new(now),
-            out: Outbox::new(),
+            out: Outbox {
+                tx: Deque::new(),
+                next_seq: 0,
+                sample,
+                sample_fresh: false,
+                answers: None,
+                sent_ticks,
+            },
             heard: Heard::new(config.period),
             rel: Released::new(now),
             peer: None,
@@ -357,9 +364,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let msg = match item {
             Tx::Hello => Message::Hello(self.hello()),
             Tx::Probe { .. } => Message::Data(&[]),
-            Tx::Sample { .. } => {
-                Message::Data(self.out.sample.get(..axes).unwrap_or(&self.out.sample))
-            }
+            Tx::Sample { .. } => Message::Data({
+                let all = self.out.sample.as_ref();
+                all.get(..axes).unwrap_or(all)
+            }),
             Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
             Tx::Close { reason } => Message::Close(wire::Close { reason }),
         };
@@ -386,7 +394,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 
     /// The next event for the application.
     #[must_use]
-    pub fn poll_event(&mut self) -> Option<Event<C>> {
+    pub fn poll_event(&mut self) -> Option<Event<S::Values>> {
         self.events.pop_front()
     }
 
@@ -410,7 +418,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         if let Some(index) = values.iter().position(|v| !v.is_finite()) {
             return Err(LinkError::NonFinite { index });
         }
-        if let Some(dst) = self.out.sample.get_mut(..axes) {
+        if let Some(dst) = self.out.sample.as_mut().get_mut(..axes) {
             dst.copy_from_slice(values);
         }
         self.out.sample_fresh = true;
@@ -466,6 +474,13 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     #[must_use]
     pub fn ns(&self) -> usize {
         self.ns
+    }
+
+    /// How many samples the regulator can hold: its nominal size stays
+    /// below this.
+    #[must_use]
+    pub fn capacity(&self) -> usize {
+        self.regulator.capacity()
     }
 
     /// Samples in the regulator now.
@@ -562,7 +577,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
     }
 
-    fn emit(&mut self, event: Event<C>) {
+    fn emit(&mut self, event: Event<S::Values>) {
         if self.events.push_back(event).is_err() {
             self.events_dropped += 1;
         }
@@ -655,10 +670,16 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
     }
 
+    /// Where the tick that took `seq` is kept in `sent_ticks`.
+    fn tick_index(&self, seq: u64) -> usize {
+        let len = self.out.sent_ticks.as_ref().len().max(1);
+        (seq % len as u64) as usize
+    }
+
     /// The scheduled time of the tick that took `seq`, while it is within
-    /// the last `N` ticks.
+    /// the last [`capacity`](Self::capacity) ticks.
     fn tick_of(&self, seq: u64) -> Option<Instant> {
-        match self.out.sent_ticks.get((seq % N as u64) as usize) {
+        match self.out.sent_ticks.as_ref().get(self.tick_index(seq)) {
             Some(&(s, at)) if s == seq => Some(at),
             _ => None,
         }
@@ -667,7 +688,8 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     fn take_seq(&mut self, t: Instant) -> u64 {
         let seq = self.out.next_seq;
         self.out.next_seq += 1;
-        if let Some(cell) = self.out.sent_ticks.get_mut((seq % N as u64) as usize) {
+        let i = self.tick_index(seq);
+        if let Some(cell) = self.out.sent_ticks.as_mut().get_mut(i) {
             *cell = (seq, t);
         }
         seq

@@ -5,10 +5,11 @@ use super::rx_check::RxCheck;
 use super::{Endpoint, Event, LinkError, Phase, Slot, Tx, Underflow, ns_i64};
 use crate::playout::{AdaptiveSlot, Target, TargetDelay};
 use crate::sizing::INIT_EXCHANGES;
+use crate::storage::Storage;
 use crate::time::{Duration, Instant};
 use crate::wire::{Control, Echo, Frame, Hello, Kind, Payload, Role, control_op};
 
-impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
+impl<S: Storage> Endpoint<S> {
     pub(super) fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
         let sent_at = frame.sent_at();
         // A frame handed over a watchdog's time after a deadline the driver
@@ -75,13 +76,19 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                         _ => Ok(()),
                     };
                 }
-                let mut values = [0.0; C];
                 let axes = usize::from(self.config.axes);
-                if channels.len() != axes || channels.copy_to(&mut values).is_err() {
-                    return Err(LinkError::ChannelCount {
-                        expected: self.config.axes,
-                        got: channels.len(),
-                    });
+                let mismatch = LinkError::ChannelCount {
+                    expected: self.config.axes,
+                    got: channels.len(),
+                };
+                if channels.len() != axes {
+                    return Err(mismatch);
+                }
+                let Some(mut values) = S::values(axes) else {
+                    return Err(mismatch);
+                };
+                if channels.copy_to(values.as_mut()).is_err() {
+                    return Err(mismatch);
                 }
                 let slot = Slot {
                     head: Head {
@@ -182,7 +189,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         Ok(())
     }
 
-    pub(super) fn receive_sample(&mut self, now: Instant, slot: Slot<C>) -> Result<(), LinkError> {
+    pub(super) fn receive_sample(
+        &mut self,
+        now: Instant,
+        slot: Slot<S::Values>,
+    ) -> Result<(), LinkError> {
         // Before the handshake a Data frame is a protocol error, not a sample.
         if self.phase == Phase::Handshake {
             return Err(self.unexpected(Kind::Data));
@@ -318,7 +329,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// Under drop-late: whether `slot` arrived after its release slot.
-    pub(super) fn slot_passed(&self, slot: &Slot<C>) -> bool {
+    pub(super) fn slot_passed(&self, slot: &Slot<S::Values>) -> bool {
         if self.target.is_some() {
             self.rel.released_seq.is_some_and(|r| slot.head.seq <= r)
                 || self.rel.passed.is_some_and(|p| slot.head.sent_at <= p)

@@ -1,15 +1,15 @@
 //! Regimes: the initialization pattern, the start of a running regime, and the paper's dynamic pause-and-resize.
 
 use super::{Endpoint, Event, LinkError, MIN_PERIOD, Mode, PATTERN_SLACK, Phase, Tx};
-use crate::playout::AdaptiveSlot;
 use crate::predictor::Prediction;
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
+use crate::storage::Storage;
 use crate::time::{Duration, Instant};
 use crate::wire::{Role, control_op};
 
-impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
+impl<S: Storage> Endpoint<S> {
     pub(super) fn checked_ns(&self, ns: u16, period: Duration) -> Result<usize, LinkError> {
-        let fits = usize::from(ns) < N && period >= MIN_PERIOD;
+        let fits = usize::from(ns) < self.capacity() && period >= MIN_PERIOD;
         fits.then_some(usize::from(ns))
             .ok_or(LinkError::BadParameters { ns, period })
     }
@@ -83,7 +83,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     pub(super) fn clamp_ns(&mut self, ns: usize) -> usize {
-        let limit = (N - 1).min(usize::from(u16::MAX));
+        let limit = self.capacity().saturating_sub(1).min(usize::from(u16::MAX));
         if ns > limit {
             self.stats.clamped += 1;
             limit

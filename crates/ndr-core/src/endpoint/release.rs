@@ -4,13 +4,14 @@ use super::{Endpoint, Event, Phase, Release, Slot, Status, Underflow, delay_quan
 use crate::playout::schedule::{self, Context, Plan, Queued, Schedule};
 use crate::playout::{AdaptiveSlot, Target, TargetDelay};
 use crate::regulator::{self, Tick};
+use crate::storage::Storage;
 use crate::time::{Duration, Instant};
 use crate::wire::Role;
 
-impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
+impl<S: Storage> Endpoint<S> {
     /// The adaptive schedule and what it decides on now, `None` under
     /// another playout.
-    pub(super) fn adaptive(&mut self) -> Option<(&mut Schedule, Context<'_, A>)> {
+    pub(super) fn adaptive(&mut self) -> Option<(&mut Schedule, Context<'_, S::Adaptive>)> {
         let (Some(schedule), Some(Target::Adaptive(policy))) = (&mut self.schedule, &self.target)
         else {
             return None;
@@ -86,7 +87,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         let fresh = self.stats.released_fresh;
         self.release(at, t);
         self.watch(t);
-        let stamp = match self.rel.last {
+        let stamp = match &self.rel.last {
             Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
             _ => None,
         };
@@ -115,7 +116,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         self.deliver(t, outcome);
     }
 
-    pub(super) fn release_fifo(&mut self) -> Tick<Slot<C>> {
+    pub(super) fn release_fifo(&mut self) -> Tick<Slot<S::Values>> {
         match (self.config.underflow, self.rel.due_seq) {
             (Underflow::DropLate, Some(due)) => {
                 while self.regulator.front().is_some_and(|s| s.head.seq < due) {
@@ -132,7 +133,11 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     /// tick at or after `sent_at + D`) is this tick is released. Until the
     /// policy has a target and the first sample is due, ticks release
     /// nothing and count nothing (like the FIFO's pre-fill).
-    pub(super) fn release_target(&mut self, t: Instant, target: Option<Duration>) -> Tick<Slot<C>> {
+    pub(super) fn release_target(
+        &mut self,
+        t: Instant,
+        target: Option<Duration>,
+    ) -> Tick<Slot<S::Values>> {
         let Some(d) = target else {
             return self.not_started();
         };
@@ -159,7 +164,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             cutoff = self.release_cutoff(t, d);
             oldest = true;
         }
-        let due = |s: &Slot<C>| s.head.sent_at <= cutoff;
+        let due = |s: &Slot<S::Values>| s.head.sent_at <= cutoff;
         if self.config.underflow == Underflow::DropLate {
             // The target fell: older samples share this tick's slot with a
             // newer one. The newest due is released, the others skipped.
@@ -170,7 +175,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
             }
             self.rel.passed = Some(self.rel.passed.map_or(cutoff, |p| p.max(cutoff)));
         }
-        let release = |s: &Slot<C>| oldest || due(s);
+        let release = |s: &Slot<S::Values>| oldest || due(s);
         if self.regulator.phase() == regulator::Phase::Prefilling
             && !self.regulator.front().is_some_and(release)
         {
@@ -180,7 +185,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
     }
 
     /// Nothing released yet: not an underflow.
-    pub(super) fn not_started(&self) -> Tick<Slot<C>> {
+    pub(super) fn not_started(&self) -> Tick<Slot<S::Values>> {
         Tick::Prefilling {
             have: self.regulator.len(),
             need: 1,
@@ -234,7 +239,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
         }
     }
 
-    pub(super) fn deliver(&mut self, t: Instant, outcome: Tick<Slot<C>>) {
+    pub(super) fn deliver(&mut self, t: Instant, outcome: Tick<Slot<S::Values>>) {
         match outcome {
             Tick::Released(slot) => {
                 self.stats.released_fresh += 1;
@@ -243,7 +248,10 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                 self.rel.due_seq = Some(slot.head.seq + 1);
                 let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
                 let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
-                self.rel.last = Some(release);
+                match &mut self.rel.last {
+                    Some(last) => last.copy_from(&release),
+                    None => self.rel.last = Some(release.clone()),
+                }
                 self.emit(Event::Released(release));
             }
             Tick::Underflow => {
@@ -255,7 +263,7 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
                     // FIFO slots are one per tick: this tick's slot is gone.
                     self.rel.due_seq = self.rel.due_seq.map(|d| d + 1);
                 }
-                if let Some(mut held) = self.rel.last {
+                if let Some(mut held) = self.rel.last.clone() {
                     held.status = Status::Held;
                     held.released_at = t;
                     held.grtt = None;
@@ -307,14 +315,14 @@ impl<const C: usize, const N: usize, A: AdaptiveSlot> Endpoint<C, N, A> {
 /// What was released to the application: the sequence numbers the
 /// releases and round trips go by, the last release, the watchdog.
 #[derive(Clone, Debug)]
-pub(super) struct Released<const C: usize> {
+pub(super) struct Released<V> {
     /// Target-delay playout: frames sent at or before this (peer clock) had
     /// their slot at a tick already run.
     pub(super) passed: Option<Instant>,
     pub(super) released_seq: Option<u64>,
     pub(super) grtt_acked: Option<u64>,
     pub(super) due_seq: Option<u64>,
-    pub(super) last: Option<Release<C>>,
+    pub(super) last: Option<Release<V>>,
     /// Last fresh release, or the start of the running phase, for the watchdog.
     pub(super) last_fresh: Instant,
     pub(super) lost: bool,
@@ -323,7 +331,7 @@ pub(super) struct Released<const C: usize> {
     pub(super) delay_ticks: Option<u64>,
 }
 
-impl<const C: usize> Released<C> {
+impl<V> Released<V> {
     pub(super) fn new(now: Instant) -> Self {
         Released {
             passed: None,

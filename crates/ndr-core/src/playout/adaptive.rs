@@ -53,6 +53,48 @@ impl AdaptiveSlot for Adaptive {
     }
 }
 
+/// The adaptive playout's state on the heap, taken only by a link that
+/// runs it ([`Heap`](crate::storage::Heap) storage).
+#[cfg(feature = "alloc")]
+impl AdaptiveSlot for alloc::boxed::Box<Adaptive> {
+    fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self> {
+        Some(alloc::boxed::Box::new(Adaptive::with_quantum(
+            period, epsilon, quantum,
+        )))
+    }
+
+    fn rebase(&mut self, by: Duration, rose: bool) {
+        Adaptive::rebase(self, by, rose);
+    }
+
+    fn note_late(&mut self) {
+        Adaptive::note_late(self);
+    }
+
+    fn budget_used(&self, more: u64) -> f64 {
+        Adaptive::budget_used(self, more)
+    }
+
+    fn sample_cost(&self) -> Duration {
+        Adaptive::sample_cost(self)
+    }
+
+    fn margin(&self) -> Duration {
+        Adaptive::margin(self)
+    }
+}
+
+#[cfg(feature = "alloc")]
+impl TargetDelay for alloc::boxed::Box<Adaptive> {
+    fn observe(&mut self, sent_at: Instant, delay: Duration) {
+        TargetDelay::observe(&mut **self, sent_at, delay);
+    }
+
+    fn target(&self) -> Option<Duration> {
+        TargetDelay::target(&**self)
+    }
+}
+
 /// An [`AdaptiveSlot`] with no room: a [`Target<NoAdaptive>`](super::Target) is the size of
 /// the other policies' largest state (NetEQ's 2 KiB), and asking it for
 /// [`Playout::Adaptive`](super::Playout::Adaptive) is a [`NoAdaptiveRoom`] error.

@@ -1,0 +1,180 @@
+//! The endpoint's cases on heap storage (buffers sized when the endpoint is
+//! made), and what only heap storage does: links wider than any inline
+//! width, capacities chosen at run time, and the same releases as inline.
+
+use std::collections::VecDeque;
+
+use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, Status};
+use ndr_core::playout::Playout;
+use ndr_core::storage::{Heap, Inline, MAX_CAPACITY, Storage};
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{MAX_CHANNELS, MAX_FRAME_LEN, Role};
+
+type Store = Heap;
+
+#[path = "common/endpoint_cases.rs"]
+mod cases;
+
+/// One release as the application sees it.
+type Seen = (u64, Instant, Status, Option<Duration>, Vec<f64>);
+
+/// A base and a remote of storage `S` (capacity `capacity`) over a wire
+/// whose delay follows `delay(n)` for the n-th frame each way, in order,
+/// for `secs` seconds. The base sends `axes` values that encode its tick;
+/// the remote answers each command it releases with it, reversed. Returns
+/// what each side released.
+fn run<S: Storage>(
+    config: impl Fn(Role) -> Config,
+    capacity: usize,
+    delay: impl Fn(u64) -> Duration,
+    secs: u64,
+) -> [Vec<Seen>; 2] {
+    run_with::<S>(&config, [capacity; 2], delay, secs).0
+}
+
+/// [`run`], with each side's capacity, and the endpoints at the end.
+fn run_with<S: Storage>(
+    config: &impl Fn(Role) -> Config,
+    capacity: [usize; 2],
+    delay: impl Fn(u64) -> Duration,
+    secs: u64,
+) -> ([Vec<Seen>; 2], [Endpoint<S>; 2]) {
+    let mut eps = [
+        Endpoint::<S>::with_capacity(config(Role::Base), Instant::ZERO, capacity[0]).unwrap(),
+        Endpoint::<S>::with_capacity(config(Role::Remote), Instant::ZERO, capacity[1]).unwrap(),
+    ];
+    let axes = usize::from(config(Role::Base).axes);
+    let mut to: [VecDeque<(Instant, Vec<u8>)>; 2] = [VecDeque::new(), VecDeque::new()];
+    let (mut buf, mut now, mut k, mut n) = ([0; MAX_FRAME_LEN], Instant::ZERO, 0u32, 0u64);
+    let mut seen: [Vec<Seen>; 2] = [Vec::new(), Vec::new()];
+    while now < Instant::from_millis(secs * 1000) {
+        for (side, ep) in eps.iter_mut().enumerate() {
+            while to[side].front().is_some_and(|(at, _)| *at <= now) {
+                let (_, frame) = to[side].pop_front().unwrap();
+                ep.handle_frame(now, &frame).unwrap();
+            }
+            if ep.poll_timeout().is_some_and(|t| t <= now) {
+                ep.handle_timeout(now);
+            }
+            while let Some(event) = ep.poll_event() {
+                if let Event::Released(r) = event {
+                    let values = r.values().to_vec();
+                    let answer: Vec<f64> = if side == 0 {
+                        k += 1;
+                        (0..axes).map(|i| f64::from(k) + i as f64 / 100.0).collect()
+                    } else {
+                        values.iter().rev().copied().collect()
+                    };
+                    seen[side].push((r.seq, r.released_at, r.status, r.grtt, values));
+                    ep.set_sample(&answer).unwrap();
+                }
+            }
+            while let Some(len) = ep.poll_transmit(now, &mut buf).unwrap() {
+                let last = to[1 - side].back().map_or(Instant::ZERO, |(at, _)| *at);
+                n += 1;
+                to[1 - side].push_back(((now + delay(n)).max(last), buf[..len].to_vec()));
+            }
+        }
+        let arrivals = to.iter().filter_map(|q| q.front().map(|(at, _)| *at));
+        let deadlines = eps.iter().filter_map(Endpoint::poll_timeout);
+        now = arrivals.chain(deadlines).min().unwrap();
+    }
+    (seen, eps)
+}
+
+fn config(axes: u16, playout: Playout) -> impl Fn(Role) -> Config {
+    move |role| {
+        let mut c = Config::new(role);
+        c.axes = axes;
+        c.period = Duration::from_millis(10);
+        c.playout = playout;
+        c
+    }
+}
+
+/// A jittery wire: 20 ms, up to 37 ms more, a spike every 50 frames.
+fn jitter(n: u64) -> Duration {
+    let spike = if n.is_multiple_of(50) { 60 } else { 0 };
+    Duration::from_micros(20_000 + (n * 7919 % 37) * 1000 + spike * 1000)
+}
+
+#[test]
+fn heap_and_inline_storage_release_the_same_samples_at_the_same_times() {
+    for playout in [Playout::Fifo, Playout::ADAPTIVE, Playout::NetEq] {
+        let inline = run::<Inline<3, 64>>(config(3, playout), 64, jitter, 20);
+        let heap = run::<Heap>(config(3, playout), 64, jitter, 20);
+        assert!(
+            inline[0].len() > 1500 && inline[1].len() > 1500,
+            "{playout}"
+        );
+        assert_eq!(inline, heap, "{playout}");
+    }
+}
+
+#[test]
+fn a_heap_endpoint_carries_as_many_channels_as_a_frame_holds() {
+    let axes = u16::try_from(MAX_CHANNELS).unwrap();
+    let [base, remote] = run::<Heap>(config(axes, Playout::ADAPTIVE), 64, jitter, 5);
+    let fresh = |s: &Vec<Seen>| s.iter().filter(|r| r.2 == Status::Fresh).count();
+    assert!(fresh(&base) > 300 && fresh(&remote) > 300);
+    let nonzero = |s: &Vec<Seen>| s.iter().filter(|r| r.4.iter().any(|&x| x != 0.0)).count();
+    assert!(nonzero(&base) > 300 && nonzero(&remote) > 300);
+    // The remote released every command whole; the base got each back reversed.
+    for (_, _, _, _, v) in remote.iter().filter(|r| r.4.iter().any(|&x| x != 0.0)) {
+        assert_eq!(v.len(), MAX_CHANNELS);
+        assert!(
+            v.windows(2).all(|w| (w[1] - w[0] - 0.01).abs() < 1e-9),
+            "{v:?}"
+        );
+    }
+    for (_, _, _, _, v) in base.iter().filter(|r| r.4.iter().any(|&x| x != 0.0)) {
+        assert!(
+            v.windows(2).all(|w| (w[0] - w[1] - 0.01).abs() < 1e-9),
+            "{v:?}"
+        );
+    }
+}
+
+#[test]
+fn an_inline_endpoint_refuses_more_channels_than_it_holds() {
+    let c = config(9, Playout::Fifo)(Role::Base);
+    let err = Endpoint::<Inline<8, 16>>::new(c, Instant::ZERO).unwrap_err();
+    assert_eq!(
+        err,
+        ConfigError::Channels {
+            axes: 9,
+            capacity: 8
+        }
+    );
+    assert!(err.to_string().contains("or a Heap one"), "{err}");
+    assert!(Endpoint::<Heap>::new(c, Instant::ZERO).is_ok());
+}
+
+#[test]
+fn a_capacity_that_does_not_fit_is_refused_with_what_fits() {
+    let c = config(2, Playout::Fifo)(Role::Remote);
+    for asked in [0, MAX_CAPACITY + 1, usize::MAX] {
+        let err = Endpoint::<Heap>::with_capacity(c, Instant::ZERO, asked).unwrap_err();
+        assert_eq!(err, ConfigError::Capacity { asked });
+        assert!(err.to_string().contains("a Heap one 1 to 65536"), "{err}");
+    }
+    let err = Endpoint::<Inline<2, 16>>::with_capacity(c, Instant::ZERO, 32).unwrap_err();
+    assert_eq!(err, ConfigError::Capacity { asked: 32 });
+    let ep = Endpoint::<Heap>::with_capacity(c, Instant::ZERO, 3).unwrap();
+    assert_eq!(ep.capacity(), 3);
+    assert_eq!(
+        Endpoint::<Heap>::new(c, Instant::ZERO).unwrap().capacity(),
+        256
+    );
+}
+
+#[test]
+fn a_heap_regulator_smaller_than_the_delay_needs_is_clamped_and_counted() {
+    // ns = 2 + ⌊η·mt/T⌋ comes out far above 3 on a wire whose delay
+    // varies by tens of periods.
+    let fifo = config(1, Playout::Fifo);
+    let (seen, eps) = run_with::<Heap>(&fifo, [4, 256], jitter, 10);
+    assert_eq!(eps[0].ns(), 3);
+    assert_eq!(eps[0].stats().clamped, 1);
+    assert!(seen[1].len() > 500, "the link runs on: {}", seen[1].len());
+}
