@@ -152,6 +152,11 @@
 //!
 //! - `std` (default): conversions between [`Instant`]/[`Duration`] and
 //!   `std::time`. Without it the crate is `#![no_std]` and uses no `alloc`.
+//! - `serde`: `serde::Serialize` for the endpoint's [`Stats`](endpoint::Stats)
+//!   and what they hold, with the names and units the bindings show: a
+//!   [`Duration`] is seconds (`f64`), a [`Phase`](endpoint::Phase) its
+//!   lowercase name, a [`Running`](endpoint::Running) its count, mean, std,
+//!   min and max. No `std` needed.
 #![no_std]
 #![forbid(unsafe_code)]
 

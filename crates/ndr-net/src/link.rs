@@ -156,7 +156,12 @@ impl From<io::Error> for NetError {
 }
 
 /// A snapshot of a link's state and counters.
+///
+/// With the `serde` feature it serializes flat, the endpoint's counters
+/// beside the link's, durations in seconds (the form the Python binding
+/// hands out).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 #[non_exhaustive]
 pub struct LinkStats {
     /// Where the protocol is.
@@ -172,6 +177,7 @@ pub struct LinkStats {
     /// The latest NRTT measured.
     pub last_nrtt: Option<Duration>,
     /// Everything the endpoint counted.
+    #[cfg_attr(feature = "serde", serde(flatten))]
     pub endpoint: Stats,
     /// How late the hub's thread woke for its deadlines (all its links).
     pub lateness: LatenessStats,
