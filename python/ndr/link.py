@@ -152,7 +152,8 @@ class LatenessStats(TypedDict):
 
     count: int
     missed: int
-    """Deadlines met 1 ms or more late."""
+    """Deadlines met a whole period late or more."""
+    min: float
     p50: float
     p99: float
     p999: float
@@ -239,6 +240,9 @@ class LinkStats(TypedDict):
     last_nrtt: Optional[float]
     app_dropped: int
     """Releases and events dropped because the application did not read them."""
+    events_dropped: int
+    """Events dropped, the oldest first, because more than the link keeps
+    waited unread (see :meth:`Link.events`)."""
     frames_sent: int
     frames_received: int
     samples_sent: int
@@ -598,10 +602,12 @@ class Link:
         ``released_held``, ``underflows``, ``late``, ``pauses``, …),
         ``nrtt`` and ``grtt`` (count, mean, std, min, max), ``lateness`` of
         the hub's wake-ups for its deadlines and ``release_lateness`` of
-        the releases themselves (p50, p99, p999, max, mean; over all links
-        of the hub), ``spin_margin`` (how long before a deadline the hub
-        stops sleeping and spins, learned from how late its timer wakes),
-        and ``app_dropped``."""
+        the releases themselves (min, p50, p99, p999, max, mean; over all
+        links of the hub), ``spin_margin`` (how long before a deadline the
+        hub stops sleeping and spins, learned from how late its timer
+        wakes), ``app_dropped`` and ``events_dropped``. The dict is the Rust
+        ``LinkStats`` serialized (the endpoint's counters beside the
+        link's): its keys are the Rust fields' serde names."""
         return self._native.stats()
 
     def now(self) -> float:

@@ -22,14 +22,14 @@ use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
 use ndr_net::link::MAX_AXES;
-use ndr_net::{LatenessStats, Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
+use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::blocking::{self, timed_out, wait};
-use crate::convert::{count, int_in, period as positive, sample as to_sample};
+use crate::convert::{count, int_in, period as positive, sample as to_sample, serialized};
 use crate::errors::{link_error, net_error, os_error};
 use crate::log;
 use crate::tls::PyTlsConfig;
@@ -316,9 +316,15 @@ impl PyLink {
         self.events_dropped.load(Ordering::Relaxed)
     }
 
-    /// A snapshot of the link's state and counters (`None` before its first tick).
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        self.sender.stats().map(|s| stats(py, &s)).transpose()
+    /// A snapshot of the link's state and counters (`None` before its first
+    /// tick): `LinkStats` serialized, the events this binding dropped
+    /// counted with the Rust link's.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(mut s) = self.sender.stats() else {
+            return Ok(None);
+        };
+        s.events_dropped += self.events_dropped.load(Ordering::Relaxed);
+        serialized(py, &s).map(Some)
     }
 
     /// Now on this side's link clock (s): `released_at` and `arrived_at` are on it.
@@ -405,86 +411,6 @@ fn event<'py>(py: Python<'py>, e: &Event<MAX_AXES>) -> PyResult<Option<Bound<'py
         _ => {}
     }
     Ok(Some((e.kind(), fields).into_pyobject(py)?.into_any()))
-}
-
-fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    let secs = |x: Duration| x.as_secs_f64();
-    d.set_item("phase", format!("{:?}", s.phase).to_lowercase())?;
-    d.set_item("period", secs(s.period))?;
-    d.set_item("ns", s.ns)?;
-    d.set_item("queue_len", s.queue_len)?;
-    d.set_item("queue_range", s.queue_range)?;
-    d.set_item("last_nrtt", s.last_nrtt.map(secs))?;
-    d.set_item("app_dropped", s.app_dropped)?;
-    let e = &s.endpoint;
-    for (k, v) in [
-        ("frames_sent", e.frames_sent),
-        ("frames_received", e.frames_received),
-        ("samples_sent", e.samples_sent),
-        ("samples_repeated", e.samples_repeated),
-        ("samples_received", e.samples_received),
-        ("released_fresh", e.released_fresh),
-        ("released_held", e.released_held),
-        ("underflows", e.underflows),
-        ("late", e.late),
-        ("rejected", e.rejected),
-        ("discarded", e.discarded),
-        ("skipped", e.skipped),
-        ("pauses", e.pauses),
-        ("resizes", e.resizes),
-        ("link_lost", e.link_lost),
-        ("tx_dropped", e.tx_dropped),
-        ("frames_missing", e.frames_missing),
-        ("outage_delays", e.outage_delays),
-        ("clamped", e.clamped),
-        ("grtt_unmeasured", e.grtt_unmeasured),
-        ("probes_received", e.probes_received),
-    ] {
-        d.set_item(k, v)?;
-    }
-    let running = |r: &ndr_core::endpoint::Running| -> PyResult<Bound<'py, PyDict>> {
-        let m = PyDict::new(py);
-        m.set_item("count", r.count())?;
-        m.set_item("mean", r.mean())?;
-        m.set_item("std", r.std())?;
-        m.set_item("min", r.min())?;
-        m.set_item("max", r.max())?;
-        Ok(m)
-    };
-    d.set_item("nrtt", running(&e.nrtt)?)?;
-    d.set_item("grtt", running(&e.grtt)?)?;
-    // One-way delays from the clock estimate (offset and skew between the
-    // peers), and the delay a target-delay playout holds now.
-    d.set_item("one_way_rx", running(&e.one_way_rx)?)?;
-    d.set_item("one_way_tx", running(&e.one_way_tx)?)?;
-    d.set_item("clock_offset", e.clock_offset_s)?;
-    d.set_item("clock_skew_ppm", e.clock_skew_ppm)?;
-    d.set_item("playout_delay", e.playout_delay_s)?;
-    d.set_item("playout_delay_ticks", e.playout_delay_ticks)?;
-    d.set_item("delay_changes", e.delay_changes)?;
-    d.set_item("rx_lag", running(&s.rx_lag)?)?;
-    let lateness = |l: &LatenessStats| -> PyResult<Bound<'py, PyDict>> {
-        let m = PyDict::new(py);
-        m.set_item("count", l.count)?;
-        m.set_item("missed", l.missed)?;
-        for (k, v) in [
-            ("p50", l.p50),
-            ("p99", l.p99),
-            ("p999", l.p999),
-            ("max", l.max),
-            ("mean", l.mean),
-        ] {
-            m.set_item(k, secs(v))?;
-        }
-        Ok(m)
-    };
-    // When the hub woke for its deadlines, and when each release happened.
-    d.set_item("lateness", lateness(&s.lateness)?)?;
-    d.set_item("release_lateness", lateness(&s.release_lateness)?)?;
-    // How long before a deadline the hub spins, learned from its timer.
-    d.set_item("spin_margin", secs(s.spin_margin))?;
-    Ok(d)
 }
 
 /// The settings of one side of a link, checked once (`ndr.Link.connect`
@@ -844,27 +770,9 @@ impl PyListener {
             + s.unclaimed
     }
 
-    /// What the listener counted, by reason.
+    /// What the listener counted, by reason (`ListenerStats` serialized).
     #[getter]
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let s = self.tls_stats(py);
-        let d = PyDict::new(py);
-        d.set_item("accepted", s.accepted)?;
-        d.set_item("refused_certificate", s.refused_certificate)?;
-        d.set_item("refused_no_certificate", s.refused_no_certificate)?;
-        d.set_item("refused_version", s.refused_version)?;
-        d.set_item("timeouts", s.timeouts)?;
-        d.set_item("failed_other", s.failed_other)?;
-        d.set_item("refused_role", s.refused_role)?;
-        d.set_item("refused_axes", s.refused_axes)?;
-        d.set_item("refused_settings", s.refused_settings)?;
-        d.set_item("refused_wire_version", s.refused_wire_version)?;
-        d.set_item("refused_protocol", s.refused_protocol)?;
-        d.set_item("evicted", s.evicted)?;
-        d.set_item("refused_per_source", s.refused_per_source)?;
-        d.set_item("refused_busy", s.refused_busy)?;
-        d.set_item("unclaimed", s.unclaimed)?;
-        d.set_item("accept_errors", s.accept_errors)?;
-        Ok(d)
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        serialized(py, &self.tls_stats(py))
     }
 }
