@@ -13,7 +13,7 @@
 
 use std::collections::VecDeque;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
@@ -21,7 +21,7 @@ use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow}
 use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
-use ndr_net::link::MAX_AXES;
+use ndr_net::link::{EVENT_BACKLOG, MAX_AXES};
 use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
@@ -33,9 +33,6 @@ use crate::convert::{count, int_in, period as positive, sample as to_sample, ser
 use crate::errors::{link_error, net_error, os_error};
 use crate::log;
 use crate::tls::PyTlsConfig;
-
-/// Events kept for Python between two reads; older ones are dropped.
-const EVENTS: usize = 1024;
 
 /// The most released samples and events that may wait for the application
 /// (`queue=`): a bound on the memory a link that nobody reads can take
@@ -121,7 +118,6 @@ struct Rx {
     link: Link,
     /// Samples handed back by an interrupted asynchronous receive; served first.
     stash: VecDeque<Sample>,
-    events: VecDeque<Event<MAX_AXES>>,
     ended: Option<CoreError>,
 }
 
@@ -143,11 +139,51 @@ impl Rx {
                 Err(e) => Err(e),
             }
         };
-        self.events.extend(self.link.drain_events());
         if let Err(NetError::Link(e)) = &got {
             self.ended = Some(*e);
         }
         got
+    }
+}
+
+/// The events waiting for Python: moved out of the link after each receive,
+/// so that reading them never waits for a receive in progress. The one
+/// place they wait in Python: `ndr.Link` keeps none of its own.
+#[derive(Default)]
+struct Kept {
+    events: VecDeque<Event<MAX_AXES>>,
+    /// The oldest `seen` went to Python's callbacks ([`PyLink::new_events`]).
+    seen: usize,
+    /// Dropped past [`EVENT_BACKLOG`], as the Rust link drops its own.
+    dropped: u64,
+}
+
+impl Kept {
+    /// Appends what came, the oldest going past [`EVENT_BACKLOG`]
+    /// (counted); returns how many are not seen yet.
+    fn extend(&mut self, came: impl IntoIterator<Item = Event<MAX_AXES>>) -> usize {
+        self.events.extend(came);
+        let excess = self.events.len().saturating_sub(EVENT_BACKLOG);
+        if excess > 0 {
+            self.events.drain(..excess);
+            self.seen = self.seen.saturating_sub(excess);
+            self.dropped += excess as u64;
+        }
+        self.events.len() - self.seen
+    }
+
+    /// The events not seen yet, now seen (they stay).
+    fn take_new(&mut self) -> Vec<Event<MAX_AXES>> {
+        let new = self.events.range(self.seen..).copied().collect();
+        self.seen = self.events.len();
+        new
+    }
+
+    /// The events seen, which leave.
+    fn take_seen(&mut self) -> Vec<Event<MAX_AXES>> {
+        let seen = self.events.drain(..self.seen).collect();
+        self.seen = 0;
+        seen
     }
 }
 
@@ -156,11 +192,9 @@ impl Rx {
 pub struct PyLink {
     sender: LinkSender,
     rx: Mutex<Rx>,
-    /// Events moved out of `rx` after each receive, so that reading them
-    /// never waits for a receive in progress.
-    events: Mutex<VecDeque<Event<MAX_AXES>>>,
-    pending: AtomicUsize,
-    events_dropped: AtomicU64,
+    kept: Mutex<Kept>,
+    /// Events in `kept` not yet seen, readable without its lock.
+    unseen: AtomicUsize,
     role: Role,
     period: f64,
     peer: SocketAddr,
@@ -178,30 +212,37 @@ impl PyLink {
             rx: Mutex::new(Rx {
                 link,
                 stash: VecDeque::new(),
-                events: VecDeque::new(),
                 ended: None,
             }),
-            events: Mutex::new(VecDeque::new()),
-            pending: AtomicUsize::new(0),
-            events_dropped: AtomicU64::new(0),
+            kept: Mutex::new(Kept::default()),
+            unseen: AtomicUsize::new(0),
             role,
             period: period.as_secs_f64(),
         }
     }
 
     /// Moves the events the last receive saw to where Python reads them
-    /// (at most [`EVENTS`]; the oldest go first, as the Rust link does).
+    /// (at most [`EVENT_BACKLOG`]; the oldest go first, as in the Rust link).
     fn publish(&self, rx: &mut Rx) {
-        if rx.events.is_empty() {
-            return;
+        let mut kept = self.kept();
+        let unseen = kept.extend(rx.link.drain_events());
+        // Under the lock, so that it cannot undo `new_events`' zero.
+        self.unseen.store(unseen, Ordering::Release);
+    }
+
+    fn kept(&self) -> MutexGuard<'_, Kept> {
+        self.kept.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The events as `(kind, fields)` pairs.
+    fn listed<'py>(py: Python<'py>, events: &[Event<MAX_AXES>]) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for e in events {
+            if let Some(item) = event(py, e)? {
+                list.append(item)?;
+            }
         }
-        let mut out = self.events.lock().unwrap_or_else(PoisonError::into_inner);
-        out.extend(rx.events.drain(..));
-        let excess = out.len().saturating_sub(EVENTS);
-        out.drain(..excess);
-        self.events_dropped
-            .fetch_add(excess as u64, Ordering::Relaxed);
-        self.pending.store(out.len(), Ordering::Release);
+        Ok(list)
     }
 
     /// [`Rx::take`], then [`publish`](Self::publish).
@@ -222,8 +263,6 @@ impl PyLink {
         py.detach(|| {
             let mut rx = lock(&self.rx);
             how(&mut rx.link);
-            let Rx { link, events, .. } = &mut *rx;
-            events.extend(link.drain_events());
             if rx.ended.is_none() {
                 rx.ended = Some(CoreError::Closed);
             }
@@ -288,32 +327,37 @@ impl PyLink {
         self.sender.send(&values).map_err(|e| net_error(py, e))
     }
 
-    /// The events since the last call, oldest first, as `(kind, fields)`.
+    /// The events `new_events()` has returned, oldest first, as
+    /// `(kind, fields)`; they leave. One that came since stays for the next
+    /// `new_events()`, so that none skips Python's callbacks.
     fn events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let events: Vec<Event<MAX_AXES>> = {
-            let mut queue = self.events.lock().unwrap_or_else(PoisonError::into_inner);
-            self.pending.store(0, Ordering::Release);
-            queue.drain(..).collect()
+        let events = self.kept().take_seen();
+        Self::listed(py, &events)
+    }
+
+    /// The events that came since the last call, oldest first, as
+    /// `(kind, fields)`; they stay for `events()`.
+    fn new_events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let events = {
+            let mut kept = self.kept();
+            self.unseen.store(0, Ordering::Release);
+            kept.take_new()
         };
-        let list = PyList::empty(py);
-        for e in events {
-            if let Some(item) = event(py, &e)? {
-                list.append(item)?;
-            }
-        }
-        Ok(list)
+        Self::listed(py, &events)
     }
 
-    /// Events waiting to be read by `events()`.
+    /// Events waiting for `new_events()`.
     #[getter]
-    fn pending_events(&self) -> usize {
-        self.pending.load(Ordering::Acquire)
+    fn unseen_events(&self) -> usize {
+        self.unseen.load(Ordering::Acquire)
     }
 
-    /// Events dropped because nobody read them (more than 1024 waited).
+    /// Events dropped because more than `EVENT_BACKLOG` waited for
+    /// `events()`, here or in the Rust link (`stats()["events_dropped"]`).
     #[getter]
     fn events_dropped(&self) -> u64 {
-        self.events_dropped.load(Ordering::Relaxed)
+        let here = self.kept().dropped;
+        here + self.sender.stats().map_or(0, |s| s.events_dropped)
     }
 
     /// A snapshot of the link's state and counters (`None` before its first
@@ -323,7 +367,7 @@ impl PyLink {
         let Some(mut s) = self.sender.stats() else {
             return Ok(None);
         };
-        s.events_dropped += self.events_dropped.load(Ordering::Relaxed);
+        s.events_dropped += self.kept().dropped;
         serialized(py, &s).map(Some)
     }
 
@@ -774,5 +818,50 @@ impl PyListener {
     #[getter]
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         serialized(py, &self.tls_stats(py))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lost(ms: u64) -> Event<MAX_AXES> {
+        Event::LinkLost {
+            silent_for: Duration::from_millis(ms),
+        }
+    }
+
+    #[test]
+    fn events_go_to_the_callbacks_once_and_leave_only_once_seen() {
+        let mut kept = Kept::default();
+        assert_eq!(kept.extend([lost(1), lost(2)]), 2);
+        assert_eq!(kept.take_new(), [lost(1), lost(2)]);
+        assert_eq!(kept.extend([lost(3)]), 1);
+        // The one that came after the callbacks ran waits for them.
+        assert_eq!(kept.take_seen(), [lost(1), lost(2)]);
+        assert_eq!(kept.take_seen(), []);
+        assert_eq!(kept.take_new(), [lost(3)]);
+        assert_eq!(kept.take_new(), []);
+        assert_eq!(kept.take_seen(), [lost(3)]);
+        assert_eq!(kept.dropped, 0);
+    }
+
+    #[test]
+    fn past_the_backlog_the_oldest_events_go_and_are_counted() {
+        let mut kept = Kept::default();
+        let n = EVENT_BACKLOG as u64;
+        kept.extend((0..n - 1).map(lost));
+        assert_eq!(kept.take_new().len(), EVENT_BACKLOG - 1);
+        // Three more than there is room for: the two oldest, seen, go.
+        assert_eq!(kept.extend((n - 1..n + 2).map(lost)), 3);
+        assert_eq!(kept.dropped, 2);
+        assert_eq!(kept.take_new(), [lost(n - 1), lost(n), lost(n + 1)]);
+        let seen = kept.take_seen();
+        assert_eq!(seen.len(), EVENT_BACKLOG);
+        assert_eq!(seen.first(), Some(&lost(2)));
+        // Nobody looked: the oldest not seen go too.
+        assert_eq!(kept.extend((0..n + 1).map(lost)), EVENT_BACKLOG);
+        assert_eq!(kept.dropped, 3);
+        assert_eq!(kept.take_new().first(), Some(&lost(1)));
     }
 }
