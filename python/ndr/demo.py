@@ -77,7 +77,8 @@ def robot(link: Link, stop: threading.Event, log: RobotLog) -> None:
             log.state.append(float(state[0]))
             link.send(state)
             for e in link.events():
-                if e.kind in ("started", "resized") and e.period:
+                # At the start, and again after a pause of the dynamic mode.
+                if e.kind == "started" and e.period:
                     model = plant_model(e.period)
                     for p in plants:
                         p.model = model
@@ -144,8 +145,8 @@ def operator(
         except TimeoutError:
             continue
         for e in link.events():
-            if e.kind == "resized":
-                estimator = None  # new period: new delays in ticks
+            if e.kind == "started":
+                estimator = None  # after a pause, a new period: new delays in ticks
         held = tick.status == "held"
         if estimator is None and tick.grtt is not None:
             stats = link.stats

@@ -23,9 +23,10 @@ each side's certificate; each pins the other's)::
 
 Waiting (``recv``, ``ticks``, ``accept``, ``connect``) releases the GIL and
 can be interrupted with Ctrl-C. ``arecv`` and ``aticks`` do the same for
-asyncio. Events (the link started, paused, resized, lost its peer, an
-underflow) are logged to the ``ndr.link`` logger and kept for
-:meth:`Link.events`; Rust's own log records reach the ``ndr.*`` loggers.
+asyncio. Events (the link connected, started, paused, its delay changed,
+it lost its peer, it closed: the Rust link's events) are logged to the
+``ndr.link`` logger and kept for :meth:`Link.events`; Rust's own log records
+reach the ``ndr.*`` loggers.
 """
 
 from __future__ import annotations
@@ -34,14 +35,12 @@ import asyncio
 import logging
 import sys
 import threading
-from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import (
     Any,
     AsyncIterator,
     Callable,
-    Deque,
     Dict,
     Iterator,
     List,
@@ -76,9 +75,6 @@ _log = logging.getLogger("ndr.link")
 Address = Union[str, Tuple[str, int]]
 SampleLike = Union[np.ndarray, Sequence[float], float]
 
-#: Events kept for :meth:`Link.events`; older ones are dropped (and counted).
-EVENT_BACKLOG = 1024
-
 # How long one slice of an asynchronous receive waits before it checks
 # whether its task was cancelled.
 _ASYNC_SLICE = 0.05
@@ -86,33 +82,38 @@ _ASYNC_SLICE = 0.05
 
 @dataclass(frozen=True)
 class Event:
-    """Something the controller should know about the link.
+    """Something the controller should know about the link: one of the Rust
+    link's events (``Event::kind`` in ``ndr-core``), no other.
 
     ``kind`` is one of:
 
     - ``"connected"``: the handshake succeeded (``details`` holds the peer's
       role, axes, period and mode);
     - ``"started"``: samples flow, with ``period`` and ``ns`` (the
-      regulators' nominal size);
+      regulators' nominal size); it comes again after each pause of the
+      dynamic mode, with the new ``period`` and ``ns`` (``stats["resizes"]``
+      counts those);
     - ``"paused"``: dynamic mode stops the flow to change ``period`` and
-      ``ns``; ``"resized"`` follows when samples flow again with them;
-    - ``"underflow"``: the sample due at a tick had not arrived; the last
-      one was repeated (``seq`` is the repeated sample's);
+      ``ns``; ``"started"`` follows when samples flow again with them;
     - ``"delay_changed"``: a target-delay playout (``"adaptive"``, …)
       changed the constant delay it holds, now ``delay`` seconds, ``ticks``
       periods rounded up (no pause: the change is smooth; at periods over
       20 ms the adaptive delay moves in fractions of a period, and its
       samples are released between ticks);
     - ``"link_lost"``: no fresh sample for the watchdog time
-      (``silent_for``): hold the robot safely; ``"link_restored"`` follows;
+      (``silent_for``): hold the robot safely;
+    - ``"link_restored"``: fresh samples flow again after ``"link_lost"``;
     - ``"closed"``: the link ended (``error`` says why; ``details["normal"]``
       is true when either side closed it in order).
+
+    An underflow (the sample due at a tick had not arrived, the last one is
+    repeated) is no event: the tick says it (``tick.status == "held"``) and
+    the stats count it (``stats["underflows"]``, ``stats["released_held"]``).
     """
 
     kind: str
     period: Optional[float] = None
     ns: Optional[int] = None
-    seq: Optional[int] = None
     silent_for: Optional[float] = None
     delay: Optional[float] = None
     ticks: Optional[int] = None
@@ -152,7 +153,8 @@ class LatenessStats(TypedDict):
 
     count: int
     missed: int
-    """Deadlines met 1 ms or more late."""
+    """Deadlines met a whole period late or more."""
+    min: float
     p50: float
     p99: float
     p999: float
@@ -239,6 +241,9 @@ class LinkStats(TypedDict):
     last_nrtt: Optional[float]
     app_dropped: int
     """Releases and events dropped because the application did not read them."""
+    events_dropped: int
+    """Events dropped, the oldest first, because more than the link keeps
+    waited unread (see :meth:`Link.events`)."""
     frames_sent: int
     frames_received: int
     samples_sent: int
@@ -323,9 +328,6 @@ class Link:
     ) -> None:
         self._native = native
         self._on_event = on_event
-        self._events: Deque[Event] = deque()
-        self._events_dropped = 0
-        self._paused = False
         self._closed = False
         # A receive raised a LinkError: the link is over (for repr).
         self._ended = False
@@ -488,7 +490,7 @@ class Link:
             self._ended_by_error()
             raise
         if tick is None:
-            if self._native.pending_events:
+            if self._native.unseen_events:
                 self._pump()
             return None
         return self._delivered(tick)
@@ -498,7 +500,7 @@ class Link:
         exc = sys.exc_info()[1]
         if isinstance(exc, _native.LinkError):
             self._ended = True
-        if self._native.pending_events:
+        if self._native.unseen_events:
             self._pump()
 
     def _delivered(self, tick: Tick) -> Tick:
@@ -506,10 +508,8 @@ class Link:
         tick goes back in front of the queue (the next receive returns it)
         and the callback's exception propagates: nothing is lost."""
         try:
-            if self._native.pending_events:
+            if self._native.unseen_events:
                 self._pump()
-            if tick.status == "held":
-                self._emit(Event("underflow", seq=tick.seq))
         except BaseException:
             self._native.unrecv(tick)
             raise
@@ -577,17 +577,20 @@ class Link:
     # -- state ------------------------------------------------------------
 
     def events(self) -> List[Event]:
-        """The :class:`Event` s since the last call, oldest first."""
+        """The :class:`Event` s since the last call, oldest first (each has
+        gone to ``on_event`` and the log before). They wait in the native
+        link, the one bound on them: the latest 256 (ndr-net's
+        ``EVENT_BACKLOG``); older ones are dropped and counted in
+        :attr:`events_dropped` and ``stats["events_dropped"]``."""
         self._pump()
-        out = list(self._events)
-        self._events.clear()
-        return out
+        return [_event(kind, fields) for kind, fields in self._native.events()]
 
     @property
     def events_dropped(self) -> int:
         """Events dropped because :meth:`events` was not called for a long
-        time (more than ``EVENT_BACKLOG`` waited)."""
-        return self._events_dropped + self._native.events_dropped
+        time (more than 256 waited): ``stats["events_dropped"]``, also
+        before the first tick."""
+        return self._native.events_dropped
 
     @property
     def stats(self) -> Optional[LinkStats]:
@@ -598,10 +601,12 @@ class Link:
         ``released_held``, ``underflows``, ``late``, ``pauses``, …),
         ``nrtt`` and ``grtt`` (count, mean, std, min, max), ``lateness`` of
         the hub's wake-ups for its deadlines and ``release_lateness`` of
-        the releases themselves (p50, p99, p999, max, mean; over all links
-        of the hub), ``spin_margin`` (how long before a deadline the hub
-        stops sleeping and spins, learned from how late its timer wakes),
-        and ``app_dropped``."""
+        the releases themselves (min, p50, p99, p999, max, mean; over all
+        links of the hub), ``spin_margin`` (how long before a deadline the
+        hub stops sleeping and spins, learned from how late its timer
+        wakes), ``app_dropped`` and ``events_dropped``. The dict is the Rust
+        ``LinkStats`` serialized (the endpoint's counters beside the
+        link's): its keys are the Rust fields' serde names."""
         return self._native.stats()
 
     def now(self) -> float:
@@ -683,55 +688,46 @@ class Link:
     # -- events -----------------------------------------------------------
 
     def _pump(self) -> None:
-        # Every event of the batch is kept and passed to ``on_event``, even
-        # if the callback raises for one; its first exception then propagates.
+        # The events not seen yet go to the log and ``on_event`` (they stay
+        # in the native link for :meth:`events`), every one even if the
+        # callback raises for one; its first exception then propagates.
         failure: Optional[BaseException] = None
-        for kind, fields in self._native.events():
-            if kind == "paused":
-                self._paused = True
-            elif kind == "started" and self._paused:
-                self._paused = False
-                kind = "resized"
+        for kind, fields in self._native.new_events():
+            event = _event(kind, fields)
+            _log_event(self, event)
+            if self._on_event is None:
+                continue
             try:
-                self._emit(
-                    Event(
-                        kind,
-                        period=fields.get("period"),
-                        ns=fields.get("ns"),
-                        silent_for=fields.get("silent_for"),
-                        delay=fields.get("delay"),
-                        ticks=fields.get("ticks"),
-                        error=fields.get("error"),
-                        details=fields,
-                    )
-                )
+                self._on_event(event)
             except BaseException as e:  # noqa: BLE001 - re-raised below
                 if failure is None:
                     failure = e
         if failure is not None:
             raise failure
 
-    def _emit(self, event: Event) -> None:
-        if len(self._events) >= EVENT_BACKLOG:
-            self._events.popleft()
-            self._events_dropped += 1
-        self._events.append(event)
-        _log_event(self, event)
-        if self._on_event is not None:
-            self._on_event(event)
+
+def _event(kind: str, fields: Dict[str, Any]) -> Event:
+    return Event(
+        kind,
+        period=fields.get("period"),
+        ns=fields.get("ns"),
+        silent_for=fields.get("silent_for"),
+        delay=fields.get("delay"),
+        ticks=fields.get("ticks"),
+        error=fields.get("error"),
+        details=fields,
+    )
 
 
 def _log_event(link: Link, e: Event) -> None:
     who = link.role
-    if e.kind == "underflow":
-        _log.debug("%s: underflow, sample %s repeated", who, e.seq)
-    elif e.kind == "link_lost":
+    if e.kind == "link_lost":
         _log.warning("%s: link lost: no fresh sample for %.3f s", who, e.silent_for or 0.0)
     elif e.kind == "closed" and not e.details.get("normal", True):
         _log.warning("%s: link closed: %s", who, e.error)
     elif e.kind == "delay_changed":
         _log.info("%s: delay now %.6g s (%s periods)", who, e.delay, e.ticks)
-    elif e.kind in ("started", "resized", "paused"):
+    elif e.kind in ("started", "paused"):
         _log.info("%s: %s, period %.6g s, ns %s", who, e.kind, e.period, e.ns)
     else:
         _log.info("%s: %s", who, e.kind)

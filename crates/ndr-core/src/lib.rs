@@ -157,6 +157,11 @@
 //! - `alloc`: [`storage::Heap`], endpoints whose buffers are sized when they
 //!   are made. Without `std` and `alloc` the crate is `#![no_std]` and uses no
 //!   allocator: endpoints keep their buffers in [`storage::Inline`] arrays.
+//! - `serde`: `serde::Serialize` for the endpoint's [`Stats`](endpoint::Stats)
+//!   and what they hold, with the names and units the bindings show: a
+//!   [`Duration`] is seconds (`f64`), a [`Phase`](endpoint::Phase) its
+//!   lowercase name, a [`Running`](endpoint::Running) its count, mean, std,
+//!   min and max. No `std` needed.
 #![no_std]
 #![forbid(unsafe_code)]
 

@@ -334,6 +334,15 @@ impl fmt::Display for Instant {
     }
 }
 
+/// Seconds, as an `f64`: the unit every binding and report shows (the stats'
+/// durations among them), not the integer nanoseconds it holds.
+#[cfg(feature = "serde")]
+impl serde::Serialize for Duration {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(self.as_secs_f64())
+    }
+}
+
 #[cfg(feature = "std")]
 mod std_conv {
     use super::{Duration, Instant};

@@ -939,6 +939,8 @@ fn publish(e: &Entry, hub: HubFigures) {
         release_lateness: hub.release_lateness,
         spin_margin: hub.spin_margin,
         app_dropped: e.app_dropped,
+        // Filled in by `LinkSender::stats`: the link counts them.
+        events_dropped: 0,
         rx_lag: e.rx_lag,
     };
     *e.shared

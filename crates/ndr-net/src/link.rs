@@ -18,6 +18,7 @@ use std::collections::VecDeque;
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
@@ -47,6 +48,9 @@ pub use crate::listener::{Admission, Listener, ListenerStats};
 pub const MAX_AXES: usize = 8;
 /// Default capacity of a link's regulator: `ns` up to 255.
 pub const QUEUE: usize = 256;
+/// Events a [`Link`] keeps for [`drain_events`](Link::drain_events); past
+/// it the oldest go, counted in [`LinkStats::events_dropped`].
+pub const EVENT_BACKLOG: usize = 256;
 
 /// A released sample, as the application receives it: its values are as
 /// many as the link's axes.
@@ -158,7 +162,12 @@ impl From<io::Error> for NetError {
 }
 
 /// A snapshot of a link's state and counters.
+///
+/// With the `serde` feature it serializes flat, the endpoint's counters
+/// beside the link's, durations in seconds (the form the Python binding
+/// hands out).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 #[non_exhaustive]
 pub struct LinkStats {
     /// Where the protocol is.
@@ -174,6 +183,7 @@ pub struct LinkStats {
     /// The latest NRTT measured.
     pub last_nrtt: Option<Duration>,
     /// Everything the endpoint counted.
+    #[cfg_attr(feature = "serde", serde(flatten))]
     pub endpoint: Stats,
     /// How late the hub's thread woke for its deadlines (all its links).
     pub lateness: LatenessStats,
@@ -187,6 +197,9 @@ pub struct LinkStats {
     pub spin_margin: Duration,
     /// Samples and events dropped because the application did not read them.
     pub app_dropped: u64,
+    /// Events dropped, the oldest first, because more than
+    /// [`EVENT_BACKLOG`] waited for [`Link::drain_events`].
+    pub events_dropped: u64,
     /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
     /// where there is one) to the hub handing it to the endpoint.
     pub rx_lag: Running,
@@ -198,6 +211,8 @@ pub struct Link {
     deliveries: Inbox,
     shared: Arc<Shared>,
     events: VecDeque<LinkEvent>,
+    /// Events dropped from `events`; [`LinkSender::stats`] reports them.
+    events_dropped: Arc<AtomicU64>,
     axes: usize,
     closed: Option<LinkError>,
     shut: bool,
@@ -350,6 +365,7 @@ impl Link {
             deliveries: del_rx,
             shared,
             events: VecDeque::new(),
+            events_dropped: Arc::new(AtomicU64::new(0)),
             axes: usize::from(cfg.axes),
             closed: None,
             shut: false,
@@ -399,6 +415,7 @@ impl Link {
     pub fn sender(&self) -> LinkSender {
         LinkSender {
             shared: Arc::clone(&self.shared),
+            events_dropped: Arc::clone(&self.events_dropped),
             axes: self.axes,
             origin: self.hub.origin(),
         }
@@ -518,13 +535,12 @@ impl Link {
     }
 
     fn push_event(&mut self, e: LinkEvent) {
-        if self.events.len() >= 256 {
-            self.events.pop_front();
-        }
-        self.events.push_back(e);
+        keep_event(&mut self.events, &self.events_dropped, e);
     }
 
-    /// Events seen while receiving (started, paused, link lost, …), oldest first.
+    /// Events seen while receiving (started, paused, link lost, …), oldest
+    /// first: the latest [`EVENT_BACKLOG`] (the others are counted in
+    /// [`LinkStats::events_dropped`]).
     pub fn drain_events(&mut self) -> impl Iterator<Item = LinkEvent> + '_ {
         self.events.drain(..)
     }
@@ -654,6 +670,7 @@ impl Drop for Link {
 #[derive(Clone)]
 pub struct LinkSender {
     shared: Arc<Shared>,
+    events_dropped: Arc<AtomicU64>,
     axes: usize,
     origin: StdInstant,
 }
@@ -691,11 +708,14 @@ impl LinkSender {
     /// A snapshot of the link's counters (`None` before the first tick).
     #[must_use]
     pub fn stats(&self) -> Option<LinkStats> {
-        *self
+        let mut stats = (*self
             .shared
             .stats
             .lock()
-            .unwrap_or_else(PoisonError::into_inner)
+            .unwrap_or_else(PoisonError::into_inner))?;
+        // Counted on the application's side, which the hub does not see.
+        stats.events_dropped = self.events_dropped.load(Ordering::Relaxed);
+        Some(stats)
     }
 
     /// Axes per sample.
@@ -709,6 +729,16 @@ impl LinkSender {
     pub fn now(&self) -> Instant {
         Instant::from_std(self.origin, StdInstant::now())
     }
+}
+
+/// Appends `e` to the events waiting for [`Link::drain_events`]; past
+/// [`EVENT_BACKLOG`] the oldest goes, counted in `dropped`.
+fn keep_event(events: &mut VecDeque<LinkEvent>, dropped: &AtomicU64, e: LinkEvent) {
+    if events.len() >= EVENT_BACKLOG {
+        events.pop_front();
+        dropped.fetch_add(1, Ordering::Relaxed);
+    }
+    events.push_back(e);
 }
 
 /// A blocking call made on a tokio runtime's thread would block that
@@ -871,5 +901,26 @@ pub(crate) mod arrival {
     fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
         let mut reader = socket;
         reader.read(buf).map(|n| (n, None))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn events_past_the_backlog_drop_the_oldest_and_are_counted() {
+        let mut events = VecDeque::new();
+        let dropped = AtomicU64::new(0);
+        let lost = |ms| Event::LinkLost {
+            silent_for: Duration::from_millis(ms),
+        };
+        for ms in 0..EVENT_BACKLOG as u64 + 3 {
+            keep_event(&mut events, &dropped, lost(ms));
+        }
+        assert_eq!(events.len(), EVENT_BACKLOG);
+        assert_eq!(dropped.load(Ordering::Relaxed), 3);
+        assert_eq!(events.front(), Some(&lost(3)));
+        assert_eq!(events.back(), Some(&lost(EVENT_BACKLOG as u64 + 2)));
     }
 }

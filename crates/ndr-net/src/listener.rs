@@ -94,6 +94,7 @@ impl Default for Admission {
 /// New counters may be added: read the fields, do not build the struct.
 #[non_exhaustive]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct ListenerStats {
     /// Links accepted (handed to the application).
     pub accepted: u64,

@@ -12,9 +12,11 @@ use numpy::{
     PyArray1, PyArray2, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyUntypedArray,
     PyUntypedArrayMethods,
 };
-use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyOverflowError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyTuple};
+use serde_json::Value;
 
 /// A `ValueError` carrying the core's message.
 pub fn value_error(e: impl Display) -> PyErr {
@@ -361,4 +363,47 @@ pub fn sample(name: &str, obj: &Bound<'_, PyAny>, len: usize) -> PyResult<Vec<f6
         return Ok(vec![finite(name, v)?]);
     }
     vector(name, obj, Some(len))
+}
+
+/// A Rust value (the link's, listener's and relay's stats) as Python sees
+/// it: its serde serialization, so that the Rust type is the one list of
+/// names and units (durations in seconds, `#[serde]` attributes for the
+/// rest). A struct or map becomes a dict, a sequence a tuple (the stats'
+/// pairs), a whole number an int, another number a float, `None` `None`
+/// (as would a float that is not finite: JSON holds no NaN).
+pub fn serialized<'py, T: serde::Serialize>(
+    py: Python<'py>,
+    value: &T,
+) -> PyResult<Bound<'py, PyAny>> {
+    let v = serde_json::to_value(value)
+        .map_err(|e| PyRuntimeError::new_err(format!("cannot serialize the stats: {e}")))?;
+    json(py, &v)
+}
+
+fn json<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
+    Ok(match v {
+        Value::Null => py.None().into_bound(py),
+        Value::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
+        Value::Number(n) => match (n.as_u64(), n.as_i64()) {
+            (Some(u), _) => u.into_pyobject(py)?.into_any(),
+            (None, Some(i)) => i.into_pyobject(py)?.into_any(),
+            // serde_json holds every other number as a finite f64.
+            (None, None) => n.as_f64().unwrap_or(f64::NAN).into_pyobject(py)?.into_any(),
+        },
+        Value::String(s) => s.into_pyobject(py)?.into_any(),
+        Value::Array(items) => {
+            let items = items
+                .iter()
+                .map(|x| json(py, x))
+                .collect::<PyResult<Vec<_>>>()?;
+            PyTuple::new(py, items)?.into_any()
+        }
+        Value::Object(fields) => {
+            let d = PyDict::new(py);
+            for (k, x) in fields {
+                d.set_item(k, json(py, x)?)?;
+            }
+            d.into_any()
+        }
+    })
 }

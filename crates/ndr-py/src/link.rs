@@ -13,7 +13,7 @@
 
 use std::collections::VecDeque;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
@@ -21,21 +21,18 @@ use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow}
 use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
-use ndr_net::link::{LinkEvent, MAX_AXES};
-use ndr_net::{LatenessStats, Link, LinkConfig, LinkSender, LinkStats, Listener, NetError, Sample};
+use ndr_net::link::{EVENT_BACKLOG, LinkEvent, MAX_AXES};
+use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::blocking::{self, timed_out, wait};
-use crate::convert::{count, int_in, period as positive, sample as to_sample};
+use crate::convert::{count, int_in, period as positive, sample as to_sample, serialized};
 use crate::errors::{link_error, net_error, os_error};
 use crate::log;
 use crate::tls::PyTlsConfig;
-
-/// Events kept for Python between two reads; older ones are dropped.
-const EVENTS: usize = 1024;
 
 /// The most released samples and events that may wait for the application
 /// (`queue=`): a bound on the memory a link that nobody reads can take
@@ -121,7 +118,6 @@ struct Rx {
     link: Link,
     /// Samples handed back by an interrupted asynchronous receive; served first.
     stash: VecDeque<Sample>,
-    events: VecDeque<LinkEvent>,
     ended: Option<CoreError>,
 }
 
@@ -143,11 +139,51 @@ impl Rx {
                 Err(e) => Err(e),
             }
         };
-        self.events.extend(self.link.drain_events());
         if let Err(NetError::Link(e)) = &got {
             self.ended = Some(*e);
         }
         got
+    }
+}
+
+/// The events waiting for Python: moved out of the link after each receive,
+/// so that reading them never waits for a receive in progress. The one
+/// place they wait in Python: `ndr.Link` keeps none of its own.
+#[derive(Default)]
+struct Kept {
+    events: VecDeque<LinkEvent>,
+    /// The oldest `seen` went to Python's callbacks ([`PyLink::new_events`]).
+    seen: usize,
+    /// Dropped past [`EVENT_BACKLOG`], as the Rust link drops its own.
+    dropped: u64,
+}
+
+impl Kept {
+    /// Appends what came, the oldest going past [`EVENT_BACKLOG`]
+    /// (counted); returns how many are not seen yet.
+    fn extend(&mut self, came: impl IntoIterator<Item = LinkEvent>) -> usize {
+        self.events.extend(came);
+        let excess = self.events.len().saturating_sub(EVENT_BACKLOG);
+        if excess > 0 {
+            self.events.drain(..excess);
+            self.seen = self.seen.saturating_sub(excess);
+            self.dropped += excess as u64;
+        }
+        self.events.len() - self.seen
+    }
+
+    /// The events not seen yet, now seen (they stay).
+    fn take_new(&mut self) -> Vec<LinkEvent> {
+        let new = self.events.range(self.seen..).cloned().collect();
+        self.seen = self.events.len();
+        new
+    }
+
+    /// The events seen, which leave.
+    fn take_seen(&mut self) -> Vec<LinkEvent> {
+        let seen = self.events.drain(..self.seen).collect();
+        self.seen = 0;
+        seen
     }
 }
 
@@ -156,11 +192,9 @@ impl Rx {
 pub struct PyLink {
     sender: LinkSender,
     rx: Mutex<Rx>,
-    /// Events moved out of `rx` after each receive, so that reading them
-    /// never waits for a receive in progress.
-    events: Mutex<VecDeque<LinkEvent>>,
-    pending: AtomicUsize,
-    events_dropped: AtomicU64,
+    kept: Mutex<Kept>,
+    /// Events in `kept` not yet seen, readable without its lock.
+    unseen: AtomicUsize,
     role: Role,
     period: f64,
     peer: SocketAddr,
@@ -178,30 +212,37 @@ impl PyLink {
             rx: Mutex::new(Rx {
                 link,
                 stash: VecDeque::new(),
-                events: VecDeque::new(),
                 ended: None,
             }),
-            events: Mutex::new(VecDeque::new()),
-            pending: AtomicUsize::new(0),
-            events_dropped: AtomicU64::new(0),
+            kept: Mutex::new(Kept::default()),
+            unseen: AtomicUsize::new(0),
             role,
             period: period.as_secs_f64(),
         }
     }
 
     /// Moves the events the last receive saw to where Python reads them
-    /// (at most [`EVENTS`]; the oldest go first, as the Rust link does).
+    /// (at most [`EVENT_BACKLOG`]; the oldest go first, as in the Rust link).
     fn publish(&self, rx: &mut Rx) {
-        if rx.events.is_empty() {
-            return;
+        let mut kept = self.kept();
+        let unseen = kept.extend(rx.link.drain_events());
+        // Under the lock, so that it cannot undo `new_events`' zero.
+        self.unseen.store(unseen, Ordering::Release);
+    }
+
+    fn kept(&self) -> MutexGuard<'_, Kept> {
+        self.kept.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The events as `(kind, fields)` pairs.
+    fn listed<'py>(py: Python<'py>, events: &[LinkEvent]) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for e in events {
+            if let Some(item) = event(py, e)? {
+                list.append(item)?;
+            }
         }
-        let mut out = self.events.lock().unwrap_or_else(PoisonError::into_inner);
-        out.extend(rx.events.drain(..));
-        let excess = out.len().saturating_sub(EVENTS);
-        out.drain(..excess);
-        self.events_dropped
-            .fetch_add(excess as u64, Ordering::Relaxed);
-        self.pending.store(out.len(), Ordering::Release);
+        Ok(list)
     }
 
     /// [`Rx::take`], then [`publish`](Self::publish).
@@ -222,8 +263,6 @@ impl PyLink {
         py.detach(|| {
             let mut rx = lock(&self.rx);
             how(&mut rx.link);
-            let Rx { link, events, .. } = &mut *rx;
-            events.extend(link.drain_events());
             if rx.ended.is_none() {
                 rx.ended = Some(CoreError::Closed);
             }
@@ -288,37 +327,48 @@ impl PyLink {
         self.sender.send(&values).map_err(|e| net_error(py, e))
     }
 
-    /// The events since the last call, oldest first, as `(kind, fields)`.
+    /// The events `new_events()` has returned, oldest first, as
+    /// `(kind, fields)`; they leave. One that came since stays for the next
+    /// `new_events()`, so that none skips Python's callbacks.
     fn events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let events: Vec<LinkEvent> = {
-            let mut queue = self.events.lock().unwrap_or_else(PoisonError::into_inner);
-            self.pending.store(0, Ordering::Release);
-            queue.drain(..).collect()
+        let events = self.kept().take_seen();
+        Self::listed(py, &events)
+    }
+
+    /// The events that came since the last call, oldest first, as
+    /// `(kind, fields)`; they stay for `events()`.
+    fn new_events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let events = {
+            let mut kept = self.kept();
+            self.unseen.store(0, Ordering::Release);
+            kept.take_new()
         };
-        let list = PyList::empty(py);
-        for e in events {
-            if let Some(item) = event(py, &e)? {
-                list.append(item)?;
-            }
-        }
-        Ok(list)
+        Self::listed(py, &events)
     }
 
-    /// Events waiting to be read by `events()`.
+    /// Events waiting for `new_events()`.
     #[getter]
-    fn pending_events(&self) -> usize {
-        self.pending.load(Ordering::Acquire)
+    fn unseen_events(&self) -> usize {
+        self.unseen.load(Ordering::Acquire)
     }
 
-    /// Events dropped because nobody read them (more than 1024 waited).
+    /// Events dropped because more than `EVENT_BACKLOG` waited for
+    /// `events()`, here or in the Rust link (`stats()["events_dropped"]`).
     #[getter]
     fn events_dropped(&self) -> u64 {
-        self.events_dropped.load(Ordering::Relaxed)
+        let here = self.kept().dropped;
+        here + self.sender.stats().map_or(0, |s| s.events_dropped)
     }
 
-    /// A snapshot of the link's state and counters (`None` before its first tick).
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        self.sender.stats().map(|s| stats(py, &s)).transpose()
+    /// A snapshot of the link's state and counters (`None` before its first
+    /// tick): `LinkStats` serialized, the events this binding dropped
+    /// counted with the Rust link's.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(mut s) = self.sender.stats() else {
+            return Ok(None);
+        };
+        s.events_dropped += self.kept().dropped;
+        serialized(py, &s).map(Some)
     }
 
     /// Now on this side's link clock (s): `released_at` and `arrived_at` are on it.
@@ -405,86 +455,6 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
         _ => {}
     }
     Ok(Some((e.kind(), fields).into_pyobject(py)?.into_any()))
-}
-
-fn stats<'py>(py: Python<'py>, s: &LinkStats) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    let secs = |x: Duration| x.as_secs_f64();
-    d.set_item("phase", format!("{:?}", s.phase).to_lowercase())?;
-    d.set_item("period", secs(s.period))?;
-    d.set_item("ns", s.ns)?;
-    d.set_item("queue_len", s.queue_len)?;
-    d.set_item("queue_range", s.queue_range)?;
-    d.set_item("last_nrtt", s.last_nrtt.map(secs))?;
-    d.set_item("app_dropped", s.app_dropped)?;
-    let e = &s.endpoint;
-    for (k, v) in [
-        ("frames_sent", e.frames_sent),
-        ("frames_received", e.frames_received),
-        ("samples_sent", e.samples_sent),
-        ("samples_repeated", e.samples_repeated),
-        ("samples_received", e.samples_received),
-        ("released_fresh", e.released_fresh),
-        ("released_held", e.released_held),
-        ("underflows", e.underflows),
-        ("late", e.late),
-        ("rejected", e.rejected),
-        ("discarded", e.discarded),
-        ("skipped", e.skipped),
-        ("pauses", e.pauses),
-        ("resizes", e.resizes),
-        ("link_lost", e.link_lost),
-        ("tx_dropped", e.tx_dropped),
-        ("frames_missing", e.frames_missing),
-        ("outage_delays", e.outage_delays),
-        ("clamped", e.clamped),
-        ("grtt_unmeasured", e.grtt_unmeasured),
-        ("probes_received", e.probes_received),
-    ] {
-        d.set_item(k, v)?;
-    }
-    let running = |r: &ndr_core::endpoint::Running| -> PyResult<Bound<'py, PyDict>> {
-        let m = PyDict::new(py);
-        m.set_item("count", r.count())?;
-        m.set_item("mean", r.mean())?;
-        m.set_item("std", r.std())?;
-        m.set_item("min", r.min())?;
-        m.set_item("max", r.max())?;
-        Ok(m)
-    };
-    d.set_item("nrtt", running(&e.nrtt)?)?;
-    d.set_item("grtt", running(&e.grtt)?)?;
-    // One-way delays from the clock estimate (offset and skew between the
-    // peers), and the delay a target-delay playout holds now.
-    d.set_item("one_way_rx", running(&e.one_way_rx)?)?;
-    d.set_item("one_way_tx", running(&e.one_way_tx)?)?;
-    d.set_item("clock_offset", e.clock_offset_s)?;
-    d.set_item("clock_skew_ppm", e.clock_skew_ppm)?;
-    d.set_item("playout_delay", e.playout_delay_s)?;
-    d.set_item("playout_delay_ticks", e.playout_delay_ticks)?;
-    d.set_item("delay_changes", e.delay_changes)?;
-    d.set_item("rx_lag", running(&s.rx_lag)?)?;
-    let lateness = |l: &LatenessStats| -> PyResult<Bound<'py, PyDict>> {
-        let m = PyDict::new(py);
-        m.set_item("count", l.count)?;
-        m.set_item("missed", l.missed)?;
-        for (k, v) in [
-            ("p50", l.p50),
-            ("p99", l.p99),
-            ("p999", l.p999),
-            ("max", l.max),
-            ("mean", l.mean),
-        ] {
-            m.set_item(k, secs(v))?;
-        }
-        Ok(m)
-    };
-    // When the hub woke for its deadlines, and when each release happened.
-    d.set_item("lateness", lateness(&s.lateness)?)?;
-    d.set_item("release_lateness", lateness(&s.release_lateness)?)?;
-    // How long before a deadline the hub spins, learned from its timer.
-    d.set_item("spin_margin", secs(s.spin_margin))?;
-    Ok(d)
 }
 
 /// The settings of one side of a link, checked once (`ndr.Link.connect`
@@ -844,27 +814,54 @@ impl PyListener {
             + s.unclaimed
     }
 
-    /// What the listener counted, by reason.
+    /// What the listener counted, by reason (`ListenerStats` serialized).
     #[getter]
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let s = self.tls_stats(py);
-        let d = PyDict::new(py);
-        d.set_item("accepted", s.accepted)?;
-        d.set_item("refused_certificate", s.refused_certificate)?;
-        d.set_item("refused_no_certificate", s.refused_no_certificate)?;
-        d.set_item("refused_version", s.refused_version)?;
-        d.set_item("timeouts", s.timeouts)?;
-        d.set_item("failed_other", s.failed_other)?;
-        d.set_item("refused_role", s.refused_role)?;
-        d.set_item("refused_axes", s.refused_axes)?;
-        d.set_item("refused_settings", s.refused_settings)?;
-        d.set_item("refused_wire_version", s.refused_wire_version)?;
-        d.set_item("refused_protocol", s.refused_protocol)?;
-        d.set_item("evicted", s.evicted)?;
-        d.set_item("refused_per_source", s.refused_per_source)?;
-        d.set_item("refused_busy", s.refused_busy)?;
-        d.set_item("unclaimed", s.unclaimed)?;
-        d.set_item("accept_errors", s.accept_errors)?;
-        Ok(d)
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        serialized(py, &self.tls_stats(py))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lost(ms: u64) -> LinkEvent {
+        Event::LinkLost {
+            silent_for: Duration::from_millis(ms),
+        }
+    }
+
+    #[test]
+    fn events_go_to_the_callbacks_once_and_leave_only_once_seen() {
+        let mut kept = Kept::default();
+        assert_eq!(kept.extend([lost(1), lost(2)]), 2);
+        assert_eq!(kept.take_new(), [lost(1), lost(2)]);
+        assert_eq!(kept.extend([lost(3)]), 1);
+        // The one that came after the callbacks ran waits for them.
+        assert_eq!(kept.take_seen(), [lost(1), lost(2)]);
+        assert_eq!(kept.take_seen(), []);
+        assert_eq!(kept.take_new(), [lost(3)]);
+        assert_eq!(kept.take_new(), []);
+        assert_eq!(kept.take_seen(), [lost(3)]);
+        assert_eq!(kept.dropped, 0);
+    }
+
+    #[test]
+    fn past_the_backlog_the_oldest_events_go_and_are_counted() {
+        let mut kept = Kept::default();
+        let n = EVENT_BACKLOG as u64;
+        kept.extend((0..n - 1).map(lost));
+        assert_eq!(kept.take_new().len(), EVENT_BACKLOG - 1);
+        // Three more than there is room for: the two oldest, seen, go.
+        assert_eq!(kept.extend((n - 1..n + 2).map(lost)), 3);
+        assert_eq!(kept.dropped, 2);
+        assert_eq!(kept.take_new(), [lost(n - 1), lost(n), lost(n + 1)]);
+        let seen = kept.take_seen();
+        assert_eq!(seen.len(), EVENT_BACKLOG);
+        assert_eq!(seen.first(), Some(&lost(2)));
+        // Nobody looked: the oldest not seen go too.
+        assert_eq!(kept.extend((0..n + 1).map(lost)), EVENT_BACKLOG);
+        assert_eq!(kept.dropped, 3);
+        assert_eq!(kept.take_new().first(), Some(&lost(1)));
     }
 }

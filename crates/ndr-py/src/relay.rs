@@ -5,14 +5,12 @@
 
 use std::sync::{Mutex, PoisonError};
 
-use ndr_net::relay::DirectionStats;
 use ndr_net::{Relay, RelayHandle, RelayStats};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 
 use crate::blocking;
-use crate::convert::in_range;
+use crate::convert::{in_range, serialized};
 use crate::delay::delay_model;
 use crate::errors::os_error;
 use crate::log;
@@ -92,9 +90,10 @@ impl PyRelay {
         &self.model
     }
 
-    /// Its counters: connections, how they ended, and frames per direction.
+    /// Its counters: connections, how they ended, and frames per direction
+    /// (`RelayStats` serialized).
     #[getter]
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         log::flush(py);
         let snapshot = {
             let guard = self.handle.lock().unwrap_or_else(PoisonError::into_inner);
@@ -103,7 +102,7 @@ impl PyRelay {
                 None => *self.last.lock().unwrap_or_else(PoisonError::into_inner),
             }
         };
-        stats(py, &snapshot)
+        serialized(py, &snapshot)
     }
 
     /// Stops it: connections in flight are cut. Idempotent.
@@ -139,31 +138,4 @@ impl PyRelay {
             self.address.0, self.address.1, self.model
         )
     }
-}
-
-fn stats<'py>(py: Python<'py>, s: &RelayStats) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    for (k, v) in [
-        ("connections", s.connections),
-        ("active", s.active),
-        ("finished", s.finished),
-        ("upstream_failures", s.upstream_failures),
-        ("framing_errors", s.framing_errors),
-        ("queue_overflows", s.queue_overflows),
-        ("io_errors", s.io_errors),
-        ("closed_by_shutdown", s.closed_by_shutdown),
-    ] {
-        d.set_item(k, v)?;
-    }
-    let direction = |x: &DirectionStats| -> PyResult<Bound<'py, PyDict>> {
-        let m = PyDict::new(py);
-        m.set_item("frames_received", x.frames_received)?;
-        m.set_item("frames_delivered", x.frames_delivered)?;
-        m.set_item("bytes_delivered", x.bytes_delivered)?;
-        m.set_item("held_back", x.held_back)?;
-        Ok(m)
-    };
-    d.set_item("forward", direction(&s.forward)?)?;
-    d.set_item("backward", direction(&s.backward)?)?;
-    Ok(d)
 }

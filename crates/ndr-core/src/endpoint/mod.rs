@@ -77,6 +77,11 @@ fn ns_i64(t: Instant) -> i64 {
 
 /// Where the endpoint is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize),
+    serde(rename_all = "lowercase")
+)]
 pub enum Phase {
     /// Waiting for the peer's Hello.
     Handshake,

@@ -68,12 +68,29 @@ impl Running {
     }
 }
 
+/// What a reader wants of the series: `count`, `mean`, `std`, `min`, `max`
+/// (not the running sum of squares behind `std`).
+#[cfg(feature = "serde")]
+impl serde::Serialize for Running {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let mut m = s.serialize_struct("Running", 5)?;
+        m.serialize_field("count", &self.count)?;
+        m.serialize_field("mean", &self.mean)?;
+        m.serialize_field("std", &self.std())?;
+        m.serialize_field("min", &self.min)?;
+        m.serialize_field("max", &self.max)?;
+        m.end()
+    }
+}
+
 /// Everything an endpoint counted. Invariant of the receive side, under
 /// `drop-late`: `samples_received = released_fresh + queued + late + rejected
 /// + discarded + skipped`; under `hold` the same without `late` (a late
 /// sample is still released, one tick later; `late` counts the underflows it
 /// caused). The fuzz harness (`fuzz/harness.rs`) checks it after every step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 #[non_exhaustive]
 pub struct Stats {
     /// Frames sent, of any kind.
@@ -134,12 +151,16 @@ pub struct Stats {
     /// One-way delays of our frames, from the peer's echoes, in seconds.
     pub one_way_tx: Running,
     /// The clock offset estimate `local − peer` at the latest frame, in
-    /// seconds (0 until both directions have a floor).
+    /// seconds (0 until both directions have a floor). Serialized as
+    /// `clock_offset`, the name the bindings show.
+    #[cfg_attr(feature = "serde", serde(rename = "clock_offset"))]
     pub clock_offset_s: f64,
     /// The clock skew estimate `d(local − peer)/dt`, in ppm.
     pub clock_skew_ppm: f64,
     /// Target-delay playout: the end-to-end delay of the samples released
     /// now, in seconds (offset-corrected for the adaptive policy).
+    /// Serialized as `playout_delay`, the name the bindings show.
+    #[cfg_attr(feature = "serde", serde(rename = "playout_delay"))]
     pub playout_delay_s: f64,
     /// The same in ticks (periods, rounded up).
     pub playout_delay_ticks: u64,

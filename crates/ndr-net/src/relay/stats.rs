@@ -8,6 +8,7 @@ use super::ConnectionEnd;
 
 /// Counters of one direction, for the whole relay or for one connection.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct DirectionStats {
     /// Whole frames read from the sending side.
     pub frames_received: u64,
@@ -25,6 +26,7 @@ pub struct DirectionStats {
 /// Each connection that ended is counted once in `finished` or in exactly
 /// one of the reasons it was cut.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct RelayStats {
     /// Client connections accepted.
     pub connections: u64,
