@@ -46,7 +46,7 @@ use common::frame;
 use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
-use ndr::net::{Hub, LinkConfig, LinkStats, Listener, TlsConfig};
+use ndr::net::{Hub, Link, LinkConfig, LinkStats, Listener, TlsConfig};
 use ndr::sim::percentile;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -186,23 +186,18 @@ fn link_nrtt(
     std::thread::sleep(StdDuration::from_micros(period_ms * 500));
     let base_hub = hub(config.spin_margin);
     let (mut base, mut remote) = rt.block_on(async {
-        let Some((remote_tls, base_tls)) = tls else {
-            let listener = Listener::bind(any, config)
-                .await
-                .unwrap()
-                .with_hub(remote_hub);
-            let addr = listener.local_addr().unwrap();
-            let (r, b) = tokio::join!(listener.accept(), base_hub.connect(addr, config));
-            return (b.unwrap(), r.unwrap());
-        };
-        let listener = Listener::bind_tls(any, config, remote_tls)
+        let (mut remote_config, mut base_config) = (config.clone(), config.clone());
+        if let Some((remote_tls, base_tls)) = tls {
+            remote_config.tls = Some(remote_tls.clone());
+            base_config.tls = Some(base_tls.clone());
+        }
+        let listener = Listener::bind(any, remote_config.on_hub(remote_hub))
             .await
-            .unwrap()
-            .with_hub(remote_hub);
+            .unwrap();
         let addr = listener.local_addr().unwrap();
         let (r, b) = tokio::join!(
             listener.accept(),
-            base_hub.connect_tls(addr, config, base_tls)
+            Link::connect(addr, base_config.on_hub(base_hub))
         );
         (b.unwrap(), r.unwrap())
     });

@@ -256,17 +256,17 @@ fn main() {
         let remote_hubs = HubPool::new(hubs, spin).unwrap();
         let base_hubs = HubPool::new(hubs, spin).unwrap();
         let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-        let listener = Listener::bind(any, config)
+        let listener = Listener::bind(any, config.clone().on_pool(remote_hubs))
             .await
-            .unwrap()
-            .with_pool(remote_hubs);
+            .unwrap();
         let addr = listener.local_addr().unwrap();
         // One link at a time, both ends: every base comes from 127.0.0.1,
         // and a source with more handshakes pending than the listener's
         // per-source cap has its oldest evicted, as a flood would.
         let (mut bases, mut remotes) = (Vec::new(), Vec::new());
         for _ in 0..n {
-            let (remote, base) = tokio::join!(listener.accept(), base_hubs.connect(addr, config));
+            let base = Link::connect(addr, config.clone().on_pool(base_hubs.clone()));
+            let (remote, base) = tokio::join!(listener.accept(), base);
             remotes.push(remote.unwrap());
             bases.push(base.unwrap());
         }

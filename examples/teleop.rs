@@ -9,7 +9,7 @@
 //! own: `Listener::bind_blocking` and `Link::connect_blocking` bring one for
 //! the connection, and each link is then driven by its hub thread. Across
 //! two hosts, the same code with an address that is not loopback takes
-//! `TlsConfig` (`Listener::bind_blocking_tls`, `Link::connect_blocking_tls`).
+//! `TlsConfig` (`LinkConfig::with_tls`).
 
 use std::error::Error;
 use std::net::SocketAddr;

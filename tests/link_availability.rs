@@ -155,11 +155,9 @@ fn base_run(addr: SocketAddr, tls: Option<&TlsConfig>, ticks: u32) -> BaseRun {
     // the first ask (a loaded host can hold a handshake past the eviction's
     // grace while a flood takes every slot).
     let mut base = loop {
-        let attempt = match tls {
-            Some(tls) => Link::connect_blocking_tls(addr, config(), tls),
-            None => Link::connect_blocking(addr, config()),
-        }
-        .and_then(|mut base| {
+        let mut with = config();
+        with.tls = tls.cloned();
+        let attempt = Link::connect_blocking(addr, with).and_then(|mut base| {
             base.send(&[0.0, 0.0])?;
             base.recv_timeout(StdDuration::from_secs(5))?;
             Ok(base)
@@ -566,16 +564,12 @@ fn served_through_a_flood(name: &str, tls: Option<Certs>, holders: Holders) {
     const TICKS: u32 = 150;
     let seconds = flood_seconds();
     let rt = common::runtime();
-    let listener = match &tls {
-        Some(c) => rt.block_on(Listener::bind_tls(
-            "127.0.0.1:0".parse().unwrap(),
-            config(),
-            &c.robot,
-        )),
-        None => rt.block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config())),
-    }
-    .unwrap()
-    .with_max_links(1);
+    let mut with = config();
+    with.tls = tls.as_ref().map(|c| c.robot.clone());
+    let listener = rt
+        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), with))
+        .unwrap()
+        .with_max_links(1);
     let robot = Robot::serve(listener, rt, false);
     let addr = robot.addr();
     let start = StdInstant::now();

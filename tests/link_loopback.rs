@@ -148,10 +148,9 @@ fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others()
     let listener = rt
         .block_on(Listener::bind(
             "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
-            config(),
+            config().on_hub(hub),
         ))
-        .unwrap()
-        .with_hub(hub);
+        .unwrap();
     let addr = listener.local_addr().unwrap();
     let mut links = Vec::new();
     for _ in 0..2 {

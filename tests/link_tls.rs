@@ -66,7 +66,7 @@ fn lab(test: &str, handshake_timeout: Option<StdDuration>) -> Lab {
         remote_tls.handshake_timeout = t;
     }
     let listener = rt
-        .block_on(Listener::bind_tls(loopback(), config(), &remote_tls))
+        .block_on(Listener::bind(loopback(), config().with_tls(remote_tls)))
         .unwrap();
     let addr = listener.local_addr().unwrap();
     Lab {
@@ -102,7 +102,7 @@ fn tls_on_loopback_delivers_every_sample_in_order_with_a_constant_grtt() {
         let (remote, base) = rt.block_on(async {
             tokio::join!(
                 listener.accept(),
-                Link::connect_tls(*addr, config(), &base_tls)
+                Link::connect(*addr, config().with_tls(base_tls))
             )
         });
         // The echo is the command sent ns ticks before (checked by `drive_base`).
@@ -130,10 +130,11 @@ fn peers_without_a_trusted_certificate_never_become_links() {
         // certificate, a plain peer, then the good one.
         let accepting = listener.accept();
         let attempts = async {
-            let unknown = Link::connect_tls(addr, config(), &tls(stranger, r)).await;
-            let none = Link::connect_tls(addr, config(), &good.without_client_certificate()).await;
+            let unknown = Link::connect(addr, config().with_tls(tls(stranger, r))).await;
+            let none =
+                Link::connect(addr, config().with_tls(good.without_client_certificate())).await;
             let plain = Link::connect(addr, config()).await;
-            let ok = Link::connect_tls(addr, config(), &good).await;
+            let ok = Link::connect(addr, config().with_tls(good.clone())).await;
             (unknown, none, plain, ok)
         };
         let (accepted, (unknown, none, plain, ok)) = tokio::join!(accepting, attempts);
@@ -192,8 +193,8 @@ fn a_pin_mismatch_is_refused_by_the_client() {
     let right = TlsConfig::from_files_pinned(&b.cert, &b.key, vec![r.fingerprint]).unwrap();
     rt.block_on(async {
         let attempts = async {
-            let wrong = Link::connect_tls(addr, config(), &wrong).await;
-            let right = Link::connect_tls(addr, config(), &right).await;
+            let wrong = Link::connect(addr, config().with_tls(wrong.clone())).await;
+            let right = Link::connect(addr, config().with_tls(right.clone())).await;
             (wrong, right)
         };
         let (accepted, (wrong, right)) = tokio::join!(listener.accept(), attempts);
@@ -282,7 +283,10 @@ fn a_silent_peer_times_out_and_the_next_one_is_served() {
     // Connects, says nothing, holds the socket open past the timeout.
     let silent = rt.block_on(tokio::net::TcpStream::connect(addr)).unwrap();
     let (accepted, ok) = rt.block_on(async {
-        tokio::join!(listener.accept(), Link::connect_tls(addr, config(), &good))
+        tokio::join!(
+            listener.accept(),
+            Link::connect(addr, config().with_tls(good))
+        )
     });
     assert!(accepted.is_ok() && ok.is_ok());
     // Handshakes run side by side: the good peer did not wait for the
@@ -311,7 +315,7 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
     };
     let base_tls = tls(&b, &r);
     let (mut base, mut remote, relay) = rt.block_on(async {
-        let listener = Listener::bind_tls(loopback(), config(), &tls(&r, &b))
+        let listener = Listener::bind(loopback(), config().with_tls(tls(&r, &b)))
             .await
             .unwrap();
         let relay = Relay::bind(loopback(), listener.local_addr().unwrap(), model, 1)
@@ -321,7 +325,7 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
             .unwrap();
         let (r, b) = tokio::join!(
             listener.accept(),
-            Link::connect_tls(relay.local_addr(), config(), &base_tls)
+            Link::connect(relay.local_addr(), config().with_tls(base_tls))
         );
         (b.unwrap(), r.unwrap(), relay)
     });
@@ -389,13 +393,13 @@ fn peers_trusted_through_a_ca_link_and_a_wrong_server_name_is_refused() {
     let misnamed = TlsConfig::from_files_with_ca(&bc, &bk, &ca_file, "robot").unwrap();
     let rt = common::runtime();
     rt.block_on(async {
-        let listener = Listener::bind_tls(loopback(), config(), &remote)
+        let listener = Listener::bind(loopback(), config().with_tls(remote.clone()))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();
         let attempts = async {
-            let misnamed = Link::connect_tls(addr, config(), &misnamed).await;
-            let ok = Link::connect_tls(addr, config(), &base).await;
+            let misnamed = Link::connect(addr, config().with_tls(misnamed.clone())).await;
+            let ok = Link::connect(addr, config().with_tls(base.clone())).await;
             (misnamed, ok)
         };
         let (accepted, (misnamed, ok)) = tokio::join!(listener.accept(), attempts);

@@ -103,9 +103,10 @@ impl Drop for Inner {
 
 /// A driver thread for any number of links; cheap to clone.
 ///
-/// [`Link::connect`](crate::Link::connect) gives each link a hub of its own;
-/// [`Hub::connect`] and [`Listener::with_hub`](crate::Listener::with_hub)
-/// put many links on one.
+/// [`Link::connect`](crate::Link::connect) gives each link a hub of its own
+/// unless its configuration names one
+/// ([`LinkConfig::on_hub`](crate::LinkConfig::on_hub), for links and
+/// listeners alike): then many links share it.
 #[derive(Clone)]
 pub struct Hub {
     inner: Arc<Inner>,

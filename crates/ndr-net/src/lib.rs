@@ -57,6 +57,6 @@ pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
 pub use link::{Link, LinkConfig, LinkSender, LinkStats, NetError, Sample};
 pub use listener::{Admission, Listener, ListenerStats};
-pub use pool::HubPool;
+pub use pool::{HubChoice, HubPool};
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};

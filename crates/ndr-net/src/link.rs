@@ -39,6 +39,7 @@ use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
 use crate::hub::{Entry, Hub, Msg, Shared};
 use crate::listener::Seat;
+use crate::pool::{HubChoice, HubPool};
 use crate::tls::{HandshakeError, TlsConfig};
 use crate::tls_io::Session;
 
@@ -59,8 +60,21 @@ pub type Sample = Release<Box<[f64]>>;
 /// What a link's endpoint tells its application.
 pub type LinkEvent = Event<Box<[f64]>>;
 
-/// What a link is configured with.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What a link is configured with: the endpoint, the transport's security,
+/// which hub drives it, and the bounds on what it holds.
+///
+/// ```
+/// use ndr_core::endpoint::Config;
+/// use ndr_core::wire::Role;
+/// use ndr_net::{Hub, LinkConfig};
+///
+/// let hub = Hub::new(ndr_net::clock::DEFAULT_SPIN_MARGIN)?;
+/// // Plain TCP (loopback only, unless `insecure`), on a hub shared with
+/// // other links; `with_tls` for mutual TLS.
+/// let config = LinkConfig::new(Config::new(Role::Base)).on_hub(hub);
+/// # Ok::<(), std::io::Error>(())
+/// ```
+#[derive(Clone, Debug)]
 #[non_exhaustive]
 pub struct LinkConfig {
     /// The endpoint's configuration; its `role` is set by
@@ -82,6 +96,13 @@ pub struct LinkConfig {
     /// [`Stats::clamped`](ndr_core::endpoint::Stats::clamped); a remote that
     /// cannot hold it ends the link with [`LinkError::BadParameters`]).
     pub queue_capacity: usize,
+    /// Mutual TLS 1.3 with these identities and pins; `None` (the default):
+    /// plain TCP, which only a loopback address or [`insecure`](Self::insecure)
+    /// allows.
+    pub tls: Option<TlsConfig>,
+    /// Which hub drives the link (a listener: the links it accepts); a hub
+    /// of its own by default.
+    pub hub: HubChoice,
     /// Allows a link without TLS to or from a non-loopback address (the
     /// `--insecure` switch). Off by default: such a link is refused with
     /// [`NetError::Insecure`]; loopback links may always be plain.
@@ -101,9 +122,32 @@ impl LinkConfig {
             spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
             app_queue: 1024,
             queue_capacity: QUEUE,
+            tls: None,
+            hub: HubChoice::Own,
             insecure: false,
             admission: Admission::default(),
         }
+    }
+
+    /// The same, over mutual TLS 1.3 ([`tls`](Self::tls)).
+    #[must_use]
+    pub fn with_tls(mut self, tls: TlsConfig) -> Self {
+        self.tls = Some(tls);
+        self
+    }
+
+    /// The same, driven by `hub`, shared with other links.
+    #[must_use]
+    pub fn on_hub(mut self, hub: Hub) -> Self {
+        self.hub = HubChoice::Shared(hub);
+        self
+    }
+
+    /// The same, driven by the least loaded hub of `pool` at each link.
+    #[must_use]
+    pub fn on_pool(mut self, pool: HubPool) -> Self {
+        self.hub = HubChoice::Pool(pool);
+        self
     }
 }
 
@@ -236,52 +280,50 @@ impl fmt::Debug for Link {
 }
 
 impl Link {
-    /// Connects to a remote (this side is the base), on the current tokio
-    /// runtime, without TLS: refused with [`NetError::Insecure`] before
-    /// connecting unless `addr` is loopback or [`LinkConfig::insecure`].
+    /// Connects to a remote (this side is the base) on the current tokio
+    /// runtime: over mutual TLS 1.3 if [`LinkConfig::tls`] is set (a failed
+    /// handshake is [`NetError::Handshake`]), else plain TCP, refused with
+    /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
+    /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        plain_allowed(addr, &config)?;
-        let hub = Hub::new(config.spin_margin)?;
-        hub.connect(addr, config).await
+        let hub = config.hub.pick(config.spin_margin)?;
+        hub.connect_with(addr, config).await
     }
 
-    /// Connects to a remote (this side is the base) over mutual TLS 1.3, on
-    /// the current tokio runtime. A failed handshake is
-    /// [`NetError::Handshake`].
+    /// [`connect`](Self::connect) over mutual TLS 1.3.
+    #[deprecated(note = "set the TLS in the configuration: \
+                         `Link::connect(addr, config.with_tls(tls.clone()))`")]
     pub async fn connect_tls(
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
     ) -> Result<Link, NetError> {
-        let hub = Hub::new(config.spin_margin)?;
-        hub.connect_tls(addr, config, tls).await
+        Link::connect(addr, config.with_tls(tls.clone())).await
     }
 
     /// [`connect`](Self::connect) for programs without a tokio runtime: the
-    /// link gets a small runtime of its own.
+    /// link gets a small runtime of its own for the connection and the
+    /// handshakes; its hub drives it after that.
     pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        Link::connect_blocking_with(addr, config, None)
+        Link::connect_blocking_with(addr, config)
     }
 
-    /// [`connect_tls`](Self::connect_tls) for programs without a tokio
-    /// runtime.
+    /// [`connect_blocking`](Self::connect_blocking) over mutual TLS 1.3.
+    #[deprecated(note = "set the TLS in the configuration: \
+                         `Link::connect_blocking(addr, config.with_tls(tls.clone()))`")]
     pub fn connect_blocking_tls(
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
     ) -> Result<Link, NetError> {
-        Link::connect_blocking_with(addr, config, Some(tls))
+        Link::connect_blocking_with(addr, config.with_tls(tls.clone()))
     }
 
-    fn connect_blocking_with(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: Option<&TlsConfig>,
-    ) -> Result<Link, NetError> {
+    fn connect_blocking_with(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
         not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
         let rt = own_runtime()?;
-        let hub = Hub::new(config.spin_margin)?;
-        let mut link = rt.block_on(hub.connect_with(addr, config, tls))?;
+        let hub = config.hub.pick(config.spin_margin)?;
+        let mut link = rt.block_on(hub.connect_with(addr, config))?;
         link._runtime = Some(rt);
         Ok(link)
     }
@@ -776,27 +818,31 @@ impl Hub {
     /// Connects to a remote (this side is the base) and drives the link on
     /// this hub, on the current tokio runtime; without TLS, refused as
     /// [`Link::connect`] is.
+    #[deprecated(note = "name the hub in the configuration: \
+                         `Link::connect(addr, config.on_hub(hub.clone()))`")]
     pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        self.connect_with(addr, config, None).await
+        self.connect_with(addr, config).await
     }
 
-    /// [`connect`](Self::connect) over mutual TLS 1.3 (see [`Link::connect_tls`]).
+    /// [`connect`](Self::connect) over mutual TLS 1.3 (see [`Link::connect`]).
+    #[deprecated(note = "name the hub and the TLS in the configuration: \
+                         `Link::connect(addr, config.on_hub(hub.clone()).with_tls(tls.clone()))`")]
     pub async fn connect_tls(
         &self,
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
     ) -> Result<Link, NetError> {
-        self.connect_with(addr, config, Some(tls)).await
+        self.connect_with(addr, config.with_tls(tls.clone())).await
     }
 
+    /// Connects as `config` says, and drives the link on this hub.
     pub(crate) async fn connect_with(
         &self,
         addr: SocketAddr,
         config: LinkConfig,
-        tls: Option<&TlsConfig>,
     ) -> Result<Link, NetError> {
-        let Some(tls) = tls else {
+        let Some(tls) = config.tls.clone() else {
             plain_allowed(addr, &config)?;
             let stream = TcpStream::connect(addr).await?;
             return Link::start(stream, Role::Base, config, Handle::current(), self, None);

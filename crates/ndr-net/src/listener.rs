@@ -33,7 +33,7 @@ use tokio::sync::mpsc;
 
 use crate::hub::Hub;
 use crate::link::{Link, LinkConfig, NetError, not_in_a_runtime, own_runtime, plain_allowed};
-use crate::pool::HubPool;
+use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
 
 use ledger::{Ledger, Refusal};
@@ -261,33 +261,41 @@ fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
 }
 
 impl Listener {
-    /// Listens on `addr` for plain links; the links it accepts share one
-    /// hub of their own. Refused with [`NetError::Insecure`] unless `addr`
-    /// is loopback (then no other host can connect) or
-    /// [`LinkConfig::insecure`]. The accept loop runs on the current tokio
-    /// runtime (on a current-thread runtime, only while it runs).
+    /// Listens on `addr`; the accept loop runs on the current tokio runtime
+    /// (on a current-thread runtime, only while it runs). Over mutual TLS 1.3
+    /// if [`LinkConfig::tls`] is set: a peer whose handshake fails is counted
+    /// ([`stats`](Self::stats)), logged and dropped, and never returned by
+    /// [`accept`](Self::accept). Plain links are refused with
+    /// [`NetError::Insecure`] unless `addr` is loopback (then no other host
+    /// can connect) or [`LinkConfig::insecure`]. The links it accepts go to
+    /// the hub [`LinkConfig::hub`] names (a hub of its own by default).
     pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
-        plain_allowed(addr, &config)?;
-        Listener::bind_with(addr, config, None).await
+        if config.tls.is_none() {
+            plain_allowed(addr, &config)?;
+        }
+        Listener::bind_with(addr, config).await
     }
 
-    /// Listens on `addr` for links over mutual TLS 1.3: a peer whose
-    /// handshake fails is counted ([`stats`](Self::stats)), logged and
-    /// dropped, and never returned by [`accept`](Self::accept).
+    /// [`bind`](Self::bind) over mutual TLS 1.3.
+    #[deprecated(note = "set the TLS in the configuration: \
+                         `Listener::bind(addr, config.with_tls(tls.clone()))`")]
     pub async fn bind_tls(
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
     ) -> Result<Listener, NetError> {
-        Listener::bind_with(addr, config, Some(tls.clone())).await
+        Listener::bind_with(addr, config.with_tls(tls.clone())).await
     }
 
-    async fn bind_with(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: Option<TlsConfig>,
-    ) -> Result<Listener, NetError> {
+    async fn bind_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        let tls = config.tls.clone();
+        let hubs = match &config.hub {
+            HubChoice::Own => Hubs::One(Hub::new(config.spin_margin)?),
+            HubChoice::Shared(hub) => Hubs::One(hub.clone()),
+            HubChoice::Pool(pool) => Hubs::Pool(pool.clone()),
+        };
         let socket = listen(addr, config.admission.backlog)?;
+        let accept_queue = config.admission.accept_queue.max(1);
         let local = socket.local_addr()?;
         let listening = std::os::fd::AsFd::as_fd(&socket).try_clone_to_owned().ok();
         let slots = tls
@@ -300,13 +308,13 @@ impl Listener {
             tls,
             setup: Mutex::new(Setup {
                 role: Role::Remote,
-                hubs: Hubs::One(Hub::new(config.spin_margin)?),
+                hubs,
             }),
             seats: Arc::new(Seats::default()),
             ledger: Mutex::new(Ledger::default()),
             stopped: Mutex::new(None),
         });
-        let (tx, rx) = mpsc::channel(config.admission.accept_queue.max(1));
+        let (tx, rx) = mpsc::channel(accept_queue);
         let gate = gate::Gate::new(socket, &common, tx, slots);
         let gate = Handle::current().spawn(gate.run()).abort_handle();
         Ok(Listener {
@@ -346,28 +354,27 @@ impl Listener {
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn bind_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
-        plain_allowed(addr, &config)?;
-        Listener::bind_blocking_with(addr, config, None)
+        if config.tls.is_none() {
+            plain_allowed(addr, &config)?;
+        }
+        Listener::bind_blocking_with(addr, config)
     }
 
-    /// [`bind_tls`](Self::bind_tls) for programs without a tokio runtime
-    /// (see [`bind_blocking`](Self::bind_blocking)).
+    /// [`bind_blocking`](Self::bind_blocking) over mutual TLS 1.3.
+    #[deprecated(note = "set the TLS in the configuration: \
+                         `Listener::bind_blocking(addr, config.with_tls(tls.clone()))`")]
     pub fn bind_blocking_tls(
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
     ) -> Result<Listener, NetError> {
-        Listener::bind_blocking_with(addr, config, Some(tls.clone()))
+        Listener::bind_blocking_with(addr, config.with_tls(tls.clone()))
     }
 
-    fn bind_blocking_with(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: Option<TlsConfig>,
-    ) -> Result<Listener, NetError> {
+    fn bind_blocking_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         not_in_a_runtime("Listener::bind_blocking", "Listener::bind(..).await")?;
         let rt = own_runtime()?;
-        let mut listener = rt.block_on(Listener::bind_with(addr, config, tls))?;
+        let mut listener = rt.block_on(Listener::bind_with(addr, config))?;
         listener.runtime = Some(rt);
         Ok(listener)
     }
@@ -399,6 +406,8 @@ impl Listener {
     /// Puts the links it accepts on `hub` (shared with other listeners or
     /// connections) instead of a hub of its own.
     #[must_use]
+    #[deprecated(note = "name the hub in the configuration: \
+                         `Listener::bind(addr, config.on_hub(hub))`")]
     pub fn with_hub(self, hub: Hub) -> Listener {
         self.common
             .setup
@@ -411,6 +420,8 @@ impl Listener {
     /// Spreads the links it accepts over a pool of hubs (each to the least
     /// loaded one) instead of a hub of its own.
     #[must_use]
+    #[deprecated(note = "name the pool in the configuration: \
+                         `Listener::bind(addr, config.on_pool(pool))`")]
     pub fn with_pool(self, pool: HubPool) -> Listener {
         self.common
             .setup

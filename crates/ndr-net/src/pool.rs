@@ -18,6 +18,31 @@ use crate::link::{Link, LinkConfig, NetError};
 use crate::spin::SpinMargin;
 use crate::tls::TlsConfig;
 
+/// Which hub drives a link, or the links a listener accepts
+/// ([`LinkConfig::hub`]).
+#[derive(Clone, Debug, Default)]
+#[non_exhaustive]
+pub enum HubChoice {
+    /// A hub of its own (a listener: one for all the links it accepts).
+    #[default]
+    Own,
+    /// This hub, shared with other links and listeners.
+    Shared(Hub),
+    /// The least loaded hub of this pool, at each link.
+    Pool(HubPool),
+}
+
+impl HubChoice {
+    /// The hub for a link starting now; [`HubChoice::Own`] starts one.
+    pub(crate) fn pick(&self, spin_margin: impl Into<SpinMargin>) -> io::Result<Hub> {
+        match self {
+            HubChoice::Own => Hub::new(spin_margin),
+            HubChoice::Shared(hub) => Ok(hub.clone()),
+            HubChoice::Pool(pool) => Ok(pool.least_loaded().clone()),
+        }
+    }
+}
+
 /// Hubs that share a tick grid; a new link goes to the one with the fewest
 /// links. Cheap to clone.
 #[derive(Clone, Debug)]
@@ -74,18 +99,22 @@ impl HubPool {
 
     /// Connects to a remote (this side is the base) and drives the link on
     /// the least loaded hub, on the current tokio runtime.
+    #[deprecated(note = "use `Link::connect(addr, config.on_pool(pool.clone()))`")]
     pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        self.least_loaded().connect(addr, config).await
+        Link::connect(addr, config.on_pool(self.clone())).await
     }
 
     /// [`connect`](Self::connect) over mutual TLS 1.3.
+    #[deprecated(
+        note = "use `Link::connect(addr, config.on_pool(pool.clone()).with_tls(tls.clone()))`"
+    )]
     pub async fn connect_tls(
         &self,
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
     ) -> Result<Link, NetError> {
-        self.least_loaded().connect_tls(addr, config, tls).await
+        Link::connect(addr, config.on_pool(self.clone()).with_tls(tls.clone())).await
     }
 }
 
@@ -122,14 +151,14 @@ mod tests {
         let remotes = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
         let links = rt.block_on(async {
             let any: SocketAddr = "127.0.0.1:0".parse().expect("address");
-            let listener = Listener::bind(any, config)
+            let listener = Listener::bind(any, config.clone().on_pool(remotes.clone()))
                 .await
-                .expect("bind")
-                .with_pool(remotes.clone());
+                .expect("bind");
             let addr = listener.local_addr().expect("address");
             let mut links = Vec::new();
             for _ in 0..4 {
-                let (r, b) = tokio::join!(listener.accept(), bases.connect(addr, config));
+                let base = Link::connect(addr, config.clone().on_pool(bases.clone()));
+                let (r, b) = tokio::join!(listener.accept(), base);
                 links.push(r.expect("accepted"));
                 links.push(b.expect("connected"));
             }

@@ -532,7 +532,8 @@ pub fn connect(
     connect_timeout: Option<f64>,
     tls: Option<&Bound<'_, PyTlsConfig>>,
 ) -> PyResult<PyLink> {
-    let (config, role) = (settings.config, settings.role);
+    let (mut config, role) = (settings.config.clone(), settings.role);
+    let period = config.endpoint.period;
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
     let tls = tls.map(|t| t.get().inner.clone());
@@ -547,14 +548,14 @@ pub fn connect(
     }
     let rt = blocking::runtime()?;
     let hub = blocking::hub()?.clone();
+    config.tls.clone_from(&tls);
     // The connection, the TLS handshake and ndr's run as a task, so a wait
     // cut short (Ctrl-C) can abandon it cleanly; each step has its limit.
     let handshake_limit: StdDuration = config.endpoint.handshake_timeout.into();
     let mut task = rt.spawn(async move {
         let connect = async {
             match (tls, role) {
-                (Some(tls), _) => hub.connect_tls(addr, config, &tls).await,
-                (None, Role::Base) => hub.connect(addr, config).await,
+                (Some(_), _) | (None, Role::Base) => Link::connect(addr, config.on_hub(hub)).await,
                 (None, Role::Remote) => {
                     let stream = tokio::net::TcpStream::connect(addr).await?;
                     Link::from_stream(stream, role, config, &hub)
@@ -606,7 +607,7 @@ pub fn connect(
             return Err(interrupted);
         }
     };
-    Ok(PyLink::new(link, role, config.endpoint.period))
+    Ok(PyLink::new(link, role, period))
 }
 
 /// Where a connection attempt stopped.
@@ -675,19 +676,13 @@ pub fn listen(
     settings: &PyLinkSettings,
     tls: Option<&Bound<'_, PyTlsConfig>>,
 ) -> PyResult<PyListener> {
-    let (config, role) = (settings.config, settings.role);
+    let (mut config, role) = (settings.config.clone(), settings.role);
+    let period = config.endpoint.period;
     let addr = blocking::address(py, address)?;
     let rt = blocking::runtime()?;
-    let tls = tls.map(|t| t.get().inner.clone());
+    config.tls = tls.map(|t| t.get().inner.clone());
     let listener = py
-        .detach(|| {
-            rt.block_on(async {
-                match &tls {
-                    Some(tls) => Listener::bind_tls(addr, config, tls).await,
-                    None => Listener::bind(addr, config).await,
-                }
-            })
-        })
+        .detach(|| rt.block_on(Listener::bind(addr, config)))
         .map_err(|e| net_error(py, e))?
         .with_role(role);
     let local = listener.local_addr().map_err(|e| net_error(py, e))?;
@@ -695,7 +690,7 @@ pub fn listen(
         listener: Mutex::new(Some(Arc::new(listener))),
         pending: Mutex::new(None),
         local,
-        period: config.endpoint.period,
+        period,
         role,
     })
 }

@@ -146,12 +146,14 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let rt = runtime()?;
     let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
     let set_up = rt.block_on(async {
-        let listener = Listener::bind(loopback, config).await?;
+        let listener = Listener::bind(loopback, config.clone()).await?;
         let relay = Relay::bind(loopback, listener.local_addr()?, model, args.seed)
             .await?
             .spawn()?;
-        let (remote, base) =
-            tokio::join!(listener.accept(), Link::connect(relay.local_addr(), config));
+        let (remote, base) = tokio::join!(
+            listener.accept(),
+            Link::connect(relay.local_addr(), config.clone())
+        );
         Ok::<_, NetError>((base?, remote?, relay))
     });
     let (base, remote, relay) = match set_up {

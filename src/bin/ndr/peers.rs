@@ -57,12 +57,8 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     let rt = runtime()?;
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
     let until = StdInstant::now() + run_for;
-    let connect = async {
-        match &tls {
-            Some(tls) => Link::connect_tls(args.connect, config, tls).await,
-            None => Link::connect(args.connect, config).await,
-        }
-    };
+    config.tls.clone_from(&tls);
+    let connect = Link::connect(args.connect, config.clone());
     // The connection counts in the run's duration: a peer that never
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
@@ -99,13 +95,9 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let tls = args.security.apply(&mut config)?;
     let max_command = args.plant.max_command()?;
     let rt = runtime()?;
+    config.tls = tls;
     let listener = rt
-        .block_on(async {
-            match &tls {
-                Some(tls) => Listener::bind_tls(args.listen, config, tls).await,
-                None => Listener::bind(args.listen, config).await,
-            }
-        })
+        .block_on(Listener::bind(args.listen, config.clone()))
         .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?
         // One base at a time: the next one is told the robot is busy.
         .with_max_links(1);

@@ -187,7 +187,7 @@ fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
     let deadline = StdInstant::now() + StdDuration::from_secs(5);
     // The previous remote may have just died: its port frees up shortly.
     let listener = loop {
-        match rt.block_on(Listener::bind(addr, config)) {
+        match rt.block_on(Listener::bind(addr, config.clone())) {
             Ok(l) => break l,
             Err(e) if StdInstant::now() < deadline => {
                 let _ = e;
@@ -444,7 +444,10 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
             fault += 1;
         }
         let Some((l, conn)) = link.as_mut() else {
-            match rt.block_on(hub.connect(relay_addr, config)) {
+            match rt.block_on(Link::connect(
+                relay_addr,
+                config.clone().on_hub(hub.clone()),
+            )) {
                 Ok(l) => {
                     r.connections += 1;
                     if r.connections > 1 {

@@ -184,8 +184,15 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
             Some(Ok((stream, conn))) => (stream, Some(conn)),
         },
     };
-    let link = Link::start(stream, role, common.config, Handle::current(), &hub, conn)
-        .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
+    let link = Link::start(
+        stream,
+        role,
+        common.config.clone(),
+        Handle::current(),
+        &hub,
+        conn,
+    )
+    .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
     progress.advance(stage::ON_HUB, 0);
     let mut unfinished = Unfinished(Some(link));
     let Some(link) = unfinished.0.as_mut() else {

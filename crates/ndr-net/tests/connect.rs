@@ -1,0 +1,90 @@
+//! One way to connect and one to listen: TLS and the hub that drives a link
+//! are in its `LinkConfig`; the older per-variant functions still work.
+
+use std::net::SocketAddr;
+
+use ndr_core::endpoint::Config;
+use ndr_core::wire::Role;
+use ndr_net::clock::DEFAULT_SPIN_MARGIN;
+use ndr_net::{Hub, HubChoice, HubPool, Link, LinkConfig, Listener, NetError};
+
+fn config() -> LinkConfig {
+    let mut c = Config::new(Role::Base);
+    c.axes = 2;
+    LinkConfig::new(c)
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("runtime")
+}
+
+fn loopback() -> SocketAddr {
+    "127.0.0.1:0".parse().expect("address")
+}
+
+#[test]
+fn a_link_and_a_listener_run_on_the_hub_their_configuration_names() {
+    let rt = runtime();
+    let (bases, remotes) = (
+        Hub::new(DEFAULT_SPIN_MARGIN).expect("hub"),
+        HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("pool"),
+    );
+    assert!(matches!(config().hub, HubChoice::Own));
+    let listener = rt
+        .block_on(Listener::bind(
+            loopback(),
+            config().on_pool(remotes.clone()),
+        ))
+        .expect("bind");
+    let addr = listener.local_addr().expect("address");
+    let mut links = Vec::new();
+    for _ in 0..4 {
+        let base = Link::connect(addr, config().on_hub(bases.clone()));
+        let (remote, base) = rt.block_on(async { tokio::join!(listener.accept(), base) });
+        links.push((base.expect("connected"), remote.expect("accepted")));
+    }
+    assert_eq!(bases.links(), 4);
+    let per_hub: Vec<usize> = remotes.hubs().iter().map(Hub::links).collect();
+    assert_eq!(per_hub, [2, 2]);
+    // A blocking link takes the named hub too.
+    let blocking = std::thread::scope(|s| {
+        s.spawn(|| Link::connect_blocking(addr, config().on_hub(bases.clone())))
+            .join()
+            .expect("thread")
+    });
+    let accepted = rt.block_on(listener.accept()).expect("accepted");
+    assert!(blocking.is_ok());
+    assert_eq!(bases.links(), 5);
+    drop((links, accepted, blocking));
+}
+
+#[test]
+fn a_plain_link_off_loopback_is_refused_before_any_socket() {
+    let rt = runtime();
+    let far: SocketAddr = "192.0.2.7:7300".parse().expect("address");
+    let refused = rt.block_on(Link::connect(far, config()));
+    assert!(matches!(refused, Err(NetError::Insecure(a)) if a == far));
+    let any: SocketAddr = "0.0.0.0:0".parse().expect("address");
+    let refused = rt.block_on(Listener::bind(any, config()));
+    assert!(matches!(refused, Err(NetError::Insecure(_))));
+}
+
+#[test]
+#[allow(deprecated)]
+fn the_deprecated_spellings_still_connect() {
+    let rt = runtime();
+    let hub = Hub::new(DEFAULT_SPIN_MARGIN).expect("hub");
+    let listener = rt
+        .block_on(Listener::bind(loopback(), config()))
+        .expect("bind")
+        .with_hub(hub.clone());
+    let addr = listener.local_addr().expect("address");
+    let (remote, base) =
+        rt.block_on(async { tokio::join!(listener.accept(), hub.connect(addr, config())) });
+    assert!(remote.is_ok() && base.is_ok());
+    assert_eq!(hub.links(), 2);
+}
