@@ -159,7 +159,7 @@ impl OccupancyAcc {
 /// The NDR queue: capacity `N` fixed at compile time, nominal size `ns < N`
 /// chosen at run time. (A [`RegulatorIn`] over an array deque; a regulator
 /// whose capacity is chosen at run time takes another
-/// [`Queue`](crate::storage::Queue), such as [`HeapQueue`](crate::storage::HeapQueue).)
+/// [`Queue`], such as [`HeapQueue`](crate::storage::HeapQueue).)
 ///
 /// ```
 /// use ndr_core::regulator::{Regulator, Tick};

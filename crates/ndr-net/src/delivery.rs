@@ -14,7 +14,14 @@ use std::sync::mpsc::{RecvError, RecvTimeoutError, TryRecvError};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
-use crate::link::{LinkEvent, Sample};
+use ndr_core::endpoint::{Event, Release};
+
+/// A released sample, as the application receives it: its values are as
+/// many as the link's axes.
+pub type Sample = Release<Box<[f64]>>;
+
+/// What a link's endpoint tells its application.
+pub type LinkEvent = Event<Box<[f64]>>;
 
 /// What the hub hands to a link's application.
 pub(crate) enum Delivery {

@@ -10,6 +10,10 @@
 //! frame goes from the kernel to its endpoint in one thread wake-up, with no
 //! hand-over between threads, and frames are written from the same thread.
 
+mod tls_io;
+
+pub(crate) use tls_io::Session;
+
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::io::{self, Write as _};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering as AtomicOrdering};
@@ -26,10 +30,11 @@ use ndr_core::wire::{HEADER_LEN, MAX_FRAME_LEN};
 use tokio::sync::Notify;
 
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
+use crate::delivery::Sample;
 use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
-use crate::link::{LinkStats, Sample};
 use crate::spin::SpinMargin;
+use crate::stats::LinkStats;
 
 /// The waker's token; links use their id.
 const WAKER: Token = Token(usize::MAX);
@@ -60,7 +65,7 @@ pub(crate) struct Entry {
     /// Bytes the socket would not take yet, in order.
     pub pending: Vec<u8>,
     /// The TLS session continued from the handshake; `None` on a plain link.
-    pub tls: Option<Box<crate::tls_io::Session>>,
+    pub tls: Option<Box<tls_io::Session>>,
     pub kernel_stamps: bool,
     pub app_dropped: u64,
     /// From a frame's arrival (the kernel's stamp) to the hub handling it.
@@ -499,13 +504,13 @@ impl Driver {
             return;
         };
         if e.tls.is_some() {
-            crate::tls_io::read(e, origin, drain);
+            tls_io::read(e, origin, drain);
             return;
         }
         loop {
             let spare = e.deframer.spare();
             let room = spare.len();
-            match crate::link::arrival::read_now(&e.socket, spare, e.kernel_stamps) {
+            match crate::arrival::read_now(&e.socket, spare, e.kernel_stamps) {
                 Ok((0, _)) => {
                     e.endpoint.abort(LinkError::Disconnected);
                     return;
@@ -715,7 +720,7 @@ impl Driver {
             // dropping the entry closes the socket and tells the application
             // that nothing more will come.
             if let Some(mut gone) = self.entries.remove(&id) {
-                crate::tls_io::close_notify(&mut gone);
+                tls_io::close_notify(&mut gone);
                 let _ = self.poll.registry().deregister(&mut gone.socket);
                 let _ = gone.socket.shutdown(std::net::Shutdown::Write);
                 self.links.fetch_sub(1, AtomicOrdering::Relaxed);
@@ -892,7 +897,7 @@ pub(crate) fn handle_frames(e: &mut Entry, origin: StdInstant, at: StdInstant) -
 /// On a TLS link the frame is sealed into records first.
 fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
     if e.tls.is_some() {
-        return crate::tls_io::send(e, bytes);
+        return tls_io::send(e, bytes);
     }
     write_or_queue(&mut e.socket, &mut e.pending, bytes)
 }

@@ -38,8 +38,11 @@
 //! code that is not a link.
 #![forbid(unsafe_code)]
 
+mod arrival;
 pub mod clock;
+mod config;
 mod delivery;
+mod error;
 pub mod framing;
 pub mod hub;
 mod keepalive;
@@ -48,15 +51,17 @@ pub mod link;
 mod listener;
 pub mod pool;
 pub mod relay;
+mod seats;
 pub mod spin;
+mod stats;
 pub mod tls;
-mod tls_io;
 
 pub use clock::{ClockThread, LatenessStats, ReleaseClock};
+pub use config::Admission;
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
 pub use link::{Link, LinkConfig, LinkSender, LinkStats, NetError, Sample};
-pub use listener::{Admission, Listener, ListenerStats};
+pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};

@@ -1,4 +1,4 @@
-//! A regulated link over TCP: the sans-IO [`Endpoint`](ndr_core::endpoint::Endpoint) driven for real.
+//! A regulated link over TCP: the sans-IO [`Endpoint`] driven for real.
 //!
 //! Three parties per link:
 //!
@@ -23,231 +23,33 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{
-    Config, ConfigError, DEFAULT_LIVENESS, Endpoint, Event, LinkError, Phase, Release, Running,
-    Stats,
-};
+use ndr_core::endpoint::{ConfigError, DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running};
 use ndr_core::storage::Heap;
-use ndr_core::time::{Duration, Instant};
+use ndr_core::time::Instant;
 use ndr_core::wire::{HEADER_LEN, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
-use crate::clock::LatenessStats;
+use crate::arrival;
 use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
-use crate::hub::{Entry, Hub, Msg, Shared};
-use crate::listener::Seat;
-use crate::pool::{HubChoice, HubPool};
-use crate::tls::{HandshakeError, TlsConfig};
-use crate::tls_io::Session;
+use crate::hub::{Entry, Hub, Msg, Session, Shared};
+use crate::pool::HubPool;
+use crate::seats::Seat;
+use crate::tls::TlsConfig;
 
-pub use crate::listener::{Admission, Listener, ListenerStats};
+pub use crate::config::{Admission, LinkConfig, QUEUE};
+pub use crate::delivery::{LinkEvent, Sample};
+pub use crate::error::NetError;
+pub use crate::pool::HubChoice;
+pub use crate::stats::LinkStats;
 
 /// Most axes a link carries.
 pub const MAX_AXES: usize = 8;
-/// Default capacity of a link's regulator: `ns` up to 255.
-pub const QUEUE: usize = 256;
 /// Events a [`Link`] keeps for [`drain_events`](Link::drain_events); past
 /// it the oldest go, counted in [`LinkStats::events_dropped`].
 pub const EVENT_BACKLOG: usize = 256;
-
-/// A released sample, as the application receives it: its values are as
-/// many as the link's axes.
-pub type Sample = Release<Box<[f64]>>;
-
-/// What a link's endpoint tells its application.
-pub type LinkEvent = Event<Box<[f64]>>;
-
-/// What a link is configured with: the endpoint, the transport's security,
-/// which hub drives it, and the bounds on what it holds.
-///
-/// ```
-/// use ndr_core::endpoint::Config;
-/// use ndr_core::wire::Role;
-/// use ndr_net::{Hub, LinkConfig};
-///
-/// let hub = Hub::new(ndr_net::clock::DEFAULT_SPIN_MARGIN)?;
-/// // Plain TCP (loopback only, unless `insecure`), on a hub shared with
-/// // other links; `with_tls` for mutual TLS.
-/// let config = LinkConfig::new(Config::new(Role::Base)).on_hub(hub);
-/// # Ok::<(), std::io::Error>(())
-/// ```
-#[derive(Clone, Debug)]
-#[non_exhaustive]
-pub struct LinkConfig {
-    /// The endpoint's configuration; its `role` is set by
-    /// [`Link::connect`] (base) and [`Listener::accept`] (remote).
-    pub endpoint: Config,
-    /// How long before a deadline the link's hub stops sleeping and spins,
-    /// at most: it learns a shorter margin from how late its timer wakes
-    /// ([`crate::spin`]; [`LinkStats::spin_margin`] shows it).
-    pub spin_margin: Duration,
-    /// Released samples and events that may wait for the application; when
-    /// it does not read, the newest are dropped and counted. Memory follows
-    /// what waits, not this bound.
-    pub app_queue: usize,
-    /// Samples the regulator can hold (`ns` ≤ capacity − 1, capacity 1 to
-    /// [`MAX_CAPACITY`](ndr_core::storage::MAX_CAPACITY)); default [`QUEUE`].
-    /// Its memory is taken when the link starts: 16 bytes per sample for its
-    /// send times, and the queued samples' values as they arrive. Both ends
-    /// need room for the `ns` the base decides (a base clamps it and counts
-    /// [`Stats::clamped`](ndr_core::endpoint::Stats::clamped); a remote that
-    /// cannot hold it ends the link with [`LinkError::BadParameters`]).
-    pub queue_capacity: usize,
-    /// Mutual TLS 1.3 with these identities and pins; `None` (the default):
-    /// plain TCP, which only a loopback address or [`insecure`](Self::insecure)
-    /// allows.
-    pub tls: Option<TlsConfig>,
-    /// Which hub drives the link (a listener: the links it accepts); a hub
-    /// of its own by default.
-    pub hub: HubChoice,
-    /// Allows a link without TLS to or from a non-loopback address (the
-    /// `--insecure` switch). Off by default: such a link is refused with
-    /// [`NetError::Insecure`]; loopback links may always be plain.
-    pub insecure: bool,
-    /// How a [`Listener`] admits connections before they authenticate, so
-    /// that peers who never will cannot starve one who does (unused by
-    /// [`Link::connect`]).
-    pub admission: Admission,
-}
-
-impl LinkConfig {
-    /// Defaults around an endpoint configuration.
-    #[must_use]
-    pub fn new(endpoint: Config) -> Self {
-        LinkConfig {
-            endpoint,
-            spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
-            app_queue: 1024,
-            queue_capacity: QUEUE,
-            tls: None,
-            hub: HubChoice::Own,
-            insecure: false,
-            admission: Admission::default(),
-        }
-    }
-
-    /// The same, over mutual TLS 1.3 ([`tls`](Self::tls)).
-    #[must_use]
-    pub fn with_tls(mut self, tls: TlsConfig) -> Self {
-        self.tls = Some(tls);
-        self
-    }
-
-    /// The same, driven by `hub`, shared with other links.
-    #[must_use]
-    pub fn on_hub(mut self, hub: Hub) -> Self {
-        self.hub = HubChoice::Shared(hub);
-        self
-    }
-
-    /// The same, driven by the least loaded hub of `pool` at each link.
-    #[must_use]
-    pub fn on_pool(mut self, pool: HubPool) -> Self {
-        self.hub = HubChoice::Pool(pool);
-        self
-    }
-}
-
-/// Why a link could not be set up or used.
-#[derive(Debug)]
-#[non_exhaustive]
-pub enum NetError {
-    /// The socket failed (connection refused, address in use, …).
-    Io(io::Error),
-    /// The configuration cannot run.
-    Config(ConfigError),
-    /// The link ended, with the reason.
-    Link(LinkError),
-    /// No sample came within the timeout (the link is still up).
-    Timeout,
-    /// A plain (unencrypted, unauthenticated) link to or from a
-    /// non-loopback address, without [`LinkConfig::insecure`].
-    Insecure(SocketAddr),
-    /// The TLS handshake failed: no link was set up.
-    Handshake(HandshakeError),
-}
-
-impl fmt::Display for NetError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            NetError::Io(e) => write!(f, "network error: {e}"),
-            NetError::Config(e) => write!(f, "link configuration: {e}"),
-            NetError::Link(e) => write!(f, "{e}"),
-            NetError::Timeout => f.write_str("no sample within the timeout (the link is still up)"),
-            NetError::Insecure(addr) => write!(
-                f,
-                "refusing a plain link with {addr}: it is not loopback; configure TLS \
-                 (--cert, --key, --peer-cert or --pin) or pass --insecure (Python: insecure=True)"
-            ),
-            NetError::Handshake(e) => write!(f, "{e}"),
-        }
-    }
-}
-
-impl std::error::Error for NetError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        match self {
-            NetError::Io(e) => Some(e),
-            NetError::Config(e) => Some(e),
-            NetError::Link(e) => Some(e),
-            NetError::Handshake(e) => Some(e),
-            NetError::Timeout | NetError::Insecure(_) => None,
-        }
-    }
-}
-
-impl From<io::Error> for NetError {
-    fn from(e: io::Error) -> Self {
-        NetError::Io(e)
-    }
-}
-
-/// A snapshot of a link's state and counters.
-///
-/// With the `serde` feature it serializes flat, the endpoint's counters
-/// beside the link's, durations in seconds (the form the Python binding
-/// hands out).
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize))]
-#[non_exhaustive]
-pub struct LinkStats {
-    /// Where the protocol is.
-    pub phase: Phase,
-    /// The current period.
-    pub period: Duration,
-    /// The regulator's nominal size.
-    pub ns: usize,
-    /// Samples in the regulator.
-    pub queue_len: usize,
-    /// Occupancy before a release in the current regime: (min, max).
-    pub queue_range: Option<(usize, usize)>,
-    /// The latest NRTT measured.
-    pub last_nrtt: Option<Duration>,
-    /// Everything the endpoint counted.
-    #[cfg_attr(feature = "serde", serde(flatten))]
-    pub endpoint: Stats,
-    /// How late the hub's thread woke for its deadlines (all its links).
-    pub lateness: LatenessStats,
-    /// How late the hub ran each link's deadline (the release's stamp, after
-    /// the frames that arrived before it and the links served before it),
-    /// over all its links.
-    pub release_lateness: LatenessStats,
-    /// How long before a deadline the hub stops sleeping and spins, as it
-    /// has learned from how late its timer wakes (at most
-    /// [`LinkConfig::spin_margin`]).
-    pub spin_margin: Duration,
-    /// Samples and events dropped because the application did not read them.
-    pub app_dropped: u64,
-    /// Events dropped, the oldest first, because more than
-    /// [`EVENT_BACKLOG`] waited for [`Link::drain_events`].
-    pub events_dropped: u64,
-    /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
-    /// where there is one) to the hub handing it to the endpoint.
-    pub rx_lag: Running,
-}
 
 /// One side of a running link. Dropping it closes the link.
 pub struct Link {
@@ -814,6 +616,28 @@ pub(crate) fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(),
     }
 }
 
+impl HubPool {
+    /// Connects to a remote (this side is the base) and drives the link on
+    /// the least loaded hub, on the current tokio runtime.
+    #[deprecated(note = "use `Link::connect(addr, config.on_pool(pool.clone()))`")]
+    pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        Link::connect(addr, config.on_pool(self.clone())).await
+    }
+
+    /// [`connect`](Self::connect) over mutual TLS 1.3.
+    #[deprecated(
+        note = "use `Link::connect(addr, config.on_pool(pool.clone()).with_tls(tls.clone()))`"
+    )]
+    pub async fn connect_tls(
+        &self,
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Link, NetError> {
+        Link::connect(addr, config.on_pool(self.clone()).with_tls(tls.clone())).await
+    }
+}
+
 impl Hub {
     /// Connects to a remote (this side is the base) and drives the link on
     /// this hub, on the current tokio runtime; without TLS, refused as
@@ -860,99 +684,10 @@ impl Hub {
     }
 }
 
-/// When bytes arrived: the kernel's receive timestamp where the platform
-/// gives one, else the moment the reader got them. The kernel's stamp leaves
-/// out the reader's wake-up (tens of µs for a thread that slept a period),
-/// which would otherwise count as network delay.
-pub(crate) mod arrival {
-    use std::io::{self, Read as _};
-    use std::os::fd::AsFd;
-    use std::time::Instant as StdInstant;
-
-    use mio::net::TcpStream as MioStream;
-
-    /// Asks the kernel to stamp received data; `false` if it will not.
-    #[cfg(target_os = "linux")]
-    pub(crate) fn enable(socket: &impl AsFd) -> bool {
-        nix::sys::socket::setsockopt(socket, nix::sys::socket::sockopt::ReceiveTimestampns, &true)
-            .is_ok()
-    }
-
-    #[cfg(not(target_os = "linux"))]
-    pub(crate) fn enable(_: &impl AsFd) -> bool {
-        false
-    }
-
-    /// Reads what is available into `buf` without blocking, with its
-    /// arrival time (`WouldBlock` when there is nothing).
-    pub(crate) fn read_now(
-        socket: &MioStream,
-        buf: &mut [u8],
-        kernel: bool,
-    ) -> io::Result<(usize, StdInstant)> {
-        if kernel {
-            let (n, stamp) = stamped(socket, buf)?;
-            Ok((n, stamp.unwrap_or_else(StdInstant::now)))
-        } else {
-            let mut reader = socket;
-            Ok((reader.read(buf)?, StdInstant::now()))
-        }
-    }
-
-    #[cfg(target_os = "linux")]
-    fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
-        use std::os::fd::AsRawFd;
-        use std::time::{Duration, SystemTime, UNIX_EPOCH};
-
-        use nix::sys::socket::{ControlMessageOwned, MsgFlags, recvmsg};
-
-        /// Room for one control message (`SCM_TIMESTAMPNS` needs 32 bytes
-        /// on 64-bit Linux), aligned as `cmsghdr` wants, on the stack: nix's
-        /// `cmsg_space!` would allocate at every read.
-        #[repr(C, align(8))]
-        struct Control([u8; 64]);
-
-        let mut iov = [io::IoSliceMut::new(buf)];
-        let mut cmsg = Control([0; 64]);
-        let msg = recvmsg::<()>(
-            socket.as_raw_fd(),
-            &mut iov,
-            Some(&mut cmsg.0),
-            MsgFlags::empty(),
-        )
-        .map_err(io::Error::from)?;
-        let kernel = msg.cmsgs().ok().and_then(|mut c| {
-            c.find_map(|m| match m {
-                ControlMessageOwned::ScmTimestampns(ts) => Some(ts),
-                _ => None,
-            })
-        });
-        // The stamp is on the wall clock: turn it into an age, then into a
-        // monotonic instant. A stamp from the future or older than a second
-        // means the wall clock moved; trust the read time then.
-        let stamp = kernel.and_then(|ts| {
-            let sec = u64::try_from(ts.tv_sec()).ok()?;
-            let nsec = u32::try_from(ts.tv_nsec()).ok()?;
-            let wall = UNIX_EPOCH + Duration::new(sec, nsec);
-            let (now, wall_now) = (StdInstant::now(), SystemTime::now());
-            let age = wall_now.duration_since(wall).ok()?;
-            (age < Duration::from_secs(1))
-                .then(|| now.checked_sub(age))
-                .flatten()
-        });
-        Ok((msg.bytes, stamp))
-    }
-
-    #[cfg(not(target_os = "linux"))]
-    fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
-        let mut reader = socket;
-        reader.read(buf).map(|n| (n, None))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ndr_core::time::Duration;
 
     #[test]
     fn events_past_the_backlog_drop_the_oldest_and_are_counted() {

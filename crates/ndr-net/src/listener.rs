@@ -6,9 +6,9 @@
 //! with a link; finished links wait in a short queue for
 //! [`Listener::accept`]. Before a peer has authenticated (TLS, if any, and
 //! ndr's Hello), it gets little: a short budget of time
-//! ([`Admission::preauth_timeout`]), one of a fixed number of handshake
+//! ([`Admission::preauth_timeout`](crate::Admission::preauth_timeout)), one of a fixed number of handshake
 //! slots, at most a few of them per source
-//! ([`Admission::max_pending_per_source`]), and its slot goes to a newcomer
+//! ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)), and its slot goes to a newcomer
 //! when all are taken. Peers that never authenticate therefore cannot lock
 //! out one who does. Every refusal is counted by reason
 //! ([`ListenerStats`]) and logged, at most one line per reason a second.
@@ -17,7 +17,6 @@ mod first;
 mod gate;
 mod handshake;
 mod ledger;
-mod seats;
 
 use std::fmt;
 use std::io;
@@ -25,69 +24,20 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use ndr_core::endpoint::Phase;
-use ndr_core::time::Duration;
 use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpSocket};
 use tokio::runtime::Handle;
 use tokio::sync::mpsc;
 
+use crate::config::LinkConfig;
+use crate::error::NetError;
 use crate::hub::Hub;
-use crate::link::{Link, LinkConfig, NetError, not_in_a_runtime, own_runtime, plain_allowed};
+use crate::link::{Link, not_in_a_runtime, own_runtime, plain_allowed};
 use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
 
+use crate::seats::Seats;
 use ledger::{Ledger, Refusal};
-pub(crate) use seats::Seat;
-use seats::Seats;
-
-/// How a [`Listener`] admits connections before they authenticate
-/// ([`LinkConfig::admission`]). Start from the defaults and change fields:
-///
-/// ```
-/// # use ndr_core::endpoint::Config;
-/// # use ndr_core::wire::Role;
-/// # use ndr_net::LinkConfig;
-/// let mut config = LinkConfig::new(Config::new(Role::Remote));
-/// config.admission.preauth_timeout = ndr_core::time::Duration::from_secs(1);
-/// config.admission.max_pending_per_source = 4;
-/// ```
-#[non_exhaustive]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Admission {
-    /// The pre-authentication budget: a connection must finish TLS (if the
-    /// listener has it) and ndr's Hello within this time, counted from its
-    /// accept, or it is closed and counted in [`ListenerStats::timeouts`].
-    /// Default 3 s; raise it for a peer behind a slow, lossy path. Zero
-    /// leaves only each step's own timeout
-    /// ([`TlsConfig::handshake_timeout`], the endpoint's
-    /// `handshake_timeout`).
-    pub preauth_timeout: Duration,
-    /// Most handshakes pending at once from one source (an IPv4 address,
-    /// or an IPv6 /64); a connection beyond it is closed at once and
-    /// counted in [`ListenerStats::refused_per_source`]. Default 8 (at
-    /// least 1). Peers behind one NAT share a source: raise it for many
-    /// operators behind one address.
-    pub max_pending_per_source: usize,
-    /// The kernel's queue of connections not yet accepted (`listen`'s
-    /// backlog; the kernel caps it at `net.core.somaxconn`). Default 1024.
-    pub backlog: u32,
-    /// Links that completed their handshake and wait for
-    /// [`Listener::accept`]; one that finds the queue full is closed (its
-    /// peer told the listener is busy) and counted in
-    /// [`ListenerStats::unclaimed`]. Default 16 (at least 1).
-    pub accept_queue: usize,
-}
-
-impl Default for Admission {
-    fn default() -> Self {
-        Admission {
-            preauth_timeout: Duration::from_secs(3),
-            max_pending_per_source: 8,
-            backlog: 1024,
-            accept_queue: 16,
-        }
-    }
-}
 
 /// Connections a [`Listener`] accepted, and those it refused before they
 /// became links, by reason. None of the refused reached the application.
@@ -107,7 +57,7 @@ pub struct ListenerStats {
     /// older TLS, or a plain link).
     pub refused_version: u64,
     /// Handshakes (TLS, then ndr's Hello) that did not finish within the
-    /// pre-authentication budget ([`Admission::preauth_timeout`]) or their
+    /// pre-authentication budget ([`Admission::preauth_timeout`](crate::Admission::preauth_timeout)) or their
     /// own timeout.
     pub timeouts: u64,
     /// Handshakes that failed otherwise (the peer closed, a reset).
@@ -129,14 +79,14 @@ pub struct ListenerStats {
     /// connections that do not authenticate.
     pub evicted: u64,
     /// Connections closed at once because their source already had
-    /// [`Admission::max_pending_per_source`] handshakes pending.
+    /// [`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source) handshakes pending.
     pub refused_per_source: u64,
     /// Peers refused after their handshake because the listener served as
     /// many links as [`Listener::with_max_links`] allows: each got a Close
     /// with reason `BUSY`.
     pub refused_busy: u64,
     /// Links that completed their handshake but that the application did
-    /// not take: the accept queue was full ([`Admission::accept_queue`]; the
+    /// not take: the accept queue was full ([`Admission::accept_queue`](crate::Admission::accept_queue); the
     /// peer was told the listener is busy), or the link ended while it
     /// waited.
     pub unclaimed: u64,
@@ -460,9 +410,9 @@ impl Listener {
     /// by side (at most [`TlsConfig::max_pending_handshakes`], or
     /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
     /// without TLS): first TLS's, if the listener has it, then ndr's Hello,
-    /// both within [`Admission::preauth_timeout`]. A peer whose handshake
+    /// both within [`Admission::preauth_timeout`](crate::Admission::preauth_timeout). A peer whose handshake
     /// fails (unknown certificate, another role, other axes, period or
-    /// mode, no answer in time…) or that [`Admission`] turns away is
+    /// mode, no answer in time…) or that [`Admission`](crate::Admission) turns away is
     /// logged, counted in [`stats`](Self::stats) and dropped: it never
     /// reaches the application, and the listener keeps serving. A link that
     /// ended while it waited here is skipped (counted as

@@ -8,18 +8,15 @@
 //! served in parallel, one hub per core.
 
 use std::io;
-use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Instant as StdInstant;
 
 use crate::clock::DEFAULT_SPIN_MARGIN;
 use crate::hub::Hub;
-use crate::link::{Link, LinkConfig, NetError};
 use crate::spin::SpinMargin;
-use crate::tls::TlsConfig;
 
 /// Which hub drives a link, or the links a listener accepts
-/// ([`LinkConfig::hub`]).
+/// ([`LinkConfig::hub`](crate::LinkConfig::hub)).
 #[derive(Clone, Debug, Default)]
 #[non_exhaustive]
 pub enum HubChoice {
@@ -96,26 +93,6 @@ impl HubPool {
             .min_by_key(|h| h.links())
             .unwrap_or(&self.first)
     }
-
-    /// Connects to a remote (this side is the base) and drives the link on
-    /// the least loaded hub, on the current tokio runtime.
-    #[deprecated(note = "use `Link::connect(addr, config.on_pool(pool.clone()))`")]
-    pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        Link::connect(addr, config.on_pool(self.clone())).await
-    }
-
-    /// [`connect`](Self::connect) over mutual TLS 1.3.
-    #[deprecated(
-        note = "use `Link::connect(addr, config.on_pool(pool.clone()).with_tls(tls.clone()))`"
-    )]
-    pub async fn connect_tls(
-        &self,
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Link, NetError> {
-        Link::connect(addr, config.on_pool(self.clone()).with_tls(tls.clone())).await
-    }
 }
 
 #[cfg(test)]
@@ -131,46 +108,5 @@ mod tests {
         let origin = pool.hubs()[0].origin();
         assert!(pool.hubs().iter().all(|h| h.origin() == origin));
         assert_eq!(pool.links(), 0);
-    }
-
-    #[test]
-    fn links_are_spread_over_the_hubs_and_leave_them_when_closed() {
-        use crate::link::Listener;
-        use ndr_core::endpoint::Config;
-        use ndr_core::wire::Role;
-
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .expect("runtime");
-        let mut c = Config::paper(Role::Base);
-        c.axes = 1;
-        let config = LinkConfig::new(c);
-        let bases = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
-        let remotes = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
-        let links = rt.block_on(async {
-            let any: SocketAddr = "127.0.0.1:0".parse().expect("address");
-            let listener = Listener::bind(any, config.clone().on_pool(remotes.clone()))
-                .await
-                .expect("bind");
-            let addr = listener.local_addr().expect("address");
-            let mut links = Vec::new();
-            for _ in 0..4 {
-                let base = Link::connect(addr, config.clone().on_pool(bases.clone()));
-                let (r, b) = tokio::join!(listener.accept(), base);
-                links.push(r.expect("accepted"));
-                links.push(b.expect("connected"));
-            }
-            links
-        });
-        for pool in [&bases, &remotes] {
-            let per_hub: Vec<usize> = pool.hubs().iter().map(Hub::links).collect();
-            assert_eq!(per_hub, [2, 2]);
-        }
-        for link in links {
-            let _ = link.close();
-        }
-        assert_eq!(bases.links() + remotes.links(), 0);
     }
 }

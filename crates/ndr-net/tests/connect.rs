@@ -88,3 +88,40 @@ fn the_deprecated_spellings_still_connect() {
     assert!(remote.is_ok() && base.is_ok());
     assert_eq!(hub.links(), 2);
 }
+
+#[test]
+fn links_are_spread_over_the_hubs_and_leave_them_when_closed() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let mut c = Config::paper(Role::Base);
+    c.axes = 1;
+    let config = LinkConfig::new(c);
+    let bases = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
+    let remotes = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
+    let links = rt.block_on(async {
+        let any: SocketAddr = "127.0.0.1:0".parse().expect("address");
+        let listener = Listener::bind(any, config.clone().on_pool(remotes.clone()))
+            .await
+            .expect("bind");
+        let addr = listener.local_addr().expect("address");
+        let mut links = Vec::new();
+        for _ in 0..4 {
+            let base = Link::connect(addr, config.clone().on_pool(bases.clone()));
+            let (r, b) = tokio::join!(listener.accept(), base);
+            links.push(r.expect("accepted"));
+            links.push(b.expect("connected"));
+        }
+        links
+    });
+    for pool in [&bases, &remotes] {
+        let per_hub: Vec<usize> = pool.hubs().iter().map(Hub::links).collect();
+        assert_eq!(per_hub, [2, 2]);
+    }
+    for link in links {
+        let _ = link.close();
+    }
+    assert_eq!(bases.links() + remotes.links(), 0);
+}

@@ -696,7 +696,7 @@ pub fn listen(
 }
 
 impl PyListener {
-    fn tls_stats(&self, py: Python<'_>) -> ndr_net::link::ListenerStats {
+    fn tls_stats(&self, py: Python<'_>) -> ndr_net::ListenerStats {
         py.detach(|| {
             self.listener
                 .lock()

@@ -9,7 +9,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr_core::endpoint::LinkError;
 
 use super::ListenerStats;
-use crate::link::NetError;
+use crate::error::NetError;
 use crate::tls::HandshakeError;
 
 /// Shortest time between two log lines for one reason.

@@ -13,7 +13,7 @@ use std::time::Instant as StdInstant;
 use mio::net::TcpStream as MioStream;
 use ndr_core::endpoint::LinkError;
 
-use crate::hub::{Entry, handle_frames, write_or_queue};
+use super::{Entry, handle_frames, write_or_queue};
 
 /// The TLS state of one link, continued from its handshake.
 pub(crate) struct Session {
@@ -42,7 +42,7 @@ struct Stamped<'a> {
 
 impl Read for Stamped<'_> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let (n, at) = crate::link::arrival::read_now(self.socket, buf, self.kernel)?;
+        let (n, at) = crate::arrival::read_now(self.socket, buf, self.kernel)?;
         self.at = Some(at);
         self.short = n < buf.len();
         Ok(n)

@@ -1,0 +1,152 @@
+//! What a link is configured with: the endpoint, its transport's security,
+//! the hub that drives it, and how a listener admits connections.
+
+use ndr_core::endpoint::Config;
+use ndr_core::time::Duration;
+
+use crate::hub::Hub;
+use crate::pool::{HubChoice, HubPool};
+use crate::tls::TlsConfig;
+
+/// Default capacity of a link's regulator: `ns` up to 255.
+pub const QUEUE: usize = 256;
+
+/// What a link is configured with: the endpoint, the transport's security,
+/// which hub drives it, and the bounds on what it holds.
+///
+/// ```
+/// use ndr_core::endpoint::Config;
+/// use ndr_core::wire::Role;
+/// use ndr_net::{Hub, LinkConfig};
+///
+/// let hub = Hub::new(ndr_net::clock::DEFAULT_SPIN_MARGIN)?;
+/// // Plain TCP (loopback only, unless `insecure`), on a hub shared with
+/// // other links; `with_tls` for mutual TLS.
+/// let config = LinkConfig::new(Config::new(Role::Base)).on_hub(hub);
+/// # Ok::<(), std::io::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+#[non_exhaustive]
+pub struct LinkConfig {
+    /// The endpoint's configuration; its `role` is set by
+    /// [`Link::connect`](crate::Link::connect) (base) and [`Listener::accept`](crate::Listener::accept) (remote).
+    pub endpoint: Config,
+    /// How long before a deadline the link's hub stops sleeping and spins,
+    /// at most: it learns a shorter margin from how late its timer wakes
+    /// ([`crate::spin`]; [`LinkStats::spin_margin`](crate::LinkStats::spin_margin) shows it).
+    pub spin_margin: Duration,
+    /// Released samples and events that may wait for the application; when
+    /// it does not read, the newest are dropped and counted. Memory follows
+    /// what waits, not this bound.
+    pub app_queue: usize,
+    /// Samples the regulator can hold (`ns` ≤ capacity − 1, capacity 1 to
+    /// [`MAX_CAPACITY`](ndr_core::storage::MAX_CAPACITY)); default [`QUEUE`].
+    /// Its memory is taken when the link starts: 16 bytes per sample for its
+    /// send times, and the queued samples' values as they arrive. Both ends
+    /// need room for the `ns` the base decides (a base clamps it and counts
+    /// [`Stats::clamped`](ndr_core::endpoint::Stats::clamped); a remote that
+    /// cannot hold it ends the link with [`LinkError::BadParameters`](ndr_core::endpoint::LinkError::BadParameters)).
+    pub queue_capacity: usize,
+    /// Mutual TLS 1.3 with these identities and pins; `None` (the default):
+    /// plain TCP, which only a loopback address or [`insecure`](Self::insecure)
+    /// allows.
+    pub tls: Option<TlsConfig>,
+    /// Which hub drives the link (a listener: the links it accepts); a hub
+    /// of its own by default.
+    pub hub: HubChoice,
+    /// Allows a link without TLS to or from a non-loopback address (the
+    /// `--insecure` switch). Off by default: such a link is refused with
+    /// [`NetError::Insecure`](crate::NetError::Insecure); loopback links may always be plain.
+    pub insecure: bool,
+    /// How a [`Listener`](crate::Listener) admits connections before they authenticate, so
+    /// that peers who never will cannot starve one who does (unused by
+    /// [`Link::connect`](crate::Link::connect)).
+    pub admission: Admission,
+}
+
+impl LinkConfig {
+    /// Defaults around an endpoint configuration.
+    #[must_use]
+    pub fn new(endpoint: Config) -> Self {
+        LinkConfig {
+            endpoint,
+            spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
+            app_queue: 1024,
+            queue_capacity: QUEUE,
+            tls: None,
+            hub: HubChoice::Own,
+            insecure: false,
+            admission: Admission::default(),
+        }
+    }
+
+    /// The same, over mutual TLS 1.3 ([`tls`](Self::tls)).
+    #[must_use]
+    pub fn with_tls(mut self, tls: TlsConfig) -> Self {
+        self.tls = Some(tls);
+        self
+    }
+
+    /// The same, driven by `hub`, shared with other links.
+    #[must_use]
+    pub fn on_hub(mut self, hub: Hub) -> Self {
+        self.hub = HubChoice::Shared(hub);
+        self
+    }
+
+    /// The same, driven by the least loaded hub of `pool` at each link.
+    #[must_use]
+    pub fn on_pool(mut self, pool: HubPool) -> Self {
+        self.hub = HubChoice::Pool(pool);
+        self
+    }
+}
+
+/// How a [`Listener`](crate::Listener) admits connections before they authenticate
+/// ([`LinkConfig::admission`]). Start from the defaults and change fields:
+///
+/// ```
+/// # use ndr_core::endpoint::Config;
+/// # use ndr_core::wire::Role;
+/// # use ndr_net::LinkConfig;
+/// let mut config = LinkConfig::new(Config::new(Role::Remote));
+/// config.admission.preauth_timeout = ndr_core::time::Duration::from_secs(1);
+/// config.admission.max_pending_per_source = 4;
+/// ```
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Admission {
+    /// The pre-authentication budget: a connection must finish TLS (if the
+    /// listener has it) and ndr's Hello within this time, counted from its
+    /// accept, or it is closed and counted in [`ListenerStats::timeouts`](crate::ListenerStats::timeouts).
+    /// Default 3 s; raise it for a peer behind a slow, lossy path. Zero
+    /// leaves only each step's own timeout
+    /// ([`TlsConfig::handshake_timeout`](crate::TlsConfig::handshake_timeout), the endpoint's
+    /// `handshake_timeout`).
+    pub preauth_timeout: Duration,
+    /// Most handshakes pending at once from one source (an IPv4 address,
+    /// or an IPv6 /64); a connection beyond it is closed at once and
+    /// counted in [`ListenerStats::refused_per_source`](crate::ListenerStats::refused_per_source). Default 8 (at
+    /// least 1). Peers behind one NAT share a source: raise it for many
+    /// operators behind one address.
+    pub max_pending_per_source: usize,
+    /// The kernel's queue of connections not yet accepted (`listen`'s
+    /// backlog; the kernel caps it at `net.core.somaxconn`). Default 1024.
+    pub backlog: u32,
+    /// Links that completed their handshake and wait for
+    /// [`Listener::accept`](crate::Listener::accept); one that finds the queue full is closed (its
+    /// peer told the listener is busy) and counted in
+    /// [`ListenerStats::unclaimed`](crate::ListenerStats::unclaimed). Default 16 (at least 1).
+    pub accept_queue: usize,
+}
+
+impl Default for Admission {
+    fn default() -> Self {
+        Admission {
+            preauth_timeout: Duration::from_secs(3),
+            max_pending_per_source: 8,
+            backlog: 1024,
+            accept_queue: 16,
+        }
+    }
+}

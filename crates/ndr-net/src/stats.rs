@@ -1,0 +1,50 @@
+//! A snapshot of a link's state and counters.
+
+use ndr_core::endpoint::{Phase, Running, Stats};
+use ndr_core::time::Duration;
+
+use crate::clock::LatenessStats;
+
+/// A snapshot of a link's state and counters.
+///
+/// With the `serde` feature it serializes flat, the endpoint's counters
+/// beside the link's, durations in seconds (the form the Python binding
+/// hands out).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
+pub struct LinkStats {
+    /// Where the protocol is.
+    pub phase: Phase,
+    /// The current period.
+    pub period: Duration,
+    /// The regulator's nominal size.
+    pub ns: usize,
+    /// Samples in the regulator.
+    pub queue_len: usize,
+    /// Occupancy before a release in the current regime: (min, max).
+    pub queue_range: Option<(usize, usize)>,
+    /// The latest NRTT measured.
+    pub last_nrtt: Option<Duration>,
+    /// Everything the endpoint counted.
+    #[cfg_attr(feature = "serde", serde(flatten))]
+    pub endpoint: Stats,
+    /// How late the hub's thread woke for its deadlines (all its links).
+    pub lateness: LatenessStats,
+    /// How late the hub ran each link's deadline (the release's stamp, after
+    /// the frames that arrived before it and the links served before it),
+    /// over all its links.
+    pub release_lateness: LatenessStats,
+    /// How long before a deadline the hub stops sleeping and spins, as it
+    /// has learned from how late its timer wakes (at most
+    /// [`LinkConfig::spin_margin`](crate::LinkConfig::spin_margin)).
+    pub spin_margin: Duration,
+    /// Samples and events dropped because the application did not read them.
+    pub app_dropped: u64,
+    /// Events dropped, the oldest first, because more than
+    /// [`EVENT_BACKLOG`](crate::link::EVENT_BACKLOG) waited for [`Link::drain_events`](crate::Link::drain_events).
+    pub events_dropped: u64,
+    /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
+    /// where there is one) to the hub handing it to the endpoint.
+    pub rx_lag: Running,
+}
