@@ -68,7 +68,6 @@ pub struct Link {
     /// Its place among the links its listener serves at once, given back
     /// when the link is dropped (after it is closed).
     seat: Option<Seat>,
-    _runtime: Option<tokio::runtime::Runtime>,
 }
 
 impl fmt::Debug for Link {
@@ -103,9 +102,9 @@ impl Link {
         Link::connect(addr, config.with_tls(tls.clone())).await
     }
 
-    /// [`connect`](Self::connect) for programs without a tokio runtime: the
-    /// link gets a small runtime of its own for the connection and the
-    /// handshakes; its hub drives it after that.
+    /// [`connect`](Self::connect) for programs without a tokio runtime: a
+    /// small runtime of its own makes the connection and the handshakes,
+    /// and is gone when this returns; the link's hub drives it after that.
     pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
         Link::connect_blocking_with(addr, config)
     }
@@ -125,9 +124,9 @@ impl Link {
         not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
         let rt = own_runtime()?;
         let hub = config.hub.pick(config.spin_margin)?;
-        let mut link = rt.block_on(hub.connect_with(addr, config))?;
-        link._runtime = Some(rt);
-        Ok(link)
+        // Only the connection and the handshakes need the runtime: its hub
+        // drives the link, and its thread ends here.
+        rt.block_on(hub.connect_with(addr, config))
     }
 
     /// Drives an already connected stream in `role`.
@@ -216,7 +215,6 @@ impl Link {
             peer,
             hub: hub.clone(),
             seat: None,
-            _runtime: None,
         })
     }
 

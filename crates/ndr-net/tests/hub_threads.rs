@@ -31,6 +31,18 @@ fn hub_threads() -> usize {
     mine.saturating_sub(1)
 }
 
+/// Threads of this process named `name`.
+fn threads_named(name: &str) -> usize {
+    std::fs::read_dir("/proc/self/task").map_or(0, |tasks| {
+        tasks
+            .filter_map(Result::ok)
+            .filter(|t| {
+                std::fs::read_to_string(t.path().join("comm")).is_ok_and(|c| c.trim() == name)
+            })
+            .count()
+    })
+}
+
 /// Waits (2 s at most) for the count of hub threads to come down to `n`,
 /// and fails if it does not.
 fn settles_to(n: usize) {
@@ -125,4 +137,34 @@ fn a_dropped_blocking_listener_ends_its_threads() {
         drop(l);
     }
     settles_to(before);
+}
+
+#[test]
+fn a_connected_blocking_link_keeps_no_runtime_of_its_own() {
+    let _serial = serial();
+    let listener = Listener::bind_blocking(
+        "127.0.0.1:0".parse().expect("addr"),
+        LinkConfig::new(Config::new(Role::Remote)),
+    )
+    .expect("bind");
+    let addr = listener.local_addr().expect("address");
+    // The listener's own runtime thread, and whatever else runs.
+    let before = threads_named("ndr-io");
+    let mut links = Vec::new();
+    for _ in 0..3 {
+        let (base, remote) = std::thread::scope(|s| {
+            let remote = s.spawn(|| listener.accept_blocking());
+            let base = Link::connect_blocking(addr, LinkConfig::new(Config::new(Role::Base)));
+            (base, remote.join().expect("accept thread"))
+        });
+        links.push((base.expect("connect"), remote.expect("accept")));
+    }
+    // Three links up, driven by their hubs: no runtime thread left behind
+    // by their connections (each ends as its `connect_blocking` returns).
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(2);
+    while threads_named("ndr-io") > before && std::time::Instant::now() < end {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert_eq!(threads_named("ndr-io"), before);
+    drop(links);
 }
