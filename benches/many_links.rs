@@ -80,9 +80,9 @@ fn stat_times(stat: &str) -> Option<(f64, f64)> {
     let (_, after) = stat.rsplit_once(')')?;
     // By position: fields before the times can be negative (the terminal's
     // process group is -1 without a terminal), so a filter on what parses as
-    // unsigned would shift them (it did: until 2026-11-24 this bench read
-    // the kernel time, and the children's, 0, as its CPU). Fields 14 and 15
-    // are utime and stime; the first after the name is field 3.
+    // unsigned would shift them and read other fields as the CPU times.
+    // Fields 14 and 15 are utime and stime; the first after the name is
+    // field 3.
     let mut times = after.split_whitespace().skip(14 - 3);
     let mut next = || times.next()?.parse::<u64>().ok().map(|t| t as f64 / 100.0);
     Some((next()?, next()?))

@@ -60,7 +60,7 @@ use crate::regulator::{Occupancy, RegulatorIn};
 use crate::storage::Storage;
 use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
-use crate::wire::{self, Control, Echo, Frame, Header, Hello, Message, Role};
+use crate::wire::{self, Control, Frame, Header, Hello, Message, Role};
 use event::Head;
 use receive::Heard;
 use regime::Regime;
@@ -349,16 +349,9 @@ impl<S: Storage> Endpoint<S> {
             seq,
             sent_at,
             // The hold runs to this frame's stamp, so that the peer's
-            // `stamp − hold` is the echoed frame's arrival; a frame that
+            // `stamp − hold` is the echoed frame's arrival: a frame that
             // arrived after the stamp (a late driver) is echoed by the next.
-            echo: self
-                .heard
-                .newest
-                .filter(|&(_, arrived)| arrived <= sent_at)
-                .map(|(echoed, arrived)| Echo {
-                    sent_at: echoed,
-                    hold: sent_at - arrived,
-                }),
+            echo: self.heard.echo_at(sent_at),
             // A sample names what it answers; other frames the newest release.
             released: match item {
                 Tx::Sample { .. } => self.out.answers,

@@ -57,7 +57,7 @@ impl<S: Storage> Endpoint<S> {
         if let Some(echo) = frame.echo() {
             self.measure_nrtt(now, echo, sent_at)?;
         }
-        self.heard.newest = Some((sent_at, now));
+        self.heard.heard(sent_at, now);
         match frame.payload() {
             Payload::Hello(hello) => self.receive_hello(now, hello),
             Payload::Data(channels) => {
@@ -340,12 +340,21 @@ impl<S: Storage> Endpoint<S> {
 }
 
 /// What came from the peer, and when.
+/// Frames kept as echo candidates: a driver may run a tick up to this many
+/// periods late, less one, and still echo.
+const ECHO_CANDIDATES: usize = 4;
+
 #[derive(Clone, Debug)]
 pub(super) struct Heard {
     /// What the next frames from the peer may be.
     pub(super) check: RxCheck,
-    /// Newest frame received: (its `sent_at`, our arrival time), echoed back.
+    /// Newest frame received: (its `sent_at`, our arrival time).
     pub(super) newest: Option<(Instant, Instant)>,
+    /// The last few frames received, newest first, as `newest`: a frame
+    /// echoes the newest of them that arrived by its stamp. A driver that
+    /// runs a tick late may have received the next frame by then, and an
+    /// echo of only the newest would be lost at every late tick.
+    pub(super) recent: [Option<(Instant, Instant)>; ECHO_CANDIDATES],
     /// Previous Data frame received, for the reception gap.
     pub(super) prev_data: Option<(Instant, Instant)>,
     /// Adaptive: the frames now arriving drain an outage's backlog.
@@ -356,10 +365,31 @@ pub(super) struct Heard {
 }
 
 impl Heard {
+    /// A frame sent at `sent_at` (peer clock) arrived at `at`.
+    pub(super) fn heard(&mut self, sent_at: Instant, at: Instant) {
+        self.newest = Some((sent_at, at));
+        self.recent.rotate_right(1);
+        self.recent[0] = self.newest;
+    }
+
+    /// What a frame stamped `stamp` echoes: the newest frame that arrived
+    /// by then, and how long it was held.
+    pub(super) fn echo_at(&self, stamp: Instant) -> Option<Echo> {
+        self.recent
+            .iter()
+            .flatten()
+            .find(|&&(_, arrived)| arrived <= stamp)
+            .map(|&(echoed, arrived)| Echo {
+                sent_at: echoed,
+                hold: stamp - arrived,
+            })
+    }
+
     pub(super) fn new(period: Duration) -> Self {
         Heard {
             check: RxCheck::new(period),
             newest: None,
+            recent: [None; ECHO_CANDIDATES],
             prev_data: None,
             outage_burst: false,
             newest_echo: None,

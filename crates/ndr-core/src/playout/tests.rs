@@ -422,7 +422,7 @@ fn adaptive(epsilon_ppm: u32, quantum: Option<Duration>) -> Playout {
 
 #[test]
 fn the_quantum_asked_for_divides_the_period() {
-    use crate::endpoint::delay_quantum_for;
+    use super::schedule::delay_quantum_for;
     // Defaults: the period up to 20 ms, then T/⌈T/20 ms⌉.
     assert_eq!(Playout::ADAPTIVE.quantum(ms(20)), Some(ms(20)));
     assert_eq!(Playout::ADAPTIVE.quantum(ms(10)), Some(ms(10)));

@@ -807,11 +807,11 @@ fn jittered(seed: u64, base_us: u64, spread_us: u64) -> DelayFn {
 #[test]
 fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
     // A loopback link (50 to 150 µs each way) at T = 10 ms, its remote's
-    // grid anywhere within a period of the base's. Its first delay holds:
-    // it used to rise a quantum right after the first release (a repeat),
-    // when the warm-up margin put the need a hair under a quantum boundary
-    // that the first clock estimates crossed, or when the remote's first
-    // states went out on its grid before it moved to its releases.
+    // grid anywhere within a period of the base's. Its first delay holds: no
+    // rise of a quantum right after the first release (a repeat), whether
+    // the warm-up margin puts the need a hair under a quantum boundary that
+    // the first clock estimates cross, or the remote's first states would
+    // go out on its grid before it moves to its releases.
     use ndr_core::playout::Playout;
     let t = Duration::from_millis(10);
     for phase_us in (0..10_000).step_by(500) {
@@ -1114,4 +1114,54 @@ fn span(xs: &[f64]) -> (f64, f64) {
     let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = xs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     (lo, hi)
+}
+
+/// A link at T = 20 ms over a loopback-like wire (100 to 300 µs each way),
+/// the two grids aligned, `side`'s driver serving every deadline late by
+/// up to `lag_us` (a loaded host): the base's fresh releases in 10 s, the
+/// instant of its first, and the NRTTs it measured.
+fn with_a_driver_late_past_the_wire(side: Side, lag_us: u64) -> (usize, Instant, u64) {
+    use ndr_core::playout::Playout;
+    let t = Duration::from_millis(20);
+    let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+    for c in [&mut base, &mut remote] {
+        c.playout = Playout::ADAPTIVE;
+        c.period = t;
+    }
+    let wire = |n: u64| Duration::from_micros(100 + n * 7919 % 200);
+    let mut p = Pair::new(base, remote, Box::new(wire), Box::new(wire));
+    p.lag[side as usize] =
+        Box::new(move |n| Duration::from_micros(n * 104_729 % 1000 * lag_us / 1000));
+    p.run_until(secs(10));
+    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    let fresh: Vec<_> = Pair::releases(&p.base_events)
+        .into_iter()
+        .filter(|r| r.status == Status::Fresh)
+        .collect();
+    let first = fresh.first().map_or(secs(10), |r| r.released_at);
+    (fresh.len(), first, p.base.stats().nrtt.count())
+}
+
+#[test]
+fn a_driver_late_past_the_wire_still_echoes_and_the_link_starts_at_once() {
+    // A tick run late finds the peer's next frame already in: it echoes
+    // the newest frame that came by its stamp. Were only the newest kept,
+    // every tick later than the wire would echo nothing, and the base
+    // would wait for ten round trips to size the link.
+    for side in [Side::Remote, Side::Base] {
+        let on_time = with_a_driver_late_past_the_wire(side, 0);
+        for lag_us in [2_000, 8_000, 19_000] {
+            let (fresh, first, nrtts) = with_a_driver_late_past_the_wire(side, lag_us);
+            assert!(
+                first <= on_time.1 + Duration::from_millis(200),
+                "{side:?} {lag_us}: {first:?}"
+            );
+            assert!(
+                fresh + 10 >= on_time.0,
+                "{side:?} {lag_us}: {fresh} of {}",
+                on_time.0
+            );
+            assert!(nrtts >= 450, "{side:?} {lag_us}: {nrtts} NRTTs");
+        }
+    }
 }
