@@ -65,24 +65,73 @@ fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdI
             _ => None,
         })
     });
-    // The stamp is on the wall clock: turn it into an age, then into a
-    // monotonic instant. A stamp from the future or older than a second
-    // means the wall clock moved; trust the read time then.
     let stamp = kernel.and_then(|ts| {
         let sec = u64::try_from(ts.tv_sec()).ok()?;
         let nsec = u32::try_from(ts.tv_nsec()).ok()?;
         let wall = UNIX_EPOCH + Duration::new(sec, nsec);
-        let (now, wall_now) = (StdInstant::now(), SystemTime::now());
-        let age = wall_now.duration_since(wall).ok()?;
-        (age < Duration::from_secs(1))
-            .then(|| now.checked_sub(age))
-            .flatten()
+        monotonic(wall, SystemTime::now, StdInstant::now)
     });
     Ok((msg.bytes, stamp))
+}
+
+/// A kernel stamp on the wall clock as a monotonic instant: its age on the
+/// wall clock, taken from the monotonic clock read right after. The wall
+/// clock is read first, so that a thread preempted between the two reads
+/// makes the arrival that much later, never earlier: a too early arrival
+/// of a frame the peer echoes would let it bound the clocks' offset too
+/// high, and take an honest frame for one from the future. A stamp from
+/// the future or older than a second means the wall clock moved: `None`,
+/// and the reader's own time instead.
+#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+fn monotonic(
+    stamp: std::time::SystemTime,
+    wall: impl FnOnce() -> std::time::SystemTime,
+    mono: impl FnOnce() -> StdInstant,
+) -> Option<StdInstant> {
+    let wall_now = wall();
+    let now = mono();
+    let age = wall_now.duration_since(stamp).ok()?;
+    (age < std::time::Duration::from_secs(1))
+        .then(|| now.checked_sub(age))
+        .flatten()
 }
 
 #[cfg(not(target_os = "linux"))]
 fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
     let mut reader = socket;
     reader.read(buf).map(|n| (n, None))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::cell::Cell;
+    use std::time::{Duration, SystemTime};
+
+    use super::*;
+
+    #[test]
+    fn a_reader_preempted_between_its_clock_reads_never_dates_an_arrival_early() {
+        // A frame arrived at `arrival`; the reader reads one clock 10 ms
+        // later and is preempted 5 ms before it reads the other.
+        let base = StdInstant::now();
+        let offset = Duration::from_secs(1_000_000);
+        let arrival = base + Duration::from_millis(50);
+        let stamp = SystemTime::UNIX_EPOCH + offset + Duration::from_millis(50);
+        let real = Cell::new(Duration::from_millis(60));
+        let tick = |t: &Cell<Duration>| {
+            let now = t.get();
+            t.set(now + Duration::from_millis(5));
+            now
+        };
+        let wall = || SystemTime::UNIX_EPOCH + offset + tick(&real);
+        let mono = || base + tick(&real);
+        let got = monotonic(stamp, wall, mono).expect("a fresh stamp");
+        assert!(got >= arrival, "{:?} early", arrival - got);
+        assert!(got - arrival <= Duration::from_millis(5));
+        // Stamps the wall clock cannot vouch for are left to the reader.
+        let real = Cell::new(Duration::from_millis(1_100));
+        let wall = || SystemTime::UNIX_EPOCH + offset + tick(&real);
+        let mono = || base + tick(&real);
+        assert_eq!(monotonic(stamp, wall, mono), None);
+    }
 }
