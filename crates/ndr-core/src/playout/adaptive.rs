@@ -53,45 +53,43 @@ impl AdaptiveSlot for Adaptive {
     }
 }
 
-/// The adaptive playout's state on the heap, taken only by a link that
-/// runs it ([`Heap`](crate::storage::Heap) storage).
+/// A slot on the heap, taken only by a link that runs the adaptive
+/// playout ([`Heap`](crate::storage::Heap) storage).
 #[cfg(feature = "alloc")]
-impl AdaptiveSlot for alloc::boxed::Box<Adaptive> {
+impl<A: AdaptiveSlot> AdaptiveSlot for alloc::boxed::Box<A> {
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self> {
-        Some(alloc::boxed::Box::new(Adaptive::with_quantum(
-            period, epsilon, quantum,
-        )))
+        A::build(period, epsilon, quantum).map(alloc::boxed::Box::new)
     }
 
     fn rebase(&mut self, by: Duration, rose: bool) {
-        Adaptive::rebase(self, by, rose);
+        (**self).rebase(by, rose);
     }
 
     fn note_late(&mut self) {
-        Adaptive::note_late(self);
+        (**self).note_late();
     }
 
     fn budget_used(&self, more: u64) -> f64 {
-        Adaptive::budget_used(self, more)
+        (**self).budget_used(more)
     }
 
     fn sample_cost(&self) -> Duration {
-        Adaptive::sample_cost(self)
+        (**self).sample_cost()
     }
 
     fn margin(&self) -> Duration {
-        Adaptive::margin(self)
+        (**self).margin()
     }
 }
 
 #[cfg(feature = "alloc")]
-impl TargetDelay for alloc::boxed::Box<Adaptive> {
+impl<A: TargetDelay> TargetDelay for alloc::boxed::Box<A> {
     fn observe(&mut self, sent_at: Instant, delay: Duration) {
-        TargetDelay::observe(&mut **self, sent_at, delay);
+        (**self).observe(sent_at, delay);
     }
 
     fn target(&self) -> Option<Duration> {
-        TargetDelay::target(&**self)
+        (**self).target()
     }
 }
 
