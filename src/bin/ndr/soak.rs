@@ -82,11 +82,11 @@ struct SoakReport {
     underflows: u64,
     late: u64,
     /// Fresh samples missing in a connection's sequence that no counter
-    /// (late, rejected, discarded) accounts for.
+    /// (late, rejected, discarded, never sent) accounts for.
     lost: u64,
     /// Fresh samples missing in a connection's sequence, each counted by the
-    /// link as late (dropped under `drop-late`), rejected, discarded or not
-    /// read in time by the application.
+    /// link as late (dropped under `drop-late`), rejected, discarded, not
+    /// read in time by the application, or never sent by the peer.
     dropped_with_counter: u64,
     /// Samples refused by a full regulator.
     rejected: u64,
@@ -219,16 +219,11 @@ fn echo(mut link: Link) {
                     anomalies += prev.map_or(0, |p| if s.seq > p { s.seq - p - 1 } else { 1 });
                     prev = Some(s.seq);
                 }
-                let stats = link.stats();
-                let dropped = stats.as_ref().map_or(0, dropped);
-                let tx_dropped = stats.map_or(0, |st| st.endpoint.tx_dropped);
-                let (command, peer_tx_dropped) = match *s.values() {
-                    [c, t, ..] => (c, t),
-                    _ => (0.0, 0.0),
-                };
-                // The base's own transmit drops explain gaps here too.
-                let explained = dropped as f64 + peer_tx_dropped;
-                let _ = link.send(&[command, anomalies as f64, explained, tx_dropped as f64]);
+                // Counted before this sample could be released: the snapshot
+                // explains every gap before it.
+                let explained = link.stats().as_ref().map_or(0, dropped);
+                let command = s.values().first().copied().unwrap_or(0.0);
+                let _ = link.send(&[command, anomalies as f64, explained as f64, 0.0]);
             }
             Err(NetError::Timeout) => {}
             Err(_) => return,
@@ -301,20 +296,25 @@ struct Conn {
     prev_echo: f64,
     /// Fresh samples missing from the sequence.
     gaps: u64,
-    /// The remote's last report: its gaps, and the samples its counters (and
-    /// ours, for frames we could not send) say were dropped.
+    /// The remote's last report: its gaps, and the samples its counters say
+    /// never reached it.
     remote_gaps: f64,
     remote_dropped: f64,
-    /// Frames the remote could not send (its transmit queue overflowed).
-    remote_tx_dropped: f64,
 }
 
-/// Samples a link's counters say it received but did not hand to the
-/// application: dropped late, refused by a full regulator, discarded by a
-/// pause, or dropped because the application's queue was full (that counter
-/// also counts events, so it bounds the samples from above).
+/// Samples a link's counters say never reached the application: dropped
+/// late, refused by a full regulator, discarded by a pause, dropped because
+/// the application's queue was full (that counter also counts events, so it
+/// bounds the samples from above), or never sent by the peer, whose
+/// transmit queue overflowed while its driver stalled (`frames_missing`:
+/// counted here when the next frame came, so before any later sample was
+/// released; the peer's own count would reach us only with a later sample).
 fn dropped(s: &LinkStats) -> u64 {
-    s.endpoint.late + s.endpoint.rejected + s.endpoint.discarded + s.app_dropped
+    s.endpoint.late
+        + s.endpoint.rejected
+        + s.endpoint.discarded
+        + s.app_dropped
+        + s.endpoint.frames_missing
 }
 
 fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
@@ -466,8 +466,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
             Ok(s) => {
                 check(&mut r, conn, s.status, s.seq, s.values());
                 command += 1.0;
-                let tx_dropped = l.stats().map_or(0, |st| st.endpoint.tx_dropped);
-                let _ = l.send(&[command, tx_dropped as f64, 0.0, 0.0]);
+                let _ = l.send(&[command, 0.0, 0.0, 0.0]);
             }
             Err(NetError::Timeout) => {}
             Err(e) => {
@@ -522,14 +521,13 @@ fn check(r: &mut SoakReport, conn: &mut Conn, status: Status, seq: u64, values: 
         None => {}
     }
     conn.prev_seq = Some(seq);
-    if let [echo, gaps, dropped, tx_dropped, ..] = *values {
+    if let [echo, gaps, dropped, ..] = *values {
         if echo < conn.prev_echo {
             r.corrupted += 1;
         }
         conn.prev_echo = echo;
         conn.remote_gaps = conn.remote_gaps.max(gaps);
         conn.remote_dropped = conn.remote_dropped.max(dropped);
-        conn.remote_tx_dropped = conn.remote_tx_dropped.max(tx_dropped);
     }
 }
 
@@ -537,7 +535,7 @@ fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
     // The remote's last report may predate its last drops: only gaps beyond
     // what its counters said are anomalies.
     r.remote_anomalies += (conn.remote_gaps - conn.remote_dropped).max(0.0) as u64;
-    let counted = stats.as_ref().map_or(0, dropped) + conn.remote_tx_dropped as u64;
+    let counted = stats.as_ref().map_or(0, dropped);
     r.dropped_with_counter += conn.gaps.min(counted);
     r.lost += conn.gaps.saturating_sub(counted);
     if let Some(s) = stats {
