@@ -1,39 +1,43 @@
-//! Release-clock precision: ndr's clock thread against a tokio `interval`.
+//! Release-clock precision: the hub's deadlines against a tokio `interval`.
 //!
-//! Both keep the deadlines `t0 + k·T` at T = 1 ms for N ticks (5 s each),
-//! one after the other, and each tick's lateness is measured against its ideal
-//! deadline with `std::time::Instant`. Prints the machine, the command and a
-//! table of p50, p99, p99.9, max and mean lateness for both, with the ratio.
+//! The hub keeps every link's deadlines on its one thread: a native sleep
+//! to a spin margin before each, then a spin. Here one hub runs both ends of
+//! a loopback link at T = 1 ms until the base has released N samples (5 s),
+//! once learning its margin from the timer (the default), once spinning the
+//! whole default margin; the hub records how late it woke for each of its
+//! deadlines against the ideal instant (`LinkStats::lateness`: one wake-up
+//! serves both links, which share the grid; the handshake included). The baseline, in the same run: a tokio `interval` at the same
+//! period on a current-thread runtime, each tick's lateness against its
+//! ideal deadline by `std::time::Instant`. Prints the machine, the command
+//! and a table of p50, p99, p99.9, max and mean lateness, with the hub
+//! thread's CPU and its margin at the end.
 //!
 //! ```sh
 //! cargo bench --bench release_clock
-//! NDR_CLOCK_TICKS=20000 NDR_CLOCK_MARGIN_US=500 cargo bench --bench release_clock
+//! NDR_CLOCK_TICKS=20000 cargo bench --bench release_clock
 //! ```
 //!
-//! `NDR_CLOCK_TICKS` sets N (default 5000), `NDR_CLOCK_MARGIN_US` the clock's
-//! spin margin (default: the library's). Our clock runs twice, one run after
-//! the other: learning its margin from its sleeps up to that one (the
-//! default), and spinning the whole of it; each run reports its thread's
-//! CPU. Under a real-time policy (start the built binary with `chrt -f 50`)
-//! both sides run `SCHED_FIFO`.
+//! `NDR_CLOCK_TICKS` sets N (default 5000). Under a real-time policy (start
+//! the built binary with `chrt -f 50`) the hub and tokio run `SCHED_FIFO`.
 
-use std::ops::ControlFlow;
-use std::time::Instant as StdInstant;
+use std::net::SocketAddr;
+use std::time::{Duration as StdDuration, Instant as StdInstant};
 
+use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
-use ndr::net::clock::{LatenessHistogram, LatenessStats, ReleaseClock, SchedPolicy};
+use ndr::core::wire::Role;
+use ndr::net::clock::{
+    DEFAULT_SPIN_MARGIN, LatenessHistogram, LatenessStats, SchedPolicy, current_thread_policy,
+};
+use ndr::net::hub::Hub;
+use ndr::net::spin::SpinMargin;
+use ndr::net::{Link, LinkConfig, Listener};
 use tokio::time::MissedTickBehavior;
 
 const PERIOD: Duration = Duration::from_millis(1);
 
 fn env_u64(name: &str) -> Option<u64> {
     std::env::var(name).ok()?.trim().parse().ok()
-}
-
-/// Nanoseconds this thread has run on a CPU (Linux), for the clock's CPU cost.
-fn thread_cpu_nanos() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    text.split_whitespace().next()?.parse().ok()
 }
 
 fn machine() -> String {
@@ -54,63 +58,83 @@ fn machine() -> String {
     )
 }
 
-/// ndr's clock thread, its spin margin learned (`adaptive`) or fixed: the
-/// lateness of each of `n` ticks.
-fn ndr_clock(n: u64, adaptive: bool) -> (LatenessHistogram, String, bool) {
-    let mut clock = ReleaseClock::new(
-        StdInstant::now() + std::time::Duration::from_millis(20),
-        PERIOD,
-    )
-    .expect("a 1 ms period is valid")
-    .with_adaptive_spin(adaptive);
-    if let Some(us) = env_u64("NDR_CLOCK_MARGIN_US") {
-        clock = clock
-            .with_spin_margin(Duration::from_micros(us))
-            .expect("NDR_CLOCK_MARGIN_US below the period");
+/// CPU time of this process's hub threads (`ndr-hub`), nanoseconds on a
+/// CPU (Linux's schedstat).
+fn hub_cpu_nanos() -> Option<u64> {
+    let mut total = None;
+    for task in std::fs::read_dir("/proc/self/task").ok()?.flatten() {
+        let path = task.path();
+        let named_hub =
+            std::fs::read_to_string(path.join("comm")).is_ok_and(|name| name.trim() == "ndr-hub");
+        if !named_hub {
+            continue;
+        }
+        let text = std::fs::read_to_string(path.join("schedstat")).ok()?;
+        let nanos: u64 = text.split_whitespace().next()?.parse().ok()?;
+        total = Some(total.unwrap_or(0) + nanos);
     }
-    let mut cpu_start = None;
-    let (tx, rx) = std::sync::mpsc::channel();
-    let thread = clock
-        .spawn(0, move |tick| {
-            if tick.index == 0 {
-                cpu_start = thread_cpu_nanos();
-            }
-            if tick.index + 1 < n {
-                return ControlFlow::Continue(());
-            }
-            let cpu = cpu_start.zip(thread_cpu_nanos()).map(|(a, b)| b - a);
-            let _ = tx.send(cpu);
-            ControlFlow::Break(())
-        })
-        .expect("the clock thread starts");
-    let report = thread.join().expect("the closure does not panic");
-    let cpu = rx.try_recv().ok().flatten().map_or_else(
+    total
+}
+
+/// A hub keeping both ends of a loopback link at T = 1 ms until the base
+/// has released `n` samples: the hub's lateness, and a line on its margin
+/// and CPU.
+fn hub_clock(n: u64, spin: SpinMargin) -> (LatenessStats, String) {
+    let learned = spin.is_adaptive();
+    let hub = Hub::new(spin).expect("a hub thread");
+    let config = |role| {
+        let mut c = Config::paper(role);
+        c.period = PERIOD;
+        LinkConfig::new(c).on_hub(hub.clone())
+    };
+    let any: SocketAddr = "127.0.0.1:0".parse().expect("an address");
+    let listener = Listener::bind_blocking(any, config(Role::Remote)).expect("a listener");
+    let addr = listener.local_addr().expect("its address");
+    let accept = std::thread::spawn(move || listener.accept_blocking());
+    let mut base = Link::connect_blocking(addr, config(Role::Base)).expect("a link");
+    let mut remote = accept
+        .join()
+        .expect("the accepting thread")
+        .expect("the remote's link");
+    // The remote's samples go back unread but its queue is drained, so
+    // nothing waits for an application that is not there.
+    let drain = std::thread::spawn(move || {
+        while remote.recv_timeout(StdDuration::from_secs(2)).is_ok() {}
+        remote.close()
+    });
+    let cpu_start = hub_cpu_nanos();
+    let started = StdInstant::now();
+    let mut released = 0;
+    while released < n {
+        base.send(&[0.0]).expect("the link runs");
+        base.recv_timeout(StdDuration::from_secs(2))
+            .expect("a release within 2 s");
+        released += 1;
+    }
+    let elapsed = started.elapsed();
+    let cpu = cpu_start.zip(hub_cpu_nanos()).map(|(a, b)| b - a);
+    let stats = base.close().expect("the base's stats");
+    let _ = drain.join();
+    let cpu = cpu.map_or_else(
         || "unknown".to_owned(),
         #[allow(clippy::cast_precision_loss)]
         |nanos| {
-            let span = PERIOD.as_nanos() * n.saturating_sub(1).max(1);
-            format!("{:.1} % of a core", 100.0 * nanos as f64 / span as f64)
+            format!(
+                "{:.1} % of a core",
+                100.0 * nanos as f64 / elapsed.as_nanos().max(1) as f64
+            )
         },
     );
-    let setup = report.setup;
-    let policy = setup.policy.map_or("unknown".to_owned(), |p| p.to_string());
-    let slack = setup
-        .timer_slack
-        .map_or("unknown".to_owned(), |s| s.to_string());
-    let margin = if adaptive {
+    let margin = if learned {
         format!(
-            "learned, up to {}: {} at the end",
-            clock.spin_margin(),
-            report.spin_margin
+            "learned, up to {DEFAULT_SPIN_MARGIN}: {} at the end",
+            stats.spin_margin
         )
     } else {
-        format!("fixed, {}", clock.spin_margin())
+        format!("fixed, {}", stats.spin_margin)
     };
-    let info = format!(
-        "ndr clock: spin margin {margin}, timer slack {slack}, policy {policy}, thread CPU {cpu}"
-    );
-    let realtime = setup.policy.is_some_and(SchedPolicy::is_realtime);
-    (report.histogram, info, realtime)
+    let info = format!("ndr hub: spin margin {margin}, hub thread CPU {cpu} (both links)");
+    (stats.lateness, info)
 }
 
 /// A tokio `interval` on a current-thread runtime: the lateness of each of `n`
@@ -155,17 +179,15 @@ fn ratio(a: Duration, b: Duration) -> String {
     format!("{r:.0}×")
 }
 
-fn row(name: &str, h: &LatenessHistogram) -> String {
-    let s: LatenessStats = h.stats();
-    #[allow(clippy::cast_precision_loss)]
-    let within = 100.0 * h.count_under_micros(20) as f64 / s.count.max(1) as f64;
+fn row(name: &str, s: &LatenessStats) -> String {
     format!(
-        "| {name} | {} | {} | {} | {} | {} | {within:.1} % | {} |",
+        "| {name} | {} | {} | {} | {} | {} | {} | {} |",
         us(s.p50),
         us(s.p99),
         us(s.p999),
         us(s.max),
         us(s.mean),
+        s.count,
         s.missed
     )
 }
@@ -173,7 +195,7 @@ fn row(name: &str, h: &LatenessHistogram) -> String {
 fn main() {
     let n = env_u64("NDR_CLOCK_TICKS").unwrap_or(5_000).max(1);
     println!("{}", machine());
-    let overrides: Vec<String> = ["NDR_CLOCK_TICKS", "NDR_CLOCK_MARGIN_US"]
+    let overrides: Vec<String> = ["NDR_CLOCK_TICKS"]
         .iter()
         .filter_map(|v| Some(format!("{v}={} ", std::env::var(v).ok()?)))
         .collect();
@@ -181,35 +203,37 @@ fn main() {
         "command: {}cargo bench --bench release_clock",
         overrides.concat()
     );
-    println!("T = {PERIOD}, N = {n} ticks each, lateness vs the ideal deadline t0 + k·T, in µs\n");
+    println!(
+        "T = {PERIOD}, {n} releases at the base, lateness vs the ideal deadline t0 + k·T, in µs\n"
+    );
 
-    let (ours, info, realtime) = ndr_clock(n, true);
-    let (fixed, fixed_info, _) = ndr_clock(n, false);
+    let (ours, info) = hub_clock(n, SpinMargin::adaptive(DEFAULT_SPIN_MARGIN));
+    let (fixed, fixed_info) = hub_clock(n, SpinMargin::fixed(DEFAULT_SPIN_MARGIN));
     let (theirs, early) = tokio_interval(n);
-    let (a, b) = (ours.stats(), theirs.stats());
+    let theirs = theirs.stats();
 
-    println!("| clock | p50 | p99 | p99.9 | max | mean | < 20 µs | missed |");
+    println!("| clock | p50 | p99 | p99.9 | max | mean | wake-ups | missed |");
     println!("|---|---|---|---|---|---|---|---|");
-    println!("{}", row("ndr clock thread (margin learned)", &ours));
-    println!("{}", row("ndr clock thread (margin fixed)", &fixed));
+    println!("{}", row("ndr hub (margin learned)", &ours));
+    println!("{}", row("ndr hub (margin fixed)", &fixed));
     println!("{}", row("tokio interval (current thread, Burst)", &theirs));
     println!(
         "| tokio / ndr | {} | {} | {} | {} | {} | | |",
-        ratio(b.p50, a.p50),
-        ratio(b.p99, a.p99),
-        ratio(b.p999, a.p999),
-        ratio(b.max, a.max),
-        ratio(b.mean, a.mean)
+        ratio(theirs.p50, ours.p50),
+        ratio(theirs.p99, ours.p99),
+        ratio(theirs.p999, ours.p999),
+        ratio(theirs.max, ours.max),
+        ratio(theirs.mean, ours.mean)
     );
     println!(
         "\npercentiles are the upper edges of 1 µs buckets (capped by the max); means are exact"
     );
     println!("{info}");
     println!("{fixed_info}");
-    if !realtime {
+    if !current_thread_policy().is_ok_and(SchedPolicy::is_realtime) {
         println!(
-            "note: the clock thread ran under the default policy: on a loaded machine its tail is \
-             the scheduler's; for SCHED_FIFO run the built binary under `chrt -f 50`"
+            "note: the hub ran under the default policy: on a loaded machine its tail is the \
+             scheduler's; for SCHED_FIFO run the built binary under `chrt -f 50`"
         );
     }
     if early > 0 {

@@ -1,31 +1,24 @@
-//! The release clock: absolute deadlines `t0 + k·T` kept to the microsecond.
+//! What the hub's release clock is made of and measured with: its default
+//! spin margin and timer slack, the scheduling of a thread, and the
+//! histogram of how late deadlines were served.
 //!
 //! The NDR releases one sample per period `T`. tokio's timers round up to
-//! whole milliseconds (1.0–1.5 ms late on this project's machine), too coarse
-//! for that, so the clock runs on a dedicated OS thread instead:
-//!
-//! - deadlines are absolute and computed from integers, `origin + k·T`
-//!   ([`ReleaseClock::deadline`]), so they never drift however long the link
-//!   runs and a late tick does not delay the next one;
-//! - [`ReleaseClock::wait_until`] sleeps natively until a *spin margin*
-//!   before the deadline, then spins on [`std::time::Instant::now`] (about
-//!   30 ns a call here) until the deadline has passed, and returns how late
-//!   it woke; the clock's thread learns the margin from how late its sleeps
-//!   wake ([`crate::spin`]), up to the one configured;
-//! - [`ReleaseClock::spawn`] runs a closure on every tick on a thread named
-//!   `ndr-clock` and records each tick's lateness in a fixed
-//!   [`LatenessHistogram`], allocated once when the thread starts.
-//!
-//! Ticks are never skipped: when the thread was descheduled past a deadline
-//! (or the closure ran longer than a period) the late ticks are served at once,
-//! in order, each with its lateness, and the caller decides what to do. A tick
+//! whole milliseconds, too coarse for that, so the hub
+//! ([`crate::hub`]) keeps its links' deadlines on its own thread: absolute
+//! deadlines `origin + k·T` computed from integers (they never drift, and a
+//! late tick does not delay the next one), a native sleep until a *spin
+//! margin* before each, learned from how late its sleeps wake
+//! ([`crate::spin`]) up to [`DEFAULT_SPIN_MARGIN`], then a spin on
+//! [`std::time::Instant::now`]. Each deadline's lateness goes to a
+//! [`LatenessHistogram`], allocated once; [`LatenessStats`] is its summary
+//! (in [`LinkStats::lateness`](crate::LinkStats::lateness)). A deadline
 //! served a whole period or more late is counted as *missed*
-//! ([`LatenessStats::missed`]): the next deadline had passed too.
+//! ([`LatenessStats::missed`]): the next one had passed too.
 //!
 //! # Scheduling
 //!
 //! Native sleeps overshoot by the thread's *timer slack* (50 µs by default on
-//! Linux) plus the wake-up latency; the spawned thread therefore lowers its own
+//! Linux) plus the wake-up latency; the hub's thread therefore lowers its own
 //! timer slack to [`DEFAULT_TIMER_SLACK`] by writing
 //! `/proc/<tid>/timerslack_ns` (allowed for a thread's own entry, no privilege
 //! needed), which lets the spin margin stay short. On a loaded machine the
@@ -33,449 +26,31 @@
 //! the default policy waits behind other runnable threads, spinning or not.
 //! Only a real-time policy (`SCHED_FIFO`) removes that tail. Setting it needs a
 //! system call that std does not wrap and this workspace forbids `unsafe`
-//! code, so the clock does not try; a thread inherits its creator's policy, so
-//! running the process under `chrt -f 50` gives the clock `SCHED_FIFO`. The
-//! report says which policy the thread actually ran with
-//! ([`ThreadSetup::policy`]). Under `SCHED_FIFO` keep the spin margin well
-//! below the period: a thread that never sleeps is throttled by the kernel
-//! (by default it may use 95 % of each second), which costs tens of
-//! milliseconds at once.
+//! code, so the hub does not try; a thread inherits its creator's policy, so
+//! running the process under `chrt -f 50` gives the hub `SCHED_FIFO`
+//! ([`current_thread_policy`] says which policy a thread has). Under
+//! `SCHED_FIFO` keep the spin margin well below the period: a thread that
+//! never sleeps is throttled by the kernel (by default it may use 95 % of
+//! each second), which costs tens of milliseconds at once.
 
 use core::fmt;
-use core::ops::ControlFlow;
 use std::io;
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::thread::JoinHandle;
-use std::time::Instant as StdInstant;
 
-use ndr_core::time::{Duration, Instant};
+use ndr_core::time::Duration;
 
-use crate::spin::SpinMargin;
-
-/// The spin margin of a new clock (clamped to half the period): how long
-/// before a deadline the native sleep ends and the spin begins. A clock
-/// thread or a hub takes it as the longest margin and learns a shorter one
-/// from its sleeps' overshoots ([`crate::spin::SpinMargin`]).
-///
-/// Chosen by measurement on the project's 2-core VM at T = 1 ms (5000 ticks,
-/// `benches/release_clock.rs`): a native sleep with a 1 µs timer slack
-/// overshoots by about 25 µs at the median (75 µs with the default 50 µs
-/// slack). Under `SCHED_FIFO`, margins of 100, 200 and 500 µs gave a p99
-/// lateness of 12, 1–11 and 35 µs for 9, 19 and 50 % of a core. Under the
-/// default policy on a loaded machine the tail (p99 1.5–2.4 ms) is the
-/// scheduler's and no margin shortens it; a longer one only burns CPU.
+/// The longest spin margin a hub uses (at most half the period): how long
+/// before a deadline the native sleep ends and the spin begins. A hub
+/// learns a shorter one from its sleeps' overshoots
+/// ([`crate::spin::SpinMargin`]). A native sleep with a 1 µs timer slack
+/// overshoots by tens of microseconds; under the default policy on a loaded
+/// machine the tail of the lateness is the scheduler's and no margin
+/// shortens it, a longer one only burns CPU (docs/benchmarks.md, "Release
+/// clock").
 pub const DEFAULT_SPIN_MARGIN: Duration = Duration::from_micros(200);
 
-/// The timer slack the clock thread asks for (see the module docs).
+/// The timer slack the hub's thread asks for (see the module docs).
 pub const DEFAULT_TIMER_SLACK: Duration = Duration::from_micros(1);
-
-/// The name of the thread [`ReleaseClock::spawn`] starts.
-pub const THREAD_NAME: &str = "ndr-clock";
-
-/// Why a clock could not be made or its thread did not end well.
-#[derive(Debug)]
-pub enum ClockError {
-    /// A period of zero: every deadline would be the origin.
-    ZeroPeriod,
-    /// The spin margin is not shorter than the period: the thread would spin
-    /// forever (and, under `SCHED_FIFO`, be throttled by the kernel).
-    SpinMarginTooLong {
-        /// The margin asked for.
-        margin: Duration,
-        /// The clock's period.
-        period: Duration,
-    },
-    /// The operating system refused to start the clock thread.
-    Spawn(io::Error),
-    /// The tick closure panicked; the thread ended there.
-    Panicked,
-}
-
-impl fmt::Display for ClockError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ClockError::ZeroPeriod => write!(f, "the release clock needs a period above zero"),
-            ClockError::SpinMarginTooLong { margin, period } => write!(
-                f,
-                "spin margin {margin} is not shorter than the period {period}: \
-                 the clock thread would never sleep"
-            ),
-            ClockError::Spawn(e) => write!(f, "could not start the `{THREAD_NAME}` thread: {e}"),
-            ClockError::Panicked => {
-                write!(f, "the tick closure of the `{THREAD_NAME}` thread panicked")
-            }
-        }
-    }
-}
-
-impl std::error::Error for ClockError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        match self {
-            ClockError::Spawn(e) => Some(e),
-            _ => None,
-        }
-    }
-}
-
-/// Absolute periodic deadlines `origin + k·T`, and a precise wait for them.
-///
-/// ```
-/// use ndr_core::time::Duration;
-/// use ndr_net::clock::ReleaseClock;
-///
-/// let clock = ReleaseClock::new(std::time::Instant::now(), Duration::from_millis(1))?;
-/// for k in 1..=3 {
-///     let deadline = clock.deadline(k).expect("within the range of Instant");
-///     let lateness = clock.wait_until(deadline);
-///     // release the sample of tick k; `lateness` is how late that was
-///     # let _ = lateness;
-/// }
-/// # Ok::<(), ndr_net::clock::ClockError>(())
-/// ```
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ReleaseClock {
-    origin: StdInstant,
-    period: Duration,
-    spin_margin: Duration,
-    adaptive_spin: bool,
-    timer_slack: Option<Duration>,
-}
-
-impl ReleaseClock {
-    /// A clock of period `period` whose tick `k` falls at `origin + k·period`,
-    /// with the [`DEFAULT_SPIN_MARGIN`] (at most half the period) and the
-    /// [`DEFAULT_TIMER_SLACK`] for its thread.
-    ///
-    /// # Errors
-    ///
-    /// [`ClockError::ZeroPeriod`] for a zero period.
-    pub fn new(origin: StdInstant, period: Duration) -> Result<Self, ClockError> {
-        if period.is_zero() {
-            return Err(ClockError::ZeroPeriod);
-        }
-        Ok(ReleaseClock {
-            origin,
-            period,
-            spin_margin: DEFAULT_SPIN_MARGIN.min(period / 2),
-            adaptive_spin: true,
-            timer_slack: Some(DEFAULT_TIMER_SLACK),
-        })
-    }
-
-    /// The same clock with another spin margin (zero: sleep only, no spin):
-    /// the longest its thread uses, learning a shorter one from its sleeps
-    /// unless [`with_adaptive_spin(false)`](Self::with_adaptive_spin).
-    ///
-    /// # Errors
-    ///
-    /// [`ClockError::SpinMarginTooLong`] unless `margin` is shorter than the
-    /// period.
-    pub fn with_spin_margin(mut self, margin: Duration) -> Result<Self, ClockError> {
-        if margin >= self.period {
-            return Err(ClockError::SpinMarginTooLong {
-                margin,
-                period: self.period,
-            });
-        }
-        self.spin_margin = margin;
-        Ok(self)
-    }
-
-    /// The same clock whose thread ([`spawn`](Self::spawn)) learns its spin
-    /// margin from its sleeps' overshoots, up to [`spin_margin`]
-    /// (`true`, the default), or always spins the whole of it (`false`).
-    /// [`wait_until`](Self::wait_until) always spins the whole margin.
-    ///
-    /// [`spin_margin`]: Self::spin_margin
-    #[must_use]
-    pub fn with_adaptive_spin(mut self, adaptive: bool) -> Self {
-        self.adaptive_spin = adaptive;
-        self
-    }
-
-    /// The same clock whose thread ([`spawn`](Self::spawn)) sets its timer
-    /// slack to `slack`, or leaves it alone with `None`. [`wait_until`]
-    /// does not change the slack of the calling thread: use
-    /// [`set_current_thread_timer_slack`] there.
-    ///
-    /// [`wait_until`]: Self::wait_until
-    #[must_use]
-    pub fn with_timer_slack(mut self, slack: Option<Duration>) -> Self {
-        self.timer_slack = slack;
-        self
-    }
-
-    /// The instant of tick 0.
-    #[must_use]
-    pub fn origin(&self) -> StdInstant {
-        self.origin
-    }
-
-    /// The period `T`.
-    #[must_use]
-    pub fn period(&self) -> Duration {
-        self.period
-    }
-
-    /// How long before a deadline the sleep ends and the spin begins: the
-    /// longest margin, when the thread learns a shorter one.
-    #[must_use]
-    pub fn spin_margin(&self) -> Duration {
-        self.spin_margin
-    }
-
-    /// Whether the thread learns its spin margin from its sleeps.
-    #[must_use]
-    pub fn adaptive_spin(&self) -> bool {
-        self.adaptive_spin
-    }
-
-    /// The timer slack the clock thread asks for, if any.
-    #[must_use]
-    pub fn timer_slack(&self) -> Option<Duration> {
-        self.timer_slack
-    }
-
-    /// The deadline of tick `k`, `origin + k·T`, computed exactly from integer
-    /// nanoseconds; `None` past the range of [`std::time::Instant`].
-    #[must_use]
-    pub fn deadline(&self, k: u64) -> Option<StdInstant> {
-        let nanos = self.period.as_nanos().checked_mul(k)?;
-        self.origin
-            .checked_add(std::time::Duration::from_nanos(nanos))
-    }
-
-    /// The deadline of tick `k` on the link's own time scale (nanoseconds
-    /// since the origin): exactly `k·T`, saturating at the end of time.
-    #[must_use]
-    pub fn deadline_since_origin(&self, k: u64) -> Instant {
-        Instant::ZERO + self.period * k
-    }
-
-    /// The first tick whose deadline is at or after `t` (0 for any `t` before
-    /// the origin): where to start a clock whose origin is in the past
-    /// without serving the ticks already gone.
-    #[must_use]
-    pub fn first_tick_at_or_after(&self, t: StdInstant) -> u64 {
-        let since = t.saturating_duration_since(self.origin).as_nanos();
-        let k = since.div_ceil(u128::from(self.period.as_nanos()));
-        u64::try_from(k).unwrap_or(u64::MAX)
-    }
-
-    /// Blocks the calling thread until `deadline` has passed and returns how
-    /// late it woke (zero or more): a native sleep until the spin margin
-    /// before the deadline, then a spin.
-    ///
-    /// A deadline already past returns at once with its lateness.
-    pub fn wait_until(&self, deadline: StdInstant) -> Duration {
-        let mut margin = SpinMargin::fixed(self.spin_margin);
-        wait(deadline, &mut margin, None, std::thread::sleep).unwrap_or(Duration::ZERO)
-    }
-
-    /// Starts a thread named [`THREAD_NAME`] that waits for the deadline of
-    /// each tick from `first` on, in order, and calls `on_tick` with it; the
-    /// thread ends when `on_tick` returns [`ControlFlow::Break`], when
-    /// [`ClockThread::stop`] is called (or the handle dropped), or past the
-    /// range of [`std::time::Instant`].
-    ///
-    /// Each tick's lateness is recorded before `on_tick` runs; the time
-    /// `on_tick` takes delays the next tick only if it overruns its deadline.
-    ///
-    /// # Errors
-    ///
-    /// [`ClockError::Spawn`] if the operating system refuses the thread.
-    pub fn spawn<F>(self, first: u64, on_tick: F) -> Result<ClockThread, ClockError>
-    where
-        F: FnMut(Tick) -> ControlFlow<()> + Send + 'static,
-    {
-        let shared = Arc::new(Shared {
-            stop: AtomicBool::new(false),
-            ticks: AtomicU64::new(0),
-        });
-        let thread_shared = Arc::clone(&shared);
-        let handle = std::thread::Builder::new()
-            .name(THREAD_NAME.into())
-            .spawn(move || run(self, first, on_tick, &thread_shared))
-            .map_err(ClockError::Spawn)?;
-        Ok(ClockThread {
-            handle: Some(handle),
-            shared,
-        })
-    }
-}
-
-/// Waits for `deadline`: `sleep` until the margin before it, then spins;
-/// each sleep's overshoot goes to `margin`. `None` if `stop` was raised
-/// first.
-fn wait(
-    deadline: StdInstant,
-    margin: &mut SpinMargin,
-    stop: Option<&AtomicBool>,
-    mut sleep: impl FnMut(std::time::Duration),
-) -> Option<Duration> {
-    let spin = std::time::Duration::from(margin.current());
-    loop {
-        let now = StdInstant::now();
-        if now >= deadline {
-            return Some(Duration::from(now.duration_since(deadline)));
-        }
-        if stop.is_some_and(|s| s.load(Ordering::Acquire)) {
-            return None;
-        }
-        let remaining = deadline.duration_since(now);
-        if remaining > spin {
-            let until = deadline - spin;
-            sleep(until - now);
-            // A park can end early (a stop, or spuriously): only a sleep that
-            // ran its course says how late it wakes.
-            let woke = StdInstant::now();
-            if woke >= until {
-                margin.record((woke - until).into());
-            }
-        } else {
-            std::hint::spin_loop();
-        }
-    }
-}
-
-/// One tick of a [`ClockThread`], as its closure receives it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Tick {
-    /// The tick's index `k`.
-    pub index: u64,
-    /// Its deadline, `k·T` since the clock's origin.
-    pub deadline: Instant,
-    /// How late the thread woke for it (zero or more).
-    pub lateness: Duration,
-}
-
-impl Tick {
-    /// When the thread woke for this tick, since the clock's origin.
-    #[must_use]
-    pub fn woke_at(&self) -> Instant {
-        self.deadline + self.lateness
-    }
-}
-
-struct Shared {
-    stop: AtomicBool,
-    ticks: AtomicU64,
-}
-
-/// The handle of a running clock thread (see [`ReleaseClock::spawn`]).
-///
-/// Dropping it stops the thread and waits for it.
-#[derive(Debug)]
-#[must_use = "dropping a ClockThread stops the clock"]
-pub struct ClockThread {
-    handle: Option<JoinHandle<ClockReport>>,
-    shared: Arc<Shared>,
-}
-
-impl fmt::Debug for Shared {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Shared")
-            .field("stop", &self.stop.load(Ordering::Relaxed))
-            .field("ticks", &self.ticks.load(Ordering::Relaxed))
-            .finish()
-    }
-}
-
-impl ClockThread {
-    /// Asks the thread to end: it wakes from its sleep at once and serves no
-    /// further tick (a tick whose closure is running completes). Follow with
-    /// [`join`](Self::join) to wait for it.
-    pub fn stop(&self) {
-        self.shared.stop.store(true, Ordering::Release);
-        if let Some(handle) = &self.handle {
-            handle.thread().unpark();
-        }
-    }
-
-    /// How many ticks the thread has served so far.
-    #[must_use]
-    pub fn ticks(&self) -> u64 {
-        self.shared.ticks.load(Ordering::Relaxed)
-    }
-
-    /// Whether the thread has ended.
-    #[must_use]
-    pub fn is_finished(&self) -> bool {
-        self.handle.as_ref().is_none_or(JoinHandle::is_finished)
-    }
-
-    /// Waits for the thread to end (by [`stop`](Self::stop), by its closure or
-    /// at the end of time) and returns its report.
-    ///
-    /// # Errors
-    ///
-    /// [`ClockError::Panicked`] if the closure panicked.
-    pub fn join(mut self) -> Result<ClockReport, ClockError> {
-        match self.handle.take() {
-            Some(handle) => handle.join().map_err(|_| ClockError::Panicked),
-            None => Err(ClockError::Panicked),
-        }
-    }
-}
-
-impl Drop for ClockThread {
-    fn drop(&mut self) {
-        if let Some(handle) = self.handle.take() {
-            self.shared.stop.store(true, Ordering::Release);
-            handle.thread().unpark();
-            // A panic of the closure has nowhere to go from a drop.
-            let _ = handle.join();
-        }
-    }
-}
-
-/// Why a clock thread ended.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ClockEnd {
-    /// [`ClockThread::stop`] was called or the handle dropped.
-    Stopped,
-    /// The closure returned [`ControlFlow::Break`].
-    Finished,
-    /// The next deadline is past the range of [`std::time::Instant`].
-    EndOfTime,
-}
-
-/// What a clock thread did, returned by [`ClockThread::join`].
-#[derive(Clone, Debug)]
-pub struct ClockReport {
-    /// The lateness of every tick served.
-    pub histogram: LatenessHistogram,
-    /// Why the thread ended.
-    pub end: ClockEnd,
-    /// The first tick not served: where a new clock thread would resume.
-    pub next_tick: u64,
-    /// The scheduling the thread ran with.
-    pub setup: ThreadSetup,
-    /// The spin margin the thread was using at its end (learned from its
-    /// sleeps, or the one configured).
-    pub spin_margin: Duration,
-}
-
-impl ClockReport {
-    /// The summary of [`histogram`](Self::histogram).
-    #[must_use]
-    pub fn stats(&self) -> LatenessStats {
-        self.histogram.stats()
-    }
-}
-
-/// The scheduling a clock thread had (Linux; `None` where unknown).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ThreadSetup {
-    /// The scheduling policy the thread ran under.
-    pub policy: Option<SchedPolicy>,
-    /// The thread's timer slack, read back after setting it.
-    pub timer_slack: Option<Duration>,
-    /// Whether setting the timer slack failed (it was asked for and refused).
-    pub timer_slack_refused: bool,
-}
 
 /// A Linux scheduling policy, as `/proc/<tid>/stat` reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -594,62 +169,6 @@ pub fn current_thread_timer_slack() -> io::Result<Duration> {
 pub fn set_current_thread_timer_slack(slack: Duration) -> io::Result<()> {
     let nanos = slack.as_nanos().max(1);
     std::fs::write(timer_slack_path()?, nanos.to_string())
-}
-
-fn run<F>(clock: ReleaseClock, first: u64, mut on_tick: F, shared: &Shared) -> ClockReport
-where
-    F: FnMut(Tick) -> ControlFlow<()>,
-{
-    let timer_slack_refused = clock
-        .timer_slack
-        .is_some_and(|slack| set_current_thread_timer_slack(slack).is_err());
-    let setup = ThreadSetup {
-        policy: current_thread_policy().ok(),
-        timer_slack: current_thread_timer_slack().ok(),
-        timer_slack_refused,
-    };
-    let mut histogram = LatenessHistogram::new(clock.period);
-    let mut margin = if clock.adaptive_spin {
-        SpinMargin::adaptive(clock.spin_margin)
-    } else {
-        SpinMargin::fixed(clock.spin_margin)
-    };
-    let mut k = first;
-    let end = loop {
-        if shared.stop.load(Ordering::Acquire) {
-            break ClockEnd::Stopped;
-        }
-        let Some(deadline) = clock.deadline(k) else {
-            break ClockEnd::EndOfTime;
-        };
-        let Some(lateness) = wait(
-            deadline,
-            &mut margin,
-            Some(&shared.stop),
-            std::thread::park_timeout,
-        ) else {
-            break ClockEnd::Stopped;
-        };
-        histogram.record(lateness);
-        shared.ticks.fetch_add(1, Ordering::Relaxed);
-        let tick = Tick {
-            index: k,
-            deadline: clock.deadline_since_origin(k),
-            lateness,
-        };
-        let flow = on_tick(tick);
-        k = k.saturating_add(1);
-        if flow.is_break() {
-            break ClockEnd::Finished;
-        }
-    };
-    ClockReport {
-        histogram,
-        end,
-        next_tick: k,
-        setup,
-        spin_margin: margin.current(),
-    }
 }
 
 /// A fixed histogram of tick lateness: 1 µs buckets from 0 to

@@ -33,9 +33,8 @@
 //! ([`Link::on_release`]), so that no thread is woken per tick. Bytes from
 //! a TCP stream become frames through a [`Deframer`], which bounds its
 //! memory by a few of the largest frames the link carries and refuses an
-//! absurd or too long length prefix before buffering anything. The
-//! standalone [`ReleaseClock`] thread keeps the same kind of deadlines for
-//! code that is not a link.
+//! absurd or too long length prefix before buffering anything. [`clock`]
+//! holds what the hub's release clock is measured with.
 #![forbid(unsafe_code)]
 
 mod arrival;
@@ -56,7 +55,7 @@ pub mod spin;
 mod stats;
 pub mod tls;
 
-pub use clock::{ClockThread, LatenessStats, ReleaseClock};
+pub use clock::LatenessStats;
 pub use config::Admission;
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
