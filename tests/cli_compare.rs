@@ -1,4 +1,4 @@
-//! `ndr compare` as a user runs it: every policy and family in its JSON,
+//! `ndr compare` as a user runs it: every regulation and family in its JSON,
 //! the same output for the same seeds, trace files, missing netem tables.
 
 use std::path::PathBuf;
@@ -23,7 +23,7 @@ fn json(args: &[&str]) -> Value {
     serde_json::from_slice(&out.stdout).expect("one JSON object on stdout")
 }
 
-const POLICIES: [&str; 9] = [
+const REGULATIONS: [&str; 9] = [
     "paper-static",
     "paper-dynamic",
     "ramjee-1",
@@ -62,16 +62,16 @@ fn names(v: &Value) -> Vec<&str> {
     v.as_array()
         .unwrap()
         .iter()
-        .map(|x| x["name"].as_str().or(x["policy"].as_str()).unwrap())
+        .map(|x| x["name"].as_str().or(x["regulation"].as_str()).unwrap())
         .collect()
 }
 
 #[test]
-fn every_policy_on_every_family() {
+fn every_regulation_on_every_family() {
     // A 100 ms period: the same families and policies, 5× fewer ticks.
     let report = json(&["compare", "--json", "--seeds", "1", "--period-ms", "100"]);
     assert_eq!(report["period_s"], 0.1);
-    assert_eq!(report["schema"], "ndr-compare/1");
+    assert_eq!(report["schema"], "ndr-compare/2");
     assert_eq!(report["underflow"], "drop-late");
     let families = names(&report["families"]);
     for f in BUILTIN {
@@ -88,14 +88,14 @@ fn every_policy_on_every_family() {
         assert!(families.contains(&name.as_str()) || noted, "{name}");
     }
     for f in report["families"].as_array().unwrap() {
-        assert_eq!(names(&f["policies"]), POLICIES, "{}", f["name"]);
-        for p in f["policies"].as_array().unwrap() {
+        assert_eq!(names(&f["regulations"]), REGULATIONS, "{}", f["name"]);
+        for p in f["regulations"].as_array().unwrap() {
             for s in STATS {
                 assert!(
                     p[s]["mean"].is_number(),
                     "{} {} {s}",
                     f["name"],
-                    p["policy"]
+                    p["regulation"]
                 );
                 assert!(p[s]["ci95"].is_number());
             }
@@ -103,13 +103,13 @@ fn every_policy_on_every_family() {
             assert!(p["point"]["late_rate"].is_number());
             let events = !f["events_s"].as_array().unwrap().is_empty();
             let measured = p["runs"].as_u64().unwrap() > 0;
-            let oracle = p["policy"].as_str().unwrap().starts_with("oracle");
+            let oracle = p["regulation"].as_str().unwrap().starts_with("oracle");
             assert_eq!(
                 p["recovery_s"].is_object(),
                 events && measured && !oracle,
                 "{} {}",
                 f["name"],
-                p["policy"]
+                p["regulation"]
             );
             // The split oracle cuts at the first event: only with events.
             assert_eq!(
@@ -117,7 +117,7 @@ fn every_policy_on_every_family() {
                 events && measured,
                 "{} {}",
                 f["name"],
-                p["policy"]
+                p["regulation"]
             );
             if p["split_ratio"].is_object() {
                 assert!(p["split_ratio"]["mean"].as_f64().unwrap() > 0.0);
@@ -141,15 +141,22 @@ fn the_same_seeds_give_the_same_bytes() {
 #[test]
 fn seeds_give_confidence_intervals() {
     let report = json(&[
-        "compare", "--json", "--seeds", "3", "--family", "lan-75km", "--policy", "ramjee-1",
+        "compare",
+        "--json",
+        "--seeds",
+        "3",
+        "--family",
+        "lan-75km",
+        "--regulation",
+        "ramjee-1",
     ]);
     assert_eq!(report["seeds"], 3);
     let f = &report["families"][0];
     assert_eq!(
-        names(&f["policies"]),
+        names(&f["regulations"]),
         ["ramjee-1", "oracle", "oracle-piecewise"]
     );
-    let p = &f["policies"][0];
+    let p = &f["regulations"][0];
     assert_eq!(p["runs"], 3);
     assert!(p["mean_delay_s"]["ci95"].as_f64().unwrap() > 0.0);
 }
@@ -180,7 +187,7 @@ fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
         "netem-pareto",
         "--family",
         "lan-75km",
-        "--policy",
+        "--regulation",
         "neteq",
     ]);
     assert_eq!(names(&report["families"]), ["lan-75km"]);
@@ -208,15 +215,27 @@ fn missing_netem_tables_are_a_note_and_bad_names_an_error() {
         err.contains("--matched compares late rates") && err.contains("--underflow hold"),
         "{err}"
     );
-    let out = ndr(&["compare", "--policy", "fifo"]);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown policy"));
-    // A known policy with a value out of range says which value.
-    let out = ndr(&["compare", "--policy", "adaptive:0.1:0.5"]);
+    let out = ndr(&["compare", "--regulation", "lifo"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("policy `adaptive:0.1:0.5`: adaptive:PERCENT:QUANTUM_MS takes the step"),
+        err.contains("regulation `lifo`: unknown regulation; valid: adaptive"),
+        "{err}"
+    );
+    // `fifo` names the queue, not its sizing: the message says both ways.
+    let out = ndr(&["compare", "--regulation", "fifo"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("paper-static") && err.contains("paper-dynamic"),
+        "{err}"
+    );
+    // A known regulation with a value out of range says which value.
+    let out = ndr(&["compare", "--regulation", "adaptive:0.1:0.5"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("regulation `adaptive:0.1:0.5`: adaptive:PERCENT:QUANTUM_MS takes the step"),
         "{err}"
     );
 }
@@ -231,7 +250,7 @@ fn the_families_run_as_long_as_asked() {
         "1",
         "--family",
         "tcp-stall",
-        "--policy",
+        "--regulation",
         "paper-static",
         "--duration-s",
         "70",
@@ -239,7 +258,12 @@ fn the_families_run_as_long_as_asked() {
     let f = &report["families"][0];
     assert_eq!(f["duration_s"], 70.0);
     assert_eq!(f["events_s"], serde_json::json!([30.0, 50.0]));
-    assert!(f["policies"][0]["mean_delay_s"]["mean"].as_f64().unwrap() > 0.0);
+    assert!(
+        f["regulations"][0]["mean_delay_s"]["mean"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
     // Too short to measure, or too long to hold in memory: said, not run.
     for bad in ["5", "7200", "nan"] {
         let out = ndr(&["compare", "--duration-s", bad]);
@@ -258,9 +282,9 @@ fn matched_is_deterministic_and_only_when_asked() {
     args.extend([
         "--family",
         "lan-75km",
-        "--policy",
+        "--regulation",
         "paper-static",
-        "--policy",
+        "--regulation",
         "paper-dynamic",
     ]);
     let plain: Value = serde_json::from_slice(&ndr(&args).stdout).unwrap();
@@ -313,4 +337,28 @@ fn matched_is_deterministic_and_only_when_asked() {
             && text.contains("adaptive at one ε for all seeds"),
         "{text}"
     );
+}
+
+#[test]
+fn the_old_policy_flag_still_runs_and_names_its_replacement() {
+    let common = [
+        "compare",
+        "--json",
+        "--seeds",
+        "1",
+        "--family",
+        "lan-75km",
+        "--duration-s",
+        "20",
+    ];
+    let old = ndr(&[&common[..], &["--policy", "ramjee-1"]].concat());
+    let new = ndr(&[&common[..], &["--regulation", "ramjee-1"]].concat());
+    assert!(old.status.success() && new.status.success());
+    assert_eq!(old.stdout, new.stdout, "the same run under either spelling");
+    let err = String::from_utf8_lossy(&old.stderr);
+    assert!(
+        err.contains("--policy: deprecated") && err.contains("use --regulation"),
+        "{err}"
+    );
+    assert!(!String::from_utf8_lossy(&new.stderr).contains("deprecated"));
 }

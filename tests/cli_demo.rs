@@ -61,8 +61,8 @@ fn demo_runs_and_reports_in_json() {
     assert_eq!(r["profile"], "lan-75km");
     // The default: the adaptive playout on the static handshake.
     assert_eq!(
-        (&r["mode"], &r["playout"]),
-        (&"adaptive".into(), &"adaptive".into())
+        (&r["regulation"], &r["mode"], &r["playout"]),
+        (&"adaptive".into(), &"adaptive".into(), &"adaptive".into())
     );
     assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");
     let rows = std::fs::read_to_string(&csv).unwrap();
@@ -86,9 +86,14 @@ fn the_paper_modes_round_trip_barely_moves() {
     let csv = std::env::temp_dir().join(format!("ndr-demo-static-{}.csv", std::process::id()));
     for attempt in 1..=5 {
         let r = demo(&["--mode", "paper-static"], &csv);
+        // The old `--mode` still runs, under its regulation's name.
         assert_eq!(
-            (&r["mode"], &r["playout"]),
-            (&"paper-static".into(), &"fifo".into())
+            (&r["regulation"], &r["mode"], &r["playout"]),
+            (
+                &"paper-static".into(),
+                &"paper-static".into(),
+                &"fifo".into()
+            )
         );
         let stalled = ["clock_base_max_s", "clock_remote_max_s"]
             .iter()

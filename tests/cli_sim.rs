@@ -52,7 +52,7 @@ fn json_is_complete_and_byte_identical_for_a_seed() {
         "sim",
         "--profile",
         "paris-newyork",
-        "--mode",
+        "--regulation",
         "paper-dynamic",
         "--duration-s",
         "120",
@@ -75,7 +75,7 @@ fn json_is_complete_and_byte_identical_for_a_seed() {
         "sim",
         "--profile",
         "paris-newyork",
-        "--mode",
+        "--regulation",
         "paper-dynamic",
         "--duration-s",
         "120",
@@ -179,7 +179,7 @@ fn a_playout_policy_and_a_skewed_clock() {
         "20",
         "--underflow",
         "drop-late",
-        "--playout",
+        "--regulation",
         "fixed:25",
         "--remote-skew-ppm",
         "-100",
@@ -194,12 +194,55 @@ fn a_playout_policy_and_a_skewed_clock() {
         String::from_utf8_lossy(&out.stderr)
     );
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["playout"], "fixed:25");
+    assert_eq!(json["regulation"], "fixed:25");
+    assert_eq!(
+        (&json["mode"], &json["playout"]),
+        (&"paper-static".into(), &"fixed:25".into())
+    );
     assert_eq!(json["late_samples"], 0);
     // 30 ms + 25 ms above the smallest delay, released on the 20 ms grid.
     let e2e = json["e2e_fwd_mean_s"].as_f64().unwrap();
     assert!((e2e - 0.060).abs() < 0.003, "{e2e}");
-    let out = ndr(&["sim", "--playout", "oracle"]);
+    let out = ndr(&["sim", "--regulation", "oracle"]);
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown playout policy"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown regulation"));
+}
+
+#[test]
+fn the_old_mode_and_playout_flags_still_run_and_name_the_regulation() {
+    let common = [
+        "sim",
+        "--profile",
+        "lan-75km",
+        "--duration-s",
+        "30",
+        "--json",
+    ];
+    let run = |extra: &[&str]| ndr(&[&common[..], extra].concat());
+    // Each old spelling gives the run of its regulation, and a warning that
+    // names it.
+    for (old, new) in [
+        (&["--mode", "paper-dynamic"][..], "paper-dynamic"),
+        (&["--playout", "neteq"][..], "neteq"),
+        (
+            &["--mode", "paper-static", "--playout", "fifo"][..],
+            "paper-static",
+        ),
+    ] {
+        let (o, n) = (run(old), run(&["--regulation", new]));
+        assert!(o.status.success() && n.status.success(), "{old:?}");
+        assert_eq!(o.stdout, n.stdout, "{old:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--mode and --playout: deprecated"), "{err}");
+        assert!(err.contains(&format!("use --regulation {new}")), "{err}");
+    }
+    // The pairing no regulation names still runs, and says so.
+    let o = run(&["--mode", "paper-dynamic", "--playout", "adaptive"]);
+    assert!(o.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(json["regulation"], "paper-dynamic with adaptive");
+    // Both spellings at once is a mistake, said before anything runs.
+    let o = run(&["--regulation", "neteq", "--mode", "paper-static"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("give --regulation alone"));
 }

@@ -696,8 +696,9 @@ class _LinkSettings:
         role: str,
         axes: int,
         period: float,
-        mode: str,
-        playout: str,
+        regulation: Optional[str],
+        mode: Optional[str],
+        playout: Optional[str],
         underflow: str,
         watchdog: Optional[float],
         liveness: Optional[float],
@@ -802,8 +803,9 @@ def sim_run(
     dist: Optional[str] = None,
     mean: Optional[float] = None,
     std: Optional[float] = None,
-    mode: str = "paper-static",
-    playout: str = "fifo",
+    regulation: Optional[str] = None,
+    mode: Optional[str] = None,
+    playout: Optional[str] = None,
     underflow: str = "hold",
     period: float = 0.2,
     duration: float = 600.0,
@@ -814,6 +816,19 @@ def sim_run(
 ) -> Tuple[str, Dict[str, _Floats]]:
     """One simulation: ``(summary JSON, series)``, ``null`` in the JSON where
     nothing was measured; use :func:`ndr.sim.run`."""
+
+def _regulation(
+    *,
+    regulation: Optional[str],
+    mode: Optional[str],
+    playout: Optional[str],
+    default: str,
+    stacklevel: int,
+) -> Tuple[Optional[str], str, str]:
+    """``(name, mode, playout)`` of ``regulation=`` or of the deprecated
+    ``mode=`` and ``playout=`` (a ``DeprecationWarning`` at ``stacklevel``),
+    as reports write them (``name`` is None for the pairing no regulation
+    names); ``ValueError`` as ``ndr.Link.connect``."""
 
 # -- logging ------------------------------------------------------------------
 

@@ -13,16 +13,19 @@ controllers a user writes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import (
     Any,
     Callable,
     Dict,
+    Iterator,
     List,
     Mapping,
     Optional,
@@ -34,6 +37,7 @@ from typing import (
 
 import numpy as np
 
+from . import _native
 from ._native import Estimator, LinkError, Relay, Signal, Tf2, Tf2State
 from .link import Link, LinkStats, RelayStats, _is_normal_end
 
@@ -235,8 +239,9 @@ class _Settings(TypedDict):
 
     axes: int
     period: float
-    mode: str
-    playout: str
+    regulation: Optional[str]
+    mode: Optional[str]
+    playout: Optional[str]
     underflow: str
 
 
@@ -245,8 +250,9 @@ def run(
     profile: str = "lan-75km",
     period: float = 0.05,
     duration: float = 20.0,
-    mode: str = "paper-static",
-    playout: str = "adaptive",
+    regulation: Optional[str] = None,
+    mode: Optional[str] = None,
+    playout: Optional[str] = None,
     underflow: str = "hold",
     axes: int = 1,
     seed: int = 1,
@@ -255,15 +261,29 @@ def run(
     live: bool = False,
 ) -> DemoResult:
     """Runs the demo and returns what it measured (nothing is printed but
-    the live status line when ``live``)."""
+    the live status line when ``live``). ``regulation`` is that of
+    :meth:`ndr.Link.connect` (``"adaptive"`` by default), on both sides;
+    ``mode`` and ``playout`` are deprecated as there."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
+    name, mode, playout = _native._regulation(
+        regulation=regulation, mode=mode, playout=playout, default="adaptive", stacklevel=2
+    )
     sig = Signal(signal)
-    settings = _Settings(axes=axes, period=period, mode=mode, playout=playout, underflow=underflow)
+    # The pairing no regulation names goes to the links by its parts, whose
+    # warning was just given once.
+    settings = _Settings(
+        axes=axes,
+        period=period,
+        regulation=name,
+        mode=None if name else mode,
+        playout=None if name else playout,
+        underflow=underflow,
+    )
     loopback = ("127.0.0.1", 0)
     rb = RobotLog()
     stop = threading.Event()
-    with Link.listen(loopback, **settings) as listener, Relay(
+    with _quiet_if(name is None), Link.listen(loopback, **settings) as listener, Relay(
         loopback, listener.address, profile=profile, seed=seed
     ) as relay:
         accepted: List[Link] = []
@@ -280,7 +300,8 @@ def run(
         remote = threading.Thread(target=serve, name="ndr-demo-robot", daemon=True)
         remote.start()
         try:
-            base = Link.connect(relay.address, **settings)
+            with _quiet_if(name is None):
+                base = Link.connect(relay.address, **settings)
             with base:
                 op = operator(base, duration, sig, status=_status_line if live else None)
         finally:
@@ -293,6 +314,7 @@ def run(
         _write_csv(out, op)
     report = _report(
         profile=relay.model,
+        regulation=name or f"{mode} with {playout}",
         mode=mode,
         playout=playout,
         underflow=underflow,
@@ -316,9 +338,22 @@ def _write_csv(path: str, op: OperatorLog) -> None:
             f.write(f"{t:.6f},{seq},{'held' if held else 'fresh'},{g},{u:.6f},{y:.6f},{xe}\n")
 
 
+@contextlib.contextmanager
+def _quiet_if(quiet: bool) -> Iterator[None]:
+    """Silences the deprecation warning of ``mode=`` and ``playout=`` when
+    ``quiet`` (the caller was warned already)."""
+    if not quiet:
+        yield
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        yield
+
+
 def _report(
     *,
     profile: str,
+    regulation: str,
     mode: str,
     playout: str,
     underflow: str,
@@ -341,6 +376,7 @@ def _report(
     report = {
         "command": "python demo",
         "profile": profile,
+        "regulation": regulation,
         "mode": mode,
         "playout": playout,
         "underflow": underflow,
@@ -405,7 +441,7 @@ def print_table(r: Dict[str, Any], file: Optional[TextIO] = None) -> None:
         print(*a, file=out)
 
     p(
-        f"ndr {r['command']} · {r['profile']} · {r['mode']} · {r['playout']} · {r['underflow']} · "
+        f"ndr {r['command']} · {r['profile']} · {r['regulation']} · {r['underflow']} · "
         f"T = {ms(r['period_s'])} · {r['duration_s']:.0f} s · {r['axes']} axis(es)"
     )
     p("                     mean          std")
@@ -455,10 +491,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         "(paris-newyork, lan-75km, paper-fig6, constant:MS)")
     parser.add_argument("--period-ms", type=float, default=50.0, help="sampling period, ms")
     parser.add_argument("--duration-s", type=float, default=20.0, help="how long to run, s")
-    parser.add_argument("--mode", default="paper-static", choices=("paper-static", "paper-dynamic"))
-    parser.add_argument("--playout", default="adaptive", help="when each side releases a sample: "
-                        "adaptive[:PERCENT[:QUANTUM_MS]] (the default), fifo (the paper's "
-                        "queue), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS")
+    parser.add_argument("--regulation", default=None, help="how the delay is regulated: "
+                        "adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static, "
+                        "paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS")
+    # The old spellings, for one release: a DeprecationWarning names the regulation.
+    parser.add_argument("--mode", default=None, choices=("paper-static", "paper-dynamic"),
+                        help=argparse.SUPPRESS)
+    parser.add_argument("--playout", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 8)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")
@@ -475,19 +514,40 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not (math.isfinite(args.duration_s) and args.duration_s > 0):
         parser.error(f"--duration-s must be a positive number of seconds, got {args.duration_s:g}")
     try:
-        result = run(
-            profile=args.profile,
-            period=args.period_ms / 1e3,
-            duration=args.duration_s,
-            mode=args.mode,
-            playout=args.playout,
-            underflow=args.underflow,
-            axes=args.axes,
-            seed=args.seed,
-            signal=args.signal,
-            out=args.out,
-            live=not args.json and sys.stderr.isatty(),
+        with warnings.catch_warnings():
+            # Said below in the command line's own words.
+            warnings.simplefilter("ignore", DeprecationWarning)
+            name, mode, playout = _native._regulation(
+                regulation=args.regulation,
+                mode=args.mode,
+                playout=args.playout,
+                default="adaptive",
+                stacklevel=1,
+            )
+    except ValueError as e:
+        parser.error(str(e))
+    if args.mode is not None or args.playout is not None:
+        instead = f"--regulation {name}" if name else "--regulation (this pairing has no name)"
+        print(
+            f"warning: --mode and --playout are deprecated and go in the next release: use {instead}",
+            file=sys.stderr,
         )
+    try:
+        with _quiet_if(name is None):
+            result = run(
+                profile=args.profile,
+                period=args.period_ms / 1e3,
+                duration=args.duration_s,
+                regulation=name,
+                mode=None if name else mode,
+                playout=None if name else playout,
+                underflow=args.underflow,
+                axes=args.axes,
+                seed=args.seed,
+                signal=args.signal,
+                out=args.out,
+                live=not args.json and sys.stderr.isatty(),
+            )
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130

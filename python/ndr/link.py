@@ -127,6 +127,7 @@ _SETTINGS = {
     "role": "role",
     "axes": "axes",
     "period": "period",
+    "regulation": "regulation",
     "mode": "mode",
     "playout": "playout",
     "underflow": "underflow",
@@ -345,8 +346,9 @@ class Link:
         role: str = "base",
         axes: int = 1,
         period: float = 0.05,
-        mode: str = "paper-static",
-        playout: str = "adaptive",
+        regulation: Optional[str] = None,
+        mode: Optional[str] = None,
+        playout: Optional[str] = None,
         underflow: str = "hold",
         watchdog: Optional[float] = 1.0,
         liveness: Optional[float] = 10.0,
@@ -365,30 +367,36 @@ class Link:
                 ``"remote"`` (a robot that dials out).
             axes: values per sample, 1 to 8; both peers must agree.
             period: the sampling period in seconds; both peers must agree.
-            mode: ``"paper-static"`` (queues sized once) or
-                ``"paper-dynamic"`` (the network predictor resizes them).
-            playout: how this side's regulator picks each sample's release
-                tick: ``"adaptive[:PERCENT[:QUANTUM_MS]]"`` (the default: a
+            regulation: how this side regulates the delay (the names of
+                ``ndr demo --regulation`` and :data:`ndr.sim.REGULATIONS`):
+                ``"adaptive[:PERCENT[:QUANTUM_MS]]"`` (the default: a
                 target delay above the sample's send time, lower than the
-                paper's FIFO at the same late rate; ``"adaptive"``
-                holds the smallest constant delay with a late rate of 0.1 %,
-                or ``PERCENT``, in steps of 20 ms or the period when shorter,
+                paper's FIFO at the same late rate; ``"adaptive"`` holds the
+                smallest constant delay with a late rate of 0.1 %, or
+                ``PERCENT``, in steps of 20 ms or the period when shorter,
                 or ``QUANTUM_MS``: a finer step holds a lower delay that
                 changes more often; a stall of the network is held, its
                 samples released in order, not dropped, while that costs
                 less delay per sample kept than a higher constant delay
-                (once half that late rate is used), and always once it
-                is spent; see docs/algorithms.md §9–10), ``"fifo"`` (the
-                paper's queue, sized by ``mode``), ``"ramjee-1"``,
-                ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"`` or
-                ``"constant:MS"``. Local to each side.
+                (once half that late rate is used), and always once it is
+                spent; see docs/algorithms.md §9–10), ``"paper-static"``
+                (the paper's FIFO, sized once by the initialization
+                pattern), ``"paper-dynamic"`` (the FIFO resized, after a
+                pause, as the network changes; both peers must say it),
+                ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``,
+                ``"fixed[:MS]"`` or ``"constant:MS"``.
+            mode: deprecated, goes in the next release (a
+                ``DeprecationWarning`` names the ``regulation`` to give
+                instead): ``"paper-static"`` or ``"paper-dynamic"``.
+            playout: deprecated, as ``mode``: ``"fifo"``, or a target-delay
+                name of ``regulation``.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:
                 a late sample is dropped and counted).
             watchdog: seconds without a fresh sample before a
                 ``"link_lost"`` event (hold the robot safely then); ``None``
-                disables it. Under ``playout="adaptive"`` a silence longer
+                disables it. Under ``regulation="adaptive"`` a silence longer
                 than this is an outage, not a delay to cover: its frames
                 stay out of the delay's estimate (``stats["outage_delays"]``).
             liveness: seconds without anything from the peer, after the
@@ -418,8 +426,9 @@ class Link:
             ConnectionRefusedError: nothing listens at ``address``.
             HandshakeError: the peer has other settings, or did not answer.
             TimeoutError: no connection within ``connect_timeout``.
-            ValueError: a setting is invalid (the message says which), or
-                a plain link off loopback without ``insecure=True``.
+            ValueError: a setting is invalid (the message says which;
+                ``regulation`` with ``mode`` or ``playout``, too), or a
+                plain link off loopback without ``insecure=True``.
         """
         native = _native.connect(
             address, _settings(locals()), connect_timeout=connect_timeout, tls=tls
@@ -434,8 +443,9 @@ class Link:
         role: str = "remote",
         axes: int = 1,
         period: float = 0.05,
-        mode: str = "paper-static",
-        playout: str = "adaptive",
+        regulation: Optional[str] = None,
+        mode: Optional[str] = None,
+        playout: Optional[str] = None,
         underflow: str = "hold",
         watchdog: Optional[float] = 1.0,
         liveness: Optional[float] = 10.0,

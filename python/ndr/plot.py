@@ -5,7 +5,7 @@
 
     import ndr.sim, ndr.plot
 
-    result = ndr.sim.run(profile="paper-fig6", mode="paper-dynamic", duration=1200)
+    result = ndr.sim.run(profile="paper-fig6", regulation="paper-dynamic", duration=1200)
     fig = ndr.plot.predictions(result)
     fig.savefig("fig8-9.png")
 
@@ -110,13 +110,14 @@ def queues(result: Any, ax: Any = None) -> Any:
 
 
 def compare(report: Union[str, Mapping[str, Any]], ax: Any = None, *, family: Optional[str] = None) -> Any:
-    """Mean end-to-end delay against late rate, one point per playout policy
+    """Mean end-to-end delay against late rate, one point per regulation
     (the oracles as crosses), from the JSON of ``ndr compare --json``
-    (schema ``ndr-compare/1``: a dict, a JSON string or a file path).
+    (schema ``ndr-compare/2``, or ``/1`` whose ``policies`` it renamed: a
+    dict, a JSON string or a file path).
     ``family`` picks one trace family by name; by default, the first. Late
     rates of zero are drawn at 1e-6 on the log axis."""
     data = _load(report)
-    points = _policy_points(data, family)
+    points = _regulation_points(data, family)
     fig, (a,) = _axes(ax)
     for name, delay, late in points:
         marker = "x" if name.startswith("oracle") else "o"
@@ -126,7 +127,7 @@ def compare(report: Union[str, Mapping[str, Any]], ax: Any = None, *, family: Op
     a.set_xscale("log")
     a.set_xlabel("late rate")
     a.set_ylabel("mean end-to-end delay (ms)")
-    a.set_title(f"Playout policies: delay against late rate ({points.family})")
+    a.set_title(f"Regulations: delay against late rate ({points.family})")
     return fig
 
 
@@ -147,7 +148,7 @@ def _load(report: Union[str, Mapping[str, Any]]) -> Mapping[str, Any]:
     return loaded
 
 
-def _policy_points(data: Mapping[str, Any], family: Optional[str]) -> _Points:
+def _regulation_points(data: Mapping[str, Any], family: Optional[str]) -> _Points:
     families = data.get("families")
     if not families:
         raise ValueError("not an `ndr compare --json` report: it has no \"families\"")
@@ -163,28 +164,29 @@ def _policy_points(data: Mapping[str, Any], family: Optional[str]) -> _Points:
         if chosen not in by_name:
             raise ValueError(f"no family {chosen!r} in the report; it has {list(by_name)}")
         fam = by_name[chosen]
-    policies = fam.get("policies") if isinstance(fam, Mapping) else None
-    if not policies:
-        raise ValueError(f"family {chosen!r} has no policies")
+    # `policies` and `policy`: schema ndr-compare/1's names.
+    rows = (fam.get("regulations") or fam.get("policies")) if isinstance(fam, Mapping) else None
+    if not rows:
+        raise ValueError(f"family {chosen!r} has no regulations")
     out = _Points()
     out.family = str(chosen)
-    if isinstance(policies, Mapping):
-        items = list(policies.items())
+    if isinstance(rows, Mapping):
+        items = list(rows.items())
     else:
-        items = [(p.get("policy", p.get("name")), p) for p in policies]
+        items = [(p.get("regulation", p.get("policy", p.get("name"))), p) for p in rows]
     for name, p in items:
         point = p.get("point") or {}
         delay = point.get("mean_delay_s", _mean(p, "mean_delay_s"))
         late = point.get("late_rate", _mean(p, "late_rate"))
         if delay is None or late is None:
-            continue  # every run of this policy failed
+            continue  # every run of this regulation failed
         out.append((str(name), float(delay), float(late)))
     return out
 
 
 def _mean(p: Mapping[str, Any], key: str) -> Optional[float]:
     if key not in p:
-        raise ValueError(f"a policy entry has no {key!r}: not an `ndr compare --json` report")
+        raise ValueError(f"a regulation entry has no {key!r}: not an `ndr compare --json` report")
     v = p[key]
     if isinstance(v, Mapping):
         v = v.get("mean")

@@ -4,7 +4,7 @@
 
     import ndr.sim
 
-    result = ndr.sim.run(profile="lan-75km", mode="paper-dynamic", duration=120)
+    result = ndr.sim.run(profile="lan-75km", regulation="paper-dynamic", duration=120)
     print(result.summary["grtt_mean_s"], result.summary["grtt_std_s"])
     t, grtt = result.series["t"], result.series["grtt"]
 
@@ -26,25 +26,41 @@ import numpy.typing as npt
 
 from . import _native
 
-__all__ = ["SimResult", "SimSummary", "run", "PROFILES", "MODES", "PLAYOUTS", "UNDERFLOWS"]
+__all__ = [
+    "SimResult",
+    "SimSummary",
+    "run",
+    "PROFILES",
+    "REGULATIONS",
+    "MODES",
+    "PLAYOUTS",
+    "UNDERFLOWS",
+]
 
 #: The built-in delay profiles (``constant:MS`` also works, e.g. ``"constant:20"``).
 PROFILES = ("paris-newyork", "lan-75km", "paper-fig6")
-#: Regulation modes.
+#: How the delay is regulated, each accepted as it is written here (the
+#: names of ``ndr sim --regulation``, ``ndr.Link.connect(regulation=…)`` and
+#: the reports' ``"regulation"``): ``"paper-static"`` (the paper's FIFO,
+#: sized once; the simulator's default), ``"paper-dynamic"`` (resized as the
+#: network changes), ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``,
+#: ``"fixed"`` (200 ms above the smallest delay seen) and ``"adaptive"`` (a
+#: 0.1 % late rate). Three take a parameter: ``"fixed:MS"``,
+#: ``"constant:MS"`` (a constant target delay of MS ms above the send time;
+#: no bare ``"constant"``) and ``"adaptive:PERCENT"`` (a target late rate,
+#: 0 < PERCENT < 100), e.g. ``"fixed:150"``, ``"constant:120"``,
+#: ``"adaptive:0.5"``; ``"adaptive:PERCENT:QUANTUM_MS"`` also sets the step
+#: the delay is held in (1 to 10 000 ms; by default 20 ms, or the period
+#: when shorter), e.g. ``"adaptive:0.1:10"``: a finer step holds a lower
+#: delay that changes more often.
+REGULATIONS = ("paper-static", "paper-dynamic", "ramjee-1", "ramjee-4", "neteq", "fixed", "adaptive")
+#: The parts of a regulation, for the deprecated ``mode=`` (both peers'
+#: sizing)…
 MODES = ("paper-static", "paper-dynamic")
 #: Underflow policies.
 UNDERFLOWS = ("hold", "drop-late")
-#: Playout policies, each accepted as it is written here: ``"fifo"`` (the
-#: paper's queue), ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed"``
-#: (200 ms above the smallest delay seen) and ``"adaptive"`` (a 0.1 % late
-#: rate). Three take a parameter: ``"fixed:MS"`` (that many ms above the
-#: smallest delay), ``"constant:MS"`` (a constant target delay of MS ms
-#: above the send time; no bare ``"constant"``) and ``"adaptive:PERCENT"``
-#: (a target late rate, 0 < PERCENT < 100), e.g. ``"fixed:150"``,
-#: ``"constant:120"``, ``"adaptive:0.5"``; ``"adaptive:PERCENT:QUANTUM_MS"``
-#: also sets the step the delay is held in (1 to 10 000 ms; by default
-#: 20 ms, or the period when shorter), e.g. ``"adaptive:0.1:10"``: a finer
-#: step holds a lower delay that changes more often.
+#: …and ``playout=`` (each side's release policy: ``"fifo"`` is the paper's
+#: queue, the others as in :data:`REGULATIONS`).
 PLAYOUTS = ("fifo", "ramjee-1", "ramjee-4", "neteq", "fixed", "adaptive")
 
 
@@ -63,12 +79,16 @@ class SimSummary(TypedDict):
 
     profile: str
     """The delay model's name."""
+    regulation: str
+    """How the delay was regulated (:data:`REGULATIONS`), or ``"MODE with
+    PLAYOUT"`` for the pairing no regulation names."""
     mode: str
-    """``"paper-static"`` or ``"paper-dynamic"``."""
+    """``"paper-static"`` or ``"paper-dynamic"``: a part of ``regulation``."""
     underflow: str
     """``"hold"`` or ``"drop-late"``."""
     playout: str
-    """The regulators' playout policy (:data:`PLAYOUTS`)."""
+    """The regulators' playout policy, a part of ``regulation``
+    (:data:`PLAYOUTS`)."""
     seed: int
     duration_s: float
     """Simulated time."""
@@ -215,8 +235,9 @@ def run(
     dist: Optional[str] = None,
     mean: Optional[float] = None,
     std: Optional[float] = None,
-    mode: str = "paper-static",
-    playout: str = "fifo",
+    regulation: Optional[str] = None,
+    mode: Optional[str] = None,
+    playout: Optional[str] = None,
     underflow: str = "hold",
     period: float = 0.2,
     duration: float = 600.0,
@@ -233,11 +254,14 @@ def run(
         trace: instead, a delay trace CSV with header ``t_s,fwd_ms,bwd_ms``.
         dist: instead, an iproute2 netem table (``*.dist``), with ``mean``
             and ``std`` (seconds) of the one-way delay.
-        mode: ``"paper-static"`` or ``"paper-dynamic"``.
-        playout: both regulators' release policy: ``"fifo"`` (the paper's),
-            ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``, ``"fixed[:MS]"``,
-            ``"constant:MS"``, ``"adaptive[:PERCENT[:QUANTUM_MS]]"``
-            (:data:`PLAYOUTS`).
+        regulation: how both sides regulate the delay
+            (:data:`REGULATIONS`): ``"paper-static"`` (the default),
+            ``"paper-dynamic"``, ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``,
+            ``"fixed[:MS]"``, ``"constant:MS"`` or
+            ``"adaptive[:PERCENT[:QUANTUM_MS]]"``.
+        mode: deprecated (a ``DeprecationWarning`` names the regulation to
+            give instead; goes in the next release): :data:`MODES`.
+        playout: deprecated, as ``mode``: :data:`PLAYOUTS`.
         underflow: ``"hold"`` or ``"drop-late"``.
         period: the sampling period, seconds (the paper's 0.2).
         duration: simulated time, seconds.
@@ -252,8 +276,9 @@ def run(
         was measured (a run too short for a GRTT, a forecast, …).
 
     Raises:
-        ValueError: an invalid option, an unreadable trace or table, or a
-            link that failed during the run (the message says when and why).
+        ValueError: an invalid option (``regulation`` with ``mode`` or
+            ``playout``, too), an unreadable trace or table, or a link that
+            failed during the run (the message says when and why).
     """
     summary, columns = _native.sim_run(
         profile=profile,
@@ -261,6 +286,7 @@ def run(
         dist=None if dist is None else str(dist),
         mean=mean,
         std=std,
+        regulation=regulation,
         mode=mode,
         playout=playout,
         underflow=underflow,

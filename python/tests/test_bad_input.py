@@ -138,8 +138,11 @@ CASES = [
     (lambda: ndr.kalman3_filter([0.0], period=0.2, x0=[1.0]), ValueError, "x: expected"),
     (lambda: ndr.kalman3_filter([0.0], 0.2), TypeError, "positional"),  # type: ignore[call-arg]
     # A link's settings are refused before it dials.
-    (lambda: ndr.Link.connect(("127.0.0.1", 9), playout="adaptive:0.1:0.5"), ValueError, "QUANTUM_MS"),
-    (lambda: ndr.Link.connect(("127.0.0.1", 9), playout="lifo"), ValueError, "playout"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="adaptive:0.1:0.5"), ValueError, "QUANTUM_MS"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="lifo"), ValueError, "regulation"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="fifo"), ValueError, "paper-dynamic"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="neteq", mode="paper-static"),
+     ValueError, "give regulation alone"),
 ]
 
 

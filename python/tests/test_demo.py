@@ -17,7 +17,7 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["profile"] == "lan-75km"
     assert report["grtt_count"] > 20
     # The default: the adaptive playout, each side's delay announced.
-    assert report["playout"] == "adaptive"
+    assert report["regulation"] == report["playout"] == "adaptive"
     assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
@@ -31,7 +31,7 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
 def test_the_adaptive_playout_runs_in_the_demo(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "ndr", "demo", "--duration-s", "3", "--period-ms", "20",
-         "--playout", "adaptive", "--underflow", "drop-late", "--json",
+         "--regulation", "adaptive", "--underflow", "drop-late", "--json",
          "--out", str(tmp_path / "d.csv")],
         capture_output=True, text=True, timeout=60,
     )
@@ -52,7 +52,7 @@ def test_the_adaptive_playout_runs_in_the_demo(tmp_path):
 def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "ndr", "demo", "--duration-s", "2", "--period-ms", "20",
-         "--playout", "adaptive", "--out", str(tmp_path / "d.csv")],
+         "--regulation", "adaptive", "--out", str(tmp_path / "d.csv")],
         capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stderr
@@ -70,3 +70,20 @@ def test_bad_options_exit_with_a_message():
     assert "duration" in proc.stderr
     proc = subprocess.run([sys.executable, "-m", "ndr", "fly"], capture_output=True, text=True)
     assert proc.returncode == 2 and "unknown command" in proc.stderr
+
+
+def test_the_old_flags_are_refused_when_mixed_and_named_when_alone():
+    # Both spellings at once: refused before anything runs.
+    proc = subprocess.run(
+        [sys.executable, "-m", "ndr", "demo", "--regulation", "adaptive", "--mode", "paper-static"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert "give regulation alone" in proc.stderr
+    # An unknown name: the valid ones.
+    proc = subprocess.run(
+        [sys.executable, "-m", "ndr", "demo", "--regulation", "lifo"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert "unknown regulation; valid: adaptive" in proc.stderr

@@ -80,7 +80,7 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
     # once; the adaptive default's moves at each change it announces.
     def run():
         result = demo_run(profile="constant:5", period=0.01, duration=4.0,
-                          signal="sine:freq=0.5", playout="fifo", out=None)
+                          signal="sine:freq=0.5", regulation="paper-static", out=None)
         op = result.operator
         assert result.robot.error is None
         assert len(op.t) >= 300, "at 100 Hz for 4 s, well over 300 ticks"
@@ -114,7 +114,7 @@ def test_end_to_end_delay_is_constant_per_sample():
     # moves at each change it announces).
     def run():
         stop = threading.Event()
-        with Pair(axes=2, period=0.01, playout="fifo") as p:
+        with Pair(axes=2, period=0.01, regulation="paper-static") as p:
             t = threading.Thread(target=echo, args=(p.remote, stop), daemon=True)
             t.start()
             e2e, at, ticks = [], [], []
@@ -184,8 +184,8 @@ def test_bad_arguments_raise_value_error_naming_what_was_expected():
         ndr.Link.connect(("127.0.0.1", 9), axes=9)
     with pytest.raises(ValueError, match="role"):
         ndr.Link.connect(("127.0.0.1", 9), role="robot")
-    with pytest.raises(ValueError, match="mode"):
-        ndr.Link.listen(LOOPBACK, mode="fast")
+    with pytest.raises(ValueError, match="regulation: unknown regulation; valid: adaptive"):
+        ndr.Link.listen(LOOPBACK, regulation="fast")
     with pytest.raises(ValueError, match="underflow"):
         ndr.Link.listen(LOOPBACK, underflow="ignore")
     with pytest.raises(ValueError, match="period"):

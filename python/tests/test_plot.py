@@ -13,7 +13,7 @@ import ndr.sim  # noqa: E402
 
 @pytest.fixture(scope="module")
 def result():
-    return ndr.sim.run("paper-fig6", mode="paper-dynamic", period=0.2, duration=120)
+    return ndr.sim.run("paper-fig6", regulation="paper-dynamic", period=0.2, duration=120)
 
 
 @pytest.mark.parametrize("draw", [ndr.plot.round_trips, ndr.plot.predictions, ndr.plot.queues])
@@ -31,21 +31,21 @@ def test_a_result_without_series_is_refused():
         ndr.plot.round_trips(r)
 
 
-def test_compare_draws_one_point_per_policy(tmp_path):
-    # The shape of `ndr compare --json` (schema ndr-compare/1), trimmed.
+def test_compare_draws_one_point_per_regulation(tmp_path):
+    # The shape of `ndr compare --json` (schema ndr-compare/2), trimmed.
     report = {
-        "schema": "ndr-compare/1",
+        "schema": "ndr-compare/2",
         "families": [
             {
                 "name": "lan-75km",
-                "policies": [
-                    {"policy": "paper-static", "mean_delay_s": {"mean": 0.6, "ci95": 0.0},
+                "regulations": [
+                    {"regulation": "paper-static", "mean_delay_s": {"mean": 0.6, "ci95": 0.0},
                      "late_rate": {"mean": 0.0, "ci95": 0.0},
                      "point": {"mean_delay_s": 0.6, "late_rate": 0.0}},
-                    {"policy": "ramjee-1", "mean_delay_s": {"mean": 0.05, "ci95": 0.001},
+                    {"regulation": "ramjee-1", "mean_delay_s": {"mean": 0.05, "ci95": 0.001},
                      "late_rate": {"mean": 0.01, "ci95": 0.001},
                      "point": {"mean_delay_s": 0.05, "late_rate": 0.01}},
-                    {"policy": "oracle", "mean_delay_s": {"mean": 0.02, "ci95": 0.0},
+                    {"regulation": "oracle", "mean_delay_s": {"mean": 0.02, "ci95": 0.0},
                      "late_rate": {"mean": 0.001, "ci95": 0.0}},
                 ],
             }
@@ -59,3 +59,9 @@ def test_compare_draws_one_point_per_policy(tmp_path):
         ndr.plot.compare(report, family="mars")
     with pytest.raises(ValueError, match="families"):
         ndr.plot.compare({"nothing": 1})
+    # Schema 1's names for the same rows still draw.
+    old = json.loads(
+        json.dumps(report).replace('"regulations"', '"policies"').replace('"regulation"', '"policy"')
+    )
+    assert "policies" in old["families"][0]
+    assert len(ndr.plot.compare(old).axes[0].collections) == 3

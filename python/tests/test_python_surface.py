@@ -82,7 +82,7 @@ def _summary_types():
     [
         dict(profile="paris-newyork", duration=1.0),
         dict(profile="lan-75km", duration=60),
-        dict(profile="lan-75km", mode="paper-dynamic", duration=120),
+        dict(profile="lan-75km", regulation="paper-dynamic", duration=120),
     ],
 )
 def test_the_summary_matches_its_typed_dict(kwargs):
@@ -204,24 +204,24 @@ def test_private_natives_are_not_in_all():
         assert hasattr(_native, name), name
 
 
-# -- 5. the playouts listed are the ones accepted ----------------------------
+# -- 5. the regulations listed are the ones accepted -------------------------
 
 
-@pytest.mark.parametrize("playout", ndr.sim.PLAYOUTS)
-def test_every_listed_playout_is_accepted_as_written(playout):
-    r = ndr.sim.run("lan-75km", playout=playout, duration=5, series=False)
-    assert r.summary["playout"].split(":")[0] == playout.split(":")[0]
+@pytest.mark.parametrize("regulation", ndr.sim.REGULATIONS)
+def test_every_listed_regulation_is_accepted_as_written(regulation):
+    r = ndr.sim.run("lan-75km", regulation=regulation, duration=5, series=False)
+    assert r.summary["regulation"].split(":")[0] == regulation.split(":")[0]
 
 
-def test_the_playout_list_names_adaptive_and_documents_the_parameterized_forms():
-    assert "adaptive" in ndr.sim.PLAYOUTS
-    assert not any(":" in p for p in ndr.sim.PLAYOUTS)
+def test_the_regulation_list_names_adaptive_and_documents_the_parameterized_forms():
+    assert "adaptive" in ndr.sim.REGULATIONS
+    assert not any(":" in p for p in ndr.sim.REGULATIONS)
     source = pathlib.Path(ndr.sim.__file__).read_text(encoding="utf-8")
     for form in ('"fixed:MS"', '"constant:MS"', '"adaptive:PERCENT"'):
         assert form in source
     assert '"adaptive:PERCENT:QUANTUM_MS"' in source
     for example in ("fixed:150", "constant:120", "adaptive:0.5", "adaptive:0.1:10"):
-        ndr.sim.run("lan-75km", playout=example, duration=5, series=False)
+        ndr.sim.run("lan-75km", regulation=example, duration=5, series=False)
 
 
 # -- 6. smaller ---------------------------------------------------------------

@@ -18,7 +18,7 @@ def test_lan_static_reproduces_the_paper():
 
 
 def test_dynamic_mode_lowers_the_lan_delay():
-    r = ndr.sim.run("lan-75km", mode="paper-dynamic", period=0.2, duration=120)
+    r = ndr.sim.run("lan-75km", regulation="paper-dynamic", period=0.2, duration=120)
     assert r["settled_grtt_mean_s"] == pytest.approx(0.3, rel=0.15)
     assert np.nanmin(r.series["period"]) == pytest.approx(0.05)
 
@@ -46,28 +46,29 @@ def test_the_same_seed_gives_the_same_run():
 def test_playout_policies_run_and_a_bad_name_is_refused():
     fifo = ndr.sim.run("lan-75km", period=0.05, duration=60, series=False, underflow="drop-late")
     neteq = ndr.sim.run(
-        "lan-75km", period=0.05, duration=60, series=False, underflow="drop-late", playout="neteq"
+        "lan-75km", period=0.05, duration=60, series=False, underflow="drop-late", regulation="neteq"
     )
+    assert neteq["regulation"] == "neteq" and fifo["regulation"] == "paper-static"
     assert neteq["playout"] == "neteq" and fifo["playout"] == "fifo"
     # A target from the measured delays beats the paper's queue on a LAN.
     assert neteq["e2e_fwd_mean_s"] < fifo["e2e_fwd_mean_s"]
-    with pytest.raises(ValueError, match="playout"):
-        ndr.sim.run(duration=10, playout="lifo")
+    with pytest.raises(ValueError, match="regulation"):
+        ndr.sim.run(duration=10, regulation="lifo")
 
 
 def test_the_adaptive_playout_takes_the_step_of_its_delay():
-    def run(playout):
+    def run(regulation):
         return ndr.sim.run("lan-75km", period=0.02, duration=120, series=False,
-                           underflow="drop-late", playout=playout)
+                           underflow="drop-late", regulation=regulation)
     default, fine = run("adaptive"), run("adaptive:0.1:10")
-    assert fine["playout"] == "adaptive:0.1:10"
+    assert fine["regulation"] == fine["playout"] == "adaptive:0.1:10"
     # The LAN needs about 25 ms each way: 40 in steps of 20 ms, 30 in 10.
     assert default["playout_delay_fwd_s"] == pytest.approx(0.04)
     assert fine["playout_delay_fwd_s"] == pytest.approx(0.03)
     assert fine["late_samples"] == 0
     for bad in ("adaptive:0.1:0.5", "adaptive:0.1:20000", "adaptive::10", "adaptive:0.1:x"):
         with pytest.raises(ValueError, match="QUANTUM_MS"):
-            ndr.sim.run(duration=10, playout=bad)
+            ndr.sim.run(duration=10, regulation=bad)
 
 
 def test_a_trace_file_drives_the_network(tmp_path):
@@ -85,7 +86,8 @@ def test_a_trace_file_drives_the_network(tmp_path):
         (dict(profile="lan-75km", trace="x.csv"), "one of"),
         (dict(dist="normal.dist"), "mean and std"),
         (dict(profile="lan-75km", mean=0.1), "dist"),
-        (dict(mode="warp"), "mode"),
+        (dict(regulation="warp"), "regulation"),
+        (dict(regulation="neteq", playout="fifo"), "give regulation alone"),
         (dict(underflow="skip"), "underflow"),
         (dict(period=0), "period"),
         (dict(duration=-1), "duration"),

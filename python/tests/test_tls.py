@@ -39,13 +39,13 @@ def test_a_link_over_mutual_tls_runs_with_a_constant_delay(certs):
     # follows the jitter, which a busy host brings).
     def run():
         with ndr.Link.listen(
-            LOOPBACK, period=0.01, playout="fifo", tls=tls(certs, "robot", "base")
+            LOOPBACK, period=0.01, regulation="paper-static", tls=tls(certs, "robot", "base")
         ) as lst:
             got = []
             t = threading.Thread(target=lambda: got.append(lst.accept(timeout=5)), daemon=True)
             t.start()
             with ndr.Link.connect(
-                lst.address, period=0.01, playout="fifo", tls=tls(certs, "base", "robot")
+                lst.address, period=0.01, regulation="paper-static", tls=tls(certs, "base", "robot")
             ) as base:
                 t.join(5)
                 remote = got[0]

@@ -24,6 +24,9 @@
 //!   `N` fixed at compile time (or any [`storage::Queue`]), nominal size `ns`
 //!   at run time, pre-fill, release per tick, underflow and overflow counted,
 //!   never a silent drop.
+//! - [`regulation`]: how the delay is regulated, by the one name users give
+//!   ([`Regulation`]: `adaptive`, `paper-static`, `paper-dynamic`, …): the
+//!   [`Mode`] both peers agree on and this side's [`Playout`].
 //! - [`playout`]: when a regulator releases each sample: the paper's FIFO or
 //!   a target delay (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like
 //!   quantile, a fixed latency, a constant, and the adaptive timestamp-based
@@ -178,6 +181,7 @@ pub mod filters;
 pub mod kalman;
 pub mod playout;
 pub mod predictor;
+pub mod regulation;
 pub mod regulator;
 pub mod rls;
 pub mod sizing;
@@ -193,6 +197,7 @@ pub use filters::{Envelope, LowPass};
 pub use kalman::Kalman3;
 pub use playout::Playout;
 pub use predictor::{NetworkPredictor, Prediction, PredictorConfig};
+pub use regulation::Regulation;
 pub use regulator::{Regulator, Tick};
 pub use rls::Rls;
 pub use sizing::{InitPattern, InitStats, Sizing};

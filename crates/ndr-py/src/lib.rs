@@ -17,6 +17,8 @@
 //!   subclasses) and [`blocking`] (waits without the GIL, Ctrl-C);
 //! - [`relay`]: `Relay`, the delaying proxy;
 //! - [`sim`]: `sim_run`, the simulator behind `ndr.sim.run`;
+//! - [`regulation`]: `regulation=` and the deprecated `mode=` and `playout=`,
+//!   read once for every function that takes them;
 //! - [`delay`]: the delay model of either from its keyword arguments;
 //! - [`log`]: Rust's `tracing` records into Python's `logging`.
 //!
@@ -32,6 +34,7 @@ pub mod filters;
 pub mod kalman;
 pub mod link;
 pub mod log;
+pub mod regulation;
 pub mod regulator;
 pub mod relay;
 pub mod rls;
@@ -130,6 +133,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_AXES", ndr_net::link::MAX_AXES)?;
     m.add_class::<relay::PyRelay>()?;
     m.add_function(wrap_pyfunction!(sim::run, m)?)?;
+    m.add_function(wrap_pyfunction!(regulation::parts, m)?)?;
     m.add_class::<sim::PySignal>()?;
     m.add_function(wrap_pyfunction!(log::set_log_level, m)?)?;
     m.add_function(wrap_pyfunction!(log::flush_logs, m)?)?;

@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
 use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
-use ndr_core::playout::Playout;
+use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
 use ndr_net::link::{EVENT_BACKLOG, LinkEvent, MAX_AXES};
@@ -32,6 +32,7 @@ use crate::blocking::{self, timed_out, wait};
 use crate::convert::{count, int_in, period as positive, sample as to_sample, serialized};
 use crate::errors::{link_error, net_error, os_error};
 use crate::log;
+use crate::regulation;
 use crate::tls::PyTlsConfig;
 
 /// The most released samples and events that may wait for the application
@@ -468,14 +469,16 @@ pub struct PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, period, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure))]
+    #[pyo3(signature = (*, role, axes, period, regulation, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure))]
     #[allow(clippy::too_many_arguments)]
     fn new(
+        py: Python<'_>,
         role: &str,
         axes: &Bound<'_, PyAny>,
         period: f64,
-        mode: &str,
-        playout: &str,
+        regulation: Option<&str>,
+        mode: Option<&str>,
+        playout: Option<&str>,
         underflow: &str,
         watchdog: Option<f64>,
         liveness: Option<f64>,
@@ -499,15 +502,13 @@ impl PyLinkSettings {
         let mut endpoint = Config::new(role);
         endpoint.axes = axes;
         endpoint.period = positive("period", period)?;
-        endpoint.mode = mode
-            .parse::<Mode>()
-            .map_err(|e| PyValueError::new_err(format!("mode: {e}")))?;
+        // Called from `ndr.link._settings`, from `Link.connect` or
+        // `Link.listen`: the user's call is three frames up.
+        (endpoint.mode, endpoint.playout) =
+            regulation::mode_playout(py, (regulation, mode, playout), Regulation::ADAPTIVE, 3)?;
         endpoint.underflow = underflow
             .parse::<Underflow>()
             .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
-        endpoint.playout = playout
-            .parse::<Playout>()
-            .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
         endpoint.watchdog = watchdog.map(|w| positive("watchdog", w)).transpose()?;
         endpoint.liveness = liveness.map(|l| positive("liveness", l)).transpose()?;
         endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;

@@ -5,8 +5,8 @@
 //! the Python side parses it into a dict), and the per-tick series as float64
 //! arrays, one per column of `ndr sim --out`.
 
-use ndr_core::endpoint::{Mode, Underflow};
-use ndr_core::playout::Playout;
+use ndr_core::endpoint::Underflow;
+use ndr_core::regulation::Regulation;
 use ndr_sim::signal::Signal;
 use ndr_sim::{MAX_SIM_AXES, Report, Row, SimConfig};
 use numpy::PyArray1;
@@ -20,7 +20,7 @@ use crate::log;
 
 /// One simulation; returns `(summary_json, series)`.
 #[pyfunction]
-#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, mode = "paper-static", playout = "fifo", underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true))]
+#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, mode = None, playout = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true))]
 #[allow(clippy::too_many_arguments)]
 pub fn run<'py>(
     py: Python<'py>,
@@ -29,8 +29,9 @@ pub fn run<'py>(
     dist: Option<&str>,
     mean: Option<f64>,
     std: Option<f64>,
-    mode: &str,
-    playout: &str,
+    regulation: Option<&str>,
+    mode: Option<&str>,
+    playout: Option<&str>,
     underflow: &str,
     period: f64,
     duration: f64,
@@ -44,15 +45,16 @@ pub fn run<'py>(
     let axes = in_range("axes", axes, 1, max_axes)?;
     let model = delay_model(profile, trace, dist, mean, std, "paris-newyork")?;
     let mut cfg = SimConfig::paper(model);
-    cfg.mode = mode
-        .parse::<Mode>()
-        .map_err(|e| PyValueError::new_err(format!("mode: {e}")))?;
+    // Called from `ndr.sim.run`: the user's call is two frames up.
+    (cfg.mode, cfg.playout) = crate::regulation::mode_playout(
+        py,
+        (regulation, mode, playout),
+        Regulation::PaperStatic,
+        2,
+    )?;
     cfg.underflow = underflow
         .parse::<Underflow>()
         .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;
-    cfg.playout = playout
-        .parse::<Playout>()
-        .map_err(|e| PyValueError::new_err(format!("playout: {e}")))?;
     cfg.period = positive_period("period", period)?;
     finite("duration", duration)?;
     cfg.duration = seconds("duration", duration)?;

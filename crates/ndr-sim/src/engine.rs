@@ -11,6 +11,7 @@ use ndr_core::endpoint::{
     Config, ConfigError, Endpoint, Event, LinkError, Mode, Release, Status, Underflow,
 };
 use ndr_core::playout::Playout;
+use ndr_core::regulation::Regulation;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{Frame, HEADER_LEN, Payload, Role};
@@ -67,7 +68,8 @@ impl PlantConfig {
 pub struct SimConfig {
     /// The network.
     pub model: DelayModel,
-    /// Static or dynamic regulation.
+    /// Static or dynamic sizing: with `playout`, what a [`Regulation`]
+    /// sets ([`SimConfig::with_regulation`]).
     pub mode: Mode,
     /// Both regulators' underflow policy.
     pub underflow: Underflow,
@@ -121,6 +123,16 @@ impl SimConfig {
             record_series: false,
             record_forward: false,
         }
+    }
+}
+
+impl SimConfig {
+    /// This run with both sides regulated by `regulation`.
+    #[must_use]
+    pub fn with_regulation(mut self, regulation: Regulation) -> Self {
+        self.mode = regulation.mode();
+        self.playout = regulation.playout();
+        self
     }
 }
 

@@ -20,11 +20,16 @@ use super::engine::{SimConfig, SimOutput};
 pub struct Report {
     /// The delay model's name.
     pub profile: String,
-    /// `paper-static` or `paper-dynamic`.
+    /// How the delay was regulated: `paper-static`, `adaptive`, ...
+    /// ([`Regulation`](ndr_core::Regulation)'s name), or `MODE with
+    /// PLAYOUT` for the pairing no regulation names.
+    pub regulation: String,
+    /// `paper-static` or `paper-dynamic`: a part of `regulation`.
     pub mode: String,
     /// `hold` or `drop-late`.
     pub underflow: String,
-    /// The regulators' playout policy: `fifo` (the paper's), `ramjee-1`, ...
+    /// The regulators' playout policy, a part of `regulation`: `fifo` (the
+    /// paper's), `ramjee-1`, ...
     pub playout: String,
     /// The seed.
     pub seed: u64,
@@ -390,6 +395,10 @@ impl Collector {
             delay_events_fwd: self.delay_events_fwd,
             playout_delay_fwd_s: rs.playout_delay_s,
             profile: cfg.model.name(),
+            regulation: ndr_core::Regulation::of(cfg.mode, cfg.playout).map_or_else(
+                || std::format!("{} with {}", cfg.mode, cfg.playout),
+                |r| std::format!("{r}"),
+            ),
             mode: String::from(cfg.mode.name()),
             underflow: String::from(cfg.underflow.name()),
             playout: std::format!("{}", cfg.playout),

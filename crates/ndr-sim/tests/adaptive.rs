@@ -2,14 +2,15 @@
 //! against the simulator's true skew and offset, the delay against the
 //! oracle, the late rate near its target, no pause, an event per change.
 
+use ndr_core::Regulation;
 use ndr_core::playout::Playout;
 use ndr_core::time::Duration;
-use ndr_sim::compare::{Family, Policy, builtin, run_one, sim_config};
+use ndr_sim::compare::{Family, builtin, run_one, sim_config};
 use ndr_sim::run;
 
 const T: Duration = Duration::from_millis(20);
 const WINDOW: Duration = Duration::from_secs(10);
-const ADAPTIVE: Policy = Policy::Target(Playout::ADAPTIVE);
+const ADAPTIVE: Regulation = Regulation::Target(Playout::ADAPTIVE);
 
 fn named(name: &str, secs: u64) -> Family {
     let mut f = builtin()
@@ -257,7 +258,7 @@ fn a_finer_quantum_holds_a_lower_delay_in_its_steps() {
     let family = named("lan-75km", 300);
     let delay_with = |playout: &str| {
         let p: Playout = playout.parse().expect("a playout");
-        let out = run(&sim_config(&family, Policy::Target(p), 1, T)).expect("the run");
+        let out = run(&sim_config(&family, Regulation::Target(p), 1, T)).expect("the run");
         let settled = command_delays(&out, 120.0..290.0);
         (out.report, settled)
     };
@@ -461,7 +462,7 @@ fn the_late_rate_stays_within_epsilon_through_stalls_and_episodes() {
     // 1.2 % on all but step.
     for name in ["tcp-stall", "spikes", "paris-newyork", "step"] {
         for epsilon_ppm in [1_000, 10_000] {
-            let policy = Policy::Target(Playout::Adaptive {
+            let policy = Regulation::Target(Playout::Adaptive {
                 epsilon_ppm,
                 quantum: None,
             });

@@ -2,10 +2,11 @@
 //! harness: hand-checked delays on constant traces, the oracle reproduced by
 //! the endpoint, the oracle never beaten, determinism.
 
-use ndr_core::endpoint::{Mode, Underflow};
+use ndr_core::Regulation;
+use ndr_core::endpoint::Underflow;
 use ndr_core::playout::Playout;
 use ndr_core::time::{Duration, Instant};
-use ndr_sim::compare::{self, CompareConfig, Family, Policy, builtin, run_one};
+use ndr_sim::compare::{self, CompareConfig, DEFAULT_REGULATIONS, Family, builtin, run_one};
 use ndr_sim::delay::DelayModel;
 
 const T: Duration = Duration::from_millis(20);
@@ -54,7 +55,7 @@ fn each_policy_on_a_constant_delay() {
         (Playout::Constant { delay: ms(41) }, 0.060),
     ];
     for (p, want) in cases {
-        let m = run_one(&f, Policy::Target(p), 1, (T, WINDOW)).unwrap();
+        let m = run_one(&f, Regulation::Target(p), 1, (T, WINDOW)).unwrap();
         let r = m.metrics;
         assert!(r.samples > 1000, "{p}: {} samples", r.samples);
         assert!((r.mean_delay_s - want).abs() < 1e-9, "{p}: {r:?}");
@@ -66,7 +67,7 @@ fn each_policy_on_a_constant_delay() {
     // A target shorter than the delay: every slot passes before its sample.
     let r = run_one(
         &f,
-        Policy::Target(Playout::Constant { delay: ms(10) }),
+        Regulation::Target(Playout::Constant { delay: ms(10) }),
         1,
         (T, WINDOW),
     )
@@ -75,7 +76,7 @@ fn each_policy_on_a_constant_delay() {
     assert_eq!(r.late_rate, 1.0);
     // The paper's static NDR keeps its constant delay: ns·T above the
     // first sample's slot.
-    let r = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW))
+    let r = run_one(&f, Regulation::PaperStatic, 1, (T, WINDOW))
         .unwrap()
         .metrics;
     assert_eq!(r.late_rate, 0.0);
@@ -89,14 +90,14 @@ fn the_endpoint_reproduces_the_oracle() {
     // same way.
     for name in ["lan-75km", "step", "spikes", "skew+100ppm"] {
         let f = short(named(name), 60);
-        let probe = run_one(&f, Policy::Target(Playout::Ramjee1), 2, (T, WINDOW)).unwrap();
+        let probe = run_one(&f, Regulation::Target(Playout::Ramjee1), 2, (T, WINDOW)).unwrap();
         for eps in [0.0, 0.01, 0.05] {
             let o = probe.oracle.constant(eps);
             assert!(o.late_rate <= eps + 1e-12);
             let delay = Duration::from_secs_f64(o.target_s);
             let run = run_one(
                 &f,
-                Policy::Target(Playout::Constant { delay }),
+                Regulation::Target(Playout::Constant { delay }),
                 2,
                 (T, WINDOW),
             )
@@ -120,7 +121,7 @@ fn the_endpoint_reproduces_the_oracle() {
 
 #[test]
 fn no_policy_beats_the_oracle_on_its_own_trace() {
-    let policies = Policy::ALL;
+    let policies = DEFAULT_REGULATIONS;
     // Any trace: a policy that releases k samples fresh waits at least the
     // k smallest slot delays.
     for name in ["lan-75km", "step", "spikes", "tcp-stall", "skew-100ppm"] {
@@ -132,7 +133,7 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
                 assert!(
                     m.metrics.mean_delay_s >= bound - 1e-12,
                     "{name} {} seed {seed}: {} < {bound}",
-                    p.name(),
+                    p,
                     m.metrics.mean_delay_s
                 );
             }
@@ -153,7 +154,7 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
             assert!(
                 r.mean_delay_s >= hull - 1e-4,
                 "{} seed {seed}: {} < {hull} at late rate {}",
-                p.name(),
+                p,
                 r.mean_delay_s,
                 r.late_rate
             );
@@ -164,7 +165,7 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
             assert!(
                 w.mean_delay_s <= c.mean_delay_s + 1e-9,
                 "{} seed {seed}: piecewise {w:?} constant {c:?} at {}",
-                p.name(),
+                p,
                 r.late_rate
             );
         }
@@ -180,7 +181,7 @@ fn the_split_oracle_cuts_at_the_first_event_and_never_exceeds_the_constant_one()
         let f = named(name);
         let first = f.events_s.first().copied().expect("an event");
         let at = Instant::from_secs_f64(first);
-        let m = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW)).unwrap();
+        let m = run_one(&f, Regulation::PaperStatic, 1, (T, WINDOW)).unwrap();
         for eps in [0.001, 0.01, 0.05] {
             let c = m.oracle.constant(eps);
             let s = m.oracle.split(eps, at);
@@ -203,7 +204,7 @@ fn the_split_oracle_cuts_at_the_first_event_and_never_exceeds_the_constant_one()
     }
     let m = run_one(
         &short(named("lan-75km"), 30),
-        Policy::Target(Playout::ADAPTIVE),
+        Regulation::Target(Playout::ADAPTIVE),
         1,
         (T, WINDOW),
     )
@@ -240,17 +241,17 @@ fn recovery_after_a_step() {
     // The paper's static NDR never follows a step up (its delay is fixed at
     // the start): every sample after it is late, up to the horizon.
     let f = short(named("step"), 100);
-    let r = run_one(&f, Policy::Paper(Mode::PaperStatic), 1, (T, WINDOW))
+    let r = run_one(&f, Regulation::PaperStatic, 1, (T, WINDOW))
         .unwrap()
         .metrics;
     assert!(r.late_rate > 0.3, "{r:?}");
     assert!((r.recovery_s.unwrap() - compare::RECOVERY_HORIZON).abs() < 0.1);
     // A fixed latency of 200 ms above the minimum absorbs a 150 ms step.
-    let fixed = Policy::Target(Playout::FixedAboveMin { latency: ms(200) });
+    let fixed = Regulation::Target(Playout::FixedAboveMin { latency: ms(200) });
     let r = run_one(&f, fixed, 1, (T, WINDOW)).unwrap().metrics;
     assert_eq!(r.recovery_s, Some(0.0));
     // Ramjee's algorithm 1 recovers, in a bounded time.
-    let r = run_one(&f, Policy::Target(Playout::Ramjee1), 1, (T, WINDOW))
+    let r = run_one(&f, Regulation::Target(Playout::Ramjee1), 1, (T, WINDOW))
         .unwrap()
         .metrics;
     let rec = r.recovery_s.unwrap();
@@ -272,14 +273,21 @@ fn the_comparison_is_deterministic_and_complete() {
     assert_eq!(one, three);
     assert_eq!(one.families.len(), 2);
     for f in &one.families {
-        let names: Vec<String> = f.policies.iter().map(|p| p.policy.clone()).collect();
-        let mut want: Vec<String> = Policy::ALL.iter().map(|p| p.name()).collect();
+        let names: Vec<String> = f.regulations.iter().map(|p| p.regulation.clone()).collect();
+        let mut want: Vec<String> = DEFAULT_REGULATIONS
+            .iter()
+            .map(ToString::to_string)
+            .collect();
         want.extend(["oracle".to_string(), "oracle-piecewise".to_string()]);
         assert_eq!(names, want);
-        for p in &f.policies {
-            assert_eq!(p.runs + p.failed, 2, "{}", p.policy);
+        for p in &f.regulations {
+            assert_eq!(p.runs + p.failed, 2, "{}", p.regulation);
         }
-        let oracle = f.policies.iter().find(|p| p.policy == "oracle").unwrap();
+        let oracle = f
+            .regulations
+            .iter()
+            .find(|p| p.regulation == "oracle")
+            .unwrap();
         assert!(oracle.late_rate.mean <= cfg.epsilon);
     }
     assert!(one.notes.is_empty(), "{:?}", one.notes);
@@ -309,7 +317,7 @@ fn trace_family(rows: &[(u64, u64)]) -> Family {
 
 #[test]
 fn a_falling_target_skips_and_a_rising_delay_is_late() {
-    let fixed0 = Policy::Target(Playout::FixedAboveMin { latency: ms(0) });
+    let fixed0 = Regulation::Target(Playout::FixedAboveMin { latency: ms(0) });
     // 70 ms, then 30 ms from 20 s: the minimum (the target) falls by 40 ms,
     // two periods: the release delay goes from 80 to 40 ms once, and the
     // two samples whose slots the fall jumped over are skipped.
@@ -403,13 +411,13 @@ fn the_search_keeps_the_lowest_delay_met() {
 #[test]
 fn the_matched_search_keeps_the_quantum_asked_for() {
     let adaptive = |quantum| {
-        Policy::Target(Playout::Adaptive {
+        Regulation::Target(Playout::Adaptive {
             epsilon_ppm: 1000,
             quantum,
         })
     };
     let five = Some(Duration::from_millis(5));
-    let paper = Policy::Paper(Mode::PaperStatic);
+    let paper = Regulation::PaperStatic;
     assert_eq!(compare::matched_quantum(&[paper, adaptive(five)]), five);
     assert_eq!(
         compare::matched_quantum(&[adaptive(None), adaptive(five)]),
@@ -419,7 +427,7 @@ fn the_matched_search_keeps_the_quantum_asked_for() {
     // 30 ms each way: the default steps hold 40 ms, steps of 5 ms 35 ms.
     let delay_with = |quantum| {
         let mut cfg = CompareConfig::new(vec![constant_family(30)]);
-        cfg.policies = vec![paper, adaptive(quantum)];
+        cfg.regulations = vec![paper, adaptive(quantum)];
         cfg.seeds = 1;
         cfg.matched = true;
         let r = compare::compare(&cfg);
@@ -447,10 +455,7 @@ fn matched_against_the_paper_modes() {
     steps.events_s = vec![20.0];
     let families = vec![constant_family(30), steps];
     let mut cfg = CompareConfig::new(families);
-    cfg.policies = vec![
-        Policy::Paper(Mode::PaperStatic),
-        Policy::Paper(Mode::PaperDynamic),
-    ];
+    cfg.regulations = vec![Regulation::PaperStatic, Regulation::PaperDynamic];
     cfg.seeds = 2;
     cfg.matched = true;
     cfg.threads = 1;
@@ -525,9 +530,9 @@ fn under_hold_nothing_is_lost_and_the_fifo_only_grows() {
     let mut cfg = CompareConfig::new(vec![family]);
     cfg.seeds = 2;
     cfg.threads = 1;
-    cfg.policies = vec![
-        Policy::Paper(Mode::PaperStatic),
-        Policy::Target(Playout::ADAPTIVE),
+    cfg.regulations = vec![
+        Regulation::PaperStatic,
+        Regulation::Target(Playout::ADAPTIVE),
     ];
     cfg.matched = true;
     let dropped = compare::compare(&cfg);
@@ -536,9 +541,9 @@ fn under_hold_nothing_is_lost_and_the_fifo_only_grows() {
     assert_eq!((dropped.underflow, held.underflow), ("drop-late", "hold"));
     let row = |r: &compare::CompareReport, p: &str| {
         r.families[0]
-            .policies
+            .regulations
             .iter()
-            .find(|x| x.policy == p)
+            .find(|x| x.regulation == p)
             .cloned()
             .expect("the policy's row")
     };
@@ -588,7 +593,7 @@ fn under_hold_nothing_is_lost_and_the_fifo_only_grows() {
 #[test]
 fn matched_the_adaptive_policy_beats_the_fifo_through_paris_newyorks_episodes() {
     let mut cfg = CompareConfig::new(vec![named("paris-newyork")]);
-    cfg.policies = vec![Policy::Paper(Mode::PaperStatic)];
+    cfg.regulations = vec![Regulation::PaperStatic];
     cfg.seeds = 3;
     cfg.matched = true;
     let r = compare::compare(&cfg);

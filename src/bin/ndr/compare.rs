@@ -1,13 +1,13 @@
-//! `ndr compare`: every playout policy on the same traces, beside the oracle.
+//! `ndr compare`: every regulation on the same traces, beside the oracle.
 
 use std::path::PathBuf;
 use std::time::Instant as WallClock;
 
-use ndr::core::endpoint::{Mode, Underflow};
-use ndr::core::playout::Playout;
+use ndr::core::endpoint::Underflow;
+use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
 use ndr::sim::compare::{
-    self, CompareConfig, CompareReport, Family, Matched, Policy, PolicyResult, Stat, TC_DIRS,
+    self, CompareConfig, CompareReport, Family, Matched, RegulationResult, Stat, TC_DIRS,
 };
 use ndr::sim::delay::Trace;
 
@@ -21,11 +21,11 @@ const MAX_DURATION_S: f64 = 3_600.0;
 
 /// The layout of `ndr compare --json`, shown by `ndr compare --help`.
 const JSON_HELP: &str = "\
-JSON (--json): one object, schema \"ndr-compare/1\":
+JSON (--json): one object, schema \"ndr-compare/2\":
   { schema, period_s, seeds, epsilon, underflow, window_s, margin_s,
-    policies: [name, ...],
+    regulations: [name, ...],
     families: [ { name, description, duration_s, seeds, events_s: [s, ...],
-                  policies: [ { policy, runs, failed,
+                  regulations: [ { regulation, runs, failed,
                                 mean_delay_s, std_delay_s, p99_delay_s, late_rate,
                                 underflows, delay_changes, oracle_ratio, piecewise_ratio,
                                 hull_ratio: {mean, ci95},
@@ -43,7 +43,7 @@ JSON (--json): one object, schema \"ndr-compare/1\":
                            adaptive: {epsilon, mean_delay_s, late_rate} or null } ] } ]
              (only with --matched),
     notes: [text, ...] }
-Each family lists the policies asked for, then `oracle` and `oracle-piecewise`
+Each family lists the regulations asked for, then `oracle` and `oracle-piecewise`
 at `epsilon`. `mean` is over seeds, `ci95` the half-width of its 95 % confidence
 interval. Delays are end-to-end (release at the remote - send at the base), in
 seconds; `late_rate` counts every sample never released fresh; `point` is the
@@ -70,10 +70,13 @@ pub struct CompareArgs {
     /// netem-experimental.
     #[arg(long = "family", value_name = "NAME")]
     pub families: Vec<String>,
-    /// Policies to run (repeatable; default all): paper-static,
+    /// Regulations to run (repeatable; default all but constant): paper-static,
     /// paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
     /// adaptive[:PERCENT[:QUANTUM_MS]].
-    #[arg(long = "policy", value_name = "NAME")]
+    #[arg(long = "regulation", value_name = "NAME")]
+    pub regulations: Vec<String>,
+    /// Deprecated spelling of --regulation.
+    #[arg(long = "policy", value_name = "NAME", hide = true)]
     pub policies: Vec<String>,
     /// Seeds per family (1..=N).
     #[arg(long, default_value_t = 10)]
@@ -117,18 +120,9 @@ pub struct CompareArgs {
     pub json: bool,
 }
 
-fn policy(name: &str) -> Result<Policy, String> {
-    if let Ok(mode) = name.parse::<Mode>() {
-        return Ok(Policy::Paper(mode));
-    }
-    match name.parse::<Playout>() {
-        Err(e) if !e.is_unknown_name() => Err(format!("policy `{name}`: {e}")),
-        Ok(Playout::Fifo) | Err(_) => Err(format!(
-            "unknown policy `{name}`; valid: paper-static, paper-dynamic, ramjee-1, ramjee-4, \
-             neteq, fixed[:MS], constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]"
-        )),
-        Ok(p) => Ok(Policy::Target(p)),
-    }
+fn regulation(name: &str) -> Result<Regulation, String> {
+    name.parse::<Regulation>()
+        .map_err(|e| format!("regulation `{name}`: {e}"))
 }
 
 fn families(args: &CompareArgs) -> Result<(Vec<Family>, Vec<String>), String> {
@@ -223,10 +217,13 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
     }
     let mut cfg = CompareConfig::new(families);
     if !args.policies.is_empty() {
-        cfg.policies = args
-            .policies
-            .iter()
-            .map(|p| policy(p))
+        crate::logging::deprecated("--policy", "--regulation (the same names)");
+    }
+    let asked: Vec<&String> = args.regulations.iter().chain(&args.policies).collect();
+    if !asked.is_empty() {
+        cfg.regulations = asked
+            .into_iter()
+            .map(|r| regulation(r))
             .collect::<Result<_, _>>()?;
     }
     cfg.seeds = args.seeds;
@@ -252,9 +249,9 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
         print_tables(&report);
     }
     eprintln!(
-        "ndr compare: {} families × {} policies in {:.1} s ({} threads)",
+        "ndr compare: {} families × {} regulations in {:.1} s ({} threads)",
         report.families.len(),
-        report.policies.len(),
+        report.regulations.len(),
         started.elapsed().as_secs_f64(),
         cfg.threads
     );
@@ -270,7 +267,7 @@ fn ms(s: Stat) -> String {
     format!("{:.0} ± {:.0}", s.mean * 1e3, s.ci95 * 1e3)
 }
 
-fn row(p: &PolicyResult) -> String {
+fn row(p: &RegulationResult) -> String {
     let pct = |s: Stat| format!("{:.2} ± {:.2}", s.mean * 100.0, s.ci95 * 100.0);
     let num = |s: Stat| format!("{:.1} ± {:.1}", s.mean, s.ci95);
     let recovery = p.recovery_s.map_or_else(
@@ -279,7 +276,7 @@ fn row(p: &PolicyResult) -> String {
     );
     format!(
         "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-        p.policy,
+        p.regulation,
         ms(p.mean_delay_s),
         ms(p.std_delay_s),
         ms(p.p99_delay_s),
@@ -311,11 +308,11 @@ pub fn print_tables(r: &CompareReport) {
             f.name, f.description, f.duration_s, f.seeds
         );
         println!(
-            "| policy | delay ms | std ms | p99 ms | late % | underflows | changes | \
+            "| regulation | delay ms | std ms | p99 ms | late % | underflows | changes | \
              recovery s | ÷ oracle | ÷ hull | ÷ piecewise | ÷ split |"
         );
         println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
-        for p in &f.policies {
+        for p in &f.regulations {
             println!("{}", row(p));
         }
     }

@@ -11,6 +11,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::{Config, Mode, Status, Underflow};
 use ndr::core::playout::Playout;
+use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay};
@@ -24,16 +25,18 @@ use crate::size::millis;
 /// The link's settings, shared by `demo`, `base` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct LinkArgs {
-    /// Regulation mode: adaptive (the default: the static handshake with
-    /// `--playout adaptive`, lower delay than the paper's modes at the same
-    /// late rate), paper-static or paper-dynamic (the paper's FIFO).
-    #[arg(long, default_value = "adaptive", value_parser = link_mode)]
-    pub mode: LinkMode,
-    /// When this side releases each sample: fifo (the paper's queue, sized
-    /// by the mode), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
-    /// adaptive[:PERCENT[:QUANTUM_MS]] (default: adaptive with `--mode
-    /// adaptive`, else fifo).
-    #[arg(long)]
+    /// How the delay is regulated: adaptive[:PERCENT[:QUANTUM_MS]] (the
+    /// default: a target delay above each sample's send time, the lowest
+    /// with a late rate of PERCENT, 0.1 by default), paper-static or
+    /// paper-dynamic (the paper's FIFO, sized once or resized as the network
+    /// changes), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS.
+    #[arg(long, value_name = "NAME")]
+    pub regulation: Option<Regulation>,
+    /// Deprecated: --regulation (paper-static, paper-dynamic, adaptive).
+    #[arg(long, hide = true, value_parser = link_mode)]
+    pub mode: Option<LinkMode>,
+    /// Deprecated: --regulation (the same names; fifo is paper-static).
+    #[arg(long, hide = true)]
     pub playout: Option<Playout>,
     /// The regulator's policy when a sample is missing at its tick.
     #[arg(long, default_value = "hold")]
@@ -55,16 +58,68 @@ impl LinkArgs {
         let mut endpoint = Config::new(Role::Base);
         endpoint.axes = self.axes;
         endpoint.period = period;
-        endpoint.mode = self.mode.mode;
-        endpoint.playout = self.playout.unwrap_or(if self.mode.adaptive {
-            Playout::ADAPTIVE
-        } else {
-            Playout::Fifo
-        });
+        let (mode, playout, old) = self.asked()?;
+        if old {
+            crate::logging::deprecated_mode_playout(mode, playout);
+        }
+        endpoint.mode = mode;
+        endpoint.playout = playout;
         endpoint.underflow = self.underflow;
         endpoint.validate().map_err(|e| e.to_string())?;
         Ok(LinkConfig::new(endpoint))
     }
+
+    /// The mode and playout asked for, and whether through the deprecated
+    /// `--mode` or `--playout`.
+    fn asked(&self) -> Result<(Mode, Playout, bool), String> {
+        if let Some(r) = self.regulation {
+            if self.mode.is_some() || self.playout.is_some() {
+                return Err(
+                    "--regulation replaces --mode and --playout: give --regulation alone".into(),
+                );
+            }
+            return Ok((r.mode(), r.playout(), false));
+        }
+        let mode = self.mode.unwrap_or(LinkMode::ADAPTIVE);
+        let playout = self.playout.unwrap_or(if mode.adaptive {
+            Playout::ADAPTIVE
+        } else {
+            Playout::Fifo
+        });
+        let old = self.mode.is_some() || self.playout.is_some();
+        Ok((mode.mode, playout, old))
+    }
+
+    /// The regulation's name for reports: its own, or `MODE with PLAYOUT`
+    /// for the pairing no regulation names.
+    pub fn regulation_name(&self) -> String {
+        self.asked().map_or_else(
+            |_| String::new(),
+            |(mode, playout, _)| name_of(mode, playout),
+        )
+    }
+
+    /// This side's playout's name, for reports.
+    pub fn playout_name(&self) -> String {
+        self.asked()
+            .map_or_else(|_| String::new(), |(_, playout, _)| playout.to_string())
+    }
+
+    /// The report's deprecated `mode`: what `--mode` said, `adaptive` for
+    /// the adaptive playout over the static handshake.
+    pub fn legacy_mode_name(&self) -> &'static str {
+        match (self.mode, self.asked()) {
+            (Some(m), _) => m.name(),
+            (None, Ok((Mode::PaperStatic, Playout::Adaptive { .. }, _))) => "adaptive",
+            (None, Ok((mode, _, _))) => mode.name(),
+            (None, Err(_)) => "",
+        }
+    }
+}
+
+fn name_of(mode: Mode, playout: Playout) -> String {
+    Regulation::of(mode, playout)
+        .map_or_else(|| format!("{mode} with {playout}"), |r| r.to_string())
 }
 
 /// `--mode`: a paper mode, or `adaptive`.
@@ -77,6 +132,13 @@ pub struct LinkMode {
 }
 
 impl LinkMode {
+    /// `--mode adaptive`, the default when neither `--regulation` nor
+    /// `--mode` is given.
+    const ADAPTIVE: LinkMode = LinkMode {
+        mode: Mode::PaperStatic,
+        adaptive: true,
+    };
+
     /// The name given on the command line.
     pub fn name(self) -> &'static str {
         if self.adaptive {
@@ -387,4 +449,85 @@ fn status_line(
         uf_b + uf_r
     );
     let _ = std::io::stderr().flush();
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+    use ndr::core::endpoint::Mode;
+    use ndr::core::playout::Playout;
+
+    use super::LinkArgs;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        link: LinkArgs,
+    }
+
+    fn link(args: &[&str]) -> LinkArgs {
+        Cli::try_parse_from([&["ndr"][..], args].concat())
+            .expect("the flags parse")
+            .link
+    }
+
+    #[test]
+    fn the_regulation_sets_the_mode_and_the_playout() {
+        let cases: [(&[&str], Mode, Playout, &str); 5] = [
+            (&[], Mode::PaperStatic, Playout::ADAPTIVE, "adaptive"),
+            (
+                &["--regulation", "paper-dynamic"],
+                Mode::PaperDynamic,
+                Playout::Fifo,
+                "paper-dynamic",
+            ),
+            (
+                &["--regulation", "neteq"],
+                Mode::PaperStatic,
+                Playout::NetEq,
+                "neteq",
+            ),
+            // The old spellings, as before.
+            (
+                &["--mode", "paper-static"],
+                Mode::PaperStatic,
+                Playout::Fifo,
+                "paper-static",
+            ),
+            (
+                &["--mode", "paper-dynamic", "--playout", "adaptive"],
+                Mode::PaperDynamic,
+                Playout::ADAPTIVE,
+                "paper-dynamic with adaptive",
+            ),
+        ];
+        for (args, mode, playout, name) in cases {
+            let l = link(args);
+            let c = l.config().expect("a valid configuration").endpoint;
+            assert_eq!((c.mode, c.playout), (mode, playout), "{args:?}");
+            assert_eq!(l.regulation_name(), name, "{args:?}");
+        }
+        assert_eq!(link(&["--mode", "adaptive"]).legacy_mode_name(), "adaptive");
+        assert_eq!(link(&[]).legacy_mode_name(), "adaptive");
+        assert_eq!(
+            link(&["--regulation", "paper-dynamic"]).legacy_mode_name(),
+            "paper-dynamic"
+        );
+    }
+
+    #[test]
+    fn both_spellings_at_once_or_a_wrong_name_is_an_error() {
+        let err = link(&["--regulation", "neteq", "--playout", "fifo"])
+            .config()
+            .unwrap_err();
+        assert!(err.contains("give --regulation alone"), "{err}");
+        let err = Cli::try_parse_from(["ndr", "--regulation", "fifo"])
+            .err()
+            .expect("fifo is no regulation")
+            .to_string();
+        assert!(
+            err.contains("paper-static") && err.contains("paper-dynamic"),
+            "{err}"
+        );
+    }
 }

@@ -217,7 +217,11 @@ struct DemoReport {
     /// or `application failure: …`.
     end: String,
     profile: String,
+    /// How the delay was regulated (`--regulation`'s name).
+    regulation: String,
+    /// Deprecated, goes in the next release: `regulation` says it.
     mode: &'static str,
+    /// This side's playout, a part of `regulation` (`fifo` for the paper's).
     playout: String,
     underflow: &'static str,
     period_s: f64,
@@ -304,10 +308,9 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         ok: o.end.ok(),
         end: o.end.to_string(),
         profile: o.profile.clone(),
-        mode: link.mode.name(),
-        playout: link
-            .config()
-            .map_or_else(|_| String::new(), |c| c.endpoint.playout.to_string()),
+        regulation: link.regulation_name(),
+        mode: link.legacy_mode_name(),
+        playout: link.playout_name(),
         underflow: link.underflow.name(),
         // The link's (a dynamic mode may change it), else the one asked for.
         period_s: b.map_or(link.period_ms / 1e3, |s| s.period.as_secs_f64()),
@@ -356,11 +359,10 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
 fn print_table(r: &DemoReport) {
     let ms = |s: f64| format!("{:.2} ms", s * 1e3);
     println!(
-        "ndr {} · {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        "ndr {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
         r.command,
         r.profile,
-        r.mode,
-        r.playout,
+        r.regulation,
         r.underflow,
         ms(r.period_s),
         r.duration_s,

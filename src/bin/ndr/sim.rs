@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use ndr::core::endpoint::{Mode, Underflow};
 use ndr::core::playout::Playout;
+use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
 use ndr::sim::delay::{DelayModel, DistTable, Trace};
 use ndr::sim::signal::Signal;
@@ -80,17 +81,21 @@ fn with_path(path: &Path, e: &dyn std::fmt::Display) -> String {
 pub struct SimArgs {
     #[command(flatten)]
     pub net: NetArgs,
-    /// Regulation mode.
-    #[arg(long, default_value = "paper-static")]
-    pub mode: Mode,
+    /// How both sides regulate the delay: paper-static (the default, the
+    /// paper's FIFO sized once), paper-dynamic (resized as the network
+    /// changes), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
+    /// adaptive[:PERCENT[:QUANTUM_MS]] (see `ndr compare`).
+    #[arg(long, value_name = "NAME")]
+    pub regulation: Option<Regulation>,
+    /// Deprecated: --regulation (paper-static or paper-dynamic).
+    #[arg(long, hide = true)]
+    pub mode: Option<Mode>,
     /// Both regulators' policy when a sample is missing at its tick.
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
-    /// When the regulators release each sample: fifo (the paper's queue),
-    /// ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
-    /// adaptive[:PERCENT[:QUANTUM_MS]] (see `ndr compare`).
-    #[arg(long, default_value = "fifo")]
-    pub playout: Playout,
+    /// Deprecated: --regulation (the same names; fifo is paper-static).
+    #[arg(long, hide = true)]
+    pub playout: Option<Playout>,
     /// The remote's clock runs this many ppm fast (negative: slow).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub remote_skew_ppm: f64,
@@ -134,9 +139,21 @@ impl SimArgs {
             ));
         }
         let mut cfg = SimConfig::paper(self.net.model("lan-75km")?);
-        cfg.mode = self.mode;
+        (cfg.mode, cfg.playout) = match (self.regulation, self.mode, self.playout) {
+            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => {
+                return Err(
+                    "--regulation replaces --mode and --playout: give --regulation alone".into(),
+                );
+            }
+            (Some(r), None, None) => (r.mode(), r.playout()),
+            (None, None, None) => (Mode::PaperStatic, Playout::Fifo),
+            (None, mode, playout) => {
+                let (mode, playout) = (mode.unwrap_or_default(), playout.unwrap_or_default());
+                crate::logging::deprecated_mode_playout(mode, playout);
+                (mode, playout)
+            }
+        };
         cfg.underflow = self.underflow;
-        cfg.playout = self.playout;
         if !(self.remote_skew_ppm.is_finite() && self.remote_skew_ppm.abs() <= 1e5) {
             return Err(format!(
                 "--remote-skew-ppm must be within ±100000, got {}",
@@ -193,8 +210,8 @@ fn ms(s: f64) -> String {
 
 pub fn print_report(r: &Report) {
     println!(
-        "{} · {} · {} · {} · seed {} · {:.0} s simulated · {} axis(es)",
-        r.profile, r.mode, r.playout, r.underflow, r.seed, r.duration_s, r.axes
+        "{} · {} · {} · seed {} · {:.0} s simulated · {} axis(es)",
+        r.profile, r.regulation, r.underflow, r.seed, r.duration_s, r.axes
     );
     println!("                      mean        std         p99");
     println!(

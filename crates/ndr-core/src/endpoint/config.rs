@@ -5,55 +5,11 @@ use core::str::FromStr;
 
 use crate::playout::Playout;
 use crate::predictor::PredictorConfig;
+use crate::regulation::Regulation;
+pub use crate::regulation::{Mode, UnknownName};
 use crate::sizing::Sizing;
 use crate::time::{Duration, Instant};
 use crate::wire::{self, MAX_CHANNELS, Role};
-
-/// How the regulators are sized and adapted.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum Mode {
-    /// The paper's static NDR: the initialization pattern sizes the queues once.
-    #[default]
-    PaperStatic,
-    /// The paper's dynamic NDR: the network predictor watches the link, and
-    /// when its forecast leaves a band around the current parameters the
-    /// peers pause, run a new initialization pattern with the new period and
-    /// queue size, and resume.
-    PaperDynamic,
-}
-
-impl Mode {
-    /// Every mode, for help texts.
-    pub const ALL: [Mode; 2] = [Mode::PaperStatic, Mode::PaperDynamic];
-
-    /// The name used on the command line and in reports.
-    #[must_use]
-    pub const fn name(self) -> &'static str {
-        match self {
-            Mode::PaperStatic => "paper-static",
-            Mode::PaperDynamic => "paper-dynamic",
-        }
-    }
-
-    /// The code in a Hello frame.
-    #[must_use]
-    pub const fn code(self) -> u8 {
-        match self {
-            Mode::PaperStatic => wire::mode::PAPER_STATIC,
-            Mode::PaperDynamic => wire::mode::PAPER_DYNAMIC,
-        }
-    }
-
-    /// The mode of a Hello code, `None` for a code this build does not know.
-    #[must_use]
-    pub const fn from_code(code: u8) -> Option<Mode> {
-        match code {
-            wire::mode::PAPER_STATIC => Some(Mode::PaperStatic),
-            wire::mode::PAPER_DYNAMIC => Some(Mode::PaperDynamic),
-            _ => None,
-        }
-    }
-}
 
 /// What a regulator does at a tick whose sample has not arrived.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -89,36 +45,6 @@ impl Underflow {
     }
 }
 
-/// A name that is not a known [`Mode`] or [`Underflow`] policy.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct UnknownName {
-    /// What kind of name was expected.
-    pub what: &'static str,
-    /// The valid names.
-    pub valid: &'static str,
-}
-
-impl fmt::Display for UnknownName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "unknown {}; valid: {}", self.what, self.valid)
-    }
-}
-
-impl core::error::Error for UnknownName {}
-
-impl FromStr for Mode {
-    type Err = UnknownName;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Mode::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or(UnknownName {
-                what: "mode",
-                valid: "paper-static, paper-dynamic",
-            })
-    }
-}
-
 impl FromStr for Underflow {
     type Err = UnknownName;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
@@ -130,12 +56,6 @@ impl FromStr for Underflow {
                 valid: "hold, drop-late",
             }),
         }
-    }
-}
-
-impl fmt::Display for Mode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
     }
 }
 
@@ -183,7 +103,9 @@ pub struct Config {
     pub axes: u16,
     /// The sampling period `T`; both peers must agree at the handshake.
     pub period: Duration,
-    /// Static or dynamic regulation; both peers must agree.
+    /// Static or dynamic sizing of the queues; both peers must agree. With
+    /// `playout`, one of the two parts a [`Regulation`] sets
+    /// ([`Config::with_regulation`]).
     pub mode: Mode,
     /// What this side's regulator does when a sample is missing at its tick.
     pub underflow: Underflow,
@@ -192,6 +114,8 @@ pub struct Config {
     /// ([`Playout::ADAPTIVE`], the default of [`Config::new`]), in the
     /// paper's FIFO ([`Playout::Fifo`], that of [`Config::paper`]), or by
     /// another [`Playout`]. Each side chooses its own; the peer is not told.
+    /// Set it with `mode` through [`Config::with_regulation`]; set the two
+    /// fields apart only for a pairing no [`Regulation`] names.
     pub playout: Playout,
     /// The sizing laws (η, `T_min`).
     pub sizing: Sizing,
@@ -253,6 +177,22 @@ impl Config {
             adaptation: Adaptation::default(),
             predictor: PredictorConfig::paper(period),
         }
+    }
+
+    /// This configuration regulated by `regulation` (its `mode` and
+    /// `playout`).
+    #[must_use]
+    pub fn with_regulation(mut self, regulation: Regulation) -> Self {
+        self.mode = regulation.mode();
+        self.playout = regulation.playout();
+        self
+    }
+
+    /// How this side regulates the delay, `None` for the pairing no
+    /// regulation names ([`Regulation::of`]).
+    #[must_use]
+    pub fn regulation(&self) -> Option<Regulation> {
+        Regulation::of(self.mode, self.playout)
     }
 
     /// Checks the values that do not depend on the queue's capacity.

@@ -28,6 +28,7 @@ use std::string::String;
 use std::vec::Vec;
 
 use ndr_core::playout::Playout;
+use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use serde::Serialize;
 
@@ -176,13 +177,13 @@ pub type Runs = BTreeMap<u32, Option<(f64, f64)>>;
 pub type SeedMatches = (Vec<Option<MatchedSeed>>, Runs);
 
 /// The quantum of the adaptive policy the matched comparison searches: that
-/// of the first `adaptive` among `policies` (`None`, the default, if it
-/// asks for none or there is none), so that `--policy adaptive:0.1:10
-/// --matched` matches the policy asked for.
+/// of the first `adaptive` among `regulations` (`None`, the default, if it
+/// asks for none or there is none), so that `--regulation adaptive:0.1:10
+/// --matched` matches the regulation asked for.
 #[must_use]
-pub fn matched_quantum(policies: &[super::Policy]) -> Option<Duration> {
-    policies.iter().find_map(|p| match *p {
-        super::Policy::Target(Playout::Adaptive { quantum, .. }) => Some(quantum),
+pub fn matched_quantum(regulations: &[Regulation]) -> Option<Duration> {
+    regulations.iter().find_map(|p| match *p {
+        Regulation::Target(Playout::Adaptive { quantum, .. }) => Some(quantum),
         _ => None,
     })?
 }
@@ -196,7 +197,7 @@ fn adaptive_run(
     times: (Duration, Duration),
     quantum: Option<Duration>,
 ) -> Option<(f64, f64)> {
-    let p = super::Policy::Target(Playout::Adaptive {
+    let p = Regulation::Target(Playout::Adaptive {
         epsilon_ppm,
         quantum,
     });
@@ -281,7 +282,7 @@ impl Matched {
     }
 }
 
-/// The matched comparison against every paper mode of `cfg.policies`, from
+/// The matched comparison against every paper mode of `cfg.regulations`, from
 /// the paper runs among `outcomes` (`jobs`' outcomes); families in order,
 /// then paper modes in the order asked.
 pub(super) fn match_all(
@@ -289,14 +290,14 @@ pub(super) fn match_all(
     jobs: &[super::Job],
     outcomes: &[Option<super::Outcome>],
 ) -> Vec<Matched> {
-    let quantum = matched_quantum(&cfg.policies);
-    let mut papers: Vec<super::Policy> = Vec::new();
-    for &p in &cfg.policies {
-        if matches!(p, super::Policy::Paper(_)) && !papers.contains(&p) {
+    let quantum = matched_quantum(&cfg.regulations);
+    let mut papers: Vec<Regulation> = Vec::new();
+    for &p in &cfg.regulations {
+        if p.is_paper() && !papers.contains(&p) {
             papers.push(p);
         }
     }
-    let paper_run = |f: usize, seed: u64, p: super::Policy| {
+    let paper_run = |f: usize, seed: u64, p: Regulation| {
         jobs.iter()
             .zip(outcomes)
             .find(|((jf, jp, js), _)| *jf == f && *jp == p && *js == seed)
@@ -347,7 +348,7 @@ pub(super) fn match_all(
             let one = one_epsilon(cfg, family, &matched, &mut runs);
             out.push(Matched::of(
                 family.name.clone(),
-                p.name(),
+                p.to_string(),
                 matched,
                 failed,
                 one,
@@ -379,7 +380,7 @@ fn one_epsilon(
     let limit = matched.iter().map(|m| m.paper_late_rate).sum::<f64>() / n;
     let paper_delay = matched.iter().map(|m| m.paper_delay_s).sum::<f64>() / n;
     let times = (cfg.period, cfg.window);
-    let quantum = matched_quantum(&cfg.policies);
+    let quantum = matched_quantum(&cfg.regulations);
     let mut at = |ppm: u32| -> Option<Vec<(f64, f64)>> {
         let missing: Vec<u64> = matched
             .iter()

@@ -37,6 +37,7 @@ use std::vec::Vec;
 
 use ndr_core::endpoint::{Mode, Underflow, delay_quantum, delay_quantum_for};
 use ndr_core::playout::{DEFAULT_FIXED_LATENCY, Playout};
+use ndr_core::regulation::Regulation;
 use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
 
@@ -64,55 +65,35 @@ pub const DEFAULT_EPSILON: f64 = 0.01;
 /// The piecewise oracle's window.
 pub const DEFAULT_WINDOW: Duration = Duration::from_secs(10);
 /// The version of the JSON report's layout.
-pub const SCHEMA: &str = "ndr-compare/1";
+pub const SCHEMA: &str = "ndr-compare/2";
 
-/// A playout policy under comparison.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Policy {
-    /// The paper's FIFO in one of its modes.
-    Paper(Mode),
-    /// A target-delay playout (the paper's static mode runs the protocol).
-    Target(Playout),
-}
+/// The regulations `ndr compare` runs by default: the paper's two modes,
+/// the classic target-delay playouts, and ndr's adaptive one.
+pub const DEFAULT_REGULATIONS: [Regulation; 7] = [
+    Regulation::PaperStatic,
+    Regulation::PaperDynamic,
+    Regulation::Target(Playout::Ramjee1),
+    Regulation::Target(Playout::Ramjee4),
+    Regulation::Target(Playout::NetEq),
+    Regulation::Target(Playout::FixedAboveMin {
+        latency: DEFAULT_FIXED_LATENCY,
+    }),
+    Regulation::ADAPTIVE,
+];
 
-impl Policy {
-    /// The policies `ndr compare` runs by default.
-    pub const ALL: [Policy; 7] = [
-        Policy::Paper(Mode::PaperStatic),
-        Policy::Paper(Mode::PaperDynamic),
-        Policy::Target(Playout::Ramjee1),
-        Policy::Target(Playout::Ramjee4),
-        Policy::Target(Playout::NetEq),
-        Policy::Target(Playout::FixedAboveMin {
-            latency: DEFAULT_FIXED_LATENCY,
-        }),
-        Policy::Target(Playout::ADAPTIVE),
-    ];
-
-    /// Its name in reports: `paper-static`, `ramjee-1`, `fixed:200`...
-    #[must_use]
-    pub fn name(self) -> String {
-        match self {
-            Policy::Paper(m) => m.name().to_string(),
-            Policy::Target(p) => p.to_string(),
-        }
-    }
-
-    fn mode_playout(self) -> (Mode, Playout) {
-        match self {
-            Policy::Paper(m) => (m, Playout::Fifo),
-            Policy::Target(p) => (Mode::PaperStatic, p),
-        }
-    }
-}
+/// The regulation under comparison: the name the harness used before the
+/// crates shared one vocabulary.
+#[deprecated(note = "use ndr_core::Regulation (`Paper(mode)` is `PaperStatic` or \
+                     `PaperDynamic`, `Target(p)` is `Target(p)`)")]
+pub type Policy = Regulation;
 
 /// What to compare.
 #[derive(Clone, Debug)]
 pub struct CompareConfig {
     /// The families of traces.
     pub families: Vec<Family>,
-    /// The policies.
-    pub policies: Vec<Policy>,
+    /// The regulations, in the order of the report.
+    pub regulations: Vec<Regulation>,
     /// Seeds `1..=seeds` for seeded families.
     pub seeds: u64,
     /// The period.
@@ -135,12 +116,12 @@ pub struct CompareConfig {
 }
 
 impl CompareConfig {
-    /// Every policy on `families`, 10 seeds, `T = 20 ms`, two threads.
+    /// Every default regulation on `families`, 10 seeds, `T = 20 ms`, two threads.
     #[must_use]
     pub fn new(families: Vec<Family>) -> Self {
         CompareConfig {
             families,
-            policies: Policy::ALL.to_vec(),
+            regulations: DEFAULT_REGULATIONS.to_vec(),
             seeds: 10,
             period: COMPARE_PERIOD,
             epsilon: DEFAULT_EPSILON,
@@ -292,10 +273,10 @@ fn ratio(a: f64, b: f64) -> f64 {
     if b > 0.0 { a / b } else { 1.0 }
 }
 
-/// A run measured: the policy's metrics, and the trace's oracle.
+/// A run measured: the regulation's metrics, and the trace's oracle.
 #[derive(Clone, Debug)]
 pub struct Measured {
-    /// The policy's metrics.
+    /// The regulation's metrics.
     pub metrics: RunMetrics,
     /// The oracle of the run's own trace.
     pub oracle: Oracle,
@@ -356,7 +337,7 @@ pub fn measure(
     }
 }
 
-/// The metrics of an oracle's point on a trace (as a policy's row).
+/// The metrics of an oracle's point on a trace (as a regulation's row).
 fn oracle_metrics(o: &OraclePoint, samples: usize, family: &Family) -> RunMetrics {
     let lost = (o.late_rate * samples as f64).round();
     RunMetrics {
@@ -375,11 +356,16 @@ fn oracle_metrics(o: &OraclePoint, samples: usize, family: &Family) -> RunMetric
     }
 }
 
-/// The simulation of one policy on one family and seed, dropping late
+/// The simulation of one regulation on one family and seed, dropping late
 /// samples (the comparison's default).
 #[must_use]
-pub fn sim_config(family: &Family, policy: Policy, seed: u64, period: Duration) -> SimConfig {
-    sim_config_under(family, policy, seed, period, Underflow::DropLate)
+pub fn sim_config(
+    family: &Family,
+    regulation: Regulation,
+    seed: u64,
+    period: Duration,
+) -> SimConfig {
+    sim_config_under(family, regulation, seed, period, Underflow::DropLate)
 }
 
 /// [`sim_config`] under the given [`Underflow`] policy (`hold`: the paper's
@@ -388,15 +374,14 @@ pub fn sim_config(family: &Family, policy: Policy, seed: u64, period: Duration) 
 #[must_use]
 pub fn sim_config_under(
     family: &Family,
-    policy: Policy,
+    regulation: Regulation,
     seed: u64,
     period: Duration,
     underflow: Underflow,
 ) -> SimConfig {
     let mut cfg = SimConfig::paper(family.model.clone());
-    let (mode, playout) = policy.mode_playout();
-    cfg.mode = mode;
-    cfg.playout = playout;
+    cfg.mode = regulation.mode();
+    cfg.playout = regulation.playout();
     cfg.underflow = underflow;
     cfg.period = period;
     cfg.duration = family.duration;
@@ -406,18 +391,18 @@ pub fn sim_config_under(
     cfg
 }
 
-/// Runs and measures one policy on one family and seed.
+/// Runs and measures one regulation on one family and seed.
 ///
 /// # Errors
 ///
 /// The simulator's error, as text.
 pub fn run_one(
     family: &Family,
-    policy: Policy,
+    regulation: Regulation,
     seed: u64,
     times: (Duration, Duration),
 ) -> Result<Measured, String> {
-    run_one_under(family, policy, seed, times, Underflow::DropLate)
+    run_one_under(family, regulation, seed, times, Underflow::DropLate)
 }
 
 /// [`run_one`] under the given [`Underflow`] policy.
@@ -427,12 +412,12 @@ pub fn run_one(
 /// The simulator's error, as text.
 pub fn run_one_under(
     family: &Family,
-    policy: Policy,
+    regulation: Regulation,
     seed: u64,
     (period, window): (Duration, Duration),
     underflow: Underflow,
 ) -> Result<Measured, String> {
-    let cfg = sim_config_under(family, policy, seed, period, underflow);
+    let cfg = sim_config_under(family, regulation, seed, period, underflow);
     let out = run(&cfg).map_err(|e| e.to_string())?;
     Ok(measure(
         &out.forward,
@@ -451,11 +436,11 @@ pub struct Point {
     pub late_rate: f64,
 }
 
-/// A policy's (or an oracle's) results on one family.
+/// A regulation's (or an oracle's) results on one family.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct PolicyResult {
+pub struct RegulationResult {
     /// Its name.
-    pub policy: String,
+    pub regulation: String,
     /// Runs measured.
     pub runs: usize,
     /// Runs that failed (their errors in the report's notes).
@@ -488,8 +473,12 @@ pub struct PolicyResult {
     pub point: Point,
 }
 
-impl PolicyResult {
-    fn of(policy: String, runs: &[RunMetrics], failed: usize) -> Self {
+/// A regulation's results, under the name the harness used before.
+#[deprecated(note = "use RegulationResult (its `policy` is now `regulation`)")]
+pub type PolicyResult = RegulationResult;
+
+impl RegulationResult {
+    fn of(regulation: String, runs: &[RunMetrics], failed: usize) -> Self {
         let stat =
             |f: &dyn Fn(&RunMetrics) -> f64| Stat::of(&runs.iter().map(f).collect::<Vec<f64>>());
         let recovery: Vec<f64> = runs
@@ -499,8 +488,8 @@ impl PolicyResult {
             .collect();
         let mean_delay_s = stat(&|r| r.mean_delay_s);
         let late_rate = stat(&|r| r.late_rate);
-        PolicyResult {
-            policy,
+        RegulationResult {
+            regulation,
             runs: runs.len(),
             failed,
             mean_delay_s,
@@ -522,7 +511,7 @@ impl PolicyResult {
     }
 }
 
-/// Every policy's results on one family.
+/// Every regulation's results on one family.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FamilyResult {
     /// The family's name.
@@ -531,13 +520,13 @@ pub struct FamilyResult {
     pub description: String,
     /// Simulated time per run, s.
     pub duration_s: f64,
-    /// Runs per policy (seeds).
+    /// Runs per regulation (seeds).
     pub seeds: u64,
     /// Onsets of the events whose recovery is measured, s.
     pub events_s: Vec<f64>,
-    /// The policies, in the order asked, then `oracle` and
+    /// The regulations, in the order asked, then `oracle` and
     /// `oracle-piecewise` at the report's `epsilon`.
-    pub policies: Vec<PolicyResult>,
+    pub regulations: Vec<RegulationResult>,
 }
 
 /// The whole comparison: what `ndr compare --json` prints.
@@ -557,8 +546,8 @@ pub struct CompareReport {
     pub window_s: f64,
     /// Commands sent in the last `margin_s` of a run are not measured.
     pub margin_s: f64,
-    /// The policies' names, in order (the oracles excluded).
-    pub policies: Vec<String>,
+    /// The regulations' names, in order (the oracles excluded).
+    pub regulations: Vec<String>,
     /// One entry per family.
     pub families: Vec<FamilyResult>,
     /// The late-rate-matched comparison ([`CompareConfig::matched`]): per
@@ -570,19 +559,23 @@ pub struct CompareReport {
     pub notes: Vec<String>,
 }
 
-type Job = (usize, Policy, u64);
+type Job = (usize, Regulation, u64);
 type Outcome = Result<(RunMetrics, Option<[RunMetrics; 2]>), String>;
 
-fn job_outcome(cfg: &CompareConfig, (f, policy, seed): Job, oracle_of: Option<Policy>) -> Outcome {
+fn job_outcome(
+    cfg: &CompareConfig,
+    (f, regulation, seed): Job,
+    oracle_of: Option<Regulation>,
+) -> Outcome {
     let family = cfg.families.get(f).ok_or("no such family")?;
     let m = run_one_under(
         family,
-        policy,
+        regulation,
         seed,
         (cfg.period, cfg.window),
         cfg.underflow,
     )?;
-    let oracles = (oracle_of == Some(policy)).then(|| {
+    let oracles = (oracle_of == Some(regulation)).then(|| {
         let n = m.oracle.len();
         [
             oracle_metrics(&m.oracle.constant(cfg.epsilon), n, family),
@@ -640,17 +633,17 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
     // The oracle rows come from a static-mode run: its trace is the one
     // every target policy saw.
     let oracle_of = cfg
-        .policies
+        .regulations
         .iter()
         .copied()
-        .find(|p| p.mode_playout().0 == Mode::PaperStatic)
-        .or(cfg.policies.first().copied());
+        .find(|r| r.mode() == Mode::PaperStatic)
+        .or(cfg.regulations.first().copied());
     let mut jobs: Vec<Job> = Vec::new();
     for (f, family) in cfg.families.iter().enumerate() {
         let seeds = if family.seeded { cfg.seeds.max(1) } else { 1 };
         for seed in 1..=seeds {
-            for &p in &cfg.policies {
-                jobs.push((f, p, seed));
+            for &r in &cfg.regulations {
+                jobs.push((f, r, seed));
             }
         }
     }
@@ -677,10 +670,10 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
                 .to_string(),
         );
     }
-    if cfg.matched && !cfg.policies.iter().any(|p| matches!(p, Policy::Paper(_))) {
-        notes.push("--matched: no paper mode among the policies, nothing matched".to_string());
+    if cfg.matched && !cfg.regulations.iter().any(|r| r.is_paper()) {
+        notes.push("--matched: no paper mode among the regulations, nothing matched".to_string());
     }
-    if let (true, Some(q)) = (matching, matched::matched_quantum(&cfg.policies)) {
+    if let (true, Some(q)) = (matching, matched::matched_quantum(&cfg.regulations)) {
         notes.push(std::format!(
             "--matched: the adaptive policy searched is the first one asked for, its delay in \
              steps of {:.3} ms",
@@ -692,14 +685,14 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
         .iter()
         .enumerate()
         .map(|(f, family)| {
-            let of_family = |p: Policy| {
+            let of_family = |p: Regulation| {
                 jobs.iter()
                     .zip(&outcomes)
                     .filter(move |((jf, jp, _), _)| *jf == f && *jp == p)
             };
-            let mut policies = Vec::new();
+            let mut regulations = Vec::new();
             let mut oracle_rows: [Vec<RunMetrics>; 2] = [Vec::new(), Vec::new()];
-            for &p in &cfg.policies {
+            for &p in &cfg.regulations {
                 let mut runs = Vec::new();
                 let mut failed = 0;
                 for ((_, _, seed), o) in of_family(p) {
@@ -713,19 +706,15 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
                         }
                         Some(Err(e)) => {
                             failed += 1;
-                            notes.push(std::format!(
-                                "{} / {} / seed {seed}: {e}",
-                                family.name,
-                                p.name()
-                            ));
+                            notes.push(std::format!("{} / {} / seed {seed}: {e}", family.name, p));
                         }
                         None => failed += 1,
                     }
                 }
-                policies.push(PolicyResult::of(p.name(), &runs, failed));
+                regulations.push(RegulationResult::of(p.to_string(), &runs, failed));
             }
             for (name, runs) in ["oracle", "oracle-piecewise"].iter().zip(&oracle_rows) {
-                policies.push(PolicyResult::of(name.to_string(), runs, 0));
+                regulations.push(RegulationResult::of(name.to_string(), runs, 0));
             }
             FamilyResult {
                 name: family.name.clone(),
@@ -733,7 +722,7 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
                 duration_s: family.duration.as_secs_f64(),
                 seeds: if family.seeded { cfg.seeds.max(1) } else { 1 },
                 events_s: family.events_s.clone(),
-                policies,
+                regulations,
             }
         })
         .collect();
@@ -745,7 +734,7 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
         underflow: cfg.underflow.name(),
         window_s: cfg.window.as_secs_f64(),
         margin_s: MARGIN.as_secs_f64(),
-        policies: cfg.policies.iter().map(|p| p.name()).collect(),
+        regulations: cfg.regulations.iter().map(ToString::to_string).collect(),
         families,
         matched,
         notes,
