@@ -1,6 +1,6 @@
 //! Costs of the paper's building blocks: the NDR queue, the Kalman filter and
-//! the whole network predictor. Targets (issue 2): ≤ 10 ns, ≤ 50 ns, ≤ 300 ns.
-//! And of the adaptive playout's target (issue 7): one delay observed, per
+//! the whole network predictor. Targets: ≤ 10 ns, ≤ 50 ns, ≤ 300 ns.
+//! And of the adaptive playout's target: one delay observed, per
 //! received sample.
 
 use std::hint::black_box;

@@ -246,3 +246,15 @@ fn the_old_mode_and_playout_flags_still_run_and_name_the_regulation() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("give --regulation alone"));
 }
+
+#[test]
+fn help_lists_the_names_each_option_takes() {
+    for command in ["sim", "demo", "base", "remote"] {
+        let out = ndr(&[command, "--help"]);
+        assert!(out.status.success(), "{command}");
+        let help = String::from_utf8_lossy(&out.stdout);
+        for name in ["drop-late", "paper-dynamic", "adaptive[:PERCENT"] {
+            assert!(help.contains(name), "{command} --help lacks {name}: {help}");
+        }
+    }
+}

@@ -86,7 +86,7 @@ CASES = [
     (lambda: ndr.rls_filter(np.ones(3), np.ones(3)), ValueError, "2-D array"),
     (lambda: ndr.rls_filter(np.ones(3), np.ones((3, 9))), ValueError, "1 <= n <= 8"),
     (lambda: ndr.rls_filter(np.ones(3), np.ones((3, 0))), ValueError, "1 <= n <= 8"),
-    (lambda: ndr.rls_filter(np.ones(3), np.ones((3, 2, 1))), ValueError, "3 axes"),
+    (lambda: ndr.rls_filter(np.ones(3), np.ones((3, 2, 1))), ValueError, "3 dimensions"),
     (lambda: ndr.rls_filter([1, NAN, 2], np.ones((3, 2))), ValueError, "d[1] is nan"),
     (lambda: ndr.rls_filter(np.ones(3), np.full((3, 2), NAN)), ValueError, "x[0, 0] is nan"),
     # Tf2, Tf2State, Arx2, Estimator
@@ -129,14 +129,19 @@ CASES = [
     (lambda: ndr.lowpass([1.0, NAN], 1.0, 0.2), ValueError, "x[1] is nan"),
     (lambda: ndr.lowpass(["a"], 1.0, 0.2), ValueError, "float64"),
     (lambda: ndr.envelope(np.zeros(3), decay=NAN), ValueError, "decay"),
-    (lambda: ndr.kalman3_filter(np.zeros((2, 2)), period=0.2), ValueError, "(2 axes)"),
-    (lambda: ndr.kalman3_filter(np.float64(1.0), period=0.2), ValueError, "(0 axes)"),
+    (lambda: ndr.kalman3_filter(np.zeros((2, 2)), period=0.2), ValueError, "(2 dimensions)"),
+    (lambda: ndr.kalman3_filter(np.float64(1.0), period=0.2), ValueError, "(0 dimensions)"),
     (lambda: ndr.kalman3_filter(np.array(["1"]), period=0.2), ValueError, "float64"),
     (lambda: ndr.kalman3_filter(np.array([1, None]), period=0.2), ValueError, "object"),
     (lambda: ndr.kalman3_filter([0.0, math.inf], period=0.2), ValueError, "z[1] is inf"),
     (lambda: ndr.kalman3_filter([0.0], period=-1.0), ValueError, "period"),
     (lambda: ndr.kalman3_filter([0.0], period=0.2, x0=[1.0]), ValueError, "x: expected"),
     (lambda: ndr.kalman3_filter([0.0], 0.2), TypeError, "positional"),  # type: ignore[call-arg]
+    # Sizing: the shape named, a period under a nanosecond called that, a huge
+    # value written in scientific notation.
+    (lambda: ndr.init_stats(np.ones((2, 2))), ValueError, "got shape (2, 2) (2 dimensions)"),
+    (lambda: ndr.nominal_size(0.1, 1e-10), ValueError, "at least 1 ns), got 1e-10"),
+    (lambda: ndr.nominal_size(0.1, 1e300), ValueError, "period = 1e300 s is too long"),
     # A link's settings are refused before it dials.
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="adaptive:0.1:0.5"), ValueError, "QUANTUM_MS"),
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="lifo"), ValueError, "regulation"),

@@ -5,12 +5,10 @@
 //! deadline, then spins. The margin must cover the sleep's overshoot (the
 //! timer slack plus the wake-up latency), or the release is late; anything
 //! beyond that is a spin that burns CPU for nothing. The overshoot depends
-//! on the machine and its load: on the project's 2-core VM, with a 1 µs
-//! timer slack, it is about 30 µs at the median and 60 µs at p99 when the
-//! machine is quiet, and milliseconds when it is loaded (the scheduler's
-//! tail, which no margin shortens). A fixed 200 µs margin costs a 1 kHz
-//! clock 19 % of a core, and 50 µs kept the same p99 lateness for 4 %
-//! (`benches/release_clock.rs`).
+//! on the machine and its load: tens of microseconds on a quiet machine
+//! with a 1 µs timer slack, milliseconds on a loaded one (the scheduler's
+//! tail, which no margin shortens); what a fixed margin and a learned one
+//! cost and give is in docs/benchmarks.md, "Release clock".
 //!
 //! [`SpinMargin`] therefore keeps the margin at a high quantile of the
 //! overshoots it has seen, with a cushion, between [`MIN_SPIN_MARGIN`] and

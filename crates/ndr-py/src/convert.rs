@@ -23,16 +23,30 @@ pub fn value_error(e: impl Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
+/// A number as a message shows it: in scientific notation when very large
+/// or very small (`1e300`, not 301 digits; `1e-10`, not ten zeros), as
+/// written otherwise.
+pub fn shown(value: f64) -> String {
+    let size = value.abs();
+    if value.is_finite() && (size >= 1e15 || (size > 0.0 && size < 1e-4)) {
+        format!("{value:e}")
+    } else {
+        format!("{value}")
+    }
+}
+
 /// A duration in seconds from Python, refusing what cannot be one.
 pub fn seconds(name: &str, value: f64) -> PyResult<Duration> {
     if !value.is_finite() || value < 0.0 {
         return Err(PyValueError::new_err(format!(
-            "{name} must be a finite, non-negative number of seconds, got {value}"
+            "{name} must be a finite, non-negative number of seconds, got {}",
+            shown(value)
         )));
     }
     if value > u64::MAX as f64 / 1e9 {
         return Err(PyValueError::new_err(format!(
-            "{name} = {value} s is too long: durations are integer nanoseconds up to about 584 years"
+            "{name} = {} s is too long: durations are integer nanoseconds up to about 584 years",
+            shown(value)
         )));
     }
     Ok(Duration::from_secs_f64(value))
@@ -43,7 +57,8 @@ pub fn period(name: &str, value: f64) -> PyResult<Duration> {
     let d = seconds(name, value)?;
     if d.is_zero() {
         return Err(PyValueError::new_err(format!(
-            "{name} must be a positive number of seconds (at least 1 ns), got {value}"
+            "{name} must be a positive number of seconds (at least 1 ns), got {}",
+            shown(value)
         )));
     }
     Ok(d)
@@ -55,7 +70,8 @@ pub fn finite(name: &str, value: f64) -> PyResult<f64> {
         Ok(value)
     } else {
         Err(PyValueError::new_err(format!(
-            "{name} must be a finite number, got {value}"
+            "{name} must be a finite number, got {}",
+            shown(value)
         )))
     }
 }
@@ -170,11 +186,13 @@ fn float_array<'py>(
         .map_err(|_| PyValueError::new_err(format!("{name}: expected {expected} of float64")))
 }
 
-fn axes(n: usize) -> String {
+/// An array's number of dimensions, in words that cannot be taken for the
+/// link's axes (numpy calls both "axes").
+fn dimensions(n: usize) -> String {
     if n == 1 {
-        "1 axis".to_owned()
+        "1 dimension".to_owned()
     } else {
-        format!("{n} axes")
+        format!("{n} dimensions")
     }
 }
 
@@ -266,7 +284,7 @@ pub fn vector_with_nan(
             return Err(PyValueError::new_err(format!(
                 "{name}: expected {expected}, got shape {} ({})",
                 shape_str(shape),
-                axes(shape.len())
+                dimensions(shape.len())
             )));
         }
     }
@@ -305,7 +323,7 @@ pub fn matrix(
         return Err(PyValueError::new_err(format!(
             "{name}: expected {expected}, got shape {} ({})",
             shape_str(shape),
-            axes(shape.len())
+            dimensions(shape.len())
         )));
     }
     let (r, c) = (shape[0], shape[1]);

@@ -57,10 +57,7 @@ fn sizing_law(eta: f64, min_period: f64) -> PyResult<Sizing> {
 #[pyfunction]
 #[pyo3(signature = (mt, period, *, eta = sizing::DEFAULT_ETA), text_signature = "(mt, period, *, eta=1.3)")]
 fn nominal_size(mt: f64, period: f64, eta: f64) -> PyResult<usize> {
-    let period = seconds("period", period)?;
-    if period.is_zero() {
-        return Err(PyValueError::new_err("period must be positive"));
-    }
+    let period = convert::period("period", period)?;
     Ok(sizing_law(eta, 0.05)?.nominal_size(seconds("mt", mt)?, period))
 }
 
@@ -74,7 +71,8 @@ fn period_law(nrtt: f64, min_period: f64) -> PyResult<f64> {
 
 /// Statistics of an initialization pattern: `(nrtt_min, nrtt_max, nrtt_mean, mt)`.
 #[pyfunction]
-fn init_stats(nrtt: Vec<f64>) -> PyResult<(f64, f64, f64, f64)> {
+fn init_stats(nrtt: &Bound<'_, PyAny>) -> PyResult<(f64, f64, f64, f64)> {
+    let nrtt = convert::vector("nrtt", nrtt, None)?;
     let mut pattern: InitPattern<{ sizing::INIT_EXCHANGES }> = InitPattern::new();
     for (i, &x) in nrtt.iter().enumerate() {
         pattern

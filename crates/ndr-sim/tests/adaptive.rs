@@ -1,4 +1,4 @@
-//! The adaptive playout (issue 7) in simulated time: the clock estimate
+//! The adaptive playout in simulated time: the clock estimate
 //! against the simulator's true skew and offset, the delay against the
 //! oracle, the late rate near its target, no pause, an event per change.
 

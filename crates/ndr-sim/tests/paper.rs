@@ -1,4 +1,4 @@
-//! The paper's results, reproduced in the simulator (issue 3's bands).
+//! The paper's results, reproduced in the simulator, within bands.
 
 use ndr_core::endpoint::Mode;
 use ndr_core::time::Duration;

@@ -38,7 +38,10 @@ pub struct LinkArgs {
     /// Deprecated: --regulation (the same names; fifo is paper-static).
     #[arg(long, hide = true)]
     pub playout: Option<Playout>,
-    /// The regulator's policy when a sample is missing at its tick.
+    /// What a tick does when its sample has not arrived: hold (the default:
+    /// repeat the last sample and keep every one; the paper's FIFO then
+    /// releases the late one a tick later) or drop-late (keep the delay
+    /// constant: a sample that missed its tick is dropped and counted).
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
     /// Sampling period, in ms (50: the paper's choice for its LAN).
@@ -205,6 +208,13 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let model = args.net.model("lan-75km")?;
     let profile = model.name();
     let mut series = Series::create(&args.run.out)?;
+    if !args.run.json {
+        // Said up front: the file lands in the current directory by default.
+        eprintln!(
+            "ndr demo: the base's series goes to {} (--out to change it)",
+            args.run.out.display()
+        );
+    }
     let rt = runtime()?;
     let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
     let set_up = rt.block_on(async {

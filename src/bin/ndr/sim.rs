@@ -90,7 +90,10 @@ pub struct SimArgs {
     /// Deprecated: --regulation (paper-static or paper-dynamic).
     #[arg(long, hide = true)]
     pub mode: Option<Mode>,
-    /// Both regulators' policy when a sample is missing at its tick.
+    /// What both regulators do at a tick whose sample has not arrived: hold
+    /// (the default: repeat the last sample and keep every one) or drop-late
+    /// (keep the delay constant: a sample that missed its tick is dropped
+    /// and counted).
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
     /// Deprecated: --regulation (the same names; fifo is paper-static).

@@ -63,7 +63,7 @@ pub enum Playout {
         /// The target.
         delay: Duration,
     },
-    /// Timestamp-based (issue 7): each sample is released at its send time,
+    /// Timestamp-based: each sample is released at its send time,
     /// mapped to the local clock by the offset and skew estimate
     /// ([`ClockSync`](crate::sync::ClockSync)), plus the `1 − ε` quantile of
     /// the delays above the floor over the last 90–120 s; the target slews
