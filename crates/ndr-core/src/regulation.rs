@@ -154,6 +154,13 @@ impl Regulation {
         }
     }
 
+    /// How reports name `mode` with `playout`: the regulation's name, or
+    /// `MODE with PLAYOUT` for the pairing no regulation names.
+    #[must_use]
+    pub const fn name_of(mode: Mode, playout: Playout) -> PairingName {
+        PairingName { mode, playout }
+    }
+
     /// The mode it states in the Hello.
     #[must_use]
     pub const fn mode(self) -> Mode {
@@ -184,6 +191,23 @@ impl fmt::Display for Regulation {
         match Regulation::of(self.mode(), self.playout()) {
             Some(Regulation::Target(p)) => write!(f, "{p}"),
             _ => f.write_str(self.mode().name()),
+        }
+    }
+}
+
+/// Displays a mode and playout as reports name them
+/// ([`Regulation::name_of`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PairingName {
+    mode: Mode,
+    playout: Playout,
+}
+
+impl fmt::Display for PairingName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match Regulation::of(self.mode, self.playout) {
+            Some(r) => write!(f, "{r}"),
+            None => write!(f, "{} with {}", self.mode, self.playout),
         }
     }
 }
@@ -281,6 +305,10 @@ mod tests {
             assert_eq!(Regulation::of(mode, playout), Some(r));
         }
         assert_eq!(Regulation::of(Mode::PaperDynamic, Playout::ADAPTIVE), None);
+        let unnamed = Regulation::name_of(Mode::PaperDynamic, Playout::ADAPTIVE);
+        assert_eq!(unnamed.to_string(), "paper-dynamic with adaptive");
+        let named = Regulation::name_of(Mode::PaperStatic, Playout::NetEq);
+        assert_eq!(named.to_string(), "neteq");
         assert_eq!(Regulation::default(), Regulation::ADAPTIVE);
     }
 

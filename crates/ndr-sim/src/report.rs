@@ -395,10 +395,7 @@ impl Collector {
             delay_events_fwd: self.delay_events_fwd,
             playout_delay_fwd_s: rs.playout_delay_s,
             profile: cfg.model.name(),
-            regulation: ndr_core::Regulation::of(cfg.mode, cfg.playout).map_or_else(
-                || std::format!("{} with {}", cfg.mode, cfg.playout),
-                |r| std::format!("{r}"),
-            ),
+            regulation: std::format!("{}", ndr_core::Regulation::name_of(cfg.mode, cfg.playout)),
             mode: String::from(cfg.mode.name()),
             underflow: String::from(cfg.underflow.name()),
             playout: std::format!("{}", cfg.playout),

@@ -98,7 +98,7 @@ impl LinkArgs {
     pub fn regulation_name(&self) -> String {
         self.asked().map_or_else(
             |_| String::new(),
-            |(mode, playout, _)| name_of(mode, playout),
+            |(mode, playout, _)| Regulation::name_of(mode, playout).to_string(),
         )
     }
 
@@ -118,11 +118,6 @@ impl LinkArgs {
             (None, Err(_)) => "",
         }
     }
-}
-
-fn name_of(mode: Mode, playout: Playout) -> String {
-    Regulation::of(mode, playout)
-        .map_or_else(|| format!("{mode} with {playout}"), |r| r.to_string())
 }
 
 /// `--mode`: a paper mode, or `adaptive`.
@@ -154,10 +149,7 @@ impl LinkMode {
 
 fn link_mode(s: &str) -> Result<LinkMode, String> {
     if s.trim() == "adaptive" {
-        return Ok(LinkMode {
-            mode: Mode::PaperStatic,
-            adaptive: true,
-        });
+        return Ok(LinkMode::ADAPTIVE);
     }
     s.parse::<Mode>()
         .map(|mode| LinkMode {
