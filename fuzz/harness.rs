@@ -14,10 +14,18 @@
 //!   only valid frames, its counters never go back, every received sample is
 //!   accounted for, a release never repeats a fresh sample or goes back (a
 //!   held one repeats the last fresh one), and once closed it stays closed.
+//! - [`pair`]: bytes as a script for a whole link, two endpoints on the
+//!   shared [`Pair`] (the simulator's and the endpoint tests' harness): the
+//!   configuration both share, the wire's delay each way, lost frames,
+//!   stopped processes, garbage and replayed frames, time steps and the
+//!   applications' calls. The same properties on both sides, and each
+//!   side's frames valid.
 
+use ndr_core::drive::{self, Turn};
 use ndr_core::endpoint::{
     Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Status, Underflow,
 };
+use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
@@ -26,6 +34,7 @@ use ndr_core::wire::{
     Payload, Role,
 };
 use ndr_net::Deframer;
+use std::convert::Infallible;
 
 /// Bytes as one frame, then as a stream.
 pub fn decode(data: &[u8]) {
@@ -127,44 +136,7 @@ pub fn endpoint(data: &[u8]) {
     } else {
         Role::Remote
     };
-    let mut cfg = Config::new(role);
-    cfg.axes = 1 + u16::from(input.byte() % 4);
-    cfg.period = Duration::from_millis(1 + u64::from(input.byte() % 50));
-    cfg.mode = if input.byte() & 1 == 0 {
-        Mode::PaperStatic
-    } else {
-        Mode::PaperDynamic
-    };
-    cfg.underflow = if input.byte() & 1 == 0 {
-        Underflow::Hold
-    } else {
-        Underflow::DropLate
-    };
-    // One byte picks the watchdog (its remainder by 3) and the playout policy.
-    let pick = input.byte();
-    cfg.playout = match pick / 3 % 8 {
-        0 => Playout::Ramjee1,
-        1 => Playout::Ramjee4,
-        2 => Playout::NetEq,
-        3 => Playout::FixedAboveMin {
-            latency: Duration::from_millis(u64::from(input.byte())),
-        },
-        4 => Playout::Constant {
-            delay: Duration::from_millis(u64::from(input.byte())),
-        },
-        5 => Playout::ADAPTIVE,
-        // A late rate and a step of its own (1 to 64 ms, against periods of
-        // 1 to 50 ms).
-        6 => Playout::Adaptive {
-            epsilon_ppm: 1 + u32::from(input.byte()) * 1000,
-            quantum: Some(Duration::from_millis(1 + u64::from(input.byte() % 64))),
-        },
-        _ => Playout::Fifo,
-    };
-    cfg.watchdog = match pick % 3 {
-        0 => None,
-        n => Some(cfg.period * u64::from(n) * 5),
-    };
+    let cfg = config(role, &mut input);
     let mut now = Instant::ZERO;
     let Ok(ep) = Ep::with_capacity(cfg, now, 64) else {
         return;
@@ -175,9 +147,8 @@ pub fn endpoint(data: &[u8]) {
         sent: None,
         period: cfg.period,
     };
-    let mut last_fresh = LastFresh::default();
-    let mut last = ep.stats();
-    let mut was_closed = false;
+    let mut checker = Checker::default();
+    let mut invariants = Invariants::new(&ep);
     let mut frame = [0u8; MAX_FRAME_LEN];
     while !input.is_empty() {
         match input.byte() % 9 {
@@ -283,16 +254,183 @@ pub fn endpoint(data: &[u8]) {
                 _ => ep.abort(LinkError::Disconnected),
             },
         }
-        drain(&mut ep, now, &mut frame, &mut last_fresh);
-        let stats = ep.stats();
-        counters_never_go_back(&last, &stats);
-        received_samples_are_accounted_for(&stats, ep.queue_len(), cfg.underflow);
-        if was_closed {
-            assert_eq!(ep.phase(), Phase::Closed, "a closed endpoint stays closed");
-            assert_eq!(ep.handle_frame(now, &frame[..0]), Err(LinkError::Closed));
+        checker.drain(&mut ep, now, &mut frame);
+        invariants.check(&mut ep, now);
+    }
+}
+
+/// A script for a whole link on the shared [`Pair`].
+pub fn pair(data: &[u8]) {
+    let _ = pair_stats(data);
+}
+
+/// [`pair`], and both sides' stats at the end (none if the script's
+/// configuration was refused).
+pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
+    let mut input = Input(data);
+    let cfg = config(Role::Base, &mut input);
+    let mut remote = cfg;
+    remote.role = Role::Remote;
+    // The remote's grid anywhere within a period of the base's.
+    remote.tick_origin = Instant::ZERO + cfg.period * u64::from(input.byte()) / 256;
+    let (Ok(base), Ok(remote)) = (
+        Ep::with_capacity(cfg, Instant::ZERO, 64),
+        Ep::with_capacity(remote, Instant::ZERO, 64),
+    ) else {
+        return None;
+    };
+    let world = Script {
+        delay: [Duration::from_millis(5); 2],
+        last: [Instant::ZERO; 2],
+        lose: [0; 2],
+        stopped: None,
+        checkers: [Checker::default(), Checker::default()],
+        sent: [Vec::new(), Vec::new()],
+    };
+    let mut invariants = [Invariants::new(&base), Invariants::new(&remote)];
+    let mut pair = Box::new(Pair::new(base, remote, world));
+    while !input.is_empty() {
+        let side = if input.byte() & 1 == 0 {
+            Role::Base
+        } else {
+            Role::Remote
+        };
+        match input.byte() % 8 {
+            // Time runs, up to 65 periods.
+            0..=2 => {
+                let until = pair.now() + cfg.period * u64::from(input.byte()) / 4;
+                let Ok(()) = pair.run_until(until);
+            }
+            // The wire from `side` takes 0 to 2.5 s from now on.
+            3 => {
+                pair.world.delay[side as usize] =
+                    Duration::from_millis(u64::from(input.u16()) % 2500)
+            }
+            // It loses its next frames (a datagram path).
+            4 => pair.world.lose[side as usize] = input.byte() % 8,
+            // `side`'s process stops for up to 6.4 s.
+            5 => {
+                let from = pair.now();
+                let to = from + Duration::from_millis(u64::from(input.byte()) * 25);
+                pair.world.stopped = Some((side, from, to));
+            }
+            // Bytes that are not the peer's: garbage, or its last frame again.
+            6 => {
+                let now = pair.now();
+                let bytes = if input.byte() & 1 == 0 {
+                    pair.world.sent[side.peer() as usize].clone()
+                } else {
+                    let n = usize::from(input.byte());
+                    input.take(n).to_vec()
+                };
+                let _ = pair.endpoint(side).handle_frame(now, &bytes);
+                let Ok(()) = pair.drain(side);
+            }
+            // The application's calls.
+            _ => {
+                let axes = usize::from(cfg.axes);
+                let ep = pair.endpoint(side);
+                match input.byte() % 4 {
+                    0 => {
+                        let _ = ep.set_sample(&[f64::NAN; 4][..axes]);
+                    }
+                    1 => {
+                        let _ = ep.set_sample(&[1.0; 5][..=axes]);
+                    }
+                    2 => ep.close(),
+                    _ => ep.abort(LinkError::Disconnected),
+                }
+                let Ok(()) = pair.drain(side);
+            }
         }
-        was_closed = ep.is_closed();
-        last = stats;
+        for side in [Role::Base, Role::Remote] {
+            let now = pair.now();
+            invariants[side as usize].check(pair.endpoint(side), now);
+        }
+    }
+    Some([pair.base.stats(), pair.remote.stats()])
+}
+
+/// The link's surroundings as the script sets them: each way an in-order
+/// wire of a constant delay that may lose frames, a side that may be
+/// stopped, and applications that check what they get and answer
+/// each release.
+struct Script {
+    delay: [Duration; 2],
+    last: [Instant; 2],
+    /// Frames each way still to lose.
+    lose: [u8; 2],
+    /// A side stopped from one instant to another.
+    stopped: Option<(Role, Instant, Instant)>,
+    checkers: [Checker; 2],
+    /// The last frame each side sent.
+    sent: [Vec<u8>; 2],
+}
+
+impl Script {
+    fn stop_end(&self, side: Role, t: Instant) -> Option<Instant> {
+        match self.stopped {
+            Some((s, from, to)) if s == side && t >= from && t < to => Some(to),
+            _ => None,
+        }
+    }
+}
+
+impl World<Heap> for Script {
+    type Error = Infallible;
+
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        let i = from as usize;
+        let Ok(()) = self.checkers[i].transmit(frame);
+        self.sent[i].clear();
+        self.sent[i].extend_from_slice(frame);
+        if self.lose[i] > 0 {
+            self.lose[i] -= 1;
+            return None;
+        }
+        let at = (sent + self.delay[i]).max(self.last[i]);
+        self.last[i] = at;
+        Some(at)
+    }
+
+    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
+        self.stop_end(side, deadline).unwrap_or(deadline)
+    }
+
+    fn read(&self, side: Role, arrived: Instant) -> Instant {
+        self.stop_end(side, arrived).unwrap_or(arrived)
+    }
+
+    fn stamp(&self, _: Role, arrived: Instant, _: Instant) -> Instant {
+        arrived
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut Ep,
+        _: Instant,
+        event: Event<Box<[f64]>>,
+    ) -> Result<(), Infallible> {
+        let answer = match &event {
+            Event::Released(r) => Some(r.values().to_vec()),
+            _ => None,
+        };
+        let Ok(()) = self.checkers[side as usize].event(ep, event);
+        // Each side answers a release with the values it released.
+        if let Some(values) = answer {
+            let _ = ep.set_sample(&values);
+        }
+        Ok(())
+    }
+
+    fn sample(&mut self, side: Role, ep: &mut Ep, _: Instant) -> Result<(), Infallible> {
+        self.checkers[side as usize].sample(ep)
+    }
+
+    fn failed(&mut self, _: Role, _: Instant, _: LinkError) -> Result<(), Infallible> {
+        // A refused frame ends the link; the invariants check what follows.
+        Ok(())
     }
 }
 
@@ -303,6 +441,50 @@ struct Peer {
     seq: u64,
     sent: Option<Instant>,
     period: Duration,
+}
+
+/// A configuration the input picks: axes, period, mode, underflow, playout
+/// policy and watchdog.
+fn config(role: Role, input: &mut Input<'_>) -> Config {
+    let mut cfg = Config::new(role);
+    cfg.axes = 1 + u16::from(input.byte() % 4);
+    cfg.period = Duration::from_millis(1 + u64::from(input.byte() % 50));
+    cfg.mode = if input.byte() & 1 == 0 {
+        Mode::PaperStatic
+    } else {
+        Mode::PaperDynamic
+    };
+    cfg.underflow = if input.byte() & 1 == 0 {
+        Underflow::Hold
+    } else {
+        Underflow::DropLate
+    };
+    // One byte picks the watchdog (its remainder by 3) and the playout policy.
+    let pick = input.byte();
+    cfg.playout = match pick / 3 % 8 {
+        0 => Playout::Ramjee1,
+        1 => Playout::Ramjee4,
+        2 => Playout::NetEq,
+        3 => Playout::FixedAboveMin {
+            latency: Duration::from_millis(u64::from(input.byte())),
+        },
+        4 => Playout::Constant {
+            delay: Duration::from_millis(u64::from(input.byte())),
+        },
+        5 => Playout::ADAPTIVE,
+        // A late rate and a step of its own (1 to 64 ms, against periods of
+        // 1 to 50 ms).
+        6 => Playout::Adaptive {
+            epsilon_ppm: 1 + u32::from(input.byte()) * 1000,
+            quantum: Some(Duration::from_millis(1 + u64::from(input.byte() % 64))),
+        },
+        _ => Playout::Fifo,
+    };
+    cfg.watchdog = match pick % 3 {
+        0 => None,
+        n => Some(cfg.period * u64::from(n) * 5),
+    };
+    cfg
 }
 
 /// Encodes `msg` from the peer, with header fields the input picks, and
@@ -354,66 +536,125 @@ fn send(
     }
 }
 
-/// The last fresh release seen, and whether no event was dropped since.
+/// What one side's driver checks of its endpoint's turn: every frame it
+/// writes is valid and round-trips; releases are finite, a fresh one never
+/// repeats or goes back, a held one repeats the last fresh one.
 #[derive(Default)]
-struct LastFresh {
+struct Checker {
+    /// The last fresh release seen.
     seq: Option<u64>,
+    /// Whether no event was dropped since it.
     exact: bool,
+    /// Whether events were dropped from the batch being drained.
+    cut: bool,
     /// The endpoint's dropped events, as last seen.
     dropped: u64,
+    /// Whether a batch of events is being drained.
+    open: bool,
 }
 
-/// Takes everything the endpoint has to send and to say, as a driver does.
-fn drain(ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN], last_fresh: &mut LastFresh) {
-    loop {
-        match ep.poll_transmit(now, buf) {
-            Ok(Some(n)) => {
-                let frame =
-                    Frame::new_checked(&buf[..n]).expect("the endpoint writes valid frames");
-                round_trip(&frame);
-            }
-            Ok(None) => break,
-            Err(e) => panic!("poll_transmit failed with a full-size buffer: {e}"),
+impl Checker {
+    /// Takes everything the endpoint has to say and to send, as a driver does.
+    fn drain(&mut self, ep: &mut Ep, now: Instant, buf: &mut [u8; MAX_FRAME_LEN]) {
+        let Ok(()) = drive::turn(ep, now, buf, self);
+    }
+
+    /// A batch of events starts. Events the endpoint had no room for (a
+    /// long time step runs many ticks): the queue kept the oldest, so what
+    /// comes here is a prefix, and until a fresh release comes in a whole
+    /// batch, a held one may repeat a fresh one not seen here.
+    fn begin(&mut self, ep: &Ep) {
+        if self.open {
+            return;
+        }
+        self.open = true;
+        self.cut = ep.events_dropped() != self.dropped;
+        self.dropped = ep.events_dropped();
+        if self.cut {
+            self.exact = false;
         }
     }
-    // Events the endpoint had no room for (a long time step runs many
-    // ticks): the queue kept the oldest, so what comes here is a prefix,
-    // and until a fresh release comes in a whole batch, a held one may
-    // repeat a fresh one not seen here.
-    let cut = ep.events_dropped() != last_fresh.dropped;
-    last_fresh.dropped = ep.events_dropped();
-    if cut {
-        last_fresh.exact = false;
-    }
-    while let Some(event) = ep.poll_event() {
-        if let Event::Released(r) = event {
-            assert!(r.values().len() <= 4);
-            assert!(
-                r.values().iter().all(|v| v.is_finite()),
-                "released values are finite"
-            );
-            match r.status {
-                Status::Fresh => {
-                    assert!(
-                        last_fresh.seq.is_none_or(|l| r.seq > l),
-                        "a fresh release after {:?} repeats or goes back: {}",
-                        last_fresh.seq,
-                        r.seq
-                    );
-                    last_fresh.seq = Some(r.seq);
-                    last_fresh.exact = !cut;
-                }
-                Status::Held if last_fresh.exact => assert_eq!(
-                    Some(r.seq),
-                    last_fresh.seq,
-                    "a held release repeats the last fresh one"
-                ),
-                Status::Held => assert!(
-                    last_fresh.seq.is_none_or(|l| r.seq >= l),
-                    "a held release repeats a fresh one at least as new as the last seen"
-                ),
+}
+
+impl Turn<Heap> for Checker {
+    type Error = Infallible;
+
+    fn event(&mut self, ep: &mut Ep, event: Event<Box<[f64]>>) -> Result<(), Infallible> {
+        self.begin(ep);
+        let Event::Released(r) = event else {
+            return Ok(());
+        };
+        assert!(r.values().len() <= 4);
+        assert!(
+            r.values().iter().all(|v| v.is_finite()),
+            "released values are finite"
+        );
+        match r.status {
+            Status::Fresh => {
+                assert!(
+                    self.seq.is_none_or(|l| r.seq > l),
+                    "a fresh release after {:?} repeats or goes back: {}",
+                    self.seq,
+                    r.seq
+                );
+                self.seq = Some(r.seq);
+                self.exact = !self.cut;
             }
+            Status::Held if self.exact => assert_eq!(
+                Some(r.seq),
+                self.seq,
+                "a held release repeats the last fresh one"
+            ),
+            Status::Held => assert!(
+                self.seq.is_none_or(|l| r.seq >= l),
+                "a held release repeats a fresh one at least as new as the last seen"
+            ),
         }
+        Ok(())
+    }
+
+    fn sample(&mut self, _: &mut Ep) -> Result<(), Infallible> {
+        self.open = false;
+        Ok(())
+    }
+
+    fn transmit(&mut self, frame: &[u8]) -> Result<(), Infallible> {
+        let frame = Frame::new_checked(frame).expect("the endpoint writes valid frames");
+        round_trip(&frame);
+        Ok(())
+    }
+
+    fn failed(&mut self, error: LinkError) -> Result<(), Infallible> {
+        panic!("poll_transmit failed with a full-size buffer: {error}")
+    }
+}
+
+/// The properties every endpoint keeps between two steps.
+struct Invariants {
+    last: Stats,
+    was_closed: bool,
+    underflow: Underflow,
+}
+
+impl Invariants {
+    fn new(ep: &Ep) -> Self {
+        Invariants {
+            last: ep.stats(),
+            was_closed: false,
+            underflow: ep.config().underflow,
+        }
+    }
+
+    fn check(&mut self, ep: &mut Ep, now: Instant) {
+        let stats = ep.stats();
+        counters_never_go_back(&self.last, &stats);
+        received_samples_are_accounted_for(&stats, ep.queue_len(), self.underflow);
+        if self.was_closed {
+            assert_eq!(ep.phase(), Phase::Closed, "a closed endpoint stays closed");
+            assert_eq!(ep.handle_frame(now, &[]), Err(LinkError::Closed));
+        }
+        self.was_closed = ep.is_closed();
+        self.last = stats;
     }
 }
 

@@ -47,3 +47,22 @@ fn the_frame_decoder_corpus_passes() {
 fn the_endpoint_corpus_passes() {
     replay("endpoint", harness::endpoint);
 }
+
+#[test]
+fn the_pair_corpus_passes() {
+    replay("pair", harness::pair);
+}
+
+#[test]
+fn the_pair_script_runs_a_link_that_releases_both_ways() {
+    // 1 axis, T = 10 ms, static, hold, FIFO, no watchdog, grids aligned;
+    // then time only: 100 × 63.75 periods.
+    let mut script = vec![0, 9, 0, 0, 7 * 3, 0];
+    for _ in 0..100 {
+        script.extend([0, 0, 255]);
+    }
+    let [base, remote] = harness::pair_stats(&script).expect("a valid configuration");
+    assert!(base.released_fresh > 5000, "{base:?}");
+    assert!(remote.released_fresh > 5000, "{remote:?}");
+    assert_eq!((base.late, remote.late), (0, 0));
+}

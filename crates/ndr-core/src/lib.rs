@@ -86,6 +86,11 @@
 //!    frame to the peer;
 //! 5. sleep until `poll_timeout`, or the next frame.
 //!
+//! Steps 3 and 4 are [`drive::turn`]; a whole link in simulated time (two
+//! endpoints, a wire, time that jumps) is a [`pair::Pair`] (feature
+//! `alloc`), which the simulator, the endpoint tests and the fuzz harness
+//! share. The example below spells the loop out.
+//!
 //! **A frame carries the sample set last, and names what it answers.** A
 //! Data frame is written by `poll_transmit` with the sample as the
 //! application last set it, and its `released` field names the newest peer
@@ -175,10 +180,13 @@ extern crate std;
 extern crate alloc;
 
 pub mod arx;
+pub mod drive;
 pub mod endpoint;
 pub mod estimator;
 pub mod filters;
 pub mod kalman;
+#[cfg(feature = "alloc")]
+pub mod pair;
 pub mod playout;
 pub mod predictor;
 pub mod regulation;

@@ -2,13 +2,12 @@
 //! made), and what only heap storage does: links wider than any inline
 //! width, capacities chosen at run time, and the same releases as inline.
 
-use std::collections::VecDeque;
-
-use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, Status};
+use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Status};
+use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
 use ndr_core::storage::{Heap, Inline, MAX_CAPACITY, Storage};
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{MAX_CHANNELS, MAX_FRAME_LEN, Role};
+use ndr_core::wire::{MAX_CHANNELS, Role};
 
 type Store = Heap;
 
@@ -39,47 +38,73 @@ fn run_with<S: Storage>(
     delay: impl Fn(u64) -> Duration,
     secs: u64,
 ) -> ([Vec<Seen>; 2], [Endpoint<S>; 2]) {
-    let mut eps = [
-        Endpoint::<S>::with_capacity(config(Role::Base), Instant::ZERO, capacity[0]).unwrap(),
-        Endpoint::<S>::with_capacity(config(Role::Remote), Instant::ZERO, capacity[1]).unwrap(),
-    ];
-    let axes = usize::from(config(Role::Base).axes);
-    let mut to: [VecDeque<(Instant, Vec<u8>)>; 2] = [VecDeque::new(), VecDeque::new()];
-    let (mut buf, mut now, mut k, mut n) = ([0; MAX_FRAME_LEN], Instant::ZERO, 0u32, 0u64);
-    let mut seen: [Vec<Seen>; 2] = [Vec::new(), Vec::new()];
-    while now < Instant::from_millis(secs * 1000) {
-        for (side, ep) in eps.iter_mut().enumerate() {
-            while to[side].front().is_some_and(|(at, _)| *at <= now) {
-                let (_, frame) = to[side].pop_front().unwrap();
-                ep.handle_frame(now, &frame).unwrap();
-            }
-            if ep.poll_timeout().is_some_and(|t| t <= now) {
-                ep.handle_timeout(now);
-            }
-            while let Some(event) = ep.poll_event() {
-                if let Event::Released(r) = event {
-                    let values = r.values().to_vec();
-                    let answer: Vec<f64> = if side == 0 {
-                        k += 1;
-                        (0..axes).map(|i| f64::from(k) + i as f64 / 100.0).collect()
-                    } else {
-                        values.iter().rev().copied().collect()
-                    };
-                    seen[side].push((r.seq, r.released_at, r.status, r.grtt, values));
-                    ep.set_sample(&answer).unwrap();
-                }
-            }
-            while let Some(len) = ep.poll_transmit(now, &mut buf).unwrap() {
-                let last = to[1 - side].back().map_or(Instant::ZERO, |(at, _)| *at);
-                n += 1;
-                to[1 - side].push_back(((now + delay(n)).max(last), buf[..len].to_vec()));
-            }
-        }
-        let arrivals = to.iter().filter_map(|q| q.front().map(|(at, _)| *at));
-        let deadlines = eps.iter().filter_map(Endpoint::poll_timeout);
-        now = arrivals.chain(deadlines).min().unwrap();
+    let ep = |role, cap| Endpoint::<S>::with_capacity(config(role), Instant::ZERO, cap).unwrap();
+    let world = Echo {
+        axes: usize::from(config(Role::Base).axes),
+        delay,
+        sent: 0,
+        last: [Instant::ZERO; 2],
+        k: 0,
+        seen: [Vec::new(), Vec::new()],
+    };
+    let mut pair = Pair::new(
+        ep(Role::Base, capacity[0]),
+        ep(Role::Remote, capacity[1]),
+        world,
+    );
+    pair.run_until(Instant::from_millis(secs * 1000)).unwrap();
+    let (base, remote, world) = pair.into_parts();
+    (world.seen, [base, remote])
+}
+
+/// An in-order wire whose n-th frame (both ways) takes `delay(n)`; a base
+/// that sends `axes` values encoding its tick, a remote that answers each
+/// command with it reversed; what each side released.
+struct Echo<D> {
+    axes: usize,
+    delay: D,
+    sent: u64,
+    last: [Instant; 2],
+    k: u32,
+    seen: [Vec<Seen>; 2],
+}
+
+impl<S: Storage, D: Fn(u64) -> Duration> World<S> for Echo<D> {
+    type Error = LinkError;
+
+    fn arrival(&mut self, from: Role, sent: Instant, _: &[u8]) -> Option<Instant> {
+        self.sent += 1;
+        let at = (sent + (self.delay)(self.sent)).max(self.last[from as usize]);
+        self.last[from as usize] = at;
+        Some(at)
     }
-    (seen, eps)
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut Endpoint<S>,
+        _: Instant,
+        event: Event<S::Values>,
+    ) -> Result<(), LinkError> {
+        if let Event::Released(r) = event {
+            let values = r.values().to_vec();
+            let answer: Vec<f64> = if side == Role::Base {
+                self.k += 1;
+                (0..self.axes)
+                    .map(|i| f64::from(self.k) + i as f64 / 100.0)
+                    .collect()
+            } else {
+                values.iter().rev().copied().collect()
+            };
+            self.seen[side as usize].push((r.seq, r.released_at, r.status, r.grtt, values));
+            ep.set_sample(&answer)?;
+        }
+        Ok(())
+    }
+
+    fn failed(&mut self, _: Role, _: Instant, error: LinkError) -> Result<(), LinkError> {
+        Err(error)
+    }
 }
 
 fn config(axes: u16, playout: Playout) -> impl Fn(Role) -> Config {

@@ -2,7 +2,6 @@
 //! operator and a plant. Time jumps from one deadline or arrival to the next.
 
 use std::boxed::Box;
-use std::collections::VecDeque;
 use std::fmt;
 use std::vec::Vec;
 
@@ -10,11 +9,12 @@ use ndr_core::arx::{ArxError, Tf2, Tf2State};
 use ndr_core::endpoint::{
     Config, ConfigError, Endpoint, Event, LinkError, Mode, Release, Status, Underflow,
 };
+use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
 use ndr_core::regulation::Regulation;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{Frame, HEADER_LEN, Payload, Role};
+use ndr_core::wire::{Frame, Payload, Role};
 
 use super::delay::{DelayModel, DelaySampler, Direction, InOrderPath};
 use super::report::{Collector, Report, Row};
@@ -25,7 +25,6 @@ pub const MAX_SIM_AXES: usize = 8;
 /// Capacity of the simulated regulators: room for `ns` up to 4095, enough
 /// for Paris–New York jitter at a 1 ms period.
 pub const SIM_QUEUE: usize = 4096;
-const FRAME_BUF: usize = HEADER_LEN + 8 * MAX_SIM_AXES + 16;
 
 type SimEndpoint = Endpoint<Heap>;
 
@@ -248,27 +247,18 @@ impl SkewedClock {
     }
 }
 
-struct Flight {
-    arrival: Instant,
-    len: usize,
-    bytes: [u8; FRAME_BUF],
-}
-
-struct Sim<'a> {
+/// Everything around the simulated link's endpoints: the network, the
+/// remote's clock, the operator, the plant and what is recorded.
+struct SimWorld<'a> {
     cfg: &'a SimConfig,
-    now: Instant,
-    base: SimEndpoint,
-    remote: SimEndpoint,
     sampler: DelaySampler,
     paths: [InOrderPath; 2],
-    flights: [VecDeque<Flight>; 2],
     plants: Vec<Tf2State>,
     plant_out: Vec<f64>,
     operator: Vec<f64>,
     collect: Collector,
     remote_clock: SkewedClock,
     forward: Option<ForwardLog>,
-    buf: [u8; FRAME_BUF],
 }
 
 /// Runs one simulation.
@@ -293,105 +283,135 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     };
     let plant = cfg.plant.discretize(cfg.period).map_err(SimError::Plant)?;
     let axes = usize::from(cfg.axes);
-    let mut sim = Sim {
+    let world = SimWorld {
         cfg,
-        now: Instant::ZERO,
-        base: endpoint(Role::Base)?,
-        remote: endpoint(Role::Remote)?,
         sampler: cfg.model.sampler(cfg.seed),
         paths: [InOrderPath::default(), InOrderPath::default()],
-        flights: [VecDeque::new(), VecDeque::new()],
         plants: (0..axes).map(|_| Tf2State::new(plant)).collect(),
         plant_out: std::vec![0.0; axes],
         operator: std::vec![0.0; axes],
         collect: Collector::new(cfg),
         remote_clock: SkewedClock::new(cfg.remote_skew_ppm),
         forward: cfg.record_forward.then(ForwardLog::default),
-        buf: [0; FRAME_BUF],
     };
-    sim.run()?;
-    let Sim {
-        collect,
-        base,
-        remote,
-        forward,
-        ..
-    } = sim;
-    let mut out = collect.finish(cfg, &base, &remote);
-    out.forward = forward.unwrap_or_default();
+    let mut pair = Pair::new(endpoint(Role::Base)?, endpoint(Role::Remote)?, world);
+    pair.run_until(Instant::ZERO + cfg.duration)?;
+    let (base, remote, world) = pair.into_parts();
+    let mut out = world.collect.finish(cfg, &base, &remote);
+    out.forward = world.forward.unwrap_or_default();
     Ok(out)
 }
 
-impl Sim<'_> {
-    fn run(&mut self) -> Result<(), SimError> {
-        let end = Instant::ZERO + self.cfg.duration;
-        self.drain(Role::Base)?;
-        loop {
-            let next = [
-                self.flights[0].front().map(|f| f.arrival),
-                self.flights[1].front().map(|f| f.arrival),
-                self.base.poll_timeout(),
-                self.remote
-                    .poll_timeout()
-                    .map(|t| self.remote_clock.global(t)),
-            ]
-            .into_iter()
-            .flatten()
-            .min();
-            let Some(next) = next.filter(|&t| t <= end) else {
-                return Ok(());
-            };
-            self.now = next;
-            // Arrivals before deadlines at the same instant; forward first.
-            loop {
-                let due: Option<usize> = (0..2)
-                    .filter(|&d| self.flights[d].front().is_some_and(|f| f.arrival <= next))
-                    .min_by_key(|&d| self.flights[d].front().map(|f| f.arrival));
-                let Some(dir) = due else { break };
-                let Some(flight) = self.flights[dir].pop_front() else {
-                    break;
-                };
-                let side = if dir == 0 { Role::Remote } else { Role::Base };
-                let at = self.local(side, next);
-                if let Err(error) = self
-                    .endpoint(side)
-                    .handle_frame(at, &flight.bytes[..flight.len])
-                {
-                    return Err(self.link_error(side, error));
-                }
-                if side == Role::Remote {
-                    self.log_command(at, &flight.bytes[..flight.len]);
-                }
-                self.drain(side)?;
-            }
-            for side in [Role::Base, Role::Remote] {
-                let at = self.local(side, next);
-                let ep = self.endpoint(side);
-                if ep.poll_timeout().is_some_and(|t| t <= at) {
-                    let steps = ep.predictor().steps();
-                    ep.handle_timeout(at);
-                    let ticked = ep.predictor().steps() != steps;
-                    self.drain(side)?;
-                    if side == Role::Base && ticked {
-                        self.collect.base_tick(next, &self.base, &self.remote);
-                    }
-                }
-            }
-        }
+impl World<Heap> for SimWorld<'_> {
+    type Error = SimError;
+
+    fn arrival(&mut self, from: Role, sent: Instant, _: &[u8]) -> Option<Instant> {
+        let (dir, direction) = match from {
+            Role::Base => (0, Direction::Forward),
+            Role::Remote => (1, Direction::Backward),
+        };
+        // The network runs on simulation time.
+        let delay = self.sampler.delay(direction, sent);
+        Some(self.paths[dir].deliver(sent, delay))
     }
 
-    fn endpoint(&mut self, side: Role) -> &mut SimEndpoint {
-        match side {
-            Role::Base => &mut self.base,
-            Role::Remote => &mut self.remote,
-        }
-    }
-
-    /// Simulation time `t` on `side`'s clock.
     fn local(&self, side: Role, t: Instant) -> Instant {
         match side {
             Role::Base => t,
             Role::Remote => self.remote_clock.local(t),
+        }
+    }
+
+    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
+        self.global(side, deadline)
+    }
+
+    fn received(&mut self, side: Role, at: Instant, frame: &[u8]) {
+        if side == Role::Remote {
+            self.log_command(at, frame);
+        }
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut SimEndpoint,
+        now: Instant,
+        event: Event<Box<[f64]>>,
+    ) -> Result<(), SimError> {
+        match event {
+            Event::Released(r) => {
+                if r.status == Status::Fresh {
+                    self.collect.fresh(side, &r);
+                }
+                if side == Role::Remote {
+                    self.log_release(&r);
+                    // The plant takes the command released now; its output
+                    // is the state sent at this tick.
+                    for ((plant, out), &u) in self
+                        .plants
+                        .iter_mut()
+                        .zip(&mut self.plant_out)
+                        .zip(r.values())
+                    {
+                        *out = plant.step(u);
+                    }
+                    let out = self.plant_out.clone();
+                    self.set_sample(side, ep, now, &out)?;
+                }
+            }
+            Event::Started { period, ns } => {
+                self.collect.started(side, now, period, ns);
+                if side == Role::Remote {
+                    let model = self.cfg.plant.discretize(period).map_err(SimError::Plant)?;
+                    for p in &mut self.plants {
+                        p.set_model(model);
+                    }
+                }
+            }
+            Event::DelayChanged { .. } if side == Role::Remote => {
+                self.collect.delay_events_fwd += 1;
+            }
+            Event::Closed { error: Some(e) } => {
+                return Err(link_error(side, self.global(side, now), e));
+            }
+            // Paused, Connected, LinkLost, LinkRestored, the base's
+            // DelayChanged, a local Closed: counted by the endpoints; the
+            // simulated operator carries on.
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn sample(&mut self, side: Role, ep: &mut SimEndpoint, now: Instant) -> Result<(), SimError> {
+        if side == Role::Base {
+            let t = now.as_secs_f64();
+            for (axis, v) in self.operator.iter_mut().enumerate() {
+                *v = self.cfg.signal.value(t, axis);
+            }
+            let cmd = self.operator.clone();
+            self.set_sample(side, ep, now, &cmd)?;
+        }
+        Ok(())
+    }
+
+    fn ticked(&mut self, side: Role, at: Instant, base: &SimEndpoint, remote: &SimEndpoint) {
+        if side == Role::Base {
+            self.collect.base_tick(at, base, remote);
+        }
+    }
+
+    fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), SimError> {
+        Err(link_error(side, at, error))
+    }
+}
+
+impl SimWorld<'_> {
+    /// The first simulation time at which `side`'s clock reads `t`.
+    fn global(&self, side: Role, t: Instant) -> Instant {
+        match side {
+            Role::Base => t,
+            Role::Remote => self.remote_clock.global(t),
         }
     }
 
@@ -429,97 +449,23 @@ impl Sim<'_> {
         }
     }
 
-    fn link_error(&self, side: Role, error: LinkError) -> SimError {
-        SimError::Link {
-            side: if side == Role::Base { "base" } else { "remote" },
-            at_s: self.now.as_secs_f64(),
-            error,
-        }
+    fn set_sample(
+        &self,
+        side: Role,
+        ep: &mut SimEndpoint,
+        now: Instant,
+        values: &[f64],
+    ) -> Result<(), SimError> {
+        ep.set_sample(values)
+            .map_err(|e| link_error(side, self.global(side, now), e))
     }
+}
 
-    /// The application's turn, then the transmissions.
-    fn drain(&mut self, side: Role) -> Result<(), SimError> {
-        let now = self.local(side, self.now);
-        while let Some(event) = self.endpoint(side).poll_event() {
-            match event {
-                Event::Released(r) => {
-                    if r.status == Status::Fresh {
-                        self.collect.fresh(side, &r);
-                    }
-                    if side == Role::Remote {
-                        self.log_release(&r);
-                        // The plant takes the command released now; its
-                        // output is the state sent at this tick.
-                        for ((plant, out), &u) in self
-                            .plants
-                            .iter_mut()
-                            .zip(&mut self.plant_out)
-                            .zip(r.values())
-                        {
-                            *out = plant.step(u);
-                        }
-                        let out = self.plant_out.clone();
-                        self.set_sample(side, &out)?;
-                    }
-                }
-                Event::Started { period, ns } => {
-                    self.collect.started(side, now, period, ns);
-                    if side == Role::Remote {
-                        let model = self.cfg.plant.discretize(period).map_err(SimError::Plant)?;
-                        for p in &mut self.plants {
-                            p.set_model(model);
-                        }
-                    }
-                }
-                Event::DelayChanged { .. } if side == Role::Remote => {
-                    self.collect.delay_events_fwd += 1;
-                }
-                Event::Closed { error: Some(e) } => return Err(self.link_error(side, e)),
-                // Paused, Connected, LinkLost, LinkRestored, the base's
-                // DelayChanged, a local Closed: counted by the endpoints; the
-                // simulated operator carries on.
-                _ => {}
-            }
-        }
-        if side == Role::Base {
-            let t = now.as_secs_f64();
-            for (axis, v) in self.operator.iter_mut().enumerate() {
-                *v = self.cfg.signal.value(t, axis);
-            }
-            let cmd = self.operator.clone();
-            self.set_sample(side, &cmd)?;
-        }
-        let dir = if side == Role::Base { 0 } else { 1 };
-        loop {
-            let mut buf = self.buf;
-            let n = match self.endpoint(side).poll_transmit(now, &mut buf) {
-                Ok(Some(n)) => n,
-                Ok(None) => break,
-                Err(e) => return Err(self.link_error(side, e)),
-            };
-            let direction = if dir == 0 {
-                Direction::Forward
-            } else {
-                Direction::Backward
-            };
-            // The network runs on simulation time.
-            let sent = self.now;
-            let delay = self.sampler.delay(direction, sent);
-            let arrival = self.paths[dir].deliver(sent, delay);
-            self.flights[dir].push_back(Flight {
-                arrival,
-                len: n,
-                bytes: buf,
-            });
-        }
-        Ok(())
-    }
-
-    fn set_sample(&mut self, side: Role, values: &[f64]) -> Result<(), SimError> {
-        match self.endpoint(side).set_sample(values) {
-            Ok(()) => Ok(()),
-            Err(e) => Err(self.link_error(side, e)),
-        }
+fn link_error(side: Role, at: Instant, error: LinkError) -> SimError {
+    SimError::Link {
+        side: if side == Role::Base { "base" } else { "remote" },
+        at_s: at.as_secs_f64(),
+        error,
     }
 }
 

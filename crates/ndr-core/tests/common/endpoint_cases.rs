@@ -8,8 +8,11 @@
 #![allow(clippy::clone_on_copy)]
 
 use std::collections::BTreeMap;
+use std::convert::Infallible;
+use std::ops::{Deref, DerefMut};
 
 use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Status, Underflow};
+use ndr_core::pair::{self, World};
 use ndr_core::storage::Storage;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{self, MAX_FRAME_LEN, Role, close_reason};
@@ -19,22 +22,17 @@ type Values = <super::Store as Storage>::Values;
 
 const T: Duration = Duration::from_millis(200);
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-enum Side {
-    Base,
-    Remote,
-}
-
 /// Delay of the n-th frame sent in a direction.
 type DelayFn = Box<dyn FnMut(u64) -> Duration>;
 
-struct Pair {
-    now: Instant,
-    base: Ep,
-    remote: Ep,
-    /// (arrival, order) → (destination, bytes); in-order per direction.
-    wire: BTreeMap<(Instant, u64), (Side, Vec<u8>)>,
-    order: u64,
+/// The shared [`pair::Pair`] over the tests' world.
+struct Pair(pair::Pair<super::Store, Net>);
+
+/// The tests' world: an in-order wire each way whose delays the test
+/// gives, drivers that may serve their deadlines late or stop, a remote
+/// that answers each command with it and a base that sends its tick count;
+/// everything recorded.
+struct Net {
     sent: [u64; 2],
     last_arrival: [Instant; 2],
     delay: [DelayFn; 2],
@@ -54,14 +52,11 @@ struct Pair {
     last_data: [Vec<u8>; 2],
     /// A side whose process is stopped from one instant to another (a
     /// SIGSTOP): it runs nothing, and what arrives for it waits.
-    frozen: Option<(Side, Instant, Instant)>,
-    /// Frames that waited for a stopped side, by order: when they arrived
-    /// (the kernel stamps them then; the driver reads them later).
-    waited: BTreeMap<u64, Instant>,
-    /// Whether those frames carry the time they came (a kernel stamp), or
-    /// that time only when it is less than a second old and else the time
-    /// the stopped side reads them (a driver that takes an older stamp for
-    /// a step of the wall clock).
+    frozen: Option<(Role, Instant, Instant)>,
+    /// Whether the frames that waited for a stopped side carry the time
+    /// they came (a kernel stamp), or that time only when it is less than
+    /// a second old and else the time the stopped side reads them (a
+    /// driver that takes an older stamp for a step of the wall clock).
     kernel_stamps: bool,
 }
 
@@ -72,15 +67,125 @@ pub(super) fn config(role: Role) -> Config {
     c
 }
 
+impl Net {
+    /// The end of `side`'s stop, if `t` falls in it.
+    fn stopped(&self, side: Role, t: Instant) -> Option<Instant> {
+        match self.frozen {
+            Some((s, from, to)) if s == side && t >= from && t < to => Some(to),
+            _ => None,
+        }
+    }
+}
+
+impl World<super::Store> for Net {
+    type Error = Infallible;
+
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        let dir = from as usize;
+        let f = wire::Frame::new_checked(frame).unwrap();
+        if let wire::Payload::Data(ch) = f.payload()
+            && !ch.is_empty()
+        {
+            self.sent_values[dir].insert(f.seq(), ch.iter().collect());
+        }
+        let d = (self.delay[dir])(self.sent[dir]);
+        self.sent[dir] += 1;
+        let arrival = (sent + d).max(self.last_arrival[dir]);
+        self.last_arrival[dir] = arrival;
+        Some(arrival)
+    }
+
+    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
+        let i = side as usize;
+        let t = self.stopped(side, deadline).unwrap_or(deadline);
+        let lag = match self.lagged[i] {
+            Some((d, lag)) if d == t => lag,
+            _ => {
+                let lag = (self.lag[i])(self.wakes[i]);
+                self.wakes[i] += 1;
+                self.lagged[i] = Some((t, lag));
+                lag
+            }
+        };
+        t + lag
+    }
+
+    fn read(&self, side: Role, arrived: Instant) -> Instant {
+        self.stopped(side, arrived).unwrap_or(arrived)
+    }
+
+    // Stamped by the kernel when it came, read when the side runs.
+    fn stamp(&self, _: Role, arrived: Instant, read: Instant) -> Instant {
+        if self.kernel_stamps || read - arrived < Duration::from_secs(1) {
+            arrived
+        } else {
+            read
+        }
+    }
+
+    fn received(&mut self, side: Role, _: Instant, frame: &[u8]) {
+        if let Ok(f) = wire::Frame::new_checked(frame)
+            && matches!(f.payload(), wire::Payload::Data(ch) if !ch.is_empty())
+        {
+            self.last_data[side as usize] = frame.to_vec();
+        }
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut Ep,
+        _: Instant,
+        ev: Event<Values>,
+    ) -> Result<(), Infallible> {
+        // The remote's "plant" returns the command it was given.
+        if let Event::Released(r) = &ev
+            && side == Role::Remote
+        {
+            ep.set_sample(r.values()).unwrap();
+        }
+        match side {
+            Role::Base => self.base_events.push(ev),
+            Role::Remote => self.remote_events.push(ev),
+        }
+        Ok(())
+    }
+
+    // The base's operator sends its tick count.
+    fn sample(&mut self, side: Role, ep: &mut Ep, _: Instant) -> Result<(), Infallible> {
+        if side == Role::Base && ep.phase() == Phase::Running {
+            self.tick += 1;
+            let k = self.tick as f64;
+            ep.set_sample(&[k, -k]).unwrap();
+        }
+        Ok(())
+    }
+
+    fn failed(&mut self, side: Role, _: Instant, e: LinkError) -> Result<(), Infallible> {
+        match side {
+            Role::Base => self.base_errors.push(e),
+            Role::Remote => self.remote_errors.push(e),
+        }
+        Ok(())
+    }
+}
+
+impl Deref for Pair {
+    type Target = pair::Pair<super::Store, Net>;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl DerefMut for Pair {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.0
+    }
+}
+
 impl Pair {
     fn new(base: Config, remote: Config, fwd: DelayFn, bwd: DelayFn) -> Pair {
-        let now = Instant::ZERO;
-        Pair {
-            now,
-            base: Ep::new(base, now).unwrap(),
-            remote: Ep::new(remote, now).unwrap(),
-            wire: BTreeMap::new(),
-            order: 0,
+        let net = Net {
             sent: [0; 2],
             last_arrival: [Instant::ZERO; 2],
             delay: [fwd, bwd],
@@ -95,29 +200,14 @@ impl Pair {
             lagged: [None; 2],
             last_data: [Vec::new(), Vec::new()],
             frozen: None,
-            waited: BTreeMap::new(),
             kernel_stamps: true,
-        }
-    }
-
-    /// When `side`'s driver serves its next deadline.
-    fn wake(&mut self, side: Side) -> Option<Instant> {
-        let t = self.ep(side).poll_timeout()?;
-        let i = side as usize;
-        let t = match self.frozen {
-            Some((s, from, to)) if s == side && t >= from && t < to => to,
-            _ => t,
         };
-        let lag = match self.lagged[i] {
-            Some((d, lag)) if d == t => lag,
-            _ => {
-                let lag = (self.lag[i])(self.wakes[i]);
-                self.wakes[i] += 1;
-                self.lagged[i] = Some((t, lag));
-                lag
-            }
-        };
-        Some(t + lag)
+        let now = Instant::ZERO;
+        Pair(pair::Pair::new(
+            Ep::new(base, now).unwrap(),
+            Ep::new(remote, now).unwrap(),
+            net,
+        ))
     }
 
     fn constant(ms: u64) -> Pair {
@@ -130,116 +220,8 @@ impl Pair {
         )
     }
 
-    fn ep(&mut self, side: Side) -> &mut Ep {
-        match side {
-            Side::Base => &mut self.base,
-            Side::Remote => &mut self.remote,
-        }
-    }
-
-    /// Drains events (the applications react) then transmits.
-    fn drain(&mut self, side: Side) {
-        while let Some(ev) = self.ep(side).poll_event() {
-            if let Event::Released(r) = &ev {
-                // The remote's "plant" returns the command it was given; the
-                // base's operator sends its tick count.
-                if side == Side::Remote {
-                    let v = r.values().to_vec();
-                    self.remote.set_sample(&v).unwrap();
-                }
-            }
-            match side {
-                Side::Base => self.base_events.push(ev),
-                Side::Remote => self.remote_events.push(ev),
-            }
-        }
-        if side == Side::Base && self.base.phase() == Phase::Running {
-            self.tick += 1;
-            let k = self.tick as f64;
-            self.base.set_sample(&[k, -k]).unwrap();
-        }
-        let mut buf = [0u8; MAX_FRAME_LEN];
-        let dir = side as usize;
-        let now = self.now;
-        while let Some(n) = self.ep(side).poll_transmit(now, &mut buf).unwrap() {
-            let frame = wire::Frame::new_checked(&buf[..n]).unwrap();
-            if let wire::Payload::Data(ch) = frame.payload()
-                && !ch.is_empty()
-            {
-                self.sent_values[dir].insert(frame.seq(), ch.iter().collect());
-            }
-            let d = (self.delay[dir])(self.sent[dir]);
-            self.sent[dir] += 1;
-            let arrival = (self.now + d).max(self.last_arrival[dir]);
-            self.last_arrival[dir] = arrival;
-            let dest = if side == Side::Base {
-                Side::Remote
-            } else {
-                Side::Base
-            };
-            self.order += 1;
-            self.wire
-                .insert((arrival, self.order), (dest, buf[..n].to_vec()));
-        }
-    }
-
-    /// Advances to the next deadline or arrival and handles it.
-    fn step(&mut self) -> bool {
-        let next_wire = self.wire.keys().next().map(|k| k.0);
-        let next = [next_wire, self.wake(Side::Base), self.wake(Side::Remote)]
-            .into_iter()
-            .flatten()
-            .min();
-        let Some(next) = next else { return false };
-        self.now = next;
-        // Arrivals first, then deadlines, at equal times.
-        while let Some(entry) = self.wire.first_entry() {
-            if entry.key().0 > self.now {
-                break;
-            }
-            let ((_, order), (dest, bytes)) = entry.remove_entry();
-            if let Some((s, from, to)) = self.frozen
-                && s == dest
-                && self.now >= from
-                && self.now < to
-            {
-                self.waited.entry(order).or_insert(self.now);
-                self.wire.insert((to, order), (dest, bytes));
-                continue;
-            }
-            if let Ok(f) = wire::Frame::new_checked(&bytes[..])
-                && matches!(f.payload(), wire::Payload::Data(ch) if !ch.is_empty())
-            {
-                self.last_data[dest as usize] = bytes.clone();
-            }
-            // Stamped by the kernel when it came, read when the side runs.
-            let now = self
-                .waited
-                .remove(&order)
-                .filter(|&at| self.kernel_stamps || self.now - at < Duration::from_secs(1))
-                .unwrap_or(self.now);
-            if let Err(e) = self.ep(dest).handle_frame(now, &bytes) {
-                match dest {
-                    Side::Base => self.base_errors.push(e),
-                    Side::Remote => self.remote_errors.push(e),
-                }
-            }
-            self.drain(dest);
-        }
-        for side in [Side::Base, Side::Remote] {
-            if self.wake(side).is_some_and(|t| t <= self.now) {
-                let now = self.now;
-                self.ep(side).handle_timeout(now);
-            }
-            self.drain(side);
-        }
-        true
-    }
-
     fn run_until(&mut self, end: Instant) {
-        self.drain(Side::Base);
-        self.drain(Side::Remote);
-        while self.now < end && self.step() {}
+        let Ok(()) = self.0.run_until(end);
     }
 
     fn releases(events: &[Event<Values>]) -> Vec<ndr_core::endpoint::Release<Values>> {
@@ -261,12 +243,13 @@ fn secs(s: u64) -> Instant {
 fn lan_static_link_starts_with_ns_2_and_a_grtt_of_six_periods() {
     let mut p = Pair::constant(10);
     p.run_until(secs(60));
-    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    assert!(p.world.base_errors.is_empty() && p.world.remote_errors.is_empty());
     assert_eq!(p.base.phase(), Phase::Running);
     assert_eq!((p.base.ns(), p.remote.ns()), (2, 2));
-    assert!(matches!(p.base_events[0], Event::Connected { .. }));
+    assert!(matches!(p.world.base_events[0], Event::Connected { .. }));
     assert!(
-        p.base_events
+        p.world
+            .base_events
             .iter()
             .any(|e| matches!(e, Event::Started { ns: 2, .. }))
     );
@@ -304,8 +287,11 @@ fn every_sample_is_released_once_in_order() {
         jitter(11),
     );
     p.run_until(secs(120));
-    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
-    for (ep, events) in [(&p.base, &p.base_events), (&p.remote, &p.remote_events)] {
+    assert!(p.world.base_errors.is_empty() && p.world.remote_errors.is_empty());
+    for (ep, events) in [
+        (&p.base, &p.world.base_events),
+        (&p.remote, &p.world.remote_events),
+    ] {
         let fresh: Vec<u64> = Pair::releases(events)
             .iter()
             .filter(|r| r.status == Status::Fresh)
@@ -325,8 +311,8 @@ fn every_sample_is_released_once_in_order() {
     }
     // What each side released is exactly what the other sent under that number.
     for (events, sent) in [
-        (&p.remote_events, &p.sent_values[0]),
-        (&p.base_events, &p.sent_values[1]),
+        (&p.world.remote_events, &p.world.sent_values[0]),
+        (&p.world.base_events, &p.world.sent_values[1]),
     ] {
         for r in Pair::releases(events) {
             assert_eq!(
@@ -362,7 +348,7 @@ fn hold_repeats_and_then_carries_the_extra_delay() {
     assert!(s.underflows >= 1, "{s:?}");
     assert_eq!(s.late, s.underflows);
     assert_eq!(s.released_held, s.underflows);
-    let rel = Pair::releases(&p.remote_events);
+    let rel = Pair::releases(&p.world.remote_events);
     let fresh: Vec<_> = rel.iter().filter(|r| r.status == Status::Fresh).collect();
     // Nothing is lost: consecutive sequence numbers.
     assert!(fresh.windows(2).all(|w| w[1].seq == w[0].seq + 1));
@@ -378,7 +364,7 @@ fn drop_late_keeps_the_delay_and_counts_what_it_discards() {
     p.run_until(secs(40));
     let s = p.remote.stats();
     assert!(s.late >= 1 && s.underflows >= s.late, "{s:?}");
-    let rel = Pair::releases(&p.remote_events);
+    let rel = Pair::releases(&p.world.remote_events);
     let fresh: Vec<_> = rel.iter().filter(|r| r.status == Status::Fresh).collect();
     let first = fresh[2].released_at - fresh[2].sent_at;
     assert!(
@@ -407,7 +393,8 @@ fn mismatch(edit: impl FnOnce(&mut Config)) -> (Vec<LinkError>, Vec<LinkError>) 
     );
     p.run_until(secs(5));
     assert!(p.base.is_closed() && p.remote.is_closed());
-    (p.base_errors, p.remote_errors)
+    let (_, _, net) = p.0.into_parts();
+    (net.base_errors, net.remote_errors)
 }
 
 #[test]
@@ -561,9 +548,9 @@ fn dynamic_mode_moves_a_lan_link_to_50_ms() {
     let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
     p.run_until(secs(120));
     assert!(
-        p.base_errors.is_empty() && p.remote_errors.is_empty(),
+        p.world.base_errors.is_empty() && p.world.remote_errors.is_empty(),
         "{:?}",
-        p.base_errors
+        p.world.base_errors
     );
     // NRTT 22 ms: T = max(50 ms, 22/3 ms) = 50 ms; ns = 2.
     assert_eq!(p.base.period(), Duration::from_millis(50));
@@ -573,14 +560,15 @@ fn dynamic_mode_moves_a_lan_link_to_50_ms() {
     assert_eq!((s.pauses, s.resizes), (1, 1));
     assert_eq!(p.remote.stats().pauses, 1);
     // The settled GRTT: 6 periods of 50 ms.
-    let last = Pair::releases(&p.base_events)
+    let last = Pair::releases(&p.world.base_events)
         .iter()
         .rev()
         .find_map(|r| r.grtt)
         .unwrap();
     assert_eq!(last, Duration::from_millis(300));
     assert!(
-        p.base_events
+        p.world
+            .base_events
             .iter()
             .any(|e| matches!(e, Event::Paused { .. }))
     );
@@ -598,6 +586,7 @@ fn the_watchdog_raises_link_lost_once_and_then_restored() {
     );
     p.run_until(secs(60));
     let lost: Vec<_> = p
+        .world
         .remote_events
         .iter()
         .filter(|e| matches!(e, Event::LinkLost { .. }))
@@ -607,7 +596,8 @@ fn the_watchdog_raises_link_lost_once_and_then_restored() {
         matches!(lost[0], Event::LinkLost { silent_for } if *silent_for >= Duration::from_secs(1))
     );
     assert!(
-        p.remote_events
+        p.world
+            .remote_events
             .iter()
             .any(|e| matches!(e, Event::LinkRestored))
     );
@@ -665,25 +655,25 @@ fn an_adaptive_quantum_out_of_range_is_refused_with_the_range() {
 /// The remote's stats after 300 s of an adaptive link, 10 ms each way on a
 /// 200 ms period, with `side`'s driver serving one deadline in three
 /// `lag_ms` late.
-fn adaptive_with_a_late_driver(side: Side, lag_ms: u64) -> ndr_core::endpoint::Stats {
+fn adaptive_with_a_late_driver(side: Role, lag_ms: u64) -> ndr_core::endpoint::Stats {
     use ndr_core::playout::Playout;
     let d = Duration::from_millis(10);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
     base.playout = Playout::ADAPTIVE;
     remote.playout = Playout::ADAPTIVE;
     let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
-    p.lag[side as usize] =
+    p.world.lag[side as usize] =
         Box::new(move |n| Duration::from_millis(if n % 3 == 2 { lag_ms } else { 0 }));
     p.run_until(secs(300));
-    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
-    let released = Pair::releases(&p.remote_events);
+    assert!(p.world.base_errors.is_empty() && p.world.remote_errors.is_empty());
+    let released = Pair::releases(&p.world.remote_events);
     assert!(
         released.len() > 1000,
         "{} {:?} {:?} {:?}",
         released.len(),
         p.remote.phase(),
         p.remote.stats(),
-        &p.remote_events[..p.remote_events.len().min(8)]
+        &p.world.remote_events[..p.world.remote_events.len().min(8)]
     );
     p.remote.stats()
 }
@@ -693,8 +683,8 @@ fn an_adaptive_release_served_late_is_its_own_slot_not_a_reason_to_raise_the_del
     // A busy hub on the receiving side: each late release is the sample of
     // the slot it was late for; the delay stays where the network puts it,
     // and nothing repeats.
-    let on_time = adaptive_with_a_late_driver(Side::Remote, 0);
-    let late = adaptive_with_a_late_driver(Side::Remote, 120);
+    let on_time = adaptive_with_a_late_driver(Role::Remote, 0);
+    let late = adaptive_with_a_late_driver(Role::Remote, 120);
     assert_eq!(late.playout_delay_ticks, on_time.playout_delay_ticks);
     assert!(late.playout_delay_ticks <= 2, "{late:?}");
     assert_eq!(
@@ -713,8 +703,8 @@ fn an_adaptive_link_takes_a_late_sender_as_delay_not_as_a_ratchet() {
     // of 20 ms (160 ms, under the tick a delay in whole ticks took), and
     // does not keep rising: before the sends were stamped with their tick's
     // time it climbed to 460 ticks, a quantum at a time.
-    let on_time = adaptive_with_a_late_driver(Side::Base, 0);
-    let late = adaptive_with_a_late_driver(Side::Base, 120);
+    let on_time = adaptive_with_a_late_driver(Role::Base, 0);
+    let late = adaptive_with_a_late_driver(Role::Base, 120);
     assert!((on_time.playout_delay_s - 0.04).abs() < 1e-9, "{on_time:?}");
     assert!(late.playout_delay_s >= 0.13, "{late:?}");
     assert!(late.playout_delay_s <= 0.13 + 0.04 + 1e-9, "{late:?}");
@@ -748,8 +738,8 @@ fn an_adaptive_link_holds_a_stall_once_its_late_rate_is_spent_but_not_an_outage(
     });
     let mut p = Pair::new(base, remote, fwd, Box::new(|_| Duration::from_millis(10)));
     p.run_until(secs(90));
-    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
-    let released = Pair::releases(&p.remote_events);
+    assert!(p.world.base_errors.is_empty() && p.world.remote_errors.is_empty());
+    let released = Pair::releases(&p.world.remote_events);
     let fresh: Vec<_> = released
         .iter()
         .filter(|r| r.status == Status::Fresh)
@@ -828,10 +818,13 @@ fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
             p.run_until(secs(5));
             let case = format!("phase {phase_us} µs, jitter {spread_us} µs");
             assert!(
-                p.base_errors.is_empty() && p.remote_errors.is_empty(),
+                p.world.base_errors.is_empty() && p.world.remote_errors.is_empty(),
                 "{case}"
             );
-            for (side, events) in [("base", &p.base_events), ("remote", &p.remote_events)] {
+            for (side, events) in [
+                ("base", &p.world.base_events),
+                ("remote", &p.world.remote_events),
+            ] {
                 let released = Pair::releases(events);
                 assert!(
                     released.len() > 400,
@@ -862,7 +855,7 @@ fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
 /// The last sample the remote was handed, re-encoded with `edit` applied
 /// to its header: what a peer that repeats, replays or forges frames sends.
 fn forged(p: &Pair, edit: impl FnOnce(&mut wire::Header)) -> Vec<u8> {
-    let bytes = &p.last_data[Side::Remote as usize];
+    let bytes = &p.world.last_data[Role::Remote as usize];
     let f = wire::Frame::new_checked(&bytes[..]).expect("a sample was delivered");
     let mut header = wire::Header {
         seq: f.seq(),
@@ -953,7 +946,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
         p.run_until(secs(10));
         assert_eq!(p.remote.phase(), Phase::Running, "{what}");
         let bad = forged(&p, |h| edit(h));
-        let now = p.now;
+        let now = p.now();
         let err = p.remote.handle_frame(now, &bad).expect_err(what);
         assert!(is_it(&err), "{what}: {err:?}");
         assert_eq!(err.close_reason(), reason, "{what}");
@@ -968,7 +961,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
             }
         }
         assert_eq!(closes, [reason], "{what}");
-        let mut released = Pair::releases(&p.remote_events);
+        let mut released = Pair::releases(&p.world.remote_events);
         while let Some(e) = p.remote.poll_event() {
             if let Event::Released(r) = e {
                 released.push(r);
@@ -994,8 +987,8 @@ fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
     p.run_until(secs(30));
     assert_eq!(p.remote.phase(), Phase::Running);
     // The base's process stops: nothing of it runs or arrives any more.
-    p.wire.retain(|_, (dest, _)| *dest == Side::Base);
-    let mut now = p.now;
+    p.drop_in_flight(Role::Base);
+    let mut now = p.now();
     let mut closed_at = None;
     for _ in 0..10_000 {
         if now >= secs(40) || closed_at.is_some() {
@@ -1013,7 +1006,7 @@ fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
             if let Event::Closed { error } = e {
                 closed_at = Some((now, error));
             }
-            p.remote_events.push(e);
+            p.world.remote_events.push(e);
         }
     }
     let (at, error) = closed_at.expect("the remote closed the link");
@@ -1024,7 +1017,8 @@ fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
     // Within a period of the liveness time after the last frame.
     assert!(at <= secs(30) + Duration::from_secs(3) + T, "{at:?}");
     assert!(
-        p.remote_events
+        p.world
+            .remote_events
             .iter()
             .any(|e| matches!(e, Event::LinkLost { .. }))
     );
@@ -1060,8 +1054,8 @@ fn stopped_remote(kernel_stamps: bool) -> Stopped {
         jittered(5, 10_000, 2_000),
         jittered(6, 10_000, 2_000),
     );
-    p.frozen = Some((Side::Remote, secs(30), secs(33)));
-    p.kernel_stamps = kernel_stamps;
+    p.world.frozen = Some((Role::Remote, secs(30), secs(33)));
+    p.world.kernel_stamps = kernel_stamps;
     p.run_until(secs(30));
     let delays = |p: &Pair| {
         (
@@ -1071,9 +1065,9 @@ fn stopped_remote(kernel_stamps: bool) -> Stopped {
     };
     let before = delays(&p);
     p.run_until(secs(60));
-    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
+    assert!(p.world.base_errors.is_empty() && p.world.remote_errors.is_empty());
     let grtts = |from: Instant, to: Instant| -> Vec<f64> {
-        Pair::releases(&p.base_events)
+        Pair::releases(&p.world.base_events)
             .iter()
             .filter(|r| r.released_at >= from && r.released_at < to)
             .filter_map(|r| r.grtt.map(Duration::as_secs_f64))
@@ -1120,7 +1114,7 @@ fn span(xs: &[f64]) -> (f64, f64) {
 /// the two grids aligned, `side`'s driver serving every deadline late by
 /// up to `lag_us` (a loaded host): the base's fresh releases in 10 s, the
 /// instant of its first, and the NRTTs it measured.
-fn with_a_driver_late_past_the_wire(side: Side, lag_us: u64) -> (usize, Instant, u64) {
+fn with_a_driver_late_past_the_wire(side: Role, lag_us: u64) -> (usize, Instant, u64) {
     use ndr_core::playout::Playout;
     let t = Duration::from_millis(20);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
@@ -1130,11 +1124,11 @@ fn with_a_driver_late_past_the_wire(side: Side, lag_us: u64) -> (usize, Instant,
     }
     let wire = |n: u64| Duration::from_micros(100 + n * 7919 % 200);
     let mut p = Pair::new(base, remote, Box::new(wire), Box::new(wire));
-    p.lag[side as usize] =
+    p.world.lag[side as usize] =
         Box::new(move |n| Duration::from_micros(n * 104_729 % 1000 * lag_us / 1000));
     p.run_until(secs(10));
-    assert!(p.base_errors.is_empty() && p.remote_errors.is_empty());
-    let fresh: Vec<_> = Pair::releases(&p.base_events)
+    assert!(p.world.base_errors.is_empty() && p.world.remote_errors.is_empty());
+    let fresh: Vec<_> = Pair::releases(&p.world.base_events)
         .into_iter()
         .filter(|r| r.status == Status::Fresh)
         .collect();
@@ -1148,7 +1142,7 @@ fn a_driver_late_past_the_wire_still_echoes_and_the_link_starts_at_once() {
     // the newest frame that came by its stamp. Were only the newest kept,
     // every tick later than the wire would echo nothing, and the base
     // would wait for ten round trips to size the link.
-    for side in [Side::Remote, Side::Base] {
+    for side in [Role::Remote, Role::Base] {
         let on_time = with_a_driver_late_past_the_wire(side, 0);
         for lag_us in [2_000, 8_000, 19_000] {
             let (fresh, first, nrtts) = with_a_driver_late_past_the_wire(side, lag_us);
