@@ -174,7 +174,7 @@ fn link_nrtt(
 ) -> LinkRun {
     // The paper's FIFO, as in the runs of docs/benchmarks.md.
     let mut c = Config::paper(Role::Base);
-    c.axes = 1;
+    c = c.with_width(1);
     c.period = Duration::from_millis(period_ms);
     let config = LinkConfig::new(c);
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();

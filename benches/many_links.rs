@@ -235,7 +235,7 @@ fn main() {
         .build()
         .unwrap();
     let mut c = Config::new(Role::Base);
-    c.axes = 1;
+    c = c.with_width(1);
     let period_ms = env("NDR_PERIOD_MS", 10.0);
     c.period = Duration::from_secs_f64(period_ms / 1e3);
     // NDR_SPIN=fixed: the hubs spin the whole default margin at every tick

@@ -23,10 +23,9 @@ use ndr::net::{Link, LinkConfig, Listener};
 const AXES: u16 = 2;
 const PERIOD_MS: u64 = 10;
 
-/// Both sides must agree on the axes and the period (the handshake checks).
+/// Both sides must agree on the widths and the period (the handshake checks).
 fn config(role: Role) -> LinkConfig {
-    let mut endpoint = Config::new(role);
-    endpoint.axes = AXES;
+    let mut endpoint = Config::new(role).with_width(AXES);
     endpoint.period = Duration::from_millis(PERIOD_MS);
     LinkConfig::new(endpoint)
 }

@@ -170,16 +170,19 @@ pub fn endpoint(data: &[u8]) {
                         cfg.mode.code()
                     },
                     underflow: input.byte() % 3,
-                    axes: if input.byte() % 4 == 0 {
+                    command_width: if input.byte() % 4 == 0 {
                         u16::from(input.byte())
                     } else {
-                        cfg.axes
+                        cfg.command_width
                     },
+                    state_width: cfg.state_width,
                     period: if input.byte() % 4 == 0 {
                         Duration::from_micros(u64::from(input.u16()))
                     } else {
                         cfg.period
                     },
+                    layout: if input.byte() % 8 == 0 { 7 } else { 0 },
+                    session: 0,
                 };
                 send(
                     &mut ep,
@@ -194,7 +197,7 @@ pub fn endpoint(data: &[u8]) {
                 let count = if input.byte() % 8 == 0 {
                     usize::from(input.byte() % 6)
                 } else {
-                    usize::from(cfg.axes)
+                    usize::from(cfg.received_width())
                 };
                 let mut values = [0.0; 8];
                 for v in values.iter_mut().take(count) {
@@ -248,7 +251,7 @@ pub fn endpoint(data: &[u8]) {
                     let _ = ep.set_sample(&values[..n]);
                 }
                 1 => {
-                    let _ = ep.set_sample(&[f64::NAN; 4][..usize::from(cfg.axes)]);
+                    let _ = ep.set_sample(&[f64::NAN; 4][..usize::from(cfg.sent_width())]);
                 }
                 2 => ep.close(),
                 _ => ep.abort(LinkError::Disconnected),
@@ -328,14 +331,14 @@ pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
             }
             // The application's calls.
             _ => {
-                let axes = usize::from(cfg.axes);
                 let ep = pair.endpoint(side);
+                let width = usize::from(ep.config().sent_width());
                 match input.byte() % 4 {
                     0 => {
-                        let _ = ep.set_sample(&[f64::NAN; 4][..axes]);
+                        let _ = ep.set_sample(&[f64::NAN; 4][..width]);
                     }
                     1 => {
-                        let _ = ep.set_sample(&[1.0; 5][..=axes]);
+                        let _ = ep.set_sample(&[1.0; 5][..=width]);
                     }
                     2 => ep.close(),
                     _ => ep.abort(LinkError::Disconnected),
@@ -417,8 +420,11 @@ impl World<Heap> for Script {
             _ => None,
         };
         let Ok(()) = self.checkers[side as usize].event(ep, event);
-        // Each side answers a release with the values it released.
+        // Each side answers a release with the values it released, repeated
+        // to the width it sends.
         if let Some(values) = answer {
+            let width = usize::from(ep.config().sent_width());
+            let values: Vec<f64> = values.iter().copied().cycle().take(width).collect();
             let _ = ep.set_sample(&values);
         }
         Ok(())
@@ -443,11 +449,14 @@ struct Peer {
     period: Duration,
 }
 
-/// A configuration the input picks: axes, period, mode, underflow, playout
+/// A configuration the input picks: widths, period, mode, underflow, playout
 /// policy and watchdog.
 fn config(role: Role, input: &mut Input<'_>) -> Config {
     let mut cfg = Config::new(role);
-    cfg.axes = 1 + u16::from(input.byte() % 4);
+    // The command width and the state width, 1 to 4 each.
+    let widths = input.byte();
+    cfg.command_width = 1 + u16::from(widths % 4);
+    cfg.state_width = 1 + u16::from(widths / 4 % 4);
     cfg.period = Duration::from_millis(1 + u64::from(input.byte() % 50));
     cfg.mode = if input.byte() & 1 == 0 {
         Mode::PaperStatic

@@ -34,8 +34,9 @@
 //! use ndr::net::{Link, LinkConfig, Listener};
 //!
 //! fn config(role: Role) -> LinkConfig {
-//!     let mut c = Config::new(role);
-//!     (c.axes, c.period) = (2, Duration::from_millis(10)); // both sides agree
+//!     // Both sides agree: 2 command values, 4 state values, 10 ms.
+//!     let mut c = Config::new(role).with_widths(2, 4);
+//!     c.period = Duration::from_millis(10);
 //!     LinkConfig::new(c)
 //! }
 //!
@@ -43,8 +44,10 @@
 //! let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, config(Role::Remote))?;
 //! let mut link = listener.accept_blocking()?;
 //! while let Ok(command) = link.recv() {
-//!     // Each command at its release tick, the delay constant.
-//!     let state: Vec<f64> = command.values().iter().map(|u| 0.5 * u).collect();
+//!     // Each command at its release tick, the delay constant; the state
+//!     // is two positions and two velocities.
+//!     let mut state: Vec<f64> = command.values().iter().map(|u| 0.5 * u).collect();
+//!     state.extend([0.0, 0.0]);
 //!     link.send(&state)?; // goes out at the next tick
 //! }
 //!

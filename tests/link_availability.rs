@@ -28,7 +28,7 @@ const PERIOD_MS: u64 = 10;
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base);
-    c.axes = 2;
+    c = c.with_width(2);
     c.period = Duration::from_millis(PERIOD_MS);
     LinkConfig::new(c)
 }
@@ -680,8 +680,11 @@ fn base_hello() -> Vec<u8> {
         role: Role::Base,
         mode: 0,
         underflow: 0,
-        axes: 2,
+        command_width: 2,
+        state_width: 2,
         period: Duration::from_millis(PERIOD_MS),
+        layout: 0,
+        session: 0,
     };
     let mut buf = vec![0; MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap();

@@ -14,7 +14,7 @@ use ndr::net::{Link, LinkConfig, Listener, ListenerStats, NetError};
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base);
-    c.axes = 1;
+    c = c.with_width(1);
     c.period = Duration::from_millis(10);
     LinkConfig::new(c)
 }
@@ -78,8 +78,11 @@ fn hello_from(version: u8, role: Role, axes: u16) -> Vec<u8> {
         role,
         mode: 0,
         underflow: 0,
-        axes,
+        command_width: axes,
+        state_width: axes,
         period: Duration::from_millis(10),
+        layout: 0,
+        session: 0,
     };
     let mut buf = vec![0; MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap();
@@ -126,7 +129,7 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
     counted(&listener, |s| s.refused_protocol, 2);
 
     // A Hello from a newer version of the protocol.
-    let back = poke(addr, &hello_bytes(2));
+    let back = poke(addr, &hello_bytes(wire::VERSION + 1));
     assert_eq!(close_reason_of(&back), Some(close_reason::VERSION_MISMATCH));
     counted(&listener, |s| s.refused_wire_version, 1);
 
@@ -135,8 +138,8 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
     assert_eq!(close_reason_of(&back), Some(close_reason::ROLE_MISMATCH));
     counted(&listener, |s| s.refused_role, 1);
     let back = poke(addr, &hello_from(wire::VERSION, Role::Base, 3));
-    assert_eq!(close_reason_of(&back), Some(close_reason::AXES_MISMATCH));
-    counted(&listener, |s| s.refused_axes, 1);
+    assert_eq!(close_reason_of(&back), Some(close_reason::WIDTH_MISMATCH));
+    counted(&listener, |s| s.refused_layout, 1);
 
     // None of them reached the application.
     assert_eq!(listener.stats().accepted, 0);

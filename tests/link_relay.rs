@@ -15,7 +15,7 @@ const T: Duration = Duration::from_millis(10);
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base);
-    c.axes = 1;
+    c = c.with_width(1);
     c.period = T;
     LinkConfig::new(c)
 }

@@ -16,7 +16,7 @@ use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base);
-    c.axes = 2;
+    c = c.with_width(2);
     c.period = Duration::from_millis(10);
     LinkConfig::new(c)
 }

@@ -23,6 +23,7 @@ __all__ = [
     "ESTIMATOR_HISTORY",
     "INIT_EXCHANGES",
     "MAX_AXES",
+    "MAX_WIDTH",
     "MAX_CAPACITY",
     "DisconnectedError",
     "HandshakeError",
@@ -592,6 +593,7 @@ class Estimator:
 
 # -- the link ---------------------------------------------------------------
 
+MAX_WIDTH: int
 MAX_AXES: int
 _Address = Union[str, Tuple[str, int]]
 
@@ -599,7 +601,7 @@ class LinkError(ConnectionError):
     """The link failed or ended; every link failure is a subclass."""
 
 class HandshakeError(LinkError):
-    """The peers disagree (version, role, axes, period, mode) or the
+    """The peers disagree (version, role, widths, layout, period, mode) or the
     handshake did not finish in time."""
 
 class ProtocolError(LinkError):
@@ -669,6 +671,10 @@ class _Link:
     @property
     def axes(self) -> int: ...
     @property
+    def command_width(self) -> int: ...
+    @property
+    def state_width(self) -> int: ...
+    @property
     def period(self) -> float: ...
     @property
     def role(self) -> str: ...
@@ -694,7 +700,9 @@ class _LinkSettings:
         cls,
         *,
         role: str,
-        axes: int,
+        axes: Optional[int],
+        command_width: Optional[int],
+        state_width: Optional[int],
         period: float,
         regulation: Optional[str],
         mode: Optional[str],

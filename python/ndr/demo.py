@@ -499,7 +499,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help=argparse.SUPPRESS)
     parser.add_argument("--playout", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
-    parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 8)")
+    parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 256)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")
     parser.add_argument("--signal", default="sine", help="the operator's command: "
                         "sine[:amp=A,freq=F], steps[:low=L,high=H,period=P], constant:V")

@@ -88,7 +88,7 @@ class Event:
     ``kind`` is one of:
 
     - ``"connected"``: the handshake succeeded (``details`` holds the peer's
-      role, axes, period and mode);
+      role, ``command_width``, ``state_width``, ``layout``, period and mode);
     - ``"started"``: samples flow, with ``period`` and ``ns`` (the
       regulators' nominal size); it comes again after each pause of the
       dynamic mode, with the new ``period`` and ``ns`` (``stats["resizes"]``
@@ -126,6 +126,8 @@ class Event:
 _SETTINGS = {
     "role": "role",
     "axes": "axes",
+    "command_width": "command_width",
+    "state_width": "state_width",
     "period": "period",
     "regulation": "regulation",
     "mode": "mode",
@@ -205,7 +207,7 @@ class ListenerStats(TypedDict):
     pre-authentication budget (3 s) or their own timeout."""
     failed_other: int
     refused_role: int
-    refused_axes: int
+    refused_layout: int
     refused_settings: int
     refused_wire_version: int
     refused_protocol: int
@@ -344,7 +346,9 @@ class Link:
         address: Address,
         *,
         role: str = "base",
-        axes: int = 1,
+        axes: Optional[int] = None,
+        command_width: Optional[int] = None,
+        state_width: Optional[int] = None,
         period: float = 0.05,
         regulation: Optional[str] = None,
         mode: Optional[str] = None,
@@ -365,7 +369,14 @@ class Link:
             address: ``"host:port"`` or ``(host, port)``.
             role: ``"base"`` (the operator's side, the default) or
                 ``"remote"`` (a robot that dials out).
-            axes: values per sample, 1 to 8; both peers must agree.
+            axes: values per sample each way, 1 to 256 (a command and a state
+                value per axis; 1 when no width is given); both peers must
+                agree.
+            command_width: values in each command (base → remote), 1 to
+                256, when it differs from ``axes``: a 7-joint arm whose state
+                is positions, velocities and torques has
+                ``command_width=7, state_width=21``. Both peers must agree.
+            state_width: values in each state (remote → base), 1 to 256.
             period: the sampling period in seconds; both peers must agree.
             regulation: how this side regulates the delay (the names of
                 ``ndr demo --regulation`` and :data:`ndr.sim.REGULATIONS`):
@@ -441,7 +452,9 @@ class Link:
         address: Address,
         *,
         role: str = "remote",
-        axes: int = 1,
+        axes: Optional[int] = None,
+        command_width: Optional[int] = None,
+        state_width: Optional[int] = None,
         period: float = 0.05,
         regulation: Optional[str] = None,
         mode: Optional[str] = None,
@@ -626,8 +639,26 @@ class Link:
 
     @property
     def axes(self) -> int:
-        """Values per sample."""
+        """Values per sample when commands and states have the same width;
+        ``AttributeError`` otherwise (read :attr:`command_width` and
+        :attr:`state_width`)."""
         return self._native.axes
+
+    @property
+    def command_width(self) -> int:
+        """Values in each command (base → remote)."""
+        return self._native.command_width
+
+    @property
+    def state_width(self) -> int:
+        """Values in each state (remote → base)."""
+        return self._native.state_width
+
+    @property
+    def width(self) -> int:
+        """Values in each sample this side sends: :attr:`command_width` at
+        the base, :attr:`state_width` at the remote."""
+        return self.command_width if self.role == "base" else self.state_width
 
     @property
     def period(self) -> float:
@@ -691,7 +722,7 @@ class Link:
         host, port = self.peer
         state = "closed" if self._closed else "ended" if self._ended else "open"
         return (
-            f"<ndr.Link {self.role} peer={host}:{port} axes={self.axes} "
+            f"<ndr.Link {self.role} peer={host}:{port} widths={self.command_width}×{self.state_width} "
             f"period={self.period:g}s {state}>"
         )
 
@@ -848,7 +879,7 @@ class Listener:
         """The listener's counters by reason (:class:`ListenerStats`):
         ``accepted``; TLS: ``refused_certificate``,
         ``refused_no_certificate``, ``refused_version``; ndr's handshake:
-        ``refused_role``, ``refused_axes``, ``refused_settings`` (period,
+        ``refused_role``, ``refused_layout``, ``refused_settings`` (period,
         mode), ``refused_wire_version``, ``refused_protocol``; ``timeouts``,
         ``failed_other``; and those the listener turned away before they
         authenticated or after: ``evicted``, ``refused_per_source``,

@@ -266,7 +266,7 @@ def run(
         period: the sampling period, seconds (the paper's 0.2).
         duration: simulated time, seconds.
         seed: seed of every random draw, an integer from 0 to 2**64 - 1.
-        axes: axes of the teleoperated system, 1 to 8.
+        axes: axes of the teleoperated system, 1 to 256.
         signal: the operator's command: ``"sine[:amp=A,freq=F]"``,
             ``"steps[:low=L,high=H,period=P]"`` or ``"constant:V"``.
         series: keep the per-tick series (for plots).

@@ -163,7 +163,7 @@ def test_mismatched_settings_raise_handshake_error_and_the_listener_keeps_servin
 
     t = threading.Thread(target=serve, daemon=True)
     t.start()
-    with pytest.raises(ndr.HandshakeError, match="axes"):
+    with pytest.raises(ndr.HandshakeError, match="width mismatch"):
         ndr.Link.connect(lst.address, axes=3, period=0.02)
     with pytest.raises(ndr.HandshakeError, match="period"):
         ndr.Link.connect(lst.address, axes=2, period=0.03)
@@ -175,13 +175,15 @@ def test_mismatched_settings_raise_handshake_error_and_the_listener_keeps_servin
         assert good.role == "base" and accepted[0].role == "remote"
         accepted[0].close()
     assert lst.refused == 2
-    assert lst.stats["refused_axes"] == 1 and lst.stats["refused_settings"] == 1
+    assert lst.stats["refused_layout"] == 1 and lst.stats["refused_settings"] == 1
     lst.close()
 
 
 def test_bad_arguments_raise_value_error_naming_what_was_expected():
-    with pytest.raises(ValueError, match="axes must be an integer from 1 to 8"):
-        ndr.Link.connect(("127.0.0.1", 9), axes=9)
+    with pytest.raises(ValueError, match="axes must be an integer from 1 to 256"):
+        ndr.Link.connect(("127.0.0.1", 9), axes=257)
+    with pytest.raises(ValueError, match="state_width must be an integer from 1 to 256"):
+        ndr.Link.connect(("127.0.0.1", 9), state_width=0)
     with pytest.raises(ValueError, match="role"):
         ndr.Link.connect(("127.0.0.1", 9), role="robot")
     with pytest.raises(ValueError, match="regulation: unknown regulation; valid: adaptive"):
@@ -210,6 +212,32 @@ def test_send_checks_the_sample():
             p.base.send(["a", "b"])
         p.base.send(np.array([1, 2], dtype=np.int32))  # converted to float64
         p.base.send((0.5, 0.25))
+
+
+def test_a_link_carries_14_commands_and_28_state_values():
+    # A bimanual arm: 14 joint commands; positions and velocities back.
+    with Pair(command_width=14, state_width=28, period=0.01) as p:
+        assert (p.base.command_width, p.base.state_width) == (14, 28)
+        assert (p.remote.command_width, p.remote.state_width) == (14, 28)
+        assert (p.base.width, p.remote.width) == (14, 28)
+        with pytest.raises(AttributeError, match="command_width and state_width"):
+            p.base.axes
+        with pytest.raises(ValueError, match=r"shape \(14,\)"):
+            p.base.send(np.zeros(28))
+        states = []
+        for k in range(60):
+            p.base.send(np.arange(14.0) + k)
+            command = p.remote.recv(timeout=3)
+            assert command.sample.shape == (14,)
+            p.remote.send(np.concatenate([command.sample, -command.sample]))
+            tick = p.base.try_recv()
+            if tick is not None and tick.status == "fresh":
+                states.append(tick.sample)
+        assert len(states) > 20
+        for s in states:
+            assert s.shape == (28,)
+            np.testing.assert_array_equal(s[14:], -s[:14])
+        assert any(s[0] > 0 for s in states)
 
 
 def test_recv_timeout_and_try_recv():
@@ -480,12 +508,13 @@ def test_stats_and_properties():
 
 
 def _base_hello(period: float, axes: int = 1) -> bytes:
-    """A base's Hello frame, encoded as docs/wire.md §2 and §3.2 say."""
+    """A base's Hello frame (wire version 2), encoded as docs/wire.md §2 and
+    §3.2 say: `axes` values each way, no layout, no session."""
     import struct
 
     none = 0xFFFF_FFFF_FFFF_FFFF
-    payload = struct.pack("<BBBBHHQ", 0, 0, 0, 0, axes, 0, round(period * 1e9))
-    header = struct.pack("<IBBHQQQQQ", 48 + len(payload), 1, 2, 0, 0, 0, none, 0, none)
+    payload = struct.pack("<BBBBHHQQQ", 0, 0, 0, 0, axes, axes, round(period * 1e9), 0, 0)
+    header = struct.pack("<IBBHQQQQQ", 48 + len(payload), 2, 2, 0, 0, 0, none, 0, none)
     return header + payload
 
 

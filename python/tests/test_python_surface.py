@@ -152,7 +152,7 @@ def test_connecting_to_a_closed_port_is_econnrefused():
     [
         (lambda: ndr.sim.run(seed=-1, duration=1), "seed must be an integer from 0"),
         (lambda: ndr.sim.run(seed=2**64, duration=1), "seed must be an integer from 0"),
-        (lambda: ndr.sim.run(axes=-1, duration=1), "axes must be an integer from 1 to 8"),
+        (lambda: ndr.sim.run(axes=-1, duration=1), "axes must be an integer from 1 to 256"),
         (lambda: ndr.Signal("sine")(0.1, -1), "axis must be an integer from 0"),
         (lambda: ndr.Relay(LOOPBACK, ("127.0.0.1", 9), seed=-1), "seed must be an integer"),
         (lambda: ndr.Link.listen(("127.0.0.1", -1)), "port must be an integer from 0 to 65535"),
@@ -167,10 +167,11 @@ def test_out_of_range_integers_are_value_errors_naming_the_parameter(call, words
 @pytest.mark.parametrize(
     "kwargs, words",
     [
-        (dict(axes=-1), "axes must be an integer from 1 to 8"),
-        (dict(axes=2**70), "axes must be an integer from 1 to 8"),
-        (dict(axes=0), "axes must be an integer from 1 to 8"),
-        (dict(axes=9), "axes must be an integer from 1 to 8"),
+        (dict(axes=-1), "axes must be an integer from 1 to 256"),
+        (dict(axes=2**70), "axes must be an integer from 1 to 256"),
+        (dict(axes=0), "axes must be an integer from 1 to 256"),
+        (dict(axes=257), "axes must be an integer from 1 to 256"),
+        (dict(command_width=257), "command_width must be an integer from 1 to 256"),
         (dict(queue=-1), "queue must be an integer from 1 to 1048576"),
         (dict(queue=0), "queue must be an integer from 1"),
         (dict(queue=2**20 + 1), "queue must be an integer from 1"),

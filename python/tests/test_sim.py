@@ -91,7 +91,7 @@ def test_a_trace_file_drives_the_network(tmp_path):
         (dict(underflow="skip"), "underflow"),
         (dict(period=0), "period"),
         (dict(duration=-1), "duration"),
-        (dict(axes=9), "axes"),
+        (dict(axes=257), "axes"),
         (dict(signal="sawtooth"), "signal"),
     ],
 )

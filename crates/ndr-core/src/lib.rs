@@ -185,6 +185,7 @@ pub mod endpoint;
 pub mod estimator;
 pub mod filters;
 pub mod kalman;
+pub mod layout;
 #[cfg(feature = "alloc")]
 pub mod pair;
 pub mod playout;

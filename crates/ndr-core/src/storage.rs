@@ -12,8 +12,7 @@
 //! use ndr_core::time::Instant;
 //! use ndr_core::wire::Role;
 //!
-//! let mut config = Config::new(Role::Remote);
-//! config.axes = 2;
+//! let config = Config::new(Role::Remote).with_width(2);
 //! // Two channels and 16 queued samples, inline.
 //! let small: Endpoint<Inline<2, 16>> = Endpoint::new(config, Instant::ZERO).unwrap();
 //! // The link's own width, and room for 40 samples, on the heap.

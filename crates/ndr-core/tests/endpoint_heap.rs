@@ -40,7 +40,10 @@ fn run_with<S: Storage>(
 ) -> ([Vec<Seen>; 2], [Endpoint<S>; 2]) {
     let ep = |role, cap| Endpoint::<S>::with_capacity(config(role), Instant::ZERO, cap).unwrap();
     let world = Echo {
-        axes: usize::from(config(Role::Base).axes),
+        widths: {
+            let c = config(Role::Base);
+            [c.command_width, c.state_width].map(usize::from)
+        },
         delay,
         sent: 0,
         last: [Instant::ZERO; 2],
@@ -58,10 +61,12 @@ fn run_with<S: Storage>(
 }
 
 /// An in-order wire whose n-th frame (both ways) takes `delay(n)`; a base
-/// that sends `axes` values encoding its tick, a remote that answers each
-/// command with it reversed; what each side released.
+/// that sends its command width of values encoding its tick, a remote that
+/// answers each command with it reversed (repeated to its state width);
+/// what each side released.
 struct Echo<D> {
-    axes: usize,
+    /// What each side sends: commands, states.
+    widths: [usize; 2],
     delay: D,
     sent: u64,
     last: [Instant; 2],
@@ -90,11 +95,12 @@ impl<S: Storage, D: Fn(u64) -> Duration> World<S> for Echo<D> {
             let values = r.values().to_vec();
             let answer: Vec<f64> = if side == Role::Base {
                 self.k += 1;
-                (0..self.axes)
+                (0..self.widths[0])
                     .map(|i| f64::from(self.k) + i as f64 / 100.0)
                     .collect()
             } else {
-                values.iter().rev().copied().collect()
+                let reversed = values.iter().rev().copied();
+                reversed.cycle().take(self.widths[1]).collect()
             };
             self.seen[side as usize].push((r.seq, r.released_at, r.status, r.grtt, values));
             ep.set_sample(&answer)?;
@@ -107,10 +113,13 @@ impl<S: Storage, D: Fn(u64) -> Duration> World<S> for Echo<D> {
     }
 }
 
-fn config(axes: u16, playout: Playout) -> impl Fn(Role) -> Config {
+fn config(width: u16, playout: Playout) -> impl Fn(Role) -> Config {
+    widths(width, width, playout)
+}
+
+fn widths(command: u16, state: u16, playout: Playout) -> impl Fn(Role) -> Config {
     move |role| {
-        let mut c = Config::new(role);
-        c.axes = axes;
+        let mut c = Config::new(role).with_widths(command, state);
         c.period = Duration::from_millis(10);
         c.playout = playout;
         c
@@ -161,13 +170,48 @@ fn a_heap_endpoint_carries_as_many_channels_as_a_frame_holds() {
 }
 
 #[test]
+fn each_direction_carries_its_own_width() {
+    // A 7-joint arm whose state is positions, velocities and torques; and
+    // 64 values each way.
+    for (command, state) in [(7, 21), (64, 64), (21, 7)] {
+        let c = widths(command, state, Playout::ADAPTIVE);
+        let heap = run::<Heap>(&c, 64, jitter, 5);
+        let inline = run::<Inline<64, 64>>(&c, 64, jitter, 5);
+        assert_eq!(heap, inline, "{command} {state}");
+        let [base, remote] = heap;
+        let fresh = |s: &[Seen]| {
+            s.iter()
+                .filter(|r| r.2 == Status::Fresh && r.4.iter().any(|&x| x != 0.0))
+                .count()
+        };
+        assert!(
+            fresh(&base) > 300 && fresh(&remote) > 300,
+            "{command} {state}"
+        );
+        assert!(remote.iter().all(|r| r.4.len() == usize::from(command)));
+        assert!(base.iter().all(|r| r.4.len() == usize::from(state)));
+    }
+    // A sample of the other direction's width is refused.
+    let c = widths(7, 21, Playout::Fifo);
+    let mut base = Endpoint::<Heap>::new(c(Role::Base), Instant::ZERO).unwrap();
+    assert_eq!(
+        base.set_sample(&[0.0; 21]),
+        Err(LinkError::SampleShape {
+            expected: 7,
+            got: 21
+        })
+    );
+    assert!(base.set_sample(&[0.0; 7]).is_ok());
+}
+
+#[test]
 fn an_inline_endpoint_refuses_more_channels_than_it_holds() {
     let c = config(9, Playout::Fifo)(Role::Base);
     let err = Endpoint::<Inline<8, 16>>::new(c, Instant::ZERO).unwrap_err();
     assert_eq!(
         err,
         ConfigError::Channels {
-            axes: 9,
+            width: 9,
             capacity: 8
         }
     );

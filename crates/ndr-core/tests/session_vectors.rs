@@ -78,8 +78,11 @@ fn hand(ep: &mut Endpoint<Inline<1, 8>>, line: &Line, first: bool) -> String {
         role: Role::Base,
         mode: mode::PAPER_STATIC,
         underflow: underflow::HOLD,
-        axes: 1,
+        command_width: 1,
+        state_width: 1,
         period: T,
+        layout: 0,
+        session: 0,
     };
     let msg = if first {
         Message::Hello(hello)

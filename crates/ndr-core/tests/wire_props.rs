@@ -76,15 +76,25 @@ impl Owned {
 fn message() -> impl Strategy<Value = Owned> {
     prop_oneof![
         3 => prop::collection::vec(finite(), 0..=MAX_CHANNELS).prop_map(Owned::Data),
-        1 => (any::<bool>(), any::<u8>(), any::<u8>(), any::<u16>(), 1..=u64::MAX).prop_map(
-            |(remote, mode, underflow, axes, period)| Owned::Hello(Hello {
-                role: if remote { Role::Remote } else { Role::Base },
-                mode,
-                underflow,
-                axes,
-                period: Duration::from_nanos(period),
-            })
-        ),
+        1 => (
+            (any::<bool>(), any::<u8>(), any::<u8>()),
+            (1..=MAX_CHANNELS as u16, 1..=MAX_CHANNELS as u16),
+            (1..=u64::MAX, any::<u64>(), any::<u64>()),
+        )
+            .prop_map(
+                |((remote, mode, underflow), (command_width, state_width), (period, layout, session))| {
+                    Owned::Hello(Hello {
+                        role: if remote { Role::Remote } else { Role::Base },
+                        mode,
+                        underflow,
+                        command_width,
+                        state_width,
+                        period: Duration::from_nanos(period),
+                        layout,
+                        session,
+                    })
+                }
+            ),
         1 => (1..=u8::MAX, any::<u16>(), any::<u64>()).prop_map(|(op, ns, period)| {
             Owned::Control(Control {
                 op,
@@ -244,7 +254,8 @@ proptest! {
             h.echo = Some(Echo { sent_at: Instant::from_nanos(u64::MAX), hold: Duration::ZERO });
         }
         let hello = Hello {
-            role: Role::Base, mode: 0, underflow: 0, axes: 1, period: Duration::from_nanos(period),
+            role: Role::Base, mode: 0, underflow: 0, command_width: 1, state_width: 1,
+            period: Duration::from_nanos(period), layout: 0, session: 0,
         };
         let control = Control { op, ns: 1, period: Duration::from_nanos(period) };
         let mut buf = vec![0u8; buf_len];

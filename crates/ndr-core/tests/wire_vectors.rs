@@ -63,6 +63,9 @@ fn blocks() -> Vec<Block> {
 
 const NONE: Option<Echo> = None;
 
+/// The layout of vectors 4 and 5 (§3.5).
+const LAYOUT: u64 = 0x5954_6583_3bec_ef95;
+
 fn echo(sent_at: u64, hold: u64) -> Option<Echo> {
     Some(Echo {
         sent_at: Instant::from_nanos(sent_at),
@@ -97,8 +100,11 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 role: Role::Base,
                 mode: mode::PAPER_DYNAMIC,
                 underflow: underflow::HOLD,
-                axes: 3,
+                command_width: 3,
+                state_width: 6,
                 period: Duration::from_millis(200),
+                layout: LAYOUT,
+                session: 0,
             }),
         ),
         (
@@ -107,8 +113,11 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 role: Role::Remote,
                 mode: mode::PAPER_DYNAMIC,
                 underflow: underflow::HOLD,
-                axes: 3,
+                command_width: 3,
+                state_width: 6,
                 period: Duration::from_millis(200),
+                layout: LAYOUT,
+                session: 0,
             }),
         ),
         (
@@ -185,7 +194,7 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
                 actual: 73,
             },
         ),
-        (patch(&v[3], 4, &[2]), WireError::UnsupportedVersion(2)),
+        (patch(&v[3], 4, &[1]), WireError::UnsupportedVersion(1)),
         (patch(&bare, 5, &[5]), WireError::UnknownKind(5)),
         (patch(&v[2], 6, &[1]), WireError::UnsupportedFlags(1)),
         (patch(&v[1], 32, &[0x10]), WireError::HoldWithoutEcho),
@@ -222,6 +231,13 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
         (
             patch(&v[6], 50, &[0xff]),
             WireError::ReservedNotZero { offset: 50 },
+        ),
+        (
+            patch(&v[3], 54, &300u16.to_le_bytes()),
+            WireError::WidthOutOfRange {
+                width: 300,
+                offset: 54,
+            },
         ),
     ]
 }

@@ -293,15 +293,17 @@ mod tests {
     }
 
     #[test]
-    fn a_deframer_for_two_channels_is_small_and_refuses_a_longer_frame() {
-        let two = data_frame(0, &[1.0, 2.0]).len();
-        let mut d = Deframer::with_max_frame(two);
-        assert_eq!(d.max_frame(), two);
-        assert_eq!(d.spare().len(), two * READ_FRAMES);
+    fn a_deframer_for_five_channels_is_small_and_refuses_a_longer_frame() {
+        let sample = |seq: u64| [seq as f64, 0.0, 1.0, 2.0, 3.0];
+        let five = data_frame(0, &sample(0)).len();
+        assert!(five > MIN_MAX_FRAME);
+        let mut d = Deframer::with_max_frame(five);
+        assert_eq!(d.max_frame(), five);
+        assert_eq!(d.spare().len(), five * READ_FRAMES);
         // Frames of the limit, split and merged across reads, still pass.
         let mut stream = Vec::new();
         for seq in 0..20u64 {
-            stream.extend(data_frame(seq, &[seq as f64, 0.0]));
+            stream.extend(data_frame(seq, &sample(seq)));
         }
         let (mut at, mut seen) = (0, 0u64);
         while at < stream.len() {
@@ -313,18 +315,20 @@ mod tests {
             }
         }
         assert_eq!(seen, 20);
-        d.extend(&data_frame(20, &[1.0, 2.0, 3.0])[..8]);
+        d.extend(&data_frame(20, &[1.0; 6])[..8]);
         let err = d.next_frame().unwrap_err();
         assert_eq!(
             err,
             FramingError::TooLong {
-                len: two + 8,
-                max: two
+                len: five + 8,
+                max: five
             }
         );
         assert!(err.to_string().contains("more channels"), "{err}");
-        // Below the largest fixed-size frame, the limit is raised to it.
+        // Below the largest fixed-size frame (a Hello), the limit is raised
+        // to it: a link of one value each way still reads its peer's Hello.
         assert_eq!(Deframer::with_max_frame(0).max_frame(), MIN_MAX_FRAME);
+        assert_eq!(MIN_MAX_FRAME, HEADER_LEN + Hello::LEN);
     }
 
     #[test]

@@ -883,7 +883,7 @@ pub(crate) fn handle_frames(e: &mut Entry, origin: StdInstant, at: StdInstant) -
             // Only a Data frame has no fixed length: this one has more
             // channels than the link carries.
             Err(FramingError::TooLong { len, .. }) => {
-                let expected = e.endpoint.config().axes;
+                let expected = e.endpoint.config().received_width();
                 let got = len.saturating_sub(HEADER_LEN) / 8;
                 e.endpoint.abort(LinkError::ChannelCount { expected, got });
                 return false;

@@ -23,7 +23,7 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{ConfigError, DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running};
+use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running};
 use ndr_core::storage::Heap;
 use ndr_core::time::Instant;
 use ndr_core::wire::{HEADER_LEN, Role};
@@ -45,8 +45,6 @@ pub use crate::error::NetError;
 pub use crate::pool::HubChoice;
 pub use crate::stats::LinkStats;
 
-/// Most axes a link carries.
-pub const MAX_AXES: usize = 8;
 /// Events a [`Link`] keeps for [`drain_events`](Link::drain_events); past
 /// it the oldest go, counted in [`LinkStats::events_dropped`].
 pub const EVENT_BACKLOG: usize = 256;
@@ -59,7 +57,8 @@ pub struct Link {
     events: VecDeque<LinkEvent>,
     /// Events dropped from `events`; [`LinkSender::stats`] reports them.
     events_dropped: Arc<AtomicU64>,
-    axes: usize,
+    /// Values in each sample this side sends, and in each it receives.
+    widths: (usize, usize),
     closed: Option<LinkError>,
     shut: bool,
     peer: SocketAddr,
@@ -74,7 +73,7 @@ impl fmt::Debug for Link {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Link")
             .field("peer", &self.peer)
-            .field("axes", &self.axes)
+            .field("widths", &self.widths)
             .field("closed", &self.closed)
             .finish()
     }
@@ -153,12 +152,10 @@ impl Link {
         cfg.role = role;
         cfg.tick_origin = Instant::ZERO;
         cfg.validate().map_err(NetError::Config)?;
-        if usize::from(cfg.axes) > MAX_AXES {
-            return Err(NetError::Config(ConfigError::Channels {
-                axes: cfg.axes,
-                capacity: MAX_AXES,
-            }));
-        }
+        let widths = (
+            usize::from(cfg.sent_width()),
+            usize::from(cfg.received_width()),
+        );
         stream.set_nodelay(true)?;
         // Best effort: the endpoint's liveness ends a silent link anyway.
         let user_timeout = cfg.liveness.unwrap_or(DEFAULT_LIVENESS).into();
@@ -175,7 +172,7 @@ impl Link {
         let id = hub.next_id();
         let (del_tx, del_rx) = delivery::queue(config.app_queue);
         let shared = Arc::new(Shared {
-            sample: Mutex::new((vec![0.0; usize::from(cfg.axes)], false)),
+            sample: Mutex::new((vec![0.0; widths.0], false)),
             stats: Mutex::new(None),
             notify: Notify::new(),
         });
@@ -188,8 +185,8 @@ impl Link {
             shared: Arc::clone(&shared),
             deliveries: del_tx,
             socket,
-            // The peer's Data frames carry the agreed axes, at most MAX_AXES.
-            deframer: Deframer::with_max_frame(HEADER_LEN + 8 * MAX_AXES),
+            // Memory per link follows the width the peer's samples carry.
+            deframer: Deframer::with_max_frame(HEADER_LEN + 8 * widths.1),
             pending: Vec::new(),
             tls: tls.map(|conn| Box::new(Session::new(conn))),
             kernel_stamps,
@@ -209,7 +206,7 @@ impl Link {
             shared,
             events: VecDeque::new(),
             events_dropped: Arc::new(AtomicU64::new(0)),
-            axes: usize::from(cfg.axes),
+            widths,
             closed: None,
             shut: false,
             peer,
@@ -251,6 +248,13 @@ impl Link {
         self.sender().send(values)
     }
 
+    /// Values in each sample this side sends and in each it receives: at
+    /// the base (command width, state width), at the remote the reverse.
+    #[must_use]
+    pub fn widths(&self) -> (usize, usize) {
+        self.widths
+    }
+
     /// A handle that sets the samples this link sends and reads its stats,
     /// for another thread while this one waits in [`recv`](Self::recv).
     #[must_use]
@@ -258,7 +262,7 @@ impl Link {
         LinkSender {
             shared: Arc::clone(&self.shared),
             events_dropped: Arc::clone(&self.events_dropped),
-            axes: self.axes,
+            width: self.widths.0,
             origin: self.hub.origin(),
         }
     }
@@ -420,11 +424,11 @@ impl Link {
     /// link.on_release(move |command| {
     ///     // The plant's step, in microseconds and without allocating; its
     ///     // state goes out at the next tick.
-    ///     let mut state = [0.0; ndr_net::link::MAX_AXES];
+    ///     let mut state = [0.0; 8];
     ///     for (s, c) in state.iter_mut().zip(command.values()) {
     ///         *s = 0.5 * c;
     ///     }
-    ///     let _ = tx.send(&state[..command.values().len()]);
+    ///     let _ = tx.send(&state[..tx.width()]);
     /// })?;
     /// // Events and the end of the link.
     /// let end = link.recv_async().await;
@@ -513,14 +517,14 @@ impl Drop for Link {
 pub struct LinkSender {
     shared: Arc<Shared>,
     events_dropped: Arc<AtomicU64>,
-    axes: usize,
+    width: usize,
     origin: StdInstant,
 }
 
 impl fmt::Debug for LinkSender {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("LinkSender")
-            .field("axes", &self.axes)
+            .field("width", &self.width)
             .finish_non_exhaustive()
     }
 }
@@ -528,9 +532,9 @@ impl fmt::Debug for LinkSender {
 impl LinkSender {
     /// Sets the sample sent at the next tick (see [`Link::send`]).
     pub fn send(&self, values: &[f64]) -> Result<(), NetError> {
-        if values.len() != self.axes {
+        if values.len() != self.width {
             return Err(NetError::Link(LinkError::SampleShape {
-                expected: u16::try_from(self.axes).unwrap_or(u16::MAX),
+                expected: u16::try_from(self.width).unwrap_or(u16::MAX),
                 got: values.len(),
             }));
         }
@@ -560,10 +564,11 @@ impl LinkSender {
         Some(stats)
     }
 
-    /// Axes per sample.
+    /// Values in each sample this side sends: the command width at the
+    /// base, the state width at the remote.
     #[must_use]
-    pub fn axes(&self) -> usize {
-        self.axes
+    pub fn width(&self) -> usize {
+        self.width
     }
 
     /// Now, on the link's clock (see [`Link::now`]).

@@ -64,8 +64,9 @@ pub struct ListenerStats {
     pub failed_other: u64,
     /// ndr handshakes refused: the peer claims this side's role.
     pub refused_role: u64,
-    /// ndr handshakes refused: the peer has another number of axes.
-    pub refused_axes: u64,
+    /// ndr handshakes refused: the peer has other sample widths or another
+    /// channel layout.
+    pub refused_layout: u64,
     /// ndr handshakes refused: another period, regulation mode or
     /// parameters this side cannot take.
     pub refused_settings: u64,
@@ -288,8 +289,7 @@ impl Listener {
     /// use ndr_core::wire::Role;
     /// use ndr_net::{LinkConfig, Listener};
     ///
-    /// let mut endpoint = Config::new(Role::Remote);
-    /// endpoint.axes = 2;
+    /// let mut endpoint = Config::new(Role::Remote).with_width(2);
     /// endpoint.period = Duration::from_millis(10);
     /// // One base at a time: another is told the robot is busy.
     /// let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, LinkConfig::new(endpoint))?
@@ -411,7 +411,7 @@ impl Listener {
     /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
     /// without TLS): first TLS's, if the listener has it, then ndr's Hello,
     /// both within [`Admission::preauth_timeout`](crate::Admission::preauth_timeout). A peer whose handshake
-    /// fails (unknown certificate, another role, other axes, period or
+    /// fails (unknown certificate, another role, other widths or layout, period or
     /// mode, no answer in time…) or that [`Admission`](crate::Admission) turns away is
     /// logged, counted in [`stats`](Self::stats) and dropped: it never
     /// reaches the application, and the listener keeps serving. A link that

@@ -10,7 +10,7 @@ use ndr_net::{Hub, HubChoice, HubPool, Link, LinkConfig, Listener, NetError};
 
 fn config() -> LinkConfig {
     let mut c = Config::new(Role::Base);
-    c.axes = 2;
+    c = c.with_width(2);
     LinkConfig::new(c)
 }
 
@@ -97,7 +97,7 @@ fn links_are_spread_over_the_hubs_and_leave_them_when_closed() {
         .build()
         .expect("runtime");
     let mut c = Config::paper(Role::Base);
-    c.axes = 1;
+    c = c.with_width(1);
     let config = LinkConfig::new(c);
     let bases = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
     let remotes = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");

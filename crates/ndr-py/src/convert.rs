@@ -84,7 +84,7 @@ pub fn count(name: &str, obj: &Bound<'_, PyAny>, min: usize, max: usize) -> PyRe
 
 /// An integer of type `T` in `min..=max`, from any Python int: a negative or
 /// too large one (even beyond 128 bits) is a `ValueError` naming `name` and
-/// the range (`"axes must be an integer from 1 to 8, got -1"`), a
+/// the range (`"axes must be an integer from 1 to 256, got -1"`), a
 /// non-integer a `TypeError`. Take unsigned parameters (axes, seeds, sizes)
 /// this way, or as `i128` checked by [`in_range`], rather than as `u16`,
 /// `u64` or `usize`, whose refusal is pyo3's `OverflowError` naming no

@@ -79,7 +79,8 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
     match e {
         CoreError::VersionMismatch { .. }
         | CoreError::RoleMismatch { .. }
-        | CoreError::AxesMismatch { .. }
+        | CoreError::WidthMismatch { .. }
+        | CoreError::LayoutMismatch { .. }
         | CoreError::PeriodMismatch { .. }
         | CoreError::ModeMismatch { .. }
         | CoreError::BadParameters { .. }
@@ -110,7 +111,8 @@ fn peer_closed(py: Python<'_>, msg: String, reason: u16) -> PyErr {
     let err = match reason {
         close_reason::VERSION_MISMATCH
         | close_reason::ROLE_MISMATCH
-        | close_reason::AXES_MISMATCH
+        | close_reason::WIDTH_MISMATCH
+        | close_reason::LAYOUT_MISMATCH
         | close_reason::PERIOD_MISMATCH
         | close_reason::MODE_MISMATCH => HandshakeError::new_err(msg),
         _ => PeerClosedError::new_err(msg),

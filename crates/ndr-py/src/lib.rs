@@ -128,7 +128,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(tls::keygen, m)?)?;
     m.add_function(wrap_pyfunction!(link::connect, m)?)?;
     m.add_function(wrap_pyfunction!(link::listen, m)?)?;
-    m.add("MAX_AXES", ndr_net::link::MAX_AXES)?;
+    m.add("MAX_WIDTH", ndr_core::wire::MAX_CHANNELS)?;
+    m.add("MAX_AXES", ndr_core::wire::MAX_CHANNELS)?;
     m.add_class::<relay::PyRelay>()?;
     m.add_function(wrap_pyfunction!(sim::run, m)?)?;
     m.add_function(wrap_pyfunction!(regulation::parts, m)?)?;

@@ -20,8 +20,9 @@ use std::time::Duration as StdDuration;
 use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
 use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
+use ndr_core::wire::MAX_CHANNELS;
 use ndr_core::wire::Role;
-use ndr_net::link::{EVENT_BACKLOG, LinkEvent, MAX_AXES};
+use ndr_net::link::{EVENT_BACKLOG, LinkEvent};
 use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
@@ -199,6 +200,8 @@ pub struct PyLink {
     role: Role,
     period: f64,
     peer: SocketAddr,
+    /// Values in each command and in each state.
+    widths: (usize, usize),
 }
 
 fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
@@ -207,7 +210,12 @@ fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
 
 impl PyLink {
     fn new(link: Link, role: Role, period: Duration) -> Self {
+        let (sent, received) = link.widths();
         PyLink {
+            widths: match role {
+                Role::Base => (sent, received),
+                Role::Remote => (received, sent),
+            },
             sender: link.sender(),
             peer: link.peer_addr(),
             rx: Mutex::new(Rx {
@@ -321,7 +329,7 @@ impl PyLink {
     /// Sets the sample sent at the next tick (the previous one is repeated,
     /// and counted, at ticks where none was given).
     fn send(&self, py: Python<'_>, sample: &Bound<'_, PyAny>) -> PyResult<()> {
-        let values = to_sample("sample", sample, self.sender.axes())?;
+        let values = to_sample("sample", sample, self.sender.width())?;
         if let Some(e) = self.ended(py) {
             return Err(link_error(py, e));
         }
@@ -390,10 +398,28 @@ impl PyLink {
         self.end(py, Link::abort);
     }
 
-    /// Axes per sample.
+    /// Values in each command (base → remote).
     #[getter]
-    fn axes(&self) -> usize {
-        self.sender.axes()
+    fn command_width(&self) -> usize {
+        self.widths.0
+    }
+
+    /// Values in each state (remote → base).
+    #[getter]
+    fn state_width(&self) -> usize {
+        self.widths.1
+    }
+
+    /// Axes: the width of both directions when they are the same.
+    #[getter]
+    fn axes(&self) -> PyResult<usize> {
+        match self.widths {
+            (c, s) if c == s => Ok(c),
+            (c, s) => Err(pyo3::exceptions::PyAttributeError::new_err(format!(
+                "this link's commands carry {c} values and its states {s}: read \
+                 command_width and state_width"
+            ))),
+        }
     }
 
     /// The period the link was set up with (s).
@@ -427,7 +453,9 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
     match e {
         Event::Connected { peer } => {
             fields.set_item("peer_role", role_name(peer.role))?;
-            fields.set_item("axes", peer.axes)?;
+            fields.set_item("command_width", peer.command_width)?;
+            fields.set_item("state_width", peer.state_width)?;
+            fields.set_item("layout", peer.layout)?;
             fields.set_item("period", peer.period.as_secs_f64())?;
             fields.set_item("mode", Mode::from_code(peer.mode).map(Mode::name))?;
         }
@@ -469,12 +497,14 @@ pub struct PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, period, regulation, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure))]
+    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         role: &str,
         axes: &Bound<'_, PyAny>,
+        command_width: &Bound<'_, PyAny>,
+        state_width: &Bound<'_, PyAny>,
         period: f64,
         regulation: Option<&str>,
         mode: Option<&str>,
@@ -495,12 +525,20 @@ impl PyLinkSettings {
                 )));
             }
         };
-        let max_axes = u16::try_from(MAX_AXES).unwrap_or(u16::MAX);
-        let axes = int_in("axes", axes, 1, max_axes)?;
+        let max = u16::try_from(MAX_CHANNELS).unwrap_or(u16::MAX);
+        let width = |name, value: &Bound<'_, PyAny>| -> PyResult<Option<u16>> {
+            (!value.is_none())
+                .then(|| int_in(name, value, 1, max))
+                .transpose()
+        };
+        let axes = width("axes", axes)?;
+        let widths = (
+            width("command_width", command_width)?.or(axes).unwrap_or(1),
+            width("state_width", state_width)?.or(axes).unwrap_or(1),
+        );
         // (`queue` is the name `ndr.Link` gives it.)
         let app_queue = count("queue", app_queue, 1, MAX_APP_QUEUE)?;
-        let mut endpoint = Config::new(role);
-        endpoint.axes = axes;
+        let mut endpoint = Config::new(role).with_widths(widths.0, widths.1);
         endpoint.period = positive("period", period)?;
         // Called from `ndr.link._settings`, from `Link.connect` or
         // `Link.listen`: the user's call is three frames up.
@@ -800,7 +838,7 @@ impl PyListener {
             + s.timeouts
             + s.failed_other
             + s.refused_role
-            + s.refused_axes
+            + s.refused_layout
             + s.refused_settings
             + s.refused_wire_version
             + s.refused_protocol

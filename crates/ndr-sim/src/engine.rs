@@ -20,8 +20,9 @@ use super::delay::{DelayModel, DelaySampler, Direction, InOrderPath};
 use super::report::{Collector, Report, Row};
 use super::signal::Signal;
 
-/// Most axes a simulated link carries.
-pub const MAX_SIM_AXES: usize = 8;
+/// Most axes a simulated link carries: a command and a state value each,
+/// as many as a frame holds.
+pub const MAX_SIM_AXES: usize = ndr_core::wire::MAX_CHANNELS;
 /// Capacity of the simulated regulators: room for `ns` up to 4095, enough
 /// for Paris–New York jitter at a 1 ms period.
 pub const SIM_QUEUE: usize = 4096;
@@ -267,8 +268,7 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         return Err(SimError::Axes(cfg.axes));
     }
     let endpoint = |role| -> Result<SimEndpoint, SimError> {
-        let mut c = Config::paper(role);
-        c.axes = cfg.axes;
+        let mut c = Config::paper(role).with_width(cfg.axes);
         c.period = cfg.period;
         c.mode = cfg.mode;
         c.underflow = cfg.underflow;
@@ -476,7 +476,9 @@ mod tests {
     #[test]
     fn bad_axes_are_refused() {
         let mut cfg = SimConfig::paper(DelayModel::Lan75km);
-        cfg.axes = 9;
-        assert!(matches!(run(&cfg), Err(SimError::Axes(9))));
+        for axes in [0, 257] {
+            cfg.axes = axes;
+            assert!(matches!(run(&cfg), Err(SimError::Axes(a)) if a == axes));
+        }
     }
 }

@@ -47,7 +47,8 @@ pub struct LinkArgs {
     /// Sampling period, in ms (50: the paper's choice for its LAN).
     #[arg(long, default_value_t = 50.0)]
     pub period_ms: f64,
-    /// Axes of the teleoperated system (1 to 8).
+    /// Axes of the teleoperated system (1 to 256): a command value and a
+    /// state value each.
     #[arg(long, default_value_t = 1)]
     pub axes: u16,
 }
@@ -58,8 +59,7 @@ impl LinkArgs {
         if period.is_zero() {
             return Err("--period-ms must be positive".into());
         }
-        let mut endpoint = Config::new(Role::Base);
-        endpoint.axes = self.axes;
+        let mut endpoint = Config::new(Role::Base).with_width(self.axes);
         endpoint.period = period;
         let (mode, playout, old) = self.asked()?;
         if old {

@@ -111,7 +111,7 @@ pub struct SimArgs {
     /// Seed of every random draw: the same seed gives the same run.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Axes of the teleoperated system (1 to 8).
+    /// Axes of the teleoperated system (1 to 256).
     #[arg(long, default_value_t = 1)]
     pub axes: u16,
     /// The operator's command: sine[:amp=A,freq=F], steps[:low=L,high=H,period=P], constant:V.

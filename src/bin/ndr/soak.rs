@@ -166,7 +166,7 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
 fn link_config(period: Duration) -> Result<LinkConfig, String> {
     // The paper's FIFO: what docs/reliability.md's soak runs measured.
     let mut endpoint = Config::paper(Role::Base);
-    endpoint.axes = 4;
+    endpoint = endpoint.with_width(4);
     endpoint.period = period;
     // A delay spike then costs late samples (dropped and counted) instead of
     // a delay that grows by the spike's length each time.
@@ -641,8 +641,11 @@ fn base_hello(period: Duration) -> Vec<u8> {
         role: Role::Base,
         mode: wire::mode::PAPER_STATIC,
         underflow: wire::underflow::DROP_LATE,
-        axes: 4,
+        command_width: 4,
+        state_width: 4,
         period,
+        layout: 0,
+        session: 0,
     };
     let mut buf = [0u8; wire::MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap_or(0);

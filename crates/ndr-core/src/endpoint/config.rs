@@ -99,8 +99,16 @@ pub const DEFAULT_LIVENESS: Duration = Duration::from_secs(10);
 pub struct Config {
     /// Base (operator side, sends commands) or remote (robot side, sends states).
     pub role: Role,
-    /// Channels per sample; both peers must agree.
-    pub axes: u16,
+    /// Values in each command sample (base → remote), 1 to
+    /// [`MAX_CHANNELS`]; both peers must agree.
+    pub command_width: u16,
+    /// Values in each state sample (remote → base), 1 to [`MAX_CHANNELS`];
+    /// both peers must agree.
+    pub state_width: u16,
+    /// The fingerprint of the application's channel layout
+    /// ([`layout::fingerprint`](crate::layout::fingerprint) of its channel
+    /// names), `0` for none; both peers must give the same.
+    pub layout: u64,
     /// The sampling period `T`; both peers must agree at the handshake.
     pub period: Duration,
     /// Static or dynamic sizing of the queues; both peers must agree. With
@@ -158,13 +166,16 @@ impl Config {
         }
     }
 
-    /// The paper's setup for `role`: 1 axis, `T = 200 ms`, static, hold, FIFO.
+    /// The paper's setup for `role`: one value each way, `T = 200 ms`,
+    /// static, hold, FIFO.
     #[must_use]
     pub fn paper(role: Role) -> Self {
         let period = Duration::from_millis(200);
         Config {
             role,
-            axes: 1,
+            command_width: 1,
+            state_width: 1,
+            layout: 0,
             period,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
@@ -195,10 +206,47 @@ impl Config {
         Regulation::of(self.mode, self.playout)
     }
 
+    /// This configuration with `command_width` values in each command and
+    /// `state_width` in each state.
+    #[must_use]
+    pub fn with_widths(mut self, command_width: u16, state_width: u16) -> Self {
+        self.command_width = command_width;
+        self.state_width = state_width;
+        self
+    }
+
+    /// This configuration with `width` values each way (the paper's axes:
+    /// a command and a state per axis).
+    #[must_use]
+    pub fn with_width(self, width: u16) -> Self {
+        self.with_widths(width, width)
+    }
+
+    /// The width of what this side sends: commands from the base, states
+    /// from the remote.
+    #[must_use]
+    pub const fn sent_width(&self) -> u16 {
+        match self.role {
+            Role::Base => self.command_width,
+            Role::Remote => self.state_width,
+        }
+    }
+
+    /// The width of what this side receives.
+    #[must_use]
+    pub const fn received_width(&self) -> u16 {
+        match self.role {
+            Role::Base => self.state_width,
+            Role::Remote => self.command_width,
+        }
+    }
+
     /// Checks the values that do not depend on the queue's capacity.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        if self.axes == 0 || usize::from(self.axes) > MAX_CHANNELS {
-            return Err(ConfigError::Axes(self.axes));
+        for (width, which) in [(self.command_width, "command"), (self.state_width, "state")] {
+            if width == 0 || usize::from(width) > MAX_CHANNELS {
+                return Err(ConfigError::Width { which, width });
+            }
         }
         if self.period < MIN_PERIOD {
             return Err(ConfigError::Period(self.period));
@@ -239,12 +287,17 @@ pub const MIN_PERIOD: Duration = Duration::from_micros(100);
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[non_exhaustive]
 pub enum ConfigError {
-    /// Axes must be in `1..=256`.
-    Axes(u16),
-    /// The endpoint's sample type holds fewer channels than `axes`.
+    /// A sample width must be in `1..=256`.
+    Width {
+        /// `"command"` or `"state"`.
+        which: &'static str,
+        /// The width asked for.
+        width: u16,
+    },
+    /// The endpoint's sample type holds fewer channels than a width.
     Channels {
-        /// Axes asked for.
-        axes: u16,
+        /// The wider of the two widths.
+        width: u16,
         /// Channels the endpoint's storage holds.
         capacity: usize,
     },
@@ -277,13 +330,14 @@ pub enum ConfigError {
 impl fmt::Display for ConfigError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            ConfigError::Axes(a) => {
-                write!(f, "axes = {a}: a link carries 1 to {MAX_CHANNELS} axes")
-            }
-            ConfigError::Channels { axes, capacity } => write!(
+            ConfigError::Width { which, width } => write!(
                 f,
-                "axes = {axes} but this endpoint's samples hold {capacity} channels; \
-                 use an Inline<C, N> storage with C >= {axes}, or a Heap one"
+                "{which} width = {width}: a sample carries 1 to {MAX_CHANNELS} values"
+            ),
+            ConfigError::Channels { width, capacity } => write!(
+                f,
+                "a sample of {width} values but this endpoint's samples hold {capacity} channels; \
+                 use an Inline<C, N> storage with C >= {width}, or a Heap one"
             ),
             ConfigError::Capacity { asked } => write!(
                 f,

@@ -24,12 +24,21 @@ pub enum LinkError {
         /// The role both claim.
         role: Role,
     },
-    /// The peers disagree on the number of axes (ends the link).
-    AxesMismatch {
+    /// The peers disagree on a sample's width (ends the link).
+    WidthMismatch {
+        /// `"command"` or `"state"`.
+        which: &'static str,
         /// Ours.
         ours: u16,
         /// The peer's.
         theirs: u16,
+    },
+    /// The peers were built for different channel layouts (ends the link).
+    LayoutMismatch {
+        /// Our layout's fingerprint (`0`: none given).
+        ours: u64,
+        /// The peer's.
+        theirs: u64,
     },
     /// The peers disagree on the period (ends the link).
     PeriodMismatch {
@@ -54,7 +63,7 @@ pub enum LinkError {
     },
     /// A sample with the wrong number of channels (ends the link).
     ChannelCount {
-        /// The agreed number of axes.
+        /// The agreed width of the peer's samples.
         expected: u16,
         /// What the frame carried.
         got: usize,
@@ -124,9 +133,10 @@ pub enum LinkError {
     /// handshake, as TLS 1.3 checks the client's last): the peer neither pins
     /// it nor trusts its CA (reported by the driver).
     CertificateRefused,
-    /// The application's sample does not have `axes` channels (the call is refused).
+    /// The application's sample does not have this side's width (the call
+    /// is refused).
     SampleShape {
-        /// The agreed number of axes.
+        /// The width of what this side sends.
         expected: u16,
         /// What was given.
         got: usize,
@@ -153,7 +163,8 @@ impl LinkError {
             LinkError::Wire(e) => e.close_reason(),
             LinkError::VersionMismatch { .. } => close_reason::VERSION_MISMATCH,
             LinkError::RoleMismatch { .. } => close_reason::ROLE_MISMATCH,
-            LinkError::AxesMismatch { .. } => close_reason::AXES_MISMATCH,
+            LinkError::WidthMismatch { .. } => close_reason::WIDTH_MISMATCH,
+            LinkError::LayoutMismatch { .. } => close_reason::LAYOUT_MISMATCH,
             LinkError::PeriodMismatch { .. } => close_reason::PERIOD_MISMATCH,
             LinkError::ModeMismatch { .. } => close_reason::MODE_MISMATCH,
             LinkError::Timeout | LinkError::PeerSilent { .. } => close_reason::TIMEOUT,
@@ -199,6 +210,18 @@ fn role_name(r: Role) -> &'static str {
     }
 }
 
+/// A layout fingerprint as the errors show it: hexadecimal, or "none".
+struct LayoutName(u64);
+
+impl fmt::Display for LayoutName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            0 => f.write_str("none (no channel names given)"),
+            n => write!(f, "{n:#018x}"),
+        }
+    }
+}
+
 impl fmt::Display for LinkError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
@@ -213,9 +236,22 @@ impl fmt::Display for LinkError {
                 "both peers are configured as {}; one side must be the base and the other the remote",
                 role_name(role)
             ),
-            LinkError::AxesMismatch { ours, theirs } => write!(
+            LinkError::WidthMismatch {
+                which,
+                ours,
+                theirs,
+            } => write!(
                 f,
-                "axes mismatch: this side has {ours}, the peer {theirs}; configure both with the same number"
+                "width mismatch: this side's {which}s carry {ours} values, the peer's {theirs}; \
+                 configure both with the same command and state widths"
+            ),
+            LinkError::LayoutMismatch { ours, theirs } => write!(
+                f,
+                "layout mismatch: this side was built for channel layout {}, the peer for {}; \
+                 the two ends name their channels differently (another robot, or another \
+                 version of it): give both the same channel names",
+                LayoutName(ours),
+                LayoutName(theirs)
             ),
             LinkError::PeriodMismatch { ours, theirs } => write!(
                 f,
@@ -233,7 +269,7 @@ impl fmt::Display for LinkError {
             }
             LinkError::ChannelCount { expected, got } => write!(
                 f,
-                "protocol error: a sample with {got} channels on a {expected}-axis link"
+                "protocol error: a sample of {got} values where the peer's samples carry {expected}"
             ),
             LinkError::BadParameters { ns, period } => write!(
                 f,
@@ -298,7 +334,7 @@ impl fmt::Display for LinkError {
             ),
             LinkError::SampleShape { expected, got } => write!(
                 f,
-                "a sample must have {expected} values (one per axis), got {got}"
+                "a sample this side sends must have {expected} values (its width), got {got}"
             ),
             LinkError::NonFinite { index } => write!(
                 f,

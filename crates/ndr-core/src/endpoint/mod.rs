@@ -8,7 +8,7 @@
 //!
 //! # Protocol
 //!
-//! 1. **Handshake.** The base sends Hello (role, mode, axes, period); the
+//! 1. **Handshake.** The base sends Hello (role, mode, widths, layout, period); the
 //!    remote checks it against its own configuration and answers with its
 //!    Hello. Any mismatch ends the link with a specific [`LinkError`] and a
 //!    Close frame carrying its reason.
@@ -205,11 +205,14 @@ impl<S: Storage> Endpoint<S> {
         capacity: usize,
     ) -> Result<Self, ConfigError> {
         config.validate()?;
-        let axes = usize::from(config.axes);
-        let sample = S::values(axes).ok_or(ConfigError::Channels {
-            axes: config.axes,
+        let widest = config.command_width.max(config.state_width);
+        let too_wide = ConfigError::Channels {
+            width: widest,
             capacity: S::values(0).map_or(0, |v| v.as_ref().len()),
-        })?;
+        };
+        // What is received is made when it comes: check now that it fits.
+        S::values(usize::from(widest)).ok_or(too_wide)?;
+        let sample = S::values(usize::from(config.sent_width())).ok_or(too_wide)?;
         let no_room = ConfigError::Capacity { asked: capacity };
         let queue = S::queue(capacity).ok_or(no_room)?;
         let sent_ticks = S::ticks(capacity, (u64::MAX, Instant::ZERO)).ok_or(no_room)?;
@@ -358,13 +361,13 @@ impl<S: Storage> Endpoint<S> {
                 _ => self.rel.released_seq,
             },
         };
-        let axes = usize::from(self.config.axes);
+        let width = usize::from(self.config.sent_width());
         let msg = match item {
             Tx::Hello => Message::Hello(self.hello()),
             Tx::Probe { .. } => Message::Data(&[]),
             Tx::Sample { .. } => Message::Data({
                 let all = self.out.sample.as_ref();
-                all.get(..axes).unwrap_or(all)
+                all.get(..width).unwrap_or(all)
             }),
             Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
             Tx::Close { reason } => Message::Close(wire::Close { reason }),
@@ -406,17 +409,17 @@ impl<S: Storage> Endpoint<S> {
     /// zeros. It answers the newest peer sample released so far: its
     /// frame's `released` names that one, and the peer's GRTT runs from it.
     pub fn set_sample(&mut self, values: &[f64]) -> Result<(), LinkError> {
-        let axes = usize::from(self.config.axes);
-        if values.len() != axes {
+        let width = self.config.sent_width();
+        if values.len() != usize::from(width) {
             return Err(LinkError::SampleShape {
-                expected: self.config.axes,
+                expected: width,
                 got: values.len(),
             });
         }
         if let Some(index) = values.iter().position(|v| !v.is_finite()) {
             return Err(LinkError::NonFinite { index });
         }
-        if let Some(dst) = self.out.sample.as_mut().get_mut(..axes) {
+        if let Some(dst) = self.out.sample.as_mut().get_mut(..usize::from(width)) {
             dst.copy_from_slice(values);
         }
         self.out.sample_fresh = true;
@@ -560,8 +563,11 @@ impl<S: Storage> Endpoint<S> {
             role: self.config.role,
             mode: self.config.mode.code(),
             underflow: self.config.underflow.code(),
-            axes: self.config.axes,
+            command_width: self.config.command_width,
+            state_width: self.config.state_width,
             period: self.config.period,
+            layout: self.config.layout,
+            session: 0,
         }
     }
 

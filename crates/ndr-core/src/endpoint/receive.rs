@@ -76,15 +76,15 @@ impl<S: Storage> Endpoint<S> {
                         _ => Ok(()),
                     };
                 }
-                let axes = usize::from(self.config.axes);
+                let width = self.config.received_width();
                 let mismatch = LinkError::ChannelCount {
-                    expected: self.config.axes,
+                    expected: width,
                     got: channels.len(),
                 };
-                if channels.len() != axes {
+                if channels.len() != usize::from(width) {
                     return Err(mismatch);
                 }
-                let Some(mut values) = S::values(axes) else {
+                let Some(mut values) = S::values(usize::from(width)) else {
                     return Err(mismatch);
                 };
                 if channels.copy_to(values.as_mut()).is_err() {
@@ -97,7 +97,7 @@ impl<S: Storage> Endpoint<S> {
                         arrived_at: now,
                     },
                     peer_released: frame.released(),
-                    len: self.config.axes,
+                    len: width,
                     values,
                 };
                 self.receive_sample(now, slot)
@@ -162,10 +162,22 @@ impl<S: Storage> Endpoint<S> {
         if hello.role == ours.role {
             return Err(LinkError::RoleMismatch { role: ours.role });
         }
-        if hello.axes != ours.axes {
-            return Err(LinkError::AxesMismatch {
-                ours: ours.axes,
-                theirs: hello.axes,
+        for (which, mine, theirs) in [
+            ("command", ours.command_width, hello.command_width),
+            ("state", ours.state_width, hello.state_width),
+        ] {
+            if mine != theirs {
+                return Err(LinkError::WidthMismatch {
+                    which,
+                    ours: mine,
+                    theirs,
+                });
+            }
+        }
+        if hello.layout != ours.layout {
+            return Err(LinkError::LayoutMismatch {
+                ours: ours.layout,
+                theirs: hello.layout,
             });
         }
         if hello.period != ours.period {

@@ -31,7 +31,7 @@ pub enum WireError {
     UnsupportedVersion(u8),
     /// The kind byte names no known frame kind.
     UnknownKind(u8),
-    /// Header flags are set; version 1 defines none.
+    /// Header flags are set; version 2 defines none.
     UnsupportedFlags(u16),
     /// A reserved byte (at `offset` in the frame) is not zero.
     ReservedNotZero {
@@ -56,6 +56,14 @@ pub enum WireError {
     BadRole(u8),
     /// A Hello announces a zero period.
     ZeroPeriod,
+    /// A Hello announces a sample width of 0 or above [`MAX_CHANNELS`]
+    /// (field at `offset`: 52 command, 54 state).
+    WidthOutOfRange {
+        /// The width announced.
+        width: u16,
+        /// Offset of the field in the frame.
+        offset: usize,
+    },
     /// A Control frame has op code 0.
     ZeroControlOp,
     /// `echo_hold` is non-zero although `echo` says nothing was received yet.
@@ -119,7 +127,7 @@ impl fmt::Display for WireError {
             ),
             WireError::UnsupportedVersion(v) => write!(
                 f,
-                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side"
+                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 2 came with per-direction widths)"
             ),
             WireError::UnknownKind(k) => write!(
                 f,
@@ -155,6 +163,15 @@ impl fmt::Display for WireError {
                 write!(f, "Hello role {r} is neither 0 (base) nor 1 (remote)")
             }
             WireError::ZeroPeriod => write!(f, "Hello period is zero; it must be positive"),
+            WireError::WidthOutOfRange { width, offset } => write!(
+                f,
+                "Hello {} width is {width}; a sample carries 1 to {MAX_CHANNELS} values",
+                if offset == HEADER_LEN + 4 {
+                    "command"
+                } else {
+                    "state"
+                }
+            ),
             WireError::ZeroControlOp => write!(f, "Control op code 0 is invalid"),
             WireError::HoldWithoutEcho => write!(
                 f,

@@ -1,4 +1,4 @@
-//! The frame codec: ndr wire format version 1.
+//! The frame codec: ndr wire format version 2.
 //!
 //! A frame is a fixed 48-byte little-endian header followed by a payload whose
 //! layout depends on its [`Kind`]. The byte-exact specification, with test
@@ -48,7 +48,7 @@ pub use payload::{
 use crate::time::{Duration, Instant};
 
 /// The wire version this build speaks.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 /// Size of the fixed header, in bytes.
 pub const HEADER_LEN: usize = 48;
 /// Most channels a Data frame carries.

@@ -264,8 +264,8 @@ pub mod close_reason {
     pub const VERSION_MISMATCH: u16 = 1;
     /// Both peers claim the same role.
     pub const ROLE_MISMATCH: u16 = 2;
-    /// The peers disagree on the number of axes.
-    pub const AXES_MISMATCH: u16 = 3;
+    /// The peers disagree on a sample's width (command or state values).
+    pub const WIDTH_MISMATCH: u16 = 3;
     /// The peers disagree on the period.
     pub const PERIOD_MISMATCH: u16 = 4;
     /// The peers disagree on the regulator mode.
@@ -285,6 +285,8 @@ pub mod close_reason {
     /// A Data frame whose send stamp does not advance as the sender's
     /// clock can: a step back, or a stamp from the future.
     pub const STAMP: u16 = 11;
+    /// The peers were built for different channel layouts.
+    pub const LAYOUT_MISMATCH: u16 = 12;
 
     /// A short name for `code`, `"unknown"` for codes this build does not know.
     #[must_use]
@@ -293,7 +295,7 @@ pub mod close_reason {
             NORMAL => "normal",
             VERSION_MISMATCH => "version mismatch",
             ROLE_MISMATCH => "role mismatch",
-            AXES_MISMATCH => "axes mismatch",
+            WIDTH_MISMATCH => "width mismatch",
             PERIOD_MISMATCH => "period mismatch",
             MODE_MISMATCH => "mode mismatch",
             PROTOCOL_ERROR => "protocol error",
@@ -302,6 +304,7 @@ pub mod close_reason {
             BUSY => "busy: serving another peer",
             SEQUENCE => "frame out of sequence",
             STAMP => "send stamp out of time",
+            LAYOUT_MISMATCH => "layout mismatch",
             _ => "unknown",
         }
     }
@@ -316,26 +319,45 @@ pub struct Hello {
     pub mode: u8,
     /// Underflow policy code (see [`underflow`]).
     pub underflow: u8,
-    /// Number of axes of the teleoperated system.
-    pub axes: u16,
+    /// Values in each command sample (base → remote), 1 to
+    /// [`MAX_CHANNELS`].
+    pub command_width: u16,
+    /// Values in each state sample (remote → base), 1 to [`MAX_CHANNELS`].
+    pub state_width: u16,
     /// Sampling period `T`; must be positive.
     pub period: Duration,
+    /// The fingerprint of the application's channel layout (its channel
+    /// names, see [`layout`](crate::layout)); `0` when none is given.
+    pub layout: u64,
+    /// What the peer puts in every datagram it sends to this sender, so
+    /// that this sender can tell them from strays and spoofs; `0` on a
+    /// stream (TCP, TLS), which needs none.
+    pub session: u64,
 }
 
 impl Hello {
     /// Payload size in bytes.
-    pub const LEN: usize = 16;
+    pub const LEN: usize = 32;
 
     pub(super) fn parse(bytes: &[u8]) -> Result<Hello, WireError> {
         let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
             kind: Kind::Hello,
             len: bytes.len(),
         })?;
-        let [role, mode, underflow, r0, a0, a1, r1, r2, period @ ..] = *b;
+        let [role, mode, underflow, r0, c0, c1, s0, s1, rest @ ..] = *b;
         let role = Role::try_from(role)?;
         reserved_zero(&[r0], HEADER_LEN + 3)?;
-        reserved_zero(&[r1, r2], HEADER_LEN + 6)?;
-        let period = u64::from_le_bytes(period);
+        let [command_width, state_width] = [[c0, c1], [s0, s1]].map(u16::from_le_bytes);
+        for (width, offset) in [(command_width, 4), (state_width, 6)] {
+            if width == 0 || usize::from(width) > MAX_CHANNELS {
+                return Err(WireError::WidthOutOfRange {
+                    width,
+                    offset: HEADER_LEN + offset,
+                });
+            }
+        }
+        let [period, layout, session] =
+            [0, 8, 16].map(|at| bytes_at::<8>(&rest, at).map_or(0, u64::from_le_bytes));
         if period == 0 {
             return Err(WireError::ZeroPeriod);
         }
@@ -343,8 +365,11 @@ impl Hello {
             role,
             mode,
             underflow,
-            axes: u16::from_le_bytes([a0, a1]),
+            command_width,
+            state_width,
             period: Duration::from_nanos(period),
+            layout,
+            session,
         })
     }
 
@@ -352,26 +377,32 @@ impl Hello {
         if self.period.is_zero() {
             return Err(WireError::ZeroPeriod);
         }
-        let [a0, a1] = self.axes.to_le_bytes();
-        let [p0, p1, p2, p3, p4, p5, p6, p7] = self.period.as_nanos().to_le_bytes();
-        Ok([
-            self.role as u8,
-            self.mode,
-            self.underflow,
-            0,
-            a0,
-            a1,
-            0,
-            0,
-            p0,
-            p1,
-            p2,
-            p3,
-            p4,
-            p5,
-            p6,
-            p7,
-        ])
+        for (width, offset) in [(self.command_width, 4), (self.state_width, 6)] {
+            if width == 0 || usize::from(width) > MAX_CHANNELS {
+                return Err(WireError::WidthOutOfRange {
+                    width,
+                    offset: HEADER_LEN + offset,
+                });
+            }
+        }
+        let mut b = [0u8; Self::LEN];
+        super::put(&mut b, 0, [self.role as u8, self.mode, self.underflow]);
+        super::put(&mut b, 4, self.command_width.to_le_bytes());
+        super::put(&mut b, 6, self.state_width.to_le_bytes());
+        super::put(&mut b, 8, self.period.as_nanos().to_le_bytes());
+        super::put(&mut b, 16, self.layout.to_le_bytes());
+        super::put(&mut b, 24, self.session.to_le_bytes());
+        Ok(b)
+    }
+
+    /// The width of what `role` sends: commands from the base, states from
+    /// the remote.
+    #[must_use]
+    pub const fn width_from(&self, role: Role) -> u16 {
+        match role {
+            Role::Base => self.command_width,
+            Role::Remote => self.state_width,
+        }
     }
 }
 

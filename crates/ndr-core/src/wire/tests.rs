@@ -21,8 +21,11 @@ fn hello() -> Hello {
         role: Role::Remote,
         mode: mode::PAPER_STATIC,
         underflow: underflow::DROP_LATE,
-        axes: 2,
+        command_width: 2,
+        state_width: 5,
         period: Duration::from_millis(200),
+        layout: 0x0123_4567_89ab_cdef,
+        session: 42,
     }
 }
 
@@ -168,13 +171,36 @@ fn error_length_mismatch() {
 
 #[test]
 fn error_unsupported_version() {
-    let bytes = with(frame_bytes(&Message::Hello(hello())), 4, 2);
+    let bytes = with(frame_bytes(&Message::Hello(hello())), 4, 1);
     let err = decode(&bytes).unwrap_err();
-    assert_eq!(err, WireError::UnsupportedVersion(2));
+    assert_eq!(err, WireError::UnsupportedVersion(1));
     assert_eq!(err.close_reason(), close_reason::VERSION_MISMATCH);
     assert_eq!(
         err.to_string(),
-        "peer speaks ndr wire version 2, this build speaks 1; upgrade the older side"
+        "peer speaks ndr wire version 1, this build speaks 2; upgrade the older side \
+         (version 2 came with per-direction widths)"
+    );
+}
+
+#[test]
+fn error_width_out_of_range_names_the_direction() {
+    let good = frame_bytes(&Message::Hello(hello()));
+    for (offset, width, which) in [(52, 0u16, "command"), (54, 257, "state")] {
+        let mut bytes = good.clone();
+        bytes[offset..offset + 2].copy_from_slice(&width.to_le_bytes());
+        let err = decode(&bytes).unwrap_err();
+        assert_eq!(err, WireError::WidthOutOfRange { width, offset });
+        assert!(err.to_string().contains(which), "{err}");
+    }
+    let mut wide = hello();
+    wide.command_width = 300;
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    assert_eq!(
+        encode(&header(), &Message::Hello(wide), &mut buf),
+        Err(WireError::WidthOutOfRange {
+            width: 300,
+            offset: 52
+        })
     );
 }
 
@@ -329,7 +355,7 @@ fn error_zero_control_op() {
 #[test]
 fn error_reserved_not_zero_at_every_reserved_byte() {
     let cases = [
-        (frame_bytes(&Message::Hello(hello())), &[51, 54, 55][..]),
+        (frame_bytes(&Message::Hello(hello())), &[51][..]),
         (
             frame_bytes(&Message::Control(control())),
             &[49, 52, 53, 54, 55][..],
@@ -451,17 +477,17 @@ fn unknown_close_reasons_are_valid() {
     assert_eq!(close_reason::name(0xbeef), "unknown");
     assert_eq!(
         Close {
-            reason: close_reason::AXES_MISMATCH
+            reason: close_reason::WIDTH_MISMATCH
         }
         .to_string(),
-        "axes mismatch (3)"
+        "width mismatch (3)"
     );
 }
 
 #[test]
 fn frame_works_over_owned_and_borrowed_buffers() {
     let bytes = frame_bytes(&Message::Hello(hello()));
-    let mut array = [0u8; 64];
+    let mut array = [0u8; 80];
     array.copy_from_slice(&bytes);
     let owned = Frame::new_checked(bytes.clone()).unwrap();
     let arr = Frame::new_checked(array).unwrap();
@@ -519,7 +545,7 @@ fn every_error_has_a_message() {
             len: 3
         }
         .to_string(),
-        "Hello payload is 3 bytes, it must be exactly 16"
+        "Hello payload is 3 bytes, it must be exactly 32"
     );
 }
 

@@ -61,8 +61,7 @@ struct Net {
 }
 
 pub(super) fn config(role: Role) -> Config {
-    let mut c = Config::paper(role);
-    c.axes = 2;
+    let mut c = Config::paper(role).with_width(2);
     c.period = T;
     c
 }
@@ -399,13 +398,42 @@ fn mismatch(edit: impl FnOnce(&mut Config)) -> (Vec<LinkError>, Vec<LinkError>) 
 
 #[test]
 fn handshake_mismatches_end_the_link_with_their_error() {
-    let (b, r) = mismatch(|c| c.axes = 3);
-    assert_eq!(r, vec![LinkError::AxesMismatch { ours: 3, theirs: 2 }]);
+    let (b, r) = mismatch(|c| c.state_width = 3);
+    assert_eq!(
+        r,
+        vec![LinkError::WidthMismatch {
+            which: "state",
+            ours: 3,
+            theirs: 2
+        }]
+    );
     assert_eq!(
         b,
         vec![LinkError::PeerClosed {
-            reason: close_reason::AXES_MISMATCH
+            reason: close_reason::WIDTH_MISMATCH
         }]
+    );
+
+    // A robot that names its channels, an operator that names none.
+    let arm = ndr_core::layout::fingerprint(&["q1", "q2"], &["q1", "q2"]);
+    let (b, r) = mismatch(|c| c.layout = arm);
+    assert_eq!(
+        r,
+        vec![LinkError::LayoutMismatch {
+            ours: arm,
+            theirs: 0
+        }]
+    );
+    assert_eq!(
+        b,
+        vec![LinkError::PeerClosed {
+            reason: close_reason::LAYOUT_MISMATCH
+        }]
+    );
+    let msg = r[0].to_string();
+    assert!(
+        msg.contains(&format!("{arm:#018x}")) && msg.contains("none"),
+        "{msg}"
     );
 
     let (b, r) = mismatch(|c| c.period = Duration::from_millis(100));
@@ -455,20 +483,34 @@ fn garbage_and_wrong_version_end_the_link_with_a_close() {
     );
     assert_eq!(remote.handle_frame(now, &buf[..n]), Err(LinkError::Closed));
 
-    // A valid Hello from a newer version.
+    // A valid Hello from a newer version, and a version-1 peer's Hello
+    // (3 axes, 200 ms: the bytes an older build sends).
     let mut base = Ep::new(config(Role::Base), Instant::ZERO).unwrap();
     let n = base.poll_transmit(now, &mut buf).unwrap().unwrap();
-    buf[4] = 2;
-    let mut remote = Ep::new(config(Role::Remote), Instant::ZERO).unwrap();
-    assert_eq!(
-        remote.handle_frame(now, &buf[..n]),
-        Err(LinkError::VersionMismatch { peer: 2 })
-    );
-    let n = remote.poll_transmit(now, &mut buf).unwrap().unwrap();
-    let close = wire::Frame::new_checked(&buf[..n]).unwrap();
-    assert!(
-        matches!(close.payload(), wire::Payload::Close(c) if c.reason == close_reason::VERSION_MISMATCH)
-    );
+    buf[4] = 3;
+    let newer = buf[..n].to_vec();
+    let v1: Vec<u8> = [
+        [0x40, 0, 0, 0, 1, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0],
+        [
+            0xe8, 3, 0, 0, 0, 0, 0, 0, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff,
+        ],
+        [
+            0, 0, 0, 0, 0, 0, 0, 0, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff,
+        ],
+        [0, 1, 0, 0, 3, 0, 0, 0, 0, 0xc2, 0xeb, 0x0b, 0, 0, 0, 0],
+    ]
+    .concat();
+    for (peer, hello) in [(3, newer), (1, v1)] {
+        let mut remote = Ep::new(config(Role::Remote), Instant::ZERO).unwrap();
+        let err = remote.handle_frame(now, &hello).unwrap_err();
+        assert_eq!(err, LinkError::VersionMismatch { peer });
+        assert!(err.to_string().contains("upgrade the older side"), "{err}");
+        let n = remote.poll_transmit(now, &mut buf).unwrap().unwrap();
+        let close = wire::Frame::new_checked(&buf[..n]).unwrap();
+        assert!(
+            matches!(close.payload(), wire::Payload::Close(c) if c.reason == close_reason::VERSION_MISMATCH)
+        );
+    }
 }
 
 #[test]

@@ -144,8 +144,11 @@ mod tests {
             role: Role::Base,
             mode: 0,
             underflow: 0,
-            axes: 1,
+            command_width: 1,
+            state_width: 1,
             period: Duration::from_millis(10),
+            layout: 0,
+            session: 0,
         };
         let mut buf = vec![0; wire::MAX_FRAME_LEN];
         let n = wire::encode(&header, &Message::Hello(hello), &mut buf).expect("encode");

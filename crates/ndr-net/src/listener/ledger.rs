@@ -25,7 +25,7 @@ pub(crate) enum Refusal {
     Timeout,
     Other,
     Role,
-    Axes,
+    Layout,
     Settings,
     WireVersion,
     Protocol,
@@ -45,7 +45,7 @@ impl Refusal {
         Refusal::Timeout,
         Refusal::Other,
         Refusal::Role,
-        Refusal::Axes,
+        Refusal::Layout,
         Refusal::Settings,
         Refusal::WireVersion,
         Refusal::Protocol,
@@ -65,10 +65,10 @@ impl Refusal {
             | NetError::Link(LinkError::PeerClosed {
                 reason: why::ROLE_MISMATCH,
             }) => Refusal::Role,
-            NetError::Link(LinkError::AxesMismatch { .. })
+            NetError::Link(LinkError::WidthMismatch { .. } | LinkError::LayoutMismatch { .. })
             | NetError::Link(LinkError::PeerClosed {
-                reason: why::AXES_MISMATCH,
-            }) => Refusal::Axes,
+                reason: why::WIDTH_MISMATCH | why::LAYOUT_MISMATCH,
+            }) => Refusal::Layout,
             NetError::Link(
                 LinkError::PeriodMismatch { .. }
                 | LinkError::ModeMismatch { .. }
@@ -112,7 +112,7 @@ impl Refusal {
             Refusal::Timeout => "timeouts",
             Refusal::Other => "failed_other",
             Refusal::Role => "refused_role",
-            Refusal::Axes => "refused_axes",
+            Refusal::Layout => "refused_layout",
             Refusal::Settings => "refused_settings",
             Refusal::WireVersion => "refused_wire_version",
             Refusal::Protocol => "refused_protocol",
@@ -132,7 +132,7 @@ impl Refusal {
             Refusal::Timeout => &mut s.timeouts,
             Refusal::Other => &mut s.failed_other,
             Refusal::Role => &mut s.refused_role,
-            Refusal::Axes => &mut s.refused_axes,
+            Refusal::Layout => &mut s.refused_layout,
             Refusal::Settings => &mut s.refused_settings,
             Refusal::WireVersion => &mut s.refused_wire_version,
             Refusal::Protocol => &mut s.refused_protocol,
