@@ -821,6 +821,7 @@ def sim_run(
     axes: int = 1,
     signal: str = "sine",
     series: bool = True,
+    loss: str = "none",
 ) -> Tuple[str, Dict[str, _Floats]]:
     """One simulation: ``(summary JSON, series)``, ``null`` in the JSON where
     nothing was measured; use :func:`ndr.sim.run`."""

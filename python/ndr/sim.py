@@ -245,6 +245,7 @@ def run(
     axes: int = 1,
     signal: str = "sine",
     series: bool = True,
+    loss: str = "none",
 ) -> SimResult:
     """Runs one simulation, with the options of ``ndr sim``.
 
@@ -270,6 +271,13 @@ def run(
         signal: the operator's command: ``"sine[:amp=A,freq=F]"``,
             ``"steps[:low=L,high=H,period=P]"`` or ``"constant:V"``.
         series: keep the per-tick series (for plots).
+        loss: packets lost each way, as ``ndr sim --loss``: ``"none"``,
+            ``"PERCENT"`` (each independently, e.g. ``"1"``) or
+            ``"ge:PERCENT:BURST"`` (Gilbert–Elliott bursts of ``BURST``
+            packets on average). Over TCP a loss holds the stream back
+            until it is repaired (RACK: about a period and a round trip;
+            a retransmission lost again waits Linux's 200 ms timeout,
+            doubled at each repeat).
 
     Returns:
         A :class:`SimResult`; its ``summary`` holds ``None`` where nothing
@@ -296,6 +304,7 @@ def run(
         axes=axes,
         signal=signal,
         series=series,
+        loss=loss,
     )
     parsed: SimSummary = json.loads(summary)
     return SimResult(summary=parsed, series=dict(columns))

@@ -23,6 +23,16 @@ def test_dynamic_mode_lowers_the_lan_delay():
     assert np.nanmin(r.series["period"]) == pytest.approx(0.05)
 
 
+def test_packet_loss_on_tcp_raises_the_adaptive_delay():
+    runs = {
+        loss: ndr.sim.run("lan-75km", regulation="adaptive", period=0.02, duration=30, loss=loss)
+        for loss in ("none", "3", "ge:2:4")
+    }
+    clean = runs["none"]["grtt_mean_s"]
+    assert runs["3"]["grtt_mean_s"] > 2 * clean
+    assert runs["ge:2:4"]["grtt_mean_s"] > 2 * clean
+
+
 def test_series_are_float64_arrays_of_one_length():
     r = ndr.sim.run("paper-fig6", period=0.2, duration=60)
     n = r.series["t"].size
@@ -92,6 +102,8 @@ def test_a_trace_file_drives_the_network(tmp_path):
         (dict(period=0), "period"),
         (dict(duration=-1), "duration"),
         (dict(axes=257), "axes"),
+        (dict(loss="lots"), "loss: unknown loss model"),
+        (dict(loss="100"), "loss: a loss rate of 100 %"),
         (dict(signal="sawtooth"), "signal"),
     ],
 )

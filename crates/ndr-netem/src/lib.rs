@@ -140,6 +140,7 @@
 #![forbid(unsafe_code)]
 
 mod events;
+mod loss;
 mod netem;
 mod profiles;
 mod trace;
@@ -155,6 +156,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 pub use events::{EventKind, EventParams};
+pub use loss::{LossError, LossModel, LossSampler, MIN_RTO, Recovery, TcpPath};
 pub use netem::{DistError, DistTable, MAX_DIST_ENTRIES, MAX_DIST_FILE_BYTES, NETEM_DIST_SCALE};
 pub use profiles::{
     EpisodeParams, FIG6_DURATION, FIG6_STEP_AT_S, JitterParams, LAN_75KM, PARIS_NEW_YORK,

@@ -20,7 +20,7 @@ use crate::log;
 
 /// One simulation; returns `(summary_json, series)`.
 #[pyfunction]
-#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, mode = None, playout = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true))]
+#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, mode = None, playout = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true, loss = "none"))]
 #[allow(clippy::too_many_arguments)]
 pub fn run<'py>(
     py: Python<'py>,
@@ -39,6 +39,7 @@ pub fn run<'py>(
     axes: i128,
     signal: &str,
     series: bool,
+    loss: &str,
 ) -> PyResult<(String, Bound<'py, PyDict>)> {
     let seed = in_range("seed", seed, 0, u64::MAX)?;
     let max_axes = u16::try_from(MAX_SIM_AXES).unwrap_or(u16::MAX);
@@ -67,6 +68,9 @@ pub fn run<'py>(
         .parse::<Signal>()
         .map_err(|e| PyValueError::new_err(format!("signal: {e}")))?;
     cfg.record_series = series;
+    cfg.loss = loss
+        .parse()
+        .map_err(|e| PyValueError::new_err(format!("loss: {e}")))?;
     let out = py.detach(|| ndr_sim::run(&cfg));
     log::flush(py);
     let out = out.map_err(|e| PyValueError::new_err(e.to_string()))?;

@@ -16,7 +16,9 @@ use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{Frame, Payload, Role};
 
-use super::delay::{DelayModel, DelaySampler, Direction, InOrderPath};
+use super::delay::{
+    DelayModel, DelaySampler, Direction, LossModel, LossSampler, Recovery, TcpPath,
+};
 use super::report::{Collector, Report, Row};
 use super::signal::Signal;
 
@@ -66,8 +68,11 @@ impl PlantConfig {
 /// One simulation run.
 #[derive(Clone, Debug)]
 pub struct SimConfig {
-    /// The network.
+    /// The network's delays.
     pub model: DelayModel,
+    /// The packets it loses, the same each way: a lost frame holds the
+    /// TCP stream back for a retransmission timeout ([`TcpPath`]).
+    pub loss: LossModel,
     /// Static or dynamic sizing: with `playout`, what a [`Regulation`]
     /// sets ([`SimConfig::with_regulation`]).
     pub mode: Mode,
@@ -109,6 +114,7 @@ impl SimConfig {
     pub fn paper(model: DelayModel) -> Self {
         SimConfig {
             model,
+            loss: LossModel::None,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
             playout: Playout::Fifo,
@@ -253,7 +259,10 @@ impl SkewedClock {
 struct SimWorld<'a> {
     cfg: &'a SimConfig,
     sampler: DelaySampler,
-    paths: [InOrderPath; 2],
+    loss: LossSampler,
+    paths: [TcpPath; 2],
+    /// The period the link runs at: one frame each way per period.
+    period: Duration,
     plants: Vec<Tf2State>,
     plant_out: Vec<f64>,
     operator: Vec<f64>,
@@ -286,7 +295,9 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
     let world = SimWorld {
         cfg,
         sampler: cfg.model.sampler(cfg.seed),
-        paths: [InOrderPath::default(), InOrderPath::default()],
+        loss: cfg.loss.sampler(cfg.seed),
+        paths: [TcpPath::new(), TcpPath::new()],
+        period: cfg.period,
         plants: (0..axes).map(|_| Tf2State::new(plant)).collect(),
         plant_out: std::vec![0.0; axes],
         operator: std::vec![0.0; axes],
@@ -312,7 +323,16 @@ impl World<Heap> for SimWorld<'_> {
         };
         // The network runs on simulation time.
         let delay = self.sampler.delay(direction, sent);
-        Some(self.paths[dir].deliver(sent, delay))
+        // The frame's own delay, both ways, stands for the round trip the
+        // sender's TCP has measured.
+        let recovery = Recovery::linux(self.period, delay * 2);
+        let loss = &mut self.loss;
+        Some(
+            self.paths[dir].deliver(sent, delay, recovery, |attempt| match attempt {
+                0 => loss.lost(direction),
+                _ => loss.lost_again(direction),
+            }),
+        )
     }
 
     fn local(&self, side: Role, t: Instant) -> Instant {
@@ -362,6 +382,7 @@ impl World<Heap> for SimWorld<'_> {
             }
             Event::Started { period, ns } => {
                 self.collect.started(side, now, period, ns);
+                self.period = period;
                 if side == Role::Remote {
                     let model = self.cfg.plant.discretize(period).map_err(SimError::Plant)?;
                     for p in &mut self.plants {
@@ -472,6 +493,34 @@ fn link_error(side: Role, at: Instant, error: LinkError) -> SimError {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lossy_tcp_path_holds_samples_back_but_loses_none() {
+        let run_with = |loss: LossModel| {
+            let mut cfg =
+                SimConfig::paper(DelayModel::Lan75km).with_regulation(Regulation::ADAPTIVE);
+            cfg.period = Duration::from_millis(20);
+            cfg.duration = Duration::from_secs(30);
+            cfg.loss = loss;
+            cfg.record_forward = true;
+            run(&cfg).unwrap()
+        };
+        let clean = run_with(LossModel::None);
+        let lossy = run_with(LossModel::Bernoulli { rate: 0.03 });
+        // Every command reaches the remote, in order, none twice.
+        let seqs: Vec<u64> = lossy.forward.samples.iter().map(|c| c.seq).collect();
+        assert!(seqs.len() > 1000);
+        assert!(
+            seqs.windows(2).all(|w| w[1] == w[0] + 1),
+            "a gap or a repeat"
+        );
+        // But the stalls cost delay: the adaptive playout covers them.
+        let (a, b) = (clean.report.grtt_mean_s, lossy.report.grtt_mean_s);
+        assert!(b > 2.0 * a, "{a} {b}");
+        // No loss is the run without a loss model, draw for draw.
+        let none = run_with("0".parse().unwrap());
+        assert_eq!(none.forward, clean.forward);
+    }
 
     #[test]
     fn bad_axes_are_refused() {

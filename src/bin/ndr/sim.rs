@@ -9,7 +9,7 @@ use ndr::core::endpoint::{Mode, Underflow};
 use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
-use ndr::sim::delay::{DelayModel, DistTable, Trace};
+use ndr::sim::delay::{DelayModel, DistTable, LossModel, Trace};
 use ndr::sim::signal::Signal;
 use ndr::sim::{self, Report, Row, SimConfig};
 
@@ -102,6 +102,12 @@ pub struct SimArgs {
     /// The remote's clock runs this many ppm fast (negative: slow).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub remote_skew_ppm: f64,
+    /// Packets lost each way: none, PERCENT (each independently, e.g. 1) or
+    /// ge:PERCENT:BURST (in bursts of BURST packets on average, e.g.
+    /// ge:2:4). Over TCP a lost frame holds the stream back for a
+    /// retransmission timeout (200 ms at least, doubled at each repeat).
+    #[arg(long, default_value = "none")]
+    pub loss: LossModel,
     /// Sampling period, in ms (the paper's 200).
     #[arg(long, default_value_t = 200.0)]
     pub period_ms: f64,
@@ -164,6 +170,7 @@ impl SimArgs {
             ));
         }
         cfg.remote_skew_ppm = self.remote_skew_ppm;
+        cfg.loss = self.loss;
         cfg.period = period;
         cfg.duration = duration;
         cfg.seed = self.seed;

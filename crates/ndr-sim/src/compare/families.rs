@@ -10,7 +10,7 @@ use ndr_core::time::Duration;
 
 use crate::delay::{
     DelayModel, DistTable, EventKind, EventParams, FIG6_DURATION, FIG6_STEP_AT_S, JitterParams,
-    Trace,
+    LossModel, Trace,
 };
 
 /// One family of traces: a delay model run with several seeds.
@@ -20,8 +20,11 @@ pub struct Family {
     pub name: String,
     /// What it is, in a few words.
     pub description: String,
-    /// The network.
+    /// The network's delays.
     pub model: DelayModel,
+    /// The packets it loses (over TCP: a stall of a retransmission
+    /// timeout each).
+    pub loss: LossModel,
     /// The remote's clock skew, ppm.
     pub skew_ppm: f64,
     /// Simulated time per run.
@@ -88,6 +91,7 @@ fn family(name: &str, description: &str, model: DelayModel) -> Family {
         name: name.to_string(),
         description: description.to_string(),
         model,
+        loss: LossModel::None,
         skew_ppm: 0.0,
         duration: FAMILY_DURATION,
         events_s: Vec::new(),
@@ -175,7 +179,35 @@ pub fn builtin() -> Vec<Family> {
         ),
         skew(100.0),
         skew(-100.0),
+        lossy(
+            "lan-75km-loss1",
+            "the paper's LAN, 1 % of packets lost (TCP: each loss holds the stream back until repaired)",
+            DelayModel::Lan75km,
+            LossModel::Bernoulli { rate: 0.01 },
+        ),
+        lossy(
+            "lan-75km-loss3",
+            "the paper's LAN, 3 % of packets lost",
+            DelayModel::Lan75km,
+            LossModel::Bernoulli { rate: 0.03 },
+        ),
+        lossy(
+            "wan-bursts",
+            "WAN jitter, 2 % of packets lost in bursts of 4 on average (Gilbert–Elliott)",
+            wan,
+            LossModel::GilbertElliott {
+                p: 0.02 * 0.25 / 0.98,
+                r: 0.25,
+            },
+        ),
     ]
+}
+
+fn lossy(name: &str, description: &str, model: DelayModel, loss: LossModel) -> Family {
+    Family {
+        loss,
+        ..family(name, description, model)
+    }
 }
 
 /// The netem families, one per table found in the first of `dirs` that

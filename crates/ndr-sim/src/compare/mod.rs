@@ -380,6 +380,7 @@ pub fn sim_config_under(
     underflow: Underflow,
 ) -> SimConfig {
     let mut cfg = SimConfig::paper(family.model.clone());
+    cfg.loss = family.loss;
     cfg.mode = regulation.mode();
     cfg.playout = regulation.playout();
     cfg.underflow = underflow;
