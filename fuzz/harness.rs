@@ -23,15 +23,15 @@
 
 use ndr_core::drive::{self, Turn};
 use ndr_core::endpoint::{
-    Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Status, Underflow,
+    Config, Endpoint, Event, LinkError, Mode, Phase, Stats, Status, Transport, Underflow,
 };
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
-    self, Close, Control, Echo, Frame, Header, Hello, MAX_CHANNELS, MAX_FRAME_LEN, Message,
-    Payload, Role,
+    self, Close, Control, Echo, Frame, Header, Hello, MAX_CHANNELS, MAX_DATAGRAM_LEN,
+    MAX_FRAME_LEN, Message, OlderSample, Payload, Role,
 };
 use ndr_net::Deframer;
 use std::convert::Infallible;
@@ -77,6 +77,9 @@ fn round_trip<T: AsRef<[u8]>>(frame: &Frame<T>) {
     let header = frame.header();
     let payload = frame.payload();
     let mut values = [0.0; MAX_CHANNELS];
+    // A bundle's values, newest first, and its older samples.
+    let mut flat = Vec::new();
+    let mut older = Vec::new();
     let msg = match payload {
         Payload::Data(ch) => {
             let n = ch
@@ -84,11 +87,33 @@ fn round_trip<T: AsRef<[u8]>>(frame: &Frame<T>) {
                 .expect("a checked frame's channels fit");
             Message::Data(&values[..n])
         }
+        Payload::Bundle(b) => {
+            let width = b.width();
+            flat.extend(b.newest().iter());
+            for o in b.older() {
+                flat.extend(o.values.iter());
+            }
+            assert_eq!(flat.len(), width * b.count());
+            for (i, o) in b.older().enumerate() {
+                let at = (i + 1) * width;
+                older.push(OlderSample {
+                    seq: o.seq,
+                    sent_at: o.sent_at,
+                    released: o.released,
+                    values: &flat[at..at + width],
+                });
+            }
+            Message::Bundle {
+                session: b.session(),
+                newest: &flat[..width],
+                older: &older,
+            }
+        }
         Payload::Hello(h) => Message::Hello(h),
         Payload::Control(c) => Message::Control(c),
         Payload::Close(c) => Message::Close(c),
     };
-    let mut buf = [0u8; MAX_FRAME_LEN];
+    let mut buf = vec![0u8; MAX_DATAGRAM_LEN];
     let n = wire::encode(&header, &msg, &mut buf).expect("a decoded frame re-encodes");
     assert_eq!(n, frame.as_bytes().len(), "the same length");
     let again = Frame::new_checked(&buf[..n]).expect("a re-encoded frame decodes");
@@ -271,9 +296,19 @@ pub fn pair(data: &[u8]) {
 /// configuration was refused).
 pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
     let mut input = Input(data);
-    let cfg = config(Role::Base, &mut input);
+    let mut cfg = config(Role::Base, &mut input);
+    // A third of the scripts run on datagrams, with a redundancy of 1 to 8.
+    let pick = input.byte();
+    let datagram = pick % 3 == 0;
+    if datagram {
+        cfg.transport = Transport::Datagram {
+            redundancy: 1 + pick / 3 % 8,
+        };
+        cfg.session = input.u64() | 1;
+    }
     let mut remote = cfg;
     remote.role = Role::Remote;
+    remote.session = cfg.session.rotate_left(17) | 1;
     // The remote's grid anywhere within a period of the base's.
     remote.tick_origin = Instant::ZERO + cfg.period * u64::from(input.byte()) / 256;
     let (Ok(base), Ok(remote)) = (
@@ -283,6 +318,9 @@ pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
         return None;
     };
     let world = Script {
+        datagram,
+        reorder: [Duration::ZERO; 2],
+        datagrams: [0; 2],
         delay: [Duration::from_millis(5); 2],
         last: [Instant::ZERO; 2],
         lose: [0; 2],
@@ -309,8 +347,15 @@ pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
                 pair.world.delay[side as usize] =
                     Duration::from_millis(u64::from(input.u16()) % 2500)
             }
-            // It loses its next frames (a datagram path).
-            4 => pair.world.lose[side as usize] = input.byte() % 8,
+            // It loses its next frames (on datagrams: its next datagrams),
+            // or its datagrams come up to 0.25 s apart from their order.
+            4 => match input.byte() {
+                b if b < 128 => pair.world.lose[side as usize] = b % 8,
+                b => {
+                    pair.world.reorder[side as usize] =
+                        Duration::from_millis(u64::from(b - 128) * 2)
+                }
+            },
             // `side`'s process stops for up to 6.4 s.
             5 => {
                 let from = pair.now();
@@ -326,7 +371,11 @@ pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
                     let n = usize::from(input.byte());
                     input.take(n).to_vec()
                 };
-                let _ = pair.endpoint(side).handle_frame(now, &bytes);
+                if bytes.get(5) == Some(&(wire::Kind::Bundle as u8)) {
+                    let _ = pair.endpoint(side).handle_datagram(now, &bytes);
+                } else {
+                    let _ = pair.endpoint(side).handle_frame(now, &bytes);
+                }
                 let Ok(()) = pair.drain(side);
             }
             // The application's calls.
@@ -359,6 +408,13 @@ pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
 /// stopped, and applications that check what they get and answer
 /// each release.
 struct Script {
+    /// Whether the link runs on datagrams: then its bundles may be lost
+    /// or reordered, and the reliable path loses nothing.
+    datagram: bool,
+    /// How far a datagram may be held past the next ones.
+    reorder: [Duration; 2],
+    /// Datagrams sent each way.
+    datagrams: [u64; 2],
     delay: [Duration; 2],
     last: [Instant; 2],
     /// Frames each way still to lose.
@@ -387,9 +443,15 @@ impl World<Heap> for Script {
         let Ok(()) = self.checkers[i].transmit(frame);
         self.sent[i].clear();
         self.sent[i].extend_from_slice(frame);
-        if self.lose[i] > 0 {
+        let bundle = frame.get(5) == Some(&(wire::Kind::Bundle as u8));
+        if self.lose[i] > 0 && (bundle || !self.datagram) {
             self.lose[i] -= 1;
             return None;
+        }
+        if bundle {
+            let n = self.datagrams[i];
+            self.datagrams[i] += 1;
+            return Some(sent + self.delay[i] + self.reorder[i] * (n % 3));
         }
         let at = (sent + self.delay[i]).max(self.last[i]);
         self.last[i] = at;
@@ -668,8 +730,15 @@ impl Invariants {
 }
 
 /// The counters that only ever grow.
-fn counters(s: &Stats) -> [u64; 14] {
+fn counters(s: &Stats) -> [u64; 21] {
     [
+        s.frames_missing,
+        s.datagrams_received,
+        s.samples_recovered,
+        s.samples_lost,
+        s.datagrams_stale,
+        s.datagrams_foreign,
+        s.datagrams_refused,
         s.frames_sent,
         s.frames_received,
         s.samples_sent,

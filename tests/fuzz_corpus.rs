@@ -55,14 +55,31 @@ fn the_pair_corpus_passes() {
 
 #[test]
 fn the_pair_script_runs_a_link_that_releases_both_ways() {
-    // 1 axis, T = 10 ms, static, hold, FIFO, no watchdog, grids aligned;
-    // then time only: 100 × 63.75 periods.
-    let mut script = vec![0, 9, 0, 0, 7 * 3, 0];
-    for _ in 0..100 {
-        script.extend([0, 0, 255]);
+    // 1 axis, T = 10 ms, static, hold, FIFO, no watchdog; a stream (1) or
+    // datagrams of 3 samples (6, then a session token); grids aligned;
+    // then time only: 100 × 63.75 periods. On datagrams, every other op
+    // first loses the base's next 2 datagrams: the copies recover them.
+    for transport in [vec![1], vec![6, 7, 7, 7, 7, 7, 7]] {
+        let datagram = transport.len() > 1;
+        let mut script = vec![0, 9, 0, 0, 7 * 3];
+        script.extend(&transport);
+        script.push(0);
+        for k in 0..100 {
+            if datagram && k % 2 == 1 {
+                script.extend([0, 4, 2]);
+            }
+            script.extend([0, 0, 255]);
+        }
+        let [base, remote] = harness::pair_stats(&script).expect("a valid configuration");
+        assert!(base.released_fresh > 5000, "{base:?}");
+        assert!(remote.released_fresh > 5000, "{remote:?}");
+        assert_eq!((base.late, remote.late), (0, 0));
+        if datagram {
+            assert_eq!(remote.samples_recovered, 100, "{remote:?}");
+            assert_eq!(remote.samples_lost, 0);
+            assert!(base.datagrams_received > 5000 && remote.datagrams_received > 5000);
+        } else {
+            assert_eq!(base.datagrams_received + remote.datagrams_received, 0);
+        }
     }
-    let [base, remote] = harness::pair_stats(&script).expect("a valid configuration");
-    assert!(base.released_fresh > 5000, "{base:?}");
-    assert!(remote.released_fresh > 5000, "{remote:?}");
-    assert_eq!((base.late, remote.late), (0, 0));
 }

@@ -822,6 +822,7 @@ def sim_run(
     signal: str = "sine",
     series: bool = True,
     loss: str = "none",
+    transport: str = "stream",
 ) -> Tuple[str, Dict[str, _Floats]]:
     """One simulation: ``(summary JSON, series)``, ``null`` in the JSON where
     nothing was measured; use :func:`ndr.sim.run`."""

@@ -274,6 +274,19 @@ class LinkStats(TypedDict):
     clamped: int
     grtt_unmeasured: int
     probes_received: int
+    datagrams_received: int
+    """Datagram transport: datagrams of this session taken."""
+    samples_recovered: int
+    """Datagram transport: samples taken from a later datagram's copy."""
+    samples_lost: int
+    """Datagram transport: samples never received before a newer one."""
+    datagrams_stale: int
+    """Datagram transport: datagrams after a newer one (repeated,
+    reordered, replayed), dropped."""
+    datagrams_foreign: int
+    """Datagram transport: datagrams of another session, dropped."""
+    datagrams_refused: int
+    """Datagram transport: datagrams refused for anything else, dropped."""
     nrtt: RunningStats
     """The network round trip."""
     grtt: RunningStats

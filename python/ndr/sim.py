@@ -246,6 +246,7 @@ def run(
     signal: str = "sine",
     series: bool = True,
     loss: str = "none",
+    transport: str = "stream",
 ) -> SimResult:
     """Runs one simulation, with the options of ``ndr sim``.
 
@@ -278,6 +279,10 @@ def run(
             until it is repaired (RACK: about a period and a round trip;
             a retransmission lost again waits Linux's 200 ms timeout,
             doubled at each repeat).
+        transport: ``"stream"`` (TCP, the paper's) or ``"datagram[:K]"``:
+            each datagram carries the newest sample and copies of the
+            ``K - 1`` before it (default 3), so a lost one is recovered from
+            the next; the handshake stays on TCP.
 
     Returns:
         A :class:`SimResult`; its ``summary`` holds ``None`` where nothing
@@ -305,6 +310,7 @@ def run(
         signal=signal,
         series=series,
         loss=loss,
+        transport=transport,
     )
     parsed: SimSummary = json.loads(summary)
     return SimResult(summary=parsed, series=dict(columns))

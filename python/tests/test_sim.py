@@ -31,6 +31,13 @@ def test_packet_loss_on_tcp_raises_the_adaptive_delay():
     clean = runs["none"]["grtt_mean_s"]
     assert runs["3"]["grtt_mean_s"] > 2 * clean
     assert runs["ge:2:4"]["grtt_mean_s"] > 2 * clean
+    # Datagrams with copies of the samples before: no stall to cover.
+    udp = ndr.sim.run(
+        "lan-75km", regulation="adaptive", period=0.001, duration=10, loss="3", transport="datagram"
+    )
+    tcp = ndr.sim.run("lan-75km", regulation="adaptive", period=0.001, duration=10, loss="3")
+    assert udp["grtt_mean_s"] < 0.3 * tcp["grtt_mean_s"]
+    assert udp["late_rate_fwd"] < 0.001
 
 
 def test_series_are_float64_arrays_of_one_length():
@@ -104,6 +111,7 @@ def test_a_trace_file_drives_the_network(tmp_path):
         (dict(axes=257), "axes"),
         (dict(loss="lots"), "loss: unknown loss model"),
         (dict(loss="100"), "loss: a loss rate of 100 %"),
+        (dict(transport="carrier-pigeon"), "transport: unknown transport"),
         (dict(signal="sawtooth"), "signal"),
     ],
 )

@@ -66,11 +66,7 @@ pub extern "C" fn ndr_nostd_exercise(x: f64) -> f64 {
         }
     }
     // A base and a remote endpoint in inline storage, wired back to back.
-    let config = |role| {
-        let mut c = Config::new(role);
-        c.axes = 2;
-        c
-    };
+    let config = |role| Config::new(role).with_width(2);
     if let (Ok(mut base), Ok(mut remote)) = (
         Endpoint::<Inline<2, 16>>::new(config(Role::Base), Instant::ZERO),
         Endpoint::<Inline<2, 16>>::new(config(Role::Remote), Instant::ZERO),

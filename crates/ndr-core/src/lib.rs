@@ -50,6 +50,11 @@
 //!   `x3p` (its state when the command sent now takes effect).
 //! - [`wire`]: the frame codec (spec and test vectors in `docs/wire.md`):
 //!   checked views over `&[u8]`, encoding into `&mut [u8]`; decoding is total.
+//!   A datagram's samples travel in a [`wire::Bundle`]: the newest and
+//!   copies of those before it ([`endpoint::Transport::Datagram`]).
+//! - [`layout`]: the fingerprint of the application's channel names, which
+//!   both peers' Hellos carry so that a robot refuses an operator built for
+//!   another layout.
 //!
 //! ## What each peer does
 //!

@@ -66,10 +66,10 @@ use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use crate::drive::{self, Turn};
-use crate::endpoint::{Endpoint, Event, LinkError};
+use crate::endpoint::{DatagramError, Endpoint, Event, LinkError};
 use crate::storage::Storage;
 use crate::time::Instant;
-use crate::wire::{MAX_FRAME_LEN, Role};
+use crate::wire::{Kind, MAX_DATAGRAM_LEN, Role};
 
 /// Everything around a [`Pair`]'s two endpoints. Times are the world's
 /// ("global") unless they say they are a side's own clock; by default both
@@ -170,7 +170,7 @@ pub struct Pair<S: Storage, W> {
     wire: [VecDeque<(Instant, Vec<u8>)>; 2],
     /// Buffers of delivered frames, reused.
     spare: Vec<Vec<u8>>,
-    buf: [u8; MAX_FRAME_LEN],
+    buf: Vec<u8>,
 }
 
 impl<S: Storage, W: World<S>> Pair<S, W> {
@@ -186,7 +186,8 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
             started: false,
             wire: [VecDeque::new(), VecDeque::new()],
             spare: Vec::new(),
-            buf: [0; MAX_FRAME_LEN],
+            // A datagram's bundle may be longer than any frame of a stream.
+            buf: alloc::vec![0; MAX_DATAGRAM_LEN],
         }
     }
 
@@ -279,7 +280,17 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
             };
             let side = from.peer();
             let at = self.world.stamp(side, arrived, now);
-            if let Err(e) = self.endpoint(side).handle_frame(at, &bytes) {
+            // A datagram's samples (a Bundle) go to the datagram path: one
+            // that is refused is counted there and harms nothing.
+            let result = if bytes.get(5) == Some(&(Kind::Bundle as u8)) {
+                match self.endpoint(side).handle_datagram(at, &bytes) {
+                    Err(DatagramError::Link(e)) => Err(e),
+                    _ => Ok(()),
+                }
+            } else {
+                self.endpoint(side).handle_frame(at, &bytes)
+            };
+            if let Err(e) = result {
                 self.world.failed(side, now, e)?;
             }
             self.world.received(side, at, &bytes);

@@ -3,8 +3,9 @@
 
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
-    Close, Control, Echo, Frame, HEADER_LEN, Header, Hello, MAX_CHANNELS, MAX_FRAME_LEN, Message,
-    Payload, Role, WireError, encode, encoded_len, frame_len,
+    Close, Control, Echo, Frame, HEADER_LEN, Header, Hello, Kind, MAX_BUNDLE, MAX_CHANNELS,
+    MAX_DATAGRAM_LEN, MAX_FRAME_LEN, Message, OlderSample, Payload, Role, VERSION, WireError,
+    encode, encoded_len, frame_len,
 };
 use proptest::prelude::*;
 
@@ -131,6 +132,17 @@ fn touch_everything(frame: &Frame<&[u8]>) {
         Payload::Hello(h) => assert!(!h.period.is_zero()),
         Payload::Control(c) => assert_ne!(c.op, 0),
         Payload::Close(_) => {}
+        Payload::Bundle(b) => {
+            assert!((1..=MAX_BUNDLE).contains(&b.count()));
+            assert_eq!(b.newest().len(), b.width());
+            let mut above = frame.seq();
+            for o in b.older() {
+                assert!(o.seq < above && o.values.iter().all(f64::is_finite));
+                assert_eq!(o.values.len(), b.width());
+                above = o.seq;
+            }
+            let _ = b.session();
+        }
     }
 }
 
@@ -139,11 +151,15 @@ fn decode_anything(bytes: &[u8]) {
     let len = frame_len(bytes);
     match Frame::new_checked(bytes) {
         Ok(frame) => {
-            assert_eq!(
-                len,
-                Ok(Some(bytes.len())),
-                "frame_len agrees with new_checked"
-            );
+            // A stream's framing agrees, but for a Bundle longer than any
+            // frame of a stream (a datagram, never framed).
+            if frame.kind() != Kind::Bundle || bytes.len() <= MAX_FRAME_LEN {
+                assert_eq!(
+                    len,
+                    Ok(Some(bytes.len())),
+                    "frame_len agrees with new_checked"
+                );
+            }
             touch_everything(&frame);
         }
         Err(e) => {
@@ -195,7 +211,7 @@ proptest! {
     ) {
         // Random bytes rarely pass the length and version checks; this gets deeper.
         let mut bytes = len.to_le_bytes().to_vec();
-        bytes.extend_from_slice(&[1, kind, 0, 0]);
+        bytes.extend_from_slice(&[VERSION, kind, 0, 0]);
         bytes.extend_from_slice(&rest);
         bytes.truncate(usize::try_from(len).unwrap().max(8));
         decode_anything(&bytes);
@@ -267,5 +283,66 @@ proptest! {
                 prop_assert!(frame.is_ok(), "{:?}", frame);
             }
         }
+    }
+}
+
+/// A bundle to encode: its session, width, and per sample (newest first)
+/// the gap to the sample ahead of it, a stamp, what it answers, values.
+type BundleCase = (u64, Vec<(u64, u64, Option<u64>, Vec<f64>)>);
+
+fn bundle_case() -> impl Strategy<Value = BundleCase> {
+    (any::<u64>(), 0usize..=40, 1usize..=MAX_BUNDLE).prop_flat_map(|(session, width, count)| {
+        let sample = (
+            1u64..1000,
+            any::<u64>(),
+            prop::option::of(not_none()),
+            prop::collection::vec(finite(), width),
+        );
+        (Just(session), prop::collection::vec(sample, count))
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(1000))]
+
+    #[test]
+    fn a_bundle_decodes_to_its_samples_and_survives_mutation(
+        h in header(),
+        (session, samples) in bundle_case(),
+        flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..8),
+    ) {
+        let mut h = h;
+        h.seq = h.seq.max(1 << 20);
+        let mut seq = h.seq;
+        let older: Vec<OlderSample<'_>> = samples[1..]
+            .iter()
+            .map(|(gap, sent_at, released, values)| {
+                seq -= gap;
+                OlderSample { seq, sent_at: Instant::from_nanos(*sent_at), released: *released, values }
+            })
+            .collect();
+        let msg = Message::Bundle { session, newest: &samples[0].3, older: &older };
+        let mut buf = vec![0u8; MAX_DATAGRAM_LEN];
+        let n = encode(&h, &msg, &mut buf).expect("a valid bundle encodes");
+        prop_assert_eq!(n, encoded_len(&msg));
+        let frame = Frame::new_checked(&buf[..n]).expect("it decodes");
+        prop_assert_eq!(frame.header(), h);
+        let Payload::Bundle(b) = frame.payload() else {
+            return Err(TestCaseError::fail("not a bundle"));
+        };
+        prop_assert_eq!((b.session(), b.count()), (session, samples.len()));
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        prop_assert_eq!(bits(&b.newest().iter().collect::<Vec<_>>()), bits(&samples[0].3));
+        for (got, want) in b.older().zip(&older) {
+            prop_assert_eq!((got.seq, got.sent_at, got.released), (want.seq, want.sent_at, want.released));
+            prop_assert_eq!(bits(&got.values.iter().collect::<Vec<_>>()), bits(want.values));
+        }
+        touch_everything(&frame);
+        let mut bytes = buf[..n].to_vec();
+        for (at, value) in flips {
+            let i = at.index(bytes.len());
+            bytes[i] = value;
+        }
+        decode_anything(&bytes);
     }
 }

@@ -3,8 +3,8 @@
 
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
-    Close, Control, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN, Message, Payload, Role,
-    WireError, close_reason, control_op, encode, frame_len, mode, underflow,
+    Close, Control, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN, Message, OlderSample, Payload,
+    Role, WireError, close_reason, control_op, encode, frame_len, mode, underflow,
 };
 
 const DOC: &str = include_str!("../../../docs/wire.md");
@@ -139,8 +139,32 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 reason: close_reason::PERIOD_MISMATCH,
             }),
         ),
+        (
+            header(42, 1_500_000_000, echo(1_300_000_000, 2_500_000), Some(40)),
+            Message::Bundle {
+                session: 0x5555_6666_7777_8888,
+                newest: &[1.5, -0.25],
+                older: &OLDER,
+            },
+        ),
     ]
 }
+
+/// The copies of vector 8.
+const OLDER: [OlderSample<'static>; 2] = [
+    OlderSample {
+        seq: 41,
+        sent_at: Instant::from_nanos(1_480_000_000),
+        released: Some(39),
+        values: &[1.25, -0.5],
+    },
+    OlderSample {
+        seq: 40,
+        sent_at: Instant::from_nanos(1_460_000_000),
+        released: None,
+        values: &[1.0, -0.75],
+    },
+];
 
 /// Encodes with the codec under test.
 fn enc(header: &Header, msg: &Message<'_>) -> Vec<u8> {
@@ -195,7 +219,7 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
             },
         ),
         (patch(&v[3], 4, &[1]), WireError::UnsupportedVersion(1)),
-        (patch(&bare, 5, &[5]), WireError::UnknownKind(5)),
+        (patch(&bare, 5, &[6]), WireError::UnknownKind(6)),
         (patch(&v[2], 6, &[1]), WireError::UnsupportedFlags(1)),
         (patch(&v[1], 32, &[0x10]), WireError::HoldWithoutEcho),
         (
@@ -239,6 +263,11 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
                 offset: 54,
             },
         ),
+        (patch(&v[7], 56, &[0]), WireError::BadBundleCount(0)),
+        (
+            patch(&v[7], 80, &42u64.to_le_bytes()),
+            WireError::BundleOrder { index: 1 },
+        ),
     ]
 }
 
@@ -254,6 +283,24 @@ fn assert_payload_matches(payload: Payload<'_>, msg: &Message<'_>) {
         (Payload::Hello(h), Message::Hello(m)) => assert_eq!(h, *m),
         (Payload::Control(c), Message::Control(m)) => assert_eq!(c, *m),
         (Payload::Close(c), Message::Close(m)) => assert_eq!(c, *m),
+        (
+            Payload::Bundle(b),
+            Message::Bundle {
+                session,
+                newest,
+                older,
+            },
+        ) => {
+            assert_eq!((b.session(), b.count()), (*session, older.len() + 1));
+            assert_eq!(b.newest().iter().collect::<Vec<_>>(), newest.to_vec());
+            for (got, want) in b.older().zip(older.iter()) {
+                assert_eq!(
+                    (got.seq, got.sent_at, got.released),
+                    (want.seq, want.sent_at, want.released)
+                );
+                assert_eq!(got.values.iter().collect::<Vec<_>>(), want.values.to_vec());
+            }
+        }
         (p, m) => panic!("decoded {p:?}, expected {m:?}"),
     }
 }

@@ -20,7 +20,7 @@ use crate::log;
 
 /// One simulation; returns `(summary_json, series)`.
 #[pyfunction]
-#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, mode = None, playout = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true, loss = "none"))]
+#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, mode = None, playout = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true, loss = "none", transport = "stream"))]
 #[allow(clippy::too_many_arguments)]
 pub fn run<'py>(
     py: Python<'py>,
@@ -40,6 +40,7 @@ pub fn run<'py>(
     signal: &str,
     series: bool,
     loss: &str,
+    transport: &str,
 ) -> PyResult<(String, Bound<'py, PyDict>)> {
     let seed = in_range("seed", seed, 0, u64::MAX)?;
     let max_axes = u16::try_from(MAX_SIM_AXES).unwrap_or(u16::MAX);
@@ -71,6 +72,9 @@ pub fn run<'py>(
     cfg.loss = loss
         .parse()
         .map_err(|e| PyValueError::new_err(format!("loss: {e}")))?;
+    cfg.transport = transport
+        .parse()
+        .map_err(|e| PyValueError::new_err(format!("transport: {e}")))?;
     let out = py.detach(|| ndr_sim::run(&cfg));
     log::flush(py);
     let out = out.map_err(|e| PyValueError::new_err(e.to_string()))?;

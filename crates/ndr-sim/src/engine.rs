@@ -7,17 +7,17 @@ use std::vec::Vec;
 
 use ndr_core::arx::{ArxError, Tf2, Tf2State};
 use ndr_core::endpoint::{
-    Config, ConfigError, Endpoint, Event, LinkError, Mode, Release, Status, Underflow,
+    Config, ConfigError, Endpoint, Event, LinkError, Mode, Release, Status, Transport, Underflow,
 };
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
 use ndr_core::regulation::Regulation;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{Frame, Payload, Role};
+use ndr_core::wire::{Frame, Kind, Payload, Role};
 
 use super::delay::{
-    DelayModel, DelaySampler, Direction, LossModel, LossSampler, Recovery, TcpPath,
+    DelayModel, DelaySampler, Direction, InOrderPath, LossModel, LossSampler, Recovery, TcpPath,
 };
 use super::report::{Collector, Report, Row};
 use super::signal::Signal;
@@ -70,9 +70,14 @@ impl PlantConfig {
 pub struct SimConfig {
     /// The network's delays.
     pub model: DelayModel,
-    /// The packets it loses, the same each way: a lost frame holds the
-    /// TCP stream back for a retransmission timeout ([`TcpPath`]).
+    /// The packets it loses, the same each way: over a stream a lost frame
+    /// holds the TCP stream back until it is repaired ([`TcpPath`]); a lost
+    /// datagram is gone, its sample recovered from the next ones' copies.
     pub loss: LossModel,
+    /// How both endpoints carry their samples: a stream (TCP, the paper's)
+    /// or datagrams, each with copies of the samples before it; the
+    /// handshake and control then go on a TCP path beside them.
+    pub transport: Transport,
     /// Static or dynamic sizing: with `playout`, what a [`Regulation`]
     /// sets ([`SimConfig::with_regulation`]).
     pub mode: Mode,
@@ -115,6 +120,7 @@ impl SimConfig {
         SimConfig {
             model,
             loss: LossModel::None,
+            transport: Transport::Stream,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
             playout: Playout::Fifo,
@@ -216,6 +222,10 @@ pub struct CommandTiming {
     pub released_at: Option<Instant>,
 }
 
+/// When a command that was lost "arrives" in the [`ForwardLog`]: an hour
+/// after it was sent, late for any delay the link could hold.
+pub const NEVER: Duration = Duration::from_secs(3600);
+
 /// A clock that runs at `1 + ppb·10⁻⁹` times the simulation's.
 #[derive(Clone, Copy, Debug)]
 struct SkewedClock {
@@ -261,6 +271,8 @@ struct SimWorld<'a> {
     sampler: DelaySampler,
     loss: LossSampler,
     paths: [TcpPath; 2],
+    /// The datagrams' way (the datagram transport), beside the TCP path.
+    datagram_paths: [InOrderPath; 2],
     /// The period the link runs at: one frame each way per period.
     period: Duration,
     plants: Vec<Tf2State>,
@@ -269,6 +281,8 @@ struct SimWorld<'a> {
     collect: Collector,
     remote_clock: SkewedClock,
     forward: Option<ForwardLog>,
+    /// Whether the last command frame to reach the remote carried a sample.
+    last_was_sample: bool,
 }
 
 /// Runs one simulation.
@@ -288,6 +302,11 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
             Role::Base => Instant::ZERO,
             Role::Remote => Instant::ZERO + cfg.remote_phase,
         };
+        c.transport = cfg.transport;
+        if let Transport::Datagram { .. } = cfg.transport {
+            // Any tokens will do between two simulated endpoints.
+            c.session = (cfg.seed ^ 0x9e37_79b9_7f4a_7c15).rotate_left(role as u32 * 32) | 1;
+        }
         SimEndpoint::with_capacity(c, Instant::ZERO, SIM_QUEUE).map_err(SimError::Config)
     };
     let plant = cfg.plant.discretize(cfg.period).map_err(SimError::Plant)?;
@@ -297,6 +316,7 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         sampler: cfg.model.sampler(cfg.seed),
         loss: cfg.loss.sampler(cfg.seed),
         paths: [TcpPath::new(), TcpPath::new()],
+        datagram_paths: [InOrderPath::new(), InOrderPath::new()],
         period: cfg.period,
         plants: (0..axes).map(|_| Tf2State::new(plant)).collect(),
         plant_out: std::vec![0.0; axes],
@@ -304,6 +324,7 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         collect: Collector::new(cfg),
         remote_clock: SkewedClock::new(cfg.remote_skew_ppm),
         forward: cfg.record_forward.then(ForwardLog::default),
+        last_was_sample: false,
     };
     let mut pair = Pair::new(endpoint(Role::Base)?, endpoint(Role::Remote)?, world);
     pair.run_until(Instant::ZERO + cfg.duration)?;
@@ -316,13 +337,20 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
 impl World<Heap> for SimWorld<'_> {
     type Error = SimError;
 
-    fn arrival(&mut self, from: Role, sent: Instant, _: &[u8]) -> Option<Instant> {
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
         let (dir, direction) = match from {
             Role::Base => (0, Direction::Forward),
             Role::Remote => (1, Direction::Backward),
         };
         // The network runs on simulation time.
         let delay = self.sampler.delay(direction, sent);
+        // A datagram: lost for good, or through the path's queues, which
+        // keep their order (the delay models' jitter is queueing, not
+        // reordering; a lost datagram holds nothing back).
+        if frame.get(5) == Some(&(Kind::Bundle as u8)) {
+            let lost = self.loss.lost(direction);
+            return (!lost).then(|| self.datagram_paths[dir].deliver(sent, delay));
+        }
         // The frame's own delay, both ways, stands for the round trip the
         // sender's TCP has measured.
         let recovery = Recovery::linux(self.period, delay * 2);
@@ -436,18 +464,62 @@ impl SimWorld<'_> {
         }
     }
 
-    /// A frame reached the remote at `at` (its clock): keep a command's timing.
+    /// A frame reached the remote at `at` (its clock): keep a command's
+    /// timing; of a datagram's bundle, each sample not kept yet, and the
+    /// samples it shows lost (a gap between two samples).
     fn log_command(&mut self, at: Instant, bytes: &[u8]) {
         let Some(log) = &mut self.forward else {
             return;
         };
-        if let Ok(frame) = Frame::new_checked(bytes)
-            && let Payload::Data(channels) = frame.payload()
-            && !channels.is_empty()
-        {
+        let Ok(frame) = Frame::new_checked(bytes) else {
+            return;
+        };
+        // Whether the newest frame before this one carried a sample: a gap
+        // after a probe may be probes.
+        let after_sample = self.last_was_sample;
+        let mut came: Vec<(u64, Instant)> = Vec::new();
+        let bundle = match frame.payload() {
+            Payload::Data(channels) => {
+                self.last_was_sample = !channels.is_empty();
+                if channels.is_empty() {
+                    return;
+                }
+                came.push((frame.seq(), frame.sent_at()));
+                false
+            }
+            Payload::Bundle(b) => {
+                self.last_was_sample = b.width() > 0;
+                if b.width() == 0 {
+                    return;
+                }
+                came.extend(b.older().map(|o| (o.seq, o.sent_at)));
+                came.push((frame.seq(), frame.sent_at()));
+                came.sort_unstable();
+                true
+            }
+            _ => return,
+        };
+        for (seq, sent_at) in came {
+            let last = log.samples.last().map(|c| (c.seq, c.sent_at));
+            if last.is_some_and(|(s, _)| seq <= s) {
+                continue;
+            }
+            if let Some((s, t)) = last.filter(|_| bundle && after_sample) {
+                // Lost: never arrives; sent on the grid between its neighbours.
+                let step = (sent_at - t) / (seq - s);
+                for k in 1..seq - s {
+                    let sent = t + step * k;
+                    log.samples.push(CommandTiming {
+                        seq: s + k,
+                        sent_at: sent,
+                        arrived_at: sent + NEVER,
+                        released_at: None,
+                    });
+                }
+            }
             log.samples.push(CommandTiming {
-                seq: frame.seq(),
-                sent_at: frame.sent_at(),
+                seq,
+                sent_at,
                 arrived_at: at,
                 released_at: None,
             });

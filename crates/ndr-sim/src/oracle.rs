@@ -78,6 +78,9 @@ pub struct Oracle {
     origin: u64,
     samples: Vec<(Instant, i128)>,
     sorted: Vec<i128>,
+    /// Samples that never arrived (an arrival [`NEVER`](crate::engine::NEVER)
+    /// after the send): late whatever the delay, so always in the budget.
+    lost: usize,
 }
 
 impl Oracle {
@@ -98,11 +101,14 @@ impl Oracle {
             .collect();
         let mut sorted: Vec<i128> = samples.iter().map(|&(_, th)| th).collect();
         sorted.sort_unstable();
+        let never = i128::from(crate::engine::NEVER.as_nanos()) - i128::from(period);
+        let lost = sorted.iter().filter(|&&th| th >= never).count();
         Oracle {
             period,
             origin,
             samples,
             sorted,
+            lost,
         }
     }
 
@@ -127,10 +133,9 @@ impl Oracle {
         o + k * t - i128::from(s.as_nanos())
     }
 
-    /// The smallest target (ns) with at most `floor(ε·n)` of `sorted` late.
-    fn smallest_target(sorted: &[i128], epsilon: f64) -> i128 {
+    /// The smallest target (ns) with at most `allowed` of `sorted` late.
+    fn smallest_target(sorted: &[i128], allowed: usize) -> i128 {
         let n = sorted.len();
-        let allowed = ((epsilon.clamp(0.0, 1.0) * n as f64) + 1e-9).floor() as usize;
         let on_time = n.saturating_sub(allowed);
         match on_time.checked_sub(1).and_then(|i| sorted.get(i)) {
             Some(&th) => (th + 1).max(0),
@@ -170,7 +175,7 @@ impl Oracle {
     /// `D*(ε)`: the smallest constant target with late rate ≤ `ε`.
     #[must_use]
     pub fn constant(&self, epsilon: f64) -> OraclePoint {
-        let d = Self::smallest_target(&self.sorted, epsilon);
+        let d = Self::smallest_target(&self.sorted, self.budget(epsilon));
         let (late, sum, on_time) = self.tally(0..self.samples.len(), d);
         self.point(d, late, sum, on_time)
     }
@@ -258,8 +263,12 @@ impl Oracle {
     }
 
     /// The late samples allowed at `ε`: `floor(ε·N)`.
+    /// Late samples allowed at `epsilon`: the lost ones at least, which no
+    /// delay brings in time.
     fn budget(&self, epsilon: f64) -> usize {
-        ((epsilon.clamp(0.0, 1.0) * self.samples.len() as f64) + 1e-9).floor() as usize
+        let allowed =
+            ((epsilon.clamp(0.0, 1.0) * self.samples.len() as f64) + 1e-9).floor() as usize;
+        allowed.max(self.lost)
     }
 
     /// The runs of consecutive samples with the same `key` of their send
@@ -391,6 +400,21 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    #[test]
+    fn a_lost_sample_is_late_whatever_the_delay_and_spends_no_budget_twice() {
+        // Five samples, the 81 ms one lost (arriving NEVER after its send).
+        let mut t = trace(&[15, 25, 40, 55, 81], 20);
+        t[4].arrived_at = t[4].sent_at + crate::engine::NEVER;
+        let o = Oracle::new(&t, Instant::ZERO, Duration::from_millis(20));
+        // Asked for no late sample, it does the best it can: the lost one.
+        for p in [o.constant(0.0), o.piecewise(0.0, Duration::from_secs(1))] {
+            assert!((p.mean_delay_s - 0.060).abs() < 1e-12, "{p:?}");
+            assert!((p.late_rate - 0.2).abs() < 1e-12);
+        }
+        // One more late allowed beyond it: 40 ms.
+        assert!((o.constant(0.4).mean_delay_s - 0.040).abs() < 1e-12);
     }
 
     #[test]

@@ -5,7 +5,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ndr::core::endpoint::{Mode, Underflow};
+use ndr::core::endpoint::{Mode, Transport, Underflow};
 use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
@@ -108,6 +108,12 @@ pub struct SimArgs {
     /// retransmission timeout (200 ms at least, doubled at each repeat).
     #[arg(long, default_value = "none")]
     pub loss: LossModel,
+    /// How samples cross: stream (TCP, the paper's: a loss holds the stream
+    /// back until repaired) or datagram[:K] (each datagram carries the
+    /// newest sample and copies of the K − 1 before it, default 3; a lost
+    /// one is recovered from the next; the handshake stays on TCP).
+    #[arg(long, default_value = "stream")]
+    pub transport: Transport,
     /// Sampling period, in ms (the paper's 200).
     #[arg(long, default_value_t = 200.0)]
     pub period_ms: f64,
@@ -171,6 +177,7 @@ impl SimArgs {
         }
         cfg.remote_skew_ppm = self.remote_skew_ppm;
         cfg.loss = self.loss;
+        cfg.transport = self.transport;
         cfg.period = period;
         cfg.duration = duration;
         cfg.seed = self.seed;

@@ -11,6 +11,83 @@ use crate::sizing::Sizing;
 use crate::time::{Duration, Instant};
 use crate::wire::{self, MAX_CHANNELS, Role};
 
+/// How the link carries its samples; both peers must agree.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum Transport {
+    /// A stream (TCP, TLS): every frame, in order; a lost packet holds the
+    /// stream back until it is repaired. The paper's transport.
+    #[default]
+    Stream,
+    /// Datagrams (UDP, QUIC datagrams) for the samples, never sent again:
+    /// each carries the newest sample and up to `redundancy − 1` before
+    /// it, so that a lost one is recovered from the next. The handshake,
+    /// Control and Close still go on a reliable path
+    /// ([`Endpoint::handle_frame`](super::Endpoint::handle_frame)); the
+    /// driver hands datagrams to
+    /// [`Endpoint::handle_datagram`](super::Endpoint::handle_datagram).
+    Datagram {
+        /// Samples per datagram, 1 to [`MAX_BUNDLE`](crate::wire::MAX_BUNDLE)
+        /// (fewer when they would not fit [`DATAGRAM_BUDGET`] bytes).
+        redundancy: u8,
+    },
+}
+
+impl Transport {
+    /// Datagrams, each with the newest sample and the two before it.
+    pub const DATAGRAM: Transport = Transport::Datagram { redundancy: 3 };
+
+    /// Its name: `stream` or `datagram`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Transport::Stream => "stream",
+            Transport::Datagram { .. } => "datagram",
+        }
+    }
+}
+
+impl FromStr for Transport {
+    type Err = UnknownName;
+
+    /// `stream` (or `tcp`), `datagram` (or `udp`), `datagram:K` (`K`
+    /// samples per datagram, 1 to 8).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let unknown = UnknownName {
+            what: "transport",
+            valid: "stream (tcp), datagram (udp), datagram:K with K from 1 to 8",
+        };
+        match s {
+            "stream" | "tcp" => Ok(Transport::Stream),
+            "datagram" | "udp" => Ok(Transport::DATAGRAM),
+            _ => {
+                let k = s
+                    .strip_prefix("datagram:")
+                    .or_else(|| s.strip_prefix("udp:"))
+                    .and_then(|k| k.parse::<u8>().ok())
+                    .filter(|k| (1..=wire::MAX_BUNDLE).contains(&usize::from(*k)))
+                    .ok_or(unknown)?;
+                Ok(Transport::Datagram { redundancy: k })
+            }
+        }
+    }
+}
+
+impl fmt::Display for Transport {
+    /// The name [`Transport::from_str`] reads back.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Transport::Stream => f.write_str("stream"),
+            Transport::Datagram { redundancy: 3 } => f.write_str("datagram"),
+            Transport::Datagram { redundancy } => write!(f, "datagram:{redundancy}"),
+        }
+    }
+}
+
+/// The size a datagram's samples are kept within (fewer older samples
+/// when they would not fit): what a QUIC datagram holds on any path.
+pub const DATAGRAM_BUDGET: usize = 1200;
+
 /// What a regulator does at a tick whose sample has not arrived.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Underflow {
@@ -109,6 +186,12 @@ pub struct Config {
     /// ([`layout::fingerprint`](crate::layout::fingerprint) of its channel
     /// names), `0` for none; both peers must give the same.
     pub layout: u64,
+    /// How samples cross: a stream or datagrams; both peers must agree.
+    pub transport: Transport,
+    /// Datagram transport: this side's session token, which the peer puts
+    /// in every datagram it sends here (a datagram with another is
+    /// dropped). The driver draws it at random for each link; not `0`.
+    pub session: u64,
     /// The sampling period `T`; both peers must agree at the handshake.
     pub period: Duration,
     /// Static or dynamic sizing of the queues; both peers must agree. With
@@ -176,6 +259,8 @@ impl Config {
             command_width: 1,
             state_width: 1,
             layout: 0,
+            transport: Transport::Stream,
+            session: 0,
             period,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
@@ -261,6 +346,14 @@ impl Config {
         if self.liveness.is_some_and(|l| l.is_zero()) {
             return Err(ConfigError::Liveness);
         }
+        if let Transport::Datagram { redundancy } = self.transport
+            && (redundancy == 0 || usize::from(redundancy) > wire::MAX_BUNDLE || self.session == 0)
+        {
+            return Err(ConfigError::Datagram {
+                redundancy,
+                session: self.session,
+            });
+        }
         if let crate::playout::Playout::Adaptive {
             quantum: Some(q), ..
         } = self.playout
@@ -325,6 +418,15 @@ pub enum ConfigError {
     /// [`MIN_QUANTUM`](crate::playout::MIN_QUANTUM) to
     /// [`MAX_QUANTUM`](crate::playout::MAX_QUANTUM).
     Quantum(Duration),
+    /// The datagram transport needs a redundancy of 1 to
+    /// [`MAX_BUNDLE`](crate::wire::MAX_BUNDLE) and a session token other
+    /// than 0.
+    Datagram {
+        /// The redundancy asked for.
+        redundancy: u8,
+        /// The session token given.
+        session: u64,
+    },
 }
 
 impl fmt::Display for ConfigError {
@@ -364,6 +466,19 @@ impl fmt::Display for ConfigError {
                  that range, or none for the default",
                 crate::playout::MIN_QUANTUM,
                 crate::playout::MAX_QUANTUM
+            ),
+            ConfigError::Datagram {
+                redundancy,
+                session: 0,
+            } => write!(
+                f,
+                "the datagram transport needs a session token other than 0 (the driver draws \
+                 one at random for each link; redundancy {redundancy})"
+            ),
+            ConfigError::Datagram { redundancy, .. } => write!(
+                f,
+                "a datagram redundancy of {redundancy} samples: give 1 to {}",
+                wire::MAX_BUNDLE
             ),
         }
     }

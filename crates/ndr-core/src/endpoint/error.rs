@@ -33,6 +33,14 @@ pub enum LinkError {
         /// The peer's.
         theirs: u16,
     },
+    /// One peer runs over a stream, the other over datagrams (ends the
+    /// link).
+    TransportMismatch {
+        /// Ours: `stream` or `datagram`.
+        ours: &'static str,
+        /// The peer's.
+        theirs: &'static str,
+    },
     /// The peers were built for different channel layouts (ends the link).
     LayoutMismatch {
         /// Our layout's fingerprint (`0`: none given).
@@ -165,6 +173,7 @@ impl LinkError {
             LinkError::RoleMismatch { .. } => close_reason::ROLE_MISMATCH,
             LinkError::WidthMismatch { .. } => close_reason::WIDTH_MISMATCH,
             LinkError::LayoutMismatch { .. } => close_reason::LAYOUT_MISMATCH,
+            LinkError::TransportMismatch { .. } => close_reason::TRANSPORT_MISMATCH,
             LinkError::PeriodMismatch { .. } => close_reason::PERIOD_MISMATCH,
             LinkError::ModeMismatch { .. } => close_reason::MODE_MISMATCH,
             LinkError::Timeout | LinkError::PeerSilent { .. } => close_reason::TIMEOUT,
@@ -244,6 +253,11 @@ impl fmt::Display for LinkError {
                 f,
                 "width mismatch: this side's {which}s carry {ours} values, the peer's {theirs}; \
                  configure both with the same command and state widths"
+            ),
+            LinkError::TransportMismatch { ours, theirs } => write!(
+                f,
+                "transport mismatch: this side carries samples over a {ours}, the peer over a \
+                 {theirs}; give both the same transport"
             ),
             LinkError::LayoutMismatch { ours, theirs } => write!(
                 f,

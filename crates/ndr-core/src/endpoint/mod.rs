@@ -32,6 +32,7 @@
 //! sample's release slot follows from its sequence number.
 
 mod config;
+mod datagram;
 mod error;
 mod event;
 mod receive;
@@ -43,8 +44,10 @@ mod stats;
 use heapless::Deque;
 
 pub use config::{
-    Adaptation, Config, ConfigError, DEFAULT_LIVENESS, MIN_PERIOD, Mode, Underflow, UnknownName,
+    Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, MIN_PERIOD, Mode,
+    Transport, Underflow, UnknownName,
 };
+pub use datagram::DatagramError;
 pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
@@ -60,7 +63,7 @@ use crate::regulator::{Occupancy, RegulatorIn};
 use crate::storage::Storage;
 use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
-use crate::wire::{self, Control, Frame, Header, Hello, Message, Role};
+use crate::wire::{self, Frame, Header, Hello, Role};
 use event::Head;
 use receive::Heard;
 use regime::Regime;
@@ -168,6 +171,8 @@ pub struct Endpoint<S: Storage> {
     /// What was released to the application.
     rel: Released<S::Values>,
     peer: Option<Hello>,
+    /// The datagram transport's state (`None` on a stream).
+    dgram: Option<datagram::Datagrams<S::Values>>,
     events: Deque<Event<S::Values>, EVENT_QUEUE>,
     events_dropped: u64,
     stats: Stats,
@@ -213,6 +218,13 @@ impl<S: Storage> Endpoint<S> {
         // What is received is made when it comes: check now that it fits.
         S::values(usize::from(widest)).ok_or(too_wide)?;
         let sample = S::values(usize::from(config.sent_width())).ok_or(too_wide)?;
+        let dgram = match config.transport {
+            Transport::Stream => None,
+            transport => Some(
+                datagram::Datagrams::new(transport, || S::values(usize::from(config.sent_width())))
+                    .ok_or(too_wide)?,
+            ),
+        };
         let no_room = ConfigError::Capacity { asked: capacity };
         let queue = S::queue(capacity).ok_or(no_room)?;
         let sent_ticks = S::ticks(capacity, (u64::MAX, Instant::ZERO)).ok_or(no_room)?;
@@ -245,6 +257,7 @@ impl<S: Storage> Endpoint<S> {
             heard: Heard::new(config.period),
             rel: Released::new(now),
             peer: None,
+            dgram,
             events: Deque::new(),
             events_dropped: 0,
             stats: Stats::default(),
@@ -361,18 +374,7 @@ impl<S: Storage> Endpoint<S> {
                 _ => self.rel.released_seq,
             },
         };
-        let width = usize::from(self.config.sent_width());
-        let msg = match item {
-            Tx::Hello => Message::Hello(self.hello()),
-            Tx::Probe { .. } => Message::Data(&[]),
-            Tx::Sample { .. } => Message::Data({
-                let all = self.out.sample.as_ref();
-                all.get(..width).unwrap_or(all)
-            }),
-            Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
-            Tx::Close { reason } => Message::Close(wire::Close { reason }),
-        };
-        let n = match wire::encode(&header, &msg, buf) {
+        let n = match self.write_item(&header, item, buf) {
             Ok(n) => n,
             Err(wire::WireError::BufferTooSmall { needed, got }) => {
                 return Err(LinkError::BufferTooSmall { needed, got });
@@ -567,7 +569,10 @@ impl<S: Storage> Endpoint<S> {
             state_width: self.config.state_width,
             period: self.config.period,
             layout: self.config.layout,
-            session: 0,
+            session: match self.config.transport {
+                Transport::Stream => 0,
+                Transport::Datagram { .. } => self.config.session,
+            },
         }
     }
 

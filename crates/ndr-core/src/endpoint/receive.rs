@@ -2,36 +2,82 @@
 
 use super::event::Head;
 use super::rx_check::RxCheck;
-use super::{Endpoint, Event, LinkError, Phase, Slot, Tx, Underflow, ns_i64};
+use super::{Endpoint, Event, LinkError, Phase, Slot, Transport, Tx, Underflow, ns_i64};
 use crate::playout::{AdaptiveSlot, Target, TargetDelay};
 use crate::sizing::INIT_EXCHANGES;
 use crate::storage::Storage;
 use crate::time::{Duration, Instant};
-use crate::wire::{Control, Echo, Frame, Hello, Kind, Payload, Role, control_op};
+use crate::wire::{Channels, Control, Echo, Frame, Hello, Kind, Payload, Role, control_op};
 
 impl<S: Storage> Endpoint<S> {
     pub(super) fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
-        let sent_at = frame.sent_at();
-        // A frame handed over a watchdog's time after a deadline the driver
-        // missed: the driver itself stalled (its process stopped), and what
-        // the frame's arrival says is the stall's, not the network's.
-        let stalled = match (self.config.watchdog, self.poll_timeout()) {
-            (Some(w), Some(due)) => now >= due + w,
-            _ => false,
-        };
-        // Checked before anything of the frame is used (see `rx_check`).
-        if let Some(echo) = frame.echo() {
-            self.heard
-                .check
-                .observe_echo(echo.sent_at, echo.hold, sent_at, now);
+        // A datagram's samples never come on the stream.
+        if frame.kind() == Kind::Bundle {
+            return Err(self.unexpected(Kind::Bundle));
         }
-        self.heard.check.check_stamp(sent_at, now)?;
+        let sent_at = frame.sent_at();
+        let stalled = self.driver_stalled(now);
+        self.check_stamp(now, sent_at, frame.echo())?;
         if let Payload::Data(_) = frame.payload() {
             if self.phase == Phase::Handshake {
                 return Err(self.unexpected(Kind::Data));
             }
             self.stats.frames_missing += self.heard.check.accept_data(frame.seq(), sent_at)?;
         }
+        self.hear(now, sent_at, frame.echo())?;
+        match frame.payload() {
+            Payload::Hello(hello) => self.receive_hello(now, hello),
+            Payload::Data(channels) => {
+                let head = Head {
+                    seq: frame.seq(),
+                    sent_at,
+                    arrived_at: now,
+                };
+                self.receive_data(head, frame.released(), channels, Some(stalled))
+            }
+            Payload::Control(control) => self.receive_control(now, control),
+            Payload::Close(close) => Err(LinkError::PeerClosed {
+                reason: close.reason,
+            }),
+            Payload::Bundle(_) => Err(self.unexpected(Kind::Bundle)),
+        }
+    }
+
+    /// Whether a frame handed over at `now` comes a watchdog's time after a
+    /// deadline the driver missed: the driver itself stalled (its process
+    /// stopped), and what the frame's arrival says is the stall's, not the
+    /// network's.
+    pub(super) fn driver_stalled(&self, now: Instant) -> bool {
+        match (self.config.watchdog, self.poll_timeout()) {
+            (Some(w), Some(due)) => now >= due + w,
+            _ => false,
+        }
+    }
+
+    /// The receive checks every frame passes before anything of it is used
+    /// (see `rx_check`).
+    pub(super) fn check_stamp(
+        &mut self,
+        now: Instant,
+        sent_at: Instant,
+        echo: Option<Echo>,
+    ) -> Result<(), LinkError> {
+        if let Some(echo) = echo {
+            self.heard
+                .check
+                .observe_echo(echo.sent_at, echo.hold, sent_at, now);
+        }
+        self.heard.check.check_stamp(sent_at, now)
+    }
+
+    /// What a frame's timing says: the clocks' offset and skew, a shift of
+    /// the delay's floor, the round trip it echoes.
+    pub(super) fn hear(
+        &mut self,
+        now: Instant,
+        sent_at: Instant,
+        echo: Option<Echo>,
+    ) -> Result<(), LinkError> {
         let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
         // A stamp nothing could check yet (the first Hello) stays out of the
         // clock estimate.
@@ -54,59 +100,70 @@ impl<S: Storage> Endpoint<S> {
             self.stats.clock_offset_s = theta;
         }
         self.stats.clock_skew_ppm = self.sync.skew() * 1e6;
-        if let Some(echo) = frame.echo() {
+        if let Some(echo) = echo {
             self.measure_nrtt(now, echo, sent_at)?;
         }
         self.heard.heard(sent_at, now);
-        match frame.payload() {
-            Payload::Hello(hello) => self.receive_hello(now, hello),
-            Payload::Data(channels) => {
-                let prev = self.heard.prev_data.replace((sent_at, now));
-                if let Some((prev_sent, prev_arrived)) = prev {
-                    // How much later than its schedule this frame came,
-                    // relative to the previous one (never negative).
-                    let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
-                    self.predictor.observe_gap(gap);
-                }
-                self.observe_one_way(sent_at, now, prev, stalled);
-                if channels.is_empty() {
-                    self.stats.probes_received += 1;
-                    return match self.phase {
-                        Phase::Handshake => Err(self.unexpected(Kind::Data)),
-                        _ => Ok(()),
-                    };
-                }
-                let width = self.config.received_width();
-                let mismatch = LinkError::ChannelCount {
-                    expected: width,
-                    got: channels.len(),
-                };
-                if channels.len() != usize::from(width) {
-                    return Err(mismatch);
-                }
-                let Some(mut values) = S::values(usize::from(width)) else {
-                    return Err(mismatch);
-                };
-                if channels.copy_to(values.as_mut()).is_err() {
-                    return Err(mismatch);
-                }
-                let slot = Slot {
-                    head: Head {
-                        seq: frame.seq(),
-                        sent_at,
-                        arrived_at: now,
-                    },
-                    peer_released: frame.released(),
-                    len: width,
-                    values,
-                };
-                self.receive_sample(now, slot)
+        Ok(())
+    }
+
+    /// A sample (or a probe, without values) stamped as `head` says. Its
+    /// own frame's arrival (`stalled` given) also measures the network; a
+    /// copy in a later datagram's bundle (`None`) came late by design.
+    pub(super) fn receive_data(
+        &mut self,
+        head: Head,
+        released: Option<u64>,
+        channels: Channels<'_>,
+        stalled: Option<bool>,
+    ) -> Result<(), LinkError> {
+        let (sent_at, now) = (head.sent_at, head.arrived_at);
+        if let Some(stalled) = stalled {
+            let prev = self.heard.prev_data.replace((sent_at, now));
+            if let Some((prev_sent, prev_arrived)) = prev {
+                // How much later than its schedule this frame came,
+                // relative to the previous one (never negative).
+                let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
+                self.predictor.observe_gap(gap);
             }
-            Payload::Control(control) => self.receive_control(now, control),
-            Payload::Close(close) => Err(LinkError::PeerClosed {
-                reason: close.reason,
-            }),
+            self.observe_one_way(sent_at, now, prev, stalled);
+        } else if !self.heard.outage_burst
+            && let (Some(floor), Some(target)) = (self.floor_ns(now), &mut self.target)
+        {
+            // A copy recovered from a later datagram: the delay it really
+            // had is one the playout must cover to keep its late rate.
+            let raw = ns_i64(now).saturating_sub(ns_i64(sent_at));
+            let above = u64::try_from(raw.saturating_sub(floor)).unwrap_or(0);
+            target.observe(sent_at, Duration::from_nanos(above));
         }
+        if channels.is_empty() {
+            self.stats.probes_received += 1;
+            return match self.phase {
+                Phase::Handshake => Err(self.unexpected(Kind::Data)),
+                _ => Ok(()),
+            };
+        }
+        let width = self.config.received_width();
+        let mismatch = LinkError::ChannelCount {
+            expected: width,
+            got: channels.len(),
+        };
+        if channels.len() != usize::from(width) {
+            return Err(mismatch);
+        }
+        let Some(mut values) = S::values(usize::from(width)) else {
+            return Err(mismatch);
+        };
+        if channels.copy_to(values.as_mut()).is_err() {
+            return Err(mismatch);
+        }
+        let slot = Slot {
+            head,
+            peer_released: released,
+            len: width,
+            values,
+        };
+        self.receive_sample(now, slot)
     }
 
     pub(super) fn unexpected(&self, kind: Kind) -> LinkError {
@@ -179,6 +236,21 @@ impl<S: Storage> Endpoint<S> {
                 ours: ours.layout,
                 theirs: hello.layout,
             });
+        }
+        // A peer on datagrams gives the token its datagrams must carry.
+        let theirs = if hello.session == 0 {
+            Transport::Stream
+        } else {
+            Transport::DATAGRAM
+        };
+        if theirs.name() != ours.transport.name() {
+            return Err(LinkError::TransportMismatch {
+                ours: ours.transport.name(),
+                theirs: theirs.name(),
+            });
+        }
+        if let Some(d) = &mut self.dgram {
+            d.peer_session = hello.session;
         }
         if hello.period != ours.period {
             return Err(LinkError::PeriodMismatch {

@@ -141,6 +141,25 @@ pub struct Stats {
     pub frames_missing: u64,
     /// Round trips whose start had left the send-time history.
     pub grtt_unmeasured: u64,
+    /// Datagram transport: datagrams of this session taken (each a Bundle
+    /// of samples).
+    pub datagrams_received: u64,
+    /// Datagram transport: samples taken from a later datagram's copy
+    /// (their own datagram was lost or came late).
+    pub samples_recovered: u64,
+    /// Datagram transport: samples never received, neither in their own
+    /// datagram nor in a later one's copies, before a newer one came.
+    pub samples_lost: u64,
+    /// Datagram transport: datagrams that came after a newer one (repeated
+    /// by the network, reordered, or replayed), dropped whole.
+    pub datagrams_stale: u64,
+    /// Datagram transport: datagrams with another session's token (a stray
+    /// or a spoof), dropped.
+    pub datagrams_foreign: u64,
+    /// Datagram transport: datagrams refused for anything else (not a
+    /// valid Bundle, another width, before the handshake, a stamp from
+    /// the future), dropped; the link carries on.
+    pub datagrams_refused: u64,
     /// Network round-trip times, in seconds.
     pub nrtt: Running,
     /// Round trips as the application sees them, in seconds.

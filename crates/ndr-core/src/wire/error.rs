@@ -18,7 +18,8 @@ pub enum WireError {
         /// Bytes available.
         got: usize,
     },
-    /// The length field is below [`HEADER_LEN`] or above [`MAX_FRAME_LEN`].
+    /// The length field is below [`HEADER_LEN`] or above [`MAX_FRAME_LEN`]
+    /// ([`MAX_DATAGRAM_LEN`](super::MAX_DATAGRAM_LEN) for a Bundle).
     LengthOutOfRange(u32),
     /// The buffer holds more bytes than the length field announces.
     LengthMismatch {
@@ -56,6 +57,24 @@ pub enum WireError {
     BadRole(u8),
     /// A Hello announces a zero period.
     ZeroPeriod,
+    /// A Bundle's count is 0 or above [`MAX_BUNDLE`](super::MAX_BUNDLE).
+    BadBundleCount(usize),
+    /// A Bundle's sample `index` (1: the first older one) does not come
+    /// before the one ahead of it (its `seq` is not lower).
+    BundleOrder {
+        /// The sample's place, newest first.
+        index: usize,
+    },
+    /// A Bundle to encode whose sample `index` has `len` values, not the
+    /// newest's `width`.
+    BundleWidth {
+        /// The sample's place, newest first.
+        index: usize,
+        /// Its values.
+        len: usize,
+        /// The newest sample's.
+        width: usize,
+    },
     /// A Hello announces a sample width of 0 or above [`MAX_CHANNELS`]
     /// (field at `offset`: 52 command, 54 state).
     WidthOutOfRange {
@@ -131,7 +150,7 @@ impl fmt::Display for WireError {
             ),
             WireError::UnknownKind(k) => write!(
                 f,
-                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close)"
+                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close, 5 Bundle)"
             ),
             WireError::UnsupportedFlags(flags) => write!(
                 f,
@@ -163,6 +182,21 @@ impl fmt::Display for WireError {
                 write!(f, "Hello role {r} is neither 0 (base) nor 1 (remote)")
             }
             WireError::ZeroPeriod => write!(f, "Hello period is zero; it must be positive"),
+            WireError::BadBundleCount(n) => write!(
+                f,
+                "a Bundle of {n} samples; it carries 1 to {}",
+                super::MAX_BUNDLE
+            ),
+            WireError::BundleOrder { index } => write!(
+                f,
+                "a Bundle's sample {index} is not older than the one before it (its seq is \
+                 not lower); the samples go newest first"
+            ),
+            WireError::BundleWidth { index, len, width } => write!(
+                f,
+                "a Bundle's sample {index} has {len} values, the newest {width}; every sample \
+                 of a bundle has the link's width"
+            ),
             WireError::WidthOutOfRange { width, offset } => write!(
                 f,
                 "Hello {} width is {width}; a sample carries 1 to {MAX_CHANNELS} values",

@@ -32,6 +32,7 @@
 //! # Ok::<(), wire::WireError>(())
 //! ```
 
+mod bundle;
 mod error;
 mod payload;
 #[cfg(test)]
@@ -39,6 +40,10 @@ mod tests;
 
 use core::fmt;
 
+pub use bundle::{
+    BUNDLE_FIXED_LEN, Bundle, MAX_BUNDLE, MAX_DATAGRAM_LEN, OLDER_FIELDS_LEN, Older, OlderSample,
+    bundle_payload_len,
+};
 pub use error::WireError;
 pub use payload::{
     Channels, ChannelsIter, Close, Control, Hello, Payload, Role, close_reason, control_op, mode,
@@ -109,14 +114,17 @@ pub enum Kind {
     Control = 3,
     /// Goodbye.
     Close = 4,
+    /// A datagram's samples (the newest and those before it).
+    Bundle = 5,
 }
 
 impl Kind {
-    /// The exact payload size of this kind, `None` for Data (8 bytes per channel).
+    /// The exact payload size of this kind, `None` for Data and Bundle
+    /// (they follow their values).
     #[must_use]
     pub const fn fixed_payload_len(self) -> Option<usize> {
         match self {
-            Kind::Data => None,
+            Kind::Data | Kind::Bundle => None,
             Kind::Hello => Some(Hello::LEN),
             Kind::Control => Some(Control::LEN),
             Kind::Close => Some(Close::LEN),
@@ -132,6 +140,7 @@ impl TryFrom<u8> for Kind {
             2 => Ok(Kind::Hello),
             3 => Ok(Kind::Control),
             4 => Ok(Kind::Close),
+            5 => Ok(Kind::Bundle),
             _ => Err(WireError::UnknownKind(code)),
         }
     }
@@ -204,10 +213,22 @@ pub fn frame_len(prefix: &[u8]) -> Result<Option<usize>, WireError> {
 /// Validates one whole frame; returns its kind.
 fn check(buf: &[u8]) -> Result<Kind, WireError> {
     let got = buf.len();
-    let len = frame_len(buf)?.ok_or(WireError::Truncated {
-        needed: PREFIX_LEN,
-        got,
-    })?;
+    let field = buf
+        .first_chunk::<PREFIX_LEN>()
+        .map(|f| u32::from_le_bytes(*f))
+        .ok_or(WireError::Truncated {
+            needed: PREFIX_LEN,
+            got,
+        })?;
+    // A Bundle (a datagram) may be longer than any frame of a stream.
+    let longest = match buf.get(field::KIND) {
+        Some(&k) if k == Kind::Bundle as u8 => MAX_DATAGRAM_LEN,
+        _ => MAX_FRAME_LEN,
+    };
+    let len = match usize::try_from(field) {
+        Ok(n) if (HEADER_LEN..=longest).contains(&n) => n,
+        _ => return Err(WireError::LengthOutOfRange(field)),
+    };
     if got > len {
         return Err(WireError::LengthMismatch {
             field: len,
@@ -232,6 +253,7 @@ fn check(buf: &[u8]) -> Result<Kind, WireError> {
     }
     match kind {
         Kind::Data => Channels::check(payload).map(drop),
+        Kind::Bundle => Bundle::check(payload, u64_at(head, field::SEQ)).map(drop),
         Kind::Hello => Hello::parse(payload).map(drop),
         Kind::Control => Control::parse(payload).map(drop),
         Kind::Close => Close::parse(payload).map(drop),
@@ -335,6 +357,7 @@ impl<T: AsRef<[u8]>> Frame<T> {
         });
         match self.kind {
             Kind::Data => Payload::Data(Channels::from_checked(bytes)),
+            Kind::Bundle => Payload::Bundle(Bundle::from_checked(bytes)),
             Kind::Hello => Hello::parse(bytes).map_or(broken, Payload::Hello),
             Kind::Control => Control::parse(bytes).map_or(broken, Payload::Control),
             Kind::Close => Close::parse(bytes).map_or(broken, Payload::Close),
@@ -356,6 +379,17 @@ impl<T: AsRef<[u8]>> fmt::Debug for Frame<T> {
 pub enum Message<'a> {
     /// One sample: at most [`MAX_CHANNELS`] finite values.
     Data(&'a [f64]),
+    /// A datagram's samples: the newest (the header's `seq`, `sent_at`
+    /// and `released` are its) and up to [`MAX_BUNDLE`] − 1 older ones,
+    /// newest first, all of the newest's width.
+    Bundle {
+        /// The receiver's session token.
+        session: u64,
+        /// The newest sample's values.
+        newest: &'a [f64],
+        /// The older samples, newest first.
+        older: &'a [OlderSample<'a>],
+    },
     /// Handshake.
     Hello(Hello),
     /// Pause / resume negotiation.
@@ -370,6 +404,7 @@ impl Message<'_> {
     pub const fn kind(&self) -> Kind {
         match self {
             Message::Data(_) => Kind::Data,
+            Message::Bundle { .. } => Kind::Bundle,
             Message::Hello(_) => Kind::Hello,
             Message::Control(_) => Kind::Control,
             Message::Close(_) => Kind::Close,
@@ -384,6 +419,9 @@ impl Message<'_> {
 pub const fn encoded_len(msg: &Message<'_>) -> usize {
     let payload = match msg {
         Message::Data(values) => values.len().saturating_mul(8),
+        Message::Bundle { newest, older, .. } => {
+            bundle_payload_len(older.len().saturating_add(1), newest.len())
+        }
         Message::Hello(_) => Hello::LEN,
         Message::Control(_) => Control::LEN,
         Message::Close(_) => Close::LEN,
@@ -407,6 +445,9 @@ pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usiz
         && values.len() > MAX_CHANNELS
     {
         return Err(WireError::TooManyChannels(values.len()));
+    }
+    if let Message::Bundle { newest, older, .. } = msg {
+        bundle::check_message(header.seq, newest, older)?;
     }
     let (echo, hold) = match header.echo {
         None => (NONE, 0),
@@ -442,11 +483,16 @@ pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usiz
                 put(dst, 0, v.to_le_bytes());
             }
         }
+        Message::Bundle {
+            session,
+            newest,
+            older,
+        } => bundle::write(payload, session, newest, older)?,
         Message::Hello(hello) => put(payload, 0, hello.to_bytes()?),
         Message::Control(control) => put(payload, 0, control.to_bytes()?),
         Message::Close(close) => put(payload, 0, close.to_bytes()),
     }
-    // len <= MAX_FRAME_LEN here, so the cast is lossless.
+    // len <= MAX_DATAGRAM_LEN here, so the cast is lossless.
     put(head, field::LENGTH, (len as u32).to_le_bytes());
     put(head, field::VERSION, [VERSION]);
     put(head, field::KIND, [msg.kind() as u8]);

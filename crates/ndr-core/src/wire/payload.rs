@@ -13,6 +13,8 @@ use crate::time::Duration;
 pub enum Payload<'a> {
     /// Channel values of one sample.
     Data(Channels<'a>),
+    /// A datagram's samples: the newest and those before it.
+    Bundle(super::Bundle<'a>),
     /// Handshake.
     Hello(Hello),
     /// Pause / resume negotiation.
@@ -27,6 +29,7 @@ impl Payload<'_> {
     pub const fn kind(&self) -> Kind {
         match self {
             Payload::Data(_) => Kind::Data,
+            Payload::Bundle(_) => Kind::Bundle,
             Payload::Hello(_) => Kind::Hello,
             Payload::Control(_) => Kind::Control,
             Payload::Close(_) => Kind::Close,
@@ -56,14 +59,19 @@ impl<'a> Channels<'a> {
         if channels.len() > MAX_CHANNELS {
             return Err(WireError::TooManyChannels(channels.len()));
         }
+        match channels.first_non_finite() {
+            Some(index) => Err(WireError::NonFinite { index }),
+            None => Ok(channels),
+        }
+    }
+
+    /// The index of the first NaN or infinite value.
+    pub(super) fn first_non_finite(&self) -> Option<usize> {
         // One pass on the raw bits: a non-finite f64 has all exponent bits set.
         const EXP: u64 = 0x7ff0_0000_0000_0000;
-        for (index, chunk) in bytes.chunks_exact(8).enumerate() {
-            if u64_of(chunk) & EXP == EXP {
-                return Err(WireError::NonFinite { index });
-            }
-        }
-        Ok(channels)
+        self.bytes
+            .chunks_exact(8)
+            .position(|chunk| u64_of(chunk) & EXP == EXP)
     }
 
     /// A view over bytes already checked (a trailing partial value is ignored).
@@ -287,6 +295,8 @@ pub mod close_reason {
     pub const STAMP: u16 = 11;
     /// The peers were built for different channel layouts.
     pub const LAYOUT_MISMATCH: u16 = 12;
+    /// One peer runs over a stream, the other over datagrams.
+    pub const TRANSPORT_MISMATCH: u16 = 13;
 
     /// A short name for `code`, `"unknown"` for codes this build does not know.
     #[must_use]
@@ -305,6 +315,7 @@ pub mod close_reason {
             SEQUENCE => "frame out of sequence",
             STAMP => "send stamp out of time",
             LAYOUT_MISMATCH => "layout mismatch",
+            TRANSPORT_MISMATCH => "transport mismatch",
             _ => "unknown",
         }
     }

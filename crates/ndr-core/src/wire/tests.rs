@@ -206,12 +206,18 @@ fn error_width_out_of_range_names_the_direction() {
 
 #[test]
 fn error_unknown_kind() {
-    for kind in [0, 5, 255] {
+    for kind in [0, 6, 255] {
         let bytes = with(data(&[]), 5, kind);
         assert_eq!(decode(&bytes), Err(WireError::UnknownKind(kind)));
     }
     assert_eq!(Kind::try_from(9), Err(WireError::UnknownKind(9)));
-    for kind in [Kind::Data, Kind::Hello, Kind::Control, Kind::Close] {
+    for kind in [
+        Kind::Data,
+        Kind::Hello,
+        Kind::Control,
+        Kind::Close,
+        Kind::Bundle,
+    ] {
         assert_eq!(Kind::try_from(u8::from(kind)), Ok(kind));
     }
 }

@@ -6,6 +6,7 @@ use std::string::{String, ToString};
 use std::sync::Arc;
 use std::vec::Vec;
 
+use ndr_core::endpoint::Transport;
 use ndr_core::time::Duration;
 
 use crate::delay::{
@@ -25,6 +26,8 @@ pub struct Family {
     /// The packets it loses (over TCP: a stall of a retransmission
     /// timeout each).
     pub loss: LossModel,
+    /// How the samples cross: a stream (TCP) or datagrams.
+    pub transport: Transport,
     /// The remote's clock skew, ppm.
     pub skew_ppm: f64,
     /// Simulated time per run.
@@ -92,6 +95,7 @@ fn family(name: &str, description: &str, model: DelayModel) -> Family {
         description: description.to_string(),
         model,
         loss: LossModel::None,
+        transport: Transport::Stream,
         skew_ppm: 0.0,
         duration: FAMILY_DURATION,
         events_s: Vec::new(),
@@ -127,7 +131,7 @@ pub fn builtin() -> Vec<Family> {
             wan.clone(),
         )
     };
-    std::vec![
+    let mut families = std::vec![
         family(
             "paris-newyork",
             "the paper's relay: congestion episodes, NRTT 610/500 ms",
@@ -200,13 +204,33 @@ pub fn builtin() -> Vec<Family> {
                 r: 0.25,
             },
         ),
-    ]
+    ];
+    // The lossy families again on datagrams, beside TCP.
+    let datagrams: Vec<Family> = families
+        .iter()
+        .filter(|f| !f.loss.is_none())
+        .map(on_datagrams)
+        .collect();
+    families.extend(datagrams);
+    families
 }
 
 fn lossy(name: &str, description: &str, model: DelayModel, loss: LossModel) -> Family {
     Family {
         loss,
         ..family(name, description, model)
+    }
+}
+
+/// `family` on the datagram transport (three samples a datagram): named
+/// `NAME/datagram`.
+#[must_use]
+pub fn on_datagrams(family: &Family) -> Family {
+    Family {
+        name: std::format!("{}/datagram", family.name),
+        description: std::format!("{}; over datagrams, 3 samples each", family.description),
+        transport: Transport::DATAGRAM,
+        ..family.clone()
     }
 }
 

@@ -381,6 +381,7 @@ pub fn sim_config_under(
 ) -> SimConfig {
     let mut cfg = SimConfig::paper(family.model.clone());
     cfg.loss = family.loss;
+    cfg.transport = family.transport;
     cfg.mode = regulation.mode();
     cfg.playout = regulation.playout();
     cfg.underflow = underflow;

@@ -1,0 +1,361 @@
+//! The datagram transport ([`Transport::Datagram`]): samples go in
+//! Bundles, each with the newest sample and copies of the few before it,
+//! so that the receiver recovers a sample whose own datagram was lost from
+//! the next one; duplicates, reordered and replayed datagrams are dropped
+//! by `seq` and counted, and a datagram without this side's session token
+//! is dropped and counted. None of them harms the link.
+
+use core::fmt;
+
+use heapless::Vec as HVec;
+
+use super::config::{DATAGRAM_BUDGET, Transport};
+use super::event::Head;
+use super::{Endpoint, LinkError, Phase, Tx};
+use crate::storage::Storage;
+use crate::time::Instant;
+use crate::wire::{
+    self, BUNDLE_FIXED_LEN, Control, Frame, HEADER_LEN, Header, Kind, MAX_BUNDLE, Message,
+    OLDER_FIELDS_LEN, OlderSample, Payload, WireError,
+};
+
+/// One sample sent, kept for the copies in the next datagrams.
+#[derive(Clone, Debug)]
+struct SentCopy<V> {
+    seq: u64,
+    sent_at: Instant,
+    released: Option<u64>,
+    values: V,
+}
+
+/// What the datagram transport keeps: the samples sent lately, the peer's
+/// session token, and the newest `seq` received.
+#[derive(Clone, Debug)]
+pub(super) struct Datagrams<V> {
+    /// Copies of the last samples sent, oldest first, at most
+    /// `redundancy − 1`; their buffers are made once.
+    sent: HVec<SentCopy<V>, { MAX_BUNDLE - 1 }>,
+    /// How many of `sent` hold a sample.
+    filled: usize,
+    /// Samples per datagram.
+    redundancy: usize,
+    /// The peer's token (from its Hello), put in every datagram to it.
+    pub(super) peer_session: u64,
+    /// The newest `seq` taken from the peer.
+    highest: Option<u64>,
+    /// Whether it was a sample's (a gap between two samples is samples
+    /// lost; one next to a probe may be probes).
+    highest_sample: bool,
+}
+
+impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
+    /// For `transport`, with sample buffers from `make`; `None` on a stream,
+    /// or if a buffer cannot be made.
+    pub(super) fn new(transport: Transport, make: impl Fn() -> Option<V>) -> Option<Self> {
+        let Transport::Datagram { redundancy } = transport else {
+            return None;
+        };
+        let redundancy = usize::from(redundancy).clamp(1, MAX_BUNDLE);
+        let mut sent = HVec::new();
+        for _ in 1..redundancy {
+            let copy = SentCopy {
+                seq: 0,
+                sent_at: Instant::ZERO,
+                released: None,
+                values: make()?,
+            };
+            sent.push(copy).ok()?;
+        }
+        Some(Datagrams {
+            sent,
+            filled: 0,
+            redundancy,
+            peer_session: 0,
+            highest: None,
+            highest_sample: false,
+        })
+    }
+
+    /// A sample just sent: the newest copy, the oldest given up.
+    fn remember(&mut self, header: &Header, values: &[f64]) {
+        if self.sent.is_empty() {
+            return;
+        }
+        self.sent.rotate_left(1);
+        if let Some(last) = self.sent.last_mut() {
+            last.seq = header.seq;
+            last.sent_at = header.sent_at;
+            last.released = header.released;
+            if let Some(dst) = last.values.as_mut().get_mut(..values.len()) {
+                dst.copy_from_slice(values);
+            }
+        }
+        self.filled = (self.filled + 1).min(self.sent.len());
+    }
+
+    /// Writes a bundle of `newest` (empty: a probe, sent alone) and the
+    /// copies of the samples before it that fit [`DATAGRAM_BUDGET`].
+    fn encode(&self, header: &Header, newest: &[f64], buf: &mut [u8]) -> Result<usize, WireError> {
+        let width = newest.len();
+        let values = 8 * width;
+        let room = DATAGRAM_BUDGET.saturating_sub(HEADER_LEN + BUNDLE_FIXED_LEN + values)
+            / (OLDER_FIELDS_LEN + values);
+        let copies = if width == 0 {
+            0
+        } else {
+            room.min(self.redundancy - 1).min(self.filled)
+        };
+        let mut older: HVec<OlderSample<'_>, { MAX_BUNDLE - 1 }> = HVec::new();
+        for copy in self.sent.iter().rev().take(copies) {
+            let vs = copy.values.as_ref();
+            let sample = OlderSample {
+                seq: copy.seq,
+                sent_at: copy.sent_at,
+                released: copy.released,
+                values: vs.get(..width).unwrap_or(vs),
+            };
+            // Never more than `sent` holds.
+            let _ = older.push(sample);
+        }
+        let msg = Message::Bundle {
+            session: self.peer_session,
+            newest,
+            older: &older,
+        };
+        wire::encode(header, &msg, buf)
+    }
+}
+
+/// Why a datagram was dropped (each counted in [`Stats`](super::Stats));
+/// the link carries on, but for [`DatagramError::Link`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DatagramError {
+    /// The link is closed.
+    Closed,
+    /// This endpoint runs over a stream: give its frames to
+    /// [`Endpoint::handle_frame`].
+    NotDatagram,
+    /// Not a valid frame (`datagrams_refused`).
+    Wire(WireError),
+    /// A frame of another kind than Bundle: those go on the reliable path
+    /// (`datagrams_refused`).
+    NotABundle(Kind),
+    /// Another session's token: a stray or a spoof (`datagrams_foreign`).
+    Foreign {
+        /// The token it carried.
+        session: u64,
+    },
+    /// Samples before the handshake is over (`datagrams_refused`).
+    BeforeHandshake,
+    /// Older than a datagram already taken: repeated by the network,
+    /// reordered, or replayed (`datagrams_stale`).
+    Stale {
+        /// Its newest sample's `seq`.
+        seq: u64,
+        /// The newest taken.
+        newest: u64,
+    },
+    /// Samples of another width than the peer's (`datagrams_refused`).
+    Width {
+        /// The width agreed.
+        expected: u16,
+        /// What it carried.
+        got: usize,
+    },
+    /// A stamp the receive checks refuse (from the future:
+    /// `datagrams_refused`).
+    Stamp(LinkError),
+    /// The samples were taken, and what they made the endpoint do ended
+    /// the link (a Close is queued for the peer).
+    Link(LinkError),
+}
+
+impl fmt::Display for DatagramError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            DatagramError::Closed => f.write_str("the link is closed"),
+            DatagramError::NotDatagram => {
+                f.write_str("this endpoint runs over a stream: hand its frames to handle_frame")
+            }
+            DatagramError::Wire(e) => write!(f, "an invalid datagram, dropped: {e}"),
+            DatagramError::NotABundle(kind) => write!(
+                f,
+                "a {kind:?} frame as a datagram, dropped: only samples (Bundles) come as \
+                 datagrams, the rest on the reliable path"
+            ),
+            DatagramError::Foreign { session } => write!(
+                f,
+                "a datagram of another session (token {session:#018x}), dropped: a stray or \
+                 a spoof"
+            ),
+            DatagramError::BeforeHandshake => {
+                f.write_str("samples before the handshake is over, dropped")
+            }
+            DatagramError::Stale { seq, newest } => write!(
+                f,
+                "a datagram with sample {seq} after sample {newest} was taken (repeated, \
+                 reordered or replayed), dropped"
+            ),
+            DatagramError::Width { expected, got } => write!(
+                f,
+                "a datagram of {got} values per sample where the peer's carry {expected}, \
+                 dropped"
+            ),
+            DatagramError::Stamp(e) => write!(f, "a datagram the receive checks refuse: {e}"),
+            DatagramError::Link(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl core::error::Error for DatagramError {}
+
+impl<S: Storage> Endpoint<S> {
+    /// A datagram arrived at `now` (datagram transport only). It never
+    /// ends the link by itself: a datagram that is not this session's,
+    /// not valid, or older than one taken is dropped, counted, and
+    /// reported; the error is fatal only as [`DatagramError::Link`].
+    pub fn handle_datagram(&mut self, now: Instant, bytes: &[u8]) -> Result<(), DatagramError> {
+        if self.phase == Phase::Closed {
+            return Err(DatagramError::Closed);
+        }
+        let Some((highest, after_sample)) =
+            self.dgram.as_ref().map(|d| (d.highest, d.highest_sample))
+        else {
+            return Err(DatagramError::NotDatagram);
+        };
+        let refused = |ep: &mut Self, e: DatagramError| {
+            ep.stats.datagrams_refused += 1;
+            Err(e)
+        };
+        let frame = match Frame::new_checked(bytes) {
+            Ok(f) => f,
+            Err(e) => return refused(self, DatagramError::Wire(e)),
+        };
+        let Payload::Bundle(bundle) = frame.payload() else {
+            return refused(self, DatagramError::NotABundle(frame.kind()));
+        };
+        if bundle.session() != self.config.session {
+            self.stats.datagrams_foreign += 1;
+            return Err(DatagramError::Foreign {
+                session: bundle.session(),
+            });
+        }
+        if self.phase == Phase::Handshake {
+            return refused(self, DatagramError::BeforeHandshake);
+        }
+        let seq = frame.seq();
+        if let Some(newest) = highest.filter(|&h| seq <= h) {
+            self.stats.datagrams_stale += 1;
+            return Err(DatagramError::Stale { seq, newest });
+        }
+        let width = self.config.received_width();
+        if bundle.width() != 0 && bundle.width() != usize::from(width) {
+            return refused(
+                self,
+                DatagramError::Width {
+                    expected: width,
+                    got: bundle.width(),
+                },
+            );
+        }
+        let sent_at = frame.sent_at();
+        let stalled = self.driver_stalled(now);
+        if let Err(e) = self.check_stamp(now, sent_at, frame.echo()) {
+            return refused(self, DatagramError::Stamp(e));
+        }
+        self.stats.frames_received += 1;
+        self.stats.datagrams_received += 1;
+        if let Some(d) = &mut self.dgram {
+            d.highest = Some(seq);
+            d.highest_sample = bundle.width() > 0;
+        }
+        let counted = highest.filter(|_| after_sample && bundle.width() > 0);
+        let taken = self.take_bundle(now, &frame, (highest, counted), stalled);
+        taken.map_err(|e| DatagramError::Link(self.fail(e)))
+    }
+
+    /// A fresh bundle's timing and samples: the copies not taken yet,
+    /// oldest first, then the newest. `highest` is the newest `seq` taken
+    /// before, and again (`counted`) if a gap from it is samples lost.
+    fn take_bundle(
+        &mut self,
+        now: Instant,
+        frame: &Frame<&[u8]>,
+        (highest, counted): (Option<u64>, Option<u64>),
+        stalled: bool,
+    ) -> Result<(), LinkError> {
+        let Payload::Bundle(bundle) = frame.payload() else {
+            return Ok(());
+        };
+        self.hear(now, frame.sent_at(), frame.echo())?;
+        let mut next = highest.map(|h| h + 1);
+        let lost = |next: Option<u64>, seq: u64| {
+            if counted.is_some() {
+                next.map_or(0, |n| seq - n)
+            } else {
+                0
+            }
+        };
+        let mut older: HVec<_, { MAX_BUNDLE - 1 }> = HVec::new();
+        for o in bundle.older() {
+            let _ = older.push(o);
+        }
+        for o in older.iter().rev() {
+            if next.is_some_and(|n| o.seq < n) {
+                continue;
+            }
+            self.stats.samples_lost += lost(next, o.seq);
+            next = Some(o.seq + 1);
+            self.stats.samples_recovered += 1;
+            let head = Head {
+                seq: o.seq,
+                sent_at: o.sent_at,
+                arrived_at: now,
+            };
+            self.receive_data(head, o.released, o.values, None)?;
+        }
+        let seq = frame.seq();
+        self.stats.samples_lost += lost(next, seq);
+        let head = Head {
+            seq,
+            sent_at: frame.sent_at(),
+            arrived_at: now,
+        };
+        self.receive_data(head, frame.released(), bundle.newest(), Some(stalled))
+    }
+
+    /// Writes the frame for `item`: on the datagram transport a sample or a
+    /// probe goes in a bundle (and the sample is kept for the next ones'
+    /// copies), anything else as a frame of the reliable path.
+    pub(super) fn write_item(
+        &mut self,
+        header: &Header,
+        item: Tx,
+        buf: &mut [u8],
+    ) -> Result<usize, WireError> {
+        let width = usize::from(self.config.sent_width());
+        let sample = {
+            let all = self.out.sample.as_ref();
+            all.get(..width).unwrap_or(all)
+        };
+        let newest: &[f64] = match item {
+            Tx::Sample { .. } => sample,
+            _ => &[],
+        };
+        if let (Some(d), Tx::Probe { .. } | Tx::Sample { .. }) = (&mut self.dgram, item) {
+            let n = d.encode(header, newest, buf)?;
+            if let Tx::Sample { .. } = item {
+                d.remember(header, newest);
+            }
+            return Ok(n);
+        }
+        let msg = match item {
+            Tx::Hello => Message::Hello(self.hello()),
+            Tx::Probe { .. } | Tx::Sample { .. } => Message::Data(newest),
+            Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
+            Tx::Close { reason } => Message::Close(wire::Close { reason }),
+        };
+        wire::encode(header, &msg, buf)
+    }
+}

@@ -1,0 +1,306 @@
+//! The datagram transport: samples in bundles over a wire that loses,
+//! reorders and repeats, the handshake and control on a reliable path.
+
+use ndr_core::endpoint::{
+    Config, ConfigError, DatagramError, Endpoint, Event, LinkError, Status, Transport,
+};
+use ndr_core::pair::{Pair, World};
+use ndr_core::playout::Playout;
+use ndr_core::storage::Heap;
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::{Kind, Role, close_reason};
+
+const T: Duration = Duration::from_millis(10);
+const SESSIONS: [u64; 2] = [0x1111_2222_3333_4444, 0x5555_6666_7777_8888];
+
+fn config(role: Role, transport: Transport, playout: Playout) -> Config {
+    let mut c = Config::new(role).with_widths(2, 3);
+    c.period = T;
+    c.playout = playout;
+    c.transport = transport;
+    c.session = match transport {
+        Transport::Stream => 0,
+        _ => SESSIONS[role as usize],
+    };
+    c
+}
+
+/// A wire whose datagrams (bundles) are each lost when `lose(n)` says so
+/// and otherwise take `delay(n)` (so they may overtake each other), while
+/// the reliable path (everything else) takes 5 ms, in order. The base
+/// sends its count of releases, the remote answers with the command it
+/// released; what each side released, fresh, is kept.
+struct Lossy<L, D> {
+    lose: L,
+    delay: D,
+    datagrams: [u64; 2],
+    reliable_last: [Instant; 2],
+    k: f64,
+    fresh: [Vec<(u64, Vec<f64>)>; 2],
+    errors: Vec<LinkError>,
+}
+
+impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for Lossy<L, D> {
+    type Error = LinkError;
+
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        let i = from as usize;
+        if frame.get(5) == Some(&(Kind::Bundle as u8)) {
+            let n = self.datagrams[i];
+            self.datagrams[i] += 1;
+            return (!(self.lose)(n)).then(|| sent + (self.delay)(n));
+        }
+        let at = (sent + Duration::from_millis(5)).max(self.reliable_last[i]);
+        self.reliable_last[i] = at;
+        Some(at)
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut Endpoint<Heap>,
+        _: Instant,
+        event: Event<Box<[f64]>>,
+    ) -> Result<(), LinkError> {
+        if let Event::Released(r) = event {
+            if r.status == Status::Fresh {
+                self.fresh[side as usize].push((r.seq, r.values().to_vec()));
+            }
+            let answer = match side {
+                Role::Base => {
+                    self.k += 1.0;
+                    vec![self.k, -self.k]
+                }
+                Role::Remote => {
+                    let v = r.values();
+                    vec![v[0], v[1], v[0] + v[1]]
+                }
+            };
+            ep.set_sample(&answer)?;
+        }
+        Ok(())
+    }
+
+    fn failed(&mut self, _: Role, _: Instant, error: LinkError) -> Result<(), LinkError> {
+        self.errors.push(error);
+        Ok(())
+    }
+}
+
+fn run<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration>(
+    transport: Transport,
+    lose: L,
+    delay: D,
+    secs: u64,
+) -> Pair<Heap, Lossy<L, D>> {
+    let ep = |role| {
+        Endpoint::<Heap>::new(config(role, transport, Playout::ADAPTIVE), Instant::ZERO).unwrap()
+    };
+    let world = Lossy {
+        lose,
+        delay,
+        datagrams: [0; 2],
+        reliable_last: [Instant::ZERO; 2],
+        k: 0.0,
+        fresh: [Vec::new(), Vec::new()],
+        errors: Vec::new(),
+    };
+    let mut pair = Pair::new(ep(Role::Base), ep(Role::Remote), world);
+    pair.run_until(Instant::from_millis(secs * 1000)).unwrap();
+    pair
+}
+
+/// Every tenth datagram lost, every seventh late enough to be overtaken.
+fn lose_tenth(n: u64) -> bool {
+    n % 10 == 9
+}
+fn late_seventh(n: u64) -> Duration {
+    Duration::from_millis(if n % 7 == 3 { 25 } else { 4 })
+}
+
+#[test]
+fn lost_and_reordered_datagrams_are_recovered_from_the_next_ones_copies() {
+    let p = run(Transport::DATAGRAM, lose_tenth, late_seventh, 20);
+    assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
+    for (side, ep) in [(0, &p.base), (1, &p.remote)] {
+        let fresh = &p.world.fresh[side];
+        assert!(fresh.len() > 1500, "{side}: {}", fresh.len());
+        // In order, none twice, none missing: the copies filled every gap.
+        assert!(
+            fresh.windows(2).all(|w| w[1].0 == w[0].0 + 1),
+            "{side}: a gap or a repeat"
+        );
+        let s = ep.stats();
+        assert!(s.samples_recovered > 150, "{side}: {s:?}");
+        assert_eq!(s.samples_lost, 0, "{side}");
+        assert!(s.datagrams_stale > 100, "{side}: {s:?}");
+        assert_eq!((s.datagrams_foreign, s.datagrams_refused), (0, 0), "{side}");
+    }
+    // What the remote released is what the base sent: its count, negated.
+    for (_, v) in &p.world.fresh[1] {
+        assert_eq!(v[1], -v[0]);
+    }
+    for (_, v) in &p.world.fresh[0] {
+        assert_eq!(v[2], v[0] + v[1]);
+    }
+}
+
+#[test]
+fn a_burst_longer_than_the_copies_loses_samples_but_never_reorders_them() {
+    // Five datagrams in a row lost every 100: two are recovered, three lost.
+    let p = run(Transport::DATAGRAM, |n| n % 100 >= 95, |_| T / 2, 20);
+    for (side, ep) in [(0, &p.base), (1, &p.remote)] {
+        let fresh = &p.world.fresh[side];
+        assert!(
+            fresh.windows(2).all(|w| w[1].0 > w[0].0),
+            "{side}: out of order"
+        );
+        let s = ep.stats();
+        assert!(
+            s.samples_lost > 30 && s.samples_recovered > 20,
+            "{side}: {s:?}"
+        );
+    }
+}
+
+#[test]
+fn over_a_stream_the_same_losses_cannot_happen_and_bundles_are_refused() {
+    // On a stream nothing is lost: the same run, no datagram at all.
+    let p = run(Transport::Stream, lose_tenth, late_seventh, 5);
+    assert_eq!(p.world.datagrams, [0, 0]);
+    assert!(p.world.fresh[1].len() > 300);
+    // A bundle handed to a stream endpoint ends its link as a protocol error.
+    let mut remote = Endpoint::<Heap>::new(
+        config(Role::Remote, Transport::Stream, Playout::Fifo),
+        Instant::ZERO,
+    )
+    .unwrap();
+    assert_eq!(
+        remote.handle_datagram(Instant::ZERO, &[0; 60]),
+        Err(DatagramError::NotDatagram)
+    );
+}
+
+#[test]
+fn stray_spoofed_garbage_and_replayed_datagrams_are_counted_and_harm_nothing() {
+    let mut p = run(Transport::DATAGRAM, |_| false, |_| T / 2, 5);
+    // The last bundle the base sent, as the network would repeat it.
+    let mut bundle = None;
+    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let now = p.now();
+    p.base.set_sample(&[1.0, 2.0]).unwrap();
+    let ep = &mut p.base;
+    ep.handle_timeout(now + T);
+    while let Some(n) = ep.poll_transmit(now + T, &mut buf).unwrap() {
+        if buf[5] == Kind::Bundle as u8 {
+            bundle = Some(buf[..n].to_vec());
+        }
+    }
+    let bundle = bundle.expect("the base sent a bundle");
+    let remote = &mut p.remote;
+    let at = now + T + Duration::from_millis(3);
+    assert_eq!(remote.handle_datagram(at, &bundle), Ok(()));
+    // Repeated by the network, or replayed.
+    assert!(matches!(
+        remote.handle_datagram(at, &bundle),
+        Err(DatagramError::Stale { .. })
+    ));
+    // Another session's token (a stray, or a spoof that guessed wrong).
+    let mut foreign = bundle.clone();
+    foreign[48] ^= 0xff;
+    assert!(matches!(
+        remote.handle_datagram(at, &foreign),
+        Err(DatagramError::Foreign { .. })
+    ));
+    // Truncated, oversized, garbage, and a frame of the reliable path.
+    let err = remote
+        .handle_datagram(at, &bundle[..bundle.len() - 3])
+        .unwrap_err();
+    assert!(matches!(err, DatagramError::Wire(_)), "{err}");
+    let mut oversized = bundle.clone();
+    oversized.extend([0; 8]);
+    assert!(matches!(
+        remote.handle_datagram(at, &oversized),
+        Err(DatagramError::Wire(_))
+    ));
+    assert!(matches!(
+        remote.handle_datagram(at, b"GET / HTTP/1.1\r\n\r\n"),
+        Err(DatagramError::Wire(_))
+    ));
+    let s = remote.stats();
+    assert_eq!((s.datagrams_stale, s.datagrams_foreign), (1, 1), "{s:?}");
+    assert_eq!(s.datagrams_refused, 3, "{s:?}");
+    // The link is unharmed: it runs on.
+    assert!(!remote.is_closed());
+    let released = p.remote.stats().released_fresh;
+    p.run_until(now + Duration::from_secs(2)).unwrap();
+    assert!(p.remote.stats().released_fresh > released + 150);
+    assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
+}
+
+#[test]
+fn a_stream_peer_and_a_datagram_peer_refuse_each_other() {
+    let base = Endpoint::<Heap>::new(
+        config(Role::Base, Transport::DATAGRAM, Playout::Fifo),
+        Instant::ZERO,
+    )
+    .unwrap();
+    let remote = Endpoint::<Heap>::new(
+        config(Role::Remote, Transport::Stream, Playout::Fifo),
+        Instant::ZERO,
+    )
+    .unwrap();
+    let world = Lossy {
+        lose: |_| false,
+        delay: |_| T,
+        datagrams: [0; 2],
+        reliable_last: [Instant::ZERO; 2],
+        k: 0.0,
+        fresh: [Vec::new(), Vec::new()],
+        errors: Vec::new(),
+    };
+    let mut p = Pair::new(base, remote, world);
+    p.run_until(Instant::from_millis(500)).unwrap();
+    assert_eq!(
+        p.world.errors[0],
+        LinkError::TransportMismatch {
+            ours: "stream",
+            theirs: "datagram"
+        }
+    );
+    assert!(
+        p.world.errors[0]
+            .to_string()
+            .contains("give both the same transport")
+    );
+    assert!(matches!(
+        p.world.errors[1],
+        LinkError::PeerClosed {
+            reason: close_reason::TRANSPORT_MISMATCH
+        }
+    ));
+}
+
+#[test]
+fn the_datagram_transport_needs_a_token_and_a_redundancy_in_range() {
+    for (redundancy, session) in [(3, 0), (0, 7), (9, 7)] {
+        let mut c = config(
+            Role::Base,
+            Transport::Datagram { redundancy },
+            Playout::Fifo,
+        );
+        c.session = session;
+        let err = Endpoint::<Heap>::new(c, Instant::ZERO).unwrap_err();
+        assert_eq!(
+            err,
+            ConfigError::Datagram {
+                redundancy,
+                session
+            }
+        );
+        assert!(
+            err.to_string().contains("session token") || err.to_string().contains("1 to 8"),
+            "{err}"
+        );
+    }
+}
