@@ -336,11 +336,7 @@ impl DelayModel {
     /// A sampler of this model's delays, every draw a function of `seed`.
     #[must_use]
     pub fn sampler(&self, seed: u64) -> DelaySampler {
-        let stream = |id: u64| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(id);
-            rng
-        };
+        let stream = |id| seeded_stream(seed, id);
         let kind = match self {
             DelayModel::Constant { fwd, bwd } => Kind::Constant {
                 fwd: *fwd,
@@ -380,6 +376,16 @@ impl fmt::Display for DelayModel {
 const STREAM_FORWARD: u64 = 1;
 const STREAM_BACKWARD: u64 = 2;
 const STREAM_SHARED: u64 = 3;
+const STREAM_LOSS_FORWARD: u64 = 11;
+const STREAM_LOSS_BACKWARD: u64 = 12;
+
+/// The draws of `seed` for one purpose (`id`): every purpose has its own
+/// stream, so that adding one (loss to a run) changes no other's draws.
+fn seeded_stream(seed: u64, id: u64) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(id);
+    rng
+}
 
 /// Draws the raw one-way delays of a [`DelayModel`] for one seed.
 #[derive(Clone, Debug)]

@@ -25,7 +25,7 @@ use core::str::FromStr;
 use std::string::{String, ToString};
 
 use ndr_core::time::{Duration, Instant};
-use rand::{RngExt, SeedableRng};
+use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
 use crate::Direction;
@@ -90,22 +90,16 @@ impl LossModel {
     /// Its draws for `seed`.
     #[must_use]
     pub fn sampler(&self, seed: u64) -> LossSampler {
-        let stream = |id: u64| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(id);
-            rng
-        };
         LossSampler {
             model: *self,
-            rng: [stream(STREAM_LOSS_FORWARD), stream(STREAM_LOSS_BACKWARD)],
+            rng: [
+                crate::seeded_stream(seed, crate::STREAM_LOSS_FORWARD),
+                crate::seeded_stream(seed, crate::STREAM_LOSS_BACKWARD),
+            ],
             bad: [false; 2],
         }
     }
 }
-
-// After the delay streams (1 to 3) of `DelayModel::sampler`.
-const STREAM_LOSS_FORWARD: u64 = 11;
-const STREAM_LOSS_BACKWARD: u64 = 12;
 
 impl fmt::Display for LossModel {
     /// The name [`LossModel::from_str`] reads back.
