@@ -713,6 +713,7 @@ class _LinkSettings:
         handshake_timeout: float,
         app_queue: int,
         insecure: bool,
+        transport: str,
     ) -> "_LinkSettings": ...
 
 @final

@@ -243,6 +243,7 @@ class _Settings(TypedDict):
     mode: Optional[str]
     playout: Optional[str]
     underflow: str
+    transport: str
 
 
 def run(
@@ -259,11 +260,13 @@ def run(
     signal: str = "sine",
     out: Optional[str] = "ndr-demo.csv",
     live: bool = False,
+    transport: str = "tcp",
 ) -> DemoResult:
     """Runs the demo and returns what it measured (nothing is printed but
-    the live status line when ``live``). ``regulation`` is that of
-    :meth:`ndr.Link.connect` (``"adaptive"`` by default), on both sides;
-    ``mode`` and ``playout`` are deprecated as there."""
+    the live status line when ``live``). ``regulation`` and ``transport``
+    are those of :meth:`ndr.Link.connect` (``"adaptive"`` and ``"tcp"`` by
+    default), on both sides; ``mode`` and ``playout`` are deprecated as
+    there."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
     name, mode, playout = _native._regulation(
@@ -279,6 +282,7 @@ def run(
         mode=None if name else mode,
         playout=None if name else playout,
         underflow=underflow,
+        transport=transport,
     )
     loopback = ("127.0.0.1", 0)
     rb = RobotLog()
@@ -318,6 +322,7 @@ def run(
         mode=mode,
         playout=playout,
         underflow=underflow,
+        transport=transport,
         duration=duration,
         axes=axes,
         op=op,
@@ -357,6 +362,7 @@ def _report(
     mode: str,
     playout: str,
     underflow: str,
+    transport: str,
     duration: float,
     axes: int,
     op: OperatorLog,
@@ -380,6 +386,7 @@ def _report(
         "mode": mode,
         "playout": playout,
         "underflow": underflow,
+        "transport": transport,
         "period_s": b.get("period", 0.0),
         "duration_s": duration,
         "axes": axes,
@@ -397,6 +404,8 @@ def _report(
         "samples_sent": get(b, "samples_sent") + get(r, "samples_sent"),
         "samples_released": get(b, "released_fresh") + get(r, "released_fresh"),
         "late_samples": get(b, "late") + get(r, "late"),
+        "samples_lost": get(b, "samples_lost") + get(r, "samples_lost"),
+        "samples_recovered": get(b, "samples_recovered") + get(r, "samples_recovered"),
         "underflows": get(b, "underflows") + get(r, "underflows"),
         "link_lost": get(b, "link_lost") + get(r, "link_lost"),
         "pauses": get(b, "pauses"),
@@ -499,6 +508,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help=argparse.SUPPRESS)
     parser.add_argument("--playout", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
+    parser.add_argument("--transport", default="tcp", help="how samples cross: tcp (the "
+                        "paper's stream) or udp[:K] (datagrams of the newest sample and "
+                        "K - 1 copies, 3 by default)")
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 256)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")
     parser.add_argument("--signal", default="sine", help="the operator's command: "
@@ -547,6 +559,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 signal=args.signal,
                 out=args.out,
                 live=not args.json and sys.stderr.isatty(),
+                transport=args.transport,
             )
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)

@@ -138,6 +138,7 @@ _SETTINGS = {
     "handshake_timeout": "handshake_timeout",
     "queue": "app_queue",
     "insecure": "insecure",
+    "transport": "transport",
 }
 
 
@@ -374,6 +375,7 @@ class Link:
         queue: int = 1024,
         tls: Optional[TlsConfig] = None,
         insecure: bool = False,
+        transport: str = "tcp",
         on_event: Optional[Callable[[Event], Any]] = None,
     ) -> "Link":
         """Connects to a peer and returns the link once the handshake is done.
@@ -443,6 +445,14 @@ class Link:
                 to or from a non-loopback address is refused…
             insecure: …unless this is true (plain TCP: anyone on the path
                 can read and forge the samples). Loopback is always allowed.
+            transport: how samples cross: ``"tcp"`` (the paper's stream,
+                where a lost packet holds back every sample behind it until
+                it is resent) or ``"udp"`` / ``"udp:K"`` (datagrams, each
+                carrying the newest sample and copies of the K − 1 before it,
+                3 by default, so that a lost one is recovered from the next;
+                the handshake stays on TCP and the datagrams use the same
+                port over UDP). UDP is plain: loopback, or ``insecure=True``,
+                and not with ``tls``. Both sides must agree.
             on_event: called with each :class:`Event`, on the thread that
                 receives.
 
@@ -479,6 +489,7 @@ class Link:
         queue: int = 1024,
         tls: Optional[TlsConfig] = None,
         insecure: bool = False,
+        transport: str = "tcp",
         on_event: Optional[Callable[[Event], Any]] = None,
     ) -> "Listener":
         """Listens at ``address`` (port 0 picks a free one) and returns a

@@ -12,6 +12,8 @@ from typing import Any, Callable, Iterable, List, Mapping, Optional, Sequence, T
 
 import numpy as np
 
+import ndr
+
 RUNS = 5
 
 
@@ -98,3 +100,20 @@ def no_gap(ticks: Sequence[Any]) -> bool:
         for a, b in zip(ticks, ticks[1:])
     )
 
+
+
+def echo(link: Any, stop: Any) -> None:
+    """The remote's controller for these tests, on a thread of its own:
+    sends back what each release gives, so that its answer has a whole
+    period to reach the next tick (an answer from the base's loop would
+    have only what separates the two sides' tick grids, which a busy host
+    overruns now and then)."""
+    try:
+        while not stop.is_set():
+            try:
+                tick = link.recv(timeout=0.1)
+            except TimeoutError:
+                continue
+            link.send(tick.sample)
+    except ndr.LinkError:
+        pass

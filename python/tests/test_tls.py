@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import ndr
-from realtime import assert_constant, no_gap, regulated
+from realtime import assert_constant, echo, no_gap, regulated
 
 LOOPBACK = ("127.0.0.1", 0)
 
@@ -49,16 +49,19 @@ def test_a_link_over_mutual_tls_runs_with_a_constant_delay(certs):
             ) as base:
                 t.join(5)
                 remote = got[0]
+                stop = threading.Event()
+                robot = threading.Thread(target=echo, args=(remote, stop), daemon=True)
+                robot.start()
                 grtt, at, ticks = [], [], []
                 for i in range(150):
                     base.send(float(i))
                     tick = base.recv(timeout=2)
-                    remote.try_recv()
-                    remote.send(1.0)
                     ticks.append(tick)
                     if tick.grtt is not None:
                         grtt.append(tick.grtt)
                         at.append(tick.released_at)
+                stop.set()
+                robot.join(5)
                 stats = [base.stats, remote.stats]
                 remote.close()
             assert lst.stats["accepted"] == 1

@@ -41,20 +41,26 @@ pub struct Run {
     pub remote: Option<LinkStats>,
 }
 
-/// The base's side of a run: 300 ticks of commands `(k, −k)`, each answered
-/// by the next release; `(fresh seqs, GRTTs, echoed)`, `echoed` counting
-/// the fresh releases that carried one of the commands back (the remote
-/// sends zeros until it has one). A command comes back whole.
+/// The base's side of a run: 300 ticks of commands `(k, −k, k, −k, …)`
+/// (the link's command width), each answered by the next release;
+/// `(fresh seqs, GRTTs, echoed)`, `echoed` counting the fresh releases that
+/// carried one of the commands back (the remote sends zeros until it has
+/// one). A command comes back whole ([`answer`]).
 pub fn drive_base(base: &mut Link) -> (Vec<u64>, Vec<(u64, f64)>, usize) {
+    let (commands, states) = base.widths();
     let (mut seqs, mut grtts, mut echoed) = (Vec::new(), Vec::new(), 0);
     for k in 1..=300 {
-        base.send(&[f64::from(k), -f64::from(k)]).unwrap();
+        let command: Vec<f64> = (0..commands).map(|i| alternate(f64::from(k), i)).collect();
+        base.send(&command).unwrap();
         let s = base.recv_timeout(Duration::from_secs(5)).unwrap();
         if s.status == Status::Fresh {
             seqs.push(s.seq);
             grtts.extend(s.grtt.map(|g| (s.released_at.as_nanos(), g.as_secs_f64())));
-            assert_eq!(s.values()[0], -s.values()[1]);
-            if s.values()[0] > 0.0 {
+            let v = s.values();
+            assert_eq!(v.len(), states);
+            let whole = (0..states).all(|i| v[i] == alternate(v[0], i % commands));
+            assert!(whole, "a state that is not a command echoed whole: {v:?}");
+            if v[0] > 0.0 {
                 echoed += 1;
             }
         }
@@ -62,19 +68,39 @@ pub fn drive_base(base: &mut Link) -> (Vec<u64>, Vec<(u64, f64)>, usize) {
     (seqs, grtts, echoed)
 }
 
+/// `k` at even channels, `−k` at odd ones.
+fn alternate(k: f64, i: usize) -> f64 {
+    if i.is_multiple_of(2) { k } else { -k }
+}
+
+/// The remote's answer to `command`: a state of `width` values, channel
+/// `i` the command's channel `i mod` its width (the echo, when the widths
+/// are equal).
+pub fn answer(command: &[f64], width: usize) -> Vec<f64> {
+    (0..width)
+        .map(|i| {
+            command
+                .get(i % command.len().max(1))
+                .copied()
+                .unwrap_or(0.0)
+        })
+        .collect()
+}
+
 /// A run over a connected pair: the remote, on a thread of its own, returns
-/// each command it is given (its "plant"), the base drives 300 ticks and
-/// closes the link.
+/// each command it is given (its "plant", [`answer`]), the base drives 300
+/// ticks and closes the link.
 pub fn echo_run(mut base: Link, mut remote: Link) -> Run {
     let robot = std::thread::spawn(move || {
         let mut seqs = Vec::new();
+        let width = remote.widths().0;
         loop {
             match remote.recv_timeout(Duration::from_secs(2)) {
                 Ok(s) => {
                     if s.status == Status::Fresh {
                         seqs.push(s.seq);
                     }
-                    remote.send(s.values()).unwrap();
+                    remote.send(&answer(s.values(), width)).unwrap();
                 }
                 Err(_) => return (seqs, remote.stats()),
             }

@@ -69,7 +69,7 @@ use crate::drive::{self, Turn};
 use crate::endpoint::{DatagramError, Endpoint, Event, LinkError};
 use crate::storage::Storage;
 use crate::time::Instant;
-use crate::wire::{Kind, MAX_DATAGRAM_LEN, Role};
+use crate::wire::{self, MAX_DATAGRAM_LEN, Role};
 
 /// Everything around a [`Pair`]'s two endpoints. Times are the world's
 /// ("global") unless they say they are a side's own clock; by default both
@@ -282,7 +282,7 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
             let at = self.world.stamp(side, arrived, now);
             // A datagram's samples (a Bundle) go to the datagram path: one
             // that is refused is counted there and harms nothing.
-            let result = if bytes.get(5) == Some(&(Kind::Bundle as u8)) {
+            let result = if wire::is_bundle(&bytes) {
                 match self.endpoint(side).handle_datagram(at, &bytes) {
                     Err(DatagramError::Link(e)) => Err(e),
                     _ => Ok(()),

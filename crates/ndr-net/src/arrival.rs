@@ -40,7 +40,6 @@ pub(crate) fn read_now(
 #[cfg(target_os = "linux")]
 fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdInstant>)> {
     use std::os::fd::AsRawFd;
-    use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
     use nix::sys::socket::{ControlMessageOwned, MsgFlags, recvmsg};
 
@@ -65,13 +64,20 @@ fn stamped(socket: &MioStream, buf: &mut [u8]) -> io::Result<(usize, Option<StdI
             _ => None,
         })
     });
-    let stamp = kernel.and_then(|ts| {
-        let sec = u64::try_from(ts.tv_sec()).ok()?;
-        let nsec = u32::try_from(ts.tv_nsec()).ok()?;
-        let wall = UNIX_EPOCH + Duration::new(sec, nsec);
-        monotonic(wall, SystemTime::now, StdInstant::now)
-    });
-    Ok((msg.bytes, stamp))
+    Ok((msg.bytes, kernel.and_then(kernel_instant)))
+}
+
+/// A kernel receive stamp (`SCM_TIMESTAMPNS`, on the wall clock) as an
+/// instant on the monotonic clock; `None` if the wall clock cannot vouch
+/// for it ([`monotonic`]).
+#[cfg(target_os = "linux")]
+pub(crate) fn kernel_instant(ts: nix::sys::time::TimeSpec) -> Option<StdInstant> {
+    use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+    let sec = u64::try_from(ts.tv_sec()).ok()?;
+    let nsec = u32::try_from(ts.tv_nsec()).ok()?;
+    let wall = UNIX_EPOCH + Duration::new(sec, nsec);
+    monotonic(wall, SystemTime::now, StdInstant::now)
 }
 
 /// A kernel stamp on the wall clock as a monotonic instant: its age on the

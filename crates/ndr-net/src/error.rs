@@ -25,6 +25,9 @@ pub enum NetError {
     Insecure(SocketAddr),
     /// The TLS handshake failed: no link was set up.
     Handshake(HandshakeError),
+    /// TLS with the UDP datagram transport, whose samples would travel
+    /// unencrypted and unauthenticated beside the TLS stream.
+    DatagramsWithTls,
 }
 
 impl fmt::Display for NetError {
@@ -40,6 +43,11 @@ impl fmt::Display for NetError {
                  (--cert, --key, --peer-cert or --pin) or pass --insecure (Python: insecure=True)"
             ),
             NetError::Handshake(e) => write!(f, "{e}"),
+            NetError::DatagramsWithTls => f.write_str(
+                "the UDP datagram transport carries samples unencrypted, so it does not run \
+                 with TLS: use the TCP transport with TLS, or plain UDP on loopback (or with \
+                 --insecure)",
+            ),
         }
     }
 }
@@ -51,7 +59,7 @@ impl std::error::Error for NetError {
             NetError::Config(e) => Some(e),
             NetError::Link(e) => Some(e),
             NetError::Handshake(e) => Some(e),
-            NetError::Timeout | NetError::Insecure(_) => None,
+            NetError::Timeout | NetError::Insecure(_) | NetError::DatagramsWithTls => None,
         }
     }
 }

@@ -11,11 +11,14 @@
 //! hand-over between threads, and frames are written from the same thread.
 
 mod tls_io;
+mod udp;
 
 pub(crate) use tls_io::Session;
+pub(crate) use udp::{DatagramPath, NewSocket, bind as bind_datagram_socket};
 
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::io::{self, Write as _};
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering as AtomicOrdering};
 use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -26,7 +29,7 @@ use mio::{Events, Interest, Poll, Token, Waker};
 use ndr_core::endpoint::{Endpoint, Event, LinkError, Running};
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{HEADER_LEN, MAX_FRAME_LEN};
+use ndr_core::wire::{HEADER_LEN, MAX_DATAGRAM_LEN, MAX_FRAME_LEN};
 use tokio::sync::Notify;
 
 use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, LatenessStats};
@@ -74,6 +77,8 @@ pub(crate) struct Entry {
     pub deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
     pub handler: Option<Handler>,
+    /// The datagram transport's path; `None` on a stream.
+    pub datagram: Option<DatagramPath>,
 }
 
 pub(crate) enum Msg {
@@ -84,6 +89,10 @@ pub(crate) enum Msg {
     /// refusal, [`LinkError::Busy`]).
     Fail(u64, LinkError),
     Handler(u64, Handler),
+    /// A UDP socket for datagram links, polled under this key.
+    Socket(u64, Box<NewSocket>),
+    /// The socket's owner (a listener) is gone: it closes with its last link.
+    ReleaseSocket(u64),
 }
 
 struct Inner {
@@ -95,6 +104,8 @@ struct Inner {
     next_id: AtomicU64,
     origin: StdInstant,
     links: Arc<AtomicUsize>,
+    /// The keys of the hub's own UDP sockets (IPv4, IPv6), once made.
+    own_udp: Mutex<[Option<u64>; 2]>,
 }
 
 impl Drop for Inner {
@@ -160,9 +171,12 @@ impl Hub {
             backlog: VecDeque::new(),
             events: Events::with_capacity(1024),
             due: Vec::new(),
+            udp: udp::Udp::new(),
+            touched: Vec::new(),
             service: Cost::new(),
             polling: Cost::new(),
-            buf: vec![0; MAX_FRAME_LEN],
+            // A datagram's Bundle may be longer than any frame of a stream.
+            buf: vec![0; MAX_FRAME_LEN.max(MAX_DATAGRAM_LEN)],
             links: Arc::clone(&links),
             _waker: Arc::clone(&waker),
         };
@@ -177,6 +191,7 @@ impl Hub {
                 next_id: AtomicU64::new(0),
                 origin,
                 links,
+                own_udp: Mutex::new([None, None]),
             }),
         })
     }
@@ -199,6 +214,40 @@ impl Hub {
 
     pub(crate) fn next_id(&self) -> u64 {
         self.inner.next_id.fetch_add(1, AtomicOrdering::Relaxed)
+    }
+
+    /// The key of the hub's own UDP socket for peers of `peer`'s address
+    /// family, bound (to an ephemeral port on every address) at the first
+    /// call; the links the hub connects share it.
+    pub(crate) fn own_datagram_socket(&self, peer: SocketAddr) -> io::Result<u64> {
+        let family = usize::from(peer.is_ipv6());
+        let mut own = self
+            .inner
+            .own_udp
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(key) = own.get(family).copied().flatten() {
+            return Ok(key);
+        }
+        let any: SocketAddr = if peer.is_ipv6() {
+            (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+        } else {
+            (std::net::Ipv4Addr::UNSPECIFIED, 0).into()
+        };
+        let socket = udp::bind(any)?;
+        let key = self.next_id();
+        let new = NewSocket {
+            socket,
+            stray: Arc::default(),
+            held: true,
+        };
+        if !self.send(Msg::Socket(key, Box::new(new))) {
+            return Err(io::Error::other("the hub's thread has stopped"));
+        }
+        if let Some(slot) = own.get_mut(family) {
+            *slot = Some(key);
+        }
+        Ok(key)
     }
 
     /// Hands the hub a message and wakes it; `false` if its thread is gone.
@@ -310,6 +359,10 @@ struct Driver {
     service: Cost,
     polling: Cost,
     buf: Vec<u8>,
+    /// The datagram sockets, and the datagrams waiting to be sent.
+    udp: udp::Udp,
+    /// Links that took datagrams in one read (kept to reuse its memory).
+    touched: Vec<u64>,
     links: Arc<AtomicUsize>,
     /// Kept open while the thread runs (see [`Inner::waker`]).
     _waker: Arc<Waker>,
@@ -440,6 +493,10 @@ impl Driver {
 
     /// Reads and writes for one ready socket.
     fn serve(&mut self, r: Ready) {
+        if self.udp.has(r.id) {
+            self.receive_datagrams(r.id);
+            return;
+        }
         if r.readable || r.closing {
             self.read(r.id, r.closing);
         }
@@ -447,6 +504,21 @@ impl Driver {
             self.write_pending(r.id);
         }
         self.flush(r.id);
+        self.udp.send_all(&mut self.entries);
+    }
+
+    /// Reads the datagram socket `key` dry; each link that took a datagram
+    /// then runs as after a frame.
+    fn receive_datagrams(&mut self, key: u64) {
+        let mut touched = std::mem::take(&mut self.touched);
+        touched.clear();
+        self.udp
+            .receive(key, self.origin, &mut self.entries, &mut touched);
+        for &id in &touched {
+            self.flush(id);
+        }
+        self.touched = touched;
+        self.udp.send_all(&mut self.entries);
     }
 
     /// Links added or closed by their handles; `false` once every handle
@@ -454,6 +526,12 @@ impl Driver {
     fn messages(&mut self) -> bool {
         loop {
             match self.input.try_recv() {
+                Ok(Msg::Socket(key, new)) => {
+                    if let Err(e) = self.udp.add(self.poll.registry(), key, *new) {
+                        tracing::warn!("a datagram socket could not be polled: {e}");
+                    }
+                }
+                Ok(Msg::ReleaseSocket(key)) => self.udp.release(self.poll.registry(), key),
                 Ok(Msg::Add(id, mut entry)) => {
                     let token = Token(id as usize);
                     if self
@@ -462,6 +540,13 @@ impl Driver {
                         .register(&mut entry.socket, token, Interest::READABLE)
                         .is_err()
                     {
+                        entry.endpoint.abort(LinkError::Disconnected);
+                    }
+                    if let Some(path) = entry.datagram.as_mut()
+                        && !self.udp.attach(id, path)
+                    {
+                        // Its socket failed, or a token drawn twice.
+                        tracing::warn!("a datagram link could not take its socket");
                         entry.endpoint.abort(LinkError::Disconnected);
                     }
                     let tls = entry.tls.is_some();
@@ -490,8 +575,14 @@ impl Driver {
                         e.handler = Some(handler);
                     }
                 }
-                Err(mpsc::TryRecvError::Empty) => return true,
-                Err(mpsc::TryRecvError::Disconnected) => return !self.entries.is_empty(),
+                Err(mpsc::TryRecvError::Empty) => {
+                    self.udp.send_all(&mut self.entries);
+                    return true;
+                }
+                Err(mpsc::TryRecvError::Disconnected) => {
+                    self.udp.send_all(&mut self.entries);
+                    return !self.entries.is_empty();
+                }
             }
         }
     }
@@ -632,12 +723,14 @@ impl Driver {
             }
             if !releases_first {
                 self.flush_with(id, true);
+                self.udp.send_all(&mut self.entries);
             }
         }
         if releases_first {
             for &(_, id) in &due {
                 self.flush(id);
             }
+            self.udp.send_all(&mut self.entries);
         }
         self.due = due;
         true
@@ -667,12 +760,12 @@ impl Driver {
             // A panicked handler's Close frame goes with the others.
             let _ = deliver(e, ticked, self.figures);
             take_sample(e);
-            wants_write = transmit(e, now, &mut self.buf);
+            wants_write = transmit(e, id, now, &mut self.buf, &mut self.udp.out);
         } else {
             // Frames first: an application on a thread of its own answers
             // at the next tick, and waking it first would delay the frame
             // by the wake-up.
-            wants_write |= transmit(e, now, &mut self.buf);
+            wants_write |= transmit(e, id, now, &mut self.buf, &mut self.udp.out);
             if e.endpoint.is_closed() {
                 // The link's last stats: the clock's figures up to now, not
                 // as of the last periodic refresh (a short run has had only
@@ -682,7 +775,7 @@ impl Driver {
             }
             if deliver(e, ticked, self.figures) {
                 // Cannot happen without a handler; a Close frame if it did.
-                wants_write |= transmit(e, now, &mut self.buf);
+                wants_write |= transmit(e, id, now, &mut self.buf, &mut self.udp.out);
             }
         }
         if e.pending.len() > MAX_PENDING {
@@ -721,6 +814,9 @@ impl Driver {
             // that nothing more will come.
             if let Some(mut gone) = self.entries.remove(&id) {
                 tls_io::close_notify(&mut gone);
+                if let Some(path) = &gone.datagram {
+                    self.udp.detach(self.poll.registry(), id, path);
+                }
                 let _ = self.poll.registry().deregister(&mut gone.socket);
                 let _ = gone.socket.shutdown(std::net::Shutdown::Write);
                 self.links.fetch_sub(1, AtomicOrdering::Relaxed);
@@ -789,12 +885,16 @@ mod precise {
     }
 }
 
-/// The endpoint's frames to the socket (or behind what waits for it);
-/// `true` if bytes are left waiting.
-fn transmit(e: &mut Entry, now: Instant, buf: &mut [u8]) -> bool {
+/// The endpoint's frames to the socket (or behind what waits for it), its
+/// datagrams to `out`; `true` if bytes are left waiting.
+fn transmit(e: &mut Entry, id: u64, now: Instant, buf: &mut [u8], out: &mut udp::Outgoing) -> bool {
     let mut wants_write = false;
     while let Ok(Some(n)) = e.endpoint.poll_transmit(now, buf) {
-        wants_write |= send_frame(e, buf.get(..n).unwrap_or_default());
+        let frame = buf.get(..n).unwrap_or_default();
+        match e.datagram.as_mut() {
+            Some(path) if ndr_core::wire::is_bundle(frame) => out.push(id, path, frame),
+            _ => wants_write |= send_frame(e, frame),
+        }
     }
     wants_write
 }
@@ -948,6 +1048,13 @@ fn publish(e: &Entry, hub: HubFigures) {
         // Filled in by `LinkSender::stats`: the link counts them.
         events_dropped: 0,
         rx_lag: e.rx_lag,
+        datagram_peer: e.datagram.as_ref().and_then(|p| p.peer),
+        datagrams_unsent: e.datagram.as_ref().map_or(0, |p| p.unsent),
+        datagram_path_changes: e.datagram.as_ref().map_or(0, |p| p.path_changes),
+        datagrams_stray: e
+            .datagram
+            .as_ref()
+            .map_or(0, |p| p.stray.load(AtomicOrdering::Relaxed)),
     };
     *e.shared
         .stats

@@ -23,7 +23,7 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running};
+use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running, Transport};
 use ndr_core::storage::Heap;
 use ndr_core::time::Instant;
 use ndr_core::wire::{HEADER_LEN, Role};
@@ -34,7 +34,7 @@ use tokio::sync::Notify;
 use crate::arrival;
 use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
-use crate::hub::{Entry, Hub, Msg, Session, Shared};
+use crate::hub::{DatagramPath, Entry, Hub, Msg, Session, Shared};
 use crate::pool::HubPool;
 use crate::seats::Seat;
 use crate::tls::TlsConfig;
@@ -131,15 +131,20 @@ impl Link {
     /// Drives an already connected stream in `role`.
     /// The stream is taken as it is: no TLS, and no check of its peer's
     /// address.
+    /// On the datagram transport, its datagrams go to the stream's peer
+    /// address (the same port, over UDP) from the hub's own UDP socket.
     pub fn from_stream(
         stream: TcpStream,
         role: Role,
         config: LinkConfig,
         hub: &Hub,
     ) -> Result<Link, NetError> {
-        Link::start(stream, role, config, Handle::current(), hub, None)
+        Link::start(stream, role, config, Handle::current(), hub, None, None)
     }
 
+    /// Drives `stream` on `hub`; on the datagram transport, over the UDP
+    /// socket `udp` (a listener's, the peer's address learned from its
+    /// first datagram), or else the hub's own (to the stream's peer).
     pub(crate) fn start(
         stream: TcpStream,
         role: Role,
@@ -147,10 +152,27 @@ impl Link {
         rt: Handle,
         hub: &Hub,
         tls: Option<rustls::Connection>,
+        udp: Option<u64>,
     ) -> Result<Link, NetError> {
         let mut cfg = config.endpoint;
         cfg.role = role;
         cfg.tick_origin = Instant::ZERO;
+        let datagram = match cfg.transport {
+            Transport::Datagram { .. } => {
+                if tls.is_some() {
+                    return Err(NetError::DatagramsWithTls);
+                }
+                cfg.session = session_token()?;
+                let peer = stream.peer_addr()?;
+                Some(match udp {
+                    Some(key) => DatagramPath::new(key, cfg.session, None),
+                    None => {
+                        DatagramPath::new(hub.own_datagram_socket(peer)?, cfg.session, Some(peer))
+                    }
+                })
+            }
+            _ => None,
+        };
         cfg.validate().map_err(NetError::Config)?;
         let widths = (
             usize::from(cfg.sent_width()),
@@ -194,6 +216,7 @@ impl Link {
             rx_lag: Running::default(),
             deadline: None,
             handler: None,
+            datagram,
         };
         if !hub.send(Msg::Add(id, Box::new(entry))) {
             return Err(NetError::Io(io::Error::other(
@@ -619,6 +642,22 @@ pub(crate) fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(),
     }
 }
 
+/// A link's datagram session token: random, never 0, so that a datagram
+/// of another session (or a guess) is not taken for one of this session.
+fn session_token() -> Result<u64, NetError> {
+    use ring::rand::{SecureRandom as _, SystemRandom};
+    let rng = SystemRandom::new();
+    loop {
+        let mut bytes = [0; 8];
+        rng.fill(&mut bytes)
+            .map_err(|_| io::Error::other("no randomness for the datagram session token"))?;
+        let token = u64::from_le_bytes(bytes);
+        if token != 0 {
+            return Ok(token);
+        }
+    }
+}
+
 impl HubPool {
     /// Connects to a remote (this side is the base) and drives the link on
     /// the least loaded hub, on the current tokio runtime.
@@ -672,8 +711,19 @@ impl Hub {
         let Some(tls) = config.tls.clone() else {
             plain_allowed(addr, &config)?;
             let stream = TcpStream::connect(addr).await?;
-            return Link::start(stream, Role::Base, config, Handle::current(), self, None);
+            return Link::start(
+                stream,
+                Role::Base,
+                config,
+                Handle::current(),
+                self,
+                None,
+                None,
+            );
         };
+        if matches!(config.endpoint.transport, Transport::Datagram { .. }) {
+            return Err(NetError::DatagramsWithTls);
+        }
         let stream = TcpStream::connect(addr).await?;
         let (stream, conn) = tls.connect(stream).await.map_err(NetError::Handshake)?;
         Link::start(
@@ -683,6 +733,7 @@ impl Hub {
             Handle::current(),
             self,
             Some(conn),
+            None,
         )
     }
 }

@@ -21,9 +21,10 @@ mod ledger;
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use ndr_core::endpoint::Phase;
+use ndr_core::endpoint::{Phase, Transport};
 use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpSocket};
 use tokio::runtime::Handle;
@@ -31,7 +32,7 @@ use tokio::sync::mpsc;
 
 use crate::config::LinkConfig;
 use crate::error::NetError;
-use crate::hub::Hub;
+use crate::hub::{Hub, Msg, NewSocket, bind_datagram_socket};
 use crate::link::{Link, not_in_a_runtime, own_runtime, plain_allowed};
 use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
@@ -95,6 +96,10 @@ pub struct ListenerStats {
     /// descriptors or memory); the listener waits a moment and goes on.
     /// Raise the process's open-file limit if this grows.
     pub accept_errors: u64,
+    /// Datagram transport: datagrams to the listener's UDP port that
+    /// carried no token of a link it accepted (strays, spoofs, truncated
+    /// or not samples), dropped.
+    pub datagrams_stray: u64,
 }
 
 /// Where a listener puts the links it accepts.
@@ -109,9 +114,18 @@ struct Setup {
     hubs: Hubs,
 }
 
+/// A datagram listener's UDP socket, bound at its TCP port and driven by
+/// one hub: every link it accepts runs there.
+struct DatagramSocket {
+    hub: Hub,
+    key: u64,
+    stray: Arc<AtomicU64>,
+}
+
 /// What the listener, its accept loop and its handshakes share.
 pub(crate) struct Common {
     config: LinkConfig,
+    udp: Option<DatagramSocket>,
     tls: Option<TlsConfig>,
     setup: Mutex<Setup>,
     seats: Arc<Seats>,
@@ -124,9 +138,10 @@ impl Common {
     /// The role and the hub for a link starting now.
     fn setup(&self) -> (Role, Hub) {
         let setup = self.setup.lock().unwrap_or_else(PoisonError::into_inner);
-        let hub = match &setup.hubs {
-            Hubs::One(hub) => hub.clone(),
-            Hubs::Pool(pool) => pool.least_loaded().clone(),
+        let hub = match (&self.udp, &setup.hubs) {
+            (Some(udp), _) => udp.hub.clone(),
+            (None, Hubs::One(hub)) => hub.clone(),
+            (None, Hubs::Pool(pool)) => pool.least_loaded().clone(),
         };
         (setup.role, hub)
     }
@@ -178,6 +193,10 @@ impl Drop for Listener {
             stop_listening(&fd);
         }
         self.gate.abort();
+        if let Some(udp) = &self.common.udp {
+            // Its links keep it until they end.
+            let _ = udp.hub.send(Msg::ReleaseSocket(udp.key));
+        }
         // Without waiting for its threads: a blocking listener may still be
         // dropped from async code.
         if let Some(rt) = self.runtime.take() {
@@ -199,6 +218,35 @@ fn stop_listening(_: &std::os::fd::OwnedFd) {}
 
 /// A listening socket with `backlog`, reusing the address as
 /// [`TcpListener::bind`] does (a restarted robot binds its port at once).
+/// The UDP socket of a datagram listener bound at `local`, handed to the
+/// hub that will drive its links (a pool's least loaded: datagrams reach
+/// one socket, so its links share that hub).
+fn datagram_socket(local: SocketAddr, hubs: &Hubs) -> Result<DatagramSocket, NetError> {
+    let hub = match hubs {
+        Hubs::One(hub) => hub.clone(),
+        Hubs::Pool(pool) => pool.least_loaded().clone(),
+    };
+    let socket = bind_datagram_socket(local).map_err(|e| {
+        io::Error::new(
+            e.kind(),
+            format!("the link's datagrams need UDP port {local} beside the TCP one: {e}"),
+        )
+    })?;
+    let stray = Arc::new(AtomicU64::new(0));
+    let key = hub.next_id();
+    let new = NewSocket {
+        socket,
+        stray: Arc::clone(&stray),
+        held: true,
+    };
+    if !hub.send(Msg::Socket(key, Box::new(new))) {
+        return Err(NetError::Io(io::Error::other(
+            "the listener's hub thread has stopped",
+        )));
+    }
+    Ok(DatagramSocket { hub, key, stray })
+}
+
 fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
     let socket = if addr.is_ipv4() {
         TcpSocket::new_v4()?
@@ -240,6 +288,10 @@ impl Listener {
 
     async fn bind_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         let tls = config.tls.clone();
+        let datagrams = matches!(config.endpoint.transport, Transport::Datagram { .. });
+        if datagrams && tls.is_some() {
+            return Err(NetError::DatagramsWithTls);
+        }
         let hubs = match &config.hub {
             HubChoice::Own => Hubs::One(Hub::new(config.spin_margin)?),
             HubChoice::Shared(hub) => Hubs::One(hub.clone()),
@@ -248,6 +300,11 @@ impl Listener {
         let socket = listen(addr, config.admission.backlog)?;
         let accept_queue = config.admission.accept_queue.max(1);
         let local = socket.local_addr()?;
+        let udp = if datagrams {
+            Some(datagram_socket(local, &hubs)?)
+        } else {
+            None
+        };
         let listening = std::os::fd::AsFd::as_fd(&socket).try_clone_to_owned().ok();
         let slots = tls
             .as_ref()
@@ -256,6 +313,7 @@ impl Listener {
             });
         let common = Arc::new(Common {
             config,
+            udp,
             tls,
             setup: Mutex::new(Setup {
                 role: Role::Remote,
@@ -332,11 +390,16 @@ impl Listener {
     /// What it accepted and refused so far.
     #[must_use]
     pub fn stats(&self) -> ListenerStats {
-        self.common
+        let mut stats = self
+            .common
             .ledger
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
-            .stats
+            .stats;
+        if let Some(udp) = &self.common.udp {
+            stats.datagrams_stray = udp.stray.load(Ordering::Relaxed);
+        }
+        stats
     }
 
     /// Takes `role` in the links it accepts instead of the remote's (a base

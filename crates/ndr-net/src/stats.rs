@@ -47,4 +47,19 @@ pub struct LinkStats {
     /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
     /// where there is one) to the hub handing it to the endpoint.
     pub rx_lag: Running,
+    /// Datagram transport: where this side sends its datagrams (the
+    /// peer's address as its newest datagram gave it); `None` on a stream,
+    /// and on a listener's side until the peer's first datagram.
+    pub datagram_peer: Option<std::net::SocketAddr>,
+    /// Datagram transport: datagrams not sent (no address for the peer
+    /// yet, or the socket refused them); the peer sees them as lost.
+    pub datagrams_unsent: u64,
+    /// Datagram transport: times the peer's address changed (its first
+    /// datagram to a listener's side, a NAT's new mapping, a peer that
+    /// moved).
+    pub datagram_path_changes: u64,
+    /// Datagram transport: datagrams to this link's UDP socket that carried
+    /// no token of a link on it (strays, spoofs, truncated or not Bundles);
+    /// shared by every link on the socket.
+    pub datagrams_stray: u64,
 }

@@ -140,6 +140,10 @@ pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
              tls=ndr.TlsConfig(...) (mutual TLS), or insecure=True to send plain TCP \
              (anyone on the path can read and forge the samples)"
         )),
+        NetError::DatagramsWithTls => PyValueError::new_err(
+            "transport=\"udp\" carries samples unencrypted, so it does not run with tls=: \
+             use transport=\"tcp\" with tls=, or plain UDP on loopback (or insecure=True)",
+        ),
         other => PyRuntimeError::new_err(other.to_string()),
     }
 }

@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
-use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
+use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Transport, Underflow};
 use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
@@ -497,7 +497,7 @@ pub struct PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure))]
+    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -515,6 +515,7 @@ impl PyLinkSettings {
         handshake_timeout: f64,
         app_queue: &Bound<'_, PyAny>,
         insecure: bool,
+        transport: &str,
     ) -> PyResult<Self> {
         let role = match role {
             "base" => Role::Base,
@@ -550,7 +551,15 @@ impl PyLinkSettings {
         endpoint.watchdog = watchdog.map(|w| positive("watchdog", w)).transpose()?;
         endpoint.liveness = liveness.map(|l| positive("liveness", l)).transpose()?;
         endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;
-        endpoint
+        endpoint.transport = transport.parse::<Transport>().map_err(|e| {
+            PyValueError::new_err(format!(
+                "transport: {e} (\"tcp\", or \"udp\" / \"udp:K\" for datagrams of K samples)"
+            ))
+        })?;
+        // The link draws its datagram session token when it starts.
+        let mut checked = endpoint;
+        checked.session = checked.session.max(1);
+        checked
             .validate()
             .map_err(|e| PyValueError::new_err(format!("link configuration: {e}")))?;
         let mut config = LinkConfig::new(endpoint);

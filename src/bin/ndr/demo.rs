@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::{Config, Mode, Status, Underflow};
+use ndr::core::endpoint::{Config, Mode, Status, Transport, Underflow};
 use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
@@ -18,7 +18,7 @@ use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay};
 use ndr::sim::signal::Signal;
 
 use crate::report::{End, Outcome, Row, Series, finish};
-use crate::robot::{PlantArgs, robot};
+use crate::robot::{PlantArgs, StateLayout, robot};
 use crate::sim::NetArgs;
 use crate::size::millis;
 
@@ -47,10 +47,25 @@ pub struct LinkArgs {
     /// Sampling period, in ms (50: the paper's choice for its LAN).
     #[arg(long, default_value_t = 50.0)]
     pub period_ms: f64,
-    /// Axes of the teleoperated system (1 to 256): a command value and a
-    /// state value each.
+    /// Axes of the teleoperated system (1 to 256): a command value each,
+    /// and a state value per quantity of --state.
     #[arg(long, default_value_t = 1)]
     pub axes: u16,
+    /// What the robot's state holds for each axis: a comma-separated list
+    /// of positions, velocities and efforts (the default: positions; e.g.
+    /// positions,velocities,efforts is 21 values for 7 axes). Both sides
+    /// must give the same: a peer with another layout is refused.
+    #[arg(long, default_value = "positions")]
+    pub state: StateLayout,
+    /// How samples cross: tcp (the default, the paper's stream: a lost
+    /// packet holds back every sample behind it until it is resent) or
+    /// udp[:K] (datagrams, each with the newest sample and copies of the
+    /// K − 1 before it, 3 by default, so that a lost one is recovered from
+    /// the next; the handshake stays on TCP, and the datagrams go to the
+    /// same port over UDP). UDP is plain: loopback, or --insecure, and
+    /// not with TLS.
+    #[arg(long, default_value = "tcp")]
+    pub transport: Transport,
 }
 
 impl LinkArgs {
@@ -59,7 +74,10 @@ impl LinkArgs {
         if period.is_zero() {
             return Err("--period-ms must be positive".into());
         }
-        let mut endpoint = Config::new(Role::Base).with_width(self.axes);
+        let states = self.state.width(self.axes)?;
+        let mut endpoint = Config::new(Role::Base).with_widths(self.axes, states);
+        endpoint.layout = self.state.fingerprint(self.axes);
+        endpoint.transport = self.transport;
         endpoint.period = period;
         let (mode, playout, old) = self.asked()?;
         if old {
@@ -68,7 +86,10 @@ impl LinkArgs {
         endpoint.mode = mode;
         endpoint.playout = playout;
         endpoint.underflow = self.underflow;
-        endpoint.validate().map_err(|e| e.to_string())?;
+        // The link draws its datagram session token when it starts.
+        let mut checked = endpoint;
+        checked.session = checked.session.max(1);
+        checked.validate().map_err(|e| e.to_string())?;
         Ok(LinkConfig::new(endpoint))
     }
 
@@ -243,10 +264,21 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let robot = {
         let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
         let axes = usize::from(args.link.axes);
+        let layout = args.link.state.clone();
         let period = config.endpoint.period;
         std::thread::Builder::new()
             .name("ndr-demo-robot".into())
-            .spawn(move || robot(remote, axes, period, max_command, &stop, &remote_stats))
+            .spawn(move || {
+                robot(
+                    remote,
+                    axes,
+                    layout,
+                    period,
+                    max_command,
+                    &stop,
+                    &remote_stats,
+                )
+            })
             .map_err(|e| e.to_string())?
     };
 

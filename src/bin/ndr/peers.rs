@@ -152,6 +152,7 @@ fn serve(
         let end = robot(
             link,
             usize::from(args.link.axes),
+            args.link.state.clone(),
             period,
             max_command,
             stop.flag(),

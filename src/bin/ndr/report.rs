@@ -6,6 +6,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use ndr::core::endpoint::Transport;
 use ndr::core::time::Duration;
 use ndr::net::clock::LatenessStats;
 use ndr::net::{LinkStats, RelayStats};
@@ -227,6 +228,11 @@ struct DemoReport {
     period_s: f64,
     duration_s: f64,
     axes: u16,
+    /// How samples crossed: `tcp`, or `udp:K` (datagrams of K samples).
+    transport: String,
+    /// Values in each command and in each state sample.
+    command_width: u16,
+    state_width: u16,
     ns: usize,
     nrtt_mean_s: f64,
     nrtt_std_s: f64,
@@ -244,6 +250,14 @@ struct DemoReport {
     underflows: u64,
     link_lost: u64,
     pauses: u64,
+    /// Datagram transport, both sides: samples lost for good (neither their
+    /// datagram nor a later one's copies came), samples recovered from a
+    /// later datagram's copies, datagrams dropped as repeated or reordered,
+    /// and datagrams not sent.
+    samples_lost: u64,
+    samples_recovered: u64,
+    datagrams_stale: u64,
+    datagrams_unsent: u64,
     /// The remote's estimates: one-way delay base → remote, clock offset
     /// (remote − base), skew (ppm); the base's: one-way delay back.
     one_way_fwd_mean_s: f64,
@@ -295,6 +309,14 @@ pub fn finish(link: &LinkArgs, run: &RunArgs, outcome: &Outcome<'_>) -> Result<(
     }
 }
 
+/// `tcp`, or `udp:K`: the names `--transport` takes.
+pub fn transport_name(t: Transport) -> String {
+    match t {
+        Transport::Datagram { redundancy } => format!("udp:{redundancy}"),
+        _ => "tcp".into(),
+    }
+}
+
 fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
     let (b, remote, relay) = (o.base.as_ref(), o.remote.as_ref(), o.relay);
     let eb = b.map(|s| s.endpoint).unwrap_or_default();
@@ -316,6 +338,9 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         period_s: b.map_or(link.period_ms / 1e3, |s| s.period.as_secs_f64()),
         duration_s: run.duration_s,
         axes: link.axes,
+        transport: transport_name(link.transport),
+        command_width: link.axes,
+        state_width: link.state.width(link.axes).unwrap_or(0),
         ns: b.map_or(0, |s| s.ns),
         nrtt_mean_s: eb.nrtt.mean(),
         nrtt_std_s: eb.nrtt.std(),
@@ -333,6 +358,11 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         underflows: eb.underflows + er.underflows,
         link_lost: eb.link_lost + er.link_lost,
         pauses: eb.pauses,
+        samples_lost: eb.samples_lost + er.samples_lost,
+        samples_recovered: eb.samples_recovered + er.samples_recovered,
+        datagrams_stale: eb.datagrams_stale + er.datagrams_stale,
+        datagrams_unsent: b.map_or(0, |s| s.datagrams_unsent)
+            + remote.map_or(0, |s| s.datagrams_unsent),
         one_way_fwd_mean_s: er.one_way_rx.mean(),
         one_way_bwd_mean_s: eb.one_way_rx.mean(),
         remote_clock_offset_s: er.clock_offset_s,
@@ -359,14 +389,17 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
 fn print_table(r: &DemoReport) {
     let ms = |s: f64| format!("{:.2} ms", s * 1e3);
     println!(
-        "ndr {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es)",
+        "ndr {} · {} · {} · {} · {} · T = {} · {:.0} s · {} axis(es), {} command / {} state values",
         r.command,
         r.profile,
         r.regulation,
         r.underflow,
+        r.transport,
         ms(r.period_s),
         r.duration_s,
-        r.axes
+        r.axes,
+        r.command_width,
+        r.state_width
     );
     println!("  end        {}", r.end);
     println!("                     mean          std");
@@ -394,6 +427,12 @@ fn print_table(r: &DemoReport) {
         "  samples    {} sent · {} released · {} late · {} underflows · {} link-lost alarms",
         r.samples_sent, r.samples_released, r.late_samples, r.underflows, r.link_lost
     );
+    if r.transport != "tcp" {
+        println!(
+            "  datagrams  {} samples recovered from copies · {} lost · {} stale datagrams · {} not sent",
+            r.samples_recovered, r.samples_lost, r.datagrams_stale, r.datagrams_unsent
+        );
+    }
     if r.playout != "fifo" {
         // A target-delay playout: the constant delay each side holds now,
         // beside the one-way network delays its clock estimate measures.

@@ -91,11 +91,120 @@ impl fmt::Display for SessionEnd {
     }
 }
 
+/// What the robot's state sample holds for each axis, in order
+/// (`--state`): the state is `quantities × axes` values, the first
+/// quantity's value for every axis, then the next's.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StateLayout(Vec<Quantity>);
+
+/// One quantity of a state sample, per axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quantity {
+    /// Where the axis is.
+    Positions,
+    /// How fast it moves (the position's change over the last period).
+    Velocities,
+    /// The command it was driven with (after saturation).
+    Efforts,
+}
+
+impl Quantity {
+    fn name(self) -> &'static str {
+        match self {
+            Quantity::Positions => "positions",
+            Quantity::Velocities => "velocities",
+            Quantity::Efforts => "efforts",
+        }
+    }
+}
+
+impl StateLayout {
+    /// Values in a state sample for `axes` axes.
+    pub fn width(&self, axes: u16) -> Result<u16, String> {
+        u16::try_from(self.0.len())
+            .ok()
+            .and_then(|n| n.checked_mul(axes))
+            .filter(|&w| usize::from(w) <= ndr::core::wire::MAX_CHANNELS)
+            .ok_or_else(|| {
+                format!(
+                    "a state of {} for {axes} axes is {} values, over the {} a sample can carry",
+                    self,
+                    self.0.len() * usize::from(axes),
+                    ndr::core::wire::MAX_CHANNELS
+                )
+            })
+    }
+
+    /// The layout's fingerprint for the handshake, so that a base built for
+    /// another layout is refused; `0` (none) for positions alone, the
+    /// layout of a peer that names none.
+    pub fn fingerprint(&self, axes: u16) -> u64 {
+        if self.0 == [Quantity::Positions] {
+            return 0;
+        }
+        let commands: Vec<String> = (0..axes).map(|a| format!("command{a}")).collect();
+        let states: Vec<String> = self
+            .0
+            .iter()
+            .flat_map(|q| (0..axes).map(move |a| format!("{}{a}", q.name())))
+            .collect();
+        let commands: Vec<&str> = commands.iter().map(String::as_str).collect();
+        let states: Vec<&str> = states.iter().map(String::as_str).collect();
+        ndr::core::layout::fingerprint(&commands, &states)
+    }
+}
+
+impl Default for StateLayout {
+    fn default() -> Self {
+        StateLayout(vec![Quantity::Positions])
+    }
+}
+
+impl std::fmt::Display for StateLayout {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let names: Vec<&str> = self.0.iter().map(|q| q.name()).collect();
+        f.write_str(&names.join(","))
+    }
+}
+
+impl std::str::FromStr for StateLayout {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let mut quantities = Vec::new();
+        for part in s.split(',').map(str::trim) {
+            let q = match part {
+                "positions" => Quantity::Positions,
+                "velocities" => Quantity::Velocities,
+                "efforts" => Quantity::Efforts,
+                other => {
+                    return Err(format!(
+                        "unknown state quantity {other:?}: give a comma-separated list of \
+                         positions, velocities and efforts (e.g. positions,velocities)"
+                    ));
+                }
+            };
+            if quantities.contains(&q) {
+                return Err(format!("{part} is given twice in --state {s:?}"));
+            }
+            quantities.push(q);
+        }
+        Ok(StateLayout(quantities))
+    }
+}
+
 /// One second-order drive per axis, with its command saturated and its
 /// state checked.
 struct Drive {
     plants: Vec<Tf2State>,
+    /// Each axis's position, and the one before (for its velocity).
+    position: Vec<f64>,
+    previous: Vec<f64>,
+    /// The command each axis was driven with at the last step.
+    effort: Vec<f64>,
+    /// The state sample, laid out as `layout` says.
     state: Vec<f64>,
+    layout: StateLayout,
+    period_s: f64,
     max_command: f64,
     /// After a `LinkLost`, until `LinkRestored`: the commands are stale, so
     /// each axis is held where it is instead of following them.
@@ -117,8 +226,14 @@ impl Drive {
     /// One step on the released `commands`; the new state, or why it must
     /// not be sent.
     fn step(&mut self, commands: &[f64]) -> Result<&[f64], String> {
-        let axes = self.plants.iter_mut().zip(&mut self.state).zip(commands);
-        for (axis, ((plant, y), &u)) in axes.enumerate() {
+        self.previous.clone_from(&self.position);
+        let axes = self
+            .plants
+            .iter_mut()
+            .zip(&mut self.position)
+            .zip(&mut self.effort)
+            .zip(commands);
+        for (axis, (((plant, y), effort), &u)) in axes.enumerate() {
             let u = if self.holding {
                 // The command whose steady state is the present position
                 // (the plant's static gain is one).
@@ -128,12 +243,30 @@ impl Drive {
             } else {
                 u.clamp(-self.max_command, self.max_command)
             };
+            *effort = u;
             *y = plant.step(u);
             if !y.is_finite() {
                 return Err(format!(
                     "the simulated plant's state on axis {axis} became {y} (command {u}); \
                      it was not sent"
                 ));
+            }
+        }
+        let axes = self.position.len();
+        for (q, out) in self
+            .layout
+            .0
+            .iter()
+            .zip(self.state.chunks_exact_mut(axes.max(1)))
+        {
+            match q {
+                Quantity::Positions => out.copy_from_slice(&self.position),
+                Quantity::Efforts => out.copy_from_slice(&self.effort),
+                Quantity::Velocities => {
+                    for ((v, y), y0) in out.iter_mut().zip(&self.position).zip(&self.previous) {
+                        *v = (y - y0) / self.period_s;
+                    }
+                }
             }
         }
         Ok(&self.state)
@@ -146,6 +279,7 @@ impl Drive {
 pub fn robot(
     mut link: Link,
     axes: usize,
+    layout: StateLayout,
     period: Duration,
     max_command: f64,
     stop: &AtomicBool,
@@ -159,7 +293,12 @@ pub fn robot(
     let mut drive = match Drive::model(period) {
         Ok(model) => Drive {
             plants: (0..axes).map(|_| Tf2State::new(model)).collect(),
-            state: vec![0.0; axes],
+            position: vec![0.0; axes],
+            previous: vec![0.0; axes],
+            effort: vec![0.0; axes],
+            state: vec![0.0; axes * layout.0.len()],
+            layout,
+            period_s: period.as_secs_f64(),
             max_command,
             holding: false,
         },
@@ -176,7 +315,10 @@ pub fn robot(
             crate::logging::event("remote", &event);
             match event {
                 Event::Started { period, .. } => match Drive::model(period) {
-                    Ok(m) => drive.plants.iter_mut().for_each(|p| p.set_model(m)),
+                    Ok(m) => {
+                        drive.plants.iter_mut().for_each(|p| p.set_model(m));
+                        drive.period_s = period.as_secs_f64();
+                    }
                     Err(why) => failed = Some(why),
                 },
                 Event::LinkLost { .. } => drive.holding = true,

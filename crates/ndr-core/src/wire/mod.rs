@@ -191,6 +191,15 @@ impl Header {
     }
 }
 
+/// Whether `bytes` (a whole frame, not yet checked) is a Bundle: what a
+/// driver of the datagram transport sends as a datagram, and hands to
+/// [`Endpoint::handle_datagram`](crate::endpoint::Endpoint::handle_datagram)
+/// when it receives one. Every other frame takes the reliable path.
+#[must_use]
+pub fn is_bundle(bytes: &[u8]) -> bool {
+    bytes.get(field::KIND) == Some(&(Kind::Bundle as u8))
+}
+
 /// Total length of the frame starting at `prefix`, from its 4-byte length field.
 ///
 /// Returns `Ok(None)` while fewer than [`PREFIX_LEN`] bytes are available.

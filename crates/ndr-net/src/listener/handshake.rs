@@ -191,6 +191,7 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
         Handle::current(),
         &hub,
         conn,
+        common.udp.as_ref().map(|u| u.key),
     )
     .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
     progress.advance(stage::ON_HUB, 0);

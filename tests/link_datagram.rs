@@ -1,0 +1,220 @@
+//! The real link over loopback with the datagram transport: samples as UDP
+//! datagrams (Bundles), the handshake and control over TCP.
+
+mod common;
+
+use std::net::{SocketAddr, UdpSocket};
+use std::time::Duration as StdDuration;
+
+use ndr::core::endpoint::{Config, Transport};
+use ndr::core::time::{Duration, Instant};
+use ndr::core::wire::{self, Header, Message, Role};
+use ndr::net::{Link, LinkConfig, Listener, NetError, TlsConfig};
+
+fn config() -> LinkConfig {
+    let mut c = Config::paper(Role::Base).with_width(2);
+    c.period = Duration::from_millis(10);
+    c.transport = Transport::Datagram { redundancy: 3 };
+    LinkConfig::new(c)
+}
+
+fn listener(rt: &tokio::runtime::Runtime) -> Listener {
+    rt.block_on(Listener::bind(
+        "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
+        config(),
+    ))
+    .unwrap()
+}
+
+fn connect(rt: &tokio::runtime::Runtime, listener: &Listener) -> (Link, Link) {
+    let addr = listener.local_addr().unwrap();
+    let (r, b) =
+        rt.block_on(async { tokio::join!(listener.accept(), Link::connect(addr, config())) });
+    (b.unwrap(), r.unwrap())
+}
+
+#[test]
+fn datagrams_on_loopback_deliver_every_sample_once_in_order_with_a_constant_grtt() {
+    let _serial = common::serial();
+    let rt = common::runtime();
+    let port = std::cell::Cell::new(0);
+    let run = common::assert_regulated(|| {
+        let listener = listener(&rt);
+        port.set(listener.local_addr().unwrap().port());
+        let (base, remote) = connect(&rt, &listener);
+        common::echo_run(base, remote)
+    });
+    let remote = run.remote.expect("the remote's stats");
+    for (side, s) in [("base", &run.base), ("remote", &remote)] {
+        let e = &s.endpoint;
+        assert!(e.datagrams_received > 250, "{side}: {s:?}");
+        // Loopback loses nothing: no sample needed a copy, none was lost.
+        assert_eq!(e.samples_lost, 0, "{side}: {s:?}");
+        assert_eq!(s.datagrams_stray, 0, "{side}: {s:?}");
+    }
+    // The remote has no address for the base until its first datagram:
+    // the probes it sends before then are not sent (and counted).
+    assert_eq!(run.base.datagrams_unsent, 0, "{:?}", run.base);
+    assert!(remote.datagrams_unsent <= 3, "{remote:?}");
+    // The base sends to the listener's port from the start; the remote
+    // learns the base's address from its first datagram.
+    assert_eq!(run.base.datagram_path_changes, 0);
+    assert_eq!(remote.datagram_path_changes, 1);
+    assert_eq!(run.base.datagram_peer.map(|a| a.port()), Some(port.get()));
+}
+
+/// A link of `commands` values base → remote and `states` back, at 1 kHz,
+/// over `transport`.
+fn wide(transport: Transport, commands: u16, states: u16) -> LinkConfig {
+    let mut c = Config::paper(Role::Base).with_widths(commands, states);
+    c.period = Duration::from_millis(1);
+    c.transport = transport;
+    LinkConfig::new(c)
+}
+
+fn wide_run(transport: Transport, commands: u16, states: u16) {
+    let _serial = common::serial();
+    let rt = common::runtime();
+    let run = common::assert_regulated(|| {
+        let listener = rt
+            .block_on(Listener::bind(
+                "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
+                wide(transport, commands, states),
+            ))
+            .unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (r, b) = rt.block_on(async {
+            tokio::join!(
+                listener.accept(),
+                Link::connect(addr, wide(transport, commands, states))
+            )
+        });
+        let (base, remote) = (b.unwrap(), r.unwrap());
+        assert_eq!(base.widths(), (usize::from(commands), usize::from(states)));
+        assert_eq!(
+            remote.widths(),
+            (usize::from(states), usize::from(commands))
+        );
+        common::echo_run(base, remote)
+    });
+    assert_eq!(run.base.period, Duration::from_millis(1));
+}
+
+#[test]
+fn an_arm_of_7_commands_and_21_state_values_at_1_khz_over_datagrams() {
+    wide_run(Transport::Datagram { redundancy: 3 }, 7, 21);
+}
+
+#[test]
+fn an_arm_of_7_commands_and_21_state_values_at_1_khz_over_tcp() {
+    wide_run(Transport::Stream, 7, 21);
+}
+
+#[test]
+fn sixty_four_values_each_way_at_1_khz_over_datagrams() {
+    wide_run(Transport::Datagram { redundancy: 3 }, 64, 64);
+}
+
+#[test]
+fn sixty_four_values_each_way_at_1_khz_over_tcp() {
+    wide_run(Transport::Stream, 64, 64);
+}
+
+/// A Bundle of one sample for the link whose token is `session`.
+fn bundle(session: u64, seq: u64, values: &[f64]) -> Vec<u8> {
+    let header = Header::new(seq, Instant::ZERO);
+    let msg = Message::Bundle {
+        session,
+        newest: values,
+        older: &[],
+    };
+    let mut buf = vec![0; wire::MAX_FRAME_LEN + 64];
+    let n = wire::encode(&header, &msg, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+#[test]
+fn strays_spoofs_and_cut_or_oversized_datagrams_are_counted_and_the_link_carries_on() {
+    let _serial = common::serial();
+    let rt = common::runtime();
+    let listener = listener(&rt);
+    let port = listener.local_addr().unwrap();
+    let (base, remote) = connect(&rt, &listener);
+    let stranger = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let spoof = bundle(0x5eed_5eed_5eed_5eed, u64::MAX - 1, &[1e9, -1e9]);
+    let junk: [&[u8]; 5] = [
+        b"not an ndr frame",
+        // A guess at a token: another session's.
+        &spoof,
+        // Cut before its token.
+        &spoof[..50],
+        // Over the room for any sample (a 64 KiB datagram).
+        &[0x5a; 65_000],
+        &[],
+    ];
+    for bytes in junk {
+        stranger.send_to(bytes, port).unwrap();
+    }
+    // The same at the base's own socket, wherever the listener saw it.
+    std::thread::sleep(StdDuration::from_millis(200));
+    let base_at = remote
+        .stats()
+        .and_then(|s| s.datagram_peer)
+        .expect("the base's address");
+    for bytes in junk {
+        stranger.send_to(bytes, base_at).unwrap();
+    }
+    let run = common::echo_run(base, remote);
+    for (name, seqs) in [("base", &run.base_seqs), ("remote", &run.remote_seqs)] {
+        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
+        assert!(
+            seqs.windows(2).all(|w| w[1] == w[0] + 1),
+            "{name}: {seqs:?}"
+        );
+    }
+    let remote = run.remote.expect("the remote's stats");
+    assert_eq!(listener.stats().datagrams_stray, junk.len() as u64);
+    assert_eq!(remote.datagrams_stray, junk.len() as u64);
+    assert_eq!(run.base.datagrams_stray, junk.len() as u64);
+    // None reached an endpoint, and neither side's path moved to the stranger.
+    for s in [&run.base, &remote] {
+        assert_eq!(
+            s.endpoint.datagrams_foreign + s.endpoint.datagrams_refused,
+            0
+        );
+        assert_ne!(s.datagram_peer, Some(stranger.local_addr().unwrap()));
+    }
+    assert_eq!(run.base.datagram_path_changes, 0);
+}
+
+#[test]
+fn datagrams_are_refused_under_tls_before_anything_is_sent() {
+    let _serial = common::serial();
+    let rt = common::runtime();
+    let dir = std::env::temp_dir().join(format!("ndr-link-dgram-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let own = ndr::net::keygen::write(&dir, "own").unwrap();
+    let tls = TlsConfig::from_files(&own.cert, &own.key, &own.cert).unwrap();
+    let bound = rt.block_on(Listener::bind(
+        "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
+        config().with_tls(tls.clone()),
+    ));
+    assert!(
+        matches!(bound, Err(NetError::DatagramsWithTls)),
+        "{bound:?}"
+    );
+    // Nothing listens there: a connect would fail, but the refusal comes first.
+    let to = "127.0.0.1:9".parse::<SocketAddr>().unwrap();
+    let connected = rt.block_on(Link::connect(to, config().with_tls(tls)));
+    assert!(
+        matches!(connected, Err(NetError::DatagramsWithTls)),
+        "{connected:?}"
+    );
+    assert!(
+        NetError::DatagramsWithTls
+            .to_string()
+            .contains("TCP transport with TLS")
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
