@@ -297,12 +297,14 @@ pub fn pair(data: &[u8]) {
 pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
     let mut input = Input(data);
     let mut cfg = config(Role::Base, &mut input);
-    // A third of the scripts run on datagrams, with a redundancy of 1 to 8.
+    // A third of the scripts run on datagrams, with a redundancy of 1 to 8
+    // and 0 to 2 repeats.
     let pick = input.byte();
     let datagram = pick % 3 == 0;
     if datagram {
         cfg.transport = Transport::Datagram {
             redundancy: 1 + pick / 3 % 8,
+            repeats: pick / 24 % 3,
         };
         cfg.session = input.u64() | 1;
     }

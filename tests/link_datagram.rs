@@ -14,7 +14,7 @@ use ndr::net::{Link, LinkConfig, Listener, NetError, TlsConfig};
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base).with_width(2);
     c.period = Duration::from_millis(10);
-    c.transport = Transport::Datagram { redundancy: 3 };
+    c.transport = Transport::DATAGRAM;
     LinkConfig::new(c)
 }
 
@@ -102,7 +102,7 @@ fn wide_run(transport: Transport, commands: u16, states: u16) {
 
 #[test]
 fn an_arm_of_7_commands_and_21_state_values_at_1_khz_over_datagrams() {
-    wide_run(Transport::Datagram { redundancy: 3 }, 7, 21);
+    wide_run(Transport::DATAGRAM, 7, 21);
 }
 
 #[test]
@@ -112,7 +112,7 @@ fn an_arm_of_7_commands_and_21_state_values_at_1_khz_over_tcp() {
 
 #[test]
 fn sixty_four_values_each_way_at_1_khz_over_datagrams() {
-    wide_run(Transport::Datagram { redundancy: 3 }, 64, 64);
+    wide_run(Transport::DATAGRAM, 64, 64);
 }
 
 #[test]

@@ -283,7 +283,10 @@ class LinkStats(TypedDict):
     """Datagram transport: samples never received before a newer one."""
     datagrams_stale: int
     """Datagram transport: datagrams after a newer one (repeated,
-    reordered, replayed), dropped."""
+    reordered, replayed; the peer's own repeats of a sample taken), dropped."""
+    datagrams_repeated: int
+    """Datagram transport: repeats sent (a sample's datagram again, 1 ms
+    apart)."""
     datagrams_foreign: int
     """Datagram transport: datagrams of another session, dropped."""
     datagrams_refused: int
@@ -447,12 +450,14 @@ class Link:
                 can read and forge the samples). Loopback is always allowed.
             transport: how samples cross: ``"tcp"`` (the paper's stream,
                 where a lost packet holds back every sample behind it until
-                it is resent) or ``"udp"`` / ``"udp:K"`` (datagrams, each
-                carrying the newest sample and copies of the K − 1 before it,
-                3 by default, so that a lost one is recovered from the next;
-                the handshake stays on TCP and the datagrams use the same
-                port over UDP). UDP is plain: loopback, or ``insecure=True``,
-                and not with ``tls``. Both sides must agree.
+                it is resent) or ``"udp"`` / ``"udp:K"`` / ``"udp:K:R"``
+                (datagrams, each carrying the newest sample and copies of
+                the K − 1 before it, 3 by default, sent R more times 1 ms
+                apart, 2 by default, so that a lost one is made good within
+                a millisecond or two; the handshake stays on TCP and the
+                datagrams use the same port over UDP). UDP is plain:
+                loopback, or ``insecure=True``, and not with ``tls``. Both
+                sides must agree.
             on_event: called with each :class:`Event`, on the thread that
                 receives.
 

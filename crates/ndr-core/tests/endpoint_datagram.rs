@@ -12,6 +12,11 @@ use ndr_core::wire::{Kind, Role, close_reason};
 
 const T: Duration = Duration::from_millis(10);
 const SESSIONS: [u64; 2] = [0x1111_2222_3333_4444, 0x5555_6666_7777_8888];
+/// Copies only: each datagram lost is one sample's only send.
+const COPIES_ONLY: Transport = Transport::Datagram {
+    redundancy: 3,
+    repeats: 0,
+};
 
 fn config(role: Role, transport: Transport, playout: Playout) -> Config {
     let mut c = Config::new(role).with_widths(2, 3);
@@ -120,7 +125,7 @@ fn late_seventh(n: u64) -> Duration {
 
 #[test]
 fn lost_and_reordered_datagrams_are_recovered_from_the_next_ones_copies() {
-    let p = run(Transport::DATAGRAM, lose_tenth, late_seventh, 20);
+    let p = run(COPIES_ONLY, lose_tenth, late_seventh, 20);
     assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
     for (side, ep) in [(0, &p.base), (1, &p.remote)] {
         let fresh = &p.world.fresh[side];
@@ -148,7 +153,7 @@ fn lost_and_reordered_datagrams_are_recovered_from_the_next_ones_copies() {
 #[test]
 fn a_burst_longer_than_the_copies_loses_samples_but_never_reorders_them() {
     // Five datagrams in a row lost every 100: two are recovered, three lost.
-    let p = run(Transport::DATAGRAM, |n| n % 100 >= 95, |_| T / 2, 20);
+    let p = run(COPIES_ONLY, |n| n % 100 >= 95, |_| T / 2, 20);
     for (side, ep) in [(0, &p.base), (1, &p.remote)] {
         let fresh = &p.world.fresh[side];
         assert!(
@@ -183,7 +188,7 @@ fn over_a_stream_the_same_losses_cannot_happen_and_bundles_are_refused() {
 
 #[test]
 fn stray_spoofed_garbage_and_replayed_datagrams_are_counted_and_harm_nothing() {
-    let mut p = run(Transport::DATAGRAM, |_| false, |_| T / 2, 5);
+    let mut p = run(COPIES_ONLY, |_| false, |_| T / 2, 5);
     // The last bundle the base sent, as the network would repeat it.
     let mut bundle = None;
     let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
@@ -283,10 +288,13 @@ fn a_stream_peer_and_a_datagram_peer_refuse_each_other() {
 
 #[test]
 fn the_datagram_transport_needs_a_token_and_a_redundancy_in_range() {
-    for (redundancy, session) in [(3, 0), (0, 7), (9, 7)] {
+    for (redundancy, repeats, session) in [(3, 2, 0), (0, 2, 7), (9, 2, 7), (3, 5, 7)] {
         let mut c = config(
             Role::Base,
-            Transport::Datagram { redundancy },
+            Transport::Datagram {
+                redundancy,
+                repeats,
+            },
             Playout::Fifo,
         );
         c.session = session;
@@ -295,12 +303,149 @@ fn the_datagram_transport_needs_a_token_and_a_redundancy_in_range() {
             err,
             ConfigError::Datagram {
                 redundancy,
+                repeats,
                 session
             }
         );
         assert!(
-            err.to_string().contains("session token") || err.to_string().contains("1 to 8"),
+            err.to_string().contains("session token") || err.to_string().contains("0 to 4 repeats"),
             "{err}"
+        );
+    }
+}
+
+/// The `seq` a bundle's newest sample carries.
+fn seq_of(frame: &[u8]) -> u64 {
+    u64::from_le_bytes(frame[8..16].try_into().unwrap())
+}
+
+#[test]
+fn a_lost_datagram_is_made_good_by_its_repeat_a_millisecond_later() {
+    // Every sample's first datagram is lost, every repeat arrives: no
+    // sample waits for the next period's copies.
+    let mut p = {
+        let ep = |role| {
+            Endpoint::<Heap>::new(
+                config(role, Transport::DATAGRAM, Playout::ADAPTIVE),
+                Instant::ZERO,
+            )
+            .unwrap()
+        };
+        let world = FirstLost {
+            inner: Lossy {
+                lose: |_| false,
+                delay: |_| Duration::from_millis(4),
+                datagrams: [0; 2],
+                reliable_last: [Instant::ZERO; 2],
+                k: 0.0,
+                fresh: [Vec::new(), Vec::new()],
+                errors: Vec::new(),
+            },
+            seen: Default::default(),
+        };
+        Pair::new(ep(Role::Base), ep(Role::Remote), world)
+    };
+    p.run_until(Instant::from_millis(20_000)).unwrap();
+    let w = &p.world.inner;
+    assert!(w.errors.is_empty(), "{:?}", w.errors);
+    for (side, ep) in [(0, &p.base), (1, &p.remote)] {
+        let fresh = &w.fresh[side];
+        assert!(fresh.len() > 1500, "{side}: {}", fresh.len());
+        assert!(
+            fresh.windows(2).all(|w| w[1].0 == w[0].0 + 1),
+            "{side}: a gap or a repeat"
+        );
+        let s = ep.stats();
+        // Each sample came in its first repeat (the second is stale), not
+        // from the next datagram's copies.
+        assert_eq!(
+            (s.samples_lost, s.samples_recovered),
+            (0, 0),
+            "{side}: {s:?}"
+        );
+        assert!(s.datagrams_repeated > 3000, "{side}: {s:?}");
+        assert!(s.datagrams_stale > 1500, "{side}: {s:?}");
+        // The one-way delay the playout holds: 4 ms and the repeat's 1 ms.
+        let d = s.one_way_rx;
+        assert!((d.mean() - 5e-3).abs() < 1e-4, "{side}: {d:?}");
+    }
+}
+
+/// [`Lossy`] that loses the first datagram of each sample, and lets its
+/// repeats (and the probes, which have none) through.
+struct FirstLost<L, D> {
+    inner: Lossy<L, D>,
+    seen: [std::collections::BTreeSet<u64>; 2],
+}
+
+impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for FirstLost<L, D> {
+    type Error = LinkError;
+
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        // A bundle's width (offset 58) is 0 for a probe.
+        let sample = frame.get(58..60).is_some_and(|w| w != [0, 0]);
+        if frame.get(5) == Some(&(Kind::Bundle as u8))
+            && sample
+            && self.seen[from as usize].insert(seq_of(frame))
+        {
+            return None;
+        }
+        self.inner.arrival(from, sent, frame)
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut Endpoint<Heap>,
+        at: Instant,
+        event: Event<Box<[f64]>>,
+    ) -> Result<(), LinkError> {
+        self.inner.event(side, ep, at, event)
+    }
+
+    fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), LinkError> {
+        self.inner.failed(side, at, error)
+    }
+}
+
+#[test]
+fn only_the_repeats_that_fit_before_the_next_sample_go() {
+    // 1 ms apart: none at T = 1 ms (the next sample is as soon), one at
+    // 2.5 ms, the two asked for at 10 ms.
+    for (period_us, per_sample) in [(1_000, 0), (2_500, 1), (10_000, 2)] {
+        let ep = |role| {
+            let mut c = config(role, Transport::DATAGRAM, Playout::ADAPTIVE);
+            c.period = Duration::from_micros(period_us);
+            Endpoint::<Heap>::new(c, Instant::ZERO).unwrap()
+        };
+        let world = Lossy {
+            lose: |_| false,
+            delay: |_| Duration::from_micros(300),
+            datagrams: [0; 2],
+            reliable_last: [Instant::ZERO; 2],
+            k: 0.0,
+            fresh: [Vec::new(), Vec::new()],
+            errors: Vec::new(),
+        };
+        let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
+        p.run_until(Instant::from_millis(3_000)).unwrap();
+        for ep in [&p.base, &p.remote] {
+            let s = ep.stats();
+            assert!(s.samples_sent > 100, "{s:?}");
+            // The last sample's may not all have gone when the run ends.
+            let all = per_sample * s.samples_sent;
+            assert!(
+                (all.saturating_sub(per_sample)..=all).contains(&s.datagrams_repeated),
+                "{period_us} µs: {s:?}"
+            );
+        }
+        // The peer took each sample once: its repeats were stale (but
+        // those in flight at the end).
+        let r = p.remote.stats();
+        let repeated = p.base.stats().datagrams_repeated;
+        assert!(
+            r.datagrams_stale.abs_diff(repeated) <= 2,
+            "{repeated}: {r:?}"
         );
     }
 }

@@ -553,7 +553,8 @@ impl PyLinkSettings {
         endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;
         endpoint.transport = transport.parse::<Transport>().map_err(|e| {
             PyValueError::new_err(format!(
-                "transport: {e} (\"tcp\", or \"udp\" / \"udp:K\" for datagrams of K samples)"
+                "transport: {e} (\"tcp\", or \"udp\" / \"udp:K\" / \"udp:K:R\" for datagrams \
+                 of K samples sent R more times)"
             ))
         })?;
         // The link draws its datagram session token when it starts.

@@ -59,11 +59,12 @@ pub struct LinkArgs {
     pub state: StateLayout,
     /// How samples cross: tcp (the default, the paper's stream: a lost
     /// packet holds back every sample behind it until it is resent) or
-    /// udp[:K] (datagrams, each with the newest sample and copies of the
-    /// K − 1 before it, 3 by default, so that a lost one is recovered from
-    /// the next; the handshake stays on TCP, and the datagrams go to the
-    /// same port over UDP). UDP is plain: loopback, or --insecure, and
-    /// not with TLS.
+    /// udp[:K[:R]] (datagrams, each with the newest sample and copies of
+    /// the K − 1 before it, 3 by default, sent R more times 1 ms apart, 2
+    /// by default, so that a lost one is made good within a millisecond or
+    /// two; the handshake stays on TCP, and the datagrams go to the same
+    /// port over UDP). UDP is plain: loopback, or --insecure, and not with
+    /// TLS.
     #[arg(long, default_value = "tcp")]
     pub transport: Transport,
 }

@@ -228,7 +228,8 @@ struct DemoReport {
     period_s: f64,
     duration_s: f64,
     axes: u16,
-    /// How samples crossed: `tcp`, or `udp:K` (datagrams of K samples).
+    /// How samples crossed: `tcp`, or `udp:K:R` (datagrams of K samples,
+    /// each sent R more times).
     transport: String,
     /// Values in each command and in each state sample.
     command_width: u16,
@@ -309,10 +310,13 @@ pub fn finish(link: &LinkArgs, run: &RunArgs, outcome: &Outcome<'_>) -> Result<(
     }
 }
 
-/// `tcp`, or `udp:K`: the names `--transport` takes.
+/// `tcp`, or `udp:K:R`: the names `--transport` takes.
 pub fn transport_name(t: Transport) -> String {
     match t {
-        Transport::Datagram { redundancy } => format!("udp:{redundancy}"),
+        Transport::Datagram {
+            redundancy,
+            repeats,
+        } => format!("udp:{redundancy}:{repeats}"),
         _ => "tcp".into(),
     }
 }

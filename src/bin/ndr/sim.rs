@@ -109,9 +109,10 @@ pub struct SimArgs {
     #[arg(long, default_value = "none")]
     pub loss: LossModel,
     /// How samples cross: stream (TCP, the paper's: a loss holds the stream
-    /// back until repaired) or datagram[:K] (each datagram carries the
-    /// newest sample and copies of the K − 1 before it, default 3; a lost
-    /// one is recovered from the next; the handshake stays on TCP).
+    /// back until repaired) or datagram[:K[:R]] (each datagram carries the
+    /// newest sample and copies of the K − 1 before it, default 3, and is
+    /// sent R more times 1 ms apart, default 2, as many as fit before the
+    /// next sample; the handshake stays on TCP).
     #[arg(long, default_value = "stream")]
     pub transport: Transport,
     /// Sampling period, in ms (the paper's 200).

@@ -9,7 +9,7 @@ use core::fmt;
 
 use heapless::Vec as HVec;
 
-use super::config::{DATAGRAM_BUDGET, Transport};
+use super::config::{DATAGRAM_BUDGET, REPEAT_SPACING, Transport};
 use super::event::Head;
 use super::{Endpoint, LinkError, Phase, Tx};
 use crate::storage::Storage;
@@ -32,13 +32,19 @@ struct SentCopy<V> {
 /// session token, and the newest `seq` received.
 #[derive(Clone, Debug)]
 pub(super) struct Datagrams<V> {
-    /// Copies of the last samples sent, oldest first, at most
-    /// `redundancy − 1`; their buffers are made once.
-    sent: HVec<SentCopy<V>, { MAX_BUNDLE - 1 }>,
+    /// Copies of the last samples sent, oldest first, the newest last, at
+    /// most `redundancy`; their buffers are made once.
+    sent: HVec<SentCopy<V>, MAX_BUNDLE>,
     /// How many of `sent` hold a sample.
     filled: usize,
     /// Samples per datagram.
     redundancy: usize,
+    /// Times each sample's datagram goes again.
+    repeats: u8,
+    /// The newest sample's header, for its repeats (the same bytes again).
+    newest: Option<Header>,
+    /// When the next repeat of it is due, and how many are left.
+    repeat: Option<(Instant, u8)>,
     /// The peer's token (from its Hello), put in every datagram to it.
     pub(super) peer_session: u64,
     /// The newest `seq` taken from the peer.
@@ -52,12 +58,16 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
     /// For `transport`, with sample buffers from `make`; `None` on a stream,
     /// or if a buffer cannot be made.
     pub(super) fn new(transport: Transport, make: impl Fn() -> Option<V>) -> Option<Self> {
-        let Transport::Datagram { redundancy } = transport else {
+        let Transport::Datagram {
+            redundancy,
+            repeats,
+        } = transport
+        else {
             return None;
         };
         let redundancy = usize::from(redundancy).clamp(1, MAX_BUNDLE);
         let mut sent = HVec::new();
-        for _ in 1..redundancy {
+        for _ in 0..redundancy {
             let copy = SentCopy {
                 seq: 0,
                 sent_at: Instant::ZERO,
@@ -70,6 +80,9 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
             sent,
             filled: 0,
             redundancy,
+            repeats,
+            newest: None,
+            repeat: None,
             peer_session: 0,
             highest: None,
             highest_sample: false,
@@ -78,9 +91,7 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
 
     /// A sample just sent: the newest copy, the oldest given up.
     fn remember(&mut self, header: &Header, values: &[f64]) {
-        if self.sent.is_empty() {
-            return;
-        }
+        self.newest = Some(*header);
         self.sent.rotate_left(1);
         if let Some(last) = self.sent.last_mut() {
             last.seq = header.seq;
@@ -94,8 +105,15 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
     }
 
     /// Writes a bundle of `newest` (empty: a probe, sent alone) and the
-    /// copies of the samples before it that fit [`DATAGRAM_BUDGET`].
-    fn encode(&self, header: &Header, newest: &[f64], buf: &mut [u8]) -> Result<usize, WireError> {
+    /// copies of the samples before it that fit [`DATAGRAM_BUDGET`]: those
+    /// of `sent` but its last `skip` (the newest itself, in a repeat).
+    fn encode(
+        &self,
+        header: &Header,
+        newest: &[f64],
+        skip: usize,
+        buf: &mut [u8],
+    ) -> Result<usize, WireError> {
         let width = newest.len();
         let values = 8 * width;
         let room = DATAGRAM_BUDGET.saturating_sub(HEADER_LEN + BUNDLE_FIXED_LEN + values)
@@ -103,10 +121,11 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
         let copies = if width == 0 {
             0
         } else {
-            room.min(self.redundancy - 1).min(self.filled)
+            room.min(self.redundancy - 1)
+                .min(self.filled.saturating_sub(skip))
         };
         let mut older: HVec<OlderSample<'_>, { MAX_BUNDLE - 1 }> = HVec::new();
-        for copy in self.sent.iter().rev().take(copies) {
+        for copy in self.sent.iter().rev().skip(skip).take(copies) {
             let vs = copy.values.as_ref();
             let sample = OlderSample {
                 seq: copy.seq,
@@ -325,6 +344,59 @@ impl<S: Storage> Endpoint<S> {
         self.receive_data(head, frame.released(), bundle.newest(), Some(stalled))
     }
 
+    /// A sample's datagram just went out at `now`: its repeats are due
+    /// [`REPEAT_SPACING`] apart, as many as fit before the next sample's
+    /// (a repeat that would go with it is no use).
+    pub(super) fn arm_repeats(&mut self, now: Instant) {
+        let period = self.period();
+        if let Some(d) = &mut self.dgram {
+            let room = period.as_nanos() / REPEAT_SPACING.as_nanos().max(1);
+            let fit = u8::try_from(room.saturating_sub(1)).unwrap_or(u8::MAX);
+            let n = d.repeats.min(fit);
+            d.repeat = (n > 0).then(|| (now + REPEAT_SPACING, n));
+        }
+    }
+
+    /// When the next repeat is due.
+    pub(super) fn repeat_due(&self) -> Option<Instant> {
+        self.dgram.as_ref()?.repeat.map(|(at, _)| at)
+    }
+
+    /// Writes the newest sample's datagram again if a repeat is due at `now`.
+    pub(super) fn poll_repeat(
+        &mut self,
+        now: Instant,
+        buf: &mut [u8],
+    ) -> Result<Option<usize>, LinkError> {
+        let Some(d) = self.dgram.as_mut().filter(|_| self.phase != Phase::Closed) else {
+            return Ok(None);
+        };
+        let (Some((at, left)), Some(header)) = (d.repeat, d.newest) else {
+            return Ok(None);
+        };
+        if at > now {
+            return Ok(None);
+        }
+        d.repeat = (left > 1).then(|| (at + REPEAT_SPACING, left - 1));
+        let Some(newest) = d.sent.last().filter(|_| d.filled > 0) else {
+            return Ok(None);
+        };
+        let values = newest.values.as_ref();
+        let width = usize::from(self.config.sent_width());
+        let values = values.get(..width).unwrap_or(values);
+        match d.encode(&header, values, 1, buf) {
+            Ok(n) => {
+                self.stats.datagrams_repeated += 1;
+                self.stats.frames_sent += 1;
+                Ok(Some(n))
+            }
+            Err(WireError::BufferTooSmall { needed, got }) => {
+                Err(LinkError::BufferTooSmall { needed, got })
+            }
+            Err(e) => Err(LinkError::Wire(e)),
+        }
+    }
+
     /// Writes the frame for `item`: on the datagram transport a sample or a
     /// probe goes in a bundle (and the sample is kept for the next ones'
     /// copies), anything else as a frame of the reliable path.
@@ -344,7 +416,7 @@ impl<S: Storage> Endpoint<S> {
             _ => &[],
         };
         if let (Some(d), Tx::Probe { .. } | Tx::Sample { .. }) = (&mut self.dgram, item) {
-            let n = d.encode(header, newest, buf)?;
+            let n = d.encode(header, newest, 0, buf)?;
             if let Tx::Sample { .. } = item {
                 d.remember(header, newest);
             }

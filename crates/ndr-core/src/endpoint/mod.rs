@@ -44,8 +44,8 @@ mod stats;
 use heapless::Deque;
 
 pub use config::{
-    Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, MIN_PERIOD, Mode,
-    Transport, Underflow, UnknownName,
+    Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, DEFAULT_REPEATS,
+    MAX_REPEATS, MIN_PERIOD, Mode, REPEAT_SPACING, Transport, Underflow, UnknownName,
 };
 pub use datagram::DatagramError;
 pub use error::LinkError;
@@ -340,6 +340,7 @@ impl<S: Storage> Endpoint<S> {
             self.schedule.as_ref().and_then(Schedule::next_release),
             self.deadline,
             self.liveness_deadline(),
+            self.repeat_due(),
         ]
         .into_iter()
         .flatten()
@@ -355,7 +356,7 @@ impl<S: Storage> Endpoint<S> {
         buf: &mut [u8],
     ) -> Result<Option<usize>, LinkError> {
         let Some(&item) = self.out.tx.front() else {
-            return Ok(None);
+            return self.poll_repeat(now, buf);
         };
         let (seq, sent_at) = match item {
             Tx::Probe { seq } | Tx::Sample { seq } => (seq, self.tick_of(seq).unwrap_or(now)),
@@ -386,6 +387,7 @@ impl<S: Storage> Endpoint<S> {
         let _ = self.out.tx.pop_front();
         self.stats.frames_sent += 1;
         if let Tx::Sample { .. } = item {
+            self.arm_repeats(now);
             self.stats.samples_sent += 1;
             if !self.out.sample_fresh {
                 self.stats.samples_repeated += 1;

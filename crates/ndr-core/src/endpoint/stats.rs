@@ -144,6 +144,10 @@ pub struct Stats {
     /// Datagram transport: datagrams of this session taken (each a Bundle
     /// of samples).
     pub datagrams_received: u64,
+    /// Datagram transport: repeats sent (a sample's datagram sent again,
+    /// [`REPEAT_SPACING`](super::REPEAT_SPACING) apart); the peer drops
+    /// those that find the sample taken, as stale.
+    pub datagrams_repeated: u64,
     /// Datagram transport: samples taken from a later datagram's copy
     /// (their own datagram was lost or came late).
     pub samples_recovered: u64,
