@@ -509,3 +509,79 @@ fn a_hung_base_is_dropped_and_the_next_one_served() {
     let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
     assert!(status.success(), "{remote_err}");
 }
+
+#[test]
+fn a_relay_loses_datagrams_by_its_loss_model_and_reports_them() {
+    use ndr::netem::{Direction, LossModel};
+
+    let _serial = serial();
+    let upstream = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    upstream
+        .set_read_timeout(Some(Duration::from_millis(500)))
+        .unwrap();
+    let upstream_addr = upstream.local_addr().unwrap().to_string();
+    let mut relay = Proc::spawn(&[
+        "relay",
+        "--listen",
+        "127.0.0.1:0",
+        "--upstream",
+        &upstream_addr,
+        "--profile",
+        "constant:1",
+        "--loss",
+        "30",
+        "--seed",
+        "5",
+        "--duration-s",
+        "60",
+        "--json",
+    ]);
+    let line = relay.line_with(" -> ", Duration::from_secs(20));
+    assert!(line.contains("datagram loss 30"), "{line}");
+    let relay_addr = address_after(&line, "ndr relay: ");
+
+    // Paced: no socket buffer on the way overflows.
+    let client = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let n = 100u32;
+    for seq in 0..n {
+        client.send_to(&seq.to_le_bytes(), &relay_addr).unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // The first flow's losses: the relay's seed, the forward stream.
+    let mut draws = "30".parse::<LossModel>().unwrap().sampler(5);
+    let kept: Vec<u32> = (0..n).filter(|_| !draws.lost(Direction::Forward)).collect();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 16];
+    while got.len() < kept.len() {
+        let Ok(len) = upstream.recv(&mut buf) else {
+            break;
+        };
+        got.push(u32::from_le_bytes(buf[..len].try_into().unwrap()));
+    }
+    assert_eq!(got, kept);
+
+    relay.signal("INT");
+    let (status, stdout, stderr) = relay.wait(Duration::from_secs(20));
+    assert!(status.success(), "{stderr}");
+    let r = json(&stdout, &stderr);
+    assert_eq!(r["loss"], "30", "{r}");
+    let fwd = &r["datagrams"]["forward"];
+    assert_eq!(fwd["received"], n, "{r}");
+    assert_eq!(fwd["lost"], n - kept.len() as u32, "{r}");
+    assert_eq!(fwd["delivered"], kept.len(), "{r}");
+    assert_eq!(r["datagrams"]["flows_opened"], 1, "{r}");
+
+    // The loss parser is `ndr sim --loss`'s.
+    let bad = Proc::spawn(&[
+        "relay",
+        "--listen",
+        "127.0.0.1:0",
+        "--upstream",
+        &upstream_addr,
+        "--loss",
+        "lots",
+    ]);
+    let (status, _, stderr) = bad.wait(Duration::from_secs(20));
+    assert!(!status.success());
+    assert!(stderr.contains("ge:PERCENT:BURST"), "{stderr}");
+}

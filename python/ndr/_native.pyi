@@ -757,11 +757,13 @@ def listen(
 
 @final
 class Relay:
-    """A delay-injecting TCP proxy (``ndr relay``) running in this process:
+    """A delay-injecting TCP and UDP proxy (``ndr relay``) running in this process:
     listens on ``listen`` and forwards each connection to ``upstream``,
     delaying every frame by a delay model (one of ``profile``, ``trace``,
     ``dist`` with ``mean`` and ``std``; with none of them, the
-    ``"lan-75km"`` profile), keeping order. ``seed`` (0 to 2**64 - 1) seeds
+    ``"lan-75km"`` profile), keeping order. It also listens on the same port
+    over UDP and relays datagrams to ``upstream``'s port over UDP, delayed
+    the same way (``stats["datagrams"]``). ``seed`` (0 to 2**64 - 1) seeds
     the delays. A context manager.
 
     Raises ``OSError`` (with ``errno``, e.g. ``errno.EADDRINUSE``) when it

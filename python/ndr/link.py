@@ -63,6 +63,8 @@ __all__ = [
     "LinkStats",
     "Listener",
     "ListenerStats",
+    "RelayDatagramDirectionStats",
+    "RelayDatagramStats",
     "RelayDirectionStats",
     "RelayStats",
     "RunningStats",
@@ -177,6 +179,35 @@ class RelayDirectionStats(TypedDict):
     """Frames waiting for their delay now."""
 
 
+class RelayDatagramDirectionStats(TypedDict):
+    """One direction of an :class:`ndr.Relay`'s datagram path, summed over
+    its flows (``forward``: towards the upstream)."""
+
+    received: int
+    lost: int
+    """Dropped by the relay's loss model."""
+    queue_full: int
+    """Dropped because the direction's queue was full."""
+    delivered: int
+    bytes_delivered: int
+    send_failed: int
+    held_back: int
+    """Sent later than their own delay, behind an earlier, slower one."""
+
+
+class RelayDatagramStats(TypedDict):
+    """The datagram (UDP) path of an :class:`ndr.Relay`: one flow per client
+    address."""
+
+    flows_opened: int
+    flows_active: int
+    flows_refused: int
+    """Datagrams from a new client dropped at the flow limit."""
+    flows_expired: int
+    forward: RelayDatagramDirectionStats
+    backward: RelayDatagramDirectionStats
+
+
 class RelayStats(TypedDict):
     """The counters of an :class:`ndr.Relay` (``relay.stats``)."""
 
@@ -191,6 +222,7 @@ class RelayStats(TypedDict):
     closed_by_shutdown: int
     forward: RelayDirectionStats
     backward: RelayDirectionStats
+    datagrams: RelayDatagramStats
 
 
 class ListenerStats(TypedDict):

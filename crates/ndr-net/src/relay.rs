@@ -1,4 +1,5 @@
-//! The delay relay: a TCP proxy that gives every frame a network delay.
+//! The delay relay: a TCP and UDP proxy that gives every frame and every
+//! datagram a network delay, and datagrams a loss model.
 //!
 //! The paper's long-distance runs went through "a relay \[that\] delayed
 //! network data with values corresponding to a transmission between Paris
@@ -9,7 +10,7 @@
 //! Put it between the two peers: the base connects to the relay's listening
 //! address, and for each client the relay connects to `upstream` (the
 //! remote). Client → upstream is [`Direction::Forward`], upstream → client
-//! [`Direction::Backward`]. In each direction the relay:
+//! [`Direction::Backward`]. In each direction of a TCP connection the relay:
 //!
 //! 1. reads whole frames by their 4-byte length prefix
 //!    ([`wire::frame_len`](ndr_core::wire::frame_len)); the rest of a frame
@@ -49,6 +50,58 @@
 //!   connection ends when both directions have ended. A partial frame at an
 //!   end of stream is dropped.
 //!
+//! # Datagrams
+//!
+//! A link on the datagram transport sends its samples as UDP datagrams
+//! (Bundles, `docs/wire.md` §3.5) and keeps its handshake and control on
+//! TCP. The convention: a link's datagrams go to the same port number as
+//! its TCP listener, over UDP, and each side learns its peer's datagram
+//! address from the source address of the peer's valid datagrams. So the
+//! relay also binds a UDP socket at its listening address (the port TCP got
+//! when given port 0), and a base that connected to the relay over TCP
+//! sends its datagrams there; the relay sends them on to the upstream's
+//! address over UDP, and the remote answers to the address it saw them
+//! come from: the relay's.
+//!
+//! - **Flows.** Each client address seen on the UDP socket gets a flow: an
+//!   upstream UDP socket of its own (an ephemeral port), connected to
+//!   `upstream`, so that the upstream's answers on it go back to that
+//!   client, from the listening socket. Client → upstream is
+//!   [`Direction::Forward`], upstream → client [`Direction::Backward`]. At
+//!   most [`RelayConfig::max_flows`] flows are open at once (a datagram from
+//!   one more client is dropped and counted); a flow with no datagram
+//!   received or sent for [`RelayConfig::flow_idle_timeout`], and none
+//!   waiting, is removed with its socket. A flow is not tied to a TCP
+//!   connection: the relay cannot tell which connection a datagram belongs
+//!   to.
+//! - **Loss, then delay.** Each datagram is dropped or kept by
+//!   [`RelayConfig::loss`], then held for its delay as a TCP frame is:
+//!   flow `k` (counted from 0 on its own: the first flow has the first
+//!   connection's seed) draws its delays from
+//!   `model.sampler(connection_seed(seed, k))` and its losses from
+//!   `loss.sampler(connection_seed(seed, k))`, whose streams are their own
+//!   and distinct per direction. So a run is reproducible, and adding loss
+//!   changes no delay (a delay is drawn for every datagram, lost or not, as
+//!   in the simulator); `t` is when the relay read the datagram. A lost datagram is
+//!   gone: the link recovers its samples from the copies in the next ones.
+//!   Loss applies to datagrams only: the relay cannot drop TCP bytes without
+//!   corrupting the stream (a lossy TCP path is made in the kernel
+//!   instead, with nftables as in `docs/benchmarks.md`).
+//! - **Order.** A direction of a flow keeps the TCP path's in-order rule,
+//!   `release = max(previous release, t + delay)`, though UDP would allow
+//!   reordering: the delay models' jitter stands for queueing, which does
+//!   not reorder, and with the same rule the relay's datagram and TCP paths
+//!   (and the simulator's datagram path, which does the same) see the same
+//!   network, apart from the loss. A lost datagram holds nothing back.
+//! - **Bounds.** A direction of a flow holds at most
+//!   [`RelayConfig::max_queue_frames`] datagrams and
+//!   [`RelayConfig::max_queue_bytes`] bytes; a datagram over either bound is
+//!   dropped and counted, and the flow goes on. Datagrams of any size UDP
+//!   carries (65 507 bytes over IPv4) pass unchanged.
+//!
+//! Their counters are [`RelayStats::datagrams`]. Flows are not reported as
+//! [`RelayEvent`]s; they are logged through `tracing`.
+//!
 //! # Example
 //!
 //! ```no_run
@@ -60,9 +113,10 @@
 //! let remote = "127.0.0.1:7001".parse().unwrap();
 //! let relay = Relay::bind(listen, remote, DelayModel::ParisNewYork, 1).await?;
 //! let handle = relay.spawn()?;
-//! // ... the base connects to 127.0.0.1:7000 ...
+//! // ... the base connects to 127.0.0.1:7000 (and sends datagrams to UDP 7000) ...
 //! let stats = handle.shutdown().await;
 //! println!("{} frames forward", stats.forward.frames_delivered);
+//! println!("{} datagrams forward", stats.datagrams.forward.delivered);
 //! # Ok(())
 //! # }
 //! ```
@@ -72,6 +126,7 @@
 
 mod blocking;
 mod conn;
+mod datagram;
 mod stats;
 
 use core::fmt;
@@ -81,14 +136,16 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration as StdDuration;
 
+use ndr_core::time::Instant;
 use ndr_core::wire::WireError;
-use ndr_netem::{DelayModel, Direction};
-use tokio::net::TcpListener;
+use ndr_netem::{DelayModel, Direction, LossModel};
+use tokio::net::{TcpListener, UdpSocket};
 use tokio::sync::watch;
 use tokio::task::{JoinHandle, JoinSet};
+use tokio::time::Instant as TokioInstant;
 
 pub use blocking::{BlockingRelay, StopWhen};
-pub use stats::{DirectionStats, RelayStats};
+pub use stats::{DatagramDirectionStats, DatagramStats, DirectionStats, RelayStats};
 
 /// Default bound on the frames waiting in one direction of one connection.
 pub const DEFAULT_MAX_QUEUE_FRAMES: usize = 65_536;
@@ -96,27 +153,54 @@ pub const DEFAULT_MAX_QUEUE_FRAMES: usize = 65_536;
 pub const DEFAULT_MAX_QUEUE_BYTES: usize = 32 << 20;
 /// Default time allowed to connect to the upstream.
 pub const DEFAULT_CONNECT_TIMEOUT: StdDuration = StdDuration::from_secs(5);
+/// Default bound on the datagram flows open at once.
+pub const DEFAULT_MAX_FLOWS: usize = 1024;
+/// Default time after which a datagram flow with no traffic is removed.
+pub const DEFAULT_FLOW_IDLE_TIMEOUT: StdDuration = StdDuration::from_secs(30);
+
+/// Release times that cannot be represented are pushed this far away
+/// (tokio clamps its own deadlines at about two years anyway).
+const FAR_FUTURE: StdDuration = StdDuration::from_secs(365 * 24 * 3600);
 
 /// Pause after a failed `accept` (e.g. out of file descriptors), so that a
 /// persistent failure does not spin.
 const ACCEPT_BACKOFF: StdDuration = StdDuration::from_millis(100);
 
-/// Limits of a [`Relay`].
+/// Ports tried when given port 0 and UDP is taken where TCP is free.
+const BIND_ATTEMPTS: u32 = 8;
+
+/// Limits of a [`Relay`], and the loss of its datagrams.
 ///
 /// The frames in flight in a direction are about its delay times its frame
 /// rate (a 1 s delay at 1 kHz holds 1 000 frames); the bounds only stop a
-/// connection from growing without limit when the receiving side stops
-/// reading or the delays are absurd.
-#[derive(Clone, Debug, PartialEq, Eq)]
+/// connection or a flow from growing without limit when the receiving side
+/// stops reading or the delays are absurd. The datagram path holds at most
+/// `max_flows × 2` such queues.
+#[derive(Clone, Debug, PartialEq)]
 pub struct RelayConfig {
     /// Most frames waiting in one direction of one connection; one more cuts
     /// the connection ([`ConnectionEnd::QueueFull`]). `0` counts as `1`.
+    /// Also the most datagrams waiting in one direction of one flow: one
+    /// more is dropped and counted ([`DatagramDirectionStats::queue_full`]).
     pub max_queue_frames: usize,
     /// Most bytes waiting in one direction of one connection; more cuts the
-    /// connection ([`ConnectionEnd::QueueFull`]).
+    /// connection ([`ConnectionEnd::QueueFull`]). Also the most bytes
+    /// waiting in one direction of one flow: a datagram that would go over
+    /// is dropped and counted.
     pub max_queue_bytes: usize,
     /// Time allowed to connect to the upstream for each client.
     pub connect_timeout: StdDuration,
+    /// How datagrams are lost, each direction of each flow (default: none).
+    /// TCP frames are never dropped: see the module's docs.
+    pub loss: LossModel,
+    /// Most datagram flows (client addresses) open at once; a datagram from
+    /// one more client is dropped and counted
+    /// ([`DatagramStats::flows_refused`]). `0` refuses every datagram.
+    pub max_flows: usize,
+    /// A flow with no datagram received or sent, either way, for this long,
+    /// and none waiting, is removed with its upstream socket (checked four
+    /// times per timeout, at most every second).
+    pub flow_idle_timeout: StdDuration,
 }
 
 impl Default for RelayConfig {
@@ -125,6 +209,9 @@ impl Default for RelayConfig {
             max_queue_frames: DEFAULT_MAX_QUEUE_FRAMES,
             max_queue_bytes: DEFAULT_MAX_QUEUE_BYTES,
             connect_timeout: DEFAULT_CONNECT_TIMEOUT,
+            loss: LossModel::None,
+            max_flows: DEFAULT_MAX_FLOWS,
+            flow_idle_timeout: DEFAULT_FLOW_IDLE_TIMEOUT,
         }
     }
 }
@@ -267,7 +354,15 @@ const fn splitmix64(x: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// What every connection task shares.
+/// The tokio deadline of `release`, a time of the delay models counted from
+/// `origin`.
+fn deadline(origin: std::time::Instant, release: Instant) -> TokioInstant {
+    release
+        .to_std(origin)
+        .map_or_else(|| TokioInstant::now() + FAR_FUTURE, TokioInstant::from_std)
+}
+
+/// What every connection and flow task shares.
 struct Ctx {
     upstream: SocketAddr,
     model: DelayModel,
@@ -290,6 +385,7 @@ impl Ctx {
 /// A bound delay relay, not yet serving: [`spawn`](Relay::spawn) it.
 pub struct Relay {
     listener: TcpListener,
+    datagrams: UdpSocket,
     local_addr: SocketAddr,
     upstream: SocketAddr,
     model: DelayModel,
@@ -311,16 +407,19 @@ impl fmt::Debug for Relay {
 }
 
 impl Relay {
-    /// Listens on `listen` (port 0 picks a free port: see
+    /// Listens on `listen` over TCP, and on the same address and port over
+    /// UDP for the datagrams (port 0 picks a port free for both: see
     /// [`local_addr`](Self::local_addr)); each client will be relayed to
-    /// `upstream` with the delays of `model`, drawn from `seed`.
+    /// `upstream` (TCP and UDP) with the delays of `model`, drawn from
+    /// `seed`.
     ///
     /// Must be called within a tokio runtime.
     ///
     /// # Errors
     ///
-    /// The listening socket cannot be bound (address in use, no
-    /// permission…), or `listen` is not a loopback address
+    /// A listening socket cannot be bound (address in use, no
+    /// permission…; the UDP one is named as such), or `listen` is not a
+    /// loopback address
     /// (`PermissionDenied`): the relay passes plain links through, and
     /// would put a remote that trusts its loopback on the network; use
     /// [`bind_insecure`](Self::bind_insecure) to mean it.
@@ -347,19 +446,17 @@ impl Relay {
     ///
     /// # Errors
     ///
-    /// The listening socket cannot be bound (address in use, no permission…).
+    /// A listening socket cannot be bound (address in use, no permission…).
     pub async fn bind_insecure(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Relay> {
-        let listener = TcpListener::bind(listen).await.map_err(|e| {
-            io::Error::new(e.kind(), format!("relay: cannot listen on {listen}: {e}"))
-        })?;
-        let local_addr = listener.local_addr()?;
+        let (listener, datagrams, local_addr) = bind_both(listen).await?;
         Ok(Relay {
             listener,
+            datagrams,
             local_addr,
             upstream,
             model,
@@ -384,13 +481,13 @@ impl Relay {
         self
     }
 
-    /// The address the relay listens on.
+    /// The address the relay listens on, over TCP and UDP alike.
     #[must_use]
     pub const fn local_addr(&self) -> SocketAddr {
         self.local_addr
     }
 
-    /// The address each client is relayed to.
+    /// The address each client is relayed to, over TCP and UDP alike.
     #[must_use]
     pub const fn upstream(&self) -> SocketAddr {
         self.upstream
@@ -414,6 +511,7 @@ impl Relay {
             .map_err(|e| io::Error::other(format!("relay: spawn needs a tokio runtime: {e}")))?;
         let Relay {
             listener,
+            datagrams,
             local_addr,
             upstream,
             model,
@@ -431,8 +529,15 @@ impl Relay {
             counters: stats::Counters::default(),
         });
         let (stop_tx, stop_rx) = watch::channel(false);
-        tracing::info!(%local_addr, %upstream, model = %ctx.model, seed, "relay: serving");
-        let task = runtime.spawn(accept_loop(listener, Arc::clone(&ctx), stop_rx));
+        tracing::info!(
+            %local_addr,
+            %upstream,
+            model = %ctx.model,
+            seed,
+            datagram_loss = %ctx.config.loss,
+            "relay: serving"
+        );
+        let task = runtime.spawn(serve(listener, datagrams, Arc::clone(&ctx), stop_rx));
         Ok(RelayHandle {
             local_addr,
             ctx,
@@ -462,7 +567,7 @@ impl fmt::Debug for RelayHandle {
 }
 
 impl RelayHandle {
-    /// The address the relay listens on.
+    /// The address the relay listens on, over TCP and UDP alike.
     #[must_use]
     pub const fn local_addr(&self) -> SocketAddr {
         self.local_addr
@@ -480,10 +585,10 @@ impl RelayHandle {
         self.ctx.origin.elapsed()
     }
 
-    /// Stops the relay: closes the listening socket and every relayed
-    /// connection at once (both sides, dropping the frames in flight, as if
-    /// the relay were killed), waits until they are closed, and returns the
-    /// final counters.
+    /// Stops the relay: closes the listening sockets, every relayed
+    /// connection and every datagram flow at once (both sides, dropping the
+    /// frames and datagrams in flight, as if the relay were killed), waits
+    /// until they are closed, and returns the final counters.
     pub async fn shutdown(self) -> RelayStats {
         // An error means the task is gone already: nothing to stop.
         let _ = self.stop.send(true);
@@ -498,6 +603,50 @@ impl RelayHandle {
 async fn stopped(stop: &mut watch::Receiver<bool>) {
     // An error means the sender (the handle) was dropped: stop as well.
     let _ = stop.wait_for(|&stop| stop).await;
+}
+
+/// Binds the TCP listener, then UDP at the same address and port.
+async fn bind_both(listen: SocketAddr) -> io::Result<(TcpListener, UdpSocket, SocketAddr)> {
+    // With port 0, another program may hold the port TCP picked over UDP:
+    // pick again a few times.
+    let attempts = if listen.port() == 0 { BIND_ATTEMPTS } else { 1 };
+    let mut attempt = 1;
+    loop {
+        let listener = TcpListener::bind(listen).await.map_err(|e| {
+            io::Error::new(e.kind(), format!("relay: cannot listen on {listen}: {e}"))
+        })?;
+        let local_addr = listener.local_addr()?;
+        match UdpSocket::bind(local_addr).await {
+            Ok(datagrams) => return Ok((listener, datagrams, local_addr)),
+            Err(e) if e.kind() == io::ErrorKind::AddrInUse && attempt < attempts => {
+                attempt += 1;
+            }
+            Err(e) => {
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!(
+                        "relay: cannot bind UDP {local_addr} for the datagrams (the relay \
+                         listens on one port number over TCP and UDP): {e}"
+                    ),
+                ));
+            }
+        }
+    }
+}
+
+/// Serves both paths until the relay is told to stop.
+async fn serve(
+    listener: TcpListener,
+    datagrams: UdpSocket,
+    ctx: Arc<Ctx>,
+    stop: watch::Receiver<bool>,
+) {
+    let datagrams = tokio::spawn(datagram::serve(Arc::clone(&ctx), datagrams, stop.clone()));
+    accept_loop(listener, ctx, stop).await;
+    if let Err(e) = datagrams.await {
+        tracing::error!("relay: the datagram task failed: {e}");
+    }
+    tracing::info!("relay: stopped");
 }
 
 async fn accept_loop(listener: TcpListener, ctx: Arc<Ctx>, mut stop: watch::Receiver<bool>) {
@@ -543,5 +692,4 @@ async fn accept_loop(listener: TcpListener, ctx: Arc<Ctx>, mut stop: watch::Rece
             tracing::error!("relay: a connection task failed: {e}");
         }
     }
-    tracing::info!("relay: stopped");
 }

@@ -1,7 +1,8 @@
-//! `ndr.Relay`: the delay-injecting TCP proxy of `ndr relay`, in-process.
+//! `ndr.Relay`: the delay-injecting TCP and UDP proxy of `ndr relay`,
+//! in-process.
 //!
-//! It runs on the process's I/O thread; each frame in each direction is
-//! delayed by the same models as the simulator, in order.
+//! It runs on the process's I/O thread; each frame and each datagram in each
+//! direction is delayed by the same models as the simulator, in order.
 
 use std::sync::{Mutex, PoisonError};
 
@@ -18,7 +19,8 @@ use crate::log;
 /// A running relay: listens on `listen` and forwards each connection to
 /// `upstream`, delaying every frame by the chosen delay model: one of
 /// `profile`, `trace`, `dist` (with `mean` and `std`), or, with none of
-/// them, the "lan-75km" profile.
+/// them, the "lan-75km" profile. Datagrams to the same port over UDP go to
+/// `upstream`'s port over UDP, delayed the same way.
 #[pyclass(frozen, module = "ndr", name = "Relay")]
 pub struct PyRelay {
     handle: Mutex<Option<RelayHandle>>,

@@ -1,24 +1,39 @@
-//! `ndr relay`: a TCP relay that delays the link's frames like a real network.
+//! `ndr relay`: a TCP and UDP relay that delays the link's frames and
+//! datagrams like a real network, and loses datagrams by a loss model.
 
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::net::relay::{BlockingRelay, DirectionStats, RelayEvent, RelayStats, StopWhen};
+use ndr::net::relay::{
+    BlockingRelay, DatagramDirectionStats, DatagramStats, DirectionStats, RelayConfig, RelayEvent,
+    RelayStats, StopWhen,
+};
+use ndr::sim::delay::LossModel;
 
 use crate::sim::NetArgs;
 
 #[derive(clap::Args)]
 pub struct RelayArgs {
-    /// Address to listen on for clients (the base connects here), e.g. 0.0.0.0:7000.
+    /// Address to listen on for clients (the base connects here), e.g.
+    /// 0.0.0.0:7000: over TCP, and over UDP on the same port for the
+    /// datagrams.
     #[arg(long, value_name = "ADDR")]
     pub listen: String,
-    /// Address each client is relayed to (the remote), e.g. 10.0.0.2:7000.
+    /// Address each client is relayed to (the remote), e.g. 10.0.0.2:7000:
+    /// TCP connections to its TCP port, datagrams to the same port over UDP.
     #[arg(long, value_name = "ADDR")]
     pub upstream: String,
     /// Delays (default: the paper's relay, --profile paris-newyork).
     #[command(flatten)]
     pub net: NetArgs,
-    /// Seed of the delays: the same seed and send times give the same delays.
+    /// Datagrams lost each way, in each flow: none, PERCENT (each
+    /// independently, e.g. 1) or ge:PERCENT:BURST (in bursts of BURST
+    /// datagrams on average, e.g. ge:2:4). Applies to datagrams (UDP) only:
+    /// the relay never drops TCP bytes, which would corrupt the stream.
+    #[arg(long, default_value = "none")]
+    pub loss: LossModel,
+    /// Seed of the delays and losses: the same seed and send times give the
+    /// same delays and losses.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Stop after this many seconds (default: run until Ctrl-C).
@@ -63,12 +78,19 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
     } else {
         BlockingRelay::bind
     };
+    let config = RelayConfig {
+        loss: args.loss,
+        ..RelayConfig::default()
+    };
     let relay = bind(listen, upstream, model, args.seed)
         .map_err(|e| e.to_string())?
+        .with_config(config)
         .on_event(print_event);
     let local = relay.local_addr();
     eprintln!(
-        "ndr relay: {local} -> {upstream}, delays {model_name}, seed {}; {}",
+        "ndr relay: {local} -> {upstream} (TCP and UDP), delays {model_name}, datagram loss {}, \
+         seed {}; {}",
+        args.loss,
         args.seed,
         match after {
             Some(d) => format!("stopping after {:.1} s or on Ctrl-C", d.as_secs_f64()),
@@ -89,6 +111,7 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
             "listen": local.to_string(),
             "upstream": upstream.to_string(),
             "model": model_name,
+            "loss": args.loss.to_string(),
             "seed": args.seed,
             "duration_s": ran,
             "connections": stats.connections,
@@ -100,6 +123,7 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
             "closed_by_shutdown": stats.closed_by_shutdown,
             "forward": direction_json(&stats.forward),
             "backward": direction_json(&stats.backward),
+            "datagrams": datagrams_json(&stats.datagrams),
         });
         println!("{value}");
     } else {
@@ -135,6 +159,27 @@ fn direction_json(d: &DirectionStats) -> serde_json::Value {
     })
 }
 
+fn datagrams_json(d: &DatagramStats) -> serde_json::Value {
+    let direction = |d: &DatagramDirectionStats| {
+        serde_json::json!({
+            "received": d.received,
+            "lost": d.lost,
+            "queue_full": d.queue_full,
+            "delivered": d.delivered,
+            "bytes_delivered": d.bytes_delivered,
+            "send_failed": d.send_failed,
+            "held_back": d.held_back,
+        })
+    };
+    serde_json::json!({
+        "flows_opened": d.flows_opened,
+        "flows_refused": d.flows_refused,
+        "flows_expired": d.flows_expired,
+        "forward": direction(&d.forward),
+        "backward": direction(&d.backward),
+    })
+}
+
 fn print_table(stats: &RelayStats, ran: f64) {
     println!("ran {ran:.1} s, {} connections", stats.connections);
     let ends = [
@@ -156,6 +201,34 @@ fn print_table(stats: &RelayStats, ran: f64) {
         println!(
             "{name:<10} {:>12} {:>12} {:>14} {:>10}",
             d.frames_received, d.frames_delivered, d.bytes_delivered, d.held_back
+        );
+    }
+    let d = &stats.datagrams;
+    println!(
+        "datagrams: {} flows opened, {} datagrams refused over the flow limit, {} flows expired",
+        d.flows_opened, d.flows_refused, d.flows_expired
+    );
+    println!(
+        "{:<10} {:>12} {:>10} {:>11} {:>12} {:>14} {:>12} {:>10}",
+        "direction",
+        "dgrams in",
+        "lost",
+        "queue full",
+        "dgrams out",
+        "bytes out",
+        "send failed",
+        "held back"
+    );
+    for (name, d) in [("forward", &d.forward), ("backward", &d.backward)] {
+        println!(
+            "{name:<10} {:>12} {:>10} {:>11} {:>12} {:>14} {:>12} {:>10}",
+            d.received,
+            d.lost,
+            d.queue_full,
+            d.delivered,
+            d.bytes_delivered,
+            d.send_failed,
+            d.held_back
         );
     }
 }

@@ -18,15 +18,14 @@ use tokio::sync::{mpsc, watch};
 use tokio::time::Instant as TokioInstant;
 
 use super::stats::{DirCounters, Tally};
-use super::{ConnectionEnd, ConnectionSummary, Ctx, RelayEvent, connection_seed, stopped};
+use super::{
+    ConnectionEnd, ConnectionSummary, Ctx, RelayEvent, connection_seed, deadline, stopped,
+};
 
 /// Read buffer of each pump.
 const READ_BUFFER: usize = 16 * 1024;
 /// Most bytes gathered into one write when several frames are due at once.
 const WRITE_BATCH: usize = 64 * 1024;
-/// Release times that cannot be represented are pushed this far away
-/// (tokio clamps its own deadlines at about two years anyway).
-const FAR_FUTURE: std::time::Duration = std::time::Duration::from_secs(365 * 24 * 3600);
 
 /// A frame waiting for its release time.
 struct Held {
@@ -188,9 +187,7 @@ async fn read_side<R: AsyncRead + Unpin>(
         let held_before = path.held_back();
         let release = path.deliver(sent, sampler.delay(dir, sent));
         tally.received(path.held_back() > held_before);
-        let at = release
-            .to_std(ctx.origin)
-            .map_or_else(|| TokioInstant::now() + FAR_FUTURE, TokioInstant::from_std);
+        let at = deadline(ctx.origin, release);
 
         let len = bytes.len();
         let queued = queued_bytes.fetch_add(len, Ordering::Relaxed) + len;

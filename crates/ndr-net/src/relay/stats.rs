@@ -21,12 +21,78 @@ pub struct DirectionStats {
     pub held_back: u64,
 }
 
+/// Counters of one direction of the datagram path, summed over its flows.
+///
+/// Each datagram received is counted once more when it leaves: lost,
+/// dropped for a full queue, delivered or failed to send; the ones still
+/// waiting at a shutdown are dropped uncounted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
+pub struct DatagramDirectionStats {
+    /// Datagrams read from the sending side into a flow.
+    pub received: u64,
+    /// Dropped by the loss model ([`RelayConfig::loss`](super::RelayConfig::loss)).
+    pub lost: u64,
+    /// Dropped because the direction's queue held
+    /// [`max_queue_frames`](super::RelayConfig::max_queue_frames) datagrams
+    /// or would have gone over
+    /// [`max_queue_bytes`](super::RelayConfig::max_queue_bytes).
+    pub queue_full: u64,
+    /// Sent on after their delay.
+    pub delivered: u64,
+    /// Bytes of the delivered datagrams.
+    pub bytes_delivered: u64,
+    /// Whose send failed after their delay (the receiving side unreachable,
+    /// a datagram too large for its path).
+    pub send_failed: u64,
+    /// Datagrams that left later than their own delay said, held back behind
+    /// an earlier, slower one.
+    pub held_back: u64,
+}
+
+/// Counters of the datagram path: its flows, and each direction.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
+pub struct DatagramStats {
+    /// Flows opened: client addresses seen, each given an upstream socket.
+    pub flows_opened: u64,
+    /// Flows open now.
+    pub flows_active: u64,
+    /// Datagrams from a new client address dropped because
+    /// [`max_flows`](super::RelayConfig::max_flows) flows were open (or its
+    /// upstream socket could not be opened): each such datagram counts.
+    pub flows_refused: u64,
+    /// Flows removed, with their socket, after
+    /// [`flow_idle_timeout`](super::RelayConfig::flow_idle_timeout) without
+    /// a datagram either way (see the config).
+    pub flows_expired: u64,
+    /// Client → upstream.
+    pub forward: DatagramDirectionStats,
+    /// Upstream → client.
+    pub backward: DatagramDirectionStats,
+}
+
+impl DatagramStats {
+    /// The counters of one direction.
+    #[must_use]
+    pub const fn direction(&self, dir: Direction) -> &DatagramDirectionStats {
+        match dir {
+            Direction::Forward => &self.forward,
+            Direction::Backward => &self.backward,
+        }
+    }
+}
+
 /// A snapshot of a relay's counters (see [`RelayHandle::stats`](super::RelayHandle::stats)).
 ///
 /// Each connection that ended is counted once in `finished` or in exactly
-/// one of the reasons it was cut.
+/// one of the reasons it was cut. The TCP counters count frames; the
+/// datagram path has its own, in [`datagrams`](Self::datagrams).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct RelayStats {
     /// Client connections accepted.
     pub connections: u64,
@@ -52,6 +118,8 @@ pub struct RelayStats {
     pub forward: DirectionStats,
     /// Upstream → client.
     pub backward: DirectionStats,
+    /// The datagram (UDP) path.
+    pub datagrams: DatagramStats,
 }
 
 impl RelayStats {
@@ -97,6 +165,7 @@ pub(super) struct Counters {
     io_errors: AtomicU64,
     closed_by_shutdown: AtomicU64,
     pub(super) dirs: [DirCounters; 2],
+    pub(super) datagrams: DatagramCounters,
 }
 
 impl Counters {
@@ -113,6 +182,7 @@ impl Counters {
             closed_by_shutdown: get(&self.closed_by_shutdown),
             forward: self.dirs[0].snapshot(),
             backward: self.dirs[1].snapshot(),
+            datagrams: self.datagrams.snapshot(),
         }
     }
 
@@ -154,5 +224,56 @@ impl Tally<'_> {
     pub(super) fn delivered(&self, frames: u64, bytes: u64) {
         self.add(|c| &c.delivered, frames);
         self.add(|c| &c.bytes, bytes);
+    }
+}
+
+/// Live counters of the datagram path.
+#[derive(Debug, Default)]
+pub(super) struct DatagramCounters {
+    pub(super) flows_opened: AtomicU64,
+    pub(super) flows_active: AtomicU64,
+    pub(super) flows_refused: AtomicU64,
+    pub(super) flows_expired: AtomicU64,
+    pub(super) dirs: [DatagramDirCounters; 2],
+}
+
+impl DatagramCounters {
+    fn snapshot(&self) -> DatagramStats {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        DatagramStats {
+            flows_opened: get(&self.flows_opened),
+            flows_active: get(&self.flows_active),
+            flows_refused: get(&self.flows_refused),
+            flows_expired: get(&self.flows_expired),
+            forward: self.dirs[0].snapshot(),
+            backward: self.dirs[1].snapshot(),
+        }
+    }
+}
+
+/// Live counters of one direction of the datagram path.
+#[derive(Debug, Default)]
+pub(super) struct DatagramDirCounters {
+    pub(super) received: AtomicU64,
+    pub(super) lost: AtomicU64,
+    pub(super) queue_full: AtomicU64,
+    pub(super) delivered: AtomicU64,
+    pub(super) bytes_delivered: AtomicU64,
+    pub(super) send_failed: AtomicU64,
+    pub(super) held_back: AtomicU64,
+}
+
+impl DatagramDirCounters {
+    fn snapshot(&self) -> DatagramDirectionStats {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        DatagramDirectionStats {
+            received: get(&self.received),
+            lost: get(&self.lost),
+            queue_full: get(&self.queue_full),
+            delivered: get(&self.delivered),
+            bytes_delivered: get(&self.bytes_delivered),
+            send_failed: get(&self.send_failed),
+            held_back: get(&self.held_back),
+        }
     }
 }
