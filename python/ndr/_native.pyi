@@ -763,8 +763,9 @@ class Relay:
     ``dist`` with ``mean`` and ``std``; with none of them, the
     ``"lan-75km"`` profile), keeping order. It also listens on the same port
     over UDP and relays datagrams to ``upstream``'s port over UDP, delayed
-    the same way (``stats["datagrams"]``). ``seed`` (0 to 2**64 - 1) seeds
-    the delays. A context manager.
+    the same way and lost by ``loss`` (``"none"``, a percent such as ``"1"``,
+    or ``"ge:PERCENT:BURST"`` for bursts; ``stats["datagrams"]``). ``seed``
+    (0 to 2**64 - 1) seeds the delays and losses. A context manager.
 
     Raises ``OSError`` (with ``errno``, e.g. ``errno.EADDRINUSE``) when it
     cannot listen on ``listen``, and ``ValueError`` for an address that is
@@ -783,6 +784,7 @@ class Relay:
         std: Optional[float] = None,
         seed: int = 1,
         insecure: bool = False,
+        loss: str = "none",
     ) -> "Relay": ...
     @property
     def address(self) -> Tuple[str, int]: ...

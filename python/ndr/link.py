@@ -259,6 +259,9 @@ class ListenerStats(TypedDict):
     accept_errors: int
     """Times the kernel could not hand over a connection (out of file
     descriptors or memory)."""
+    datagrams_stray: int
+    """Datagram transport: datagrams to the listener's UDP port with no
+    token of a link it accepted (strays, spoofs, cut short), dropped."""
 
 
 class LinkStats(TypedDict):
@@ -346,6 +349,18 @@ class LinkStats(TypedDict):
     """How late each release was stamped."""
     spin_margin: float
     """How long before a deadline the hub spins, learned from its timer."""
+    datagram_peer: Optional[str]
+    """Datagram transport: where this side sends its datagrams (``"host:port"``,
+    the peer's newest address); ``None`` on TCP, and on a listener's side
+    until the peer's first datagram."""
+    datagrams_unsent: int
+    """Datagram transport: datagrams not sent (no address for the peer yet,
+    or the socket refused them)."""
+    datagram_path_changes: int
+    """Datagram transport: times the peer's address changed."""
+    datagrams_stray: int
+    """Datagram transport: datagrams to this link's UDP socket with no
+    token of a link on it (shared by the links on the socket), dropped."""
 
 
 def _settings(args: Dict[str, Any]) -> "_native._LinkSettings":

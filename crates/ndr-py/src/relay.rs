@@ -6,7 +6,8 @@
 
 use std::sync::{Mutex, PoisonError};
 
-use ndr_net::{Relay, RelayHandle, RelayStats};
+use ndr_net::{Relay, RelayConfig, RelayHandle, RelayStats};
+use ndr_netem::LossModel;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -20,7 +21,8 @@ use crate::log;
 /// `upstream`, delaying every frame by the chosen delay model: one of
 /// `profile`, `trace`, `dist` (with `mean` and `std`), or, with none of
 /// them, the "lan-75km" profile. Datagrams to the same port over UDP go to
-/// `upstream`'s port over UDP, delayed the same way.
+/// `upstream`'s port over UDP, delayed the same way and lost by `loss`
+/// ("none", a percent such as "1", or "ge:PERCENT:BURST" for bursts).
 #[pyclass(frozen, module = "ndr", name = "Relay")]
 pub struct PyRelay {
     handle: Mutex<Option<RelayHandle>>,
@@ -32,7 +34,7 @@ pub struct PyRelay {
 #[pymethods]
 impl PyRelay {
     #[new]
-    #[pyo3(signature = (listen, upstream, *, profile = None, trace = None, dist = None, mean = None, std = None, seed = 1, insecure = false))]
+    #[pyo3(signature = (listen, upstream, *, profile = None, trace = None, dist = None, mean = None, std = None, seed = 1, insecure = false, loss = "none"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -45,8 +47,12 @@ impl PyRelay {
         std: Option<f64>,
         seed: i128,
         insecure: bool,
+        loss: &str,
     ) -> PyResult<Self> {
         let seed = in_range("seed", seed, 0, u64::MAX)?;
+        let loss = loss
+            .parse::<LossModel>()
+            .map_err(|e| PyValueError::new_err(format!("loss: {e}")))?;
         let model = delay_model(profile, trace, dist, mean, std, "lan-75km")?;
         let name = model.name();
         let listen = blocking::address(py, listen)?;
@@ -66,7 +72,12 @@ impl PyRelay {
                 } else {
                     Relay::bind(listen, upstream, model, seed).await?
                 };
-                relay.spawn()
+                relay
+                    .with_config(RelayConfig {
+                        loss,
+                        ..RelayConfig::default()
+                    })
+                    .spawn()
             })
         });
         log::flush(py);

@@ -14,7 +14,8 @@ use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
-use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay};
+use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConfig};
+use ndr::netem::LossModel;
 use ndr::sim::signal::Signal;
 
 use crate::report::{End, Outcome, Row, Series, finish};
@@ -210,7 +211,13 @@ pub struct DemoArgs {
     pub run: RunArgs,
     #[command(flatten)]
     pub plant: PlantArgs,
-    /// Seed of the relay's delays.
+    /// Datagrams the relay loses each way: none, PERCENT (each
+    /// independently, e.g. 1) or ge:PERCENT:BURST (in bursts of BURST
+    /// datagrams on average, e.g. ge:2:4). Datagrams (--transport udp)
+    /// only: the relay never drops TCP bytes.
+    #[arg(long, default_value = "none")]
+    pub loss: LossModel,
+    /// Seed of the relay's delays and losses.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
 }
@@ -235,6 +242,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         let listener = Listener::bind(loopback, config.clone()).await?;
         let relay = Relay::bind(loopback, listener.local_addr()?, model, args.seed)
             .await?
+            .with_config(RelayConfig {
+                loss: args.loss,
+                ..RelayConfig::default()
+            })
             .spawn()?;
         let (remote, base) = tokio::join!(
             listener.accept(),

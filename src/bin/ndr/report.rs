@@ -286,6 +286,11 @@ struct DemoReport {
     spin_margin_remote_s: f64,
     relay_frames_fwd: Option<u64>,
     relay_frames_bwd: Option<u64>,
+    /// Datagrams the relay delivered each way, and lost by its loss model
+    /// (both ways).
+    relay_datagrams_fwd: Option<u64>,
+    relay_datagrams_bwd: Option<u64>,
+    relay_datagrams_lost: Option<u64>,
     csv: String,
     /// Rows in the CSV (one per state released to the base).
     csv_rows: u64,
@@ -385,6 +390,9 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
         relay_frames_bwd: relay.map(|r| r.backward.frames_delivered),
+        relay_datagrams_fwd: relay.map(|r| r.datagrams.forward.delivered),
+        relay_datagrams_bwd: relay.map(|r| r.datagrams.backward.delivered),
+        relay_datagrams_lost: relay.map(|r| r.datagrams.forward.lost + r.datagrams.backward.lost),
         csv: run.out.display().to_string(),
         csv_rows: o.series.rows,
     }
@@ -473,6 +481,14 @@ fn print_table(r: &DemoReport) {
     );
     if let (Some(f), Some(b)) = (r.relay_frames_fwd, r.relay_frames_bwd) {
         println!("  relay      {f} frames forward, {b} back");
+    }
+    if let (Some(f), Some(b), Some(lost)) = (
+        r.relay_datagrams_fwd,
+        r.relay_datagrams_bwd,
+        r.relay_datagrams_lost,
+    ) && f + b + lost > 0
+    {
+        println!("             {f} datagrams forward, {b} back, {lost} lost by its loss model");
     }
     println!("  series     {} ({} rows)", r.csv, r.csv_rows);
 }
