@@ -33,6 +33,10 @@
 //! process: its rows beside the plain link's give TLS's cost (sealing and
 //! opening one record each way, in the hubs).
 //!
+//! The link on the datagram transport (UDP) runs too, beside a raw UDP
+//! ping-pong of its datagram (a Bundle with its copies), a thread per end,
+//! the echo holding each datagram as the remote does (target: ≤ 1.2).
+//!
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
 
@@ -42,8 +46,8 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use common::frame;
-use ndr::core::endpoint::Config;
+use common::{bundle, frame};
+use ndr::core::endpoint::{Config, Transport};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::{Hub, Link, LinkConfig, LinkStats, Listener, TlsConfig};
@@ -140,6 +144,65 @@ fn raw_two_threads(seconds: f64, period_ms: u64, hold: StdDuration) -> Vec<f64> 
     rtts
 }
 
+/// [`raw_two_threads`] over UDP: a connected socket pair, the bundle a
+/// datagram link sends as the ping, the echo holding each for `hold`
+/// (written into the datagram's last 8 bytes, taken out of the round trip).
+fn raw_udp_two_threads(seconds: f64, period_ms: u64, hold: StdDuration) -> Vec<f64> {
+    let a = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let b = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    a.connect(b.local_addr().unwrap()).unwrap();
+    b.connect(a.local_addr().unwrap()).unwrap();
+    let current = || {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+    };
+    let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
+    b.set_nonblocking(true).unwrap();
+    let server = std::thread::spawn(move || {
+        current().block_on(async move {
+            let s = tokio::net::UdpSocket::from_std(b).unwrap();
+            let mut buf = vec![0; 2048];
+            loop {
+                let wait =
+                    end.saturating_duration_since(StdInstant::now()) + StdDuration::from_secs(1);
+                let Ok(Ok(n)) = tokio::time::timeout(wait, s.recv(&mut buf)).await else {
+                    return;
+                };
+                let t = StdInstant::now();
+                tokio::time::sleep(hold).await;
+                let held = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                buf[n - 8..n].copy_from_slice(&held.to_le_bytes());
+                let _ = s.send(&buf[..n]).await;
+            }
+        });
+    });
+    a.set_nonblocking(true).unwrap();
+    let rtts = current().block_on(async move {
+        let s = tokio::net::UdpSocket::from_std(a).unwrap();
+        let msg = bundle();
+        let mut buf = vec![0; 2048];
+        let mut rtts = Vec::new();
+        let mut i = 0u64;
+        while StdInstant::now() < end {
+            let t0 = StdInstant::now();
+            s.send(&msg).await.unwrap();
+            let n = s.recv(&mut buf).await.unwrap();
+            let held = u64::from_le_bytes(buf[n - 8..n].try_into().unwrap());
+            let rtt = t0.elapsed().saturating_sub(StdDuration::from_nanos(held));
+            if i >= 20 {
+                rtts.push(rtt.as_secs_f64());
+            }
+            i += 1;
+            tokio::time::sleep(StdDuration::from_millis(period_ms).saturating_sub(hold)).await;
+        }
+        rtts
+    });
+    server.join().unwrap();
+    rtts
+}
+
 /// What the links measured.
 struct LinkRun {
     nrtt: Vec<f64>,
@@ -171,11 +234,13 @@ fn link_nrtt(
     period_ms: u64,
     tls: Option<&(TlsConfig, TlsConfig)>,
     handlers: bool,
+    transport: Transport,
 ) -> LinkRun {
     // The paper's FIFO, as in the runs of docs/benchmarks.md.
     let mut c = Config::paper(Role::Base);
     c = c.with_width(1);
     c.period = Duration::from_millis(period_ms);
+    c.transport = transport;
     let config = LinkConfig::new(c);
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let hub = |margin| Hub::new(margin).unwrap();
@@ -303,9 +368,18 @@ fn main() {
         rx_lag,
         base,
         remote,
-    } = link_nrtt(&rt, seconds, period_ms, None, false);
-    let handled = link_nrtt(&rt, seconds, period_ms, None, true);
-    let tls_run = link_nrtt(&rt, seconds, period_ms, Some(&tls_pair()), false);
+    } = link_nrtt(&rt, seconds, period_ms, None, false, Transport::Stream);
+    let handled = link_nrtt(&rt, seconds, period_ms, None, true, Transport::Stream);
+    let tls_run = link_nrtt(
+        &rt,
+        seconds,
+        period_ms,
+        Some(&tls_pair()),
+        false,
+        Transport::Stream,
+    );
+    let mut raw_udp_held = raw_udp_two_threads(seconds, period_ms, hold);
+    let udp_run = link_nrtt(&rt, seconds, period_ms, None, false, Transport::DATAGRAM);
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
         "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
@@ -387,8 +461,24 @@ fn main() {
         tls_mean / full_mean,
         (tls_p50 - full_p50) * 1e6
     );
+    let udp_held = row("raw UDP, a thread per end, echo held", &mut raw_udp_held);
+    let mut udp_nrtt = udp_run.nrtt;
+    let nrtt = row("ndr link over UDP, NRTT", &mut udp_nrtt);
+    let udp_full = to_endpoint("ndr link over UDP, frame to endpoint", nrtt, udp_run.rx_lag);
+    ratio(
+        "UDP frame-to-endpoint / raw UDP, echo held",
+        udp_full,
+        udp_held,
+    );
+    println!(
+        "UDP / TCP link, frame to endpoint: p50 {:.2} · mean {:.2}",
+        udp_full.0 / full_p50,
+        udp_full.1 / full_mean
+    );
     for (side, stats) in [
         ("base", base),
+        ("udp base", udp_run.base),
+        ("udp remote", udp_run.remote),
         ("remote", remote),
         ("handler base", handled.base),
         ("handler remote", handled.remote),

@@ -14,13 +14,18 @@
 //! Data frame each way every period), one thread and current-thread runtime
 //! a side, as our two hubs are, a writer and a reader task a socket. It is
 //! what the frames cost in the kernel and in an ordinary event loop: the
-//! share of the CPU left to the links' own work is the difference.
+//! share of the CPU left to the links' own work is the difference. With
+//! NDR_TRANSPORT=udp[:K[:R]] the links run on the datagram transport and the
+//! baseline is raw tokio UDP: a connected socket pair a link, each socket
+//! sending the same datagrams as a link (a 1-axis Bundle with its copies,
+//! and its R repeats 1 ms apart) every period.
 //!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
 //! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
 //! NDR_HUBS, hubs in each side's pool, default 1; NDR_PLAYOUT, the playout
-//! policy by its command-line name, default `fifo`; NDR_PERIOD_MS, the
+//! policy by its command-line name, default `fifo`; NDR_TRANSPORT, tcp
+//! (the default) or udp[:K[:R]]; NDR_PERIOD_MS, the
 //! period, default 10; NDR_SPIN=fixed, hubs that spin the whole default
 //! margin instead of learning a shorter one; NDR_APP=handlers, the control
 //! loops on the hubs (`Link::on_release`) instead of an application thread
@@ -34,8 +39,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use common::frame;
-use ndr::core::endpoint::Config;
+use common::{bundle, frame};
+use ndr::core::endpoint::{Config, REPEAT_SPACING, Transport};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
@@ -182,6 +187,95 @@ fn raw_side(
     });
 }
 
+/// One side of the UDP baseline: every socket sends `sends` datagrams
+/// (`msg`, 1 ms apart) every `period` and reads the peer's, until `end`.
+fn raw_udp_side(
+    sockets: Vec<std::net::UdpSocket>,
+    sends: usize,
+    period: StdDuration,
+    end: StdInstant,
+    received: Arc<AtomicU64>,
+) {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async move {
+        let msg = bundle();
+        for s in sockets {
+            s.set_nonblocking(true).unwrap();
+            let s = Arc::new(tokio::net::UdpSocket::from_std(s).unwrap());
+            let (rd, received) = (Arc::clone(&s), Arc::clone(&received));
+            tokio::spawn(async move {
+                let mut buf = vec![0; 2048];
+                while rd.recv(&mut buf).await.is_ok() {
+                    received.fetch_add(1, Ordering::Relaxed);
+                }
+            });
+            let msg = msg.clone();
+            tokio::spawn(async move {
+                let mut every = tokio::time::interval(period);
+                every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+                loop {
+                    every.tick().await;
+                    for i in 0..sends {
+                        if i > 0 {
+                            tokio::time::sleep(StdDuration::from_millis(1)).await;
+                        }
+                        let _ = s.send(&msg).await;
+                    }
+                }
+            });
+        }
+        tokio::time::sleep_until(end.into()).await;
+    });
+}
+
+/// The UDP baseline: `n` connected socket pairs, `sends` datagrams each
+/// way a period; as [`raw_cpu`].
+fn raw_udp_cpu(
+    n: usize,
+    sends: usize,
+    period: StdDuration,
+    seconds: f64,
+    cpus: usize,
+) -> (Share, f64) {
+    let (mut a, mut b) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for _ in 0..n {
+        let x = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let y = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        x.connect(y.local_addr().unwrap()).unwrap();
+        y.connect(x.local_addr().unwrap()).unwrap();
+        a.push(x);
+        b.push(y);
+    }
+    let end = StdInstant::now() + StdDuration::from_secs_f64(seconds + 2.0);
+    let received = Arc::new(AtomicU64::new(0));
+    let sides = [a, b].map(|socks| {
+        let received = Arc::clone(&received);
+        std::thread::spawn(move || raw_udp_side(socks, sends, period, end, received))
+    });
+    std::thread::sleep(StdDuration::from_secs(1));
+    let (cpu0, frames0, t0) = (
+        Cpu::now(),
+        received.load(Ordering::Relaxed),
+        StdInstant::now(),
+    );
+    std::thread::sleep(StdDuration::from_secs_f64(seconds));
+    let (cpu1, frames1, elapsed) = (
+        Cpu::now(),
+        received.load(Ordering::Relaxed),
+        t0.elapsed().as_secs_f64(),
+    );
+    for side in sides {
+        side.join().unwrap();
+    }
+    (
+        cpu0.shares(cpu1, elapsed, cpus),
+        (frames1 - frames0) as f64 / elapsed,
+    )
+}
+
 /// The baseline's CPU shares of the machine over a `seconds` window (after
 /// a second's start), `n` connections, and the frames it moved a second
 /// (when the machine cannot keep up, its intervals skip ticks).
@@ -251,6 +345,19 @@ fn main() {
     config.endpoint.playout = playout
         .parse()
         .unwrap_or_else(|_| panic!("NDR_PLAYOUT={playout}: not a playout policy"));
+    let transport = std::env::var("NDR_TRANSPORT").unwrap_or_else(|_| "tcp".into());
+    config.endpoint.transport = transport
+        .parse()
+        .unwrap_or_else(|_| panic!("NDR_TRANSPORT={transport}: not a transport"));
+    // Datagrams a link sends a period: the sample's, and the repeats that
+    // fit before the next.
+    let sends = match config.endpoint.transport {
+        Transport::Datagram { repeats, .. } => {
+            let room = (period_ms / REPEAT_SPACING.as_secs_f64() / 1e3) as u64;
+            1 + usize::from(repeats).min(room.saturating_sub(1) as usize)
+        }
+        _ => 0,
+    };
     let rss0 = rss_kib();
     let (bases, remotes) = rt.block_on(async {
         let remote_hubs = HubPool::new(hubs, spin).unwrap();
@@ -310,11 +417,13 @@ fn main() {
             let mut released = 0u64;
             while !stop.load(Ordering::Relaxed) {
                 if count.load(Ordering::Acquire) {
+                    // A repeat that finds its sample taken is dropped as
+                    // stale: moved all the same.
                     let frames: u64 = bases
                         .iter()
                         .chain(&remotes)
                         .filter_map(Link::stats)
-                        .map(|s| s.endpoint.frames_received)
+                        .map(|s| s.endpoint.frames_received + s.endpoint.datagrams_stale)
                         .sum();
                     counted.store(frames, Ordering::Relaxed);
                     count.store(false, Ordering::Release);
@@ -381,8 +490,9 @@ fn main() {
     let share = cpu0.shares(cpu1, elapsed, cpus);
     let machine = share.machine;
     println!(
-        "{n} links at T = {} on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}, spin margin {}, control loops {}",
+        "{n} links at T = {} on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, transport {}, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}, spin margin {}, control loops {}",
         c.period,
+        config.endpoint.transport,
         config.queue_capacity,
         config.app_queue,
         config.endpoint.playout,
@@ -448,11 +558,27 @@ fn main() {
     drop((bases, remotes));
     // Let the hubs close their sockets and end before the baseline.
     std::thread::sleep(StdDuration::from_secs(1));
-    let (raw, raw_frames) = raw_cpu(n, c.period.into(), seconds, cpus);
+    let (raw, raw_frames, what) = if sends > 0 {
+        let (raw, frames) = raw_udp_cpu(n, sends, c.period.into(), seconds, cpus);
+        (
+            raw,
+            frames,
+            format!(
+                "UDP      {n} socket pairs, the same {sends} datagram(s) each way every period"
+            ),
+        )
+    } else {
+        let (raw, frames) = raw_cpu(n, c.period.into(), seconds, cpus);
+        (
+            raw,
+            frames,
+            format!("TCP      {n} connections, the same frame each way every period"),
+        )
+    };
     // CPU time per frame moved (sent by one end and read by the other), µs.
     let per_frame = |share: f64, fps: f64| share / 100.0 * cpus as f64 * 1e6 / fps;
     println!(
-        "  baseline: raw tokio TCP      {:.1} % of the machine ({:.0} % of it in the kernel; {n} connections, the same frame each way every period, a thread a side); links / raw {:.2}",
+        "  baseline: raw tokio {what}, a thread a side: {:.1} % of the machine ({:.0} % of it in the kernel); links / raw {:.2}",
         raw.machine,
         raw.kernel,
         machine / raw.machine,
@@ -461,7 +587,7 @@ fn main() {
         "  frames moved                 links {frames:.0}/s, {:.2} µs of CPU each · raw {raw_frames:.0}/s, {:.2} µs each (of {} due a second); links / raw per frame {:.2}",
         per_frame(machine, frames),
         per_frame(raw.machine, raw_frames),
-        (2.0 * n as f64 * 1e3 / period_ms).round(),
+        (2.0 * n as f64 * 1e3 / period_ms * sends.max(1) as f64).round(),
         per_frame(machine, frames) / per_frame(raw.machine, raw_frames)
     );
 }

@@ -17,3 +17,30 @@ pub fn frame() -> Vec<u8> {
     buf.truncate(n);
     buf
 }
+
+/// One 1-axis Bundle with the copies of the two samples before it: the
+/// bytes a datagram link sends at each tick (and again at each repeat).
+#[allow(dead_code)]
+pub fn bundle() -> Vec<u8> {
+    let header = Header {
+        seq: 3,
+        sent_at: Instant::from_millis(3),
+        echo: None,
+        released: None,
+    };
+    let older = [2_u64, 1].map(|seq| wire::OlderSample {
+        seq,
+        sent_at: Instant::from_millis(seq),
+        released: None,
+        values: &[0.5],
+    });
+    let msg = Message::Bundle {
+        session: 0x5eed,
+        newest: &[0.5],
+        older: &older,
+    };
+    let mut buf = vec![0; wire::MAX_DATAGRAM_LEN];
+    let n = wire::encode(&header, &msg, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
