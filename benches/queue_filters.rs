@@ -34,6 +34,26 @@ fn queue(c: &mut Criterion) {
     });
 }
 
+fn queue_64(c: &mut Criterion) {
+    // The same with samples of 64 channels.
+    let mut r: Regulator<[f64; 64], 32> = Regulator::new(4).unwrap();
+    for k in 0..4 {
+        r.push([k as f64; 64]).unwrap();
+    }
+    let _ = r.tick();
+    let mut x = 0.0;
+    c.bench_function("queue push+pop ([f64; 64], N = 32)", |b| {
+        b.iter(|| {
+            x += 1.0;
+            let _ = r.push(black_box([x; 64]));
+            match r.tick() {
+                Tick::Released(s) => black_box(s),
+                _ => unreachable!("the queue holds its stock"),
+            }
+        })
+    });
+}
+
 fn kalman(c: &mut Criterion) {
     let mut k = Kalman3::new(1.0, T, 50).unwrap();
     let mut z = 0.6;
@@ -95,5 +115,5 @@ fn adaptive(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, queue, kalman, predictor, adaptive);
+criterion_group!(benches, queue, queue_64, kalman, predictor, adaptive);
 criterion_main!(benches);
