@@ -15,22 +15,30 @@
 //! released). Throughout, the relay's delay trace adds a 150 ms spike every
 //! 0.7 fault periods. After a cut the base connects again; each connection
 //! is checked on its own.
+//!
+//! Over datagrams (`--transport udp`), the relay also loses datagrams by
+//! `--loss`: a sample the network lost for good must be counted
+//! (`samples_lost`) by the side that missed it, and a repeat or a reordering
+//! is never accepted. The garbage fault then also sends stray and spoofed
+//! datagrams to the remote's UDP port, which its listener must count as
+//! strays while the link goes on.
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener as StdListener, TcpStream as StdStream};
-use std::process::{Child, Command, Stdio};
+use std::net::{SocketAddr, TcpListener as StdListener, TcpStream as StdStream, UdpSocket};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::{Config, Status, Underflow};
+use ndr::core::endpoint::{Config, Phase, Status, Transport, Underflow};
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::Role;
 use ndr::core::wire::{self, Header, Hello, Message, close_reason};
 use ndr::net::{
-    Deframer, Hub, Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayHandle,
+    Deframer, Hub, Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConfig,
+    RelayHandle, RelayStats,
 };
-use ndr::sim::delay::{DelayModel, Trace, TraceRow};
+use ndr::sim::delay::{DelayModel, LossModel, Trace, TraceRow};
 use serde::Serialize;
 
 use crate::demo::runtime;
@@ -48,6 +56,17 @@ pub struct SoakArgs {
     /// idle connections, a hung base, a stale frame, in turn).
     #[arg(long, default_value_t = 10.0)]
     pub fault_every_s: f64,
+    /// How samples cross: tcp (the default) or udp[:K[:R]] (datagrams,
+    /// each with the newest sample and copies of the K − 1 before it, sent
+    /// R more times; see `ndr demo --help`). The remote runs the same.
+    #[arg(long, default_value = "tcp")]
+    pub transport: Transport,
+    /// Datagrams the relay loses, each way: none, PERCENT (each
+    /// independently, e.g. 2) or ge:PERCENT:BURST (in bursts of BURST on
+    /// average, e.g. ge:2:4). Needs --transport udp: the relay never drops
+    /// TCP bytes.
+    #[arg(long, default_value = "none")]
+    pub loss: LossModel,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -66,6 +85,15 @@ const BASE_DELAY_US: u64 = 500;
 const LIVENESS: Duration = Duration::from_secs(2);
 /// Idle connections held open on the remote during that fault.
 const IDLE_CONNECTIONS: usize = 200;
+/// Values in a command: the command itself, the rest zeros.
+const COMMAND_WIDTH: u16 = 4;
+/// Values in a state: the echoed command, then the remote's report on its
+/// connection (its gaps, the drops its counters explain, and its datagram
+/// counters `samples_lost`, `samples_recovered`, `datagrams_stale`).
+const STATE_WIDTH: u16 = 6;
+/// The token a hung or stale-frame base gives in its Hello over datagrams
+/// (any but 0: it sends no datagram).
+const FAKE_SESSION: u64 = 0x50a4_50a4_50a4_50a4;
 
 /// What `ndr soak --json` prints.
 #[derive(Serialize, Default)]
@@ -101,6 +129,47 @@ struct SoakReport {
     /// Gaps, repeats or reorderings the remote saw in the commands that its
     /// counters do not account for.
     remote_anomalies: u64,
+    /// `tcp`, or `udp[:K[:R]]`.
+    transport: String,
+    /// The relay's datagram loss model.
+    loss: String,
+    /// Datagram transport, the base's side (the states), summed over the
+    /// connections: datagrams taken, samples taken from a later datagram's
+    /// copies, samples lost for good (each a gap the check accepts),
+    /// datagrams dropped as older than one taken, repeats sent, datagrams
+    /// of another session or refused, datagrams not sent, path changes,
+    /// strays on the base's socket.
+    datagrams_received: u64,
+    samples_recovered: u64,
+    samples_lost: u64,
+    datagrams_stale: u64,
+    datagrams_repeated: u64,
+    datagrams_foreign: u64,
+    datagrams_refused: u64,
+    datagrams_unsent: u64,
+    datagram_path_changes: u64,
+    datagrams_stray: u64,
+    /// Frames the base's hub gave up (its transmit queue full while it
+    /// stalled): the remote counts them in `frames_missing` over TCP, in
+    /// `samples_lost` over datagrams.
+    tx_dropped: u64,
+    /// The same of the commands at the remote, from its last report in
+    /// each connection.
+    remote_samples_lost: u64,
+    remote_samples_recovered: u64,
+    remote_datagrams_stale: u64,
+    /// The relay's datagrams, both ways: read, dropped by the loss model,
+    /// dropped on a full queue.
+    relay_datagrams: u64,
+    relay_datagrams_lost: u64,
+    relay_datagrams_queue_full: u64,
+    /// Garbage, stray and spoofed datagrams sent to the remote's UDP port.
+    garbage_datagrams: u64,
+    /// Of those, the ones its listener counted as strays (the check waits
+    /// for all of them).
+    garbage_datagrams_counted: u64,
+    /// Garbage datagram faults after which the base's link had ended.
+    garbage_datagrams_harmed: u64,
     faults_relay_restarts: u64,
     faults_garbage: u64,
     faults_remote_killed: u64,
@@ -133,7 +202,14 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
     if period.is_zero() {
         return Err("--period-ms must be positive".into());
     }
-    let config = link_config(period)?;
+    if args.transport == Transport::Stream && !args.loss.is_none() {
+        return Err(format!(
+            "--loss {} drops datagrams, and --transport tcp sends none (the relay never drops \
+             TCP bytes): add --transport udp, or leave --loss out",
+            args.loss
+        ));
+    }
+    let config = link_config(period, args.transport)?;
     if let Some(addr) = args.serve {
         return serve(addr, config);
     }
@@ -163,17 +239,22 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
     }
 }
 
-fn link_config(period: Duration) -> Result<LinkConfig, String> {
+fn link_config(period: Duration, transport: Transport) -> Result<LinkConfig, String> {
     // The paper's FIFO: what docs/reliability.md's soak runs measured.
     let mut endpoint = Config::paper(Role::Base);
-    endpoint = endpoint.with_width(4);
+    endpoint = endpoint.with_widths(COMMAND_WIDTH, STATE_WIDTH);
+    endpoint.transport = transport;
     endpoint.period = period;
     // A delay spike then costs late samples (dropped and counted) instead of
     // a delay that grows by the spike's length each time.
     endpoint.underflow = Underflow::DropLate;
     endpoint.watchdog = Some(Duration::from_millis(500));
     endpoint.liveness = Some(LIVENESS);
-    endpoint.validate().map_err(|e| e.to_string())?;
+    // The link draws its datagram session token when it starts: any but 0
+    // passes the check here.
+    let mut checked = endpoint;
+    checked.session = checked.session.max(1);
+    checked.validate().map_err(|e| e.to_string())?;
     Ok(LinkConfig::new(endpoint))
 }
 
@@ -181,7 +262,7 @@ fn link_config(period: Duration) -> Result<LinkConfig, String> {
 
 /// Echoes each command back with the gaps, repeats and reorderings seen in
 /// this connection's command sequence, and the samples its counters say
-/// were dropped (late, rejected, discarded).
+/// were dropped (late, rejected, discarded, lost on the network).
 fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
     let rt = runtime()?;
     let deadline = StdInstant::now() + StdDuration::from_secs(5);
@@ -198,6 +279,11 @@ fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
     };
     println!("ready");
     let _ = std::io::stdout().flush();
+    let listener = Arc::new(listener);
+    {
+        let listener = Arc::clone(&listener);
+        std::thread::spawn(move || answer(&listener));
+    }
     loop {
         match rt.block_on(listener.accept()) {
             Ok(link) => {
@@ -207,6 +293,21 @@ fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
             Err(e) => return Err(e.to_string()),
         }
     }
+}
+
+/// Answers the soak's questions on stdin (`stray`: the datagrams its
+/// listener counted as strays), and ends this process once the soak is gone
+/// (stdin closed), so that a soak killed outright leaves no remote behind.
+fn answer(listener: &Listener) {
+    for line in std::io::stdin().lock().lines() {
+        let Ok(line) = line else { break };
+        if line.trim() == "stray" {
+            let mut out = std::io::stdout().lock();
+            let _ = writeln!(out, "stray {}", listener.stats().datagrams_stray);
+            let _ = out.flush();
+        }
+    }
+    std::process::exit(0);
 }
 
 fn echo(mut link: Link) {
@@ -221,9 +322,18 @@ fn echo(mut link: Link) {
                 }
                 // Counted before this sample could be released: the snapshot
                 // explains every gap before it.
-                let explained = link.stats().as_ref().map_or(0, dropped);
+                let stats = link.stats();
+                let explained = stats.as_ref().map_or(0, dropped);
+                let e = stats.map(|s| s.endpoint).unwrap_or_default();
                 let command = s.values().first().copied().unwrap_or(0.0);
-                let _ = link.send(&[command, anomalies as f64, explained as f64, 0.0]);
+                let _ = link.send(&[
+                    command,
+                    anomalies as f64,
+                    explained as f64,
+                    e.samples_lost as f64,
+                    e.samples_recovered as f64,
+                    e.datagrams_stale as f64,
+                ]);
             }
             Err(NetError::Timeout) => {}
             Err(_) => return,
@@ -234,10 +344,15 @@ fn echo(mut link: Link) {
 struct Remote {
     child: Child,
     addr: SocketAddr,
+    period_ms: f64,
+    transport: Transport,
+    /// Where it is asked, and answers (see [`answer`]).
+    ask: ChildStdin,
+    answers: BufReader<ChildStdout>,
 }
 
 impl Remote {
-    fn start(addr: SocketAddr, period_ms: f64) -> Result<Remote, String> {
+    fn start(addr: SocketAddr, period_ms: f64, transport: Transport) -> Result<Remote, String> {
         // This very binary: on Linux through /proc, which still reaches it
         // when a build has replaced (unlinked) the file it started from.
         let proc_exe = std::path::Path::new("/proc/self/exe");
@@ -249,20 +364,43 @@ impl Remote {
         let mut child = Command::new(exe)
             .args(["soak", "--serve", &addr.to_string()])
             .args(["--period-ms", &period_ms.to_string()])
+            .args(["--transport", &transport.to_string()])
+            .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
             .map_err(|e| format!("cannot start the remote: {e}"))?;
         let mut line = String::new();
-        let stdout = child.stdout.take().ok_or("no pipe to the remote")?;
-        BufReader::new(stdout)
+        let (Some(ask), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            let _ = child.kill();
+            return Err("no pipe to the remote".into());
+        };
+        let mut answers = BufReader::new(stdout);
+        answers
             .read_line(&mut line)
             .map_err(|e| format!("the remote did not start: {e}"))?;
         if line.trim() != "ready" {
             let _ = child.kill();
             return Err(format!("the remote did not start (it said {line:?})"));
         }
-        Ok(Remote { child, addr })
+        Ok(Remote {
+            child,
+            addr,
+            period_ms,
+            transport,
+            ask,
+            answers,
+        })
+    }
+
+    /// The datagrams its listener counted as strays so far; `None` if it
+    /// does not answer (it died).
+    fn datagrams_stray(&mut self) -> Option<u64> {
+        writeln!(self.ask, "stray").ok()?;
+        self.ask.flush().ok()?;
+        let mut line = String::new();
+        self.answers.read_line(&mut line).ok()?;
+        line.trim().strip_prefix("stray ")?.parse().ok()
     }
 
     fn rss_kib(&self) -> u64 {
@@ -271,11 +409,11 @@ impl Remote {
 
     /// Kills it (SIGKILL) and starts another on the same address; `true`
     /// if the old one had died by itself (a crash) before.
-    fn restart(&mut self, period_ms: f64) -> Result<bool, String> {
+    fn restart(&mut self) -> Result<bool, String> {
         let crashed = matches!(self.child.try_wait(), Ok(Some(_)));
         let _ = self.child.kill();
         let _ = self.child.wait();
-        *self = Remote::start(self.addr, period_ms)?;
+        *self = Remote::start(self.addr, self.period_ms, self.transport)?;
         Ok(crashed)
     }
 }
@@ -300,21 +438,29 @@ struct Conn {
     /// never reached it.
     remote_gaps: f64,
     remote_dropped: f64,
+    /// Its datagram counters: samples lost, recovered, stale datagrams.
+    remote_datagrams: [f64; 3],
 }
 
 /// Samples a link's counters say never reached the application: dropped
 /// late, refused by a full regulator, discarded by a pause, dropped because
 /// the application's queue was full (that counter also counts events, so it
-/// bounds the samples from above), or never sent by the peer, whose
+/// bounds the samples from above), never sent by the peer, whose
 /// transmit queue overflowed while its driver stalled (`frames_missing`:
 /// counted here when the next frame came, so before any later sample was
-/// released; the peer's own count would reach us only with a later sample).
+/// released; the peer's own count would reach us only with a later sample),
+/// or, over datagrams, lost by the network for good (`samples_lost`: in
+/// none of the datagrams taken, counted when a newer one was taken, so
+/// also before any later sample was released). Nothing else explains a
+/// gap: a repeated or reordered datagram is dropped whole, so a repeat or
+/// a reordering in the released sequence is an error on any transport.
 fn dropped(s: &LinkStats) -> u64 {
     s.endpoint.late
         + s.endpoint.rejected
         + s.endpoint.discarded
         + s.app_dropped
         + s.endpoint.frames_missing
+        + s.endpoint.samples_lost
 }
 
 fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
@@ -331,10 +477,16 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     let hub = Hub::new(config.spin_margin).map_err(|e| e.to_string())?;
     let remote_addr = free_port()?;
     let relay_addr = free_port()?;
-    let mut remote = Remote::start(remote_addr, args.period_ms)?;
+    let mut remote = Remote::start(remote_addr, args.period_ms, args.transport)?;
     let spike_every = args.fault_every_s * SPIKE_EVERY_FAULTS;
     let trace = Arc::new(spike_trace(args.duration_s, spike_every)?);
-    let start_relay = |rt: &tokio::runtime::Runtime| -> Result<RelayHandle, String> {
+    let relay_config = RelayConfig {
+        loss: args.loss,
+        ..RelayConfig::default()
+    };
+    // Each relay started draws other losses (`seed`): the same delays, but
+    // not the same datagrams lost after each restart.
+    let start_relay = |rt: &tokio::runtime::Runtime, seed: u64| -> Result<RelayHandle, String> {
         let deadline = StdInstant::now() + StdDuration::from_secs(5);
         loop {
             let bound = rt.block_on(async {
@@ -342,9 +494,10 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                     relay_addr,
                     remote_addr,
                     DelayModel::Trace(Arc::clone(&trace)),
-                    1,
+                    seed,
                 )
                 .await?
+                .with_config(relay_config.clone())
                 .spawn()
             });
             match bound {
@@ -356,12 +509,23 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
             }
         }
     };
-    let mut relay = Some(start_relay(&rt)?);
+    let mut relay = Some(start_relay(&rt, 1)?);
     let mut relay_started = StdInstant::now();
+    let datagrams = args.transport != Transport::Stream;
+    // What the hung and stale-frame bases say in their Hello: a token on
+    // datagrams (0 would be a stream, which the remote refuses).
+    let session = if datagrams { FAKE_SESSION } else { 0 };
     let mut r = SoakReport {
         command: "soak",
         duration_s: args.duration_s,
         period_s: config.endpoint.period.as_secs_f64(),
+        // As `--transport` was given: tcp, udp, udp:K, udp:K:R.
+        transport: args
+            .transport
+            .to_string()
+            .replacen("stream", "tcp", 1)
+            .replacen("datagram", "udp", 1),
+        loss: args.loss.to_string(),
         rss_start_kib: rss_kib("/proc/self/statm"),
         ..SoakReport::default()
     };
@@ -404,20 +568,29 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                 0 => {
                     if let Some(h) = relay.take() {
                         r.faults_spikes += spikes_within(relay_started.elapsed(), spike_every);
-                        let _ = rt.block_on(h.shutdown());
+                        add_relay(&mut r, &rt.block_on(h.shutdown()));
                     }
-                    relay = Some(start_relay(&rt)?);
-                    relay_started = StdInstant::now();
                     r.faults_relay_restarts += 1;
+                    relay = Some(start_relay(&rt, 1 + r.faults_relay_restarts)?);
+                    relay_started = StdInstant::now();
                 }
                 1 => {
                     r.faults_garbage += 1;
                     if inject_garbage(remote_addr, fault / 3) {
                         r.garbage_cut_off += 1;
                     }
+                    if datagrams {
+                        let was_up = link_up(link.as_ref());
+                        let (sent, counted) = garbage_datagrams(&mut remote, fault / 3);
+                        r.garbage_datagrams += sent;
+                        r.garbage_datagrams_counted += counted;
+                        if was_up && !link_up(link.as_ref()) {
+                            r.garbage_datagrams_harmed += 1;
+                        }
+                    }
                 }
                 2 => {
-                    if remote.restart(args.period_ms)? {
+                    if remote.restart()? {
                         r.remote_crashes += 1;
                     }
                     r.faults_remote_killed += 1;
@@ -431,12 +604,12 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                     idle.clear();
                     r.faults_hung_bases += 1;
                     hung = Some(std::thread::spawn(move || {
-                        hung_base(remote_addr, period, LIVENESS)
+                        hung_base(remote_addr, period, session, LIVENESS)
                     }));
                 }
                 _ => {
                     r.faults_stale_frames += 1;
-                    if stale_frame(remote_addr, period) {
+                    if stale_frame(remote_addr, period, session) {
                         r.stale_frames_refused += 1;
                     }
                 }
@@ -488,7 +661,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     }
     if let Some(h) = relay.take() {
         r.faults_spikes += spikes_within(relay_started.elapsed(), spike_every);
-        let _ = rt.block_on(h.shutdown());
+        add_relay(&mut r, &rt.block_on(h.shutdown()));
     }
     if matches!(remote.child.try_wait(), Ok(Some(_))) {
         r.remote_crashes += 1;
@@ -502,6 +675,8 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     r.ok = r.lost + r.duplicated + r.reordered + r.corrupted + r.remote_anomalies == 0
         && r.hung_bases_dropped == r.faults_hung_bases
         && r.stale_frames_refused == r.faults_stale_frames
+        && r.garbage_datagrams_counted == r.garbage_datagrams
+        && r.garbage_datagrams_harmed == 0
         && r.panics == 0
         && r.remote_crashes == 0
         && r.samples_released > 0
@@ -521,13 +696,20 @@ fn check(r: &mut SoakReport, conn: &mut Conn, status: Status, seq: u64, values: 
         None => {}
     }
     conn.prev_seq = Some(seq);
-    if let [echo, gaps, dropped, ..] = *values {
+    if let [echo, gaps, dropped, lost, recovered, stale, ..] = *values {
         if echo < conn.prev_echo {
             r.corrupted += 1;
         }
         conn.prev_echo = echo;
         conn.remote_gaps = conn.remote_gaps.max(gaps);
         conn.remote_dropped = conn.remote_dropped.max(dropped);
+        for (mine, theirs) in conn
+            .remote_datagrams
+            .iter_mut()
+            .zip([lost, recovered, stale])
+        {
+            *mine = mine.max(theirs);
+        }
     }
 }
 
@@ -535,6 +717,10 @@ fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
     // The remote's last report may predate its last drops: only gaps beyond
     // what its counters said are anomalies.
     r.remote_anomalies += (conn.remote_gaps - conn.remote_dropped).max(0.0) as u64;
+    let [lost, recovered, stale] = conn.remote_datagrams.map(|v| v as u64);
+    r.remote_samples_lost += lost;
+    r.remote_samples_recovered += recovered;
+    r.remote_datagrams_stale += stale;
     let counted = stats.as_ref().map_or(0, dropped);
     r.dropped_with_counter += conn.gaps.min(counted);
     r.lost += conn.gaps.saturating_sub(counted);
@@ -547,7 +733,34 @@ fn finish_conn(r: &mut SoakReport, conn: &Conn, stats: Option<LinkStats>) {
         r.held += e.released_held;
         r.underflows += e.underflows;
         r.late += e.late;
+        r.tx_dropped += e.tx_dropped;
+        r.datagrams_received += e.datagrams_received;
+        r.samples_recovered += e.samples_recovered;
+        r.samples_lost += e.samples_lost;
+        r.datagrams_stale += e.datagrams_stale;
+        r.datagrams_repeated += e.datagrams_repeated;
+        r.datagrams_foreign += e.datagrams_foreign;
+        r.datagrams_refused += e.datagrams_refused;
+        r.datagrams_unsent += s.datagrams_unsent;
+        r.datagram_path_changes += s.datagram_path_changes;
+        // Each connection has a socket of its own on the hub (it closes
+        // with its last link), so its strays add up.
+        r.datagrams_stray += s.datagrams_stray;
     }
+}
+
+/// A relay's datagram counters, added when it stops.
+fn add_relay(r: &mut SoakReport, s: &RelayStats) {
+    for d in [&s.datagrams.forward, &s.datagrams.backward] {
+        r.relay_datagrams += d.received;
+        r.relay_datagrams_lost += d.lost;
+        r.relay_datagrams_queue_full += d.queue_full;
+    }
+}
+
+fn link_up(link: Option<&(Link, Conn)>) -> bool {
+    link.and_then(|(l, _)| l.stats())
+        .is_some_and(|s| s.phase != Phase::Closed)
 }
 
 fn summarize(reasons: &[String]) -> Vec<String> {
@@ -610,6 +823,72 @@ fn inject_garbage(addr: SocketAddr, kind: u64) -> bool {
     false
 }
 
+/// Sends garbage datagrams to the remote's UDP port (its TCP listener's)
+/// from a stranger's socket: random bytes, an empty datagram, a Hello, a
+/// Bundle cut short, one longer than any Bundle, and Bundles of commands
+/// with guessed session tokens (spoofs). Then waits, a second at most, for
+/// its listener to count them all as strays: (sent, counted).
+fn garbage_datagrams(remote: &mut Remote, kind: u64) -> (u64, u64) {
+    let Some(before) = remote.datagrams_stray() else {
+        return (0, 0);
+    };
+    let mut x = 0x2545_F491_4F6C_DD1Du64 ^ kind;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let spoof = |session: u64, seq: u64| {
+        let header = Header::new(seq, Instant::ZERO + Duration::from_millis(seq));
+        let command = [1.0; COMMAND_WIDTH as usize];
+        let msg = Message::Bundle {
+            session,
+            newest: &command,
+            older: &[],
+        };
+        let mut buf = [0u8; wire::MAX_FRAME_LEN];
+        let n = wire::encode(&header, &msg, &mut buf).unwrap_or(0);
+        buf[..n].to_vec()
+    };
+    let mut all: Vec<Vec<u8>> = vec![
+        (0..256).map(|_| next() as u8).collect(),
+        Vec::new(),
+        base_hello(Duration::from_millis(1), FAKE_SESSION),
+        spoof(0, 1),
+        spoof(1, 2),
+        spoof(u64::MAX, 3),
+        spoof(next(), 4),
+        spoof(next(), 5),
+    ];
+    let bundle = spoof(next(), 6);
+    all.push(bundle[..bundle.len().min(wire::HEADER_LEN + 4)].to_vec());
+    let mut long = bundle;
+    long.resize(5000, 0xA5);
+    all.push(long);
+    let Ok(socket) = UdpSocket::bind("127.0.0.1:0") else {
+        return (0, 0);
+    };
+    let sent = all
+        .iter()
+        .filter(|d| socket.send_to(d, remote.addr).is_ok())
+        .count() as u64;
+    let deadline = StdInstant::now() + StdDuration::from_secs(1);
+    let mut counted = 0;
+    while StdInstant::now() < deadline {
+        // Other strays may come too (a late datagram of a link that just
+        // ended): the rise counts up to what was sent.
+        counted = remote
+            .datagrams_stray()
+            .map_or(0, |n| n.saturating_sub(before).min(sent));
+        if counted == sent {
+            break;
+        }
+        std::thread::sleep(StdDuration::from_millis(5));
+    }
+    (sent, counted)
+}
+
 /// Opens [`IDLE_CONNECTIONS`] connections to the remote that send nothing,
 /// from 25 addresses other than the base's (127.0.0.2 to .26: strangers
 /// that fill the remote's pending handshakes); those that connected.
@@ -633,19 +912,19 @@ fn idle_crowd(rt: &tokio::runtime::Runtime, addr: SocketAddr) -> Vec<tokio::net:
     })
 }
 
-/// A base's Hello for the soak's link (4 axes at `period`, the paper's
-/// static mode), framed.
-fn base_hello(period: Duration) -> Vec<u8> {
+/// A base's Hello for the soak's link (its widths at `period`, the paper's
+/// static mode, on datagrams if `session` is not 0), framed.
+fn base_hello(period: Duration, session: u64) -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
         role: Role::Base,
         mode: wire::mode::PAPER_STATIC,
         underflow: wire::underflow::DROP_LATE,
-        command_width: 4,
-        state_width: 4,
+        command_width: COMMAND_WIDTH,
+        state_width: STATE_WIDTH,
         period,
         layout: 0,
-        session: 0,
+        session,
     };
     let mut buf = [0u8; wire::MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap_or(0);
@@ -654,9 +933,9 @@ fn base_hello(period: Duration) -> Vec<u8> {
 
 /// Connects to the remote and completes the handshake as a base: the
 /// stream, once the remote's Hello has come.
-fn handshake(addr: SocketAddr, period: Duration) -> Option<(StdStream, Deframer)> {
+fn handshake(addr: SocketAddr, period: Duration, session: u64) -> Option<(StdStream, Deframer)> {
     let mut s = StdStream::connect_timeout(&addr, StdDuration::from_secs(1)).ok()?;
-    s.write_all(&base_hello(period)).ok()?;
+    s.write_all(&base_hello(period, session)).ok()?;
     let mut deframer = Deframer::new();
     let _ = s.set_read_timeout(Some(StdDuration::from_secs(2)));
     let mut buf = [0u8; 512];
@@ -715,8 +994,8 @@ fn await_close(
 /// A base that completes its handshake and then sends nothing (a hung
 /// operator): `true` if the remote ended the connection within its
 /// liveness time and 3 s.
-fn hung_base(addr: SocketAddr, period: Duration, liveness: Duration) -> bool {
-    let Some((mut s, mut deframer)) = handshake(addr, period) else {
+fn hung_base(addr: SocketAddr, period: Duration, session: u64, liveness: Duration) -> bool {
+    let Some((mut s, mut deframer)) = handshake(addr, period, session) else {
         return false;
     };
     let deadline = StdInstant::now() + StdDuration::from(liveness) + StdDuration::from_secs(3);
@@ -726,8 +1005,8 @@ fn hung_base(addr: SocketAddr, period: Duration, liveness: Duration) -> bool {
 /// A base that completes its handshake, sends a probe, then the same
 /// probe again: `true` if the remote refused it with Close "frame out of
 /// sequence" within a second.
-fn stale_frame(addr: SocketAddr, period: Duration) -> bool {
-    let Some((mut s, mut deframer)) = handshake(addr, period) else {
+fn stale_frame(addr: SocketAddr, period: Duration, session: u64) -> bool {
+    let Some((mut s, mut deframer)) = handshake(addr, period, session) else {
         return false;
     };
     let header = Header::new(0, Instant::ZERO + period);
@@ -803,7 +1082,8 @@ fn print_table(r: &SoakReport) {
     );
     println!(
         "  integrity    {} lost · {} duplicated · {} reordered · {} corrupted · {} seen by the remote \
-         (and {} dropped with a counter: {} late, {} rejected, {} not read in time)",
+         (and {} dropped with a counter: {} late, {} rejected, {} not read in time, {} never \
+         received over datagrams)",
         r.lost,
         r.duplicated,
         r.reordered,
@@ -812,8 +1092,45 @@ fn print_table(r: &SoakReport) {
         r.dropped_with_counter,
         r.late,
         r.rejected,
-        r.app_dropped
+        r.app_dropped,
+        r.samples_lost
     );
+    if r.transport != "tcp" {
+        println!(
+            "  datagrams    {}, loss {} · relay read {}, lost {}, {} on a full queue",
+            r.transport,
+            r.loss,
+            r.relay_datagrams,
+            r.relay_datagrams_lost,
+            r.relay_datagrams_queue_full
+        );
+        println!(
+            "               states at the base: {} taken · {} recovered · {} lost · {} stale · \
+             {} foreign · {} refused · {} strays; {} repeats sent · {} unsent · {} given up · \
+             {} path changes",
+            r.datagrams_received,
+            r.samples_recovered,
+            r.samples_lost,
+            r.datagrams_stale,
+            r.datagrams_foreign,
+            r.datagrams_refused,
+            r.datagrams_stray,
+            r.datagrams_repeated,
+            r.datagrams_unsent,
+            r.tx_dropped,
+            r.datagram_path_changes
+        );
+        println!(
+            "               commands at the remote: {} recovered · {} lost · {} stale · \
+             garbage {} sent to it, {} counted as strays, {} links harmed",
+            r.remote_samples_recovered,
+            r.remote_samples_lost,
+            r.remote_datagrams_stale,
+            r.garbage_datagrams,
+            r.garbage_datagrams_counted,
+            r.garbage_datagrams_harmed
+        );
+    }
     println!(
         "  faults       {} relay restarts · {} garbage ({} cut off) · {} remote kills · {} delay spikes",
         r.faults_relay_restarts,
