@@ -54,6 +54,11 @@ fn the_pair_corpus_passes() {
 }
 
 #[test]
+fn the_datagram_corpus_passes() {
+    replay("datagram", harness::datagram);
+}
+
+#[test]
 fn the_pair_script_runs_a_link_that_releases_both_ways() {
     // 1 axis, T = 10 ms, static, hold, FIFO, no watchdog; a stream (1) or
     // datagrams of 3 samples (6, then a session token); grids aligned;
@@ -82,4 +87,45 @@ fn the_pair_script_runs_a_link_that_releases_both_ways() {
             assert_eq!(base.datagrams_received + remote.datagrams_received, 0);
         }
     }
+}
+
+#[test]
+fn the_datagram_script_takes_recovers_and_refuses_as_counted() {
+    // 1 axis, T = 10 ms, static, hold, FIFO, no watchdog; 3 samples per
+    // datagram, no repeats; two tokens; grids aligned; run to running.
+    let mut script = vec![0, 9, 0, 0, 7 * 3, 2];
+    script.extend(0x1111_2222_3333_4444_u64.to_le_bytes());
+    script.extend(0x5555_6666_7777_8888_u64.to_le_bytes());
+    script.extend([0, 1]);
+    for k in 0..40 {
+        match k % 4 {
+            // The base's next 2 datagrams lost: the third's copies recover them.
+            0 => script.extend([0, 4, 2]),
+            // Its newest bundle again, once taken: stale.
+            1 => script.extend([0, 5, 0]),
+            // Forged with the token 0: foreign.
+            2 => script.extend([0, 6, 0, 0, 7, 4]),
+            // Ten bytes that are no frame, to the remote.
+            _ => script.extend([1, 7, 10, 1].into_iter().chain([b'x'; 10])),
+        }
+        script.extend([0, 2, 255]);
+    }
+    let [base, remote] = harness::datagram_stats(&script).expect("a valid configuration");
+    assert!(remote.released_fresh > 2000, "{remote:?}");
+    assert_eq!(
+        (remote.samples_recovered, remote.samples_lost),
+        (20, 0),
+        "{remote:?}"
+    );
+    assert_eq!(
+        (
+            remote.datagrams_stale,
+            remote.datagrams_foreign,
+            remote.datagrams_refused
+        ),
+        (10, 10, 10),
+        "{remote:?}"
+    );
+    assert!(base.released_fresh > 2000, "{base:?}");
+    assert_eq!(base.datagrams_stale + base.datagrams_foreign, 0, "{base:?}");
 }

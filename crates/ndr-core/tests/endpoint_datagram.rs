@@ -2,7 +2,7 @@
 //! reorders and repeats, the handshake and control on a reliable path.
 
 use ndr_core::endpoint::{
-    Config, ConfigError, DatagramError, Endpoint, Event, LinkError, Status, Transport,
+    Config, ConfigError, DatagramError, Endpoint, Event, LinkError, Status, Transport, Underflow,
 };
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
@@ -448,4 +448,168 @@ fn only_the_repeats_that_fit_before_the_next_sample_go() {
             "{repeated}: {r:?}"
         );
     }
+}
+
+#[test]
+fn a_link_closed_between_a_sample_and_its_repeats_leaves_no_deadline() {
+    // A repeat still armed on a closed endpoint was a deadline in the past
+    // that `handle_timeout` never cleared: a driver looping on
+    // `poll_timeout` spun on it for ever.
+    let ep = |role| {
+        Endpoint::<Heap>::new(
+            config(role, Transport::DATAGRAM, Playout::ADAPTIVE),
+            Instant::ZERO,
+        )
+        .unwrap()
+    };
+    let world = Lossy {
+        lose: |_| false,
+        delay: |_| Duration::from_millis(4),
+        datagrams: [0; 2],
+        reliable_last: [Instant::ZERO; 2],
+        k: 0.0,
+        fresh: [Vec::new(), Vec::new()],
+        errors: Vec::new(),
+    };
+    let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
+    let end = Instant::from_millis(3_000);
+    p.run_until(Instant::from_millis(2_000)).unwrap();
+    let sent = p.base.stats().samples_sent;
+    assert!(sent > 100, "{:?}", p.base.stats());
+    // Up to the base's next sample: its two repeats are due in 1 and 2 ms.
+    while p.base.stats().samples_sent == sent {
+        assert!(p.step(end).unwrap());
+    }
+    let at = p.now();
+    assert_eq!(
+        p.base.poll_timeout(),
+        Some(at + Duration::from_millis(1)),
+        "a repeat is due"
+    );
+    p.base.close();
+    p.drain(Role::Base).unwrap();
+    assert_eq!(p.base.poll_timeout(), None, "closed, nothing is due");
+    // The remote, closed by the base's Close, has nothing due either.
+    p.run_until(end).unwrap();
+    assert!(p.remote.is_closed());
+    assert_eq!(p.remote.poll_timeout(), None);
+    assert_eq!(
+        p.base.stats().datagrams_repeated,
+        p.remote.stats().datagrams_stale
+    );
+}
+
+#[test]
+fn a_datagram_numbered_the_wires_none_is_refused_and_the_link_runs_on() {
+    // Taken, sample 2⁶⁴ − 1 was released: the remote's next frames had to
+    // name it in `released`, where it is the wire's "none", and none could
+    // be written any more (and the next `seq` due overflowed).
+    let mut p = run(COPIES_ONLY, |_| false, |_| T / 2, 5);
+    let mut bundle = None;
+    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let now = p.now();
+    let ep = &mut p.base;
+    ep.handle_timeout(now + T);
+    while let Some(n) = ep.poll_transmit(now + T, &mut buf).unwrap() {
+        if buf[5] == Kind::Bundle as u8 {
+            bundle = Some(buf[..n].to_vec());
+        }
+    }
+    let mut forged = bundle.expect("the base sent a bundle");
+    forged[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
+    let at = now + T + Duration::from_millis(3);
+    assert_eq!(
+        p.remote.handle_datagram(at, &forged),
+        Err(DatagramError::Sequence { seq: u64::MAX })
+    );
+    let s = p.remote.stats();
+    assert_eq!((s.datagrams_refused, s.datagrams_stale), (1, 0), "{s:?}");
+    let released = s.released_fresh;
+    p.run_until(now + Duration::from_secs(2)).unwrap();
+    assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
+    assert!(p.remote.stats().released_fresh > released + 150);
+    assert!(p.base.stats().released_fresh > 150);
+}
+
+#[test]
+fn a_forged_datagram_near_the_end_of_the_count_is_taken_without_overflow() {
+    // A datagram with this side's token is believed: one numbered
+    // 2⁶⁴ − 2 is taken and released, and the FIFO's slot due after it
+    // then ran past 2⁶⁴ − 1 at the next underflow.
+    let ep = |role| {
+        let mut c = config(role, COPIES_ONLY, Playout::Fifo);
+        c.underflow = Underflow::Hold;
+        Endpoint::<Heap>::new(c, Instant::ZERO).unwrap()
+    };
+    let world = Lossy {
+        lose: |_| false,
+        delay: |_| T / 2,
+        datagrams: [0; 2],
+        reliable_last: [Instant::ZERO; 2],
+        k: 0.0,
+        fresh: [Vec::new(), Vec::new()],
+        errors: Vec::new(),
+    };
+    let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
+    p.run_until(Instant::from_millis(5_000)).unwrap();
+    let mut bundle = None;
+    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let now = p.now();
+    let ep = &mut p.base;
+    ep.handle_timeout(now + T);
+    while let Some(n) = ep.poll_transmit(now + T, &mut buf).unwrap() {
+        if buf[5] == Kind::Bundle as u8 {
+            bundle = Some(buf[..n].to_vec());
+        }
+    }
+    let mut forged = bundle.expect("the base sent a bundle");
+    forged[8..16].copy_from_slice(&(u64::MAX - 1).to_le_bytes());
+    let at = now + T + Duration::from_millis(3);
+    assert_eq!(p.remote.handle_datagram(at, &forged), Ok(()));
+    let s = p.remote.stats();
+    p.run_until(now + Duration::from_secs(1)).unwrap();
+    let after = p.remote.stats();
+    assert_eq!(p.world.fresh[1].last().map(|r| r.0), Some(u64::MAX - 1));
+    // The base's own datagrams are stale after it, and the ticks underflow.
+    assert!(after.datagrams_stale > s.datagrams_stale + 50, "{after:?}");
+    assert!(after.underflows > s.underflows + 50, "{after:?}");
+    assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
+}
+
+#[test]
+fn a_sample_that_goes_out_after_the_close_arms_no_repeat() {
+    // The application closes the link on a release, in the turn of the
+    // tick that queued a sample: the sample still goes out before the
+    // Close, and its repeats, armed on a closed endpoint, stayed due.
+    let ep = |role| {
+        Endpoint::<Heap>::new(
+            config(role, Transport::DATAGRAM, Playout::ADAPTIVE),
+            Instant::ZERO,
+        )
+        .unwrap()
+    };
+    let world = Lossy {
+        lose: |_| false,
+        delay: |_| Duration::from_millis(4),
+        datagrams: [0; 2],
+        reliable_last: [Instant::ZERO; 2],
+        k: 0.0,
+        fresh: [Vec::new(), Vec::new()],
+        errors: Vec::new(),
+    };
+    let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
+    let tick = Instant::from_millis(2_000);
+    p.run_until(tick - Duration::from_nanos(1)).unwrap();
+    let sent = p.base.stats().samples_sent;
+    assert!(sent > 100, "{:?}", p.base.stats());
+    p.base.handle_timeout(tick);
+    p.base.close();
+    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let mut kinds = Vec::new();
+    while let Some(n) = p.base.poll_transmit(tick, &mut buf).unwrap() {
+        kinds.push(buf[..n][5]);
+    }
+    assert_eq!(kinds, [Kind::Bundle as u8, Kind::Close as u8]);
+    assert_eq!(p.base.stats().samples_sent, sent + 1);
+    assert_eq!(p.base.poll_timeout(), None, "closed, nothing is due");
 }

@@ -182,6 +182,12 @@ pub enum DatagramError {
         /// What it carried.
         got: usize,
     },
+    /// A `seq` past any sender's count: 2⁶⁴ − 1, the wire's "none", which
+    /// `released` could not name (`datagrams_refused`).
+    Sequence {
+        /// Its newest sample's `seq`.
+        seq: u64,
+    },
     /// A stamp the receive checks refuse (from the future:
     /// `datagrams_refused`).
     Stamp(LinkError),
@@ -219,6 +225,11 @@ impl fmt::Display for DatagramError {
             DatagramError::Width { expected, got } => write!(
                 f,
                 "a datagram of {got} values per sample where the peer's carry {expected}, \
+                 dropped"
+            ),
+            DatagramError::Sequence { seq } => write!(
+                f,
+                "a datagram with sample {seq}, past any sender's count (the wire's 'none'), \
                  dropped"
             ),
             DatagramError::Stamp(e) => write!(f, "a datagram the receive checks refuse: {e}"),
@@ -267,6 +278,11 @@ impl<S: Storage> Endpoint<S> {
         if let Some(newest) = highest.filter(|&h| seq <= h) {
             self.stats.datagrams_stale += 1;
             return Err(DatagramError::Stale { seq, newest });
+        }
+        // Taken, it would be released, and this side's `released` could
+        // not name it.
+        if seq == u64::MAX {
+            return refused(self, DatagramError::Sequence { seq });
         }
         let width = self.config.received_width();
         if bundle.width() != 0 && bundle.width() != usize::from(width) {
@@ -349,11 +365,21 @@ impl<S: Storage> Endpoint<S> {
     /// (a repeat that would go with it is no use).
     pub(super) fn arm_repeats(&mut self, now: Instant) {
         let period = self.period();
-        if let Some(d) = &mut self.dgram {
+        // A sample queued before the close still goes, without repeats: no
+        // deadline is left on a closed endpoint.
+        if let Some(d) = self.dgram.as_mut().filter(|_| self.phase != Phase::Closed) {
             let room = period.as_nanos() / REPEAT_SPACING.as_nanos().max(1);
             let fit = u8::try_from(room.saturating_sub(1)).unwrap_or(u8::MAX);
             let n = d.repeats.min(fit);
             d.repeat = (n > 0).then(|| (now + REPEAT_SPACING, n));
+        }
+    }
+
+    /// The link closed: the repeats still due never go, and must not stay
+    /// a deadline.
+    pub(super) fn drop_repeats(&mut self) {
+        if let Some(d) = &mut self.dgram {
+            d.repeat = None;
         }
     }
 

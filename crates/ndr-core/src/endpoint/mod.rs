@@ -617,6 +617,7 @@ impl<S: Storage> Endpoint<S> {
             s.stop();
         }
         self.deadline = None;
+        self.drop_repeats();
         self.emit(Event::Closed { error });
     }
 

@@ -245,7 +245,9 @@ impl<S: Storage> Endpoint<S> {
                 self.stats.released_fresh += 1;
                 self.rel.last_fresh = t;
                 self.rel.released_seq = Some(slot.head.seq);
-                self.rel.due_seq = Some(slot.head.seq + 1);
+                // A forged `seq` may be near the end of the count: the slot
+                // due stays at its end.
+                self.rel.due_seq = Some(slot.head.seq.saturating_add(1));
                 let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
                 let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
                 match &mut self.rel.last {
@@ -261,7 +263,7 @@ impl<S: Storage> Endpoint<S> {
                 }
                 if self.target.is_none() {
                     // FIFO slots are one per tick: this tick's slot is gone.
-                    self.rel.due_seq = self.rel.due_seq.map(|d| d + 1);
+                    self.rel.due_seq = self.rel.due_seq.map(|d| d.saturating_add(1));
                 }
                 if let Some(mut held) = self.rel.last.clone() {
                     held.status = Status::Held;

@@ -92,6 +92,14 @@ impl RxCheck {
     /// oldest frames: `seq` numbers its ticks). Remembered when it passes;
     /// returns how many frames were missing before it.
     pub(super) fn accept_data(&mut self, seq: u64, sent_at: Instant) -> Result<u64, LinkError> {
+        // No sender counts that far, and `released` could not name it
+        // (2⁶⁴ − 1 is the wire's "none").
+        if seq == u64::MAX {
+            return Err(LinkError::OutOfSequence {
+                expected: self.next_seq.unwrap_or(0),
+                got: seq,
+            });
+        }
         let mut missing = 0;
         if let (Some(expected), Some(last)) = (self.next_seq, self.last_stamp) {
             // Ticks are half the shortest period apart at least.
@@ -119,7 +127,7 @@ impl RxCheck {
                 }
             }
         }
-        self.next_seq = Some(seq.wrapping_add(1));
+        self.next_seq = Some(seq + 1);
         self.last_stamp = Some(sent_at);
         Ok(missing)
     }
@@ -204,6 +212,18 @@ mod tests {
             })
         );
         assert_eq!(c.accept_data(14, at_ms(145)), Ok(3));
+    }
+
+    #[test]
+    fn no_frame_is_numbered_the_wires_none() {
+        let max = u64::MAX;
+        let mut c = RxCheck::new(T);
+        let out = |expected| Err(LinkError::OutOfSequence { expected, got: max });
+        // Not even the first, which sets the sequence.
+        assert_eq!(c.accept_data(max, at_ms(100)), out(0));
+        assert_eq!(c.accept_data(max - 1, at_ms(100)), Ok(0));
+        // Nor the next after 2⁶⁴ − 2.
+        assert_eq!(c.accept_data(max, at_ms(110)), out(max));
     }
 
     #[test]

@@ -161,8 +161,8 @@ pub struct Stats {
     /// or a spoof), dropped.
     pub datagrams_foreign: u64,
     /// Datagram transport: datagrams refused for anything else (not a
-    /// valid Bundle, another width, before the handshake, a stamp from
-    /// the future), dropped; the link carries on.
+    /// valid Bundle, another width, before the handshake, a `seq` of
+    /// 2⁶⁴ − 1, a stamp from the future), dropped; the link carries on.
     pub datagrams_refused: u64,
     /// Network round-trip times, in seconds.
     pub nrtt: Running,
