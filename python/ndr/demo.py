@@ -510,7 +510,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--transport", default="tcp", help="how samples cross: tcp (the "
                         "paper's stream) or udp[:K] (datagrams of the newest sample and "
-                        "K - 1 copies, 3 by default)")
+                        "K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 by default)")
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 256)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")
     parser.add_argument("--signal", default="sine", help="the operator's command: "

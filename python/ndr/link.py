@@ -349,6 +349,9 @@ class LinkStats(TypedDict):
     """How late each release was stamped."""
     spin_margin: float
     """How long before a deadline the hub spins, learned from its timer."""
+    endpoint_events_dropped: int
+    """Events the endpoint itself dropped, releases among them, when its
+    hub was held for more ticks than it queues events for."""
     datagram_peer: Optional[str]
     """Datagram transport: where this side sends its datagrams (``"host:port"``,
     the peer's newest address); ``None`` on TCP, and on a listener's side
@@ -499,8 +502,8 @@ class Link:
                 where a lost packet holds back every sample behind it until
                 it is resent) or ``"udp"`` / ``"udp:K"`` / ``"udp:K:R"``
                 (datagrams, each carrying the newest sample and copies of
-                the K − 1 before it, 3 by default, sent R more times 1 ms
-                apart, 2 by default, so that a lost one is made good within
+                the K − 1 before it, 4 by default, sent R more times 1 ms
+                apart, 3 by default, so that a lost one is made good within
                 a millisecond or two; the handshake stays on TCP and the
                 datagrams use the same port over UDP). UDP is plain:
                 loopback, or ``insecure=True``, and not with ``tls``. Both

@@ -279,10 +279,12 @@ def run(
             until it is repaired (RACK: about a period and a round trip;
             a retransmission lost again waits Linux's 200 ms timeout,
             doubled at each repeat).
-        transport: ``"stream"`` (TCP, the paper's) or ``"datagram[:K]"``:
+        transport: ``"stream"`` (TCP, the paper's) or ``"datagram[:K[:R]]"``:
             each datagram carries the newest sample and copies of the
-            ``K - 1`` before it (default 3), so a lost one is recovered from
-            the next; the handshake stays on TCP.
+            ``K - 1`` before it (default 4) and is sent ``R`` more times 1 ms
+            apart (default 3, as many as fit before the next sample), so a
+            lost one is made good by a repeat or the next one's copies; the
+            handshake stays on TCP.
 
     Returns:
         A :class:`SimResult`; its ``summary`` holds ``None`` where nothing

@@ -411,8 +411,8 @@ impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for FirstLost
 #[test]
 fn only_the_repeats_that_fit_before_the_next_sample_go() {
     // 1 ms apart: none at T = 1 ms (the next sample is as soon), one at
-    // 2.5 ms, the two asked for at 10 ms.
-    for (period_us, per_sample) in [(1_000, 0), (2_500, 1), (10_000, 2)] {
+    // 2.5 ms, the three asked for at 10 ms.
+    for (period_us, per_sample) in [(1_000, 0), (2_500, 1), (10_000, 3)] {
         let ep = |role| {
             let mut c = config(role, Transport::DATAGRAM, Playout::ADAPTIVE);
             c.period = Duration::from_micros(period_us);

@@ -1047,6 +1047,7 @@ fn publish(e: &Entry, hub: HubFigures) {
         app_dropped: e.app_dropped,
         // Filled in by `LinkSender::stats`: the link counts them.
         events_dropped: 0,
+        endpoint_events_dropped: ep.events_dropped(),
         rx_lag: e.rx_lag,
         datagram_peer: e.datagram.as_ref().and_then(|p| p.peer),
         datagrams_unsent: e.datagram.as_ref().map_or(0, |p| p.unsent),

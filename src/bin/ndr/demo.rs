@@ -61,7 +61,7 @@ pub struct LinkArgs {
     /// How samples cross: tcp (the default, the paper's stream: a lost
     /// packet holds back every sample behind it until it is resent) or
     /// udp[:K[:R]] (datagrams, each with the newest sample and copies of
-    /// the K − 1 before it, 3 by default, sent R more times 1 ms apart, 2
+    /// the K − 1 before it, 4 by default, sent R more times 1 ms apart, 3
     /// by default, so that a lost one is made good within a millisecond or
     /// two; the handshake stays on TCP, and the datagrams go to the same
     /// port over UDP). UDP is plain: loopback, or --insecure, and not with

@@ -259,6 +259,12 @@ struct DemoReport {
     samples_recovered: u64,
     datagrams_stale: u64,
     datagrams_unsent: u64,
+    /// Both sides: samples never sent because a hub was held past its
+    /// endpoint's transmit queue (the host's doing, not the network's; the
+    /// peer counts them as lost), and samples sent again because the
+    /// application gave none in time.
+    tx_dropped: u64,
+    samples_repeated: u64,
     /// The remote's estimates: one-way delay base → remote, clock offset
     /// (remote − base), skew (ppm); the base's: one-way delay back.
     one_way_fwd_mean_s: f64,
@@ -372,6 +378,8 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         datagrams_stale: eb.datagrams_stale + er.datagrams_stale,
         datagrams_unsent: b.map_or(0, |s| s.datagrams_unsent)
             + remote.map_or(0, |s| s.datagrams_unsent),
+        tx_dropped: eb.tx_dropped + er.tx_dropped,
+        samples_repeated: eb.samples_repeated + er.samples_repeated,
         one_way_fwd_mean_s: er.one_way_rx.mean(),
         one_way_bwd_mean_s: eb.one_way_rx.mean(),
         remote_clock_offset_s: er.clock_offset_s,

@@ -110,8 +110,8 @@ pub struct SimArgs {
     pub loss: LossModel,
     /// How samples cross: stream (TCP, the paper's: a loss holds the stream
     /// back until repaired) or datagram[:K[:R]] (each datagram carries the
-    /// newest sample and copies of the K − 1 before it, default 3, and is
-    /// sent R more times 1 ms apart, default 2, as many as fit before the
+    /// newest sample and copies of the K − 1 before it, default 4, and is
+    /// sent R more times 1 ms apart, default 3, as many as fit before the
     /// next sample; the handshake stays on TCP).
     #[arg(long, default_value = "stream")]
     pub transport: Transport,

@@ -451,7 +451,9 @@ struct Conn {
 /// released; the peer's own count would reach us only with a later sample),
 /// or, over datagrams, lost by the network for good (`samples_lost`: in
 /// none of the datagrams taken, counted when a newer one was taken, so
-/// also before any later sample was released). Nothing else explains a
+/// also before any later sample was released), or dropped by the endpoint
+/// itself when its driver ran more missed ticks at once than it queues
+/// events for (`endpoint_events_dropped`). Nothing else explains a
 /// gap: a repeated or reordered datagram is dropped whole, so a repeat or
 /// a reordering in the released sequence is an error on any transport.
 fn dropped(s: &LinkStats) -> u64 {
@@ -461,6 +463,7 @@ fn dropped(s: &LinkStats) -> u64 {
         + s.app_dropped
         + s.endpoint.frames_missing
         + s.endpoint.samples_lost
+        + s.endpoint_events_dropped
 }
 
 fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
