@@ -7,6 +7,7 @@ use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Config, Transport};
+use ndr::core::regulation::Regulation;
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::{self, Header, Message, Role};
 use ndr::net::{Link, LinkConfig, Listener, NetError, TlsConfig};
@@ -64,9 +65,14 @@ fn datagrams_on_loopback_deliver_every_sample_once_in_order_with_a_constant_grtt
 }
 
 /// A link of `commands` values base → remote and `states` back, at 1 kHz,
-/// over `transport`.
+/// over `transport`, holding a constant 5 ms each way: at 1 kHz the paper's
+/// FIFO, sized to the loopback's jitter (2 samples), steps by a period at
+/// every stall of the host longer than that; a constant target is what a
+/// user asks for at this rate.
 fn wide(transport: Transport, commands: u16, states: u16) -> LinkConfig {
-    let mut c = Config::paper(Role::Base).with_widths(commands, states);
+    let mut c = Config::new(Role::Base).with_widths(commands, states);
+    let constant: Regulation = "constant:5".parse().unwrap();
+    (c.mode, c.playout) = (constant.mode(), constant.playout());
     c.period = Duration::from_millis(1);
     c.transport = transport;
     LinkConfig::new(c)

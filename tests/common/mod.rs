@@ -241,13 +241,22 @@ fn assert_constant_grtt(r: &Run, stalls: u64) {
         r.base,
         r.remote
     );
-    // 2·ns·T to (2·ns + 2)·T by the grids' phase, a period more when the
+    // The FIFO: 2·ns·T to (2·ns + 2)·T by the grids' phase; a target-delay
+    // playout: the delays it holds each way, up to two periods more (each
+    // side's release waits for its own tick). A period more when the
     // remote answers from its own thread.
     let period = r.base.period.as_secs_f64();
-    let from = (2 * r.base.ns) as f64 * period + f64::from(u8::from(r.answers_next_tick)) * period;
+    let held =
+        r.base.endpoint.playout_delay_s + r.remote.map_or(0.0, |s| s.endpoint.playout_delay_s);
+    let regulated = if held > 0.0 {
+        held
+    } else {
+        (2 * r.base.ns) as f64 * period
+    };
+    let from = regulated + f64::from(u8::from(r.answers_next_tick)) * period;
     assert!(
         (from - 1e-3..=from + 2.0 * period + 1e-3).contains(&mean),
-        "GRTT mean {mean}, ns {}",
+        "GRTT mean {mean}, expected from {from} (ns {}, delays held {held} s)",
         r.base.ns
     );
 }
