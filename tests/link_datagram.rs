@@ -6,7 +6,7 @@ mod common;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration as StdDuration;
 
-use ndr::core::endpoint::{Config, Transport};
+use ndr::core::endpoint::{Config, Status, Transport};
 use ndr::core::regulation::Regulation;
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::{self, Header, Message, Role};
@@ -95,13 +95,40 @@ fn wide_run(transport: Transport, commands: u16, states: u16) {
                 Link::connect(addr, wide(transport, commands, states))
             )
         });
-        let (base, remote) = (b.unwrap(), r.unwrap());
+        let (mut base, mut remote) = (b.unwrap(), r.unwrap());
         assert_eq!(base.widths(), (usize::from(commands), usize::from(states)));
         assert_eq!(
             remote.widths(),
             (usize::from(states), usize::from(commands))
         );
-        common::echo_run(base, remote)
+        // The remote answers on its hub's thread, in the tick that released
+        // the command: at 1 kHz an application thread woken a few ms late
+        // by a busy host would add its lateness to the round trip.
+        let seen = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let (tx, log) = (remote.sender(), std::sync::Arc::clone(&seen));
+        let width = usize::from(states);
+        remote
+            .on_release(move |s| {
+                if s.status == Status::Fresh {
+                    log.lock().unwrap().push(s.seq);
+                }
+                tx.send(&common::answer(s.values(), width)).unwrap();
+            })
+            .unwrap();
+        let (base_seqs, grtts, echoed) = common::drive_base(&mut base);
+        let base = base.close().unwrap();
+        // With a handler, `recv` only waits for the end of the link.
+        let _ = remote.recv_timeout(StdDuration::from_secs(3));
+        let remote_seqs = seen.lock().unwrap().clone();
+        common::Run {
+            base_seqs,
+            remote_seqs,
+            grtts,
+            echoed,
+            answers_next_tick: false,
+            base,
+            remote: remote.stats(),
+        }
     });
     assert_eq!(run.base.period, Duration::from_millis(1));
 }
