@@ -187,6 +187,36 @@ fn raw_side(
     });
 }
 
+/// A baseline's CPU shares of the machine over a `seconds` window after a
+/// second's start, and the frames `received` counted a second in it; then
+/// waits for its two `sides` to end.
+fn window(
+    sides: [std::thread::JoinHandle<()>; 2],
+    received: &AtomicU64,
+    seconds: f64,
+    cpus: usize,
+) -> (Share, f64) {
+    std::thread::sleep(StdDuration::from_secs(1));
+    let (cpu0, frames0, t0) = (
+        Cpu::now(),
+        received.load(Ordering::Relaxed),
+        StdInstant::now(),
+    );
+    std::thread::sleep(StdDuration::from_secs_f64(seconds));
+    let (cpu1, frames1, elapsed) = (
+        Cpu::now(),
+        received.load(Ordering::Relaxed),
+        t0.elapsed().as_secs_f64(),
+    );
+    for side in sides {
+        side.join().unwrap();
+    }
+    (
+        cpu0.shares(cpu1, elapsed, cpus),
+        (frames1 - frames0) as f64 / elapsed,
+    )
+}
+
 /// One side of the UDP baseline: every socket sends `sends` datagrams
 /// (`msg`, 1 ms apart) every `period` and reads the peer's, until `end`.
 fn raw_udp_side(
@@ -255,25 +285,7 @@ fn raw_udp_cpu(
         let received = Arc::clone(&received);
         std::thread::spawn(move || raw_udp_side(socks, sends, period, end, received))
     });
-    std::thread::sleep(StdDuration::from_secs(1));
-    let (cpu0, frames0, t0) = (
-        Cpu::now(),
-        received.load(Ordering::Relaxed),
-        StdInstant::now(),
-    );
-    std::thread::sleep(StdDuration::from_secs_f64(seconds));
-    let (cpu1, frames1, elapsed) = (
-        Cpu::now(),
-        received.load(Ordering::Relaxed),
-        t0.elapsed().as_secs_f64(),
-    );
-    for side in sides {
-        side.join().unwrap();
-    }
-    (
-        cpu0.shares(cpu1, elapsed, cpus),
-        (frames1 - frames0) as f64 / elapsed,
-    )
+    window(sides, &received, seconds, cpus)
 }
 
 /// The baseline's CPU shares of the machine over a `seconds` window (after
@@ -297,25 +309,7 @@ fn raw_cpu(n: usize, period: StdDuration, seconds: f64, cpus: usize) -> (Share, 
         let received = Arc::clone(&received);
         std::thread::spawn(move || raw_side(socks, period, end, received))
     });
-    std::thread::sleep(StdDuration::from_secs(1));
-    let (cpu0, frames0, t0) = (
-        Cpu::now(),
-        received.load(Ordering::Relaxed),
-        StdInstant::now(),
-    );
-    std::thread::sleep(StdDuration::from_secs_f64(seconds));
-    let (cpu1, frames1, elapsed) = (
-        Cpu::now(),
-        received.load(Ordering::Relaxed),
-        t0.elapsed().as_secs_f64(),
-    );
-    for side in sides {
-        side.join().unwrap();
-    }
-    (
-        cpu0.shares(cpu1, elapsed, cpus),
-        (frames1 - frames0) as f64 / elapsed,
-    )
+    window(sides, &received, seconds, cpus)
 }
 
 fn main() {
