@@ -92,6 +92,19 @@ impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for Lossy<L, 
     }
 }
 
+/// A [`Lossy`] wire, nothing sent yet.
+fn lossy<L, D>(lose: L, delay: D) -> Lossy<L, D> {
+    Lossy {
+        lose,
+        delay,
+        datagrams: [0; 2],
+        reliable_last: [Instant::ZERO; 2],
+        k: 0.0,
+        fresh: [Vec::new(), Vec::new()],
+        errors: Vec::new(),
+    }
+}
+
 fn run<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration>(
     transport: Transport,
     lose: L,
@@ -255,15 +268,7 @@ fn a_stream_peer_and_a_datagram_peer_refuse_each_other() {
         Instant::ZERO,
     )
     .unwrap();
-    let world = Lossy {
-        lose: |_| false,
-        delay: |_| T,
-        datagrams: [0; 2],
-        reliable_last: [Instant::ZERO; 2],
-        k: 0.0,
-        fresh: [Vec::new(), Vec::new()],
-        errors: Vec::new(),
-    };
+    let world = lossy(|_| false, |_| T);
     let mut p = Pair::new(base, remote, world);
     p.run_until(Instant::from_millis(500)).unwrap();
     assert_eq!(
@@ -332,15 +337,7 @@ fn a_lost_datagram_is_made_good_by_its_repeat_a_millisecond_later() {
             .unwrap()
         };
         let world = FirstLost {
-            inner: Lossy {
-                lose: |_| false,
-                delay: |_| Duration::from_millis(4),
-                datagrams: [0; 2],
-                reliable_last: [Instant::ZERO; 2],
-                k: 0.0,
-                fresh: [Vec::new(), Vec::new()],
-                errors: Vec::new(),
-            },
+            inner: lossy(|_| false, |_| Duration::from_millis(4)),
             seen: Default::default(),
         };
         Pair::new(ep(Role::Base), ep(Role::Remote), world)
@@ -418,15 +415,7 @@ fn only_the_repeats_that_fit_before_the_next_sample_go() {
             c.period = Duration::from_micros(period_us);
             Endpoint::<Heap>::new(c, Instant::ZERO).unwrap()
         };
-        let world = Lossy {
-            lose: |_| false,
-            delay: |_| Duration::from_micros(300),
-            datagrams: [0; 2],
-            reliable_last: [Instant::ZERO; 2],
-            k: 0.0,
-            fresh: [Vec::new(), Vec::new()],
-            errors: Vec::new(),
-        };
+        let world = lossy(|_| false, |_| Duration::from_micros(300));
         let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
         p.run_until(Instant::from_millis(3_000)).unwrap();
         for ep in [&p.base, &p.remote] {
@@ -462,15 +451,7 @@ fn a_link_closed_between_a_sample_and_its_repeats_leaves_no_deadline() {
         )
         .unwrap()
     };
-    let world = Lossy {
-        lose: |_| false,
-        delay: |_| Duration::from_millis(4),
-        datagrams: [0; 2],
-        reliable_last: [Instant::ZERO; 2],
-        k: 0.0,
-        fresh: [Vec::new(), Vec::new()],
-        errors: Vec::new(),
-    };
+    let world = lossy(|_| false, |_| Duration::from_millis(4));
     let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
     let end = Instant::from_millis(3_000);
     p.run_until(Instant::from_millis(2_000)).unwrap();
@@ -541,15 +522,7 @@ fn a_forged_datagram_near_the_end_of_the_count_is_taken_without_overflow() {
         c.underflow = Underflow::Hold;
         Endpoint::<Heap>::new(c, Instant::ZERO).unwrap()
     };
-    let world = Lossy {
-        lose: |_| false,
-        delay: |_| T / 2,
-        datagrams: [0; 2],
-        reliable_last: [Instant::ZERO; 2],
-        k: 0.0,
-        fresh: [Vec::new(), Vec::new()],
-        errors: Vec::new(),
-    };
+    let world = lossy(|_| false, |_| T / 2);
     let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
     p.run_until(Instant::from_millis(5_000)).unwrap();
     let mut bundle = None;
@@ -588,15 +561,7 @@ fn a_sample_that_goes_out_after_the_close_arms_no_repeat() {
         )
         .unwrap()
     };
-    let world = Lossy {
-        lose: |_| false,
-        delay: |_| Duration::from_millis(4),
-        datagrams: [0; 2],
-        reliable_last: [Instant::ZERO; 2],
-        k: 0.0,
-        fresh: [Vec::new(), Vec::new()],
-        errors: Vec::new(),
-    };
+    let world = lossy(|_| false, |_| Duration::from_millis(4));
     let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
     let tick = Instant::from_millis(2_000);
     p.run_until(tick - Duration::from_nanos(1)).unwrap();
