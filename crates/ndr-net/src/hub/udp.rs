@@ -5,7 +5,10 @@
 //! (bound at the listener's port: a link's datagrams go to the port number
 //! of its TCP listener). Each socket is read and written in batches
 //! (`recvmmsg`, `sendmmsg`), so a tick that serves many links costs a few
-//! system calls, not one per link.
+//! system calls, not one per link. On Linux, the datagrams of one length for
+//! one address leave as one message the kernel cuts back into them (UDP
+//! GSO), and a socket takes such runs whole (UDP GRO): the kernel's work per
+//! tick follows the peers' addresses, not the links.
 //!
 //! A datagram goes to the link whose session token it carries (a Bundle
 //! names its receiver's token). Once that link's endpoint has taken it (the
@@ -31,13 +34,17 @@ use ndr_core::wire::{self, HEADER_LEN};
 
 use super::Entry;
 
-/// Datagrams read, or written, per system call.
+/// Messages read, or written, per system call.
 const BATCH: usize = 32;
-/// Room for one received datagram: more than the longest Bundle a link
-/// sends (one sample of [`wire::MAX_CHANNELS`] values alone); a longer one
-/// arrives cut short and its endpoint refuses it.
-const SLOT: usize = 4096;
+/// Room for one received message: the longest UDP payload, so that a run
+/// of datagrams the kernel coalesced (GRO) arrives whole; a datagram
+/// longer than any Bundle is refused by its endpoint.
+const SLOT: usize = 1 << 16;
 const _: () = assert!(SLOT >= HEADER_LEN + wire::BUNDLE_FIXED_LEN + 8 * wire::MAX_CHANNELS);
+/// Datagrams in one segmented message (the kernel's limit is at least this).
+const MAX_SEGMENTS: usize = 64;
+/// Bytes in one segmented message: under the largest UDP payload over IPv6.
+const MAX_SEGMENTED_LEN: usize = 65_000;
 /// Kernel buffers asked for each socket (best effort: the kernel caps them
 /// at `net.core.rmem_max` / `wmem_max`): a tick of many links sends them
 /// all at one instant.
@@ -112,6 +119,9 @@ struct Sock {
     sessions: HashMap<u64, u64>,
     stray: Arc<AtomicU64>,
     held: bool,
+    /// Sends runs of datagrams as one segmented message (UDP GSO); off for
+    /// good once the kernel refuses one.
+    gso: bool,
 }
 
 /// One datagram waiting for the next batched send.
@@ -127,6 +137,26 @@ struct Queued {
 pub(super) struct Outgoing {
     arena: Vec<u8>,
     queued: Vec<Queued>,
+    /// `queued`'s indices by socket, length and address (kept for its room).
+    order: Vec<usize>,
+    /// The messages of one socket and length (kept for its room).
+    messages: Vec<Message>,
+}
+
+/// One message of a batched send: `count` datagrams of one length for one
+/// address, `order[first..first + count]`.
+#[derive(Clone, Copy)]
+struct Message {
+    to: SocketAddr,
+    first: usize,
+    count: usize,
+}
+
+/// Messages and datagrams a hub's sockets wrote (what batching saved).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) struct Sent {
+    pub messages: u64,
+    pub datagrams: u64,
 }
 
 impl Outgoing {
@@ -157,12 +187,24 @@ fn session_of(bytes: &[u8]) -> Option<u64> {
     Some(u64::from_le_bytes(token.try_into().ok()?))
 }
 
-/// What one received datagram was.
+/// What one received message was.
 #[derive(Clone, Copy, Default)]
 struct Meta {
     len: usize,
     from: Option<SocketAddr>,
     at: Option<StdInstant>,
+    /// The length of each datagram in it, when the kernel coalesced a run
+    /// (GRO): all but the last are this long.
+    segment: Option<usize>,
+}
+
+/// The datagrams of a received message of `bytes`: cut every `segment`
+/// bytes when the kernel coalesced them, else the message itself (an empty
+/// datagram too: it is counted like any other).
+fn datagrams(bytes: &[u8], segment: Option<usize>) -> impl Iterator<Item = &[u8]> {
+    let size = segment.filter(|&s| s > 0).unwrap_or(bytes.len()).max(1);
+    let empty = bytes.is_empty().then_some(bytes);
+    bytes.chunks(size).chain(empty)
 }
 
 /// The hub's datagram sockets and their buffers.
@@ -171,6 +213,7 @@ pub(super) struct Udp {
     pub(super) out: Outgoing,
     slots: Vec<u8>,
     meta: [Meta; BATCH],
+    pub(super) sent: Sent,
 }
 
 impl Udp {
@@ -180,6 +223,7 @@ impl Udp {
             out: Outgoing::default(),
             slots: Vec::new(),
             meta: [Meta::default(); BATCH],
+            sent: Sent::default(),
         }
     }
 
@@ -192,6 +236,8 @@ impl Udp {
     pub(super) fn add(&mut self, registry: &Registry, key: u64, new: NewSocket) -> io::Result<()> {
         // Without the kernel's stamps, a datagram's arrival is its read.
         let _ = crate::arrival::enable(&new.socket);
+        // Without GRO, a segmented message is cut by the kernel on receipt.
+        enable_gro(&new.socket);
         let mut socket = UdpSocket::from_std(new.socket);
         registry.register(&mut socket, Token(key as usize), Interest::READABLE)?;
         self.sockets.insert(
@@ -201,6 +247,7 @@ impl Udp {
                 sessions: HashMap::new(),
                 stray: new.stray,
                 held: new.held,
+                gso: cfg!(target_os = "linux"),
             },
         );
         Ok(())
@@ -279,31 +326,12 @@ impl Udp {
                 .zip(self.slots.chunks_exact(SLOT))
                 .take(got)
             {
-                let bytes = slot.get(..meta.len.min(SLOT)).unwrap_or_default();
-                let link = session_of(bytes).and_then(|s| sock.sessions.get(&s).copied());
-                let Some(e) = link.and_then(|id| entries.get_mut(&id)) else {
-                    sock.stray.fetch_add(1, Ordering::Relaxed);
-                    continue;
-                };
+                let message = slot.get(..meta.len.min(SLOT)).unwrap_or_default();
                 let at = meta.at.unwrap_or(handled);
-                e.rx_lag
-                    .push_duration(handled.saturating_duration_since(at).into());
-                let taken = e
-                    .endpoint
-                    .handle_datagram(Instant::from_std(origin, at), bytes);
-                if let (Ok(()), Some(path), Some(from)) = (taken, e.datagram.as_mut(), meta.from)
-                    && path.peer != Some(from)
-                {
-                    tracing::debug!(from = %from, before = ?path.peer, "datagram path changed");
-                    path.peer = Some(from);
-                    path.path_changes += 1;
-                }
-                // Refused datagrams are counted by the endpoint; only an
-                // ended link needs its hub to act.
-                if matches!(taken, Ok(()) | Err(DatagramError::Link(_)))
-                    && let Some(id) = link.filter(|id| !touched.contains(id))
-                {
-                    touched.push(id);
+                for bytes in datagrams(message, meta.segment) {
+                    deliver(
+                        sock, entries, touched, bytes, meta.from, at, handled, origin,
+                    );
                 }
             }
             if got < BATCH {
@@ -315,37 +343,101 @@ impl Udp {
     /// Sends every queued datagram, counting those the socket refuses on
     /// their links.
     pub(super) fn send_all(&mut self, entries: &mut HashMap<u64, Entry>) {
+        let mut order = std::mem::take(&mut self.out.order);
+        order.clear();
+        order.extend(0..self.out.queued.len());
+        // Stable: a link's datagrams of one length keep their order.
+        let queued = &self.out.queued;
+        order.sort_by_key(|&i| (queued[i].socket, queued[i].bytes.len(), queued[i].to));
         let mut start = 0;
-        while start < self.out.queued.len() {
-            let key = self.out.queued[start].socket;
-            // The run of datagrams for one socket (there is usually one).
-            let end = self.out.queued[start..]
+        while start < order.len() {
+            let first = &self.out.queued[order[start]];
+            let (key, len) = (first.socket, first.bytes.len());
+            // The run of datagrams of one length for one socket.
+            let end = order[start..]
                 .iter()
-                .position(|q| q.socket != key)
-                .map_or(self.out.queued.len(), |n| start + n);
-            let mut at = start;
-            while at < end {
-                let chunk = at..end.min(at + BATCH);
-                match self.write_batch(key, chunk.clone()) {
-                    Ok(n) => at += n.max(1),
-                    Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                    Err(_) => {
-                        // The first of the chunk was refused (a full buffer,
-                        // an unreachable path): it is lost, as on the network.
+                .position(|&i| {
+                    let q = &self.out.queued[i];
+                    (q.socket, q.bytes.len()) != (key, len)
+                })
+                .map_or(order.len(), |n| start + n);
+            self.send_run(key, len, &order, start..end, entries);
+            start = end;
+        }
+        self.out.order = order;
+        self.out.queued.clear();
+        self.out.arena.clear();
+    }
+
+    /// Sends `order[run]`, datagrams of `len` bytes through socket `key`.
+    fn send_run(
+        &mut self,
+        key: u64,
+        len: usize,
+        order: &[usize],
+        run: Range<usize>,
+        entries: &mut HashMap<u64, Entry>,
+    ) {
+        let mut at = run.start;
+        while at < run.end {
+            let gso = self.sockets.get(&key).is_some_and(|s| s.gso);
+            let per_message = if gso && len > 0 {
+                (MAX_SEGMENTED_LEN / len).clamp(1, MAX_SEGMENTS)
+            } else {
+                1
+            };
+            let mut messages = std::mem::take(&mut self.out.messages);
+            messages.clear();
+            let mut next = at;
+            while next < run.end && messages.len() < BATCH {
+                let to = self.out.queued[order[next]].to;
+                let count = order[next..run.end]
+                    .iter()
+                    .take(per_message)
+                    .take_while(|&&i| self.out.queued[i].to == to)
+                    .count();
+                messages.push(Message {
+                    to,
+                    first: next,
+                    count,
+                });
+                next += count;
+            }
+            let result = self.write_batch(key, len, order, &messages, per_message > 1);
+            match result {
+                Ok(n) => {
+                    let n = n.clamp(1, messages.len());
+                    let datagrams: usize = messages.iter().take(n).map(|m| m.count).sum();
+                    self.sent.messages += n as u64;
+                    self.sent.datagrams += datagrams as u64;
+                    at += datagrams;
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) if per_message > 1 && gso_refused(&e) => {
+                    // This kernel or path does not segment: one by one from now.
+                    tracing::debug!(error = %e, "UDP segmentation offload refused");
+                    if let Some(sock) = self.sockets.get_mut(&key) {
+                        sock.gso = false;
+                    }
+                }
+                Err(_) => {
+                    // The first message was refused (a full buffer, an
+                    // unreachable path): its datagrams are lost, as on the
+                    // network.
+                    let first = messages.first().map_or(0, |m| m.count.max(1));
+                    for &i in order.get(at..at + first).unwrap_or_default() {
                         if let Some(path) = entries
-                            .get_mut(&self.out.queued[at].link)
+                            .get_mut(&self.out.queued[i].link)
                             .and_then(|e| e.datagram.as_mut())
                         {
                             path.unsent += 1;
                         }
-                        at += 1;
                     }
+                    at += first;
                 }
             }
-            start = end;
+            self.out.messages = messages;
         }
-        self.out.queued.clear();
-        self.out.arena.clear();
     }
 
     #[cfg(target_os = "linux")]
@@ -363,7 +455,7 @@ impl Udp {
         // Headers made for each call, not kept: the kernel shrinks a header's
         // room for control messages to what it used, and they are not Send.
         let mut headers =
-            MultiHeaders::preallocate(BATCH, Some(nix::cmsg_space!(nix::sys::time::TimeSpec)));
+            MultiHeaders::preallocate(BATCH, Some(nix::cmsg_space!(nix::sys::time::TimeSpec, i32)));
         let got = {
             let results = recvmmsg(
                 sock.socket.as_raw_fd(),
@@ -375,16 +467,21 @@ impl Udp {
             .map_err(io::Error::from)?;
             let mut got = 0;
             for (meta, r) in self.meta.iter_mut().zip(results) {
-                let stamp = r.cmsgs().ok().and_then(|mut c| {
-                    c.find_map(|m| match m {
-                        ControlMessageOwned::ScmTimestampns(ts) => Some(ts),
-                        _ => None,
-                    })
-                });
+                let (mut stamp, mut segment) = (None, None);
+                for m in r.cmsgs().into_iter().flatten() {
+                    match m {
+                        ControlMessageOwned::ScmTimestampns(ts) => stamp = Some(ts),
+                        ControlMessageOwned::UdpGroSegments(size) => {
+                            segment = usize::try_from(size).ok();
+                        }
+                        _ => {}
+                    }
+                }
                 *meta = Meta {
                     len: r.bytes,
                     from: r.address.and_then(|a| std_addr(&a)),
                     at: stamp.and_then(crate::arrival::kernel_instant),
+                    segment,
                 };
                 got += 1;
             }
@@ -393,35 +490,60 @@ impl Udp {
         Ok(got)
     }
 
+    /// Writes `messages` (of datagrams of `len` bytes, segmented by the
+    /// kernel if `segmented`); how many messages went.
     #[cfg(target_os = "linux")]
-    fn write_batch(&mut self, key: u64, chunk: Range<usize>) -> io::Result<usize> {
+    fn write_batch(
+        &self,
+        key: u64,
+        len: usize,
+        order: &[usize],
+        messages: &[Message],
+        segmented: bool,
+    ) -> io::Result<usize> {
         use std::os::fd::AsRawFd;
 
         use nix::sys::socket::{ControlMessage, MsgFlags, MultiHeaders, SockaddrStorage, sendmmsg};
 
         let Some(sock) = self.sockets.get(&key) else {
-            return Ok(chunk.len());
+            return Ok(messages.len());
         };
-        let queued = self.out.queued.get(chunk).unwrap_or_default();
         let arena = &self.out.arena;
-        let iovs: [[io::IoSlice<'_>; 1]; BATCH] = std::array::from_fn(|i| {
-            let bytes = queued
-                .get(i)
-                .and_then(|q| arena.get(q.bytes.clone()))
-                .unwrap_or_default();
-            [io::IoSlice::new(bytes)]
-        });
-        let addrs: [Option<SockaddrStorage>; BATCH] =
-            std::array::from_fn(|i| queued.get(i).map(|q| SockaddrStorage::from(q.to)));
-        let n = queued.len();
-        let none: [ControlMessage<'_>; 0] = [];
-        let mut headers = MultiHeaders::preallocate(n, None);
+        let iovs: Vec<io::IoSlice<'_>> = messages
+            .iter()
+            .flat_map(|m| order.get(m.first..m.first + m.count).unwrap_or_default())
+            .map(|&i| {
+                let bytes = self
+                    .out
+                    .queued
+                    .get(i)
+                    .and_then(|q| arena.get(q.bytes.clone()))
+                    .unwrap_or_default();
+                io::IoSlice::new(bytes)
+            })
+            .collect();
+        let mut parts: Vec<&[io::IoSlice<'_>]> = Vec::with_capacity(messages.len());
+        let mut rest = iovs.as_slice();
+        for m in messages {
+            let (part, tail) = rest.split_at(m.count.min(rest.len()));
+            parts.push(part);
+            rest = tail;
+        }
+        let addrs: Vec<Option<SockaddrStorage>> = messages
+            .iter()
+            .map(|m| Some(SockaddrStorage::from(m.to)))
+            .collect();
+        let segment = u16::try_from(len).unwrap_or(u16::MAX);
+        let gso = [ControlMessage::UdpGsoSegments(&segment)];
+        let cmsgs: &[ControlMessage<'_>] = if segmented { &gso } else { &[] };
+        let mut headers =
+            MultiHeaders::preallocate(messages.len(), segmented.then(|| nix::cmsg_space!(u16)));
         let sent = sendmmsg(
             sock.socket.as_raw_fd(),
             &mut headers,
-            iovs.get(..n).unwrap_or_default(),
-            addrs.get(..n).unwrap_or_default(),
-            none,
+            &parts,
+            &addrs,
+            cmsgs,
             MsgFlags::MSG_DONTWAIT,
         )
         .map_err(io::Error::from)?;
@@ -441,6 +563,7 @@ impl Udp {
                         len,
                         from: Some(from),
                         at: Some(StdInstant::now()),
+                        segment: None,
                     };
                     got += 1;
                 }
@@ -452,19 +575,87 @@ impl Udp {
     }
 
     #[cfg(not(target_os = "linux"))]
-    fn write_batch(&mut self, key: u64, chunk: Range<usize>) -> io::Result<usize> {
+    fn write_batch(
+        &self,
+        key: u64,
+        _len: usize,
+        order: &[usize],
+        messages: &[Message],
+        _segmented: bool,
+    ) -> io::Result<usize> {
         let Some(sock) = self.sockets.get(&key) else {
-            return Ok(chunk.len());
+            return Ok(messages.len());
         };
-        let q = self
-            .out
-            .queued
-            .get(chunk.start)
+        let m = messages.first().ok_or(io::ErrorKind::InvalidInput)?;
+        let q = order
+            .get(m.first)
+            .and_then(|&i| self.out.queued.get(i))
             .ok_or(io::ErrorKind::InvalidInput)?;
         let bytes = self.out.arena.get(q.bytes.clone()).unwrap_or_default();
         sock.socket.send_to(bytes, q.to)?;
         Ok(1)
     }
+}
+
+/// Hands one received datagram to the link whose token it names (a stray
+/// is counted on its socket); a link whose endpoint took it, or ended, is
+/// added to `touched`.
+#[allow(clippy::too_many_arguments)]
+fn deliver(
+    sock: &Sock,
+    entries: &mut HashMap<u64, Entry>,
+    touched: &mut Vec<u64>,
+    bytes: &[u8],
+    from: Option<SocketAddr>,
+    at: StdInstant,
+    handled: StdInstant,
+    origin: StdInstant,
+) {
+    let link = session_of(bytes).and_then(|s| sock.sessions.get(&s).copied());
+    let Some(e) = link.and_then(|id| entries.get_mut(&id)) else {
+        sock.stray.fetch_add(1, Ordering::Relaxed);
+        return;
+    };
+    e.rx_lag
+        .push_duration(handled.saturating_duration_since(at).into());
+    let taken = e
+        .endpoint
+        .handle_datagram(Instant::from_std(origin, at), bytes);
+    if let (Ok(()), Some(path), Some(from)) = (taken, e.datagram.as_mut(), from)
+        && path.peer != Some(from)
+    {
+        tracing::debug!(from = %from, before = ?path.peer, "datagram path changed");
+        path.peer = Some(from);
+        path.path_changes += 1;
+    }
+    // Refused datagrams are counted by the endpoint; only an ended link
+    // needs its hub to act.
+    if matches!(taken, Ok(()) | Err(DatagramError::Link(_)))
+        && let Some(id) = link.filter(|id| !touched.contains(id))
+    {
+        touched.push(id);
+    }
+}
+
+/// Asks the kernel to hand runs of datagrams over as one message (best
+/// effort: without it they arrive one by one).
+#[cfg(target_os = "linux")]
+fn enable_gro(socket: &std::net::UdpSocket) {
+    use nix::sys::socket::{setsockopt, sockopt};
+    let _ = setsockopt(socket, sockopt::UdpGroSegment, &true);
+}
+
+#[cfg(not(target_os = "linux"))]
+fn enable_gro(_: &std::net::UdpSocket) {}
+
+/// Whether a segmented send failed because the kernel or the path cannot
+/// segment (an old kernel, a device without checksum offload), so that
+/// sending one by one would succeed.
+fn gso_refused(e: &io::Error) -> bool {
+    matches!(
+        e.raw_os_error(),
+        Some(code) if code == nix::libc::EIO || code == nix::libc::EINVAL || code == nix::libc::EOPNOTSUPP
+    )
 }
 
 #[cfg(target_os = "linux")]
@@ -478,6 +669,110 @@ fn std_addr(a: &nix::sys::socket::SockaddrStorage) -> Option<SocketAddr> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn loopback() -> std::net::UdpSocket {
+        bind("127.0.0.1:0".parse().expect("an address")).expect("binds on loopback")
+    }
+
+    /// Ten datagrams of one length for one address, and one of another.
+    fn queue_eleven(udp: &mut Udp, key: u64, to: SocketAddr) {
+        let mut path = DatagramPath::new(key, 1, Some(to));
+        for i in 0..10u8 {
+            udp.out.push(u64::from(i), &mut path, &[i; 100]);
+        }
+        udp.out.push(10, &mut path, &[10; 60]);
+    }
+
+    #[test]
+    fn datagrams_of_one_length_for_one_address_leave_in_one_message() {
+        let poll = mio::Poll::new().expect("a poll");
+        let mut udp = Udp::new();
+        let new = NewSocket {
+            socket: loopback(),
+            stray: Arc::default(),
+            held: true,
+        };
+        udp.add(poll.registry(), 1, new).expect("takes the socket");
+        let peer = std::net::UdpSocket::bind("127.0.0.1:0").expect("binds");
+        queue_eleven(&mut udp, 1, peer.local_addr().expect("an address"));
+        udp.send_all(&mut HashMap::new());
+        assert_eq!(
+            udp.sent,
+            Sent {
+                messages: if cfg!(target_os = "linux") { 2 } else { 11 },
+                datagrams: 11
+            }
+        );
+        // The peer, without GRO, gets each datagram whole and in order.
+        peer.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+            .expect("a timeout");
+        let mut got = Vec::new();
+        let mut buf = [0; 256];
+        while got.len() < 11 {
+            let n = peer.recv(&mut buf).expect("a datagram");
+            got.push(buf[..n].to_vec());
+        }
+        got.sort_by_key(|d| d[0]);
+        for (i, d) in got.iter().enumerate() {
+            let len = if i < 10 { 100 } else { 60 };
+            assert_eq!(d, &vec![i as u8; len]);
+        }
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_coalesced_run_is_read_whole_and_cut_back_into_its_datagrams() {
+        let poll = mio::Poll::new().expect("a poll");
+        let mut udp = Udp::new();
+        for key in [1, 2] {
+            let new = NewSocket {
+                socket: loopback(),
+                stray: Arc::default(),
+                held: true,
+            };
+            udp.add(poll.registry(), key, new)
+                .expect("takes the socket");
+        }
+        let to = udp.sockets[&2].socket.local_addr().expect("an address");
+        queue_eleven(&mut udp, 1, to);
+        udp.send_all(&mut HashMap::new());
+        udp.slots = vec![0; SLOT * BATCH];
+        let (mut got, mut messages) = (Vec::new(), 0);
+        let deadline = StdInstant::now() + std::time::Duration::from_secs(5);
+        while got.len() < 11 && StdInstant::now() < deadline {
+            let n = match udp.read_batch(2) {
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => continue,
+                Err(e) => panic!("reads: {e}"),
+            };
+            for (meta, slot) in udp.meta.iter().zip(udp.slots.chunks_exact(SLOT)).take(n) {
+                assert_eq!(
+                    meta.from,
+                    Some(udp.sockets[&1].socket.local_addr().expect("bound"))
+                );
+                got.extend(datagrams(&slot[..meta.len], meta.segment).map(<[u8]>::to_vec));
+                messages += 1;
+            }
+        }
+        assert_eq!(got.len(), 11, "every datagram, once");
+        assert_eq!(messages, 2, "the run of ten arrives as one message");
+        got.sort_by_key(|d| d[0]);
+        for (i, d) in got.iter().enumerate() {
+            let len = if i < 10 { 100 } else { 60 };
+            assert_eq!(d, &vec![i as u8; len]);
+        }
+    }
+
+    #[test]
+    fn a_message_is_cut_at_its_segment_length_only() {
+        let bytes = [1, 1, 2, 2, 3];
+        let cut: Vec<&[u8]> = datagrams(&bytes, Some(2)).collect();
+        assert_eq!(cut, [&[1, 1][..], &[2, 2], &[3]]);
+        assert_eq!(datagrams(&bytes, None).count(), 1);
+        assert_eq!(datagrams(&bytes, Some(0)).count(), 1);
+        let empty: Vec<&[u8]> = datagrams(&[], None).collect();
+        assert_eq!(empty, [&[][..]]);
+    }
 
     #[test]
     fn a_datagram_is_routed_by_the_token_of_a_whole_bundle_only() {
