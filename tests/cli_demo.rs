@@ -66,7 +66,7 @@ fn demo_runs_and_reports_in_json() {
     );
     assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");
     let rows = std::fs::read_to_string(&csv).unwrap();
-    assert!(rows.starts_with("t_s,seq,status,grtt_s,command,state"));
+    assert!(rows.starts_with("t_s,seq,status,grtt_s,nrtt_s,command,state"));
     assert!(rows.lines().count() > 50);
     let _ = std::fs::remove_file(csv);
 }

@@ -11,6 +11,9 @@ commands:
   demo    the whole link in one process: remote with the simulated plant,
           a delaying relay, and a base whose operator follows a signal
           (python -m ndr demo --help for its options)
+  plot    draw a run's CSV (ndr demo's ndr-demo.csv) as the paper's figure:
+          NRTT against GRTT, command against state (needs matplotlib;
+          python -m ndr plot --help)
 """
 
 
@@ -29,8 +32,38 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from .demo import main as demo
 
         return demo(rest)
+    if command == "plot":
+        return _plot(rest)
     print(f"unknown command {command!r}\n\n{USAGE}", end="", file=sys.stderr)
     return 2
+
+
+def _plot(argv: Sequence[str]) -> int:
+    import argparse
+    import os
+
+    parser = argparse.ArgumentParser(
+        prog="python -m ndr plot",
+        description="Draw a run's CSV series (ndr demo --out, ndr base --out) as the "
+        "paper's figure: NRTT against GRTT, and command against state.",
+    )
+    parser.add_argument("csv", help="the series, e.g. ndr-demo.csv")
+    parser.add_argument(
+        "-o", "--out", help="the image to write (its suffix picks the format; "
+        "default: the CSV's name with .png)"
+    )
+    args = parser.parse_args(argv)
+    out = args.out or os.path.splitext(args.csv)[0] + ".png"
+    try:
+        from .plot import demo
+
+        fig = demo(args.csv)
+    except (OSError, ValueError, ImportError) as e:
+        print(f"python -m ndr plot: {e}", file=sys.stderr)
+        return 1
+    fig.savefig(out, dpi=120)
+    print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":

@@ -105,6 +105,8 @@ class OperatorLog:
     seq: List[int] = field(default_factory=list)
     held: List[bool] = field(default_factory=list)
     grtt: List[float] = field(default_factory=list)
+    #: The network's round trip last measured by the base (seconds; NaN before the first).
+    nrtt: List[float] = field(default_factory=list)
     command: List[float] = field(default_factory=list)
     state: List[float] = field(default_factory=list)
     x3e: List[float] = field(default_factory=list)
@@ -169,6 +171,9 @@ def operator(
         log.seq.append(tick.seq)
         log.held.append(held)
         log.grtt.append(math.nan if tick.grtt is None else tick.grtt)
+        stats_now = link.stats
+        nrtt = None if stats_now is None else stats_now["last_nrtt"]
+        log.nrtt.append(math.nan if nrtt is None else nrtt)
         log.command.append(float(command[0]))
         log.state.append(y)
         log.x3e.append(x3e)
@@ -335,12 +340,11 @@ def run(
 
 def _write_csv(path: str, op: OperatorLog) -> None:
     with open(path, "w", encoding="utf-8") as f:
-        f.write("t_s,seq,status,grtt_s,command,state,x3e\n")
-        for row in zip(op.t, op.seq, op.held, op.grtt, op.command, op.state, op.x3e):
-            t, seq, held, grtt, u, y, x = row
-            g = "" if math.isnan(grtt) else f"{grtt:.6f}"
-            xe = "" if math.isnan(x) else f"{x:.6f}"
-            f.write(f"{t:.6f},{seq},{'held' if held else 'fresh'},{g},{u:.6f},{y:.6f},{xe}\n")
+        f.write("t_s,seq,status,grtt_s,nrtt_s,command,state,x3e\n")
+        for row in zip(op.t, op.seq, op.held, op.grtt, op.nrtt, op.command, op.state, op.x3e):
+            t, seq, held, grtt, nrtt, u, y, x = row
+            g, n, xe = ("" if math.isnan(v) else f"{v:.6f}" for v in (grtt, nrtt, x))
+            f.write(f"{t:.6f},{seq},{'held' if held else 'fresh'},{g},{n},{u:.6f},{y:.6f},{xe}\n")
 
 
 @contextlib.contextmanager

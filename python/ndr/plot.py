@@ -14,7 +14,11 @@
   and forecast (Figs. 8 and 9);
 - :func:`queues`: the regulators' occupancy and nominal size;
 - :func:`compare`: delay against late rate, one point per playout policy,
-  from ``ndr compare --json``.
+  from ``ndr compare --json``;
+- :func:`demo`: a real run's series (the CSV ``ndr demo``, ``ndr base`` and
+  ``python -m ndr demo`` write): NRTT against GRTT, and the operator's
+  command against the robot's state as the base saw it. From a shell:
+  ``python -m ndr plot ndr-demo.csv`` (writes ``ndr-demo.png``).
 
 Each function takes a :class:`~ndr.sim.SimResult` (or its ``series`` dict),
 draws on ``ax`` when given (else on a new figure) and returns the figure.
@@ -23,11 +27,12 @@ draws on ``ax`` when given (else on a new figure) and returns the figure.
 from __future__ import annotations
 
 import json
-from typing import Any, List, Mapping, Optional, Tuple, Union
+import math
+from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
-__all__ = ["compare", "predictions", "queues", "round_trips"]
+__all__ = ["compare", "demo", "predictions", "queues", "read_series", "round_trips"]
 
 
 def _pyplot() -> Any:
@@ -128,6 +133,68 @@ def compare(report: Union[str, Mapping[str, Any]], ax: Any = None, *, family: Op
     a.set_xlabel("late rate")
     a.set_ylabel("mean end-to-end delay (ms)")
     a.set_title(f"Regulations: delay against late rate ({points.family})")
+    return fig
+
+
+#: The columns a run's series must have (``ndr demo``'s CSV; more are allowed).
+SERIES_COLUMNS = ("t_s", "grtt_s", "nrtt_s", "command", "state")
+
+
+def read_series(path: str) -> Dict[str, np.ndarray]:
+    """A run's CSV series (``ndr demo --out``, ``ndr base --out``,
+    ``python -m ndr demo --out``) as one float array per column, an empty
+    field as NaN. Raises ``ValueError`` naming the file and what it lacks."""
+    with open(path, encoding="utf-8") as f:
+        header = f.readline().strip().split(",")
+        missing = [c for c in SERIES_COLUMNS if c not in header]
+        if missing:
+            raise ValueError(
+                f"{path} is not a run's series: no column {', '.join(missing)} in its "
+                f"header {','.join(header)!r} (write one with ndr demo --out FILE.csv)"
+            )
+        columns: Dict[str, List[float]] = {c: [] for c in header}
+        for line_no, line in enumerate(f, start=2):
+            fields = line.rstrip("\n").split(",")
+            if len(fields) != len(header):
+                raise ValueError(
+                    f"{path}, line {line_no}: {len(fields)} fields where the header has "
+                    f"{len(header)}"
+                )
+            for name, value in zip(header, fields):
+                if name == "status":
+                    columns[name].append(1.0 if value == "held" else 0.0)
+                    continue
+                try:
+                    columns[name].append(float(value) if value else math.nan)
+                except ValueError:
+                    raise ValueError(
+                        f"{path}, line {line_no}: {name} is {value!r}, not a number"
+                    ) from None
+    return {name: np.asarray(values, dtype=float) for name, values in columns.items()}
+
+
+def demo(series: Union[str, Mapping[str, np.ndarray]], ax: Any = None) -> Any:
+    """A real run, as the paper draws it (Figs. 4 and 5): above, the
+    network's round trip (NRTT, jittery) against the round trip the
+    controller sees (GRTT, constant), in milliseconds; below, the operator's
+    command against the robot's state as the base saw it. ``series`` is a
+    CSV path or :func:`read_series`'s dict; ``ax``, two axes to draw on."""
+    s = read_series(series) if isinstance(series, str) else series
+    if len(s["t_s"]) == 0:
+        raise ValueError("the series has no rows: the run released no sample")
+    fig, (top, bottom) = _axes(ax, rows=2)
+    t = s["t_s"]
+    top.plot(t, s["nrtt_s"] * 1e3, lw=0.6, color="0.6", label="NRTT (network)")
+    top.plot(t, s["grtt_s"] * 1e3, lw=1.5, color="C0", label="GRTT (regulated)")
+    top.set_ylabel("round trip (ms)")
+    top.set_ylim(bottom=0)
+    top.legend(loc="center right")
+    top.set_title("The network's round trip against the one the controller sees")
+    bottom.plot(t, s["command"], lw=1.0, color="C1", label="command (operator)")
+    bottom.plot(t, s["state"], lw=1.0, color="C2", label="state (robot, as seen)")
+    bottom.set_xlabel("time (s)")
+    bottom.set_ylabel("axis 0")
+    bottom.legend(loc="upper right")
     return fig
 
 

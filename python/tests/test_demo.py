@@ -25,7 +25,7 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     for side in ("base", "remote"):
         assert 20e-6 <= report[f"spin_margin_{side}_s"] <= 200e-6
     header = out.read_text().splitlines()[0]
-    assert header == "t_s,seq,status,grtt_s,command,state,x3e"
+    assert header == "t_s,seq,status,grtt_s,nrtt_s,command,state,x3e"
 
 
 def test_the_adaptive_playout_runs_in_the_demo(tmp_path):

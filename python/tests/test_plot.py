@@ -65,3 +65,57 @@ def test_compare_draws_one_point_per_regulation(tmp_path):
     )
     assert "policies" in old["families"][0]
     assert len(ndr.plot.compare(old).axes[0].collections) == 3
+
+
+DEMO_CSV = """t_s,seq,status,grtt_s,nrtt_s,command,state,x3e
+0.050000,1,fresh,,0.041000,0.000000,0.000000,
+0.100000,2,fresh,0.100000,0.043000,0.050000,0.010000,
+0.150000,3,held,0.100000,,0.090000,0.010000,
+0.200000,4,fresh,0.100000,0.039000,0.120000,0.040000,0.050000
+"""
+
+
+def test_a_run_s_csv_is_drawn_as_nrtt_against_grtt(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text(DEMO_CSV)
+    s = ndr.plot.read_series(str(path))
+    assert s["grtt_s"][0] != s["grtt_s"][0]  # an empty field is NaN
+    assert list(s["status"]) == [0.0, 0.0, 1.0, 0.0]
+    fig = ndr.plot.demo(str(path))
+    top, bottom = fig.axes
+    labels = [line.get_label() for line in top.get_lines()]
+    assert labels == ["NRTT (network)", "GRTT (regulated)"]
+    assert list(top.get_lines()[1].get_ydata()[1:]) == pytest.approx([100.0] * 3)
+    assert len(bottom.get_lines()) == 2
+
+
+def test_python_m_ndr_plot_writes_the_figure_beside_the_csv(tmp_path, capsys):
+    from ndr.__main__ import main
+
+    path = tmp_path / "run.csv"
+    path.write_text(DEMO_CSV)
+    assert main(["plot", str(path)]) == 0
+    assert (tmp_path / "run.png").stat().st_size > 1000
+    assert "run.png" in capsys.readouterr().out
+    assert main(["plot", str(path), "-o", str(tmp_path / "fig.svg")]) == 0
+    assert (tmp_path / "fig.svg").read_text().lstrip().startswith("<?xml")
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("t_s,seq,grtt_s\n0.1,1,0.1\n", "no column nrtt_s, command, state"),
+        (DEMO_CSV.replace("0.041000", "fast"), "line 2: nrtt_s is 'fast', not a number"),
+        (DEMO_CSV + "0.25,5\n", "line 6: 2 fields where the header has 8"),
+    ],
+)
+def test_a_file_that_is_not_a_run_s_series_gets_a_clear_error(tmp_path, capsys, text, message):
+    from ndr.__main__ import main
+
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        ndr.plot.read_series(str(path))
+    assert main(["plot", str(path)]) == 1
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad.png").exists()

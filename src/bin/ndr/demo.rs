@@ -416,6 +416,10 @@ pub fn operator(
                     seq: s.seq,
                     held: s.status == Status::Held,
                     grtt_s: s.grtt.map(Duration::as_secs_f64),
+                    nrtt_s: link
+                        .stats()
+                        .and_then(|st| st.last_nrtt)
+                        .map(Duration::as_secs_f64),
                     command: command[0],
                     state: s.values().first().copied().unwrap_or(f64::NAN),
                 };

@@ -52,6 +52,8 @@ pub struct Row {
     pub seq: u64,
     pub held: bool,
     pub grtt_s: Option<f64>,
+    /// The network's round trip last measured by the base, seconds.
+    pub nrtt_s: Option<f64>,
     pub command: f64,
     pub state: f64,
 }
@@ -84,7 +86,7 @@ impl Series {
             rows: 0,
             grtt: LogHistogram::new(),
         };
-        writeln!(series.out, "t_s,seq,status,grtt_s,command,state")
+        writeln!(series.out, "t_s,seq,status,grtt_s,nrtt_s,command,state")
             .map_err(|e| write_error(path, &e))?;
         Ok(series)
     }
@@ -92,18 +94,18 @@ impl Series {
     /// Appends a row.
     pub fn push(&mut self, r: &Row) -> Result<(), String> {
         let status = if r.held { "held" } else { "fresh" };
-        let written = match r.grtt_s {
-            Some(g) => writeln!(
-                self.out,
-                "{:.6},{},{status},{g:.6},{:.6},{:.6}",
-                r.t_s, r.seq, r.command, r.state
-            ),
-            None => writeln!(
-                self.out,
-                "{:.6},{},{status},,{:.6},{:.6}",
-                r.t_s, r.seq, r.command, r.state
-            ),
-        };
+        // An unmeasured round trip is an empty field.
+        let secs = |s: Option<f64>| s.map(|s| format!("{s:.6}")).unwrap_or_default();
+        let written = writeln!(
+            self.out,
+            "{:.6},{},{status},{},{},{:.6},{:.6}",
+            r.t_s,
+            r.seq,
+            secs(r.grtt_s),
+            secs(r.nrtt_s),
+            r.command,
+            r.state
+        );
         written.map_err(|e| write_error(&self.path, &e))?;
         if let Some(g) = r.grtt_s {
             self.grtt.record(g);
