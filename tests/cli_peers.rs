@@ -180,7 +180,7 @@ fn json(stdout: &str, stderr: &str) -> Value {
 /// The CSV's data rows, checked against the report's count.
 fn csv_rows(csv: &Path, report: &Value) -> u64 {
     let text = std::fs::read_to_string(csv).expect("the CSV is written");
-    assert!(text.starts_with("t_s,seq,status,grtt_s,command,state\n"));
+    assert!(text.starts_with("t_s,seq,status,grtt_s,nrtt_s,command,state\n"));
     let rows = text.lines().count() as u64 - 1;
     assert_eq!(report["csv_rows"], rows, "{report}");
     rows
@@ -237,7 +237,29 @@ fn a_base_that_cannot_connect_still_reports() {
     let end = r["end"].as_str().unwrap();
     assert!(end.starts_with("never connected: cannot connect"), "{end}");
     assert_eq!(csv_rows(&csv, &r), 0);
+    // A host name is resolved, as the README's two-host example writes it.
+    let port = addr.rsplit(':').next().unwrap();
+    let (status, r, _) = base(&format!("localhost:{port}"), "1", &csv, &[]);
+    assert!(!status.success(), "{r}");
+    let end = r["end"].as_str().unwrap();
+    assert!(
+        end.starts_with("never connected: cannot connect to "),
+        "{end}"
+    );
+    assert!(end.contains(&format!(":{port}")), "{end}");
     let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn a_base_given_no_port_says_what_an_address_is() {
+    let _serial = serial();
+    let (status, _, stderr) = Proc::spawn(&["base", "--connect", "localhost", "--duration-s", "1"])
+        .wait(Duration::from_secs(30));
+    assert!(!status.success());
+    assert!(
+        stderr.contains("--connect localhost: not an address (HOST:PORT)"),
+        "{stderr}"
+    );
 }
 
 #[test]

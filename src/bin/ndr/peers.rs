@@ -1,6 +1,6 @@
 //! `ndr base` and `ndr remote`: the two peers as separate processes or hosts.
 
-use std::net::SocketAddr;
+use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
@@ -14,9 +14,10 @@ use crate::signals::{self, Stop, counters};
 
 #[derive(clap::Args)]
 pub struct BaseArgs {
-    /// The remote (or a relay in front of it) to connect to.
-    #[arg(long, value_name = "ADDR")]
-    pub connect: SocketAddr,
+    /// The remote (or a relay in front of it) to connect to: HOST:PORT, a
+    /// name or an address (the first address the name resolves to).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub connect: String,
     #[command(flatten)]
     pub link: LinkArgs,
     #[command(flatten)]
@@ -43,22 +44,33 @@ pub struct RemoteArgs {
     pub once: bool,
 }
 
+/// The first address `text` (HOST:PORT) resolves to; the error names `flag`.
+pub fn resolve(flag: &str, text: &str) -> Result<SocketAddr, String> {
+    let mut addrs = text
+        .to_socket_addrs()
+        .map_err(|e| format!("{flag} {text}: not an address (HOST:PORT): {e}"))?;
+    addrs
+        .next()
+        .ok_or_else(|| format!("{flag} {text}: resolves to no address"))
+}
+
 /// The operator's side: runs `--duration-s` over the link, then reports how
 /// it ended; fails (after the report) when no link came up or it failed.
 pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
     check_duration(&args.run)?;
+    let connect_to = resolve("--connect", &args.connect)?;
     // Refused as the link would refuse it, before the series is created.
-    if tls.is_none() && !tls::plain_allowed(args.connect.ip(), config.insecure) {
-        return Err(NetError::Insecure(args.connect).to_string());
+    if tls.is_none() && !tls::plain_allowed(connect_to.ip(), config.insecure) {
+        return Err(NetError::Insecure(connect_to).to_string());
     }
     let mut series = Series::create(&args.run.out)?;
     let rt = runtime()?;
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
     let until = StdInstant::now() + run_for;
     config.tls.clone_from(&tls);
-    let connect = Link::connect(args.connect, config.clone());
+    let connect = Link::connect(connect_to, config.clone());
     // The connection counts in the run's duration: a peer that never
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
@@ -66,19 +78,19 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         Ok(Ok(link)) => operator(link, &args.run, args.link.axes, until, None, &mut series),
         Ok(Err(e)) => (
             None,
-            End::NeverConnected(format!("cannot connect to {}: {e}", args.connect)),
+            End::NeverConnected(format!("cannot connect to {connect_to}: {e}")),
         ),
         Err(_) => (
             None,
             End::NeverConnected(format!(
-                "no connection to {} within the {} s run",
-                args.connect, args.run.duration_s
+                "no connection to {connect_to} within the {} s run",
+                args.run.duration_s
             )),
         ),
     };
     let (series, error) = series.close();
     let outcome = Outcome {
-        profile: format!("tcp {}", args.connect),
+        profile: format!("tcp {connect_to}"),
         base: stats,
         remote: None,
         relay: None,

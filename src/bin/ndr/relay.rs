@@ -1,7 +1,6 @@
 //! `ndr relay`: a TCP and UDP relay that delays the link's frames and
 //! datagrams like a real network, and loses datagrams by a loss model.
 
-use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::net::relay::{
@@ -49,20 +48,10 @@ pub struct RelayArgs {
     pub insecure: bool,
 }
 
-/// The first address `text` resolves to.
-fn resolve(flag: &str, text: &str) -> Result<SocketAddr, String> {
-    let mut addrs = text
-        .to_socket_addrs()
-        .map_err(|e| format!("{flag} {text}: not an address (HOST:PORT): {e}"))?;
-    addrs
-        .next()
-        .ok_or_else(|| format!("{flag} {text}: resolves to no address"))
-}
-
 pub fn run(args: &RelayArgs) -> Result<(), String> {
     let model = args.net.model("paris-newyork")?;
-    let listen = resolve("--listen", &args.listen)?;
-    let upstream = resolve("--upstream", &args.upstream)?;
+    let listen = crate::peers::resolve("--listen", &args.listen)?;
+    let upstream = crate::peers::resolve("--upstream", &args.upstream)?;
     let after = match args.duration_s {
         None => None,
         Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => Some(StdDuration::from_secs_f64(s)),
