@@ -67,3 +67,32 @@ pub use ndr_net as net;
 pub use ndr_net::keygen;
 pub use ndr_netem as netem;
 pub use ndr_sim as sim;
+
+/// The README's and the user guide's Rust examples, compiled (and run,
+/// unless marked `no_run`) as doctests, so that they cannot rot. Every
+/// page of `docs/guide/` is listed here (a test of the `ndr` binary checks).
+#[cfg(doctest)]
+mod docs {
+    #[doc = include_str!("../README.md")]
+    struct Readme;
+    #[doc = include_str!("../docs/guide/README.md")]
+    struct Guide;
+    #[doc = include_str!("../docs/guide/concepts.md")]
+    struct Concepts;
+    #[doc = include_str!("../docs/guide/regulation-and-transport.md")]
+    struct RegulationAndTransport;
+    #[doc = include_str!("../docs/guide/safety.md")]
+    struct Safety;
+    #[doc = include_str!("../docs/guide/security.md")]
+    struct Security;
+    #[doc = include_str!("../docs/guide/two-hosts.md")]
+    struct TwoHosts;
+    #[doc = include_str!("../docs/guide/tuning.md")]
+    struct Tuning;
+    #[doc = include_str!("../docs/guide/simulator.md")]
+    struct Simulator;
+    #[doc = include_str!("../docs/guide/python.md")]
+    struct Python;
+    #[doc = include_str!("../docs/guide/troubleshooting.md")]
+    struct Troubleshooting;
+}

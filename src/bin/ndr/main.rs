@@ -2,6 +2,8 @@
 
 mod compare;
 mod demo;
+#[cfg(test)]
+mod doc_commands;
 mod keygen;
 mod logging;
 mod paper;
