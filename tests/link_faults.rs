@@ -101,12 +101,28 @@ fn poke(addr: SocketAddr, bytes: &[u8]) -> Vec<u8> {
     got
 }
 
-fn close_reason_of(bytes: &[u8]) -> Option<u16> {
-    let len = wire::frame_len(bytes).ok()??;
-    match wire::Frame::new_checked(bytes.get(..len)?).ok()?.payload() {
-        Payload::Close(c) => Some(c.reason),
-        _ => None,
+/// The kinds of the frames in `bytes`, in order, and the reason of the
+/// Close among them.
+fn replies(mut bytes: &[u8]) -> (Vec<wire::Kind>, Option<u16>) {
+    let (mut kinds, mut reason) = (Vec::new(), None);
+    while let Ok(Some(len)) = wire::frame_len(bytes) {
+        let Some(frame) = bytes
+            .get(..len)
+            .and_then(|b| wire::Frame::new_checked(b).ok())
+        else {
+            break;
+        };
+        kinds.push(frame.kind());
+        if let Payload::Close(c) = frame.payload() {
+            reason = Some(c.reason);
+        }
+        bytes = &bytes[len..];
     }
+    (kinds, reason)
+}
+
+fn close_reason_of(bytes: &[u8]) -> Option<u16> {
+    replies(bytes).1
 }
 
 #[test]
@@ -138,7 +154,14 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
     assert_eq!(close_reason_of(&back), Some(close_reason::ROLE_MISMATCH));
     counted(&listener, |s| s.refused_role, 1);
     let back = poke(addr, &hello_from(wire::VERSION, Role::Base, 3));
-    assert_eq!(close_reason_of(&back), Some(close_reason::WIDTH_MISMATCH));
+    // Its own Hello first, so that the base can name both widths.
+    assert_eq!(
+        replies(&back),
+        (
+            vec![wire::Kind::Hello, wire::Kind::Close],
+            Some(close_reason::WIDTH_MISMATCH)
+        )
+    );
     counted(&listener, |s| s.refused_layout, 1);
 
     // None of them reached the application.

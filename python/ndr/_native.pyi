@@ -193,8 +193,11 @@ class Kalman3:
     [0, 0, 1]]``, ``H = [[1, 0, 0]]``, ``Q = diag(0, 0, sigma_q²)``,
     ``R = [[sigma_q²]]``, ``P0 = sigma_q²·I``. ``predict()`` and ``update(z)``
     are filterpy's equations; the estimates do not depend on ``sigma_q``.
-    ``x`` is 1-D (filterpy also accepts that); ``P``, ``F``, ``H``, ``Q``,
-    ``R`` are read-only copies (the model is the paper's).
+    ``x`` is 1-D (filterpy also accepts that). ``x``, ``P``, ``F`` (``A``),
+    ``H``, ``Q`` and ``R`` can be assigned, as in filterpy, with their shapes
+    checked (``ValueError`` naming the shape). Reading one gives a read-only
+    copy: ``kf.x[0] = 5`` raises ``ValueError`` instead of changing a copy
+    silently; write ``x = kf.x.copy(); x[0] = 5; kf.x = x``.
     """
 
     def __new__(cls, period: float, *, sigma_q: float = 1.0, horizon: int = 50) -> "Kalman3": ...
@@ -228,29 +231,42 @@ class Kalman3:
     @property
     def P(self) -> _Floats:
         """The state covariance, shape ``(3, 3)``."""
+    @P.setter
+    def P(self, value: _ArrayLike) -> None: ...
     @property
     def F(self) -> _Floats:
-        """The transition matrix, shape ``(3, 3)``."""
+        """The transition matrix, shape ``(3, 3)``; ``F_ahead`` follows an assignment."""
+    @F.setter
+    def F(self, value: _ArrayLike) -> None: ...
     @property
     def A(self) -> _Floats:
         """The paper's name for ``F``."""
+    @A.setter
+    def A(self, value: _ArrayLike) -> None: ...
     @property
     def F_ahead(self) -> _Floats:
         """``F`` to the power ``horizon``."""
     @property
     def H(self) -> _Floats:
-        """``[[1, 0, 0]]``, shape ``(1, 3)``."""
+        """``[[1, 0, 0]]`` unless assigned (shape ``(1, 3)`` or ``(3,)``), shape ``(1, 3)``."""
+    @H.setter
+    def H(self, value: _ArrayLike) -> None: ...
     @property
     def Q(self) -> _Floats:
-        """``diag(0, 0, sigma_q²)``, shape ``(3, 3)``."""
+        """``diag(0, 0, sigma_q²)`` unless assigned, shape ``(3, 3)``."""
+    @Q.setter
+    def Q(self, value: _ArrayLike) -> None: ...
     @property
     def R(self) -> _Floats:
-        """``[[sigma_q²]]``, shape ``(1, 1)``."""
+        """``[[sigma_q²]]`` unless assigned (a number or shape ``(1, 1)``, > 0), shape ``(1, 1)``."""
+    @R.setter
+    def R(self, value: Union[float, _ArrayLike]) -> None: ...
     @property
     def sigma_q(self) -> float: ...
     @property
     def period(self) -> float:
-        """``T`` in seconds; assigning keeps the estimate (it is per second)."""
+        """``T`` in seconds; assigning keeps the estimate (it is per second) and
+        sets ``F`` back to the triple integrator's."""
     @period.setter
     def period(self, value: float) -> None: ...
     @property
@@ -455,14 +471,19 @@ def rls_filter(
 class Tf2:
     """``H(z) = (b0 + b1 z⁻¹ + b2 z⁻²) / (1 + a1 z⁻¹ + a2 z⁻²)`` sampled every
     ``dt`` seconds; ``num = [b0, b1, b2]``, ``den = [a0, a1, a2]`` as in
-    scipy.signal (``den`` is normalized so that ``a0 = 1``)."""
+    scipy.signal (``den`` is normalized so that ``a0 = 1``). Both are
+    polynomials in ``z``, highest power first: a shorter ``num`` (python-control's
+    ``[b1, b2]``) is padded on the left, and a ``(1, 3)`` one (what
+    ``scipy.signal.cont2discrete`` returns) is taken as its row."""
 
     def __new__(cls, num: _ArrayLike, den: _ArrayLike, dt: float) -> "Tf2": ...
     @staticmethod
     def low_pass(wn: float, zeta: float, gain: float, dt: float) -> "Tf2":
         """Bilinear discretization of ``gain·wn² / (s² + 2·zeta·wn·s + wn²)``, ``wn`` in rad/s."""
     def to_tf(self) -> _Tf:
-        """``(num, den, dt)``, e.g. for ``scipy.signal.dlti(*tf.to_tf())``."""
+        """``(num, den, dt)``: ``scipy.signal.dlti(num, den, dt=dt)`` (``dt`` by
+        name: three positional arguments are zeros, poles and gain there), or
+        ``control.tf(*tf.to_tf())``."""
     @property
     def num(self) -> _Floats: ...
     @property
@@ -507,7 +528,11 @@ class Tf2State:
 @final
 class Arx2:
     """Online identification of a :class:`Tf2` by RLS on
-    ``[u[k], u[k-1], u[k-2], -y[k-1], -y[k-2]]``; weights ``[b0, b1, b2, a1, a2]``."""
+    ``[u[k], u[k-1], u[k-2], -y[k-1], -y[k-2]]``; weights ``[b0, b1, b2, a1, a2]``.
+
+    An input that does not excite the model (a constant, say) leaves some of
+    its coefficients undetermined: ``fit``, ``model`` and ``to_tf`` then warn
+    (``RuntimeWarning``), and ``unexcited`` counts those directions."""
 
     def __new__(cls, dt: float, *, lam: float = 1.0, delta: float = 1e6) -> "Arx2": ...
     def update(self, u: float, y: float) -> Optional[float]:
@@ -515,16 +540,22 @@ class Arx2:
         known and returns the a-priori error, else None."""
     def fit(self, u: _ArrayLike, y: _ArrayLike) -> _Floats:
         """An :meth:`update` per pair, without the GIL; errors ``(n,)``, NaN
-        where no adaptation happened."""
+        where no adaptation happened. Warns if the input left the model unexcited."""
     def record_substitute(self, u: float, y: float) -> None:
         """Records a stand-in pair without adapting on it."""
     def clear_history(self) -> None: ...
     def predict(self, u: float) -> Optional[float]:
         """The model's output for ``u``, or None until two samples are known."""
     @property
-    def model(self) -> Tf2: ...
+    def model(self) -> Tf2:
+        """The identified model (``RuntimeWarning`` if the input did not excite it)."""
     def to_tf(self) -> _Tf:
-        """``(num, den, dt)`` of the identified model, scipy.signal's convention."""
+        """``(num, den, dt)`` of the identified model, scipy.signal's convention
+        (``RuntimeWarning`` if the input did not excite it)."""
+    @property
+    def unexcited(self) -> int:
+        """How many of the model's 5 directions the data has not determined:
+        0 once the input excites them all, 2 or more under a constant input."""
     @property
     def dt(self) -> float: ...
     @property

@@ -274,9 +274,18 @@ def run(
     there."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
+    asked_mode = mode
     name, mode, playout = _native._regulation(
         regulation=regulation, mode=mode, playout=playout, default="adaptive", stacklevel=2
     )
+    # The report's deprecated `mode`, as the Rust CLI gives it: what was
+    # asked, or `adaptive` for the adaptive playout over the static handshake.
+    if asked_mode is not None:
+        legacy_mode = asked_mode
+    elif (mode, playout) == ("paper-static", "adaptive"):
+        legacy_mode = "adaptive"
+    else:
+        legacy_mode = mode
     sig = Signal(signal)
     # The pairing no regulation names goes to the links by its parts, whose
     # warning was just given once.
@@ -324,7 +333,7 @@ def run(
     report = _report(
         profile=relay.model,
         regulation=name or f"{mode} with {playout}",
-        mode=mode,
+        mode=legacy_mode,
         playout=playout,
         underflow=underflow,
         transport=transport,
@@ -453,9 +462,11 @@ def print_table(r: Dict[str, Any], file: Optional[TextIO] = None) -> None:
     def p(*a: object) -> None:
         print(*a, file=out)
 
+    # The same labels, in the same order, as the Rust CLI's header.
     p(
         f"ndr {r['command']} · {r['profile']} · {r['regulation']} · {r['underflow']} · "
-        f"T = {ms(r['period_s'])} · {r['duration_s']:.0f} s · {r['axes']} axis(es)"
+        f"{r['transport']} · T = {ms(r['period_s'])} · {r['duration_s']:.0f} s · "
+        f"{r['axes']} axis(es)"
     )
     p("                     mean          std")
     p(f"  NRTT       {ms(r['nrtt_mean_s']):>12} {ms(r['nrtt_std_s']):>12}   (the network, both ways)")
@@ -546,6 +557,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         instead = f"--regulation {name}" if name else "--regulation (this pairing has no name)"
         print(
             f"warning: --mode and --playout are deprecated and go in the next release: use {instead}",
+            file=sys.stderr,
+        )
+    if not args.json:
+        # Said up front, as the Rust CLI does: the file lands in the current
+        # directory by default.
+        print(
+            f"ndr python demo: the base's series goes to {args.out} (--out to change it)",
             file=sys.stderr,
         )
     try:

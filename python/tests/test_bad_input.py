@@ -57,7 +57,7 @@ CASES = [
     (lambda: setattr(kalman(), "x", np.zeros((3, 1))), ValueError, "1-D array"),
     (lambda: setattr(kalman(), "x", [0.0, NAN, 0.0]), ValueError, "x[1] is nan"),
     (lambda: setattr(kalman(), "period", 0.0), ValueError, "period"),
-    (lambda: setattr(kalman(), "P", np.eye(3)), AttributeError, ""),
+    (lambda: setattr(kalman(), "P", np.eye(2)), ValueError, "P: expected a 2-D array of shape (3, 3)"),
     # NetworkPredictor
     (lambda: ndr.NetworkPredictor(0.0), ValueError, "period"),
     (lambda: ndr.NetworkPredictor(0.2, decay=0.5), ValueError, "decay"),
@@ -90,7 +90,7 @@ CASES = [
     (lambda: ndr.rls_filter([1, NAN, 2], np.ones((3, 2))), ValueError, "d[1] is nan"),
     (lambda: ndr.rls_filter(np.ones(3), np.full((3, 2), NAN)), ValueError, "x[0, 0] is nan"),
     # Tf2, Tf2State, Arx2, Estimator
-    (lambda: ndr.Tf2([1.0, 2.0], [1.0, 0.5, 0.1], 0.1), ValueError, "num: expected"),
+    (lambda: ndr.Tf2([1.0, 2.0, 3.0, 4.0], [1.0, 0.5, 0.1], 0.1), ValueError, "num: expected"),
     (lambda: ndr.Tf2([1.0, 2.0, 3.0], [0.0, 0.5, 0.1], 0.1), ValueError, "den[0]"),
     (lambda: ndr.Tf2([1.0, 2.0, 3.0], [1.0, 0.5, 0.1], 0.0), ValueError, "dt"),
     (lambda: ndr.Tf2([1.0, 2.0, 3.0], [1.0, NAN, 0.1], 0.1), ValueError, "den[1] is nan"),

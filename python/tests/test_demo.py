@@ -18,6 +18,8 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["grtt_count"] > 20
     # The default: the adaptive playout, each side's delay announced.
     assert report["regulation"] == report["playout"] == "adaptive"
+    # The deprecated `mode` as the Rust CLI's report has it (not paper-static).
+    assert report["mode"] == "adaptive"
     assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
@@ -56,6 +58,12 @@ def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
         capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stderr
+    # Where the series goes, said before the run; the header's labels as the
+    # Rust CLI's (`ndr demo · lan-75km · adaptive · hold · tcp · T = …`).
+    assert proc.stderr.startswith(
+        f"ndr python demo: the base's series goes to {tmp_path / 'd.csv'} (--out to change it)\n"
+    ), proc.stderr
+    assert proc.stdout.startswith("ndr python demo · lan-75km · adaptive · hold · tcp · T = 20.00 ms"), proc.stdout
     line = next(l for l in proc.stdout.splitlines() if l.strip().startswith("playout"))
     assert "forward" in line and "back" in line and "ppm" in line, line
     assert "delays announced" in line, line

@@ -161,3 +161,54 @@ def test_estimator_identifies_then_predicts():
     np.testing.assert_allclose(num, NUM, atol=1e-6)
     np.testing.assert_allclose(den, DEN, atol=1e-6)
     assert est.arx.updates > 0
+
+
+def test_tf2_takes_the_numerators_scipy_and_python_control_give():
+    signal = pytest.importorskip("scipy.signal")
+    # cont2discrete returns the numerator as a (1, 3) array.
+    num, den, dt = signal.cont2discrete(([4.0], [1.0, 1.2, 4.0]), DT, method="bilinear")
+    assert np.shape(num) == (1, 3)
+    tf = ndr.Tf2(num, den, dt)
+    np.testing.assert_allclose(tf.num, num[0] / den[0], rtol=1e-12)
+    # A shorter numerator is a polynomial in z, padded on the left:
+    # (z + 0.5) / (z² − 1.4 z + 0.5) is [0, 1, 0.5], as scipy.signal.dlti reads it.
+    short = ndr.Tf2([1.0, 0.5], DEN, DT)
+    np.testing.assert_array_equal(short.num, [0.0, 1.0, 0.5])
+    _, y_ref = signal.dlti([1.0, 0.5], DEN, dt=DT).output(np.ones(30), t=np.arange(30) * DT)
+    np.testing.assert_allclose(short.simulate(np.ones(30)), np.ravel(y_ref), rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(ndr.Tf2([2.0], DEN, DT).num, [0.0, 0.0, 2.0])
+    with pytest.raises(ValueError, match=r"num: expected a 1-D array of 1 to 3 coefficients, or one row of them, got shape \(4,\)"):
+        ndr.Tf2([1.0, 2.0, 3.0, 4.0], DEN, DT)
+
+
+def test_to_tf_as_the_docstring_says_gives_scipy_the_same_system():
+    signal = pytest.importorskip("scipy.signal")
+    tf = ndr.Tf2(NUM, DEN, DT)
+    for doc in (ndr.Tf2.to_tf.__doc__, ndr.Tf2.__doc__, ndr.Arx2.to_tf.__doc__):
+        assert "dlti(*" not in (doc or "")
+    num, den, dt = tf.to_tf()
+    _, y = signal.dlti(num, den, dt=dt).step(n=40)
+    np.testing.assert_allclose(np.ravel(y[0]), tf.simulate(np.ones(40)), rtol=1e-12, atol=1e-14)
+
+
+def test_arx2_warns_when_the_input_does_not_excite_the_model():
+    u = np.ones(200)
+    arx = ndr.Arx2(DT)
+    with pytest.warns(RuntimeWarning, match="2 of its 5 directions are not determined"):
+        arx.fit(u, simulate(u))
+    assert arx.unexcited == 2
+    with pytest.warns(RuntimeWarning, match="did not excite the model"):
+        arx.to_tf()
+    with pytest.warns(RuntimeWarning, match="did not excite the model"):
+        arx.model
+    # A rich input: no warning, every direction determined.
+    rng = np.random.default_rng(7)
+    u = rng.normal(size=200)
+    rich = ndr.Arx2(DT)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rich.fit(u, simulate(u))
+        rich.to_tf()
+    assert rich.unexcited == 0

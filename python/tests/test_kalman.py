@@ -17,11 +17,11 @@ def filterpy_model(period, sigma_q):
     return F, H, Q, R
 
 
-def reference_run(zs, x0, period=T, sigma_q=SIGMA_Q):
+def reference_run(zs, x0, period=T, sigma_q=SIGMA_Q, model=None, P0=None):
     """filterpy's KalmanFilter.predict/update, written out (Joseph form)."""
-    F, H, Q, R = filterpy_model(period, sigma_q)
+    F, H, Q, R = model if model is not None else filterpy_model(period, sigma_q)
     x = np.array(x0, dtype=float).reshape(3, 1)
-    P = np.eye(3) * sigma_q**2
+    P = np.eye(3) * sigma_q**2 if P0 is None else np.array(P0, dtype=float)
     out = []
     for z in zs:
         x = F @ x
@@ -151,3 +151,69 @@ def test_network_predictor_observes_separately():
     assert pred.period == pytest.approx(0.1)
     assert pred.ns == 2
     assert "Prediction(" in repr(pred)
+
+
+def test_a_filterpy_user_tunes_the_filter_by_assignment():
+    # A damped constant-velocity model measured through its rate and value.
+    F = np.array([[1.0, T, 0.0], [0.0, 0.95, 0.0], [0.0, 0.0, 0.0]])
+    H = np.array([[1.0, 0.5, 0.0]])
+    Q = np.diag([1e-3, 1e-2, 0.0])
+    R = np.array([[0.3]])
+    P0 = np.diag([2.0, 1.0, 0.5])
+    k = ndr.Kalman3(T, horizon=4)
+    k.F, k.H, k.Q, k.R, k.P = F, H, Q, R, P0
+    k.x = [0.5, 0.1, 0.0]
+    np.testing.assert_array_equal(k.F, F)
+    np.testing.assert_array_equal(k.H, H)
+    np.testing.assert_array_equal(k.Q, Q)
+    np.testing.assert_array_equal(k.R, R)
+    np.testing.assert_allclose(k.F_ahead, np.linalg.matrix_power(F, 4), rtol=1e-12)
+    for z, (x_ref, P_ref, y_ref) in zip(ZS, reference_run(ZS, [0.5, 0.1, 0.0], model=(F, H, Q, R), P0=P0)):
+        k.predict()
+        assert k.update(z) == pytest.approx(y_ref, rel=1e-12, abs=1e-12)
+        np.testing.assert_allclose(k.x, x_ref, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(k.P, P_ref, rtol=1e-10, atol=1e-12)
+    assert k.value == pytest.approx((H @ k.x)[0], rel=1e-12)
+    # filterpy's other spellings: R as a number, H as 1-D, A for F.
+    k.R = 5
+    k.H = [1.0, 0.0, 0.0]
+    k.A = np.eye(3)
+    assert k.R.shape == (1, 1) and k.R[0, 0] == 5.0
+    np.testing.assert_array_equal(k.H, [[1.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(k.F, np.eye(3))
+
+
+def test_writing_into_a_copy_raises_instead_of_doing_nothing():
+    k = ndr.Kalman3(T)
+    k.x = [1.0, 2.0, 3.0]
+    for name, index in [("x", 0), ("P", (0, 0)), ("Q", (2, 2)), ("R", (0, 0)), ("F", (0, 1)), ("H", (0, 0))]:
+        with pytest.raises(ValueError, match="read-only"):
+            getattr(k, name)[index] = 5.0
+    np.testing.assert_array_equal(k.x, [1.0, 2.0, 3.0])
+    # The copy-and-assign spelling works.
+    x = k.x.copy()
+    x[0] = 5.0
+    k.x = x
+    assert k.value == 5.0
+
+
+@pytest.mark.parametrize(
+    "name, value, message",
+    [
+        ("x", [1.0, 2.0], r"x: expected a 1-D array of shape \(3,\), got shape \(2,\)"),
+        ("P", np.eye(2), r"P: expected a 2-D array of shape \(3, 3\), got shape \(2, 2\)"),
+        ("Q", np.ones(3), r"Q: expected a 2-D array of shape \(3, 3\), got shape \(3,\)"),
+        ("F", np.eye(4), r"F: expected a 2-D array of shape \(3, 3\), got shape \(4, 4\)"),
+        ("H", [1.0, 0.0], r"H: expected a 2-D array of shape \(1, 3\) or a 1-D array of shape \(3,\), got shape \(2,\)"),
+        ("R", np.ones((2, 2)), r"R: expected a number or a 2-D array of shape \(1, 1\), got shape \(2, 2\)"),
+        ("R", 0.0, "R = 0 must be finite and positive"),
+        ("Q", np.full((3, 3), np.nan), "finite"),
+    ],
+)
+def test_assignments_check_the_shape(name, value, message):
+    k = ndr.Kalman3(T)
+    before = (k.x, k.P, k.F, k.H, k.Q, k.R)
+    with pytest.raises(ValueError, match=message):
+        setattr(k, name, value)
+    for a, b in zip(before, (k.x, k.P, k.F, k.H, k.Q, k.R)):
+        np.testing.assert_array_equal(a, b)

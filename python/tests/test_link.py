@@ -163,7 +163,13 @@ def test_mismatched_settings_raise_handshake_error_and_the_listener_keeps_servin
     t.start()
     with pytest.raises(ndr.HandshakeError, match="width mismatch"):
         ndr.Link.connect(lst.address, axes=3, period=0.02)
-    with pytest.raises(ndr.HandshakeError, match="period"):
+    # The connecting side names both periods (the listener answers with its
+    # Hello before its Close), not only the Close code.
+    with pytest.raises(
+        ndr.HandshakeError,
+        match="period mismatch: this side runs at 30.000ms, the peer at 20.000ms; "
+        "configure both with the same period",
+    ):
         ndr.Link.connect(lst.address, axes=2, period=0.03)
     assert isinstance(ndr.HandshakeError("x"), ConnectionError)
     # The same listener still accepts a peer with the right settings.

@@ -384,6 +384,22 @@ impl Arx2 {
         self.rls.updates()
     }
 
+    /// How many of the model's 5 directions the data has not determined:
+    /// the covariance's eigenvalues still above half the prior `δ`. A
+    /// constant input leaves at least two (only `b0 + b1 + b2` is seen), and
+    /// the model's coefficients along them are the prior's, not the
+    /// system's; `0` once the input excites every direction.
+    #[must_use]
+    pub fn unexcited(&self) -> usize {
+        let half = 0.5 * self.rls.delta();
+        self.rls
+            .covariance()
+            .symmetric_eigenvalues()
+            .iter()
+            .filter(|&&e| e > half)
+            .count()
+    }
+
     /// Back to the state after [`Arx2::new`]: zero model, covariance `δ·I`,
     /// empty history, counters at zero.
     pub fn reset(&mut self) {
@@ -406,6 +422,35 @@ impl Arx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_constant_input_leaves_the_model_unexcited() {
+        let plant = Tf2::new([0.1, 0.05, 0.0], [-0.9, 0.2]);
+        let run = |input: &dyn Fn(u32) -> f64| {
+            let mut arx = Arx2::new(1.0, 1e6).unwrap();
+            let mut state = Tf2State::new(plant);
+            assert_eq!(arx.unexcited(), 5);
+            for k in 0..300 {
+                let u = input(k);
+                arx.update(u, state.step(u)).unwrap();
+            }
+            arx
+        };
+        let constant = run(&|_| 1.0);
+        assert!(constant.unexcited() >= 2, "{}", constant.unexcited());
+        // A pseudo-random input excites every direction and finds the plant.
+        let mut noise = [0.0; 300];
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        for v in &mut noise {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            *v = (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        }
+        let rich = run(&|k| noise[k as usize]);
+        assert_eq!(rich.unexcited(), 0);
+        assert!((rich.model().b[0] - 0.1).abs() < 1e-6);
+    }
 
     #[test]
     fn low_pass_validates() {

@@ -13,6 +13,10 @@
 //!
 //! Q, R and P0 all scale with σQ², so the gains — and hence the estimates — do
 //! not depend on σQ; only the reported covariance does.
+//!
+//! `F` (`A`), `H`, `Q`, `R` and `P` can be set, as in filterpy, to tune the
+//! filter away from the paper's model; [`Kalman3::set_period`] goes back to
+//! the triple integrator's `A`.
 
 use core::fmt;
 
@@ -32,6 +36,11 @@ pub enum KalmanError {
     ZeroPeriod,
     /// A measurement or state was NaN or infinite; the filter is unchanged.
     NonFinite(f64),
+    /// `R` must be finite and positive.
+    BadR(f64),
+    /// The innovation's variance `H·P·Hᵀ + R` was not finite and positive (a `P` set
+    /// that is not a covariance); the filter is unchanged.
+    NotPositive(f64),
 }
 
 impl fmt::Display for KalmanError {
@@ -42,6 +51,12 @@ impl fmt::Display for KalmanError {
             KalmanError::NonFinite(z) => {
                 write!(f, "Kalman input {z} is not finite; the filter is unchanged")
             }
+            KalmanError::BadR(r) => write!(f, "R = {r} must be finite and positive"),
+            KalmanError::NotPositive(s) => write!(
+                f,
+                "the innovation variance H·P·Hᵀ + R is {s}; it must be finite and positive: P must be a \
+                 covariance (symmetric, positive semi-definite); the filter is unchanged"
+            ),
         }
     }
 }
@@ -55,6 +70,9 @@ pub struct Kalman3 {
     p: Matrix3<f64>,
     a: Matrix3<f64>,
     a_ahead: Matrix3<f64>,
+    h: RowVector3<f64>,
+    q: Matrix3<f64>,
+    r: f64,
     sigma_q2: f64,
     period: Duration,
     horizon: u32,
@@ -63,6 +81,27 @@ pub struct Kalman3 {
 /// `A` for a step of `dt` seconds.
 fn transition(dt: f64) -> Matrix3<f64> {
     Matrix3::new(1.0, dt, 0.5 * dt * dt, 0.0, 1.0, dt, 0.0, 0.0, 1.0)
+}
+
+/// `m` to the power `n`, by squaring.
+fn power(m: &Matrix3<f64>, mut n: u32) -> Matrix3<f64> {
+    let (mut out, mut base) = (Matrix3::identity(), *m);
+    while n > 0 {
+        if n & 1 == 1 {
+            out *= base;
+        }
+        base *= base;
+        n >>= 1;
+    }
+    out
+}
+
+/// The first value that is NaN or infinite, as an error.
+fn all_finite<'a>(values: impl IntoIterator<Item = &'a f64>) -> Result<(), KalmanError> {
+    match values.into_iter().find(|v| !v.is_finite()) {
+        Some(&bad) => Err(KalmanError::NonFinite(bad)),
+        None => Ok(()),
+    }
 }
 
 impl Kalman3 {
@@ -82,6 +121,9 @@ impl Kalman3 {
             p: Matrix3::identity() * sigma_q2,
             a: transition(dt),
             a_ahead: transition(dt * f64::from(horizon)),
+            h: RowVector3::new(1.0, 0.0, 0.0),
+            q: Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, sigma_q2)),
+            r: sigma_q2,
             sigma_q2,
             period,
             horizon,
@@ -91,8 +133,7 @@ impl Kalman3 {
     /// Time update: `x ← A·x`, `P ← A·P·Aᵀ + Q`.
     pub fn predict(&mut self) {
         self.x = self.a * self.x;
-        self.p = self.a * self.p * self.a.transpose();
-        self.p[(2, 2)] += self.sigma_q2;
+        self.p = self.a * self.p * self.a.transpose() + self.q;
     }
 
     /// Measurement update with `z`; returns the innovation `z − H·x`.
@@ -100,10 +141,15 @@ impl Kalman3 {
         if !z.is_finite() {
             return Err(KalmanError::NonFinite(z));
         }
-        // H = [1 0 0]: S is a scalar and P·Hᵀ the first column of P.
-        let innovation = z - self.x[0];
-        let ph: Vector3<f64> = self.p.column(0).into();
-        let gain = ph / (ph[0] + self.sigma_q2);
+        // One measurement: S is a scalar (with the paper's H, P·Hᵀ is the
+        // first column of P).
+        let innovation = z - (self.h * self.x)[0];
+        let ph: Vector3<f64> = self.p * self.h.transpose();
+        let s = (self.h * ph)[0] + self.r;
+        if !(s.is_finite() && s > 0.0) {
+            return Err(KalmanError::NotPositive(s));
+        }
+        let gain = ph / s;
         self.x += gain * innovation;
         self.p -= gain * ph.transpose();
         // Keep P symmetric against rounding.
@@ -116,15 +162,19 @@ impl Kalman3 {
         if !z.is_finite() {
             return Err(KalmanError::NonFinite(z));
         }
+        let before = (self.x, self.p);
         self.predict();
-        self.update(z)?;
-        Ok(self.x[0])
+        if let Err(e) = self.update(z) {
+            (self.x, self.p) = before;
+            return Err(e);
+        }
+        Ok(self.value())
     }
 
     /// The value predicted `horizon` periods ahead, `H·A^l·x`.
     #[must_use]
     pub fn predict_ahead(&self) -> f64 {
-        (self.a_ahead.row(0) * self.x)[0]
+        (self.h * self.a_ahead * self.x)[0]
     }
 
     /// The whole state predicted `horizon` periods ahead, `A^l·x`.
@@ -142,15 +192,52 @@ impl Kalman3 {
     /// The filtered value, `H·x`.
     #[must_use]
     pub fn value(&self) -> f64 {
-        self.x[0]
+        (self.h * self.x)[0]
     }
 
     /// Sets the state, e.g. `[first measurement, 0, 0]` to start without a transient.
     pub fn set_x(&mut self, x: Vector3<f64>) -> Result<(), KalmanError> {
-        if let Some(&bad) = x.iter().find(|v| !v.is_finite()) {
-            return Err(KalmanError::NonFinite(bad));
-        }
+        all_finite(x.iter())?;
         self.x = x;
+        Ok(())
+    }
+
+    /// Sets the state covariance `P` (finite; a covariance, or the next
+    /// update refuses).
+    pub fn set_p(&mut self, p: Matrix3<f64>) -> Result<(), KalmanError> {
+        all_finite(p.iter())?;
+        self.p = p;
+        Ok(())
+    }
+
+    /// Sets the transition matrix `A` (filterpy's `F`); `A^l` follows.
+    pub fn set_a(&mut self, a: Matrix3<f64>) -> Result<(), KalmanError> {
+        all_finite(a.iter())?;
+        self.a = a;
+        self.a_ahead = power(&a, self.horizon);
+        Ok(())
+    }
+
+    /// Sets the measurement matrix `H`.
+    pub fn set_h(&mut self, h: RowVector3<f64>) -> Result<(), KalmanError> {
+        all_finite(h.iter())?;
+        self.h = h;
+        Ok(())
+    }
+
+    /// Sets the process noise `Q`.
+    pub fn set_q(&mut self, q: Matrix3<f64>) -> Result<(), KalmanError> {
+        all_finite(q.iter())?;
+        self.q = q;
+        Ok(())
+    }
+
+    /// Sets the measurement noise `R` (finite and positive).
+    pub fn set_r(&mut self, r: f64) -> Result<(), KalmanError> {
+        if !(r.is_finite() && r > 0.0) {
+            return Err(KalmanError::BadR(r));
+        }
+        self.r = r;
         Ok(())
     }
 
@@ -172,22 +259,28 @@ impl Kalman3 {
         &self.a_ahead
     }
 
-    /// The measurement matrix `H = [1 0 0]`.
+    /// The measurement matrix `H`, `[1 0 0]` unless set.
     #[must_use]
     pub fn h(&self) -> RowVector3<f64> {
-        RowVector3::new(1.0, 0.0, 0.0)
+        self.h
     }
 
-    /// The process noise `Q = diag(0, 0, σQ²)`.
+    /// The process noise `Q`, `diag(0, 0, σQ²)` unless set.
     #[must_use]
     pub fn q(&self) -> Matrix3<f64> {
-        Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, self.sigma_q2))
+        self.q
     }
 
-    /// The measurement noise `R = σQ²`.
+    /// The measurement noise `R`, `σQ²` unless set.
     #[must_use]
     pub fn r(&self) -> f64 {
-        self.sigma_q2
+        self.r
+    }
+
+    /// The noise level σQ given to [`new`](Self::new) (`P0 = σQ²·I`).
+    #[must_use]
+    pub fn sigma_q(&self) -> f64 {
+        libm::sqrt(self.sigma_q2)
     }
 
     /// The sampling period `T`.
@@ -203,7 +296,8 @@ impl Kalman3 {
     }
 
     /// Changes `T` (the horizon stays `l` periods) keeping the estimate: the
-    /// state is in units per second, so it stays valid.
+    /// state is in units per second, so it stays valid. `A` is the triple
+    /// integrator's again (an `A` set by [`set_a`](Self::set_a) is replaced).
     pub fn set_period(&mut self, period: Duration) -> Result<(), KalmanError> {
         if period.is_zero() {
             return Err(KalmanError::ZeroPeriod);
@@ -308,6 +402,39 @@ mod tests {
         assert!(k.update(f64::INFINITY).is_err());
         assert!(k.set_x(Vector3::new(0.0, f64::NAN, 0.0)).is_err());
         assert_eq!(k, before);
+    }
+
+    #[test]
+    fn a_tuned_filter_uses_what_was_set() {
+        let mut k = Kalman3::new(1.0, T, 4).unwrap();
+        // A constant-velocity model on the first two states, H reading the rate.
+        let f = Matrix3::new(1.0, 0.2, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0);
+        k.set_a(f).unwrap();
+        assert!((k.a_ahead() - f * f * f * f).abs().max() < 1e-12);
+        k.set_h(RowVector3::new(0.0, 1.0, 0.0)).unwrap();
+        k.set_q(Matrix3::identity() * 1e-3).unwrap();
+        k.set_r(0.5).unwrap();
+        k.set_x(Vector3::new(1.0, 2.0, 0.0)).unwrap();
+        assert_eq!(k.value(), 2.0);
+        assert!((k.predict_ahead() - 2.0).abs() < 1e-12);
+        // By hand: P = F·I·Fᵀ + Q, S = P[1,1] + R, K = P[:,1] / S.
+        k.predict();
+        let p = f * f.transpose() + Matrix3::identity() * 1e-3;
+        let s = p[(1, 1)] + 0.5;
+        let e = k.update(3.0).unwrap();
+        assert!((e - 1.0).abs() < 1e-12);
+        assert!((k.x()[1] - (2.0 + p[(1, 1)] / s)).abs() < 1e-12);
+        assert!((k.x()[0] - (1.4 + p[(0, 1)] / s)).abs() < 1e-12);
+        assert_eq!(k.set_r(0.0), Err(KalmanError::BadR(0.0)));
+        assert!(k.set_q(Matrix3::from_element(f64::NAN)).is_err());
+        // A P that is no covariance is refused at the update, unchanged.
+        k.set_p(-Matrix3::identity()).unwrap();
+        let before = k.clone();
+        assert!(matches!(k.step(1.0), Err(KalmanError::NotPositive(_))));
+        assert_eq!(k, before);
+        // set_period goes back to the paper's A.
+        k.set_period(T).unwrap();
+        assert_eq!(*k.a(), transition(0.2));
     }
 
     #[test]

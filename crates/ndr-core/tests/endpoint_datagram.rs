@@ -283,12 +283,18 @@ fn a_stream_peer_and_a_datagram_peer_refuse_each_other() {
             .to_string()
             .contains("give both the same transport")
     );
-    assert!(matches!(
+    // The base finds the mismatch in the remote's Hello, sent before its Close.
+    assert_eq!(
         p.world.errors[1],
-        LinkError::PeerClosed {
-            reason: close_reason::TRANSPORT_MISMATCH
+        LinkError::TransportMismatch {
+            ours: "datagram",
+            theirs: "stream"
         }
-    ));
+    );
+    assert_eq!(
+        p.world.errors[1].close_reason(),
+        close_reason::TRANSPORT_MISMATCH
+    );
 }
 
 #[test]

@@ -8,7 +8,7 @@ use ndr_core::storage::Inline;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{Echo, Header, Hello, MAX_FRAME_LEN, Message, Role, encode, mode, underflow};
 
-const DOC: &str = include_str!("../../../docs/wire.md");
+const DOC: &str = include_str!("../docs/wire.md");
 const T: Duration = Duration::from_millis(200);
 
 /// One line of a session block.

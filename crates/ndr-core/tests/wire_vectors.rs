@@ -7,7 +7,7 @@ use ndr_core::wire::{
     Role, WireError, close_reason, control_op, encode, frame_len, mode, underflow,
 };
 
-const DOC: &str = include_str!("../../../docs/wire.md");
+const DOC: &str = include_str!("../docs/wire.md");
 
 /// A fenced block of the document: its info string, its bytes, and the prose before it.
 struct Block {

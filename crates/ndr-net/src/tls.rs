@@ -121,7 +121,6 @@ pub enum Trust {
 }
 
 /// Why TLS could not be set up from the given files or values.
-#[derive(Debug)]
 pub enum TlsError {
     /// A file could not be read.
     Read {
@@ -164,6 +163,14 @@ impl fmt::Display for TlsError {
                 "no peer to trust: give the peer's certificate, a CA, or a pinned fingerprint",
             ),
         }
+    }
+}
+
+// `main() -> Result<(), Box<dyn Error>>` and `unwrap` print Debug: the
+// message, not the variant, tells the user what to do.
+impl fmt::Debug for TlsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Display::fmt(self, f)
     }
 }
 
@@ -213,11 +220,13 @@ impl TlsConfig {
         key: impl AsRef<Path>,
         peer_cert: impl AsRef<Path>,
     ) -> Result<TlsConfig, TlsError> {
-        let pins = read_fingerprints(peer_cert)?;
+        // In argument order: the first missing file is the one reported.
+        let chain = read_certs(cert.as_ref())?;
+        let key = read_key(key.as_ref())?;
         TlsConfig::new(
-            read_certs(cert.as_ref())?,
-            read_key(key.as_ref())?,
-            Trust::Pinned(pins),
+            chain,
+            key,
+            Trust::Pinned(read_fingerprints(peer_cert)?),
             DEFAULT_SERVER_NAME,
         )
     }
@@ -598,6 +607,22 @@ pub fn plain_allowed(addr: std::net::IpAddr, insecure: bool) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn missing_files_are_reported_first_one_first_as_a_message() {
+        let e = TlsConfig::from_files(
+            "/nonexistent/a.crt",
+            "/nonexistent/a.key",
+            "/nonexistent/b.crt",
+        )
+        .unwrap_err();
+        let debug = format!("{e:?}");
+        assert!(
+            debug.starts_with("cannot read /nonexistent/a.crt: "),
+            "{debug}"
+        );
+        assert_eq!(debug, e.to_string());
+    }
 
     #[test]
     fn fingerprints_print_and_parse_back() {

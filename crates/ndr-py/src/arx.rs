@@ -5,11 +5,11 @@
 use ndr_core::arx::{Arx2, Tf2, Tf2State};
 use ndr_core::estimator::{Estimate, Estimator, EstimatorError};
 use numpy::PyArray1;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeWarning, PyValueError};
 use pyo3::prelude::*;
 
 use crate::convert::{
-    array_of, array1, count, finite, same_len, value_error, vector, vector_with_nan,
+    array_of, array1, coefficients, count, finite, same_len, value_error, vector, vector_with_nan,
 };
 use crate::rls::PyRls;
 
@@ -26,6 +26,23 @@ fn check_dt(dt: f64) -> PyResult<f64> {
             "dt must be the sampling period, a finite number of seconds > 0, got {dt}"
         )))
     }
+}
+
+/// A RuntimeWarning when the data has not determined the identified model
+/// (a constant input, say): its coefficients are then the prior's, not the
+/// system's, and nothing else would say so.
+fn warn_unexcited(py: Python<'_>, arx: &Arx2) -> PyResult<()> {
+    let n = arx.unexcited();
+    if arx.updates() == 0 || n == 0 {
+        return Ok(());
+    }
+    let message = format!(
+        "Arx2: the input did not excite the model: {n} of its 5 directions are not determined \
+         by the data (a constant or too simple input), so the identified coefficients along \
+         them are made up; identify on an input with more frequencies (steps, noise, a chirp)"
+    );
+    let category = py.get_type::<PyRuntimeWarning>();
+    PyErr::warn(py, &category, &std::ffi::CString::new(message)?, 1)
 }
 
 fn to_tf<'py>(py: Python<'py>, tf: &Tf2, dt: f64) -> PyTf<'py> {
@@ -49,7 +66,12 @@ pub struct PyTf2 {
 impl PyTf2 {
     #[new]
     fn new(num: &Bound<'_, PyAny>, den: &Bound<'_, PyAny>, dt: f64) -> PyResult<Self> {
-        let b: [f64; 3] = array_of("num", num)?;
+        // Polynomials in z, highest power first, as scipy.signal's `dlti`
+        // and `cont2discrete` (a `(1, 3)` numerator) and python-control (a
+        // shorter numerator) give them: a short one is padded on the left.
+        let given = coefficients("num", num, 3)?;
+        let mut b = [0.0; 3];
+        b[3 - given.len()..].copy_from_slice(&given);
         let a: [f64; 3] = array_of("den", den)?;
         let dt = check_dt(dt)?;
         if a[0] == 0.0 {
@@ -78,7 +100,9 @@ impl PyTf2 {
     }
 
     /// `(num, den, dt)` in scipy.signal's convention: `num = [b0, b1, b2]`,
-    /// `den = [1, a1, a2]` (e.g. `scipy.signal.dlti(*tf.to_tf())`).
+    /// `den = [1, a1, a2]`. For scipy give `dt` by name,
+    /// `scipy.signal.dlti(num, den, dt=dt)`: three positional arguments are
+    /// zeros, poles and gain there. `control.tf(*tf.to_tf())` is right.
     fn to_tf<'py>(&self, py: Python<'py>) -> PyTf<'py> {
         to_tf(py, &self.tf, self.dt)
     }
@@ -263,6 +287,7 @@ impl PyArx2 {
             PyValueError::new_err(format!("sample {k}: {e} (nothing was changed)"))
         })?;
         self.arx = work;
+        warn_unexcited(py, &self.arx)?;
         Ok(array1(py, e))
     }
 
@@ -283,18 +308,28 @@ impl PyArx2 {
         Ok(self.arx.predict(finite("u", u)?))
     }
 
-    /// The identified model.
+    /// The identified model (a RuntimeWarning if the input did not excite it).
     #[getter]
-    fn model(&self) -> PyTf2 {
-        PyTf2 {
+    fn model(&self, py: Python<'_>) -> PyResult<PyTf2> {
+        warn_unexcited(py, &self.arx)?;
+        Ok(PyTf2 {
             tf: self.arx.model(),
             dt: self.dt,
-        }
+        })
     }
 
-    /// `(num, den, dt)` of the identified model, scipy.signal's convention.
-    fn to_tf<'py>(&self, py: Python<'py>) -> PyTf<'py> {
-        to_tf(py, &self.arx.model(), self.dt)
+    /// `(num, den, dt)` of the identified model, scipy.signal's convention
+    /// (a RuntimeWarning if the input did not excite it).
+    fn to_tf<'py>(&self, py: Python<'py>) -> PyResult<PyTf<'py>> {
+        warn_unexcited(py, &self.arx)?;
+        Ok(to_tf(py, &self.arx.model(), self.dt))
+    }
+
+    /// How many of the model's 5 directions the data has not determined
+    /// (0 once the input excites them all; a constant input leaves 2 or more).
+    #[getter]
+    fn unexcited(&self) -> usize {
+        self.arx.unexcited()
     }
 
     /// The sampling period in seconds.

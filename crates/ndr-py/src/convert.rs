@@ -330,6 +330,62 @@ pub fn matrix(
     Ok((finite_values(name, &array)?, r, c))
 }
 
+/// A row of `n` finite floats given as shape `(n,)` or `(1, n)` (filterpy's
+/// `H` is 2-D).
+pub fn row(name: &str, obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<f64>> {
+    let expected = format!("a 2-D array of shape (1, {n}) or a 1-D array of shape ({n},)");
+    let array = float_array(name, obj, &expected)?;
+    match array.shape() {
+        [m] | [1, m] if *m == n => finite_values(name, &array),
+        shape => Err(PyValueError::new_err(format!(
+            "{name}: expected {expected}, got shape {} ({})",
+            shape_str(shape),
+            dimensions(shape.len())
+        ))),
+    }
+}
+
+/// At most `max` finite coefficients, shape `(k,)` or `(1, k)` (scipy's
+/// `cont2discrete` gives a numerator as a `(1, k)` array), `1 ≤ k ≤ max`.
+pub fn coefficients(name: &str, obj: &Bound<'_, PyAny>, max: usize) -> PyResult<Vec<f64>> {
+    let expected = format!("a 1-D array of 1 to {max} coefficients, or one row of them");
+    let array = float_array(name, obj, &expected)?;
+    match array.shape() {
+        [k] | [1, k] if (1..=max).contains(k) => finite_values(name, &array),
+        shape => Err(PyValueError::new_err(format!(
+            "{name}: expected {expected}, got shape {} ({})",
+            shape_str(shape),
+            dimensions(shape.len())
+        ))),
+    }
+}
+
+/// A single finite float given as a number or an array of one element,
+/// shape `()`, `(1,)` or `(1, 1)` (filterpy's `R` of one measurement).
+pub fn single(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<f64> {
+    let expected = "a number or a 2-D array of shape (1, 1)";
+    let array = float_array(name, obj, expected)?;
+    match array.shape() {
+        [] | [1] | [1, 1] => Ok(finite_values(name, &array)?[0]),
+        shape => Err(PyValueError::new_err(format!(
+            "{name}: expected {expected}, got shape {} ({})",
+            shape_str(shape),
+            dimensions(shape.len())
+        ))),
+    }
+}
+
+/// `array`, made read-only: writing into a copy of a Rust object's state
+/// would change nothing, so numpy raises instead (assign the whole
+/// attribute to change it).
+pub fn read_only<'py, T>(array: Bound<'py, T>) -> PyResult<Bound<'py, T>> {
+    array
+        .as_any()
+        .getattr("flags")?
+        .setattr("writeable", false)?;
+    Ok(array)
+}
+
 /// Two lengths that must agree.
 pub fn same_len(a: (&str, usize), b: (&str, usize)) -> PyResult<()> {
     if a.1 == b.1 {

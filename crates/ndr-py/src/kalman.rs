@@ -7,7 +7,10 @@ use ndr_core::sizing::{DEFAULT_ETA, Sizing};
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 
-use crate::convert::{array_of, array1, array2, count, mat3, period, seconds, value_error, vector};
+use crate::convert::{
+    array_of, array1, array2, count, mat3, matrix, period, read_only, row, seconds, single,
+    value_error, vector,
+};
 
 /// The largest horizon accepted, in periods.
 const MAX_HORIZON: usize = 1_000_000;
@@ -18,6 +21,18 @@ fn horizon_arg(horizon: Option<&Bound<'_, PyAny>>) -> PyResult<u32> {
         Some(h) => Ok(u32::try_from(count("horizon", h, 0, MAX_HORIZON)?).unwrap_or(u32::MAX)),
         None => Ok(DEFAULT_HORIZON),
     }
+}
+
+/// A `(3, 3)` matrix from Python, row-major, into `m` (finite values only).
+fn set_mat3<M>(name: &str, obj: &Bound<'_, PyAny>, mut m: M) -> PyResult<M>
+where
+    M: core::ops::IndexMut<(usize, usize), Output = f64>,
+{
+    let (v, _, _) = matrix(name, obj, Some(3), Some(3))?;
+    for (k, value) in v.into_iter().enumerate() {
+        m[(k / 3, k % 3)] = value;
+    }
+    Ok(m)
 }
 
 /// The paper's triple-integrator Kalman filter, with filterpy's names.
@@ -114,11 +129,11 @@ impl PyKalman3 {
         self.y = 0.0;
     }
 
-    /// The state `[value, rate, acceleration]`, shape `(3,)` (a copy; assign
-    /// to change it).
+    /// The state `[value, rate, acceleration]`, shape `(3,)`: a read-only
+    /// copy (`kf.x[0] = 5` raises); assign the whole state to change it.
     #[getter]
-    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, self.inner.x().as_slice())
+    fn x<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        read_only(PyArray1::from_slice(py, self.inner.x().as_slice()))
     }
 
     #[setter]
@@ -143,52 +158,96 @@ impl PyKalman3 {
         self.y
     }
 
-    /// The state covariance, shape `(3, 3)`.
+    /// The state covariance, shape `(3, 3)` (read-only copy; assignable).
     #[getter(P)]
     fn p<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        mat3(py, self.inner.p())
+        read_only(mat3(py, self.inner.p())?)
     }
 
-    /// The transition matrix `[[1, T, T²/2], [0, 1, T], [0, 0, 1]]`, shape `(3, 3)`.
+    #[setter(P)]
+    fn set_p(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let p = set_mat3("P", value, *self.inner.p())?;
+        self.inner.set_p(p).map_err(value_error)
+    }
+
+    /// The transition matrix, `[[1, T, T²/2], [0, 1, T], [0, 0, 1]]` unless
+    /// assigned, shape `(3, 3)` (read-only copy; assignable).
     #[getter(F)]
     fn f<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        mat3(py, self.inner.a())
+        read_only(mat3(py, self.inner.a())?)
+    }
+
+    #[setter(F)]
+    fn set_f(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let a = set_mat3("F", value, *self.inner.a())?;
+        self.inner.set_a(a).map_err(value_error)
     }
 
     /// The paper's name for `F`.
     #[getter(A)]
     fn a<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        mat3(py, self.inner.a())
+        self.f(py)
     }
 
-    /// `F` to the power `horizon`, shape `(3, 3)`.
+    #[setter(A)]
+    fn set_a(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let a = set_mat3("A", value, *self.inner.a())?;
+        self.inner.set_a(a).map_err(value_error)
+    }
+
+    /// `F` to the power `horizon`, shape `(3, 3)` (read-only).
     #[getter(F_ahead)]
     fn f_ahead<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        mat3(py, self.inner.a_ahead())
+        read_only(mat3(py, self.inner.a_ahead())?)
     }
 
-    /// The measurement matrix `[[1, 0, 0]]`, shape `(1, 3)`.
+    /// The measurement matrix, `[[1, 0, 0]]` unless assigned, shape `(1, 3)`
+    /// (read-only copy; assignable as `(1, 3)` or `(3,)`).
     #[getter(H)]
     fn h<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        array2(py, vec![1.0, 0.0, 0.0], 1, 3)
+        read_only(array2(py, self.inner.h().as_slice().to_vec(), 1, 3)?)
     }
 
-    /// The process noise `diag(0, 0, sigma_q²)`, shape `(3, 3)`.
+    #[setter(H)]
+    fn set_h(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let v = row("H", value, 3)?;
+        let mut h = self.inner.h();
+        for (slot, v) in h.iter_mut().zip(v) {
+            *slot = v;
+        }
+        self.inner.set_h(h).map_err(value_error)
+    }
+
+    /// The process noise, `diag(0, 0, sigma_q²)` unless assigned, shape
+    /// `(3, 3)` (read-only copy; assignable).
     #[getter(Q)]
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        mat3(py, &self.inner.q())
+        read_only(mat3(py, &self.inner.q())?)
     }
 
-    /// The measurement noise `[[sigma_q²]]`, shape `(1, 1)`.
+    #[setter(Q)]
+    fn set_q(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let q = set_mat3("Q", value, self.inner.q())?;
+        self.inner.set_q(q).map_err(value_error)
+    }
+
+    /// The measurement noise, `[[sigma_q²]]` unless assigned, shape `(1, 1)`
+    /// (read-only copy; assignable as a number or `(1, 1)`).
     #[getter(R)]
     fn r<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        array2(py, vec![self.inner.r()], 1, 1)
+        read_only(array2(py, vec![self.inner.r()], 1, 1)?)
     }
 
-    /// The noise level σQ.
+    #[setter(R)]
+    fn set_r(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let r = single("R", value)?;
+        self.inner.set_r(r).map_err(value_error)
+    }
+
+    /// The noise level σQ given at construction (`P0 = sigma_q²·I`).
     #[getter]
     fn sigma_q(&self) -> f64 {
-        self.inner.r().sqrt()
+        self.inner.sigma_q()
     }
 
     /// The period `T` in seconds; setting it keeps the estimate.

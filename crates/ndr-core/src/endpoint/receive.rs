@@ -215,6 +215,30 @@ impl<S: Storage> Endpoint<S> {
         if self.phase != Phase::Handshake {
             return Err(self.unexpected(Kind::Hello));
         }
+        if let Err(e) = self.check_hello(&hello) {
+            // A remote that refuses the base's settings answers with its own
+            // Hello before the Close: the base finds the same mismatch in it
+            // and reports both sides' values, not only the Close code.
+            if self.config.role == Role::Remote && !matches!(e, LinkError::RoleMismatch { .. }) {
+                self.queue_tx(Tx::Hello);
+            }
+            return Err(e);
+        }
+        let ours = self.config;
+        if let Some(d) = &mut self.dgram {
+            d.peer_session = hello.session;
+        }
+        self.peer = Some(hello);
+        if ours.role == Role::Remote {
+            self.queue_tx(Tx::Hello);
+        }
+        self.emit(Event::Connected { peer: hello });
+        self.enter_init(now);
+        Ok(())
+    }
+
+    /// Whether the peer's Hello fits this side's configuration.
+    fn check_hello(&self, hello: &Hello) -> Result<(), LinkError> {
         let ours = self.config;
         if hello.role == ours.role {
             return Err(LinkError::RoleMismatch { role: ours.role });
@@ -249,9 +273,6 @@ impl<S: Storage> Endpoint<S> {
                 theirs: theirs.name(),
             });
         }
-        if let Some(d) = &mut self.dgram {
-            d.peer_session = hello.session;
-        }
         if hello.period != ours.period {
             return Err(LinkError::PeriodMismatch {
                 ours: ours.period,
@@ -264,12 +285,6 @@ impl<S: Storage> Endpoint<S> {
                 theirs: hello.mode,
             });
         }
-        self.peer = Some(hello);
-        if ours.role == Role::Remote {
-            self.queue_tx(Tx::Hello);
-        }
-        self.emit(Event::Connected { peer: hello });
-        self.enter_init(now);
         Ok(())
     }
 

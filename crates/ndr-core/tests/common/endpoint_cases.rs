@@ -392,7 +392,14 @@ fn mismatch(edit: impl FnOnce(&mut Config)) -> (Vec<LinkError>, Vec<LinkError>) 
     );
     p.run_until(secs(5));
     assert!(p.base.is_closed() && p.remote.is_closed());
-    let (_, _, net) = p.0.into_parts();
+    let (_, _, mut net) = p.0.into_parts();
+    // Each side hangs up after its Close; the simulated wire still hands it
+    // the other's Close, which a closed endpoint refuses.
+    for errors in [&mut net.base_errors, &mut net.remote_errors] {
+        if errors.len() > 1 {
+            assert_eq!(errors.pop(), Some(LinkError::Closed));
+        }
+    }
     (net.base_errors, net.remote_errors)
 }
 
@@ -407,10 +414,14 @@ fn handshake_mismatches_end_the_link_with_their_error() {
             theirs: 2
         }]
     );
+    // The remote answers with its Hello before its Close: the base names
+    // the mismatch from its own side, with both values.
     assert_eq!(
         b,
-        vec![LinkError::PeerClosed {
-            reason: close_reason::WIDTH_MISMATCH
+        vec![LinkError::WidthMismatch {
+            which: "state",
+            ours: 2,
+            theirs: 3
         }]
     );
 
@@ -426,8 +437,9 @@ fn handshake_mismatches_end_the_link_with_their_error() {
     );
     assert_eq!(
         b,
-        vec![LinkError::PeerClosed {
-            reason: close_reason::LAYOUT_MISMATCH
+        vec![LinkError::LayoutMismatch {
+            ours: 0,
+            theirs: arm
         }]
     );
     let msg = r[0].to_string();
@@ -440,10 +452,18 @@ fn handshake_mismatches_end_the_link_with_their_error() {
     assert!(matches!(r[0], LinkError::PeriodMismatch { .. }));
     assert_eq!(
         b,
-        vec![LinkError::PeerClosed {
-            reason: close_reason::PERIOD_MISMATCH
+        vec![LinkError::PeriodMismatch {
+            ours: T,
+            theirs: Duration::from_millis(100)
         }]
     );
+    let msg = b[0].to_string();
+    assert!(
+        msg.contains("this side runs at 200.000ms, the peer at 100.000ms")
+            && msg.contains("configure both with the same period"),
+        "{msg}"
+    );
+    assert_eq!(b[0].close_reason(), close_reason::PERIOD_MISMATCH);
 
     let (b, r) = mismatch(|c| c.mode = Mode::PaperDynamic);
     assert!(matches!(
@@ -455,8 +475,9 @@ fn handshake_mismatches_end_the_link_with_their_error() {
     ));
     assert_eq!(
         b,
-        vec![LinkError::PeerClosed {
-            reason: close_reason::MODE_MISMATCH
+        vec![LinkError::ModeMismatch {
+            ours: Mode::PaperStatic,
+            theirs: Mode::PaperDynamic.code()
         }]
     );
 
