@@ -75,19 +75,24 @@ impl fmt::Display for ControlError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
             ControlError::InvalidParameter(what) => {
-                write!(f, "{what} must be finite (and not negative): check the controller's configuration")
+                write!(
+                    f,
+                    "{what} must be finite (and not negative): check the controller's configuration"
+                )
             }
-            ControlError::InvalidLimits { min, max } => write!(
-                f,
-                "output limits [{min}, {max}] are empty: give min <= max"
-            ),
+            ControlError::InvalidLimits { min, max } => {
+                write!(f, "output limits [{min}, {max}] are empty: give min <= max")
+            }
             ControlError::RoundTrip { ticks, max } => write!(
                 f,
                 "round trip of {ticks} ticks is outside 1..={max}: the loop needs at least one \
                  tick, and a longer one needs a SmithPredictor with a longer history"
             ),
             ControlError::InvalidModel => {
-                write!(f, "the local model has a non-finite coefficient: give a finite Tf2")
+                write!(
+                    f,
+                    "the local model has a non-finite coefficient: give a finite Tf2"
+                )
             }
             ControlError::NonFiniteInput => write!(
                 f,
@@ -131,6 +136,9 @@ mod tests {
         assert_eq!(round_trip_ticks(Duration::from_millis(60), t), Some(3));
         assert_eq!(round_trip_ticks(Duration::from_millis(69), t), Some(3));
         assert_eq!(round_trip_ticks(Duration::from_millis(71), t), Some(4));
-        assert_eq!(round_trip_ticks(Duration::from_millis(60), Duration::ZERO), None);
+        assert_eq!(
+            round_trip_ticks(Duration::from_millis(60), Duration::ZERO),
+            None
+        );
     }
 }

@@ -141,8 +141,8 @@ impl Pid {
         let candidate = c.kp * e + c.ki * integral + c.kd * derivative;
         let out = candidate.clamp(c.out_min, c.out_max);
         // Integrate unless saturated and the error pushes further out.
-        let winds_up = (candidate > c.out_max && c.ki * e > 0.0)
-            || (candidate < c.out_min && c.ki * e < 0.0);
+        let winds_up =
+            (candidate > c.out_max && c.ki * e > 0.0) || (candidate < c.out_min && c.ki * e < 0.0);
         if !winds_up {
             self.integral = integral;
         }
@@ -205,11 +205,17 @@ mod tests {
         assert!(Pid::new(PidConfig::new(1.0, 0.0, 0.0, 0.0)).is_err());
         assert_eq!(
             Pid::new(PidConfig::new(1.0, 0.0, 0.0, 0.1).with_limits(1.0, -1.0)),
-            Err(ControlError::InvalidLimits { min: 1.0, max: -1.0 })
+            Err(ControlError::InvalidLimits {
+                min: 1.0,
+                max: -1.0
+            })
         );
         let mut p = Pid::new(PidConfig::new(1.0, 1.0, 0.0, 0.1)).unwrap();
         let before = p;
-        assert_eq!(p.step(f64::INFINITY, 0.0), Err(ControlError::NonFiniteInput));
+        assert_eq!(
+            p.step(f64::INFINITY, 0.0),
+            Err(ControlError::NonFiniteInput)
+        );
         assert_eq!(p, before);
     }
 }

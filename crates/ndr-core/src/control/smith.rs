@@ -431,8 +431,7 @@ mod tests {
     #[test]
     fn an_identified_model_converges_to_the_plant() {
         let d = 6;
-        let mut smith =
-            SmithPredictor::<64>::identifying(Arx2::new(1.0, 1e6).unwrap(), d).unwrap();
+        let mut smith = SmithPredictor::<64>::identifying(Arx2::new(1.0, 1e6).unwrap(), d).unwrap();
         assert!(!smith.model_ready());
         let ideal = delay_free(3000);
         let measured = across(3000, &mut smith, |_| 2, 4);
@@ -457,7 +456,10 @@ mod tests {
         assert!(s.set_round_trip(9).is_err());
         assert_eq!(s.round_trip(), 8);
         let before = s.clone();
-        assert_eq!(s.feedback(Some(f64::NAN)), Err(ControlError::NonFiniteInput));
+        assert_eq!(
+            s.feedback(Some(f64::NAN)),
+            Err(ControlError::NonFiniteInput)
+        );
         assert_eq!(s.command(f64::INFINITY), Err(ControlError::NonFiniteInput));
         assert_eq!(s, before);
         let nan = Tf2::new([f64::NAN, 0.0, 0.0], [0.0; 2]);

@@ -243,6 +243,9 @@ mod tests {
         assert!(WaveTransform::new(f64::NAN).is_err());
         let w = WaveTransform::new(1.0).unwrap();
         assert_eq!(w.master(f64::NAN, 0.0), Err(ControlError::NonFiniteInput));
-        assert_eq!(w.slave(0.0, f64::INFINITY), Err(ControlError::NonFiniteInput));
+        assert_eq!(
+            w.slave(0.0, f64::INFINITY),
+            Err(ControlError::NonFiniteInput)
+        );
     }
 }

@@ -1,0 +1,171 @@
+//! The links a loop is closed across: none (the delay-free loop), a plain
+//! socket (each sample applied the moment it arrives), and the regulated
+//! link (the real endpoints in simulated time).
+
+use std::boxed::Box;
+use std::collections::VecDeque;
+use std::vec::Vec;
+
+use ndr_core::control::round_trip_ticks;
+use ndr_core::endpoint::{Event, Status, Transport};
+use ndr_core::pair::{Pair, World};
+use ndr_core::storage::Heap;
+use ndr_core::time::{Duration, Instant};
+use ndr_core::wire::Role;
+
+use super::apps::{App, Rx, WIDTH};
+use crate::engine::{Network, SimEndpoint, endpoints, link_error};
+use crate::{SimConfig, SimError};
+
+/// What a run of a link saw besides the applications' records.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct LinkLog {
+    /// The base ticks at which either side announced a delay change.
+    pub announced: Vec<u64>,
+    /// The periods the link ran at, if it changed (paper-dynamic).
+    pub period_changes: u64,
+}
+
+/// The loop over a plain socket: both sides tick on one grid; at each
+/// tick a side applies the newest sample that has arrived (none new: the
+/// last again). With `delay_free`, nothing is delayed: the remote applies
+/// the command of the same tick, the base sees the state one tick later.
+pub(crate) fn plain<A: App>(
+    cfg: &SimConfig,
+    app: &mut A,
+    delay_free: bool,
+) -> Result<LinkLog, SimError> {
+    let mut net = Network::new(cfg);
+    let datagram = matches!(cfg.transport, Transport::Datagram { .. });
+    let period = cfg.period;
+    let ticks = cfg.duration.as_nanos() / period.as_nanos().max(1);
+    let mut to: [VecDeque<(Instant, [f64; WIDTH])>; 2] = [VecDeque::new(), VecDeque::new()];
+    let mut last: [Option<[f64; WIDTH]>; 2] = [None, None];
+    let control = |e| SimError::Control(e);
+    for k in 0..ticks {
+        let now = Instant::ZERO + period * k;
+        for side in [Role::Base, Role::Remote] {
+            let (inbox, from) = match side {
+                Role::Base => (1, 0),
+                Role::Remote => (0, 1),
+            };
+            let mut fresh = false;
+            while to[inbox].front().is_some_and(|(at, _)| *at <= now) {
+                last[inbox] = to[inbox].pop_front().map(|(_, v)| v);
+                fresh = true;
+            }
+            let rx = Rx {
+                values: last[inbox],
+                fresh,
+                round_trip: None,
+            };
+            let out = match side {
+                Role::Base => app.base(rx).map_err(control)?,
+                Role::Remote => app.remote(rx).map_err(control)?,
+            };
+            let arrival = if delay_free {
+                Some(now)
+            } else {
+                net.deliver(side, now, datagram)
+            };
+            if let Some(at) = arrival {
+                to[from].push_back((at.max(now), out));
+            }
+        }
+    }
+    Ok(LinkLog::default())
+}
+
+/// The loop across two endpoints regulated as `cfg` says.
+pub(crate) fn regulated<A: App>(cfg: &SimConfig, app: &mut A) -> Result<LinkLog, SimError> {
+    let (base, remote) = endpoints(cfg, WIDTH as u16)?;
+    let world = LoopWorld {
+        net: Network::new(cfg),
+        app,
+        period: cfg.period,
+        base_ticks: 0,
+        log: LinkLog::default(),
+    };
+    let mut pair = Pair::new(base, remote, world);
+    pair.run_until(Instant::ZERO + cfg.duration)?;
+    let (_, _, world) = pair.into_parts();
+    Ok(world.log)
+}
+
+struct LoopWorld<'a, A> {
+    net: Network,
+    app: &'a mut A,
+    period: Duration,
+    base_ticks: u64,
+    log: LinkLog,
+}
+
+impl<A: App> World<Heap> for LoopWorld<'_, A> {
+    type Error = SimError;
+
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        self.net.arrival(from, sent, frame)
+    }
+
+    fn local(&self, side: Role, t: Instant) -> Instant {
+        self.net.local(side, t)
+    }
+
+    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
+        self.net.global(side, deadline)
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut SimEndpoint,
+        now: Instant,
+        event: Event<Box<[f64]>>,
+    ) -> Result<(), SimError> {
+        match event {
+            Event::Released(r) => {
+                let mut values = [0.0; WIDTH];
+                for (v, x) in values.iter_mut().zip(r.values()) {
+                    *v = *x;
+                }
+                let rx = Rx {
+                    values: Some(values),
+                    fresh: r.status == Status::Fresh,
+                    round_trip: r.grtt.and_then(|g| round_trip_ticks(g, self.period)),
+                };
+                let out = match side {
+                    Role::Base => {
+                        self.base_ticks += 1;
+                        self.app.base(rx)
+                    }
+                    Role::Remote => self.app.remote(rx),
+                }
+                .map_err(SimError::Control)?;
+                ep.set_sample(&out)
+                    .map_err(|e| link_error(side, self.net.global(side, now), e))?;
+            }
+            Event::Started { period, .. } => {
+                if period != self.period {
+                    self.log.period_changes += 1;
+                }
+                self.period = period;
+                self.net.period = period;
+            }
+            Event::DelayChanged { .. } => self.log.announced.push(self.base_ticks),
+            Event::Closed { error: Some(e) } => {
+                return Err(link_error(side, self.net.global(side, now), e));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn failed(
+        &mut self,
+        side: Role,
+        at: Instant,
+        error: ndr_core::endpoint::LinkError,
+    ) -> Result<(), SimError> {
+        Err(link_error(side, at, error))
+    }
+}
