@@ -78,6 +78,8 @@ pub(crate) struct Record {
     pub round_trips: Vec<(u64, usize)>,
     /// The wave channel's account (bilateral).
     pub energy: Option<WaveEnergy>,
+    /// Remote ticks, once commands flowed, that applied no new command.
+    pub repeats: u64,
 }
 
 /// How a tracking loop's controller sees the plant.
@@ -191,6 +193,9 @@ impl App for Tracking {
     fn remote(&mut self, rx: Rx) -> Result<[f64; WIDTH], ControlError> {
         let m = self.record.remote.len();
         let [u, k, ..] = rx.values.unwrap_or([0.0; WIDTH]);
+        if k > 0.0 && !rx.fresh {
+            self.record.repeats += 1;
+        }
         let x = self.plant.step(u);
         self.record.remote.push(RemoteTick {
             x,

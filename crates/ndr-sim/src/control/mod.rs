@@ -325,6 +325,9 @@ pub struct LoopMetrics {
     pub round_trip_mean_ticks: f64,
     /// Round trips the Smith predictor was given after the first.
     pub round_trip_changes: u64,
+    /// Remote ticks that applied no new command once commands flowed
+    /// (underflows, lost samples; a plain socket's gaps).
+    pub repeats: u64,
     /// Delay changes the endpoints announced.
     pub announced: u64,
     /// Largest error against the delayed design within [`CHANGE_WINDOW`]
@@ -528,6 +531,7 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         stable,
         round_trip_mean_ticks: trips.iter().sum::<f64>() / trips.len().max(1) as f64,
         round_trip_changes: rec.round_trips.len().saturating_sub(1) as u64,
+        repeats: rec.repeats,
         announced: log.announced.len() as u64,
         change_peak,
         period_changes: log.period_changes,
@@ -680,6 +684,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
         stable: runs.iter().all(|r| r.stable),
         round_trip_mean_ticks: mean_of(&|r| r.round_trip_mean_ticks),
         round_trip_changes: runs.iter().map(|r| r.round_trip_changes).sum(),
+        repeats: runs.iter().map(|r| r.repeats).sum(),
         announced: runs.iter().map(|r| r.announced).sum(),
         change_peak: runs.iter().filter_map(|r| r.change_peak).reduce(f64::max),
         period_changes: runs.iter().map(|r| r.period_changes).sum(),
