@@ -40,7 +40,10 @@ fn the_smith_loop_is_the_delayed_design_over_the_static_fifo() {
         let cfg = config(&family(name), Scenario::Tracking, Controller::Smith);
         let report = compare_links(&cfg, &[LinkKind::PaperStatic], 3).unwrap();
         let row = &report.rows[0];
-        let constant = row.seeds.iter().filter(|m| m.round_trip_changes == 0 && m.repeats == 0);
+        let constant = row
+            .seeds
+            .iter()
+            .filter(|m| m.round_trip_changes == 0 && m.repeats == 0);
         assert!(constant.clone().count() >= 1, "{name}: {:?}", row.seeds);
         for m in constant {
             assert!(m.rms_vs_delayed_design <= 1e-9, "{name}: {m:?}");
