@@ -166,6 +166,12 @@ impl<const H: usize> SmithPredictor<H> {
         }
     }
 
+    /// Whether the model is identified online (not given).
+    #[must_use]
+    pub fn is_identifying(&self) -> bool {
+        matches!(self.model, Model::Identify(_))
+    }
+
     /// The tick of the next [`SmithPredictor::command`]: how many have been given.
     #[must_use]
     pub fn ticks(&self) -> u64 {

@@ -13,8 +13,10 @@ use std::vec::Vec;
 
 use ndr_core::arx::{Arx2, Tf2, Tf2State};
 use ndr_core::control::{ControlError, Pid, PidConfig, SmithPredictor, WaveEnergy, WaveTransform};
+use ndr_core::time::Duration;
 
 use super::{BilateralGains, Reference, TrackingGains};
+use crate::PlantConfig;
 
 /// Values a sample carries each way.
 pub(crate) const WIDTH: usize = 4;
@@ -39,11 +41,16 @@ pub(crate) trait App {
     fn base(&mut self, rx: Rx) -> Result<[f64; WIDTH], ControlError>;
     /// Remote tick: the command applied; the state to send.
     fn remote(&mut self, rx: Rx) -> Result<[f64; WIDTH], ControlError>;
+    /// The link changed its period (paper-dynamic): the plant, its model
+    /// and the controllers are discretized anew.
+    fn period(&mut self, period_s: f64) -> Result<(), ControlError>;
 }
 
 /// One base tick of a run, as measured.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct BaseTick {
+    /// When the loop ran it, s since the loop started.
+    pub t: f64,
     /// The reference.
     pub r: f64,
     /// The position measured at the base (the newest state's).
@@ -98,35 +105,41 @@ pub(crate) enum Feedback {
 pub(crate) struct Tracking {
     feedback: Feedback,
     pid: Pid,
+    plant_cfg: PlantConfig,
     plant: Tf2State,
     reference: Reference,
     period_s: f64,
+    /// Time at the base since the loop started, s.
+    t: f64,
     last: Option<[f64; WIDTH]>,
     pub record: Record,
 }
 
 impl Tracking {
-    /// `model`: the Smith predictor's (`None`: identified online);
-    /// `smith`: whether to use one; `fixed`: the round trip it is given
-    /// once (the unregulated link's mean) instead of the link's.
+    /// `smith`: whether to use a Smith predictor, with the plant's true
+    /// model (`Some(true)`) or one identified online; `fixed`: the round
+    /// trip it is given once (the unregulated link's mean) instead of the
+    /// link's.
     pub(crate) fn new(
         gains: &TrackingGains,
-        plant: Tf2,
+        plant_cfg: PlantConfig,
         reference: Reference,
         period_s: f64,
-        smith: Option<Option<Tf2>>,
+        smith: Option<bool>,
         fixed: Option<usize>,
     ) -> Result<Self, ControlError> {
+        let plant = discretize(&plant_cfg, period_s)?;
         let feedback = match smith {
             None => Feedback::Plain,
-            Some(model) => {
+            Some(true_model) => {
                 let d = fixed.unwrap_or(1).clamp(1, SMITH_HISTORY);
-                let predictor = match model {
-                    Some(tf) => SmithPredictor::with_model(tf, d)?,
-                    None => SmithPredictor::identifying(
+                let predictor = if true_model {
+                    SmithPredictor::with_model(plant, d)?
+                } else {
+                    SmithPredictor::identifying(
                         Arx2::new(1.0, 1e6).map_err(|_| ControlError::InvalidModel)?,
                         d,
-                    )?,
+                    )?
                 };
                 Feedback::Smith {
                     predictor: Box::new(predictor),
@@ -141,9 +154,11 @@ impl Tracking {
         Ok(Tracking {
             feedback,
             pid,
+            plant_cfg,
             plant: Tf2State::new(plant),
             reference,
             period_s,
+            t: 0.0,
             last: None,
             record: Record::default(),
         })
@@ -173,13 +188,16 @@ impl App for Tracking {
                 predictor.feedback(measured)?
             }
         };
-        let r = self.reference.value(k as f64 * self.period_s);
+        let t = self.t;
+        let r = self.reference.value(t);
+        self.t += self.period_s;
         let u = self.pid.step(r, seen)?;
         if let Feedback::Smith { predictor, .. } = &mut self.feedback {
             predictor.command(u)?;
         }
         let last = self.last.unwrap_or([0.0; WIDTH]);
         self.record.base.push(BaseTick {
+            t,
             r,
             y,
             answers: last[1] as i64 - 1,
@@ -204,6 +222,26 @@ impl App for Tracking {
         });
         Ok([x, k, (m + 1) as f64, x])
     }
+
+    fn period(&mut self, period_s: f64) -> Result<(), ControlError> {
+        let tf = discretize(&self.plant_cfg, period_s)?;
+        self.plant.set_model(tf);
+        self.pid.set_period(period_s)?;
+        if let Feedback::Smith { predictor, .. } = &mut self.feedback
+            && predictor.model_ready()
+            && !predictor.is_identifying()
+        {
+            predictor.set_model(tf)?;
+        }
+        self.period_s = period_s;
+        Ok(())
+    }
+}
+
+fn discretize(plant: &PlantConfig, period_s: f64) -> Result<Tf2, ControlError> {
+    plant
+        .discretize(Duration::from_secs_f64(period_s))
+        .map_err(|_| ControlError::InvalidModel)
 }
 
 /// A master device held by the operator and a slave meeting a wall,
@@ -214,6 +252,8 @@ pub(crate) struct Bilateral {
     energy: WaveEnergy,
     reference: Reference,
     dt: f64,
+    /// Time at the base since the loop started, s.
+    t: f64,
     /// Decode a repeat as the last wave again (a plain socket's receiver)
     /// instead of a zero wave.
     repeat_waves: bool,
@@ -242,6 +282,7 @@ impl Bilateral {
             energy: WaveEnergy::new(),
             reference,
             dt: period_s,
+            t: 0.0,
             repeat_waves,
             xm: 0.0,
             vm: 0.0,
@@ -276,15 +317,23 @@ impl App for Bilateral {
         }
         let v = self.decode(rx);
         self.energy.delivered(v, self.dt);
+        let t = self.t;
+        let r = self.reference.value(t);
+        self.t += self.dt;
+        // The master's velocity over this tick and the channel's force on
+        // it, solved together (implicit in the velocity): the channel's
+        // damping `b` and the operator's dissipate, whatever the period.
+        let g = &self.g;
+        let b = self.wave.impedance();
+        let pushed =
+            g.m_master * self.vm / self.dt + g.k_operator * (r - self.xm) + (2.0 * b).sqrt() * v;
+        self.vm = pushed / (g.m_master / self.dt + b + g.b_operator);
         let port = self.wave.master(self.vm, v)?;
         self.energy.sent(port.wave, self.dt);
-        let r = self.reference.value(k as f64 * self.dt);
-        let g = &self.g;
-        let operator = g.k_operator * (r - self.xm) - g.b_operator * self.vm;
-        self.vm += self.dt * (operator - port.force) / g.m_master;
         self.xm += self.dt * self.vm;
         let last = self.last_to_base.unwrap_or([0.0; WIDTH]);
         self.record.base.push(BaseTick {
+            t,
             r,
             y: last[3],
             answers: last[1] as i64 - 1,
@@ -302,24 +351,37 @@ impl App for Bilateral {
         }
         let u = self.decode(rx);
         self.energy.delivered(u, self.dt);
-        // The slave's PD force on the velocity the wave commands, which
-        // depends on that force: solved together, so that the port's
-        // velocity and force are the pair the wave carries.
+        // The slave's velocity, its PD force and the velocity the wave
+        // commands depend on each other: solved together, implicit in the
+        // velocities (backward Euler), so that the port's velocity and
+        // force are the pair the wave carries and the stiff wall stays
+        // stable at any period. The wall acts while the slave is in it.
         let g = &self.g;
-        let c = g.k_slave * self.dt + g.b_slave;
-        let rest = g.k_slave * (self.xsd - self.xs) - g.b_slave * self.vs;
+        let dt = self.dt;
         let b = self.wave.impedance();
-        let force = (c * (2.0 * b).sqrt() * u / b + rest) / (1.0 + c / b);
+        let sqrt_2b = (2.0 * b).sqrt();
+        let c = g.k_slave * dt + g.b_slave;
+        // F = alpha − beta·vs⁺ once the commanded velocity is eliminated.
+        let alpha = (g.k_slave * (self.xsd - self.xs) + c * sqrt_2b * u / b) / (1.0 + c / b);
+        let beta = c / (1.0 + c / b);
+        let touching = self.xs > g.wall;
+        let (wall_k, wall_b) = if touching {
+            (g.k_wall, g.k_wall * dt + g.b_wall)
+        } else {
+            (0.0, 0.0)
+        };
+        self.vs = (g.m_slave * self.vs / dt + alpha - wall_k * (self.xs - g.wall))
+            / (g.m_slave / dt + beta + wall_b);
+        let force = alpha - beta * self.vs;
         let port = self.wave.slave(u, force)?;
-        self.energy.sent(port.wave, self.dt);
-        self.xsd += self.dt * port.velocity;
-        let contact = if self.xs > g.wall {
+        self.energy.sent(port.wave, dt);
+        self.xsd += dt * port.velocity;
+        self.xs += dt * self.vs;
+        let contact = if touching {
             (g.k_wall * (self.xs - g.wall) + g.b_wall * self.vs).max(0.0)
         } else {
             0.0
         };
-        self.vs += self.dt * (force - contact) / g.m_slave;
-        self.xs += self.dt * self.vs;
         let applied = self.last_to_remote.map_or(0.0, |v| v[1]);
         self.record.remote.push(RemoteTick {
             x: self.xs,
@@ -327,5 +389,10 @@ impl App for Bilateral {
             contact,
         });
         Ok([port.wave, applied, (m + 1) as f64, self.xs])
+    }
+
+    fn period(&mut self, period_s: f64) -> Result<(), ControlError> {
+        self.dt = period_s;
+        Ok(())
     }
 }

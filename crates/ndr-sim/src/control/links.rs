@@ -22,8 +22,10 @@ use crate::{SimConfig, SimError};
 pub(crate) struct LinkLog {
     /// The base ticks at which either side announced a delay change.
     pub announced: Vec<u64>,
-    /// The periods the link ran at, if it changed (paper-dynamic).
+    /// The times the link changed its period (paper-dynamic).
     pub period_changes: u64,
+    /// The period when the loop started (the base's first release).
+    pub start_period: Option<Duration>,
 }
 
 /// The loop over a plain socket: both sides tick on one grid; at each
@@ -136,6 +138,7 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                 let out = match side {
                     Role::Base => {
                         self.base_ticks += 1;
+                        self.log.start_period.get_or_insert(self.period);
                         self.app.base(rx)
                     }
                     Role::Remote => self.app.remote(rx),
@@ -147,6 +150,9 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
             Event::Started { period, .. } => {
                 if period != self.period {
                     self.log.period_changes += 1;
+                    self.app
+                        .period(period.as_secs_f64())
+                        .map_err(SimError::Control)?;
                 }
                 self.period = period;
                 self.net.period = period;

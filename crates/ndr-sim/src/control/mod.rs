@@ -350,8 +350,8 @@ pub struct LoopMetrics {
 fn run_record(cfg: &LoopConfig) -> Result<(Record, links::LinkLog), SimError> {
     let mut sim = cfg.sim.clone();
     let period_s = sim.period.as_secs_f64();
-    let plant = cfg
-        .sim
+    // Refused here with the plant's own error rather than as a model error.
+    cfg.sim
         .plant
         .discretize(sim.period)
         .map_err(SimError::Plant)?;
@@ -377,13 +377,19 @@ fn run_record(cfg: &LoopConfig) -> Result<(Record, links::LinkLog), SimError> {
             c @ (Controller::Smith | Controller::SmithIdentified | Controller::Pid),
         ) => {
             let smith = match c {
-                Controller::Smith => Some(Some(plant)),
-                Controller::SmithIdentified => Some(None),
+                Controller::Smith => Some(true),
+                Controller::SmithIdentified => Some(false),
                 _ => None,
             };
-            let mut app =
-                Tracking::new(&cfg.tracking, plant, cfg.reference, period_s, smith, fixed)
-                    .map_err(SimError::Control)?;
+            let mut app = Tracking::new(
+                &cfg.tracking,
+                cfg.sim.plant,
+                cfg.reference,
+                period_s,
+                smith,
+                fixed,
+            )
+            .map_err(SimError::Control)?;
             let log = over!(&mut app)?;
             Ok((app.record, log))
         }
@@ -410,7 +416,7 @@ fn mean_round_trip(sim: &SimConfig) -> Result<usize, SimError> {
             kd: 0.0,
             u_max: 0.0,
         },
-        Tf2Unit::tf(),
+        sim.plant,
         Reference::default(),
         sim.period.as_secs_f64(),
         None,
@@ -421,14 +427,6 @@ fn mean_round_trip(sim: &SimConfig) -> Result<usize, SimError> {
     let held: Vec<f64> = held_round_trips(&app.record).collect();
     let mean = held.iter().sum::<f64>() / held.len().max(1) as f64;
     Ok((mean.round() as usize).max(1))
-}
-
-/// A unit-gain static model, for a run that only measures the link.
-struct Tf2Unit;
-impl Tf2Unit {
-    fn tf() -> ndr_core::arx::Tf2 {
-        ndr_core::arx::Tf2::new([1.0, 0.0, 0.0], [0.0, 0.0])
-    }
 }
 
 /// The round trip each base tick's state held, ticks.
@@ -444,24 +442,25 @@ fn held_round_trips(rec: &Record) -> impl Iterator<Item = f64> + '_ {
 /// record on the same configuration.
 fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record) -> LoopMetrics {
     let amp = cfg.reference.amplitude.abs().max(f64::MIN_POSITIVE);
-    let period_s = cfg.sim.period.as_secs_f64();
-    // The design's position on each command, by the base tick that sent it.
-    let mut by_command = std::vec![f64::NAN; design.base.len() + 1];
+    let period_s = log.start_period.unwrap_or(cfg.sim.period).as_secs_f64();
+    // The design's position on each command, by the time it was sent: a
+    // run whose period changed is compared with the design at the same
+    // times (interpolated); at one period the times are the same floats.
+    let mut design_at: Vec<(f64, f64)> = Vec::with_capacity(design.base.len());
     for t in &design.remote {
-        if let Some(slot) = usize::try_from(t.applied)
+        if let Some(b) = usize::try_from(t.applied)
             .ok()
-            .and_then(|i| by_command.get_mut(i))
-            && slot.is_nan()
+            .and_then(|j| design.base.get(j))
+            && design_at.last().is_none_or(|&(last, _)| b.t > last)
         {
-            *slot = t.x;
+            design_at.push((b.t, t.x));
         }
     }
     let delayed_design = |b: &apps::BaseTick| -> f64 {
         usize::try_from(b.answers)
             .ok()
-            .and_then(|j| by_command.get(j).copied())
-            .filter(|x| !x.is_nan())
-            .unwrap_or(0.0)
+            .and_then(|j| rec.base.get(j))
+            .map_or(0.0, |sent| interpolate(&design_at, sent.t))
     };
     let n = rec.base.len().max(1) as f64;
     let rms = |f: &dyn Fn(usize, &apps::BaseTick) -> f64| -> f64 {
@@ -565,6 +564,18 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
     m
 }
 
+/// The value at `t` of the series `at` (times increasing), linearly
+/// interpolated; the end values beyond its ends, zero if it is empty.
+fn interpolate(at: &[(f64, f64)], t: f64) -> f64 {
+    let i = at.partition_point(|&(ti, _)| ti < t);
+    match (i.checked_sub(1).and_then(|p| at.get(p)), at.get(i)) {
+        (_, Some(&(ti, x))) if ti == t => x,
+        (Some(&(t0, x0)), Some(&(t1, x1))) => x0 + (x1 - x0) * (t - t0) / (t1 - t0),
+        (None, Some(&(_, x))) | (Some(&(_, x)), None) => x,
+        (None, None) => 0.0,
+    }
+}
+
 fn root_mean_square(xs: impl Iterator<Item = f64>) -> f64 {
     let (sum, n) = xs.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
     (sum / n.max(1) as f64).sqrt()
@@ -578,10 +589,15 @@ fn root_mean_square(xs: impl Iterator<Item = f64>) -> f64 {
 /// does not fit the scenario or refused an input.
 pub fn run_loop(cfg: &LoopConfig) -> Result<LoopMetrics, SimError> {
     let (rec, log) = run_record(cfg)?;
-    let design_cfg = LoopConfig {
+    let mut design_cfg = LoopConfig {
         link: LinkKind::Ideal,
         ..cfg.clone()
     };
+    // The design at the period the loop started at (paper-dynamic may
+    // size it before the loop starts, and change it while it runs).
+    if let Some(p) = log.start_period {
+        design_cfg.sim.period = p;
+    }
     let (design, _) = run_record(&design_cfg)?;
     Ok(measure(cfg, &rec, &log, &design))
 }
