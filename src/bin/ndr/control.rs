@@ -127,7 +127,10 @@ pub fn run(args: &ControlArgs) -> Result<(), String> {
     } else {
         args.links.clone()
     };
-    let report = control::compare_links(&cfg, &links, args.seeds).map_err(|e| e.to_string())?;
+    let mut report = control::compare_links(&cfg, &links, args.seeds).map_err(|e| e.to_string())?;
+    if let Some(name) = &args.family {
+        report.network.clone_from(name);
+    }
     if args.json {
         println!(
             "{}",
@@ -154,16 +157,18 @@ pub fn print_table(r: &ControlReport) {
         r.rows.first().map_or(0, |row| row.runs)
     );
     println!(
-        "{:14} {:>9} {:>10} {:>10} {:>8} {:>9} {:>8} {:>6} {:>6} {:>9} {:>9} {:>9} {:>9}",
+        "{:14} {:>9} {:>10} {:>9} {:>10} {:>8} {:>9} {:>8} {:>6} {:>6} {:>7} {:>9} {:>9} {:>9} {:>9}",
         "link",
         "rms/ref",
         "rms/design",
+        "late",
         "max/design",
         "oversh.",
         "settle s",
         "unstable",
         "RTT tk",
         "annc.",
+        "unannc.",
         "peak",
         "E gen",
         "F err N",
@@ -172,10 +177,11 @@ pub fn print_table(r: &ControlReport) {
     for row in &r.rows {
         let m = &row.mean;
         println!(
-            "{:14} {:>9.4} {:>10.2e} {:>10.2e} {:>8.3} {:>9} {:>8} {:>6.1} {:>6} {:>9} {:>9} {:>9} {:>9}",
+            "{:14} {:>9.4} {:>10.2e} {:>9.2e} {:>10.2e} {:>8.3} {:>9} {:>8} {:>6.1} {:>6} {:>7} {:>9} {:>9} {:>9} {:>9}",
             row.link,
             m.rms_vs_reference,
             m.rms_vs_delayed_design,
+            m.rms_vs_delayed_design_late,
             row.max_rms_vs_delayed_design,
             m.overshoot,
             m.settling_s
@@ -183,6 +189,7 @@ pub fn print_table(r: &ControlReport) {
             format!("{}/{}", row.unstable_runs, row.runs),
             m.round_trip_mean_ticks,
             m.announced,
+            m.unannounced_changes,
             opt(m.change_peak, 2),
             opt(row.max_energy_generated, 2),
             m.contact_force_rms_error

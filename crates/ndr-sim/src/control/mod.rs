@@ -31,7 +31,8 @@
 //! - `rms_vs_delayed_design`: RMS of the position measured at the base
 //!   less the delay-free loop's position on the command it answers: the
 //!   design's output delayed by the round trip held. Zero when the loop
-//!   behaves like the design, delayed.
+//!   behaves like the design, delayed. `rms_vs_delayed_design_late`: the
+//!   same over the run's second half.
 //! - `overshoot` (fraction of the step) and `settling_s` (to 2 % of the
 //!   step, measured at the base, so the round trip counts): the worst over
 //!   the steps; `stable`: the position stayed within
@@ -44,6 +45,8 @@
 //!   sent the command the slave applied).
 //! - `round_trip_changes`: the round trips the Smith predictor was given;
 //!   `announced`: the delay changes the endpoints announced;
+//!   `unannounced_changes`: round-trip changes with no announcement in the
+//!   round trip before them;
 //!   `change_peak`: the largest `rms_vs_delayed_design`-type error in the
 //!   [`CHANGE_WINDOW`] ticks after each announced change.
 
@@ -315,6 +318,9 @@ pub struct LoopMetrics {
     pub rms_vs_reference: f64,
     /// RMS of the measured position less the delayed design's, / amplitude.
     pub rms_vs_delayed_design: f64,
+    /// The same over the second half of the run (an identified model has
+    /// converged by then).
+    pub rms_vs_delayed_design_late: f64,
     /// Largest overshoot of a step, / step.
     pub overshoot: f64,
     /// Longest settling to 2 % of a step, s; `None` if a step never settled.
@@ -330,6 +336,9 @@ pub struct LoopMetrics {
     pub repeats: u64,
     /// Delay changes the endpoints announced.
     pub announced: u64,
+    /// Round-trip changes the Smith predictor saw with no announcement in
+    /// the round trip before (regulated links).
+    pub unannounced_changes: u64,
     /// Largest error against the delayed design within [`CHANGE_WINDOW`]
     /// ticks after an announced change, / amplitude.
     pub change_peak: Option<f64>,
@@ -355,7 +364,10 @@ fn run_record(cfg: &LoopConfig) -> Result<(Record, links::LinkLog), SimError> {
         .plant
         .discretize(sim.period)
         .map_err(SimError::Plant)?;
+    // The round trip a Smith predictor is given once: one tick without a
+    // link, the mean over a plain socket; the regulated link announces it.
     let fixed = match cfg.link {
+        LinkKind::Ideal => Some(1),
         LinkKind::Unregulated => Some(mean_round_trip(&sim)?),
         _ => None,
     };
@@ -474,6 +486,9 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
     };
     let rms_vs_reference = rms(&|_, b| b.y - b.r) / amp;
     let rms_vs_delayed_design = rms(&|_, b| b.y - delayed_design(b)) / amp;
+    let half = rec.base.len() / 2;
+    let rms_vs_delayed_design_late =
+        root_mean_square(rec.base.iter().skip(half).map(|b| b.y - delayed_design(b))) / amp;
     let stable = rec
         .base
         .iter()
@@ -525,6 +540,7 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
     let mut m = LoopMetrics {
         rms_vs_reference,
         rms_vs_delayed_design,
+        rms_vs_delayed_design_late,
         overshoot,
         settling_s: all_settled.then_some(settling),
         stable,
@@ -532,6 +548,16 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         round_trip_changes: rec.round_trips.len().saturating_sub(1) as u64,
         repeats: rec.repeats,
         announced: log.announced.len() as u64,
+        unannounced_changes: rec
+            .round_trips
+            .iter()
+            .skip(1)
+            .filter(|&&(k, d)| {
+                !log.announced
+                    .iter()
+                    .any(|&a| a <= k && k - a <= d as u64 + 2)
+            })
+            .count() as u64,
         change_peak,
         period_changes: log.period_changes,
         ..LoopMetrics::default()
@@ -593,6 +619,10 @@ pub fn run_loop(cfg: &LoopConfig) -> Result<LoopMetrics, SimError> {
         link: LinkKind::Ideal,
         ..cfg.clone()
     };
+    // The tracking design is the PID on the plant itself, undelayed.
+    if cfg.scenario == Scenario::Tracking {
+        design_cfg.controller = Controller::Pid;
+    }
     // The design at the period the loop started at (paper-dynamic may
     // size it before the loop starts, and change it while it runs).
     if let Some(p) = log.start_period {
@@ -691,6 +721,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
     let mean = LoopMetrics {
         rms_vs_reference: mean_of(&|r| r.rms_vs_reference),
         rms_vs_delayed_design: mean_of(&|r| r.rms_vs_delayed_design),
+        rms_vs_delayed_design_late: mean_of(&|r| r.rms_vs_delayed_design_late),
         overshoot: mean_of(&|r| r.overshoot),
         settling_s: if settled {
             mean_opt(&|r| r.settling_s)
@@ -702,6 +733,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
         round_trip_changes: runs.iter().map(|r| r.round_trip_changes).sum(),
         repeats: runs.iter().map(|r| r.repeats).sum(),
         announced: runs.iter().map(|r| r.announced).sum(),
+        unannounced_changes: runs.iter().map(|r| r.unannounced_changes).sum(),
         change_peak: runs.iter().filter_map(|r| r.change_peak).reduce(f64::max),
         period_changes: runs.iter().map(|r| r.period_changes).sum(),
         energy_generated: mean_opt(&|r| r.energy_generated),
