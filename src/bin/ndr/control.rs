@@ -157,7 +157,7 @@ pub fn print_table(r: &ControlReport) {
         r.rows.first().map_or(0, |row| row.runs)
     );
     println!(
-        "{:14} {:>9} {:>10} {:>9} {:>10} {:>8} {:>9} {:>8} {:>6} {:>6} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        "{:14} {:>9} {:>10} {:>9} {:>10} {:>8} {:>9} {:>8} {:>6} {:>6} {:>7} {:>5} {:>9} {:>9} {:>9} {:>9}",
         "link",
         "rms/ref",
         "rms/design",
@@ -169,6 +169,7 @@ pub fn print_table(r: &ControlReport) {
         "RTT tk",
         "annc.",
         "unannc.",
+        "late",
         "peak",
         "E gen",
         "F err N",
@@ -177,7 +178,7 @@ pub fn print_table(r: &ControlReport) {
     for row in &r.rows {
         let m = &row.mean;
         println!(
-            "{:14} {:>9.4} {:>10.2e} {:>9.2e} {:>10.2e} {:>8.3} {:>9} {:>8} {:>6.1} {:>6} {:>7} {:>9} {:>9} {:>9} {:>9}",
+            "{:14} {:>9.4} {:>10.2e} {:>9.2e} {:>10.2e} {:>8.3} {:>9} {:>8} {:>6.1} {:>6} {:>7} {:>5} {:>9} {:>9} {:>9} {:>9}",
             row.link,
             m.rms_vs_reference,
             m.rms_vs_delayed_design,
@@ -190,6 +191,7 @@ pub fn print_table(r: &ControlReport) {
             m.round_trip_mean_ticks,
             m.announced,
             m.unannounced_changes,
+            m.announced_late,
             opt(m.change_peak, 2),
             opt(row.max_energy_generated, 2),
             m.contact_force_rms_error

@@ -45,8 +45,9 @@
 //!   sent the command the slave applied).
 //! - `round_trip_changes`: the round trips the Smith predictor was given;
 //!   `announced`: the delay changes the endpoints announced;
-//!   `unannounced_changes`: round-trip changes with no announcement in the
-//!   round trip before them;
+//!   `unannounced_changes`: round-trip changes with no announcement within
+//!   a round trip of them; `announced_late`: those announced only after
+//!   the GRTT showed them;
 //!   `change_peak`: the largest `rms_vs_delayed_design`-type error in the
 //!   [`CHANGE_WINDOW`] ticks after each announced change.
 
@@ -336,9 +337,12 @@ pub struct LoopMetrics {
     pub repeats: u64,
     /// Delay changes the endpoints announced.
     pub announced: u64,
-    /// Round-trip changes the Smith predictor saw with no announcement in
-    /// the round trip before (regulated links).
+    /// Round-trip changes the Smith predictor saw with no delay change
+    /// announced within a round trip of them, before or after.
     pub unannounced_changes: u64,
+    /// Round-trip changes announced only after the GRTT showed them
+    /// (within a round trip).
+    pub announced_late: u64,
     /// Largest error against the delayed design within [`CHANGE_WINDOW`]
     /// ticks after an announced change, / amplitude.
     pub change_peak: Option<f64>,
@@ -537,6 +541,15 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
             .map(|b| (b.y - delayed_design(b)).abs() / amp)
             .fold(0.0f64, f64::max)
     });
+    // Changes of the round trip given to the predictor (after the first)
+    // with no announcement `a` such that `near(a, k, window)`.
+    let changes = |near: &dyn Fn(u64, u64, u64) -> bool| -> u64 {
+        rec.round_trips
+            .iter()
+            .skip(1)
+            .filter(|&&(k, d)| !log.announced.iter().any(|&a| near(a, k, d as u64 + 2)))
+            .count() as u64
+    };
     let mut m = LoopMetrics {
         rms_vs_reference,
         rms_vs_delayed_design,
@@ -548,16 +561,9 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         round_trip_changes: rec.round_trips.len().saturating_sub(1) as u64,
         repeats: rec.repeats,
         announced: log.announced.len() as u64,
-        unannounced_changes: rec
-            .round_trips
-            .iter()
-            .skip(1)
-            .filter(|&&(k, d)| {
-                !log.announced
-                    .iter()
-                    .any(|&a| a <= k && k - a <= d as u64 + 2)
-            })
-            .count() as u64,
+        unannounced_changes: changes(&|a, k, w| a + w >= k && a <= k + w),
+        announced_late: changes(&|a, k, w| a <= k && a + w >= k)
+            .saturating_sub(changes(&|a, k, w| a + w >= k && a <= k + w)),
         change_peak,
         period_changes: log.period_changes,
         ..LoopMetrics::default()
@@ -734,6 +740,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
         repeats: runs.iter().map(|r| r.repeats).sum(),
         announced: runs.iter().map(|r| r.announced).sum(),
         unannounced_changes: runs.iter().map(|r| r.unannounced_changes).sum(),
+        announced_late: runs.iter().map(|r| r.announced_late).sum(),
         change_peak: runs.iter().filter_map(|r| r.change_peak).reduce(f64::max),
         period_changes: runs.iter().map(|r| r.period_changes).sum(),
         energy_generated: mean_opt(&|r| r.energy_generated),
