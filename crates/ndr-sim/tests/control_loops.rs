@@ -92,3 +92,34 @@ fn a_plain_socket_breaks_passivity() {
     let generated = report.rows[0].mean.energy_generated.unwrap();
     assert!(generated > 1e-3, "{generated}");
 }
+
+/// Under the adaptive playout every change of the round trip the Smith
+/// predictor follows comes with a delay change an endpoint announced, and
+/// each announced change has its error peak measured.
+#[test]
+fn the_adaptive_playout_announces_every_round_trip_change() {
+    for name in ["step", "spikes", "tcp-stall", "paper-fig6", "wan-bursts"] {
+        let cfg = config(&family(name), Scenario::Tracking, Controller::Smith);
+        let report = compare_links(&cfg, &[LinkKind::Adaptive], 2).unwrap();
+        for m in &report.rows[0].seeds {
+            assert_eq!(m.unannounced_changes, 0, "{name}: {m:?}");
+            assert!(m.announced > 0 && m.change_peak.is_some(), "{name}: {m:?}");
+            assert!(m.stable, "{name}: {m:?}");
+        }
+    }
+}
+
+/// With a model identified online, the loop over the static FIFO is the
+/// delayed design within 2 % of the reference once identification has
+/// converged (the second half of the run).
+#[test]
+fn an_identified_model_comes_within_two_percent() {
+    for name in ["lan-75km", "step", "skew+100ppm"] {
+        let mut cfg = config(&family(name), Scenario::Tracking, Controller::SmithIdentified);
+        cfg.sim.duration = Duration::from_secs(120);
+        let report = compare_links(&cfg, &[LinkKind::PaperStatic], 2).unwrap();
+        for m in &report.rows[0].seeds {
+            assert!(m.rms_vs_delayed_design_late <= 0.02, "{name}: {m:?}");
+        }
+    }
+}
