@@ -1,6 +1,7 @@
 //! Closed loops across the link: the Smith predictor's exactness over the
 //! paper's static FIFO, and the wave channel's passivity.
 
+use ndr_core::endpoint::Underflow;
 use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_sim::compare::{Family, builtin, sim_config};
@@ -17,6 +18,7 @@ fn family(name: &str) -> Family {
 fn config(family: &Family, scenario: Scenario, controller: Controller) -> LoopConfig {
     let sim = sim_config(family, Regulation::PaperStatic, 1, CONTROL_PERIOD);
     let mut cfg = LoopConfig::new(sim, scenario, LinkKind::Ideal);
+    cfg.sim.underflow = Underflow::Hold;
     cfg.controller = controller;
     cfg
 }
@@ -115,7 +117,11 @@ fn the_adaptive_playout_announces_every_round_trip_change() {
 #[test]
 fn an_identified_model_comes_within_two_percent() {
     for name in ["lan-75km", "step", "skew+100ppm"] {
-        let mut cfg = config(&family(name), Scenario::Tracking, Controller::SmithIdentified);
+        let mut cfg = config(
+            &family(name),
+            Scenario::Tracking,
+            Controller::SmithIdentified,
+        );
         cfg.sim.duration = Duration::from_secs(120);
         let report = compare_links(&cfg, &[LinkKind::PaperStatic], 2).unwrap();
         for m in &report.rows[0].seeds {

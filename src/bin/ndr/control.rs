@@ -1,7 +1,7 @@
 //! `ndr control`: a classical controller closed across each kind of link,
 //! side by side, in simulated time.
 
-use ndr::core::endpoint::Transport;
+use ndr::core::endpoint::{Transport, Underflow};
 use ndr::core::time::Duration;
 use ndr::sim::SimConfig;
 use ndr::sim::compare::{self, Family};
@@ -41,6 +41,11 @@ pub struct ControlArgs {
     /// How samples cross (as `ndr sim --transport`), with --profile etc.
     #[arg(long, default_value = "stream")]
     pub transport: Transport,
+    /// What the regulators do at a tick whose sample has not arrived: hold
+    /// (the paper's: repeat the last sample, keep every one, the delay
+    /// stretches) or drop-late (keep the delay: the late sample is lost).
+    #[arg(long, default_value = "hold")]
+    pub underflow: Underflow,
     /// Seeds per link (1..=N).
     #[arg(long, default_value_t = 3)]
     pub seeds: u64,
@@ -121,6 +126,7 @@ pub fn run(args: &ControlArgs) -> Result<(), String> {
         }
     };
     let mut cfg = LoopConfig::new(sim, scenario, LinkKind::Ideal);
+    cfg.sim.underflow = args.underflow;
     cfg.controller = controller;
     let links = if args.links.is_empty() {
         LinkKind::ALL.to_vec()

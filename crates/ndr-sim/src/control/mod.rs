@@ -58,7 +58,6 @@ use std::string::{String, ToString};
 use std::vec::Vec;
 
 use ndr_core::control::ControlError;
-use ndr_core::endpoint::Underflow;
 use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use serde::Serialize;
@@ -328,6 +327,9 @@ pub struct LoopMetrics {
     pub settling_s: Option<f64>,
     /// The position stayed within [`STABLE_BOUND`] amplitudes.
     pub stable: bool,
+    /// The loop diverged to values that are not finite and the run
+    /// stopped there (its errors are infinite).
+    pub diverged: bool,
     /// Mean round trip held, ticks.
     pub round_trip_mean_ticks: f64,
     /// Round trips the Smith predictor was given after the first.
@@ -682,8 +684,34 @@ pub struct ControlReport {
     pub rows: Vec<LinkRow>,
 }
 
-/// Runs `base` (scenario, controller, network; its link is replaced) over
-/// each of `links`, seeds `1..=seeds`, under the paper's hold underflow.
+/// What a run that diverged measured: unstable, every error infinite.
+fn diverged() -> LoopMetrics {
+    LoopMetrics {
+        rms_vs_reference: f64::INFINITY,
+        rms_vs_delayed_design: f64::INFINITY,
+        rms_vs_delayed_design_late: f64::INFINITY,
+        overshoot: f64::INFINITY,
+        diverged: true,
+        ..LoopMetrics::default()
+    }
+}
+
+/// Whether `e` is a loop that diverged: a controller given a value that
+/// is not finite, or an endpoint refusing one.
+fn is_divergence(e: &SimError) -> bool {
+    matches!(
+        e,
+        SimError::Control(ControlError::NonFiniteInput)
+            | SimError::Link {
+                error: ndr_core::endpoint::LinkError::NonFinite { .. },
+                ..
+            }
+    )
+}
+
+/// Runs `base` (scenario, controller, network, underflow policy; its link
+/// is replaced) over each of `links`, seeds `1..=seeds`. A run that
+/// diverges counts as unstable with infinite errors.
 ///
 /// # Errors
 /// The first run's error.
@@ -699,8 +727,10 @@ pub fn compare_links(
             let mut cfg = base.clone();
             cfg.link = link;
             cfg.sim.seed = seed;
-            cfg.sim.underflow = Underflow::Hold;
-            runs.push(run_loop(&cfg)?);
+            runs.push(match run_loop(&cfg) {
+                Err(e) if is_divergence(&e) => diverged(),
+                other => other?,
+            });
         }
         rows.push(summarise(link, runs));
     }
@@ -735,6 +765,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
             None
         },
         stable: runs.iter().all(|r| r.stable),
+        diverged: runs.iter().any(|r| r.diverged),
         round_trip_mean_ticks: mean_of(&|r| r.round_trip_mean_ticks),
         round_trip_changes: runs.iter().map(|r| r.round_trip_changes).sum(),
         repeats: runs.iter().map(|r| r.repeats).sum(),
