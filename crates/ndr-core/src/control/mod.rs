@@ -22,8 +22,8 @@
 //! Time is counted in ticks of the link's period. The Smith predictor needs
 //! the round trip in ticks — from the tick a command is sent to the tick the
 //! state it produced is released back — and that it be constant between
-//! announced changes: a base release's GRTT divided by the period gives it
-//! ([`round_trip_ticks`]). The wave channel needs every wave delivered at
+//! announced changes: a base release's GRTT divided by the period, rounded up to the
+//! tick that takes it, gives it ([`round_trip_ticks`]). The wave channel needs every wave delivered at
 //! most once: a repeated sample (an underflow, a rising delay) is energy
 //! the channel did not receive, so the receiving side decodes a repeat as a
 //! zero wave, which the regulated link can do because it says which
@@ -105,17 +105,19 @@ impl fmt::Display for ControlError {
 impl core::error::Error for ControlError {}
 
 /// The round trip in whole ticks that a GRTT of `grtt` is at period
-/// `period`, rounded to the nearest: what a base release's
-/// [`grtt`](crate::endpoint::Release::grtt) tells a [`SmithPredictor`].
-/// `None` for a zero period.
+/// `period`, for an application that takes each release at its next tick
+/// (at the release's own tick if it falls on one): `⌈grtt / period⌉`.
+/// What a base release's [`grtt`](crate::endpoint::Release::grtt) tells a
+/// [`SmithPredictor`]: a release between two ticks (the adaptive playout
+/// releases on a schedule of its own) answers the command of `⌈…⌉` ticks
+/// before the tick that uses it. `None` for a zero period.
 #[must_use]
 pub fn round_trip_ticks(grtt: Duration, period: Duration) -> Option<usize> {
     let t = period.as_nanos();
     if t == 0 {
         return None;
     }
-    let ticks = (grtt.as_nanos() + t / 2) / t;
-    usize::try_from(ticks).ok()
+    usize::try_from(grtt.as_nanos().div_ceil(t)).ok()
 }
 
 fn finite(v: f64) -> Result<f64, ControlError> {
@@ -131,11 +133,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn round_trips_round_to_the_nearest_tick() {
+    fn a_round_trip_counts_to_the_tick_that_takes_the_release() {
         let t = Duration::from_millis(20);
         assert_eq!(round_trip_ticks(Duration::from_millis(60), t), Some(3));
-        assert_eq!(round_trip_ticks(Duration::from_millis(69), t), Some(3));
-        assert_eq!(round_trip_ticks(Duration::from_millis(71), t), Some(4));
+        assert_eq!(
+            round_trip_ticks(Duration::from_nanos(60_000_001), t),
+            Some(4)
+        );
+        assert_eq!(round_trip_ticks(Duration::from_millis(41), t), Some(3));
         assert_eq!(
             round_trip_ticks(Duration::from_millis(60), Duration::ZERO),
             None

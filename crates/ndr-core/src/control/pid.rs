@@ -89,7 +89,12 @@ impl Pid {
         if !(cfg.derivative_filter_s.is_finite() && cfg.derivative_filter_s >= 0.0) {
             return Err(ControlError::InvalidParameter("the derivative filter (s)"));
         }
-        if !(cfg.out_min <= cfg.out_max) {
+        // NaN limits compare as neither: refused with the empty range.
+        if cfg
+            .out_min
+            .partial_cmp(&cfg.out_max)
+            .is_none_or(|o| o.is_gt())
+        {
             return Err(ControlError::InvalidLimits {
                 min: cfg.out_min,
                 max: cfg.out_max,

@@ -7,7 +7,7 @@ use std::collections::VecDeque;
 use std::vec::Vec;
 
 use ndr_core::control::round_trip_ticks;
-use ndr_core::endpoint::{Event, Status, Transport};
+use ndr_core::endpoint::{Event, Phase, Status, Transport};
 use ndr_core::pair::{Pair, World};
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
@@ -86,6 +86,8 @@ pub(crate) fn regulated<A: App>(cfg: &SimConfig, app: &mut A) -> Result<LinkLog,
         app,
         period: cfg.period,
         base_ticks: 0,
+        pending: None,
+        next_base_tick: None,
         log: LinkLog::default(),
     };
     let mut pair = Pair::new(base, remote, world);
@@ -94,12 +96,32 @@ pub(crate) fn regulated<A: App>(cfg: &SimConfig, app: &mut A) -> Result<LinkLog,
     Ok(world.log)
 }
 
+/// The regulated link's world. The remote's application runs at each
+/// release, as the simulator's plant does (an adaptive remote ticks with
+/// its releases). The base's runs once a tick, on the base's grid, with
+/// the newest state released since its last run: the adaptive playout
+/// releases on a schedule of its own, and an application that answered
+/// each release would leave some ticks' frames repeating its previous
+/// command (a duplicate the remote takes as fresh) and overwrite others
+/// before they are sent.
 struct LoopWorld<'a, A> {
     net: Network,
     app: &'a mut A,
     period: Duration,
     base_ticks: u64,
+    /// What the base released since its application last ran.
+    pending: Option<Rx>,
+    /// The base tick its application runs at next, once the loop started.
+    next_base_tick: Option<Instant>,
     log: LinkLog,
+}
+
+impl<A: App> LoopWorld<'_, A> {
+    /// The first tick of the base's grid (origin zero) at or after `t`.
+    fn grid_at_or_after(&self, t: Instant) -> Instant {
+        let p = self.period.as_nanos().max(1);
+        Instant::from_nanos(t.as_nanos().div_ceil(p).saturating_mul(p))
+    }
 }
 
 impl<A: App> World<Heap> for LoopWorld<'_, A> {
@@ -130,22 +152,36 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                 for (v, x) in values.iter_mut().zip(r.values()) {
                     *v = *x;
                 }
-                let rx = Rx {
-                    values: Some(values),
-                    fresh: r.status == Status::Fresh,
-                    round_trip: r.grtt.and_then(|g| round_trip_ticks(g, self.period)),
-                };
-                let out = match side {
+                let fresh = r.status == Status::Fresh;
+                let round_trip = r.grtt.and_then(|g| round_trip_ticks(g, self.period));
+                match side {
                     Role::Base => {
-                        self.base_ticks += 1;
-                        self.log.start_period.get_or_insert(self.period);
-                        self.app.base(rx)
+                        let before = self.pending.take();
+                        self.pending = Some(Rx {
+                            values: Some(values),
+                            fresh: fresh || before.is_some_and(|b| b.fresh),
+                            round_trip: round_trip.or(before.and_then(|b| b.round_trip)),
+                        });
+                        if self.next_base_tick.is_none() {
+                            self.next_base_tick = Some(self.grid_at_or_after(now));
+                        }
                     }
-                    Role::Remote => self.app.remote(rx),
+                    Role::Remote => {
+                        let rx = Rx {
+                            values: Some(values),
+                            fresh,
+                            round_trip,
+                        };
+                        let out = self.app.remote(rx).map_err(SimError::Control)?;
+                        ep.set_sample(&out)
+                            .map_err(|e| link_error(side, self.net.global(side, now), e))?;
+                    }
                 }
-                .map_err(SimError::Control)?;
-                ep.set_sample(&out)
-                    .map_err(|e| link_error(side, self.net.global(side, now), e))?;
+            }
+            Event::Paused { .. } if side == Role::Base => {
+                // The loop stops with the samples; it runs again from the
+                // next release.
+                self.next_base_tick = None;
             }
             Event::Started { period, .. } => {
                 if period != self.period {
@@ -163,6 +199,34 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
             }
             _ => {}
         }
+        Ok(())
+    }
+
+    fn sample(&mut self, side: Role, ep: &mut SimEndpoint, now: Instant) -> Result<(), SimError> {
+        // The base's application, at each of its ticks once the loop
+        // started: after the tick itself (nothing due any more at `now`),
+        // before the tick's frame is written.
+        let Some(tick) = self.next_base_tick else {
+            return Ok(());
+        };
+        if side != Role::Base
+            || now < tick
+            || ep.poll_timeout().is_some_and(|t| t <= now)
+            || ep.phase() != Phase::Running
+        {
+            return Ok(());
+        }
+        let rx = self.pending.take().unwrap_or(Rx {
+            values: None,
+            fresh: false,
+            round_trip: None,
+        });
+        self.base_ticks += 1;
+        self.log.start_period.get_or_insert(self.period);
+        let out = self.app.base(rx).map_err(SimError::Control)?;
+        ep.set_sample(&out)
+            .map_err(|e| link_error(side, self.net.global(side, now), e))?;
+        self.next_base_tick = Some(self.grid_at_or_after(now + Duration::from_nanos(1)));
         Ok(())
     }
 

@@ -193,7 +193,11 @@ impl Reference {
         let end = self.step_s * f64::from(self.steps);
         if t < end {
             let i = (t / self.step_s) as u32;
-            if i % 2 == 0 { self.amplitude } else { 0.0 }
+            if i.is_multiple_of(2) {
+                self.amplitude
+            } else {
+                0.0
+            }
         } else {
             self.amplitude * (core::f64::consts::TAU * self.sine_hz * (t - end)).sin()
         }
