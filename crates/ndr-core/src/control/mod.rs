@@ -31,9 +31,9 @@
 //!
 //! Nothing here allocates, reads a clock or panics.
 
-mod pid;
-mod smith;
-mod wave;
+pub mod pid;
+pub mod smith;
+pub mod wave;
 
 use core::fmt;
 

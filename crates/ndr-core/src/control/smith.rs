@@ -289,7 +289,7 @@ mod tests {
     }
 
     fn reference(k: u64) -> f64 {
-        if (k / 150) % 2 == 0 { 1.0 } else { -0.5 }
+        if (k / 150).is_multiple_of(2) { 1.0 } else { -0.5 }
     }
 
     fn pid() -> Pid {

@@ -232,7 +232,7 @@ mod tests {
         assert!(constant.stored() > 0.0);
         // A delay that falls and rises: waves bunch up, then a gap. Each
         // once: passive. The gap filled with repeats: energy from nowhere.
-        let varying = |k: usize| if (k / 100) % 2 == 0 { 30 } else { 2 };
+        let varying = |k: usize| if (k / 100).is_multiple_of(2) { 30 } else { 2 };
         assert_eq!(channel(&varying, false).generated(), 0.0);
         assert!(channel(&varying, true).generated() > 0.1);
     }
