@@ -289,7 +289,11 @@ mod tests {
     }
 
     fn reference(k: u64) -> f64 {
-        if (k / 150).is_multiple_of(2) { 1.0 } else { -0.5 }
+        if (k / 150).is_multiple_of(2) {
+            1.0
+        } else {
+            -0.5
+        }
     }
 
     fn pid() -> Pid {
@@ -309,15 +313,16 @@ mod tests {
             .collect()
     }
 
-    /// The loop closed across delays that may change: `round_trip(k)` is
-    /// the round trip at tick `k`, the forward part applies the command,
-    /// the rest brings the state back. Returns the states measured at the
-    /// base, tick by tick.
+    /// The loop closed across delays that may change: the command sent at
+    /// tick `k` reaches the plant `fwd(k)` ticks later, its state the base
+    /// `bwd` ticks after that. `before(k, smith)` runs at each tick before
+    /// the predictor. Returns the states measured at the base, tick by tick.
     fn across(
         ticks: u64,
         smith: &mut SmithPredictor<64>,
         mut fwd: impl FnMut(u64) -> u64,
         bwd: u64,
+        mut before: impl FnMut(u64, &mut SmithPredictor<64>),
     ) -> Vec<Option<f64>> {
         let (mut p, mut c) = (Tf2State::new(plant()), pid());
         // Commands in flight, by the tick they reach the plant; states by
@@ -331,6 +336,7 @@ mod tests {
                 y_m = to_base.pop_front().map(|(_, y)| y);
             }
             measured.push(y_m);
+            before(k, smith);
             let seen = smith.feedback(y_m).unwrap();
             let u = c.step(reference(k), seen).unwrap();
             smith.command(u).unwrap();
@@ -355,7 +361,7 @@ mod tests {
             let d = (df + db) as usize;
             let mut smith = SmithPredictor::<64>::with_model(plant(), d).unwrap();
             let ideal = delay_free(600);
-            let measured = across(600, &mut smith, |_| df, db);
+            let measured = across(600, &mut smith, |_| df, db, |_, _| {});
             for (k, y) in measured.iter().enumerate() {
                 // The state measured at k is the plant's on u[k − D]: the
                 // delay-free loop's output D − 1 ticks back.
@@ -378,7 +384,7 @@ mod tests {
         let zero = Tf2::new([0.0; 3], [0.0; 2]);
         let mut plain = SmithPredictor::<64>::with_model(zero, d).unwrap();
         let ideal = delay_free(600);
-        let measured = across(600, &mut plain, |_| 10, 7);
+        let measured = across(600, &mut plain, |_| 10, 7, |_, _| {});
         let err: f64 = measured
             .iter()
             .enumerate()
@@ -397,33 +403,16 @@ mod tests {
         let fwd = |k: u64| if k < change { 3 } else { 5 };
         let run = |realign: bool| {
             let mut smith = SmithPredictor::<64>::with_model(plant(), 7).unwrap();
-            let (mut p, mut c) = (Tf2State::new(plant()), pid());
-            let (mut to_plant, mut to_base) = (VecDeque::new(), VecDeque::new());
-            let (mut last, mut worst) = (None, 0.0f64);
-            for k in 0..800u64 {
-                let mut y_m = None;
-                while to_base.front().is_some_and(|&(at, _)| at == k) {
-                    y_m = to_base.pop_front().map(|(_, y)| y);
-                }
+            let mut worst = 0.0f64;
+            across(800, &mut smith, fwd, 4, |k, smith| {
                 if realign && k == change + 5 + 4 {
                     smith.set_round_trip(9).unwrap();
                 }
-                let seen = smith.feedback(y_m).unwrap();
-                let u = c.step(reference(k), seen).unwrap();
-                smith.command(u).unwrap();
-                to_plant.push_back((k + fwd(k), u));
-                let mut due = None;
-                while to_plant.front().is_some_and(|&(at, _)| at <= k) {
-                    due = to_plant.pop_front().map(|(_, u)| u);
-                }
-                if let Some(u) = due.or(last) {
-                    last = Some(u);
-                    to_base.push_back((k + 4, p.step(u)));
-                }
+                // The correction of the tick before.
                 if k > change + 20 {
                     worst = worst.max(smith.correction().abs());
                 }
-            }
+            });
             worst
         };
         // Realigned, the correction is what the repeated command left:
@@ -440,7 +429,7 @@ mod tests {
         let mut smith = SmithPredictor::<64>::identifying(Arx2::new(1.0, 1e6).unwrap(), d).unwrap();
         assert!(!smith.model_ready());
         let ideal = delay_free(3000);
-        let measured = across(3000, &mut smith, |_| 2, 4);
+        let measured = across(3000, &mut smith, |_| 2, 4, |_, _| {});
         assert!(smith.model_ready());
         let tail: f64 = measured
             .iter()
