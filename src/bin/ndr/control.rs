@@ -36,10 +36,10 @@ pub struct ControlArgs {
     #[command(flatten)]
     pub net: NetArgs,
     /// Packets lost each way (as `ndr sim --loss`), with --profile etc.
-    #[arg(long, default_value = "none")]
+    #[arg(long, default_value = "none", conflicts_with = "family")]
     pub loss: LossModel,
     /// How samples cross (as `ndr sim --transport`), with --profile etc.
-    #[arg(long, default_value = "stream")]
+    #[arg(long, default_value = "stream", conflicts_with = "family")]
     pub transport: Transport,
     /// What the regulators do at a tick whose sample has not arrived: hold
     /// (the paper's: repeat the last sample, keep every one, the delay
@@ -163,7 +163,7 @@ pub fn print_table(r: &ControlReport) {
         r.rows.first().map_or(0, |row| row.runs)
     );
     println!(
-        "{:14} {:>9} {:>10} {:>9} {:>10} {:>8} {:>9} {:>8} {:>6} {:>6} {:>7} {:>5} {:>9} {:>9} {:>9} {:>9}",
+        "{:14} {:>9} {:>10} {:>9} {:>10} {:>8} {:>9} {:>8} {:>6} {:>6} {:>7} {:>6} {:>9} {:>9} {:>9} {:>9}",
         "link",
         "rms/ref",
         "rms/design",
@@ -175,7 +175,7 @@ pub fn print_table(r: &ControlReport) {
         "RTT tk",
         "annc.",
         "unannc.",
-        "late",
+        "a.late",
         "peak",
         "E gen",
         "F err N",
@@ -184,7 +184,7 @@ pub fn print_table(r: &ControlReport) {
     for row in &r.rows {
         let m = &row.mean;
         println!(
-            "{:14} {:>9.4} {:>10.2e} {:>9.2e} {:>10.2e} {:>8.3} {:>9} {:>8} {:>6.1} {:>6} {:>7} {:>5} {:>9} {:>9} {:>9} {:>9}",
+            "{:14} {:>9.4} {:>10.2e} {:>9.2e} {:>10.2e} {:>8.3} {:>9} {:>8} {:>6.1} {:>6} {:>7} {:>6} {:>9} {:>9} {:>9} {:>9}",
             row.link,
             m.rms_vs_reference,
             m.rms_vs_delayed_design,
