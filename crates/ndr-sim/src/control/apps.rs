@@ -14,6 +14,7 @@ use std::vec::Vec;
 use ndr_core::arx::{Arx2, Tf2, Tf2State};
 use ndr_core::control::{ControlError, Pid, PidConfig, SmithPredictor, WaveEnergy, WaveTransform};
 use ndr_core::time::Duration;
+use ndr_core::wire::Role;
 
 use super::{BilateralGains, Reference, TrackingGains};
 use crate::PlantConfig;
@@ -41,9 +42,16 @@ pub(crate) trait App {
     fn base(&mut self, rx: Rx) -> Result<[f64; WIDTH], ControlError>;
     /// Remote tick: the command applied; the state to send.
     fn remote(&mut self, rx: Rx) -> Result<[f64; WIDTH], ControlError>;
-    /// The link changed its period (paper-dynamic): the plant, its model
-    /// and the controllers are discretized anew.
-    fn period(&mut self, period_s: f64) -> Result<(), ControlError>;
+    /// `side`'s endpoint changed its period (paper-dynamic): what runs
+    /// there is discretized anew.
+    fn period(&mut self, side: Role, period_s: f64) -> Result<(), ControlError>;
+    /// The remote's samples flow (again): what it sends until its first
+    /// release, `None` for its last sample. The endpoint sends the last
+    /// sample set at every tick, and after a pause that is one of before
+    /// it, which the base takes as fresh.
+    fn resume_remote(&self) -> Option<[f64; WIDTH]> {
+        None
+    }
 }
 
 /// One base tick of a run, as measured.
@@ -223,9 +231,12 @@ impl App for Tracking {
         Ok([x, k, (m + 1) as f64, x])
     }
 
-    fn period(&mut self, period_s: f64) -> Result<(), ControlError> {
+    fn period(&mut self, side: Role, period_s: f64) -> Result<(), ControlError> {
         let tf = discretize(&self.plant_cfg, period_s)?;
-        self.plant.set_model(tf);
+        if side == Role::Remote {
+            self.plant.set_model(tf);
+            return Ok(());
+        }
         self.pid.set_period(period_s)?;
         if let Feedback::Smith { predictor, .. } = &mut self.feedback
             && predictor.model_ready()
@@ -251,7 +262,10 @@ pub(crate) struct Bilateral {
     wave: WaveTransform,
     energy: WaveEnergy,
     reference: Reference,
+    /// The base's period, s.
     dt: f64,
+    /// The remote's period, s.
+    dt_remote: f64,
     /// Time at the base since the loop started, s.
     t: f64,
     /// Decode a repeat as the last wave again (a plain socket's receiver)
@@ -282,6 +296,7 @@ impl Bilateral {
             energy: WaveEnergy::new(),
             reference,
             dt: period_s,
+            dt_remote: period_s,
             t: 0.0,
             repeat_waves,
             xm: 0.0,
@@ -350,14 +365,14 @@ impl App for Bilateral {
             self.last_to_remote = rx.values;
         }
         let u = self.decode(rx);
-        self.energy.delivered(u, self.dt);
+        self.energy.delivered(u, self.dt_remote);
         // The slave's velocity, its PD force and the velocity the wave
         // commands depend on each other: solved together, implicit in the
         // velocities (backward Euler), so that the port's velocity and
         // force are the pair the wave carries and the stiff wall stays
         // stable at any period. The wall acts while the slave is in it.
         let g = &self.g;
-        let dt = self.dt;
+        let dt = self.dt_remote;
         let b = self.wave.impedance();
         let sqrt_2b = (2.0 * b).sqrt();
         let c = g.k_slave * dt + g.b_slave;
@@ -391,8 +406,16 @@ impl App for Bilateral {
         Ok([port.wave, applied, (m + 1) as f64, self.xs])
     }
 
-    fn period(&mut self, period_s: f64) -> Result<(), ControlError> {
-        self.dt = period_s;
+    fn period(&mut self, side: Role, period_s: f64) -> Result<(), ControlError> {
+        match side {
+            Role::Base => self.dt = period_s,
+            Role::Remote => self.dt_remote = period_s,
+        }
         Ok(())
+    }
+
+    /// A zero wave (no energy), answering no command.
+    fn resume_remote(&self) -> Option<[f64; WIDTH]> {
+        Some([0.0, 0.0, 0.0, self.xs])
     }
 }

@@ -85,6 +85,7 @@ pub(crate) fn regulated<A: App>(cfg: &SimConfig, app: &mut A) -> Result<LinkLog,
         net: Network::new(cfg),
         app,
         period: cfg.period,
+        periods: [cfg.period; 2],
         base_ticks: 0,
         pending: None,
         next_base_tick: None,
@@ -107,7 +108,10 @@ pub(crate) fn regulated<A: App>(cfg: &SimConfig, app: &mut A) -> Result<LinkLog,
 struct LoopWorld<'a, A> {
     net: Network,
     app: &'a mut A,
+    /// The base's period: its grid, its round trips in ticks.
     period: Duration,
+    /// Each side's period as its application knows it (base, remote).
+    periods: [Duration; 2],
     base_ticks: u64,
     /// What the base released since its application last ran.
     pending: Option<Rx>,
@@ -162,9 +166,6 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                             fresh: fresh || before.is_some_and(|b| b.fresh),
                             round_trip: round_trip.or(before.and_then(|b| b.round_trip)),
                         });
-                        if self.next_base_tick.is_none() {
-                            self.next_base_tick = Some(self.grid_at_or_after(now));
-                        }
                     }
                     Role::Remote => {
                         let rx = Rx {
@@ -179,18 +180,35 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                 }
             }
             Event::Paused { .. } if side == Role::Base => {
-                // The loop stops with the samples; it runs again from the
-                // next release.
+                // The loop stops with the samples; it runs again when they
+                // flow again.
                 self.next_base_tick = None;
+                self.pending = None;
             }
             Event::Started { period, .. } => {
-                if period != self.period {
-                    self.log.period_changes += 1;
+                // Each side's application changes its period when its
+                // endpoint does (the two may start a tick apart).
+                let known = &mut self.periods[usize::from(side == Role::Remote)];
+                if period != *known {
+                    *known = period;
                     self.app
-                        .period(period.as_secs_f64())
+                        .period(side, period.as_secs_f64())
                         .map_err(SimError::Control)?;
+                    if side == Role::Base {
+                        self.log.period_changes += 1;
+                    }
                 }
-                self.period = period;
+                if let (Role::Remote, Some(v)) = (side, self.app.resume_remote()) {
+                    ep.set_sample(&v)
+                        .map_err(|e| link_error(side, self.net.global(side, now), e))?;
+                }
+                if side == Role::Base {
+                    self.period = period;
+                    // Samples flow from now: the application sets one
+                    // every tick, or the endpoint would send its last one
+                    // again (after a pause, a command of before it).
+                    self.next_base_tick = Some(self.grid_at_or_after(now));
+                }
                 self.net.period = period;
             }
             Event::DelayChanged { .. } => self.log.announced.push(self.base_ticks),
