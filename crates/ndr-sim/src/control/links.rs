@@ -166,6 +166,9 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                             fresh: fresh || before.is_some_and(|b| b.fresh),
                             round_trip: round_trip.or(before.and_then(|b| b.round_trip)),
                         });
+                        if self.base_ticks == 0 && self.next_base_tick.is_none() {
+                            self.next_base_tick = Some(self.grid_at_or_after(now));
+                        }
                     }
                     Role::Remote => {
                         let rx = Rx {
@@ -204,10 +207,14 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                 }
                 if side == Role::Base {
                     self.period = period;
-                    // Samples flow from now: the application sets one
-                    // every tick, or the endpoint would send its last one
-                    // again (after a pause, a command of before it).
-                    self.next_base_tick = Some(self.grid_at_or_after(now));
+                    // After a pause samples flow from now: the application
+                    // sets one every tick, or the endpoint would send its
+                    // last one again, a command of before the pause. (At
+                    // the start the loop waits for its first state; the
+                    // endpoint sends zeros meanwhile.)
+                    if self.base_ticks > 0 {
+                        self.next_base_tick = Some(self.grid_at_or_after(now));
+                    }
                 }
                 self.net.period = period;
             }
