@@ -77,14 +77,23 @@ fn without_the_predictor_the_same_gains_go_unstable() {
 /// frame carries a wave twice.
 #[test]
 fn the_wave_channel_is_passive_over_every_regulated_link() {
-    let links = [LinkKind::PaperStatic, LinkKind::PaperDynamic, LinkKind::Adaptive];
+    let links = [
+        LinkKind::PaperStatic,
+        LinkKind::PaperDynamic,
+        LinkKind::Adaptive,
+    ];
     for f in builtin() {
         let f = f.with_duration(Duration::from_secs(60));
         let cfg = config(&f, Scenario::Bilateral, Controller::Wave);
         let report = compare_links(&cfg, &links, 1).unwrap();
         for row in &report.rows {
             let m = &row.mean;
-            assert!(m.energy_through.unwrap() > 1.0, "{} {}: {m:?}", f.name, row.link);
+            assert!(
+                m.energy_through.unwrap() > 1.0,
+                "{} {}: {m:?}",
+                f.name,
+                row.link
+            );
             assert!(
                 m.energy_generated.unwrap() <= 1e-9,
                 "{} {}: {m:?}",
