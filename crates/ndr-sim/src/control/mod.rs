@@ -63,7 +63,7 @@ use ndr_core::time::Duration;
 use serde::Serialize;
 
 use self::apps::{Bilateral, Record, Tracking};
-use crate::{PlantConfig, SimConfig, SimError};
+use crate::{SimConfig, SimError};
 
 /// A position beyond this many reference amplitudes is an unstable loop.
 pub const STABLE_BOUND: f64 = 3.0;
@@ -364,8 +364,8 @@ pub struct LoopMetrics {
     pub position_rms_error: Option<f64>,
 }
 
-/// One run of a loop. `design` is the delay-free loop's record, which
-/// [`run_loop`] computes when not given.
+/// One run of a loop over its link: what both sides recorded, and what
+/// the link did.
 fn run_record(cfg: &LoopConfig) -> Result<(Record, links::LinkLog), SimError> {
     let mut sim = cfg.sim.clone();
     let period_s = sim.period.as_secs_f64();
@@ -460,8 +460,8 @@ fn held_round_trips(rec: &Record) -> impl Iterator<Item = f64> + '_ {
         .map(|(k, b)| (k as i64 - b.answers) as f64)
 }
 
-/// Runs one loop and measures it against `design`, the delay-free loop's
-/// record on the same configuration.
+/// The metrics of a run (`rec`, `log`) against `design`, the delay-free
+/// loop's record on the same configuration.
 fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record) -> LoopMetrics {
     let amp = cfg.reference.amplitude.abs().max(f64::MIN_POSITIVE);
     let period_s = log.start_period.unwrap_or(cfg.sim.period).as_secs_f64();
@@ -799,12 +799,6 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
             .reduce(f64::max),
         seeds: runs,
     }
-}
-
-/// The default plant, for callers that build a [`LoopConfig`] by hand.
-#[must_use]
-pub fn default_plant() -> PlantConfig {
-    PlantConfig::default()
 }
 
 /// The period of `ndr control`: 20 ms.
