@@ -2,26 +2,8 @@
 //! the Smith loop exact over the static FIFO, the bilateral energy account,
 //! refusals that say what to do.
 
-use std::process::{Command, Output};
-
-use serde_json::Value;
-
-fn ndr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ndr"))
-        .args(args)
-        .output()
-        .expect("the ndr binary runs")
-}
-
-fn json(args: &[&str]) -> Value {
-    let out = ndr(args);
-    assert!(
-        out.status.success(),
-        "ndr {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("one JSON object on stdout")
-}
+mod cli_common;
+use cli_common::{json, ndr};
 
 #[test]
 fn tracking_has_a_row_per_link_and_the_static_fifo_is_exact() {

@@ -343,6 +343,34 @@ impl Network {
     }
 }
 
+/// The [`World`] methods of a simulated world that holds its [`Network`]
+/// in `net`: arrivals, the remote's clock, refused frames.
+macro_rules! network_world {
+    () => {
+        fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+            self.net.arrival(from, sent, frame)
+        }
+
+        fn local(&self, side: Role, t: Instant) -> Instant {
+            self.net.local(side, t)
+        }
+
+        fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
+            self.net.global(side, deadline)
+        }
+
+        fn failed(
+            &mut self,
+            side: Role,
+            at: Instant,
+            error: ndr_core::endpoint::LinkError,
+        ) -> Result<(), SimError> {
+            Err($crate::engine::link_error(side, at, error))
+        }
+    };
+}
+pub(crate) use network_world;
+
 /// Everything around the simulated link's endpoints: the network, the
 /// operator, the plant and what is recorded.
 struct SimWorld<'a> {
@@ -413,17 +441,7 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
 impl World<Heap> for SimWorld<'_> {
     type Error = SimError;
 
-    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
-        self.net.arrival(from, sent, frame)
-    }
-
-    fn local(&self, side: Role, t: Instant) -> Instant {
-        self.net.local(side, t)
-    }
-
-    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
-        self.global(side, deadline)
-    }
+    network_world!();
 
     fn received(&mut self, side: Role, at: Instant, frame: &[u8]) {
         if side == Role::Remote {
@@ -499,10 +517,6 @@ impl World<Heap> for SimWorld<'_> {
         if side == Role::Base {
             self.collect.base_tick(at, base, remote);
         }
-    }
-
-    fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), SimError> {
-        Err(link_error(side, at, error))
     }
 }
 

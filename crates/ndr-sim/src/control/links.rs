@@ -14,7 +14,7 @@ use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::Role;
 
 use super::apps::{App, Rx, WIDTH};
-use crate::engine::{Network, SimEndpoint, endpoints, link_error};
+use crate::engine::{Network, SimEndpoint, endpoints, link_error, network_world};
 use crate::{SimConfig, SimError};
 
 /// What a run of a link saw besides the applications' records.
@@ -131,17 +131,7 @@ impl<A: App> LoopWorld<'_, A> {
 impl<A: App> World<Heap> for LoopWorld<'_, A> {
     type Error = SimError;
 
-    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
-        self.net.arrival(from, sent, frame)
-    }
-
-    fn local(&self, side: Role, t: Instant) -> Instant {
-        self.net.local(side, t)
-    }
-
-    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
-        self.net.global(side, deadline)
-    }
+    network_world!();
 
     fn event(
         &mut self,
@@ -253,14 +243,5 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
             .map_err(|e| link_error(side, self.net.global(side, now), e))?;
         self.next_base_tick = Some(self.grid_at_or_after(now + Duration::from_nanos(1)));
         Ok(())
-    }
-
-    fn failed(
-        &mut self,
-        side: Role,
-        at: Instant,
-        error: ndr_core::endpoint::LinkError,
-    ) -> Result<(), SimError> {
-        Err(link_error(side, at, error))
     }
 }
