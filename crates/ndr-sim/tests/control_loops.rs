@@ -4,8 +4,10 @@
 use ndr_core::endpoint::Underflow;
 use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
+use ndr_sim::SimConfig;
 use ndr_sim::compare::{Family, builtin, sim_config};
 use ndr_sim::control::{CONTROL_PERIOD, Controller, LinkKind, LoopConfig, Scenario, compare_links};
+use ndr_sim::delay::DelayModel;
 
 fn family(name: &str) -> Family {
     builtin()
@@ -160,5 +162,28 @@ fn an_identified_model_comes_within_two_percent() {
         for m in &report.rows[0].seeds {
             assert!(m.rms_vs_delayed_design_late <= 0.02, "{name}: {m:?}");
         }
+    }
+}
+
+/// Without jitter a plain socket is a constant delay too: the Smith loop
+/// over it, given that round trip, is as exact as over the regulated
+/// links. What the regulation removes is the jitter.
+#[test]
+fn over_a_constant_delay_every_link_is_exact() {
+    let mut sim = SimConfig::paper(DelayModel::profile("constant:50").unwrap());
+    sim.period = CONTROL_PERIOD;
+    sim.duration = Duration::from_secs(30);
+    sim.underflow = Underflow::Hold;
+    let cfg = LoopConfig::new(sim, Scenario::Tracking, LinkKind::Ideal);
+    let links = [
+        LinkKind::Unregulated,
+        LinkKind::PaperStatic,
+        LinkKind::Adaptive,
+    ];
+    let report = compare_links(&cfg, &links, 1).unwrap();
+    for row in &report.rows {
+        let m = &row.mean;
+        assert!(m.round_trip_mean_ticks >= 6.0, "{}: {m:?}", row.link);
+        assert_eq!(m.rms_vs_delayed_design, 0.0, "{}: {m:?}", row.link);
     }
 }
