@@ -114,3 +114,30 @@ fn a_controller_that_does_not_fit_is_refused() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("paper-static"));
 }
+
+#[test]
+fn each_announced_change_has_its_peak() {
+    let v = json(&[
+        "control",
+        "--link",
+        "adaptive",
+        "--family",
+        "step",
+        "--seeds",
+        "1",
+        "--duration-s",
+        "90",
+        "--json",
+    ]);
+    let seed = &v["rows"][0]["seeds"][0];
+    let peaks = seed["change_peaks"].as_array().unwrap();
+    assert_eq!(peaks.len() as u64, seed["announced"].as_u64().unwrap());
+    assert!(!peaks.is_empty());
+    // The +150 ms step at 60 s of the network is announced.
+    assert!(
+        peaks
+            .iter()
+            .any(|p| (60.0..62.0).contains(&p["at_s"].as_f64().unwrap())),
+        "{peaks:?}"
+    );
+}

@@ -352,6 +352,10 @@ pub struct LoopMetrics {
     /// Largest error against the delayed design within [`CHANGE_WINDOW`]
     /// ticks after an announced change, / amplitude.
     pub change_peak: Option<f64>,
+    /// Each announced change: when (s since the loop started) and the
+    /// largest error in the [`CHANGE_WINDOW`] ticks from it, / amplitude
+    /// (a seed's own; empty in a mean over seeds).
+    pub change_peaks: Vec<ChangePeak>,
     /// Times the link changed its period (paper-dynamic).
     pub period_changes: u64,
     /// Bilateral: energy the channel generated / energy through it.
@@ -362,6 +366,17 @@ pub struct LoopMetrics {
     pub contact_force_rms_error: Option<f64>,
     /// Bilateral: RMS of slave less master position, / amplitude.
     pub position_rms_error: Option<f64>,
+}
+
+/// The error after one announced delay change.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct ChangePeak {
+    /// When it was announced, s since the loop started.
+    pub at_s: f64,
+    /// The largest error against the delayed design in the
+    /// [`CHANGE_WINDOW`] ticks from it, / amplitude.
+    pub peak: f64,
 }
 
 /// One run of a loop over its link: what both sides recorded, and what
@@ -535,18 +550,21 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         }
     }
     let trips: Vec<f64> = held_round_trips(rec).collect();
-    let change_peak = (!log.announced.is_empty()).then(|| {
-        log.announced
-            .iter()
-            .flat_map(|&k| {
-                rec.base
-                    .iter()
-                    .skip(k as usize)
-                    .take(CHANGE_WINDOW as usize)
-            })
-            .map(|b| (b.y - delayed_design(b)).abs() / amp)
-            .fold(0.0f64, f64::max)
-    });
+    let change_peaks: Vec<ChangePeak> = log
+        .announced
+        .iter()
+        .map(|&k| ChangePeak {
+            at_s: rec.base.get(k as usize).map_or(f64::NAN, |b| b.t),
+            peak: rec
+                .base
+                .iter()
+                .skip(k as usize)
+                .take(CHANGE_WINDOW as usize)
+                .map(|b| (b.y - delayed_design(b)).abs() / amp)
+                .fold(0.0f64, f64::max),
+        })
+        .collect();
+    let change_peak = change_peaks.iter().map(|c| c.peak).reduce(f64::max);
     // Changes of the round trip given to the predictor (after the first)
     // with no announcement `a` such that `near(a, k, window)`.
     let changes = |near: &dyn Fn(u64, u64, u64) -> bool| -> u64 {
@@ -571,6 +589,7 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         announced_late: changes(&|a, k, w| a <= k && a + w >= k)
             .saturating_sub(changes(&|a, k, w| a + w >= k && a <= k + w)),
         change_peak,
+        change_peaks,
         period_changes: log.period_changes,
         ..LoopMetrics::default()
     };
@@ -656,7 +675,8 @@ pub struct LinkRow {
     pub unstable_runs: usize,
     /// Every run stable.
     pub stable: bool,
-    /// The mean over the seeds of each metric.
+    /// Over the seeds: the mean of each error, the sum of each count, the
+    /// largest `change_peak`, `stable` if every run was.
     pub mean: LoopMetrics,
     /// The worst seed's `rms_vs_delayed_design`.
     pub max_rms_vs_delayed_design: f64,
@@ -777,6 +797,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
         unannounced_changes: runs.iter().map(|r| r.unannounced_changes).sum(),
         announced_late: runs.iter().map(|r| r.announced_late).sum(),
         change_peak: runs.iter().filter_map(|r| r.change_peak).reduce(f64::max),
+        change_peaks: Vec::new(),
         period_changes: runs.iter().map(|r| r.period_changes).sum(),
         energy_generated: mean_opt(&|r| r.energy_generated),
         energy_through: mean_opt(&|r| r.energy_through),
