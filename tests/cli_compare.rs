@@ -2,26 +2,11 @@
 //! the same output for the same seeds, trace files, missing netem tables.
 
 use std::path::PathBuf;
-use std::process::{Command, Output};
 
 use serde_json::Value;
 
-fn ndr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ndr"))
-        .args(args)
-        .output()
-        .expect("the ndr binary runs")
-}
-
-fn json(args: &[&str]) -> Value {
-    let out = ndr(args);
-    assert!(
-        out.status.success(),
-        "ndr {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("one JSON object on stdout")
-}
+mod cli_common;
+use cli_common::{json, ndr};
 
 const REGULATIONS: [&str; 9] = [
     "paper-static",

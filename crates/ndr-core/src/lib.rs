@@ -48,6 +48,10 @@
 //!   constant and known in samples, an [`Estimator`] can replay the commands
 //!   in flight through that model to give `x3e` (the remote's state now) and
 //!   `x3p` (its state when the command sent now takes effect).
+//! - [`control`]: classical teleoperation control closed across the link:
+//!   a [`SmithPredictor`](control::SmithPredictor), Niemeyer and Slotine's
+//!   wave variables with the channel's energy account, a PID with
+//!   anti-windup.
 //! - [`wire`]: the frame codec (spec and test vectors in `docs/wire.md`):
 //!   checked views over `&[u8]`, encoding into `&mut [u8]`; decoding is total.
 //!   A datagram's samples travel in a [`wire::Bundle`]: the newest and
@@ -185,6 +189,7 @@ extern crate std;
 extern crate alloc;
 
 pub mod arx;
+pub mod control;
 pub mod drive;
 pub mod endpoint;
 pub mod estimator;

@@ -29,7 +29,7 @@ pub const MAX_SIM_AXES: usize = ndr_core::wire::MAX_CHANNELS;
 /// for Paris–New York jitter at a 1 ms period.
 pub const SIM_QUEUE: usize = 4096;
 
-type SimEndpoint = Endpoint<Heap>;
+pub(crate) type SimEndpoint = Endpoint<Heap>;
 
 /// The remote's plant: per axis, a second-order low-pass system discretized
 /// at the link's period by the bilinear transform.
@@ -55,7 +55,7 @@ impl Default for PlantConfig {
 }
 
 impl PlantConfig {
-    fn discretize(&self, period: Duration) -> Result<Tf2, ArxError> {
+    pub(crate) fn discretize(&self, period: Duration) -> Result<Tf2, ArxError> {
         Tf2::low_pass(
             core::f64::consts::TAU * self.natural_hz,
             self.damping,
@@ -157,6 +157,8 @@ pub enum SimError {
     Config(ConfigError),
     /// The plant parameters are invalid.
     Plant(ArxError),
+    /// A controller of a closed loop refused its parameters or an input.
+    Control(ndr_core::control::ControlError),
     /// The link ended before the run did.
     Link {
         /// Which side saw it.
@@ -176,6 +178,7 @@ impl fmt::Display for SimError {
             }
             SimError::Config(e) => write!(f, "{e}"),
             SimError::Plant(e) => write!(f, "plant: {e}"),
+            SimError::Control(e) => write!(f, "controller: {e}"),
             SimError::Link { side, at_s, error } => {
                 write!(
                     f,
@@ -264,34 +267,131 @@ impl SkewedClock {
     }
 }
 
-/// Everything around the simulated link's endpoints: the network, the
-/// remote's clock, the operator, the plant and what is recorded.
-struct SimWorld<'a> {
-    cfg: &'a SimConfig,
+/// The simulated network: the delays and losses each way, the TCP and
+/// datagram paths, and the remote's clock.
+pub(crate) struct Network {
     sampler: DelaySampler,
     loss: LossSampler,
     paths: [TcpPath; 2],
     /// The datagrams' way (the datagram transport), beside the TCP path.
     datagram_paths: [InOrderPath; 2],
     /// The period the link runs at: one frame each way per period.
-    period: Duration,
+    pub(crate) period: Duration,
+    remote_clock: SkewedClock,
+}
+
+impl Network {
+    pub(crate) fn new(cfg: &SimConfig) -> Self {
+        Network {
+            sampler: cfg.model.sampler(cfg.seed),
+            loss: cfg.loss.sampler(cfg.seed),
+            paths: [TcpPath::new(), TcpPath::new()],
+            datagram_paths: [InOrderPath::new(), InOrderPath::new()],
+            period: cfg.period,
+            remote_clock: SkewedClock::new(cfg.remote_skew_ppm),
+        }
+    }
+
+    /// When what `from` sends at `sent` reaches its peer (a datagram, or a
+    /// frame of the TCP stream), or `None` if a datagram is lost.
+    pub(crate) fn deliver(&mut self, from: Role, sent: Instant, datagram: bool) -> Option<Instant> {
+        let (dir, direction) = match from {
+            Role::Base => (0, Direction::Forward),
+            Role::Remote => (1, Direction::Backward),
+        };
+        // The network runs on simulation time.
+        let delay = self.sampler.delay(direction, sent);
+        // A datagram: lost for good, or through the path's queues, which
+        // keep their order (the delay models' jitter is queueing, not
+        // reordering; a lost datagram holds nothing back).
+        if datagram {
+            let lost = self.loss.lost(direction);
+            return (!lost).then(|| self.datagram_paths[dir].deliver(sent, delay));
+        }
+        // The frame's own delay, both ways, stands for the round trip the
+        // sender's TCP has measured.
+        let recovery = Recovery::linux(self.period, delay * 2);
+        let loss = &mut self.loss;
+        Some(
+            self.paths[dir].deliver(sent, delay, recovery, |attempt| match attempt {
+                0 => loss.lost(direction),
+                _ => loss.lost_again(direction),
+            }),
+        )
+    }
+
+    /// [`Network::deliver`] for an endpoint's frame.
+    pub(crate) fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        let datagram = frame.get(5) == Some(&(Kind::Bundle as u8));
+        self.deliver(from, sent, datagram)
+    }
+
+    /// `side`'s clock at simulation time `t`.
+    pub(crate) fn local(&self, side: Role, t: Instant) -> Instant {
+        match side {
+            Role::Base => t,
+            Role::Remote => self.remote_clock.local(t),
+        }
+    }
+
+    /// The first simulation time at which `side`'s clock reads `t`.
+    pub(crate) fn global(&self, side: Role, t: Instant) -> Instant {
+        match side {
+            Role::Base => t,
+            Role::Remote => self.remote_clock.global(t),
+        }
+    }
+}
+
+/// The [`World`] methods of a simulated world that holds its [`Network`]
+/// in `net`: arrivals, the remote's clock, refused frames.
+macro_rules! network_world {
+    () => {
+        fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+            self.net.arrival(from, sent, frame)
+        }
+
+        fn local(&self, side: Role, t: Instant) -> Instant {
+            self.net.local(side, t)
+        }
+
+        fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
+            self.net.global(side, deadline)
+        }
+
+        fn failed(
+            &mut self,
+            side: Role,
+            at: Instant,
+            error: ndr_core::endpoint::LinkError,
+        ) -> Result<(), SimError> {
+            Err($crate::engine::link_error(side, at, error))
+        }
+    };
+}
+pub(crate) use network_world;
+
+/// Everything around the simulated link's endpoints: the network, the
+/// operator, the plant and what is recorded.
+struct SimWorld<'a> {
+    cfg: &'a SimConfig,
+    net: Network,
     plants: Vec<Tf2State>,
     plant_out: Vec<f64>,
     operator: Vec<f64>,
     collect: Collector,
-    remote_clock: SkewedClock,
     forward: Option<ForwardLog>,
     /// Whether the last command frame to reach the remote carried a sample.
     last_was_sample: bool,
 }
 
-/// Runs one simulation.
-pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
-    if cfg.axes == 0 || usize::from(cfg.axes) > MAX_SIM_AXES {
-        return Err(SimError::Axes(cfg.axes));
-    }
+/// The two endpoints of a run of `cfg`, `width` values each way.
+pub(crate) fn endpoints(
+    cfg: &SimConfig,
+    width: u16,
+) -> Result<(SimEndpoint, SimEndpoint), SimError> {
     let endpoint = |role| -> Result<SimEndpoint, SimError> {
-        let mut c = Config::paper(role).with_width(cfg.axes);
+        let mut c = Config::paper(role).with_width(width);
         c.period = cfg.period;
         c.mode = cfg.mode;
         c.underflow = cfg.underflow;
@@ -309,24 +409,28 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         }
         SimEndpoint::with_capacity(c, Instant::ZERO, SIM_QUEUE).map_err(SimError::Config)
     };
+    Ok((endpoint(Role::Base)?, endpoint(Role::Remote)?))
+}
+
+/// Runs one simulation.
+pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
+    if cfg.axes == 0 || usize::from(cfg.axes) > MAX_SIM_AXES {
+        return Err(SimError::Axes(cfg.axes));
+    }
     let plant = cfg.plant.discretize(cfg.period).map_err(SimError::Plant)?;
     let axes = usize::from(cfg.axes);
     let world = SimWorld {
         cfg,
-        sampler: cfg.model.sampler(cfg.seed),
-        loss: cfg.loss.sampler(cfg.seed),
-        paths: [TcpPath::new(), TcpPath::new()],
-        datagram_paths: [InOrderPath::new(), InOrderPath::new()],
-        period: cfg.period,
+        net: Network::new(cfg),
         plants: (0..axes).map(|_| Tf2State::new(plant)).collect(),
         plant_out: std::vec![0.0; axes],
         operator: std::vec![0.0; axes],
         collect: Collector::new(cfg),
-        remote_clock: SkewedClock::new(cfg.remote_skew_ppm),
         forward: cfg.record_forward.then(ForwardLog::default),
         last_was_sample: false,
     };
-    let mut pair = Pair::new(endpoint(Role::Base)?, endpoint(Role::Remote)?, world);
+    let (base, remote) = endpoints(cfg, cfg.axes)?;
+    let mut pair = Pair::new(base, remote, world);
     pair.run_until(Instant::ZERO + cfg.duration)?;
     let (base, remote, world) = pair.into_parts();
     let mut out = world.collect.finish(cfg, &base, &remote);
@@ -337,42 +441,7 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
 impl World<Heap> for SimWorld<'_> {
     type Error = SimError;
 
-    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
-        let (dir, direction) = match from {
-            Role::Base => (0, Direction::Forward),
-            Role::Remote => (1, Direction::Backward),
-        };
-        // The network runs on simulation time.
-        let delay = self.sampler.delay(direction, sent);
-        // A datagram: lost for good, or through the path's queues, which
-        // keep their order (the delay models' jitter is queueing, not
-        // reordering; a lost datagram holds nothing back).
-        if frame.get(5) == Some(&(Kind::Bundle as u8)) {
-            let lost = self.loss.lost(direction);
-            return (!lost).then(|| self.datagram_paths[dir].deliver(sent, delay));
-        }
-        // The frame's own delay, both ways, stands for the round trip the
-        // sender's TCP has measured.
-        let recovery = Recovery::linux(self.period, delay * 2);
-        let loss = &mut self.loss;
-        Some(
-            self.paths[dir].deliver(sent, delay, recovery, |attempt| match attempt {
-                0 => loss.lost(direction),
-                _ => loss.lost_again(direction),
-            }),
-        )
-    }
-
-    fn local(&self, side: Role, t: Instant) -> Instant {
-        match side {
-            Role::Base => t,
-            Role::Remote => self.remote_clock.local(t),
-        }
-    }
-
-    fn wake(&mut self, side: Role, deadline: Instant) -> Instant {
-        self.global(side, deadline)
-    }
+    network_world!();
 
     fn received(&mut self, side: Role, at: Instant, frame: &[u8]) {
         if side == Role::Remote {
@@ -410,7 +479,7 @@ impl World<Heap> for SimWorld<'_> {
             }
             Event::Started { period, ns } => {
                 self.collect.started(side, now, period, ns);
-                self.period = period;
+                self.net.period = period;
                 if side == Role::Remote {
                     let model = self.cfg.plant.discretize(period).map_err(SimError::Plant)?;
                     for p in &mut self.plants {
@@ -449,19 +518,12 @@ impl World<Heap> for SimWorld<'_> {
             self.collect.base_tick(at, base, remote);
         }
     }
-
-    fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), SimError> {
-        Err(link_error(side, at, error))
-    }
 }
 
 impl SimWorld<'_> {
     /// The first simulation time at which `side`'s clock reads `t`.
     fn global(&self, side: Role, t: Instant) -> Instant {
-        match side {
-            Role::Base => t,
-            Role::Remote => self.remote_clock.global(t),
-        }
+        self.net.global(side, t)
     }
 
     /// A frame reached the remote at `at` (its clock): keep a command's
@@ -554,7 +616,7 @@ impl SimWorld<'_> {
     }
 }
 
-fn link_error(side: Role, at: Instant, error: LinkError) -> SimError {
+pub(crate) fn link_error(side: Role, at: Instant, error: LinkError) -> SimError {
     SimError::Link {
         side: if side == Role::Base { "base" } else { "remote" },
         at_s: at.as_secs_f64(),

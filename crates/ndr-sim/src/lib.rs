@@ -31,6 +31,8 @@
 //!   directly and does not depend on the simulator.
 //! - [`oracle`]: the best constant delay on a known trace, and
 //!   [`compare`]: playout policies side by side against it (`ndr compare`).
+//! - [`control`]: classical control closed across the link — a Smith
+//!   predictor, wave variables — over each kind of link (`ndr control`).
 //!
 //! Its users: the `ndr` command line (`ndr sim`, `ndr sim --paper`, `ndr
 //! compare`; `ndr demo`, `base` and `remote` borrow its plant and signals),
@@ -38,6 +40,7 @@
 #![forbid(unsafe_code)]
 
 pub mod compare;
+pub mod control;
 /// The delay models and in-order delivery: the `ndr-netem` crate.
 pub use ndr_netem as delay;
 mod engine;

@@ -1,6 +1,7 @@
 //! The `ndr` command line: one module per subcommand.
 
 mod compare;
+mod control;
 mod demo;
 #[cfg(test)]
 mod doc_commands;
@@ -60,6 +61,9 @@ enum Command {
     /// fixed latency) on the same simulated traces, beside the oracle: delay,
     /// late rate, underflows, recovery, mean ± 95 % CI over seeds.
     Compare(compare::CompareArgs),
+    /// A classical controller (Smith predictor, PID, wave variables) closed
+    /// across each kind of link, side by side, in simulated time.
+    Control(control::ControlArgs),
     /// Relay TCP connections to an upstream, delaying every frame (a TLS
     /// link: every TLS record, unopened) in order
     /// with a delay model, by default the paper's relay (paris-newyork).
@@ -85,6 +89,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => sim::run(args),
         Command::Relay(args) => relay::run(args),
         Command::Compare(args) => compare::run(args),
+        Command::Control(args) => control::run(args),
         Command::Soak(args) => soak::run(args),
         Command::Keygen(args) => keygen::run(args),
     };
