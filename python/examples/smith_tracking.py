@@ -41,6 +41,14 @@ def reference(t: float, step: float, steps: int, sine_hz: float) -> float:
     return math.sin(2 * math.pi * sine_hz * (t - end))
 
 
+def loop_round_trip(grtt: float, period: float) -> int:
+    """The round trip in this loop's ticks that a release's GRTT is: the
+    loop answers each release at once and its command leaves at the link's
+    next tick, one tick before the GRTT starts counting; a release the host
+    served a little late (up to a tenth of a period) is still on its tick."""
+    return ndr.round_trip_ticks(max(grtt - 0.1 * period, 0.0), period) + 1
+
+
 def control(
     link: ndr.Link,
     duration: float,
@@ -68,7 +76,7 @@ def control(
         # closes one; a delay change is announced before it takes effect.
         trip = None
         if tick.grtt is not None:
-            trip = ndr.round_trip_ticks(tick.grtt, period)
+            trip = loop_round_trip(tick.grtt, period)
         for event in link.events():
             if event.kind == "delay_changed":
                 changes += 1
