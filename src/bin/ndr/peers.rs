@@ -62,11 +62,12 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     // The connection counts in the run's duration: a peer that never
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
-    let (stats, end) = match connected {
+    let (stats, end, tracking) = match connected {
         Ok(Ok(link)) => operator(link, &args.run, args.link.axes, until, None, &mut series),
         Ok(Err(e)) => (
             None,
             End::NeverConnected(format!("cannot connect to {}: {e}", args.connect)),
+            None,
         ),
         Err(_) => (
             None,
@@ -74,6 +75,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
                 "no connection to {} within the {} s run",
                 args.connect, args.run.duration_s
             )),
+            None,
         ),
     };
     let (series, error) = series.close();
@@ -84,6 +86,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         relay: None,
         series,
         end,
+        tracking,
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
