@@ -3,6 +3,9 @@
 use std::path::Path;
 use std::process::Command;
 
+mod cli_common;
+use cli_common::{json, ndr};
+
 static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Held for the whole test: each demo runs two spinning hubs and a relay,
@@ -139,18 +142,19 @@ fn demo_runs_the_adaptive_playout() {
 
 /// `ndr demo --controller NAME` for 4 s at 10 ms, as JSON.
 fn tracking(controller: &str, csv: &Path) -> serde_json::Value {
-    let out = Command::new(env!("CARGO_BIN_EXE_ndr"))
-        .args(["demo", "--controller", controller])
-        .args(["--duration-s", "4", "--period-ms", "10", "--json", "--out"])
-        .arg(csv)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    let csv = csv.to_str().expect("a temporary path in UTF-8");
+    json(&[
+        "demo",
+        "--controller",
+        controller,
+        "--duration-s",
+        "4",
+        "--period-ms",
+        "10",
+        "--json",
+        "--out",
+        csv,
+    ])
 }
 
 #[test]
@@ -189,10 +193,7 @@ fn demo_closes_the_tracking_loop_at_the_base() {
 
 #[test]
 fn an_unknown_controller_is_refused_with_the_valid_names() {
-    let out = Command::new(env!("CARGO_BIN_EXE_ndr"))
-        .args(["demo", "--controller", "wave"])
-        .output()
-        .unwrap();
+    let out = ndr(&["demo", "--controller", "wave"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("smith") && err.contains("pid"), "{err}");

@@ -6,19 +6,20 @@
 //! Each release is a base tick `k`: the controller takes its state, and
 //! the command it computes is sent at the link's next tick. The round trip
 //! in ticks is the link's, from each release's GRTT ([`link_round_trip`]);
-//! the Smith predictor follows it as the simulator's does. The design (the same PID on the same plant, no link) runs
-//! alongside, so that each state can be compared with the design's on the
-//! command it answers, one round trip before: the report's
-//! `rms_vs_delayed_design`.
+//! the Smith predictor follows it as the simulator's does. The design (the
+//! same PID on the same plant, no link) runs alongside, so that each state
+//! can be compared with the design's on the command it answers, one round
+//! trip before: the report's `rms_vs_delayed_design`.
 
 use std::str::FromStr;
 
-use ndr::core::arx::{Tf2, Tf2State};
+use ndr::core::arx::Tf2State;
 use ndr::core::control::{ControlError, Pid, PidConfig, SmithPredictor, round_trip_ticks};
 use ndr::core::time::Duration;
-use ndr::sim::PlantConfig;
 use ndr::sim::control::{Reference, TrackingGains};
 use serde::Serialize;
+
+use crate::robot::plant_model;
 
 /// The longest round trip the controller follows, ticks (the simulator's).
 const HISTORY: usize = 8192;
@@ -99,17 +100,6 @@ pub struct Tracker {
     trips: u64,
 }
 
-fn plant(period_s: f64) -> Result<Tf2, String> {
-    let c = PlantConfig::default();
-    Tf2::low_pass(
-        std::f64::consts::TAU * c.natural_hz,
-        c.damping,
-        c.gain,
-        period_s,
-    )
-    .map_err(|e| format!("the tracking loop's plant cannot run at a period of {period_s} s: {e}"))
-}
-
 fn pid(g: &TrackingGains, period_s: f64) -> Result<Pid, ControlError> {
     Pid::new(PidConfig::new(g.kp, g.ki, g.kd, period_s).with_limits(-g.u_max, g.u_max))
 }
@@ -136,7 +126,7 @@ impl Tracker {
         }
         let period_s = period.as_secs_f64();
         let gains = TrackingGains::default();
-        let model = plant(period_s)?;
+        let model = plant_model(period)?;
         let smith = match kind {
             // One tick until the link says its round trip, as the simulator.
             ControllerKind::Smith => Some(Box::new(
@@ -166,7 +156,7 @@ impl Tracker {
     /// model and the PIDs are discretized anew.
     pub fn set_period(&mut self, period: Duration) -> Result<(), String> {
         let period_s = period.as_secs_f64();
-        let model = plant(period_s)?;
+        let model = plant_model(period)?;
         self.pid.set_period(period_s).map_err(control_error)?;
         self.design_pid
             .set_period(period_s)
@@ -255,7 +245,7 @@ mod tests {
     fn run(kind: ControllerKind, d: usize, ticks: usize) -> TrackingSummary {
         let period = Duration::from_millis(10);
         let mut t = Tracker::new(kind, period).unwrap().unwrap();
-        let mut p = Tf2State::new(plant(0.01).unwrap());
+        let mut p = Tf2State::new(plant_model(period).unwrap());
         let mut x = vec![0.0; ticks];
         for k in 0..ticks {
             let y = if k >= d { x[k - d] } else { 0.0 };
