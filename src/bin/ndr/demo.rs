@@ -22,7 +22,7 @@ use crate::report::{End, Outcome, Row, Series, finish};
 use crate::robot::{PlantArgs, StateLayout, robot};
 use crate::sim::NetArgs;
 use crate::size::millis;
-use crate::tracking::{ControllerKind, Tracker, TrackingSummary};
+use crate::tracking::{ControllerKind, Tracker, TrackingSummary, check_layout};
 
 /// The link's settings, shared by `demo`, `base` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
@@ -235,6 +235,7 @@ pub struct DemoArgs {
 pub fn run(args: &DemoArgs) -> Result<(), String> {
     let config = args.link.config()?;
     check_duration(&args.run)?;
+    check_layout(args.run.controller, &args.link.state)?;
     let max_command = args.plant.max_command()?;
     let model = args.net.model("lan-75km")?;
     let profile = model.name();

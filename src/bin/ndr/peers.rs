@@ -49,6 +49,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
     check_duration(&args.run)?;
+    crate::tracking::check_layout(args.run.controller, &args.link.state)?;
     // Refused as the link would refuse it, before the series is created.
     if tls.is_none() && !tls::plain_allowed(args.connect.ip(), config.insecure) {
         return Err(NetError::Insecure(args.connect).to_string());

@@ -119,6 +119,11 @@ impl Quantity {
 }
 
 impl StateLayout {
+    /// Whether a state sample starts with the first axis's position.
+    pub fn leads_with_positions(&self) -> bool {
+        self.0.first() == Some(&Quantity::Positions)
+    }
+
     /// Values in a state sample for `axes` axes.
     pub fn width(&self, axes: u16) -> Result<u16, String> {
         u16::try_from(self.0.len())

@@ -19,7 +19,7 @@ use ndr::core::time::Duration;
 use ndr::sim::control::{Reference, TrackingGains};
 use serde::Serialize;
 
-use crate::robot::plant_model;
+use crate::robot::{StateLayout, plant_model};
 
 /// The longest round trip the controller follows, ticks (the simulator's).
 const HISTORY: usize = 8192;
@@ -59,6 +59,20 @@ impl FromStr for ControllerKind {
                  predictor), pid"
             )),
         }
+    }
+}
+
+/// Refuses a controller the state layout cannot serve: the loop reads the
+/// first axis's position, the first value of a state.
+pub fn check_layout(kind: ControllerKind, layout: &StateLayout) -> Result<(), String> {
+    if kind == ControllerKind::None || layout.leads_with_positions() {
+        Ok(())
+    } else {
+        Err(format!(
+            "--controller {} closes the loop on the first axis's position: give a --state that \
+             starts with positions (e.g. positions,velocities), not {layout}",
+            kind.name()
+        ))
     }
 }
 
