@@ -95,4 +95,6 @@ mod docs {
     struct Python;
     #[doc = include_str!("../docs/guide/troubleshooting.md")]
     struct Troubleshooting;
+    #[doc = include_str!("../docs/guide/control.md")]
+    struct Control;
 }

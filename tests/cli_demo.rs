@@ -3,6 +3,9 @@
 use std::path::Path;
 use std::process::Command;
 
+mod cli_common;
+use cli_common::{json, ndr};
+
 static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Held for the whole test: each demo runs two spinning hubs and a relay,
@@ -135,4 +138,63 @@ fn demo_runs_the_adaptive_playout() {
         assert!(r[key].as_u64().unwrap() >= 1, "{key}: {r}");
     }
     let _ = std::fs::remove_file(csv);
+}
+
+/// `ndr demo --controller NAME` for 4 s at 10 ms, as JSON.
+fn tracking(controller: &str, csv: &Path) -> serde_json::Value {
+    let csv = csv.to_str().expect("a temporary path in UTF-8");
+    json(&[
+        "demo",
+        "--controller",
+        controller,
+        "--duration-s",
+        "4",
+        "--period-ms",
+        "10",
+        "--json",
+        "--out",
+        csv,
+    ])
+}
+
+#[test]
+fn demo_closes_the_tracking_loop_at_the_base() {
+    let _serial = serial();
+    let csv = std::env::temp_dir().join(format!("ndr-demo-tracking-{}.csv", std::process::id()));
+    let smith = tracking("smith", &csv);
+    assert_eq!(smith["controller"], "smith");
+    let t = &smith["tracking"];
+    assert!(t["ticks"].as_u64().unwrap() > 300, "{smith}");
+    // lan-75km through the relay at 10 ms: a round trip of a few ticks.
+    let trip = t["round_trip_mean_ticks"].as_f64().unwrap();
+    assert!((2.0..=30.0).contains(&trip), "{smith}");
+    // It tracks the reference (steps of 1: an error well below that), and
+    // with the plant's true model it is the delay-free design, delayed, to
+    // a small fraction of that error (the delay's changes and a loaded
+    // host's held ticks move it a little).
+    let vs_ref = t["rms_vs_reference"].as_f64().unwrap();
+    let vs_design = t["rms_vs_delayed_design"].as_f64().unwrap();
+    assert!(vs_ref > 0.0 && vs_ref < 0.6, "{smith}");
+    assert!(vs_design < 0.2 * vs_ref, "{smith}");
+    // The series' commands are the controller's: they move.
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    let commands: Vec<f64> = rows
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').nth(4)?.parse().ok())
+        .collect();
+    assert!(commands.iter().any(|&u| u.abs() > 1.0), "{rows}");
+    // The open-loop default reports no tracking.
+    let plain = demo(&[], &csv);
+    assert_eq!(plain["controller"], "none");
+    assert!(plain["tracking"].is_null(), "{plain}");
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
+fn an_unknown_controller_is_refused_with_the_valid_names() {
+    let out = ndr(&["demo", "--controller", "wave"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("smith") && err.contains("pid"), "{err}");
 }

@@ -14,6 +14,11 @@ The building blocks, with the names Python users already know:
 - the remote's model: :class:`Rls` (padasip's ``adapt(d, x)``,
   ``predict(x)``, ``w``), :class:`Tf2`, :class:`Tf2State`, :class:`Arx2`,
   :class:`Estimator` (``to_tf()`` gives scipy.signal's ``(num, den, dt)``);
+- control across the link: :class:`SmithPredictor` (a position loop on the
+  remote's delayed state, ``round_trip`` ticks from :func:`round_trip_ticks`),
+  :class:`Pid`, :class:`WaveTransform` and :class:`WaveEnergy` (wave
+  variables and the channel's energy account); ``python/examples/`` has a
+  controller closing the loop over a real link;
 - batch functions on numpy arrays, run without the GIL:
   :func:`kalman3_filter`, :func:`rls_filter`, :func:`lowpass`,
   :func:`envelope`.
@@ -43,6 +48,7 @@ from ._native import (
     MAX_AXES,
     MAX_WIDTH,
     MAX_CAPACITY,
+    SMITH_HISTORY,
     Arx2,
     DisconnectedError,
     Envelope,
@@ -54,6 +60,7 @@ from ._native import (
     LowPass,
     NetworkPredictor,
     PeerClosedError,
+    Pid,
     Prediction,
     ProtocolError,
     Regulator,
@@ -61,10 +68,13 @@ from ._native import (
     Relay,
     Rls,
     Signal,
+    SmithPredictor,
     Tf2,
     Tf2State,
     Tick,
     TlsConfig,
+    WaveEnergy,
+    WaveTransform,
     __version__,
     envelope,
     flush_logs,
@@ -75,6 +85,7 @@ from ._native import (
     nominal_size,
     period_law,
     rls_filter,
+    round_trip_ticks,
     set_log_level,
 )
 from . import sim
@@ -98,6 +109,7 @@ __all__ = [
     "MAX_AXES",
     "MAX_WIDTH",
     "MAX_CAPACITY",
+    "SMITH_HISTORY",
     "Arx2",
     "DisconnectedError",
     "Envelope",
@@ -115,6 +127,7 @@ __all__ = [
     "LowPass",
     "NetworkPredictor",
     "PeerClosedError",
+    "Pid",
     "Prediction",
     "ProtocolError",
     "Regulator",
@@ -127,10 +140,13 @@ __all__ = [
     "Rls",
     "RunningStats",
     "Signal",
+    "SmithPredictor",
     "Tf2",
     "Tf2State",
     "Tick",
     "TlsConfig",
+    "WaveEnergy",
+    "WaveTransform",
     "__version__",
     "envelope",
     "flush_logs",
@@ -141,6 +157,7 @@ __all__ = [
     "nominal_size",
     "period_law",
     "rls_filter",
+    "round_trip_ticks",
     "set_log_level",
     "sim",
 ]

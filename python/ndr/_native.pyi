@@ -8,7 +8,7 @@ number raises ``TypeError``.
 """
 
 import os
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, final
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, final, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -54,6 +54,12 @@ __all__ = [
     "Rls",
     "Tf2",
     "Tf2State",
+    "SMITH_HISTORY",
+    "Pid",
+    "SmithPredictor",
+    "WaveEnergy",
+    "WaveTransform",
+    "round_trip_ticks",
     "envelope",
     "init_stats",
     "kalman3_filter",
@@ -620,6 +626,169 @@ class Estimator:
         """Forgets the command history and anchors, keeping the model."""
     def reset_identification(self) -> None:
         """Restarts identification from a zero model."""
+
+
+# ---------------------------------------------------------------- control
+
+SMITH_HISTORY: int
+"""The longest round trip a :class:`SmithPredictor` follows, in ticks (8192)."""
+
+def round_trip_ticks(grtt: float, period: float) -> int:
+    """The round trip in whole ticks that a release's GRTT is at ``period``
+    (both in seconds), for an application that takes each release at its
+    next tick: ``ceil(grtt / period)``. What a :class:`SmithPredictor` is
+    given from ``tick.grtt``."""
+
+@final
+class SmithPredictor:
+    """A Smith predictor for a position loop closed at the base on the
+    remote's state, released ``round_trip`` ticks after the command it
+    answers (1 to :data:`SMITH_HISTORY`).
+
+    ``model`` is the plant's :class:`Tf2` (used as given), or an
+    :class:`Arx2` that identifies it online from the commands and the
+    measured states (until it has adapted enough, the controller is given
+    the measured state itself). A local copy of the model runs undelayed
+    on the commands; the controller sees its newest output corrected by
+    how far the plant was from it one round trip ago. With the true model
+    and a constant round trip the loop is the delay-free loop, delayed.
+
+    Each tick: ``seen = sp.feedback(y or None)``, then the controller's
+    ``u`` from ``seen``, then ``sp.command(u)``. When the link announces a
+    new delay (``"delay_changed"``, a new ``tick.grtt``), call
+    :meth:`set_round_trip` (see :func:`round_trip_ticks`).
+    """
+
+    def __new__(cls, model: Union[Tf2, Arx2], *, round_trip: int) -> "SmithPredictor": ...
+    def feedback(self, measured: Optional[float]) -> float:
+        """Tick ``k``, first half: the state released now (None for a held
+        repeat or no release); returns what the controller should take as
+        the plant's state."""
+    def command(self, u: float) -> None:
+        """Tick ``k``, second half: the command sent now."""
+    def run(self, measured: _ArrayLike, commands: _ArrayLike) -> _Floats:
+        """Replays recorded ticks without the GIL: for each ``k``,
+        ``feedback(measured[k])`` (NaN: no state) then
+        ``command(commands[k])``; returns the feedbacks, shape ``(n,)``.
+        Nothing changes if a tick is refused."""
+    def set_round_trip(self, round_trip: int) -> None:
+        """The link announced a new round trip, in ticks; the history is
+        kept by tick, so nothing jumps."""
+    def set_delays(self, delay_fwd: int, delay_bwd: int) -> None:
+        """The same from the one-way delays in ticks (their sum)."""
+    @property
+    def round_trip(self) -> int: ...
+    @property
+    def model(self) -> Tf2:
+        """The local model in use; assignable (a new period), keeping the history."""
+    @model.setter
+    def model(self, value: Tf2) -> None: ...
+    @property
+    def model_ready(self) -> bool:
+        """Whether the model is used (an identified one: after enough adaptations)."""
+    @property
+    def is_identifying(self) -> bool: ...
+    @property
+    def ticks(self) -> int:
+        """Commands given so far."""
+    @property
+    def correction(self) -> float:
+        """The last measured state less the model's output one round trip before."""
+    @property
+    def dt(self) -> float: ...
+
+@final
+class Pid:
+    """A discrete PID: ``u = kp*e + ki*integral(e) + kd*d(-y)/dt`` with
+    ``e = r - y`` (the derivative on the measurement: a reference step does
+    not kick), output held in ``[out_min, out_max]`` with anti-windup, the
+    derivative low-passed with time constant ``derivative_filter`` seconds
+    (0: none). ``dt`` is the period in seconds."""
+
+    def __new__(
+        cls,
+        kp: float,
+        ki: float = 0.0,
+        kd: float = 0.0,
+        *,
+        dt: float,
+        out_min: float = ...,
+        out_max: float = ...,
+        derivative_filter: float = 0.0,
+    ) -> "Pid": ...
+    def step(self, r: float, y: float) -> float:
+        """One step: the output for reference ``r`` and measurement ``y``."""
+    def run(self, r: _ArrayLike, y: _ArrayLike) -> _Floats:
+        """A :meth:`step` per pair of the series ``r``, ``y`` (an open loop:
+        the measurements are given), without the GIL; nothing changes if a
+        step is refused."""
+    def reset(self) -> None: ...
+    @property
+    def kp(self) -> float: ...
+    @property
+    def ki(self) -> float: ...
+    @property
+    def kd(self) -> float: ...
+    @property
+    def derivative_filter(self) -> float: ...
+    @property
+    def limits(self) -> Tuple[float, float]:
+        """``(out_min, out_max)``."""
+    @property
+    def dt(self) -> float:
+        """The period, seconds; assignable (the link resized), keeping the state."""
+    @dt.setter
+    def dt(self, value: float) -> None: ...
+
+@final
+class WaveTransform:
+    """Niemeyer and Slotine's wave variables at impedance ``b > 0`` (force
+    per velocity): ``u = (b*v + F)/sqrt(2b)``, ``w = (b*v - F)/sqrt(2b)``,
+    and ``v*F = (u**2 - w**2)/2``. The master sends ``u`` and decodes the
+    backward wave; the slave decodes ``u`` and sends the backward wave.
+    Over a link, decode a held repeat as a zero wave: a wave delivered
+    twice is energy the channel creates (see :class:`WaveEnergy`)."""
+
+    def __new__(cls, b: float) -> "WaveTransform": ...
+    @property
+    def b(self) -> float: ...
+    @overload
+    def forward_wave(self, velocity: float, force: float) -> float: ...
+    @overload
+    def forward_wave(self, velocity: _ArrayLike, force: _ArrayLike) -> _Floats: ...
+    @overload
+    def backward_wave(self, velocity: float, force: float) -> float: ...
+    @overload
+    def backward_wave(self, velocity: _ArrayLike, force: _ArrayLike) -> _Floats: ...
+    def master(self, velocity: float, v: float) -> Tuple[float, float]:
+        """The master at ``velocity`` receives the backward wave ``v``:
+        ``(force, u)``, the force reflected and the wave to send."""
+    def slave(self, u: float, force: float) -> Tuple[float, float]:
+        """The slave receives ``u`` and meets ``force`` (its local
+        controller's): ``(velocity, v)``, the velocity to command and the
+        wave to send."""
+
+@final
+class WaveEnergy:
+    """The energy account of a wave channel, both directions: what entered
+    (``0.5*wave**2*dt`` per wave sent), what left (per wave decoded), and
+    the most it ever gave beyond what it received (``generated``: zero for
+    a passive channel)."""
+
+    def __new__(cls) -> "WaveEnergy": ...
+    def sent(self, wave: Union[float, _ArrayLike], *, dt: float) -> None:
+        """A wave (or successive waves) entered the channel, ``dt`` seconds each."""
+    def delivered(self, wave: Union[float, _ArrayLike], *, dt: float) -> None:
+        """A wave (or successive waves) left the channel, ``dt`` seconds each."""
+    @property
+    def entered(self) -> float: ...
+    @property
+    def left(self) -> float: ...
+    @property
+    def stored(self) -> float:
+        """Entered less left (negative once the channel generated energy)."""
+    @property
+    def generated(self) -> float: ...
 
 
 # -- the link ---------------------------------------------------------------

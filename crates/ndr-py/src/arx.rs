@@ -58,8 +58,8 @@ fn to_tf<'py>(py: Python<'py>, tf: &Tf2, dt: f64) -> PyTf<'py> {
 #[pyclass(module = "ndr", name = "Tf2", frozen)]
 #[derive(Clone)]
 pub struct PyTf2 {
-    tf: Tf2,
-    dt: f64,
+    pub(crate) tf: Tf2,
+    pub(crate) dt: f64,
 }
 
 #[pymethods]
@@ -238,8 +238,8 @@ impl PyTf2State {
 #[pyclass(module = "ndr", name = "Arx2")]
 #[derive(Clone)]
 pub struct PyArx2 {
-    arx: Arx2,
-    dt: f64,
+    pub(crate) arx: Arx2,
+    pub(crate) dt: f64,
 }
 
 #[pymethods]

@@ -11,6 +11,8 @@
 //! - [`kalman`]: `Kalman3`, `NetworkPredictor`, `Prediction`, `kalman3_filter`;
 //! - [`rls`]: `Rls` (sizes 1 to 8), `rls_filter`;
 //! - [`arx`]: `Tf2`, `Tf2State`, `Arx2`, `Estimator`;
+//! - [`control`]: `SmithPredictor`, `Pid`, `WaveTransform`, `WaveEnergy`,
+//!   `round_trip_ticks`;
 //! - [`filters`]: `LowPass`, `Envelope`, `lowpass`, `envelope`;
 //! - [`link`]: the link natives (`_Link`, `_Listener`, `Tick`, `connect`,
 //!   `listen`) behind `ndr.Link`, with [`errors`] (the `ConnectionError`
@@ -27,6 +29,7 @@
 
 pub mod arx;
 pub mod blocking;
+pub mod control;
 pub mod convert;
 pub mod delay;
 pub mod errors;
@@ -113,6 +116,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<arx::PyTf2State>()?;
     m.add_class::<arx::PyArx2>()?;
     m.add_class::<arx::PyEstimator>()?;
+    m.add_class::<control::PySmithPredictor>()?;
+    m.add_class::<control::PyPid>()?;
+    m.add_class::<control::PyWaveTransform>()?;
+    m.add_class::<control::PyWaveEnergy>()?;
+    m.add_function(wrap_pyfunction!(control::round_trip_ticks_py, m)?)?;
+    m.add("SMITH_HISTORY", control::SMITH_HISTORY)?;
     m.add_class::<filters::PyLowPass>()?;
     m.add_class::<filters::PyEnvelope>()?;
     m.add_function(wrap_pyfunction!(filters::lowpass, m)?)?;

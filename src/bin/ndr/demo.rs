@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::{Config, Mode, Status, Transport, Underflow};
+use ndr::core::endpoint::{Config, Event, Mode, Status, Transport, Underflow};
 use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
@@ -22,6 +22,7 @@ use crate::report::{End, Outcome, Row, Series, finish};
 use crate::robot::{PlantArgs, StateLayout, robot};
 use crate::sim::NetArgs;
 use crate::size::millis;
+use crate::tracking::{ControllerKind, Tracker, TrackingSummary, check_layout};
 
 /// The link's settings, shared by `demo`, `base` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
@@ -199,6 +200,15 @@ pub struct RunArgs {
     /// says how the run ended (`ok`, `end`) and is printed whatever the end.
     #[arg(long)]
     pub json: bool,
+    /// Close a position loop at the base on the remote's state instead of
+    /// following --signal: smith (a PID through a Smith predictor with the
+    /// plant's model, following the round trip the link announces) or pid
+    /// (the PID on the delayed state), with the gains, plant and
+    /// reference of `ndr control --scenario tracking`, on the first axis;
+    /// the report gains the tracking errors. none (the default): the
+    /// open-loop operator.
+    #[arg(long, default_value = "none")]
+    pub controller: ControllerKind,
 }
 
 #[derive(clap::Args)]
@@ -225,6 +235,7 @@ pub struct DemoArgs {
 pub fn run(args: &DemoArgs) -> Result<(), String> {
     let config = args.link.config()?;
     check_duration(&args.run)?;
+    check_layout(args.run.controller, &args.link.state)?;
     let max_command = args.plant.max_command()?;
     let model = args.net.model("lan-75km")?;
     let profile = model.name();
@@ -264,6 +275,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 relay: None,
                 series,
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
+                tracking: None,
             };
             return finish(&args.link, &args.run, &with_series_error(outcome, error));
         }
@@ -294,7 +306,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             .map_err(|e| e.to_string())?
     };
 
-    let (base_stats, end) = operator(
+    let (base_stats, end, tracking) = operator(
         base,
         &args.run,
         args.link.axes,
@@ -320,6 +332,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         relay: Some(&relay_stats),
         series,
         end,
+        tracking,
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
@@ -366,8 +379,11 @@ pub fn operator(
     until: StdInstant,
     remote_stats: Option<&Mutex<Option<LinkStats>>>,
     series: &mut Series,
-) -> (Option<LinkStats>, End) {
+) -> (Option<LinkStats>, End, Option<TrackingSummary>) {
     let start = StdInstant::now();
+    // Made at the first release, at the period the link runs at.
+    let mut tracker: Option<Tracker> = None;
+    let mut u = 0.0;
     let live = !run.json && std::io::stderr().is_terminal();
     let mut next_status = start;
     let mut command = vec![0.0; usize::from(axes)];
@@ -389,7 +405,12 @@ pub fn operator(
         }
         let t = start.elapsed().as_secs_f64();
         for (axis, c) in command.iter_mut().enumerate() {
-            *c = run.signal.value(t, axis);
+            *c = match run.controller {
+                ControllerKind::None => run.signal.value(t, axis),
+                // The loop drives the first axis; the others stay at rest.
+                _ if axis == 0 => u,
+                _ => 0.0,
+            };
         }
         match link.send(&command) {
             Ok(()) => {}
@@ -411,6 +432,28 @@ pub fn operator(
                 if let Some(g) = s.grtt {
                     last_grtt = g.as_secs_f64();
                 }
+                let state = s.values().first().copied().unwrap_or(f64::NAN);
+                if run.controller != ControllerKind::None {
+                    let stepped = match &mut tracker {
+                        Some(tr) => tr.tick(state, s.status != Status::Held, s.grtt),
+                        None => link
+                            .stats()
+                            .map(|st| st.period)
+                            .ok_or_else(|| "the link released a state before it started".into())
+                            .and_then(|p| Tracker::new(run.controller, p))
+                            .and_then(|made| {
+                                let tr = tracker.insert(made.ok_or("no controller")?);
+                                tr.tick(state, s.status != Status::Held, s.grtt)
+                            }),
+                    };
+                    match stepped {
+                        Ok(next) => u = next,
+                        Err(e) => {
+                            end = Some(End::AppFailure(e));
+                            break;
+                        }
+                    }
+                }
                 let row = Row {
                     t_s: t,
                     seq: s.seq,
@@ -421,7 +464,7 @@ pub fn operator(
                         .and_then(|st| st.last_nrtt)
                         .map(Duration::as_secs_f64),
                     command: command[0],
-                    state: s.values().first().copied().unwrap_or(f64::NAN),
+                    state,
                 };
                 if let Err(e) = series.push(&row) {
                     end = Some(End::AppFailure(e));
@@ -436,6 +479,14 @@ pub fn operator(
         }
         for event in link.drain_events() {
             crate::logging::event("base", &event);
+            if let (Event::Started { period, .. }, Some(tr)) = (&event, &mut tracker)
+                && let Err(e) = tr.set_period(*period)
+            {
+                end = Some(End::AppFailure(e));
+            }
+        }
+        if end.is_some() {
+            break;
         }
         if StdInstant::now() >= next_status {
             next_status += StdDuration::from_millis(250);
@@ -465,7 +516,7 @@ pub fn operator(
         tracing::error!("base: {end}; ending the link as an application failure");
         link.abort();
     }
-    (link.close(), end)
+    (link.close(), end, tracker.map(|t| t.summary()))
 }
 
 fn status_line(

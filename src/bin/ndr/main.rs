@@ -16,6 +16,7 @@ mod signals;
 mod sim;
 mod size;
 mod soak;
+mod tracking;
 
 use std::process::ExitCode;
 

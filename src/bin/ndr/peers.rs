@@ -60,6 +60,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
     check_duration(&args.run)?;
+    crate::tracking::check_layout(args.run.controller, &args.link.state)?;
     let connect_to = resolve("--connect", &args.connect)?;
     // Refused as the link would refuse it, before the series is created.
     if tls.is_none() && !tls::plain_allowed(connect_to.ip(), config.insecure) {
@@ -74,11 +75,12 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     // The connection counts in the run's duration: a peer that never
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
-    let (stats, end) = match connected {
+    let (stats, end, tracking) = match connected {
         Ok(Ok(link)) => operator(link, &args.run, args.link.axes, until, None, &mut series),
         Ok(Err(e)) => (
             None,
             End::NeverConnected(format!("cannot connect to {connect_to}: {e}")),
+            None,
         ),
         Err(_) => (
             None,
@@ -86,6 +88,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
                 "no connection to {connect_to} within the {} s run",
                 args.run.duration_s
             )),
+            None,
         ),
     };
     let (series, error) = series.close();
@@ -96,6 +99,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         relay: None,
         series,
         end,
+        tracking,
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }

@@ -13,6 +13,7 @@ use ndr::net::{LinkStats, RelayStats};
 use serde::Serialize;
 
 use crate::demo::{LinkArgs, RunArgs};
+use crate::tracking::TrackingSummary;
 
 /// How a run of the operator ended.
 #[derive(Clone, Debug, PartialEq)]
@@ -208,6 +209,8 @@ pub struct Outcome<'a> {
     pub series: SeriesSummary,
     /// How the run ended.
     pub end: End,
+    /// What the base's tracking loop measured (`--controller`).
+    pub tracking: Option<TrackingSummary>,
 }
 
 /// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
@@ -302,6 +305,13 @@ struct DemoReport {
     csv: String,
     /// Rows in the CSV (one per state released to the base).
     csv_rows: u64,
+    /// The base's controller (`--controller`): `none`, `smith` or `pid`.
+    controller: &'static str,
+    /// With a controller: the tracking loop's RMS errors (positions over
+    /// the reference's amplitude, as `ndr control`) against the reference
+    /// and against the delay-free design delayed by the round trip, the
+    /// mean round trip it was given (ticks) and its changes.
+    tracking: Option<TrackingSummary>,
 }
 
 /// Prints the report (table or JSON), whatever the end; then the end as
@@ -405,6 +415,8 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         relay_datagrams_lost: relay.map(|r| r.datagrams.forward.lost + r.datagrams.backward.lost),
         csv: run.out.display().to_string(),
         csv_rows: o.series.rows,
+        controller: run.controller.name(),
+        tracking: o.tracking,
     }
 }
 
@@ -499,6 +511,17 @@ fn print_table(r: &DemoReport) {
     ) && f + b + lost > 0
     {
         println!("             {f} datagrams forward, {b} back, {lost} lost by its loss model");
+    }
+    if let Some(t) = &r.tracking {
+        println!(
+            "  tracking   {} · RMS error {:.4} against the reference · {:.2e} against the delayed design · round trip {:.1} ticks ({} changes, {} ticks)",
+            r.controller,
+            t.rms_vs_reference,
+            t.rms_vs_delayed_design,
+            t.round_trip_mean_ticks,
+            t.round_trip_changes,
+            t.ticks
+        );
     }
     println!("  series     {} ({} rows)", r.csv, r.csv_rows);
 }

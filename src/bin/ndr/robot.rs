@@ -119,6 +119,11 @@ impl Quantity {
 }
 
 impl StateLayout {
+    /// Whether a state sample starts with the first axis's position.
+    pub fn leads_with_positions(&self) -> bool {
+        self.0.first() == Some(&Quantity::Positions)
+    }
+
     /// Values in a state sample for `axes` axes.
     pub fn width(&self, axes: u16) -> Result<u16, String> {
         u16::try_from(self.0.len())
@@ -211,18 +216,20 @@ struct Drive {
     holding: bool,
 }
 
-impl Drive {
-    fn model(period: Duration) -> Result<Tf2, String> {
-        let c = PlantConfig::default();
-        Tf2::low_pass(
-            std::f64::consts::TAU * c.natural_hz,
-            c.damping,
-            c.gain,
-            period.as_secs_f64(),
-        )
-        .map_err(|e| format!("the simulated plant cannot run at a period of {period}: {e}"))
-    }
+/// The simulated plant (the simulator's default axis) at `period`: the
+/// robot's drive, and the model of the base's tracking loop.
+pub fn plant_model(period: Duration) -> Result<Tf2, String> {
+    let c = PlantConfig::default();
+    Tf2::low_pass(
+        std::f64::consts::TAU * c.natural_hz,
+        c.damping,
+        c.gain,
+        period.as_secs_f64(),
+    )
+    .map_err(|e| format!("the simulated plant cannot run at a period of {period}: {e}"))
+}
 
+impl Drive {
     /// One step on the released `commands`; the new state, or why it must
     /// not be sent.
     fn step(&mut self, commands: &[f64]) -> Result<&[f64], String> {
@@ -290,7 +297,7 @@ pub fn robot(
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner) = s;
     };
-    let mut drive = match Drive::model(period) {
+    let mut drive = match plant_model(period) {
         Ok(model) => Drive {
             plants: (0..axes).map(|_| Tf2State::new(model)).collect(),
             position: vec![0.0; axes],
@@ -314,7 +321,7 @@ pub fn robot(
         for event in link.drain_events() {
             crate::logging::event("remote", &event);
             match event {
-                Event::Started { period, .. } => match Drive::model(period) {
+                Event::Started { period, .. } => match plant_model(period) {
                     Ok(m) => {
                         drive.plants.iter_mut().for_each(|p| p.set_model(m));
                         drive.period_s = period.as_secs_f64();
