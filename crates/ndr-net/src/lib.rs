@@ -49,6 +49,7 @@ pub mod keygen;
 pub mod link;
 mod listener;
 pub mod pool;
+pub mod quic;
 pub mod relay;
 mod seats;
 pub mod spin;

@@ -32,7 +32,7 @@ use ndr_core::wire::{self, HEADER_LEN};
 use super::Entry;
 
 /// Datagrams read, or written, per system call.
-const BATCH: usize = 32;
+pub(super) const BATCH: usize = 32;
 /// Room for one received datagram: more than the longest Bundle a link
 /// sends (one sample of [`wire::MAX_CHANNELS`] values alone); a longer one
 /// arrives cut short and its endpoint refuses it.
@@ -137,10 +137,16 @@ impl Outgoing {
             path.unsent += 1;
             return;
         };
+        self.push_to(path.socket, link, to, frame);
+    }
+
+    /// `bytes` to `to` from socket `socket`, for link `link` (where a
+    /// refusal is counted; `u64::MAX`: no link's).
+    pub(super) fn push_to(&mut self, socket: u64, link: u64, to: SocketAddr, bytes: &[u8]) {
         let start = self.arena.len();
-        self.arena.extend_from_slice(frame);
+        self.arena.extend_from_slice(bytes);
         self.queued.push(Queued {
-            socket: path.socket,
+            socket,
             link,
             to,
             bytes: start..self.arena.len(),
@@ -248,6 +254,26 @@ impl Udp {
         }
     }
 
+    /// Reads a batch from socket `key` (for a QUIC endpoint): how many
+    /// datagrams, each then read with [`received`](Self::received).
+    pub(super) fn read(&mut self, key: u64) -> io::Result<usize> {
+        if self.slots.is_empty() {
+            self.slots = vec![0; SLOT * BATCH];
+        }
+        self.read_batch(key)
+    }
+
+    /// The `i`th datagram of the last [`read`](Self::read): where it came
+    /// from, when it arrived (the kernel's stamp), its bytes.
+    pub(super) fn received(
+        &self,
+        i: usize,
+    ) -> Option<(Option<SocketAddr>, Option<StdInstant>, &[u8])> {
+        let meta = self.meta.get(i)?;
+        let slot = self.slots.chunks_exact(SLOT).nth(i)?;
+        Some((meta.from, meta.at, slot.get(..meta.len.min(SLOT))?))
+    }
+
     /// Reads everything socket `key` holds and hands each datagram to its
     /// link's endpoint; the links that took one are added to `touched`.
     pub(super) fn receive(
@@ -332,11 +358,13 @@ impl Udp {
                     Err(_) => {
                         // The first of the chunk was refused (a full buffer,
                         // an unreachable path): it is lost, as on the network.
-                        if let Some(path) = entries
-                            .get_mut(&self.out.queued[at].link)
-                            .and_then(|e| e.datagram.as_mut())
-                        {
-                            path.unsent += 1;
+                        if let Some(e) = entries.get_mut(&self.out.queued[at].link) {
+                            if let Some(path) = e.datagram.as_mut() {
+                                path.unsent += 1;
+                            }
+                            if let Some(q) = e.quic.as_deref_mut() {
+                                q.dropped += 1;
+                            }
                         }
                         at += 1;
                     }

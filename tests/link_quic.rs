@@ -1,0 +1,139 @@
+//! The link over QUIC on loopback: mutual TLS 1.3 with the TLS link's
+//! identities, the samples as QUIC datagrams, the handshake and control on
+//! a QUIC stream; the same constant round trip as the other transports,
+//! and a peer with an unknown certificate refused.
+
+mod common;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use ndr::core::endpoint::{Config, Transport};
+use ndr::core::time::Duration;
+use ndr::core::wire::Role;
+use ndr::keygen::{self, KeyPair};
+use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
+
+fn config() -> LinkConfig {
+    let mut c = Config::paper(Role::Base).with_width(2);
+    c.period = Duration::from_millis(10);
+    c.transport = Transport::DATAGRAM;
+    LinkConfig::new(c)
+}
+
+/// Throwaway certificates for one test: base, remote and a stranger.
+struct Certs {
+    dir: PathBuf,
+    base: KeyPair,
+    remote: KeyPair,
+    other: KeyPair,
+}
+
+impl Certs {
+    fn new(test: &str) -> Certs {
+        let dir = std::env::temp_dir().join(format!("ndr-link-quic-{}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        Certs {
+            base: keygen::write(&dir, "base").unwrap(),
+            remote: keygen::write(&dir, "remote").unwrap(),
+            other: keygen::write(&dir, "other").unwrap(),
+            dir,
+        }
+    }
+}
+
+impl Drop for Certs {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// `own` trusting `peer` by its certificate file.
+fn tls(own: &KeyPair, peer: &KeyPair) -> TlsConfig {
+    TlsConfig::from_files(&own.cert, &own.key, &peer.cert).unwrap()
+}
+
+fn listener(rt: &tokio::runtime::Runtime, certs: &Certs) -> Listener {
+    let addr: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let config = config().with_tls(tls(&certs.remote, &certs.base));
+    rt.block_on(Listener::bind(addr, config)).unwrap()
+}
+
+#[test]
+fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
+    let _serial = common::serial();
+    let certs = Certs::new("grtt");
+    let rt = common::runtime();
+    let run = common::assert_regulated(|| {
+        let listener = listener(&rt, &certs);
+        let addr = listener.local_addr().unwrap();
+        let base_tls = tls(&certs.base, &certs.remote);
+        let (remote, base) = rt.block_on(async {
+            tokio::join!(
+                listener.accept(),
+                Link::connect(addr, config().with_tls(base_tls))
+            )
+        });
+        let run = common::echo_run(base.unwrap(), remote.unwrap());
+        assert_eq!(listener.stats().accepted, 1);
+        run
+    });
+    let remote = run.remote.expect("the remote's stats");
+    for (side, s) in [("base", &run.base), ("remote", &remote)] {
+        let e = &s.endpoint;
+        // Every sample went as a QUIC datagram, and quinn took them all.
+        assert!(e.datagrams_received > 250, "{side}: {s:?}");
+        assert_eq!(e.samples_lost, 0, "{side}: {s:?}");
+        assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
+    }
+    assert_eq!(
+        run.base.datagram_peer.map(|a| a.ip()),
+        Some([127, 0, 0, 1].into())
+    );
+}
+
+#[test]
+fn a_peer_with_an_unknown_certificate_is_refused_with_a_clear_error() {
+    let _serial = common::serial();
+    let certs = Certs::new("refused");
+    let rt = common::runtime();
+    let listener = listener(&rt, &certs);
+    let addr = listener.local_addr().unwrap();
+    // A stranger the remote does not trust, and a base that does not trust
+    // the remote: neither becomes a link.
+    let stranger = tls(&certs.other, &certs.remote);
+    let refused = rt.block_on(Link::connect(addr, config().with_tls(stranger)));
+    let err = refused.expect_err("a stranger's link");
+    assert!(
+        matches!(
+            err,
+            NetError::Handshake(HandshakeError::UnknownCertificate(_))
+        ),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("--peer-cert"), "{err}");
+    let distrustful = tls(&certs.base, &certs.other);
+    let refused = rt.block_on(Link::connect(addr, config().with_tls(distrustful)));
+    assert!(
+        matches!(
+            refused,
+            Err(NetError::Handshake(HandshakeError::UnknownCertificate(_)))
+        ),
+        "{refused:?}"
+    );
+    // The listener counted the stranger; the good base still gets in.
+    let good = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(addr, config().with_tls(good))
+        )
+    });
+    let (mut remote, base) = (remote.unwrap(), base.unwrap());
+    base.send(&[1.0, 2.0]).unwrap();
+    let got = remote.recv_timeout(std::time::Duration::from_secs(5));
+    assert!(got.is_ok(), "{got:?}");
+    let stats = listener.stats();
+    assert!(stats.refused_certificate >= 1, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+}
