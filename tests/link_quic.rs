@@ -137,3 +137,69 @@ fn a_peer_with_an_unknown_certificate_is_refused_with_a_clear_error() {
     assert!(stats.refused_certificate >= 1, "{stats:?}");
     assert_eq!(stats.accepted, 1, "{stats:?}");
 }
+
+#[test]
+fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losses() {
+    use ndr::net::{Relay, RelayConfig};
+    use ndr::netem::{DelayModel, LossModel};
+
+    let _serial = common::serial();
+    let certs = Certs::new("lossy");
+    let rt = common::runtime();
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    // The handshake crosses the loss too: room for QUIC's retransmissions.
+    let patient = |mut t: TlsConfig| {
+        t.handshake_timeout = std::time::Duration::from_secs(20);
+        t
+    };
+    let mut remote_config = config().with_tls(patient(tls(&certs.remote, &certs.base)));
+    remote_config.admission.preauth_timeout = Duration::from_secs(20);
+    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let lossy = RelayConfig {
+        loss: LossModel::Bernoulli { rate: 0.1 },
+        ..RelayConfig::default()
+    };
+    let relay = rt.block_on(async {
+        let model = DelayModel::profile("constant:5").unwrap();
+        Relay::bind(any, listener.local_addr().unwrap(), model, 7)
+            .await
+            .unwrap()
+            .with_config(lossy)
+            .spawn()
+            .unwrap()
+    });
+    let base_tls = patient(tls(&certs.base, &certs.remote));
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(relay.local_addr(), config().with_tls(base_tls))
+        )
+    });
+    let run = common::echo_run(base.unwrap(), remote.unwrap());
+    let relayed = relay.stats().datagrams;
+    let remote = run.remote.expect("the remote's stats");
+    // The relay lost about one packet in ten each way.
+    assert!(relayed.forward.lost > 10, "{relayed:?}");
+    assert!(relayed.backward.lost > 10, "{relayed:?}");
+    for (side, s, sent_packets) in [
+        ("base", &run.base, relayed.forward.received),
+        ("remote", &remote, relayed.backward.received),
+    ] {
+        let e = &s.endpoint;
+        // quinn neither held back nor dropped a datagram: the window does
+        // not shrink on loss, and every Bundle left as a packet of its own.
+        assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
+        let bundles = e.samples_sent + e.datagrams_repeated;
+        assert!(
+            sent_packets >= bundles,
+            "{side}: {sent_packets} packets, {bundles} bundles"
+        );
+        assert!(bundles > 300, "{side}: {s:?}");
+    }
+    // The copies made good what the loss took.
+    let e = &remote.endpoint;
+    assert!(e.samples_recovered + e.datagrams_received > 250, "{e:?}");
+    assert!(e.samples_lost <= 2, "{e:?}");
+    let e = &run.base.endpoint;
+    assert!(e.samples_lost <= 2, "{e:?}");
+}
