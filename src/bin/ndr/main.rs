@@ -13,6 +13,7 @@ mod signals;
 mod sim;
 mod size;
 mod soak;
+mod transport;
 
 use std::process::ExitCode;
 

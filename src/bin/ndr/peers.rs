@@ -48,6 +48,7 @@ pub struct RemoteArgs {
 pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
+    args.link.transport.check_security(tls.is_some())?;
     check_duration(&args.run)?;
     // Refused as the link would refuse it, before the series is created.
     if tls.is_none() && !tls::plain_allowed(args.connect.ip(), config.insecure) {
@@ -93,6 +94,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
+    args.link.transport.check_security(tls.is_some())?;
     let max_command = args.plant.max_command()?;
     let rt = runtime()?;
     config.tls = tls;
