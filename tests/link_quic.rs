@@ -203,3 +203,156 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
     let e = &run.base.endpoint;
     assert!(e.samples_lost <= 2, "{e:?}");
 }
+
+/// A UDP path between a base and its listener whose address on the
+/// listener's side can change mid-link, as a robot's does when it moves to
+/// another Wi-Fi access point (or a NAT gives it a new mapping).
+struct MovingPath {
+    /// Where the base sends.
+    addr: SocketAddr,
+    /// The address the listener sees now: 0 or 1.
+    current: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    /// The two addresses the listener may see.
+    sides: [SocketAddr; 2],
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl MovingPath {
+    fn new(upstream: SocketAddr) -> MovingPath {
+        use std::net::UdpSocket;
+        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+        use std::sync::{Arc, Mutex};
+        let bind = || {
+            let s = UdpSocket::bind("127.0.0.1:0").unwrap();
+            s.set_read_timeout(Some(std::time::Duration::from_millis(50)))
+                .unwrap();
+            s
+        };
+        let front = bind();
+        let sides = [bind(), bind()];
+        let addrs = [
+            sides[0].local_addr().unwrap(),
+            sides[1].local_addr().unwrap(),
+        ];
+        let current = Arc::new(AtomicUsize::new(0));
+        let stop = Arc::new(AtomicBool::new(false));
+        let client: Arc<Mutex<Option<SocketAddr>>> = Arc::default();
+        let mut threads = Vec::new();
+        // Base → listener, from the side in use.
+        {
+            let (front, sides) = (
+                front.try_clone().unwrap(),
+                sides.each_ref().map(|s| s.try_clone().unwrap()),
+            );
+            let (current, stop, client) =
+                (Arc::clone(&current), Arc::clone(&stop), Arc::clone(&client));
+            threads.push(std::thread::spawn(move || {
+                let mut buf = [0u8; 2048];
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok((n, from)) = front.recv_from(&mut buf) {
+                        *client.lock().unwrap() = Some(from);
+                        let side = &sides[current.load(Ordering::Relaxed)];
+                        let _ = side.send_to(&buf[..n], upstream);
+                    }
+                }
+            }));
+        }
+        // Listener → base, from either side.
+        for side in sides {
+            let front = front.try_clone().unwrap();
+            let (stop, client) = (Arc::clone(&stop), Arc::clone(&client));
+            threads.push(std::thread::spawn(move || {
+                let mut buf = [0u8; 2048];
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok(n) = side.recv(&mut buf) {
+                        if let Some(to) = *client.lock().unwrap() {
+                            let _ = front.send_to(&buf[..n], to);
+                        }
+                    }
+                }
+            }));
+        }
+        MovingPath {
+            addr: front.local_addr().unwrap(),
+            current,
+            sides: addrs,
+            stop,
+            threads,
+        }
+    }
+
+    fn moved(&self) {
+        self.current.store(1, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+impl Drop for MovingPath {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+#[test]
+fn a_base_that_moves_to_another_address_keeps_its_link() {
+    let _serial = common::serial();
+    let certs = Certs::new("moves");
+    let rt = common::runtime();
+    let listener = listener(&rt, &certs);
+    let path = MovingPath::new(listener.local_addr().unwrap());
+    let base_tls = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(path.addr, config().with_tls(base_tls))
+        )
+    });
+    let (mut remote, mut base) = (remote.unwrap(), base.unwrap());
+    let robot = std::thread::spawn(move || {
+        let mut seqs = Vec::new();
+        let mut peers = Vec::new();
+        while let Ok(s) = remote.recv_timeout(std::time::Duration::from_secs(2)) {
+            seqs.push(s.seq);
+            let _ = remote.send(s.values());
+            let peer = remote.stats().and_then(|s| s.datagram_peer);
+            if peers.last() != Some(&peer) {
+                peers.push(peer);
+            }
+        }
+        (seqs, peers, remote.stats())
+    });
+    let mut answered = 0;
+    for k in 0..300 {
+        if k == 150 {
+            // The robot's new access point: the listener sees another address.
+            path.moved();
+        }
+        base.send(&[f64::from(k), 0.0]).unwrap();
+        let s = base
+            .recv_timeout(std::time::Duration::from_secs(2))
+            .unwrap();
+        if k >= 160 && s.values()[0] > 150.0 {
+            answered += 1;
+        }
+    }
+    let base_stats = base.close().unwrap();
+    let (seqs, peers, remote_stats) = robot.join().unwrap();
+    // The link went on across the move, the remote answering to the new
+    // address, and the samples around it were made good by their copies.
+    assert!(
+        answered > 100,
+        "{answered} answers after the move; {base_stats:?}"
+    );
+    assert!(
+        peers.contains(&Some(path.sides[0])) && peers.contains(&Some(path.sides[1])),
+        "{peers:?} (the sides: {:?})",
+        path.sides
+    );
+    assert!(seqs.len() > 250, "{}", seqs.len());
+    let remote_stats = remote_stats.unwrap();
+    assert!(remote_stats.endpoint.samples_lost <= 2, "{remote_stats:?}");
+    assert!(base_stats.endpoint.samples_lost <= 2, "{base_stats:?}");
+}

@@ -9,6 +9,8 @@
 //! The hub also owns the links' sockets (non-blocking, polled with mio): a
 //! frame goes from the kernel to its endpoint in one thread wake-up, with no
 //! hand-over between threads, and frames are written from the same thread.
+//! The same holds for UDP datagrams (`udp`) and QUIC connections (`quic`,
+//! quinn-proto's state machine on the hub's UDP sockets).
 
 mod quic;
 mod tls_io;

@@ -84,7 +84,9 @@ impl fmt::Debug for Link {
 impl Link {
     /// Connects to a remote (this side is the base) on the current tokio
     /// runtime: over mutual TLS 1.3 if [`LinkConfig::tls`] is set (a failed
-    /// handshake is [`NetError::Handshake`]), else plain TCP, refused with
+    /// handshake is [`NetError::Handshake`]; with the datagram transport,
+    /// over QUIC, returning once QUIC's handshake and the Hello are done),
+    /// else plain TCP, refused with
     /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
     /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {

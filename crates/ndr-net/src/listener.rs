@@ -262,7 +262,9 @@ fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
 impl Listener {
     /// Listens on `addr`; the accept loop runs on the current tokio runtime
     /// (on a current-thread runtime, only while it runs). Over mutual TLS 1.3
-    /// if [`LinkConfig::tls`] is set: a peer whose handshake fails is counted
+    /// if [`LinkConfig::tls`] is set (with the datagram transport, over
+    /// QUIC: one UDP port at `addr`, no TCP): a peer whose handshake fails
+    /// is counted
     /// ([`stats`](Self::stats)), logged and dropped, and never returned by
     /// [`accept`](Self::accept). Plain links are refused with
     /// [`NetError::Insecure`] unless `addr` is loopback (then no other host
