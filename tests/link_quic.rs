@@ -265,10 +265,10 @@ impl MovingPath {
             threads.push(std::thread::spawn(move || {
                 let mut buf = [0u8; 2048];
                 while !stop.load(Ordering::Relaxed) {
-                    if let Ok(n) = side.recv(&mut buf) {
-                        if let Some(to) = *client.lock().unwrap() {
-                            let _ = front.send_to(&buf[..n], to);
-                        }
+                    if let Ok(n) = side.recv(&mut buf)
+                        && let Some(to) = *client.lock().unwrap()
+                    {
+                        let _ = front.send_to(&buf[..n], to);
                     }
                 }
             }));

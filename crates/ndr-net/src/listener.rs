@@ -135,6 +135,27 @@ pub(crate) struct Common {
 }
 
 impl Common {
+    /// A listener's state as it is bound (the remote's role by default).
+    fn new(
+        config: LinkConfig,
+        udp: Option<DatagramSocket>,
+        tls: Option<TlsConfig>,
+        hubs: Hubs,
+    ) -> Arc<Common> {
+        Arc::new(Common {
+            config,
+            udp,
+            tls,
+            setup: Mutex::new(Setup {
+                role: Role::Remote,
+                hubs,
+            }),
+            seats: Arc::new(Seats::default()),
+            ledger: Mutex::new(Ledger::default()),
+            stopped: Mutex::new(None),
+        })
+    }
+
     /// The role and the hub for a link starting now.
     fn setup(&self) -> (Role, Hub) {
         let setup = self.setup.lock().unwrap_or_else(PoisonError::into_inner);
@@ -313,18 +334,7 @@ impl Listener {
             .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
                 t.max_pending_handshakes
             });
-        let common = Arc::new(Common {
-            config,
-            udp,
-            tls,
-            setup: Mutex::new(Setup {
-                role: Role::Remote,
-                hubs,
-            }),
-            seats: Arc::new(Seats::default()),
-            ledger: Mutex::new(Ledger::default()),
-            stopped: Mutex::new(None),
-        });
+        let common = Common::new(config, udp, tls, hubs);
         let (tx, rx) = mpsc::channel(accept_queue);
         let gate = gate::Gate::new(socket, &common, tx, slots);
         let gate = Handle::current().spawn(gate.run()).abort_handle();
@@ -361,22 +371,12 @@ impl Listener {
         let stray = Arc::new(AtomicU64::new(0));
         let slots = tls.max_pending_handshakes.max(1);
         let accept_queue = config.admission.accept_queue.max(1);
-        let common = Arc::new(Common {
-            config,
-            udp: Some(DatagramSocket {
-                hub: hub.clone(),
-                key,
-                stray: Arc::clone(&stray),
-            }),
-            tls: Some(tls.clone()),
-            setup: Mutex::new(Setup {
-                role: Role::Remote,
-                hubs,
-            }),
-            seats: Arc::new(Seats::default()),
-            ledger: Mutex::new(Ledger::default()),
-            stopped: Mutex::new(None),
-        });
+        let udp = DatagramSocket {
+            hub: hub.clone(),
+            key,
+            stray: Arc::clone(&stray),
+        };
+        let common = Common::new(config, Some(udp), Some(tls.clone()), hubs);
         let (tx, rx) = mpsc::channel(accept_queue);
         let (started_tx, mut started_rx) = mpsc::channel::<Link>(slots);
         let pending = Arc::new(AtomicUsize::new(0));
