@@ -356,3 +356,67 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     assert!(remote_stats.endpoint.samples_lost <= 2, "{remote_stats:?}");
     assert!(base_stats.endpoint.samples_lost <= 2, "{base_stats:?}");
 }
+
+#[test]
+fn a_stranger_that_never_finishes_its_handshake_does_not_keep_its_slot() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    let _serial = common::serial();
+    let certs = Certs::new("stalled");
+    let rt = common::runtime();
+    // One handshake at a time, half a second each.
+    let mut remote_tls = tls(&certs.remote, &certs.base);
+    remote_tls.max_pending_handshakes = 1;
+    let mut remote_config = config().with_tls(remote_tls);
+    remote_config.admission.preauth_timeout = Duration::from_millis(500);
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let upstream = listener.local_addr().unwrap();
+    // A path that passes the stranger's first packet (its Initial: the
+    // listener takes it as a new connection) and nothing after.
+    let hole = std::net::UdpSocket::bind(any).unwrap();
+    hole.set_read_timeout(Some(std::time::Duration::from_millis(50)))
+        .unwrap();
+    let hole_addr = hole.local_addr().unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stopped = Arc::clone(&stop);
+    let forwarder = std::thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        let mut passed = false;
+        while !stopped.load(Ordering::Relaxed) {
+            if let Ok((n, _)) = hole.recv_from(&mut buf)
+                && !passed
+            {
+                let _ = hole.send_to(&buf[..n], upstream);
+                passed = true;
+            }
+        }
+    });
+    let mut stranger = tls(&certs.base, &certs.remote);
+    stranger.handshake_timeout = std::time::Duration::from_millis(300);
+    let stalled = rt.block_on(Link::connect(hole_addr, config().with_tls(stranger)));
+    assert!(
+        matches!(
+            stalled,
+            Err(NetError::Handshake(HandshakeError::Timeout(_)))
+        ),
+        "{stalled:?}"
+    );
+    // The stranger holds the only slot until its budget ends: then the
+    // good base gets in.
+    let good = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        let accept = tokio::time::timeout(std::time::Duration::from_secs(5), listener.accept());
+        tokio::join!(accept, Link::connect(upstream, config().with_tls(good)))
+    });
+    assert!(
+        remote.as_ref().is_ok_and(Result::is_ok) && base.is_ok(),
+        "{remote:?} {base:?}"
+    );
+    let stats = listener.stats();
+    assert_eq!(stats.timeouts, 1, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    stop.store(true, Ordering::Relaxed);
+    forwarder.join().unwrap();
+}
