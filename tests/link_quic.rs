@@ -353,6 +353,8 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     );
     assert!(seqs.len() > 250, "{}", seqs.len());
     let remote_stats = remote_stats.unwrap();
+    assert_eq!(remote_stats.datagram_path_changes, 1, "{remote_stats:?}");
+    assert_eq!(base_stats.datagram_path_changes, 0, "{base_stats:?}");
     assert!(remote_stats.endpoint.samples_lost <= 2, "{remote_stats:?}");
     assert!(base_stats.endpoint.samples_lost <= 2, "{base_stats:?}");
 }

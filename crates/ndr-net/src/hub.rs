@@ -1154,7 +1154,8 @@ fn publish(e: &Entry, hub: HubFigures) {
             .or_else(|| quic::peer(e)),
         datagrams_unsent: e.datagram.as_ref().map_or(0, |p| p.unsent)
             + e.quic.as_deref().map_or(0, |q| q.dropped),
-        datagram_path_changes: e.datagram.as_ref().map_or(0, |p| p.path_changes),
+        datagram_path_changes: e.datagram.as_ref().map_or(0, |p| p.path_changes)
+            + e.quic.as_deref().map_or(0, |q| q.path_changes),
         datagrams_stray: e
             .datagram
             .as_ref()

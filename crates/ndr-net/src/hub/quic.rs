@@ -73,6 +73,10 @@ pub(crate) struct QuicPath {
     pub dropped: u64,
     /// The connection's next timer.
     pub timer: Option<StdInstant>,
+    /// Where the peer is now, and how many times that changed (the peer
+    /// moved, or a NAT gave it a new mapping: QUIC follows it).
+    pub peer: SocketAddr,
+    pub path_changes: u64,
     /// The connection ended (lost, or closed by either side).
     lost: bool,
 }
@@ -80,6 +84,8 @@ pub(crate) struct QuicPath {
 impl QuicPath {
     pub(crate) fn new(key: u64, handle: ConnectionHandle, conn: quinn_proto::Connection) -> Self {
         QuicPath {
+            peer: conn.remote_address(),
+            path_changes: 0,
             key,
             handle,
             conn,
@@ -179,7 +185,6 @@ impl Quic {
     /// Hands the datagrams `udp` read from socket `key` to the endpoint;
     /// the links that got one are added to `touched`, the links a
     /// listener accepted to `accepted`.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn receive(
         &mut self,
         key: u64,
@@ -295,6 +300,12 @@ impl Quic {
             out.push_to(q.key, id, t.destination, slice(&self.buf, &t));
         }
         q.timer = q.conn.poll_timeout();
+        let peer = q.conn.remote_address();
+        if peer != q.peer {
+            tracing::debug!(from = %peer, before = %q.peer, "QUIC path changed");
+            q.peer = peer;
+            q.path_changes += 1;
+        }
     }
 }
 
@@ -533,5 +544,5 @@ pub(super) fn close(e: &mut Entry, now: StdInstant) {
 /// The peer's address as the connection sees it now (it follows a peer
 /// that moved).
 pub(super) fn peer(e: &Entry) -> Option<SocketAddr> {
-    e.quic.as_deref().map(|q| q.conn.remote_address())
+    e.quic.as_deref().map(|q| q.peer)
 }
