@@ -79,6 +79,9 @@ pub(crate) struct QuicPath {
     pub path_changes: u64,
     /// The connection ended (lost, or closed by either side).
     lost: bool,
+    /// Its endpoint has forgotten it (a handle it may give another
+    /// connection now).
+    drained: bool,
 }
 
 impl QuicPath {
@@ -96,6 +99,7 @@ impl QuicPath {
             dropped: 0,
             timer: None,
             lost: false,
+            drained: false,
         }
     }
 }
@@ -175,9 +179,11 @@ impl Quic {
             point.links.remove(&path.handle);
             // The connection is dropped with its link: its endpoint forgets
             // its identifiers now instead of waiting for a drain.
-            let _ = point
-                .endpoint
-                .handle_event(path.handle, EndpointEvent::drained());
+            if !path.drained {
+                let _ = point
+                    .endpoint
+                    .handle_event(path.handle, EndpointEvent::drained());
+            }
         }
         self.close_if_unused(path.key)
     }
@@ -287,6 +293,7 @@ impl Quic {
         let point = self.points.get_mut(&q.key);
         if let Some(point) = point {
             while let Some(event) = q.conn.poll_endpoint_events() {
+                q.drained |= event.is_drained();
                 if let Some(back) = point.endpoint.handle_event(q.handle, event) {
                     q.conn.handle_event(back);
                 }
