@@ -36,6 +36,10 @@
 //! The link on the datagram transport (UDP) runs too, beside a raw UDP
 //! ping-pong of its datagram (a Bundle with its copies), a thread per end,
 //! the echo holding each datagram as the remote does (target: ≤ 1.2).
+//! Then the same link over QUIC (the datagram transport with mutual TLS
+//! 1.3: QUIC DATAGRAM frames, quinn driven by the hubs): its rows beside
+//! the UDP link's give QUIC's cost over plain UDP (encryption, packet
+//! protection, acknowledgements).
 //!
 //! `cargo bench --bench link_rtt` (NDR_RTT_SECONDS: how long each side runs,
 //! default 5; NDR_RTT_PERIOD_MS: the pace, default 10).
@@ -380,6 +384,14 @@ fn main() {
     );
     let mut raw_udp_held = raw_udp_two_threads(seconds, period_ms, hold);
     let udp_run = link_nrtt(&rt, seconds, period_ms, None, false, Transport::DATAGRAM);
+    let quic_run = link_nrtt(
+        &rt,
+        seconds,
+        period_ms,
+        Some(&tls_pair()),
+        false,
+        Transport::DATAGRAM,
+    );
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(
         "one frame's round trip on loopback, {seconds} s each, link period {period_ms} ms, {cpus} CPUs"
@@ -464,6 +476,7 @@ fn main() {
     let udp_held = row("raw UDP, a thread per end, echo held", &mut raw_udp_held);
     let mut udp_nrtt = udp_run.nrtt;
     let nrtt = row("ndr link over UDP, NRTT", &mut udp_nrtt);
+    let udp_nrtt_pair = nrtt;
     let udp_full = to_endpoint("ndr link over UDP, frame to endpoint", nrtt, udp_run.rx_lag);
     ratio(
         "UDP frame-to-endpoint / raw UDP, echo held",
@@ -475,8 +488,36 @@ fn main() {
         udp_full.0 / full_p50,
         udp_full.1 / full_mean
     );
+    let mut quic_nrtt = quic_run.nrtt;
+    let nrtt = row("ndr link over QUIC, NRTT", &mut quic_nrtt);
+    // The like-for-like figure: a QUIC link's receive lag counts every
+    // packet (its acknowledgements too), a UDP link's only the Bundles.
+    println!(
+        "QUIC / UDP link, NRTT: p50 {:.2} · mean {:.2} (+{:.1} µs at p50)",
+        nrtt.0 / udp_nrtt_pair.0,
+        nrtt.1 / udp_nrtt_pair.1,
+        (nrtt.0 - udp_nrtt_pair.0) * 1e6
+    );
+    let quic_full = to_endpoint(
+        "ndr link over QUIC, frame to endpoint",
+        nrtt,
+        quic_run.rx_lag,
+    );
+    ratio(
+        "QUIC frame-to-endpoint / raw UDP, echo held",
+        quic_full,
+        udp_held,
+    );
+    println!(
+        "QUIC / UDP link, frame to endpoint: p50 {:.2} · mean {:.2} (+{:.1} µs at p50)",
+        quic_full.0 / udp_full.0,
+        quic_full.1 / udp_full.1,
+        (quic_full.0 - udp_full.0) * 1e6
+    );
     for (side, stats) in [
         ("base", base),
+        ("quic base", quic_run.base),
+        ("quic remote", quic_run.remote),
         ("udp base", udp_run.base),
         ("udp remote", udp_run.remote),
         ("remote", remote),

@@ -192,9 +192,40 @@ fn demo_closes_the_tracking_loop_at_the_base() {
 }
 
 #[test]
+fn demo_runs_over_quic_through_a_lossy_relay() {
+    let _serial = serial();
+    let csv = std::env::temp_dir().join(format!("ndr-demo-quic-{}.csv", std::process::id()));
+    let r = demo(&["--transport", "quic", "--loss", "5"], &csv);
+    assert_eq!(r["transport"], "quic:4:3", "{r}");
+    assert_eq!(r["end"], "completed", "{r}");
+    assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");
+    // QUIC took every datagram; the copies made good the relay's losses.
+    assert_eq!(r["datagrams_unsent"], 0, "{r}");
+    assert!(r["samples_lost"].as_u64().unwrap() <= 2, "{r}");
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
 fn an_unknown_controller_is_refused_with_the_valid_names() {
     let out = ndr(&["demo", "--controller", "wave"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("smith") && err.contains("pid"), "{err}");
+}
+
+#[test]
+fn quic_without_tls_and_udp_with_tls_are_refused_before_connecting() {
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_ndr"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let out = run(&["base", "--connect", "127.0.0.1:9", "--transport", "quic"]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--transport quic runs mutual TLS"),
+        "{stderr}"
+    );
 }

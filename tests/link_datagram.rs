@@ -10,7 +10,7 @@ use ndr::core::endpoint::{Config, Status, Transport};
 use ndr::core::regulation::Regulation;
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::{self, Header, Message, Role};
-use ndr::net::{Link, LinkConfig, Listener, NetError, TlsConfig};
+use ndr::net::{Link, LinkConfig, Listener};
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base).with_width(2);
@@ -252,35 +252,4 @@ fn strays_spoofs_and_cut_or_oversized_datagrams_are_counted_and_the_link_carries
         assert_ne!(s.datagram_peer, Some(stranger.local_addr().unwrap()));
     }
     assert_eq!(run.base.datagram_path_changes, 0);
-}
-
-#[test]
-fn datagrams_are_refused_under_tls_before_anything_is_sent() {
-    let _serial = common::serial();
-    let rt = common::runtime();
-    let dir = std::env::temp_dir().join(format!("ndr-link-dgram-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let own = ndr::net::keygen::write(&dir, "own").unwrap();
-    let tls = TlsConfig::from_files(&own.cert, &own.key, &own.cert).unwrap();
-    let bound = rt.block_on(Listener::bind(
-        "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
-        config().with_tls(tls.clone()),
-    ));
-    assert!(
-        matches!(bound, Err(NetError::DatagramsWithTls)),
-        "{bound:?}"
-    );
-    // Nothing listens there: a connect would fail, but the refusal comes first.
-    let to = "127.0.0.1:9".parse::<SocketAddr>().unwrap();
-    let connected = rt.block_on(Link::connect(to, config().with_tls(tls)));
-    assert!(
-        matches!(connected, Err(NetError::DatagramsWithTls)),
-        "{connected:?}"
-    );
-    assert!(
-        NetError::DatagramsWithTls
-            .to_string()
-            .contains("TCP transport with TLS")
-    );
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -17,6 +17,7 @@ import contextlib
 import json
 import math
 import sys
+import tempfile
 import threading
 import time
 import warnings
@@ -38,7 +39,7 @@ from typing import (
 import numpy as np
 
 from . import _native
-from ._native import Estimator, LinkError, Relay, Signal, Tf2, Tf2State
+from ._native import Estimator, LinkError, Relay, Signal, Tf2, Tf2State, TlsConfig
 from .link import Link, LinkStats, RelayStats, _is_normal_end
 
 __all__ = ["DemoResult", "operator", "robot", "run", "main"]
@@ -301,7 +302,11 @@ def run(
     loopback = ("127.0.0.1", 0)
     rb = RobotLog()
     stop = threading.Event()
-    with _quiet_if(name is None), Link.listen(loopback, **settings) as listener, Relay(
+    # Over QUIC, each side gets a throwaway identity pinned by the other.
+    base_tls, remote_tls = _throwaway_pair() if transport.startswith("quic") else (None, None)
+    with _quiet_if(name is None), Link.listen(
+        loopback, tls=remote_tls, **settings
+    ) as listener, Relay(
         loopback, listener.address, profile=profile, seed=seed
     ) as relay:
         accepted: List[Link] = []
@@ -319,7 +324,7 @@ def run(
         remote.start()
         try:
             with _quiet_if(name is None):
-                base = Link.connect(relay.address, **settings)
+                base = Link.connect(relay.address, tls=base_tls, **settings)
             with base:
                 op = operator(base, duration, sig, status=_status_line if live else None)
         finally:
@@ -345,6 +350,18 @@ def run(
         out=out,
     )
     return DemoResult(report=report, operator=op, robot=rb)
+
+
+def _throwaway_pair() -> Tuple[TlsConfig, TlsConfig]:
+    """TLS for a base and a remote that trust each other's certificate
+    only, made for this run (the files are gone once loaded)."""
+    with tempfile.TemporaryDirectory(prefix="ndr-demo-quic-") as d:
+        base_cert, base_key, _ = _native.keygen(d, "base")
+        remote_cert, remote_key, _ = _native.keygen(d, "remote")
+        return (
+            TlsConfig(base_cert, base_key, peer_cert=remote_cert),
+            TlsConfig(remote_cert, remote_key, peer_cert=base_cert),
+        )
 
 
 def _write_csv(path: str, op: OperatorLog) -> None:
@@ -524,8 +541,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--playout", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--transport", default="tcp", help="how samples cross: tcp (the "
-                        "paper's stream) or udp[:K] (datagrams of the newest sample and "
-                        "K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 by default)")
+                        "paper's stream), udp[:K[:R]] (datagrams of the newest sample and "
+                        "K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 by default) "
+                        "or quic[:K[:R]] (the same over QUIC, under mutual TLS 1.3 with a "
+                        "throwaway pair of certificates)")
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 256)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the relay's delays")
     parser.add_argument("--signal", default="sine", help="the operator's command: "

@@ -506,8 +506,11 @@ class Link:
                 apart, 3 by default, so that a lost one is made good within
                 a millisecond or two; the handshake stays on TCP and the
                 datagrams use the same port over UDP). UDP is plain:
-                loopback, or ``insecure=True``, and not with ``tls``. Both
-                sides must agree.
+                loopback, or ``insecure=True``, and not with ``tls``.
+                ``"quic"`` / ``"quic:K"`` / ``"quic:K:R"``: the same
+                datagrams as QUIC DATAGRAM frames, the handshake on a QUIC
+                stream, all under mutual TLS 1.3 (``tls`` is then required
+                on both sides; one UDP port, no TCP). Both sides must agree.
             on_event: called with each :class:`Event`, on the thread that
                 receives.
 

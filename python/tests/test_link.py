@@ -60,7 +60,7 @@ class Pair:
         self.close()
 
 
-@pytest.mark.parametrize("transport", ["tcp", "udp"])
+@pytest.mark.parametrize("transport", ["tcp", "udp", "quic"])
 def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_the_plant(
     transport,
 ):
@@ -105,6 +105,12 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
         assert op.stats["datagrams_received"] > 300
         # The base sent to the relay's port all along.
         assert op.stats["datagram_path_changes"] == 0
+    if transport == "quic":
+        # Every sample came by QUIC datagram, through the relay, none lost,
+        # and QUIC took every one.
+        assert r["samples_lost"] == 0
+        assert op.stats["datagrams_received"] > 300
+        assert op.stats["datagrams_unsent"] == 0
 
 
 def test_end_to_end_delay_is_constant_per_sample():
@@ -196,6 +202,12 @@ def test_bad_arguments_raise_value_error_naming_what_was_expected():
         ndr.Link.listen(LOOPBACK, underflow="ignore")
     with pytest.raises(ValueError, match="period"):
         ndr.Link.listen(LOOPBACK, period=-1)
+    with pytest.raises(ValueError, match='transport="quic" runs mutual TLS'):
+        ndr.Link.listen(LOOPBACK, transport="quic")
+    with pytest.raises(ValueError, match='transport="quic" runs mutual TLS'):
+        ndr.Link.connect(("127.0.0.1", 9), transport="quic:2")
+    with pytest.raises(ValueError, match="quic:K:R"):
+        ndr.Link.listen(LOOPBACK, transport="quic:9")
     with pytest.raises(ValueError, match="timeout"):
         ndr.Link.connect(("127.0.0.1", 9), connect_timeout=float("nan"))
     with pytest.raises(TypeError, match="address"):

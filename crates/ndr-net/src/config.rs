@@ -49,7 +49,13 @@ pub struct LinkConfig {
     pub queue_capacity: usize,
     /// Mutual TLS 1.3 with these identities and pins; `None` (the default):
     /// plain TCP, which only a loopback address or [`insecure`](Self::insecure)
-    /// allows.
+    /// allows. With the datagram transport
+    /// ([`Transport::Datagram`](ndr_core::endpoint::Transport::Datagram)),
+    /// TLS makes the link a QUIC link ([`crate::quic`]): one UDP port, the
+    /// samples as QUIC datagrams. Plain UDP carries no TLS, so a datagram
+    /// link with TLS can only mean QUIC, and the endpoint needs to know
+    /// nothing of it: one switch, not a third transport beside the two the
+    /// endpoint has.
     pub tls: Option<TlsConfig>,
     /// Which hub drives the link (a listener: the links it accepts); a hub
     /// of its own by default.

@@ -25,8 +25,10 @@ pub enum NetError {
     Insecure(SocketAddr),
     /// The TLS handshake failed: no link was set up.
     Handshake(HandshakeError),
-    /// TLS with the UDP datagram transport, whose samples would travel
-    /// unencrypted and unauthenticated beside the TLS stream.
+    /// The datagram transport asked of a TCP stream that already carries
+    /// TLS (an internal path): its datagrams would travel unencrypted. A
+    /// datagram link with TLS runs over QUIC ([`Link::connect`](crate::Link::connect),
+    /// [`Listener::bind`](crate::Listener::bind)).
     DatagramsWithTls,
 }
 
@@ -44,9 +46,9 @@ impl fmt::Display for NetError {
             ),
             NetError::Handshake(e) => write!(f, "{e}"),
             NetError::DatagramsWithTls => f.write_str(
-                "the UDP datagram transport carries samples unencrypted, so it does not run \
-                 with TLS: use the TCP transport with TLS, or plain UDP on loopback (or with \
-                 --insecure)",
+                "a TLS stream does not take the datagram transport (its datagrams would be \
+                 plain): a datagram link with TLS runs over QUIC (--transport quic, Python: \
+                 transport=\"quic\")",
             ),
         }
     }

@@ -9,10 +9,14 @@
 //! The hub also owns the links' sockets (non-blocking, polled with mio): a
 //! frame goes from the kernel to its endpoint in one thread wake-up, with no
 //! hand-over between threads, and frames are written from the same thread.
+//! The same holds for UDP datagrams (`udp`) and QUIC connections (`quic`,
+//! quinn-proto's state machine on the hub's UDP sockets).
 
+mod quic;
 mod tls_io;
 mod udp;
 
+pub(crate) use quic::{NewEndpoint, QuicPath};
 pub(crate) use tls_io::Session;
 pub(crate) use udp::{DatagramPath, NewSocket, bind as bind_datagram_socket};
 
@@ -63,7 +67,8 @@ pub(crate) struct Entry {
     pub endpoint: Endpoint<Heap>,
     pub shared: Arc<Shared>,
     pub deliveries: Outbox,
-    pub socket: MioStream,
+    /// The TCP stream of the link's frames; `None` on a QUIC link.
+    pub socket: Option<MioStream>,
     pub deframer: Deframer,
     /// Bytes the socket would not take yet, in order.
     pub pending: Vec<u8>,
@@ -79,6 +84,8 @@ pub(crate) struct Entry {
     pub handler: Option<Handler>,
     /// The datagram transport's path; `None` on a stream.
     pub datagram: Option<DatagramPath>,
+    /// The QUIC connection of a QUIC link.
+    pub quic: Option<Box<QuicPath>>,
 }
 
 pub(crate) enum Msg {
@@ -93,6 +100,8 @@ pub(crate) enum Msg {
     Socket(u64, Box<NewSocket>),
     /// The socket's owner (a listener) is gone: it closes with its last link.
     ReleaseSocket(u64),
+    /// A QUIC endpoint on a UDP socket, polled under this key.
+    Quic(u64, Box<NewSocket>, Box<NewEndpoint>),
 }
 
 struct Inner {
@@ -172,6 +181,8 @@ impl Hub {
             events: Events::with_capacity(1024),
             due: Vec::new(),
             udp: udp::Udp::new(),
+            quic: quic::Quic::new(),
+            accepted: Vec::new(),
             touched: Vec::new(),
             service: Cost::new(),
             polling: Cost::new(),
@@ -361,8 +372,12 @@ struct Driver {
     buf: Vec<u8>,
     /// The datagram sockets, and the datagrams waiting to be sent.
     udp: udp::Udp,
+    /// The QUIC endpoints on some of those sockets.
+    quic: quic::Quic,
     /// Links that took datagrams in one read (kept to reuse its memory).
     touched: Vec<u64>,
+    /// Links a QUIC listener accepted in one read.
+    accepted: Vec<(u64, Entry)>,
     links: Arc<AtomicUsize>,
     /// Kept open while the thread runs (see [`Inner::waker`]).
     _waker: Arc<Waker>,
@@ -493,6 +508,10 @@ impl Driver {
 
     /// Reads and writes for one ready socket.
     fn serve(&mut self, r: Ready) {
+        if self.quic.has(r.id) {
+            self.receive_quic(r.id);
+            return;
+        }
         if self.udp.has(r.id) {
             self.receive_datagrams(r.id);
             return;
@@ -521,6 +540,66 @@ impl Driver {
         self.udp.send_all(&mut self.entries);
     }
 
+    /// Reads the QUIC endpoint's socket `key` dry; each link that got a
+    /// packet then runs as after a frame, and links it accepted join.
+    fn receive_quic(&mut self, key: u64) {
+        let mut touched = std::mem::take(&mut self.touched);
+        let mut accepted = std::mem::take(&mut self.accepted);
+        touched.clear();
+        self.quic.receive(
+            key,
+            &mut self.udp,
+            self.origin,
+            &mut self.entries,
+            &mut touched,
+            &mut accepted,
+        );
+        for (id, entry) in accepted.drain(..) {
+            self.add(id, entry);
+        }
+        for &id in &touched {
+            self.flush(id);
+        }
+        self.touched = touched;
+        self.accepted = accepted;
+        self.udp.send_all(&mut self.entries);
+    }
+
+    /// Takes link `id`'s entry and runs it once.
+    fn add(&mut self, id: u64, mut entry: Entry) {
+        let token = Token(id as usize);
+        if let Some(socket) = entry.socket.as_mut()
+            && self
+                .poll
+                .registry()
+                .register(socket, token, Interest::READABLE)
+                .is_err()
+        {
+            entry.endpoint.abort(LinkError::Disconnected);
+        }
+        if let Some(path) = entry.datagram.as_mut()
+            && !self.udp.attach(id, path)
+        {
+            // Its socket failed, or a token drawn twice.
+            tracing::warn!("a datagram link could not take its socket");
+            entry.endpoint.abort(LinkError::Disconnected);
+        }
+        if let Some(path) = entry.quic.as_deref()
+            && !self.quic.attach(id, path)
+        {
+            tracing::warn!("a QUIC link could not take its endpoint");
+            entry.endpoint.abort(LinkError::Disconnected);
+        }
+        let tls = entry.tls.is_some();
+        self.entries.insert(id, entry);
+        if tls {
+            // The handshake may have read records past its end:
+            // rustls holds them, and no new edge will say so.
+            self.read(id, false);
+        }
+        self.flush(id);
+    }
+
     /// Links added or closed by their handles; `false` once every handle
     /// and the hub itself are gone and no link is left.
     fn messages(&mut self) -> bool {
@@ -531,33 +610,18 @@ impl Driver {
                         tracing::warn!("a datagram socket could not be polled: {e}");
                     }
                 }
-                Ok(Msg::ReleaseSocket(key)) => self.udp.release(self.poll.registry(), key),
-                Ok(Msg::Add(id, mut entry)) => {
-                    let token = Token(id as usize);
-                    if self
-                        .poll
-                        .registry()
-                        .register(&mut entry.socket, token, Interest::READABLE)
-                        .is_err()
-                    {
-                        entry.endpoint.abort(LinkError::Disconnected);
+                Ok(Msg::ReleaseSocket(key)) => {
+                    if !self.quic.has(key) || self.quic.release(key) {
+                        self.udp.release(self.poll.registry(), key);
                     }
-                    if let Some(path) = entry.datagram.as_mut()
-                        && !self.udp.attach(id, path)
-                    {
-                        // Its socket failed, or a token drawn twice.
-                        tracing::warn!("a datagram link could not take its socket");
-                        entry.endpoint.abort(LinkError::Disconnected);
-                    }
-                    let tls = entry.tls.is_some();
-                    self.entries.insert(id, *entry);
-                    if tls {
-                        // The handshake may have read records past its end:
-                        // rustls holds them, and no new edge will say so.
-                        self.read(id, false);
-                    }
-                    self.flush(id);
                 }
+                Ok(Msg::Quic(key, socket, endpoint)) => {
+                    match self.udp.add(self.poll.registry(), key, *socket) {
+                        Ok(()) => self.quic.add(key, *endpoint),
+                        Err(e) => tracing::warn!("a QUIC socket could not be polled: {e}"),
+                    }
+                }
+                Ok(Msg::Add(id, entry)) => self.add(id, *entry),
                 Ok(Msg::Close(id)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
                         e.endpoint.close();
@@ -601,7 +665,10 @@ impl Driver {
         loop {
             let spare = e.deframer.spare();
             let room = spare.len();
-            match crate::arrival::read_now(&e.socket, spare, e.kernel_stamps) {
+            let Some(socket) = e.socket.as_ref() else {
+                return;
+            };
+            match crate::arrival::read_now(socket, spare, e.kernel_stamps) {
                 Ok((0, _)) => {
                     e.endpoint.abort(LinkError::Disconnected);
                     return;
@@ -633,8 +700,11 @@ impl Driver {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
+        let Some(socket) = e.socket.as_mut() else {
+            return;
+        };
         while !e.pending.is_empty() {
-            match e.socket.write(&e.pending) {
+            match socket.write(&e.pending) {
                 Ok(n) => {
                     e.pending.drain(..n);
                 }
@@ -654,7 +724,7 @@ impl Driver {
         let _ = self
             .poll
             .registry()
-            .reregister(&mut e.socket, Token(id as usize), interest);
+            .reregister(socket, Token(id as usize), interest);
     }
 
     /// The deadline `d` is near: spin to it, serving the sockets that become
@@ -711,6 +781,7 @@ impl Driver {
             if let Some(e) = self.entries.get_mut(&id) {
                 self.releases.record(now - t);
                 take_sample(e);
+                quic::on_timeout(e, StdInstant::now());
                 e.endpoint.handle_timeout(now);
                 if e.endpoint.is_closed() {
                     // Its last stats go out with its Closed event (below).
@@ -778,14 +849,25 @@ impl Driver {
                 wants_write |= transmit(e, id, now, &mut self.buf, &mut self.udp.out);
             }
         }
+        if e.quic.is_some() {
+            // What the frames and the timers gave the connection (its end,
+            // the stream opening) may give the endpoint more to say.
+            let std_now = StdInstant::now();
+            quic::input(e, self.origin, std_now);
+            wants_write |= transmit(e, id, now, &mut self.buf, &mut self.udp.out);
+            if e.endpoint.is_closed() {
+                quic::close(e, std_now);
+            }
+            self.quic.output(e, id, std_now, &mut self.udp.out);
+        }
         if e.pending.len() > MAX_PENDING {
             // The peer does not read: cut it off rather than grow without bound.
             e.pending.clear();
             e.endpoint.abort(LinkError::Disconnected);
         }
-        if wants_write {
+        if wants_write && let Some(socket) = e.socket.as_mut() {
             let _ = self.poll.registry().reregister(
-                &mut e.socket,
+                socket,
                 Token(id as usize),
                 Interest::READABLE | Interest::WRITABLE,
             );
@@ -795,7 +877,10 @@ impl Driver {
             self.figures = figures(&self.lateness, &self.releases, self.spin);
             publish(e, self.figures);
         }
-        let next = e.endpoint.poll_timeout();
+        let next = match (e.endpoint.poll_timeout(), quic::timer(e, self.origin)) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
         if next != e.deadline {
             if let Some(old) = e.deadline {
                 self.timers.remove(&(old, id));
@@ -817,8 +902,17 @@ impl Driver {
                 if let Some(path) = &gone.datagram {
                     self.udp.detach(self.poll.registry(), id, path);
                 }
-                let _ = self.poll.registry().deregister(&mut gone.socket);
-                let _ = gone.socket.shutdown(std::net::Shutdown::Write);
+                if let Some(path) = gone.quic.as_deref()
+                    && self.quic.detach(path)
+                {
+                    // Its CONNECTION_CLOSE goes before its socket closes.
+                    self.udp.send_all(&mut self.entries);
+                    self.udp.release(self.poll.registry(), path.key);
+                }
+                if let Some(socket) = gone.socket.as_mut() {
+                    let _ = self.poll.registry().deregister(socket);
+                    let _ = socket.shutdown(std::net::Shutdown::Write);
+                }
                 self.links.fetch_sub(1, AtomicOrdering::Relaxed);
             }
         }
@@ -893,6 +987,7 @@ fn transmit(e: &mut Entry, id: u64, now: Instant, buf: &mut [u8], out: &mut udp:
         let frame = buf.get(..n).unwrap_or_default();
         match e.datagram.as_mut() {
             Some(path) if ndr_core::wire::is_bundle(frame) => out.push(id, path, frame),
+            _ if e.quic.is_some() => quic::send(e, frame),
             _ => wants_write |= send_frame(e, frame),
         }
     }
@@ -999,7 +1094,10 @@ fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
     if e.tls.is_some() {
         return tls_io::send(e, bytes);
     }
-    write_or_queue(&mut e.socket, &mut e.pending, bytes)
+    match e.socket.as_mut() {
+        Some(socket) => write_or_queue(socket, &mut e.pending, bytes),
+        None => false,
+    }
 }
 
 /// Writes `bytes` now if nothing is waiting, else queues them; `true` if
@@ -1049,9 +1147,15 @@ fn publish(e: &Entry, hub: HubFigures) {
         events_dropped: 0,
         endpoint_events_dropped: ep.events_dropped(),
         rx_lag: e.rx_lag,
-        datagram_peer: e.datagram.as_ref().and_then(|p| p.peer),
-        datagrams_unsent: e.datagram.as_ref().map_or(0, |p| p.unsent),
-        datagram_path_changes: e.datagram.as_ref().map_or(0, |p| p.path_changes),
+        datagram_peer: e
+            .datagram
+            .as_ref()
+            .and_then(|p| p.peer)
+            .or_else(|| quic::peer(e)),
+        datagrams_unsent: e.datagram.as_ref().map_or(0, |p| p.unsent)
+            + e.quic.as_deref().map_or(0, |q| q.dropped),
+        datagram_path_changes: e.datagram.as_ref().map_or(0, |p| p.path_changes)
+            + e.quic.as_deref().map_or(0, |q| q.path_changes),
         datagrams_stray: e
             .datagram
             .as_ref()

@@ -1,8 +1,10 @@
 //! ndr-net: the network side of the ndr link.
 //!
 //! `ndr-core` holds the link as a sans-IO state machine; this crate drives it
-//! over TCP, keeps its release clock and runs the delay relay (whose delay
-//! models are `ndr-netem`'s, the simulator's, without the simulator).
+//! over TCP (plain or mutual TLS 1.3), UDP datagrams, or QUIC (the datagram
+//! transport with TLS: [`quic`]), keeps its release clock and runs the
+//! delay relay (whose delay models are `ndr-netem`'s, the simulator's,
+//! without the simulator).
 //!
 //! # The drive loop
 //!
@@ -49,6 +51,7 @@ pub mod keygen;
 pub mod link;
 mod listener;
 pub mod pool;
+pub mod quic;
 pub mod relay;
 mod seats;
 pub mod spin;

@@ -34,7 +34,9 @@ use tokio::sync::Notify;
 use crate::arrival;
 use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
-use crate::hub::{DatagramPath, Entry, Hub, Msg, Session, Shared};
+use crate::hub::{
+    DatagramPath, Entry, Hub, Msg, NewEndpoint, NewSocket, QuicPath, Session, Shared,
+};
 use crate::pool::HubPool;
 use crate::seats::Seat;
 use crate::tls::TlsConfig;
@@ -82,7 +84,9 @@ impl fmt::Debug for Link {
 impl Link {
     /// Connects to a remote (this side is the base) on the current tokio
     /// runtime: over mutual TLS 1.3 if [`LinkConfig::tls`] is set (a failed
-    /// handshake is [`NetError::Handshake`]), else plain TCP, refused with
+    /// handshake is [`NetError::Handshake`]; with the datagram transport,
+    /// over QUIC, returning once QUIC's handshake and the Hello are done),
+    /// else plain TCP, refused with
     /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
     /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
@@ -174,10 +178,6 @@ impl Link {
             _ => None,
         };
         cfg.validate().map_err(NetError::Config)?;
-        let widths = (
-            usize::from(cfg.sent_width()),
-            usize::from(cfg.received_width()),
-        );
         stream.set_nodelay(true)?;
         // Best effort: the endpoint's liveness ends a silent link anyway.
         let user_timeout = cfg.liveness.unwrap_or(DEFAULT_LIVENESS).into();
@@ -190,7 +190,60 @@ impl Link {
         let std_stream = stream.into_std()?;
         std_stream.set_nonblocking(true)?;
         let kernel_stamps = arrival::enable(&std_stream);
-        let socket = mio::net::TcpStream::from_std(std_stream);
+        let carrier = Carrier {
+            socket: Some(mio::net::TcpStream::from_std(std_stream)),
+            kernel_stamps,
+            tls: tls.map(|conn| Box::new(Session::new(conn))),
+            datagram,
+            quic: None,
+        };
+        let (id, entry, link) = Link::assemble(cfg, &config, hub, carrier, peer)?;
+        if !hub.send(Msg::Add(id, Box::new(entry))) {
+            return Err(NetError::Io(io::Error::other(
+                "the link's hub thread has stopped",
+            )));
+        }
+        Ok(link)
+    }
+
+    /// A QUIC link over the connection `conn` (`handle` on the endpoint
+    /// `key` of `hub`), in `role`: its id, its entry for the hub, its handle.
+    pub(crate) fn start_quic(
+        config: &LinkConfig,
+        role: Role,
+        hub: &Hub,
+        path: QuicPath,
+    ) -> Result<(u64, Entry, Link), NetError> {
+        let mut cfg = config.endpoint;
+        cfg.role = role;
+        cfg.tick_origin = Instant::ZERO;
+        // QUIC routes the datagrams and authenticates them: the token only
+        // has to be one the endpoint checks, as on UDP.
+        cfg.session = session_token()?;
+        cfg.validate().map_err(NetError::Config)?;
+        let peer = path.conn.remote_address();
+        let carrier = Carrier {
+            socket: None,
+            kernel_stamps: true,
+            tls: None,
+            datagram: None,
+            quic: Some(Box::new(path)),
+        };
+        Link::assemble(cfg, config, hub, carrier, peer)
+    }
+
+    /// The endpoint, the entry its hub drives and the application's handle.
+    fn assemble(
+        cfg: ndr_core::endpoint::Config,
+        config: &LinkConfig,
+        hub: &Hub,
+        carrier: Carrier,
+        peer: SocketAddr,
+    ) -> Result<(u64, Entry, Link), NetError> {
+        let widths = (
+            usize::from(cfg.sent_width()),
+            usize::from(cfg.received_width()),
+        );
         let id = hub.next_id();
         let (del_tx, del_rx) = delivery::queue(config.app_queue);
         let shared = Arc::new(Shared {
@@ -206,24 +259,20 @@ impl Link {
             endpoint,
             shared: Arc::clone(&shared),
             deliveries: del_tx,
-            socket,
+            socket: carrier.socket,
             // Memory per link follows the width the peer's samples carry.
             deframer: Deframer::with_max_frame(HEADER_LEN + 8 * widths.1),
             pending: Vec::new(),
-            tls: tls.map(|conn| Box::new(Session::new(conn))),
-            kernel_stamps,
+            tls: carrier.tls,
+            kernel_stamps: carrier.kernel_stamps,
             app_dropped: 0,
             rx_lag: Running::default(),
             deadline: None,
             handler: None,
-            datagram,
+            datagram: carrier.datagram,
+            quic: carrier.quic,
         };
-        if !hub.send(Msg::Add(id, Box::new(entry))) {
-            return Err(NetError::Io(io::Error::other(
-                "the link's hub thread has stopped",
-            )));
-        }
-        Ok(Link {
+        let link = Link {
             id,
             deliveries: del_rx,
             shared,
@@ -235,7 +284,8 @@ impl Link {
             peer,
             hub: hub.clone(),
             seat: None,
-        })
+        };
+        Ok((id, entry, link))
     }
 
     /// Ends the link with `error`, whose close reason the peer gets,
@@ -642,6 +692,15 @@ pub(crate) fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(),
     }
 }
 
+/// How a link's entry reaches its peer.
+struct Carrier {
+    socket: Option<mio::net::TcpStream>,
+    kernel_stamps: bool,
+    tls: Option<Box<Session>>,
+    datagram: Option<DatagramPath>,
+    quic: Option<Box<QuicPath>>,
+}
+
 /// A link's datagram session token: random, never 0, so that a datagram
 /// of another session (or a guess) is not taken for one of this session.
 fn session_token() -> Result<u64, NetError> {
@@ -722,7 +781,7 @@ impl Hub {
             );
         };
         if matches!(config.endpoint.transport, Transport::Datagram { .. }) {
-            return Err(NetError::DatagramsWithTls);
+            return self.connect_quic(addr, config, &tls).await;
         }
         let stream = TcpStream::connect(addr).await?;
         let (stream, conn) = tls.connect(stream).await.map_err(NetError::Handshake)?;
@@ -735,6 +794,76 @@ impl Hub {
             Some(conn),
             None,
         )
+    }
+}
+
+impl Hub {
+    /// A QUIC link to `addr` from an endpoint (and UDP socket) of its own,
+    /// returned once the QUIC handshake and ndr's Hello are done (or have
+    /// failed: an unknown certificate is [`NetError::Handshake`]).
+    async fn connect_quic(
+        &self,
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+    ) -> Result<Link, NetError> {
+        let client = crate::quic::client(&config.endpoint, tls)
+            .map_err(|e| NetError::Handshake(crate::tls::HandshakeError::Other(e.to_string())))?;
+        let any: SocketAddr = if addr.is_ipv6() {
+            (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+        } else {
+            (std::net::Ipv4Addr::UNSPECIFIED, 0).into()
+        };
+        let socket = crate::hub::bind_datagram_socket(any)?;
+        let mut endpoint = crate::quic::endpoint(None);
+        let (handle, conn) = endpoint
+            .connect(StdInstant::now(), client, addr, &tls.server_name())
+            .map_err(|e| NetError::Io(io::Error::other(format!("QUIC connect to {addr}: {e}"))))?;
+        let key = self.next_id();
+        let new = NewSocket {
+            socket,
+            stray: Arc::default(),
+            held: true,
+        };
+        let point = NewEndpoint {
+            endpoint,
+            server: None,
+        };
+        if !self.send(Msg::Quic(key, Box::new(new), Box::new(point))) {
+            return Err(NetError::Io(io::Error::other(
+                "the hub's thread has stopped",
+            )));
+        }
+        let path = QuicPath::new(key, handle, conn);
+        let started = Link::start_quic(&config, Role::Base, self, path);
+        let (id, entry, mut link) = match started {
+            Ok(started) => started,
+            Err(e) => {
+                let _ = self.send(Msg::ReleaseSocket(key));
+                return Err(e);
+            }
+        };
+        if !self.send(Msg::Add(id, Box::new(entry))) {
+            return Err(NetError::Io(io::Error::other(
+                "the link's hub thread has stopped",
+            )));
+        }
+        let wait = tls.handshake_timeout;
+        match tokio::time::timeout(wait, link.handshake()).await {
+            Ok(Ok(())) => Ok(link),
+            Ok(Err(NetError::Link(LinkError::CertificateRefused))) => Err(NetError::Handshake(
+                crate::tls::HandshakeError::UnknownCertificate(
+                    "QUIC: a certificate was refused by this side or the peer".into(),
+                ),
+            )),
+            Ok(Err(e)) => Err(e),
+            Err(_) => {
+                link.dismiss(LinkError::Timeout);
+                Err(NetError::Handshake(crate::tls::HandshakeError::Timeout(
+                    wait,
+                )))
+            }
+        }
     }
 }
 

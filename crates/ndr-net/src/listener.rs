@@ -21,10 +21,10 @@ mod ledger;
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use ndr_core::endpoint::{Phase, Transport};
+use ndr_core::endpoint::{LinkError, Phase, Transport};
 use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpSocket};
 use tokio::runtime::Handle;
@@ -32,7 +32,7 @@ use tokio::sync::mpsc;
 
 use crate::config::LinkConfig;
 use crate::error::NetError;
-use crate::hub::{Hub, Msg, NewSocket, bind_datagram_socket};
+use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, bind_datagram_socket};
 use crate::link::{Link, not_in_a_runtime, own_runtime, plain_allowed};
 use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
@@ -135,6 +135,27 @@ pub(crate) struct Common {
 }
 
 impl Common {
+    /// A listener's state as it is bound (the remote's role by default).
+    fn new(
+        config: LinkConfig,
+        udp: Option<DatagramSocket>,
+        tls: Option<TlsConfig>,
+        hubs: Hubs,
+    ) -> Arc<Common> {
+        Arc::new(Common {
+            config,
+            udp,
+            tls,
+            setup: Mutex::new(Setup {
+                role: Role::Remote,
+                hubs,
+            }),
+            seats: Arc::new(Seats::default()),
+            ledger: Mutex::new(Ledger::default()),
+            stopped: Mutex::new(None),
+        })
+    }
+
     /// The role and the hub for a link starting now.
     fn setup(&self) -> (Role, Hub) {
         let setup = self.setup.lock().unwrap_or_else(PoisonError::into_inner);
@@ -262,7 +283,9 @@ fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
 impl Listener {
     /// Listens on `addr`; the accept loop runs on the current tokio runtime
     /// (on a current-thread runtime, only while it runs). Over mutual TLS 1.3
-    /// if [`LinkConfig::tls`] is set: a peer whose handshake fails is counted
+    /// if [`LinkConfig::tls`] is set (with the datagram transport, over
+    /// QUIC: one UDP port at `addr`, no TCP): a peer whose handshake fails
+    /// is counted
     /// ([`stats`](Self::stats)), logged and dropped, and never returned by
     /// [`accept`](Self::accept). Plain links are refused with
     /// [`NetError::Insecure`] unless `addr` is loopback (then no other host
@@ -289,14 +312,14 @@ impl Listener {
     async fn bind_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         let tls = config.tls.clone();
         let datagrams = matches!(config.endpoint.transport, Transport::Datagram { .. });
-        if datagrams && tls.is_some() {
-            return Err(NetError::DatagramsWithTls);
-        }
         let hubs = match &config.hub {
             HubChoice::Own => Hubs::One(Hub::new(config.spin_margin)?),
             HubChoice::Shared(hub) => Hubs::One(hub.clone()),
             HubChoice::Pool(pool) => Hubs::Pool(pool.clone()),
         };
+        if let (true, Some(tls)) = (datagrams, tls.as_ref()) {
+            return Listener::bind_quic(addr, config.clone(), tls, hubs);
+        }
         let socket = listen(addr, config.admission.backlog)?;
         let accept_queue = config.admission.accept_queue.max(1);
         let local = socket.local_addr()?;
@@ -311,18 +334,7 @@ impl Listener {
             .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
                 t.max_pending_handshakes
             });
-        let common = Arc::new(Common {
-            config,
-            udp,
-            tls,
-            setup: Mutex::new(Setup {
-                role: Role::Remote,
-                hubs,
-            }),
-            seats: Arc::new(Seats::default()),
-            ledger: Mutex::new(Ledger::default()),
-            stopped: Mutex::new(None),
-        });
+        let common = Common::new(config, udp, tls, hubs);
         let (tx, rx) = mpsc::channel(accept_queue);
         let gate = gate::Gate::new(socket, &common, tx, slots);
         let gate = Handle::current().spawn(gate.run()).abort_handle();
@@ -332,6 +344,116 @@ impl Listener {
             ready: tokio::sync::Mutex::new(rx),
             gate,
             listening,
+            runtime: None,
+        })
+    }
+
+    /// A QUIC listener: one QUIC endpoint on a UDP socket at `addr`, on one
+    /// hub, which accepts connections and drives their handshakes; a task
+    /// on the current runtime waits for each (within the
+    /// pre-authentication budget) and queues the links for
+    /// [`accept`](Self::accept).
+    fn bind_quic(
+        addr: SocketAddr,
+        config: LinkConfig,
+        tls: &TlsConfig,
+        hubs: Hubs,
+    ) -> Result<Listener, NetError> {
+        let server = crate::quic::server(&config.endpoint, tls)
+            .map_err(|e| NetError::Handshake(crate::tls::HandshakeError::Other(e.to_string())))?;
+        let socket = bind_datagram_socket(addr)?;
+        let local = socket.local_addr()?;
+        let hub = match &hubs {
+            Hubs::One(hub) => hub.clone(),
+            Hubs::Pool(pool) => pool.least_loaded().clone(),
+        };
+        let key = hub.next_id();
+        let stray = Arc::new(AtomicU64::new(0));
+        let slots = tls.max_pending_handshakes.max(1);
+        let accept_queue = config.admission.accept_queue.max(1);
+        let udp = DatagramSocket {
+            hub: hub.clone(),
+            key,
+            stray: Arc::clone(&stray),
+        };
+        let common = Common::new(config, Some(udp), Some(tls.clone()), hubs);
+        let (tx, rx) = mpsc::channel(accept_queue);
+        let (started_tx, mut started_rx) = mpsc::channel::<Link>(slots);
+        let pending = Arc::new(AtomicUsize::new(0));
+        let accept = {
+            let common = Arc::clone(&common);
+            let pending = Arc::clone(&pending);
+            let hub = hub.clone();
+            move |handle, conn| {
+                // Every handshake slot taken: quinn closes the connection.
+                if pending.load(Ordering::Relaxed) >= slots {
+                    common.refuse(
+                        Refusal::Evicted,
+                        None,
+                        &"every QUIC handshake slot is taken (TlsConfig::max_pending_handshakes)",
+                    );
+                    return None;
+                }
+                let (role, _) = common.setup();
+                let path = QuicPath::new(key, handle, conn);
+                let (id, entry, link) = match Link::start_quic(&common.config, role, &hub, path) {
+                    Ok(started) => started,
+                    Err(e) => {
+                        common.refuse(Refusal::of_link(&e), None, &e);
+                        return None;
+                    }
+                };
+                pending.fetch_add(1, Ordering::Relaxed);
+                match started_tx.try_send(link) {
+                    Ok(()) => Some((id, entry)),
+                    Err(
+                        mpsc::error::TrySendError::Full(link)
+                        | mpsc::error::TrySendError::Closed(link),
+                    ) => {
+                        pending.fetch_sub(1, Ordering::Relaxed);
+                        // Not dropped here: that would wait on this hub.
+                        link.dismiss(LinkError::Busy);
+                        None
+                    }
+                }
+            }
+        };
+        let server = Arc::new(server);
+        let point = NewEndpoint {
+            endpoint: crate::quic::endpoint(Some(Arc::clone(&server))),
+            server: Some((server, Box::new(accept))),
+        };
+        let new = NewSocket {
+            socket,
+            stray,
+            held: true,
+        };
+        if !hub.send(Msg::Quic(key, Box::new(new), Box::new(point))) {
+            return Err(NetError::Io(io::Error::other(
+                "the listener's hub thread has stopped",
+            )));
+        }
+        let handshakes = {
+            let common = Arc::clone(&common);
+            async move {
+                while let Some(link) = started_rx.recv().await {
+                    let task = handshake::quic(
+                        Arc::clone(&common),
+                        link,
+                        Arc::clone(&pending),
+                        tx.clone(),
+                    );
+                    tokio::spawn(task);
+                }
+            }
+        };
+        let gate = Handle::current().spawn(handshakes).abort_handle();
+        Ok(Listener {
+            local,
+            common,
+            ready: tokio::sync::Mutex::new(rx),
+            gate,
+            listening: None,
             runtime: None,
         })
     }

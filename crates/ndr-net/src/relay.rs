@@ -63,6 +63,12 @@
 //! address over UDP, and the remote answers to the address it saw them
 //! come from: the relay's.
 //!
+//! A QUIC link (the datagram transport with TLS) is all UDP: one flow
+//! carries its handshake, its stream and its datagrams, encrypted, which
+//! the relay delays and loses as it does any datagram (QUIC resends what
+//! its stream lost; the samples' copies make good the rest). No option is
+//! needed: the base connects to the relay's port.
+//!
 //! - **Flows.** Each client address seen on the UDP socket gets a flow: an
 //!   upstream UDP socket of its own (an ephemeral port), connected to
 //!   `upstream`, so that the upstream's answers on it go back to that

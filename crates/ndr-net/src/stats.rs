@@ -57,11 +57,12 @@ pub struct LinkStats {
     /// and on a listener's side until the peer's first datagram.
     pub datagram_peer: Option<std::net::SocketAddr>,
     /// Datagram transport: datagrams not sent (no address for the peer
-    /// yet, or the socket refused them); the peer sees them as lost.
+    /// yet, or the socket refused them; over QUIC also those quinn did not
+    /// take); the peer sees them as lost.
     pub datagrams_unsent: u64,
     /// Datagram transport: times the peer's address changed (its first
     /// datagram to a listener's side, a NAT's new mapping, a peer that
-    /// moved).
+    /// moved; over QUIC, the migrations the connection followed).
     pub datagram_path_changes: u64,
     /// Datagram transport: datagrams to this link's UDP socket that carried
     /// no token of a link on it (strays, spoofs, truncated or not Bundles);

@@ -352,6 +352,34 @@ impl TlsConfig {
         self.fingerprint
     }
 
+    /// The same identities, trust and verifiers for a QUIC connection
+    /// (TLS 1.3 inside QUIC), offering the ALPN token `alpn`.
+    pub(crate) fn quic_client(
+        &self,
+        alpn: &[u8],
+    ) -> Result<quinn_proto::crypto::rustls::QuicClientConfig, TlsError> {
+        let mut client = (*self.client).clone();
+        client.alpn_protocols = vec![alpn.to_vec()];
+        quinn_proto::crypto::rustls::QuicClientConfig::try_from(Arc::new(client))
+            .map_err(|e| TlsError::Rustls(format!("QUIC client: {e}")))
+    }
+
+    /// The server side of [`quic_client`](Self::quic_client).
+    pub(crate) fn quic_server(
+        &self,
+        alpn: &[u8],
+    ) -> Result<quinn_proto::crypto::rustls::QuicServerConfig, TlsError> {
+        let mut server = (*self.server).clone();
+        server.alpn_protocols = vec![alpn.to_vec()];
+        quinn_proto::crypto::rustls::QuicServerConfig::try_from(Arc::new(server))
+            .map_err(|e| TlsError::Rustls(format!("QUIC server: {e}")))
+    }
+
+    /// The name the server's certificate must carry under [`Trust::Ca`].
+    pub(crate) fn server_name(&self) -> String {
+        self.server_name.to_str().into_owned()
+    }
+
     /// A client configuration that presents no certificate (tests of the
     /// refusal; not for use).
     #[doc(hidden)]

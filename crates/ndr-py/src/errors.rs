@@ -141,8 +141,8 @@ pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
              (anyone on the path can read and forge the samples)"
         )),
         NetError::DatagramsWithTls => PyValueError::new_err(
-            "transport=\"udp\" carries samples unencrypted, so it does not run with tls=: \
-             use transport=\"tcp\" with tls=, or plain UDP on loopback (or insecure=True)",
+            "a TLS stream does not take the datagram transport: a datagram link with tls= \
+             runs over QUIC (transport=\"quic\")",
         ),
         other => PyRuntimeError::new_err(other.to_string()),
     }

@@ -492,6 +492,27 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
 pub struct PyLinkSettings {
     config: LinkConfig,
     role: Role,
+    /// `transport="quic…"`: the datagrams go over QUIC, which needs `tls`.
+    quic: bool,
+}
+
+impl PyLinkSettings {
+    /// Whether `tls` fits the transport: QUIC runs mutual TLS, plain UDP
+    /// does not run beside it.
+    fn check_tls(&self, tls: bool) -> PyResult<()> {
+        let datagrams = matches!(self.config.endpoint.transport, Transport::Datagram { .. });
+        match (self.quic, datagrams, tls) {
+            (true, _, false) => Err(PyValueError::new_err(
+                "transport=\"quic\" runs mutual TLS 1.3: pass tls=ndr.TlsConfig(...) on \
+                 both sides",
+            )),
+            (false, true, true) => Err(PyValueError::new_err(
+                "transport=\"udp\" is plain UDP: with tls=, use transport=\"quic\" \
+                 (datagrams over QUIC) or \"tcp\"",
+            )),
+            _ => Ok(()),
+        }
+    }
 }
 
 #[pymethods]
@@ -551,10 +572,14 @@ impl PyLinkSettings {
         endpoint.watchdog = watchdog.map(|w| positive("watchdog", w)).transpose()?;
         endpoint.liveness = liveness.map(|l| positive("liveness", l)).transpose()?;
         endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;
-        endpoint.transport = transport.parse::<Transport>().map_err(|e| {
+        // "quic[:K[:R]]": the datagram transport, over QUIC.
+        let quic = transport.strip_prefix("quic");
+        let name = quic.map_or_else(|| transport.to_owned(), |rest| format!("datagram{rest}"));
+        endpoint.transport = name.parse::<Transport>().map_err(|e| {
             PyValueError::new_err(format!(
                 "transport: {e} (\"tcp\", or \"udp\" / \"udp:K\" / \"udp:K:R\" for datagrams \
-                 of K samples sent R more times)"
+                 of K samples sent R more times, \"quic\" / \"quic:K\" / \"quic:K:R\" for \
+                 the same over QUIC with tls=)"
             ))
         })?;
         // The link draws its datagram session token when it starts.
@@ -566,7 +591,11 @@ impl PyLinkSettings {
         let mut config = LinkConfig::new(endpoint);
         config.app_queue = app_queue;
         config.insecure = insecure;
-        Ok(PyLinkSettings { config, role })
+        Ok(PyLinkSettings {
+            config,
+            role,
+            quic: quic.is_some(),
+        })
     }
 }
 
@@ -586,6 +615,7 @@ pub fn connect(
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
     let tls = tls.map(|t| t.get().inner.clone());
+    settings.check_tls(tls.is_some())?;
     if tls.is_some() && role == Role::Remote {
         return Err(PyValueError::new_err(
             "a remote that dials out cannot use TLS (the TLS client is the base): \
@@ -730,6 +760,7 @@ pub fn listen(
     let addr = blocking::address(py, address)?;
     let rt = blocking::runtime()?;
     config.tls = tls.map(|t| t.get().inner.clone());
+    settings.check_tls(config.tls.is_some())?;
     let listener = py
         .detach(|| rt.block_on(Listener::bind(addr, config)))
         .map_err(|e| net_error(py, e))?

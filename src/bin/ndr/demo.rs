@@ -9,14 +9,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::{Config, Event, Mode, Status, Transport, Underflow};
+use ndr::core::endpoint::{Config, Event, Mode, Status, Underflow};
 use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
-use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConfig};
+use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConfig, TlsConfig};
 use ndr::netem::LossModel;
 use ndr::sim::signal::Signal;
+
+use crate::transport::LinkTransport;
 
 use crate::report::{End, Outcome, Row, Series, finish};
 use crate::robot::{PlantArgs, StateLayout, robot};
@@ -65,10 +67,12 @@ pub struct LinkArgs {
     /// the K − 1 before it, 4 by default, sent R more times 1 ms apart, 3
     /// by default, so that a lost one is made good within a millisecond or
     /// two; the handshake stays on TCP, and the datagrams go to the same
-    /// port over UDP). UDP is plain: loopback, or --insecure, and not with
-    /// TLS.
+    /// port over UDP) or quic[:K[:R]] (the same datagrams as QUIC DATAGRAM
+    /// frames, the handshake on a QUIC stream, all under mutual TLS 1.3:
+    /// base and remote need the TLS options; the demo makes a throwaway
+    /// pair). UDP is plain: loopback, or --insecure, and not with TLS.
     #[arg(long, default_value = "tcp")]
-    pub transport: Transport,
+    pub transport: LinkTransport,
 }
 
 impl LinkArgs {
@@ -80,7 +84,7 @@ impl LinkArgs {
         let states = self.state.width(self.axes)?;
         let mut endpoint = Config::new(Role::Base).with_widths(self.axes, states);
         endpoint.layout = self.state.fingerprint(self.axes);
-        endpoint.transport = self.transport;
+        endpoint.transport = self.transport.transport;
         endpoint.period = period;
         let (mode, playout, old) = self.asked()?;
         if old {
@@ -234,6 +238,13 @@ pub struct DemoArgs {
 
 pub fn run(args: &DemoArgs) -> Result<(), String> {
     let config = args.link.config()?;
+    // Over QUIC, each side gets a throwaway identity pinned by the other.
+    let (base_config, config) = if args.link.transport.quic {
+        let (base, remote) = throwaway_pair()?;
+        (config.clone().with_tls(base), config.with_tls(remote))
+    } else {
+        (config.clone(), config)
+    };
     check_duration(&args.run)?;
     check_layout(args.run.controller, &args.link.state)?;
     let max_command = args.plant.max_command()?;
@@ -260,7 +271,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             .spawn()?;
         let (remote, base) = tokio::join!(
             listener.accept(),
-            Link::connect(relay.local_addr(), config.clone())
+            Link::connect(relay.local_addr(), base_config.clone())
         );
         Ok::<_, NetError>((base?, remote?, relay))
     });
@@ -358,6 +369,22 @@ pub fn check_duration(run: &RunArgs) -> Result<(), String> {
             run.duration_s
         ))
     }
+}
+
+/// TLS for a base and a remote that trust each other's certificate only,
+/// made for this run and gone with it.
+fn throwaway_pair() -> Result<(TlsConfig, TlsConfig), String> {
+    let dir = std::env::temp_dir().join(format!("ndr-demo-quic-{}", std::process::id()));
+    let made = (|| {
+        let base = ndr::keygen::write(&dir, "base")?;
+        let remote = ndr::keygen::write(&dir, "remote")?;
+        let tls = |own: &ndr::keygen::KeyPair, peer: &ndr::keygen::KeyPair| {
+            TlsConfig::from_files(&own.cert, &own.key, &peer.cert).map_err(|e| e.to_string())
+        };
+        Ok::<_, String>((tls(&base, &remote)?, tls(&remote, &base)?))
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    made.map_err(|e| format!("cannot make the demo's QUIC certificates: {e}"))
 }
 
 pub fn runtime() -> Result<tokio::runtime::Runtime, String> {

@@ -17,6 +17,7 @@ mod sim;
 mod size;
 mod soak;
 mod tracking;
+mod transport;
 
 use std::process::ExitCode;
 

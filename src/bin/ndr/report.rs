@@ -6,7 +6,6 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use ndr::core::endpoint::Transport;
 use ndr::core::time::Duration;
 use ndr::net::clock::LatenessStats;
 use ndr::net::{LinkStats, RelayStats};
@@ -333,17 +332,6 @@ pub fn finish(link: &LinkArgs, run: &RunArgs, outcome: &Outcome<'_>) -> Result<(
     }
 }
 
-/// `tcp`, or `udp:K:R`: the names `--transport` takes.
-pub fn transport_name(t: Transport) -> String {
-    match t {
-        Transport::Datagram {
-            redundancy,
-            repeats,
-        } => format!("udp:{redundancy}:{repeats}"),
-        _ => "tcp".into(),
-    }
-}
-
 fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
     let (b, remote, relay) = (o.base.as_ref(), o.remote.as_ref(), o.relay);
     let eb = b.map(|s| s.endpoint).unwrap_or_default();
@@ -365,7 +353,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         period_s: b.map_or(link.period_ms / 1e3, |s| s.period.as_secs_f64()),
         duration_s: run.duration_s,
         axes: link.axes,
-        transport: transport_name(link.transport),
+        transport: link.transport.to_string(),
         command_width: link.axes,
         state_width: link.state.width(link.axes).unwrap_or(0),
         ns: b.map_or(0, |s| s.ns),

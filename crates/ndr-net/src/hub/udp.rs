@@ -35,7 +35,7 @@ use ndr_core::wire::{self, HEADER_LEN};
 use super::Entry;
 
 /// Messages read, or written, per system call.
-const BATCH: usize = 32;
+pub(super) const BATCH: usize = 32;
 /// Room for one received message: the longest UDP payload, so that a run
 /// of datagrams the kernel coalesced (GRO) arrives whole; a datagram
 /// longer than any Bundle is refused by its endpoint.
@@ -167,10 +167,16 @@ impl Outgoing {
             path.unsent += 1;
             return;
         };
+        self.push_to(path.socket, link, to, frame);
+    }
+
+    /// `bytes` to `to` from socket `socket`, for link `link` (where a
+    /// refusal is counted; `u64::MAX`: no link's).
+    pub(super) fn push_to(&mut self, socket: u64, link: u64, to: SocketAddr, bytes: &[u8]) {
         let start = self.arena.len();
-        self.arena.extend_from_slice(frame);
+        self.arena.extend_from_slice(bytes);
         self.queued.push(Queued {
-            socket: path.socket,
+            socket,
             link,
             to,
             bytes: start..self.arena.len(),
@@ -293,6 +299,32 @@ impl Udp {
         if unused && let Some(mut sock) = self.sockets.remove(&key) {
             let _ = registry.deregister(&mut sock.socket);
         }
+    }
+
+    /// Reads a batch from socket `key` (for a QUIC endpoint): how many
+    /// messages, each then read with [`received`](Self::received).
+    pub(super) fn read(&mut self, key: u64) -> io::Result<usize> {
+        if self.slots.is_empty() {
+            self.slots = vec![0; SLOT * BATCH];
+        }
+        self.read_batch(key)
+    }
+
+    /// The `i`th message of the last [`read`](Self::read): where it came
+    /// from, when it arrived (the kernel's stamp), and its datagrams (more
+    /// than one when the kernel coalesced a run).
+    pub(super) fn received(
+        &self,
+        i: usize,
+    ) -> Option<(
+        Option<SocketAddr>,
+        Option<StdInstant>,
+        impl Iterator<Item = &[u8]>,
+    )> {
+        let meta = self.meta.get(i)?;
+        let slot = self.slots.chunks_exact(SLOT).nth(i)?;
+        let message = slot.get(..meta.len.min(SLOT))?;
+        Some((meta.from, meta.at, datagrams(message, meta.segment)))
     }
 
     /// Reads everything socket `key` holds and hands each datagram to its
@@ -426,11 +458,13 @@ impl Udp {
                     // network.
                     let first = messages.first().map_or(0, |m| m.count.max(1));
                     for &i in order.get(at..at + first).unwrap_or_default() {
-                        if let Some(path) = entries
-                            .get_mut(&self.out.queued[i].link)
-                            .and_then(|e| e.datagram.as_mut())
-                        {
-                            path.unsent += 1;
+                        if let Some(e) = entries.get_mut(&self.out.queued[i].link) {
+                            if let Some(path) = e.datagram.as_mut() {
+                                path.unsent += 1;
+                            }
+                            if let Some(q) = e.quic.as_deref_mut() {
+                                q.dropped += 1;
+                            }
                         }
                     }
                     at += first;

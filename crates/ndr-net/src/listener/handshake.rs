@@ -195,6 +195,50 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
     )
     .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
     progress.advance(stage::ON_HUB, 0);
+    hello(link, deadline, late).await
+}
+
+/// A QUIC link its listener's hub accepted: its handshakes (QUIC's TLS,
+/// then ndr's Hello, both on the hub) within the pre-authentication
+/// budget, then its place in the accept queue; `pending` counts it until
+/// then.
+pub(super) async fn quic(
+    common: Arc<Common>,
+    link: Link,
+    pending: Arc<AtomicUsize>,
+    ready: mpsc::Sender<Link>,
+) {
+    let budget: StdDuration = common.config.admission.preauth_timeout.into();
+    // QUIC's own handshake timeout is TLS's.
+    let budget = match &common.tls {
+        Some(tls) if budget.is_zero() || tls.handshake_timeout < budget => tls.handshake_timeout,
+        _ => budget,
+    };
+    let deadline = (!budget.is_zero()).then(|| TokioInstant::now() + budget);
+    let late = || {
+        (
+            Refusal::Timeout,
+            format!(
+                "no QUIC handshake within {budget:?} (the pre-authentication budget, \
+                 LinkConfig::admission.preauth_timeout, or TlsConfig::handshake_timeout)"
+            ),
+        )
+    };
+    let peer = link.peer_addr();
+    let outcome = hello(link, deadline, late).await;
+    pending.fetch_sub(1, Ordering::Relaxed);
+    match outcome {
+        Ok(link) => enqueue(&common, link, peer, &ready),
+        Err((why, what)) => common.refuse(why, peer, &what),
+    }
+}
+
+/// ndr's Hello on a link its hub drives, within `deadline`.
+async fn hello(
+    link: Link,
+    deadline: Option<TokioInstant>,
+    late: impl Fn() -> Failed,
+) -> Result<Link, Failed> {
     let mut unfinished = Unfinished(Some(link));
     let Some(link) = unfinished.0.as_mut() else {
         return Err((Refusal::Other, "lost its link".into()));

@@ -87,6 +87,7 @@ impl Refusal {
                 LinkError::Wire(_) | LinkError::Unexpected { .. } | LinkError::ChannelCount { .. },
             ) => Refusal::Protocol,
             NetError::Link(LinkError::Timeout) | NetError::Timeout => Refusal::Timeout,
+            NetError::Link(LinkError::CertificateRefused) => Refusal::Certificate,
             NetError::Handshake(e) => Refusal::of_tls(e),
             _ => Refusal::Other,
         }

@@ -1,0 +1,563 @@
+//! QUIC links in a hub: quinn-proto's sans-IO state machine driven on the
+//! hub's thread, as rustls's is on a TLS link.
+//!
+//! A QUIC endpoint (`quinn_proto::Endpoint`) owns one UDP socket of the
+//! hub's ([`super::udp`] reads and writes it in batches, with the kernel's
+//! arrival stamps); a base's link has an endpoint of its own, a listener's
+//! endpoint serves every link it accepts. Each link's connection lives in
+//! its [`Entry`]: the endpoint's reliable frames (Hello, Control, Close)
+//! go on one bidirectional stream that the connecting side opens, each
+//! Bundle as one DATAGRAM frame (RFC 9221), never sent again. The
+//! connection's timers join the link's deadline in the hub's index; its
+//! packets go out with the tick's batched send.
+//!
+//! The endpoint's Close frame travels as the reason of QUIC's
+//! CONNECTION_CLOSE, which QUIC sends at once and does not hold behind
+//! the stream: the peer hands it to its endpoint as the last frame.
+
+use std::collections::HashMap;
+use std::io;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Instant as StdInstant;
+
+use bytes::{Bytes, BytesMut};
+use ndr_core::endpoint::LinkError;
+use ndr_core::time::Instant;
+use ndr_core::wire::{Frame, Kind};
+use quinn_proto::{
+    ConnectionError, ConnectionHandle, DatagramEvent, Dir, EndpointEvent, StreamEvent, StreamId,
+    VarInt,
+};
+
+use super::udp::{Outgoing, Udp};
+use super::{Entry, handle_frames};
+
+/// Frames a link may have waiting for its stream (flow control, or the
+/// stream not open yet) before it is cut off.
+const MAX_PENDING: usize = 1 << 16;
+/// QUIC's application error code for a link that ended: the reason is then
+/// the endpoint's Close frame.
+const CLOSED: VarInt = VarInt::from_u32(0);
+
+/// Builds the link for a connection a listener's endpoint accepted: its
+/// id and entry for the hub, or `None` if the listener refuses it (its
+/// handshakes are all taken, or it is gone).
+pub(crate) type Accept =
+    Box<dyn FnMut(ConnectionHandle, quinn_proto::Connection) -> Option<(u64, Entry)> + Send>;
+
+/// A QUIC endpoint handed to a hub ([`super::Msg::Quic`]).
+pub(crate) struct NewEndpoint {
+    pub endpoint: quinn_proto::Endpoint,
+    /// A listener's: the server configuration and what builds the links.
+    pub server: Option<(Arc<quinn_proto::ServerConfig>, Accept)>,
+}
+
+/// One link's QUIC connection.
+pub(crate) struct QuicPath {
+    /// The hub's key of the endpoint (and of its UDP socket).
+    pub key: u64,
+    pub handle: ConnectionHandle,
+    pub conn: quinn_proto::Connection,
+    /// The stream of the endpoint's frames, once open (the connecting
+    /// side opens it; the other side takes it when the first bytes come).
+    stream: Option<StreamId>,
+    /// Frames the stream has not taken yet, in order.
+    pending: Vec<u8>,
+    /// The stream's bytes of one read (kept to reuse its memory).
+    inbox: Vec<u8>,
+    /// The endpoint's Close frame, for the CONNECTION_CLOSE.
+    close: Option<Bytes>,
+    /// Datagrams quinn did not take (its buffer full, the peer cannot take
+    /// them) or dropped unsent.
+    pub dropped: u64,
+    /// The connection's next timer.
+    pub timer: Option<StdInstant>,
+    /// Where the peer is now, and how many times that changed (the peer
+    /// moved, or a NAT gave it a new mapping: QUIC follows it).
+    pub peer: SocketAddr,
+    pub path_changes: u64,
+    /// The connection ended (lost, or closed by either side).
+    lost: bool,
+    /// Its endpoint has forgotten it (a handle it may give another
+    /// connection now).
+    drained: bool,
+}
+
+impl QuicPath {
+    pub(crate) fn new(key: u64, handle: ConnectionHandle, conn: quinn_proto::Connection) -> Self {
+        QuicPath {
+            peer: conn.remote_address(),
+            path_changes: 0,
+            key,
+            handle,
+            conn,
+            stream: None,
+            pending: Vec::new(),
+            inbox: Vec::new(),
+            close: None,
+            dropped: 0,
+            timer: None,
+            lost: false,
+            drained: false,
+        }
+    }
+}
+
+struct Point {
+    endpoint: quinn_proto::Endpoint,
+    /// Connection → link id.
+    links: HashMap<ConnectionHandle, u64>,
+    server: Option<(Arc<quinn_proto::ServerConfig>, Accept)>,
+}
+
+/// The hub's QUIC endpoints.
+pub(super) struct Quic {
+    points: HashMap<u64, Point>,
+    buf: Vec<u8>,
+}
+
+impl Quic {
+    pub(super) fn new() -> Quic {
+        Quic {
+            points: HashMap::new(),
+            buf: Vec::new(),
+        }
+    }
+
+    /// Whether `key` (a poll token) is a QUIC endpoint's socket.
+    pub(super) fn has(&self, key: u64) -> bool {
+        self.points.contains_key(&key)
+    }
+
+    /// Takes the endpoint `new` on the socket `key` (already in `udp`).
+    pub(super) fn add(&mut self, key: u64, new: NewEndpoint) {
+        self.points.insert(
+            key,
+            Point {
+                endpoint: new.endpoint,
+                links: HashMap::new(),
+                server: new.server,
+            },
+        );
+    }
+
+    /// Routes the connection of link `id` to it; `false` if its endpoint
+    /// is gone.
+    pub(super) fn attach(&mut self, id: u64, path: &QuicPath) -> bool {
+        let Some(point) = self.points.get_mut(&path.key) else {
+            return false;
+        };
+        point.links.insert(path.handle, id);
+        true
+    }
+
+    /// The listener is gone: its endpoint accepts no more connections and
+    /// closes with its last link; `true` if it closed now (its socket can go).
+    pub(super) fn release(&mut self, key: u64) -> bool {
+        if let Some(point) = self.points.get_mut(&key) {
+            point.server = None;
+        }
+        self.close_if_unused(key)
+    }
+
+    fn close_if_unused(&mut self, key: u64) -> bool {
+        let unused = self
+            .points
+            .get(&key)
+            .is_some_and(|p| p.server.is_none() && p.links.is_empty());
+        if unused {
+            self.points.remove(&key);
+        }
+        unused
+    }
+
+    /// Link `id` has left the hub: its connection is forgotten; `true` if
+    /// its endpoint closed with it (its socket can go).
+    pub(super) fn detach(&mut self, path: &QuicPath) -> bool {
+        if let Some(point) = self.points.get_mut(&path.key) {
+            point.links.remove(&path.handle);
+            // The connection is dropped with its link: its endpoint forgets
+            // its identifiers now instead of waiting for a drain.
+            if !path.drained {
+                let _ = point
+                    .endpoint
+                    .handle_event(path.handle, EndpointEvent::drained());
+            }
+        }
+        self.close_if_unused(path.key)
+    }
+
+    /// Hands the datagrams `udp` read from socket `key` to the endpoint;
+    /// the links that got one are added to `touched`, the links a
+    /// listener accepted to `accepted`.
+    pub(super) fn receive(
+        &mut self,
+        key: u64,
+        udp: &mut Udp,
+        origin: StdInstant,
+        entries: &mut HashMap<u64, Entry>,
+        touched: &mut Vec<u64>,
+        accepted: &mut Vec<(u64, Entry)>,
+    ) {
+        let Some(point) = self.points.get_mut(&key) else {
+            return;
+        };
+        loop {
+            let got = match udp.read(key) {
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(_) => return,
+            };
+            let handled = StdInstant::now();
+            for i in 0..got {
+                let Some((from, at, datagrams)) = udp.received(i) else {
+                    continue;
+                };
+                let (Some(from), at) = (from, at.unwrap_or(handled)) else {
+                    continue;
+                };
+                // A run the kernel coalesced is one packet each to quinn.
+                let datagrams: Vec<BytesMut> = datagrams.map(BytesMut::from).collect();
+                for data in datagrams {
+                    self.buf.clear();
+                    let event = point
+                        .endpoint
+                        .handle(at, from, None, None, data, &mut self.buf);
+                    match event {
+                        Some(DatagramEvent::ConnectionEvent(handle, event)) => {
+                            let Some(&id) = point.links.get(&handle) else {
+                                continue;
+                            };
+                            let Some(e) = entries.get_mut(&id) else {
+                                continue;
+                            };
+                            if let Some(q) = e.quic.as_deref_mut() {
+                                q.conn.handle_event(event);
+                            }
+                            e.rx_lag
+                                .push_duration(handled.saturating_duration_since(at).into());
+                            input(e, origin, at);
+                            if !touched.contains(&id) {
+                                touched.push(id);
+                            }
+                        }
+                        Some(DatagramEvent::NewConnection(incoming)) => {
+                            let Some((config, accept)) = point.server.as_mut() else {
+                                point.endpoint.ignore(incoming);
+                                continue;
+                            };
+                            self.buf.clear();
+                            match point.endpoint.accept(
+                                incoming,
+                                at,
+                                &mut self.buf,
+                                Some(Arc::clone(config)),
+                            ) {
+                                Ok((handle, conn)) => match accept(handle, conn) {
+                                    Some((id, entry)) => {
+                                        point.links.insert(handle, id);
+                                        accepted.push((id, entry));
+                                    }
+                                    None => {
+                                        let _ = point
+                                            .endpoint
+                                            .handle_event(handle, EndpointEvent::drained());
+                                    }
+                                },
+                                Err(refused) => {
+                                    if let Some(t) = refused.response {
+                                        let out = &mut udp.out;
+                                        out.push_to(
+                                            key,
+                                            u64::MAX,
+                                            t.destination,
+                                            slice(&self.buf, &t),
+                                        );
+                                    }
+                                }
+                            }
+                        }
+                        Some(DatagramEvent::Response(t)) => {
+                            udp.out
+                                .push_to(key, u64::MAX, t.destination, slice(&self.buf, &t));
+                        }
+                        None => {}
+                    }
+                }
+            }
+            if got < super::udp::BATCH {
+                return;
+            }
+        }
+    }
+
+    /// The connection's packets to `out`, its requests to its endpoint
+    /// answered, and its next timer noted.
+    pub(super) fn output(&mut self, e: &mut Entry, id: u64, now: StdInstant, out: &mut Outgoing) {
+        let Some(q) = e.quic.as_deref_mut() else {
+            return;
+        };
+        let point = self.points.get_mut(&q.key);
+        if let Some(point) = point {
+            while let Some(event) = q.conn.poll_endpoint_events() {
+                q.drained |= event.is_drained();
+                if let Some(back) = point.endpoint.handle_event(q.handle, event) {
+                    q.conn.handle_event(back);
+                }
+            }
+        }
+        loop {
+            self.buf.clear();
+            let Some(t) = q.conn.poll_transmit(now, 1, &mut self.buf) else {
+                break;
+            };
+            out.push_to(q.key, id, t.destination, slice(&self.buf, &t));
+        }
+        q.timer = q.conn.poll_timeout();
+        let peer = q.conn.remote_address();
+        if peer != q.peer {
+            tracing::debug!(from = %peer, before = %q.peer, "QUIC path changed");
+            q.peer = peer;
+            q.path_changes += 1;
+        }
+    }
+}
+
+fn slice<'a>(buf: &'a [u8], t: &quinn_proto::Transmit) -> &'a [u8] {
+    buf.get(..t.size).unwrap_or_default()
+}
+
+/// A timer of the connection passed: it runs what is due.
+pub(super) fn on_timeout(e: &mut Entry, now: StdInstant) {
+    if let Some(q) = e.quic.as_deref_mut()
+        && q.timer.is_some_and(|t| t <= now)
+    {
+        q.conn.handle_timeout(now);
+    }
+}
+
+/// The connection's next timer on the hub's clock.
+pub(super) fn timer(e: &Entry, origin: StdInstant) -> Option<Instant> {
+    e.quic
+        .as_deref()
+        .and_then(|q| q.timer)
+        .map(|t| Instant::from_std(origin, t))
+}
+
+/// What the connection has for the endpoint: the stream's frames and the
+/// datagrams (arrived at `at`), its opening, its end.
+pub(super) fn input(e: &mut Entry, origin: StdInstant, at: StdInstant) {
+    loop {
+        let Some(q) = e.quic.as_deref_mut() else {
+            return;
+        };
+        let Some(event) = q.conn.poll() else {
+            break;
+        };
+        match event {
+            quinn_proto::Event::Connected => {
+                if q.conn.side().is_client() && q.stream.is_none() {
+                    q.stream = q.conn.streams().open(Dir::Bi);
+                }
+                write_pending(e);
+            }
+            quinn_proto::Event::Stream(StreamEvent::Opened { dir: Dir::Bi }) => {
+                if q.stream.is_none() {
+                    q.stream = q.conn.streams().accept(Dir::Bi);
+                }
+                read_stream(e, origin, at);
+                write_pending(e);
+            }
+            quinn_proto::Event::Stream(StreamEvent::Readable { .. }) => read_stream(e, origin, at),
+            quinn_proto::Event::Stream(StreamEvent::Writable { .. }) => write_pending(e),
+            quinn_proto::Event::DatagramReceived => {
+                while let Some(bytes) = q.conn.datagrams().recv() {
+                    // Refused datagrams are counted by the endpoint.
+                    let _ = e
+                        .endpoint
+                        .handle_datagram(Instant::from_std(origin, at), &bytes);
+                }
+            }
+            quinn_proto::Event::ConnectionLost { reason } => {
+                q.lost = true;
+                lost(e, origin, at, &reason);
+                return;
+            }
+            _ => {}
+        }
+    }
+}
+
+/// The connection ended: the peer's Close frame, if it sent one, goes to
+/// the endpoint; otherwise the link ends with what QUIC says.
+fn lost(e: &mut Entry, origin: StdInstant, at: StdInstant, reason: &ConnectionError) {
+    if let ConnectionError::ApplicationClosed(close) = reason
+        && close.error_code == CLOSED
+    {
+        let _ = e
+            .endpoint
+            .handle_frame(Instant::from_std(origin, at), &close.reason);
+        if e.endpoint.is_closed() {
+            return;
+        }
+    }
+    tracing::debug!("QUIC link: {reason}");
+    e.endpoint.abort(ended_by(reason));
+}
+
+/// What a lost connection ends the link with: a TLS alert about a
+/// certificate (ours refused by the peer, or the peer's here) is a refusal.
+fn ended_by(reason: &ConnectionError) -> LinkError {
+    let code = match reason {
+        ConnectionError::TransportError(t) => Some(t.code),
+        ConnectionError::ConnectionClosed(c) => Some(c.error_code),
+        ConnectionError::TimedOut => return LinkError::Timeout,
+        _ => None,
+    };
+    // TLS alerts are the crypto error codes 0x100 + alert.
+    let alert = code
+        .map(u64::from)
+        .filter(|c| (0x100..0x200).contains(c))
+        .map(|c| rustls::AlertDescription::from((c - 0x100) as u8));
+    match alert {
+        Some(
+            rustls::AlertDescription::BadCertificate
+            | rustls::AlertDescription::UnsupportedCertificate
+            | rustls::AlertDescription::CertificateRevoked
+            | rustls::AlertDescription::CertificateExpired
+            | rustls::AlertDescription::CertificateUnknown
+            | rustls::AlertDescription::UnknownCA
+            | rustls::AlertDescription::AccessDenied
+            | rustls::AlertDescription::DecryptError
+            | rustls::AlertDescription::CertificateRequired,
+        ) => LinkError::CertificateRefused,
+        _ => LinkError::Disconnected,
+    }
+}
+
+/// The stream's bytes to the deframer, each whole frame to the endpoint.
+fn read_stream(e: &mut Entry, origin: StdInstant, at: StdInstant) {
+    let Some(q) = e.quic.as_deref_mut() else {
+        return;
+    };
+    let Some(id) = q.stream else {
+        return;
+    };
+    let mut inbox = std::mem::take(&mut q.inbox);
+    inbox.clear();
+    let mut failed = false;
+    {
+        let mut stream = q.conn.recv_stream(id);
+        let Ok(mut chunks) = stream.read(true) else {
+            return;
+        };
+        // The stream's receive window bounds what one read takes.
+        loop {
+            match chunks.next(usize::MAX) {
+                Ok(Some(chunk)) => inbox.extend_from_slice(&chunk.bytes),
+                Ok(None) | Err(quinn_proto::ReadError::Blocked) => break,
+                Err(_) => {
+                    failed = true;
+                    break;
+                }
+            }
+        }
+        // Flow-control credit for the peer.
+        let _ = chunks.finalize();
+    }
+    let mut rest = inbox.as_slice();
+    while !rest.is_empty() && !e.endpoint.is_closed() {
+        let spare = e.deframer.spare();
+        let n = spare.len().min(rest.len());
+        if n == 0 {
+            // Cannot happen: frames are taken out after every fill.
+            failed = true;
+            break;
+        }
+        let (now, later) = rest.split_at(n);
+        spare.get_mut(..n).unwrap_or_default().copy_from_slice(now);
+        e.deframer.filled(n);
+        rest = later;
+        if !handle_frames(e, origin, at) {
+            break;
+        }
+    }
+    if failed && !e.endpoint.is_closed() {
+        e.endpoint.abort(LinkError::Disconnected);
+    }
+    if let Some(q) = e.quic.as_deref_mut() {
+        q.inbox = inbox;
+    }
+}
+
+/// Writes what waits for the stream, as far as flow control lets it.
+fn write_pending(e: &mut Entry) {
+    let Some(q) = e.quic.as_deref_mut() else {
+        return;
+    };
+    let Some(id) = q.stream else {
+        return;
+    };
+    while !q.pending.is_empty() {
+        match q.conn.send_stream(id).write(&q.pending) {
+            Ok(n) => {
+                q.pending.drain(..n);
+            }
+            Err(quinn_proto::WriteError::Blocked) => return,
+            Err(_) => {
+                q.pending.clear();
+                e.endpoint.abort(LinkError::Disconnected);
+                return;
+            }
+        }
+    }
+}
+
+/// One of the endpoint's frames: a Bundle as a datagram, the others on
+/// the stream (a Close kept for the CONNECTION_CLOSE as well).
+pub(super) fn send(e: &mut Entry, frame: &[u8]) {
+    let Some(q) = e.quic.as_deref_mut() else {
+        return;
+    };
+    if ndr_core::wire::is_bundle(frame) {
+        // Never held back behind older ones: the newest sample matters.
+        if q.conn
+            .datagrams()
+            .send(Bytes::copy_from_slice(frame), false)
+            .is_err()
+        {
+            q.dropped += 1;
+        }
+        return;
+    }
+    if Frame::new_checked(frame).is_ok_and(|f| f.kind() == Kind::Close) {
+        q.close = Some(Bytes::copy_from_slice(frame));
+    }
+    if q.pending.len() + frame.len() > MAX_PENDING {
+        q.pending.clear();
+        e.endpoint.abort(LinkError::Disconnected);
+        return;
+    }
+    q.pending.extend_from_slice(frame);
+    write_pending(e);
+}
+
+/// The link is leaving the hub: the connection is closed with the
+/// endpoint's Close frame as its reason (unless it is over already).
+pub(super) fn close(e: &mut Entry, now: StdInstant) {
+    let Some(q) = e.quic.as_deref_mut() else {
+        return;
+    };
+    if q.lost || q.conn.is_closed() {
+        return;
+    }
+    let reason = q.close.take().unwrap_or_default();
+    q.conn.close(now, CLOSED, reason);
+}
+
+/// The peer's address as the connection sees it now (it follows a peer
+/// that moved).
+pub(super) fn peer(e: &Entry) -> Option<SocketAddr> {
+    e.quic.as_deref().map(|q| q.peer)
+}

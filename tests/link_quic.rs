@@ -1,0 +1,424 @@
+//! The link over QUIC on loopback: mutual TLS 1.3 with the TLS link's
+//! identities, the samples as QUIC datagrams, the handshake and control on
+//! a QUIC stream; the same constant round trip as the other transports,
+//! and a peer with an unknown certificate refused.
+
+mod common;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use ndr::core::endpoint::{Config, Transport};
+use ndr::core::time::Duration;
+use ndr::core::wire::Role;
+use ndr::keygen::{self, KeyPair};
+use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
+
+fn config() -> LinkConfig {
+    let mut c = Config::paper(Role::Base).with_width(2);
+    c.period = Duration::from_millis(10);
+    c.transport = Transport::DATAGRAM;
+    LinkConfig::new(c)
+}
+
+/// Throwaway certificates for one test: base, remote and a stranger.
+struct Certs {
+    dir: PathBuf,
+    base: KeyPair,
+    remote: KeyPair,
+    other: KeyPair,
+}
+
+impl Certs {
+    fn new(test: &str) -> Certs {
+        let dir = std::env::temp_dir().join(format!("ndr-link-quic-{}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        Certs {
+            base: keygen::write(&dir, "base").unwrap(),
+            remote: keygen::write(&dir, "remote").unwrap(),
+            other: keygen::write(&dir, "other").unwrap(),
+            dir,
+        }
+    }
+}
+
+impl Drop for Certs {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// `own` trusting `peer` by its certificate file.
+fn tls(own: &KeyPair, peer: &KeyPair) -> TlsConfig {
+    TlsConfig::from_files(&own.cert, &own.key, &peer.cert).unwrap()
+}
+
+fn listener(rt: &tokio::runtime::Runtime, certs: &Certs) -> Listener {
+    let addr: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let config = config().with_tls(tls(&certs.remote, &certs.base));
+    rt.block_on(Listener::bind(addr, config)).unwrap()
+}
+
+#[test]
+fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
+    let _serial = common::serial();
+    let certs = Certs::new("grtt");
+    let rt = common::runtime();
+    let run = common::assert_regulated(|| {
+        let listener = listener(&rt, &certs);
+        let addr = listener.local_addr().unwrap();
+        let base_tls = tls(&certs.base, &certs.remote);
+        let (remote, base) = rt.block_on(async {
+            tokio::join!(
+                listener.accept(),
+                Link::connect(addr, config().with_tls(base_tls))
+            )
+        });
+        let run = common::echo_run(base.unwrap(), remote.unwrap());
+        assert_eq!(listener.stats().accepted, 1);
+        run
+    });
+    let remote = run.remote.expect("the remote's stats");
+    for (side, s) in [("base", &run.base), ("remote", &remote)] {
+        let e = &s.endpoint;
+        // Every sample went as a QUIC datagram, and quinn took them all.
+        assert!(e.datagrams_received > 250, "{side}: {s:?}");
+        assert_eq!(e.samples_lost, 0, "{side}: {s:?}");
+        assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
+    }
+    assert_eq!(
+        run.base.datagram_peer.map(|a| a.ip()),
+        Some([127, 0, 0, 1].into())
+    );
+}
+
+#[test]
+fn a_peer_with_an_unknown_certificate_is_refused_with_a_clear_error() {
+    let _serial = common::serial();
+    let certs = Certs::new("refused");
+    let rt = common::runtime();
+    let listener = listener(&rt, &certs);
+    let addr = listener.local_addr().unwrap();
+    // A stranger the remote does not trust, and a base that does not trust
+    // the remote: neither becomes a link.
+    let stranger = tls(&certs.other, &certs.remote);
+    let refused = rt.block_on(Link::connect(addr, config().with_tls(stranger)));
+    let err = refused.expect_err("a stranger's link");
+    assert!(
+        matches!(
+            err,
+            NetError::Handshake(HandshakeError::UnknownCertificate(_))
+        ),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("--peer-cert"), "{err}");
+    let distrustful = tls(&certs.base, &certs.other);
+    let refused = rt.block_on(Link::connect(addr, config().with_tls(distrustful)));
+    assert!(
+        matches!(
+            refused,
+            Err(NetError::Handshake(HandshakeError::UnknownCertificate(_)))
+        ),
+        "{refused:?}"
+    );
+    // The listener counted the stranger; the good base still gets in.
+    let good = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(addr, config().with_tls(good))
+        )
+    });
+    let (mut remote, base) = (remote.unwrap(), base.unwrap());
+    base.send(&[1.0, 2.0]).unwrap();
+    let got = remote.recv_timeout(std::time::Duration::from_secs(5));
+    assert!(got.is_ok(), "{got:?}");
+    let stats = listener.stats();
+    assert!(stats.refused_certificate >= 1, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+}
+
+#[test]
+fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losses() {
+    use ndr::net::{Relay, RelayConfig};
+    use ndr::netem::{DelayModel, LossModel};
+
+    let _serial = common::serial();
+    let certs = Certs::new("lossy");
+    let rt = common::runtime();
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    // The handshake crosses the loss too: room for QUIC's retransmissions.
+    let patient = |mut t: TlsConfig| {
+        t.handshake_timeout = std::time::Duration::from_secs(20);
+        t
+    };
+    let mut remote_config = config().with_tls(patient(tls(&certs.remote, &certs.base)));
+    remote_config.admission.preauth_timeout = Duration::from_secs(20);
+    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let lossy = RelayConfig {
+        loss: LossModel::Bernoulli { rate: 0.1 },
+        ..RelayConfig::default()
+    };
+    let relay = rt.block_on(async {
+        let model = DelayModel::profile("constant:5").unwrap();
+        Relay::bind(any, listener.local_addr().unwrap(), model, 7)
+            .await
+            .unwrap()
+            .with_config(lossy)
+            .spawn()
+            .unwrap()
+    });
+    let base_tls = patient(tls(&certs.base, &certs.remote));
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(relay.local_addr(), config().with_tls(base_tls))
+        )
+    });
+    let run = common::echo_run(base.unwrap(), remote.unwrap());
+    let relayed = relay.stats().datagrams;
+    let remote = run.remote.expect("the remote's stats");
+    // The relay lost about one packet in ten each way.
+    assert!(relayed.forward.lost > 10, "{relayed:?}");
+    assert!(relayed.backward.lost > 10, "{relayed:?}");
+    for (side, s, sent_packets) in [
+        ("base", &run.base, relayed.forward.received),
+        ("remote", &remote, relayed.backward.received),
+    ] {
+        let e = &s.endpoint;
+        // quinn neither held back nor dropped a datagram: the window does
+        // not shrink on loss, and every Bundle left as a packet of its own.
+        assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
+        let bundles = e.samples_sent + e.datagrams_repeated;
+        assert!(
+            sent_packets >= bundles,
+            "{side}: {sent_packets} packets, {bundles} bundles"
+        );
+        assert!(bundles > 300, "{side}: {s:?}");
+    }
+    // The copies made good what the loss took.
+    let e = &remote.endpoint;
+    assert!(e.samples_recovered + e.datagrams_received > 250, "{e:?}");
+    assert!(e.samples_lost <= 2, "{e:?}");
+    let e = &run.base.endpoint;
+    assert!(e.samples_lost <= 2, "{e:?}");
+}
+
+/// A UDP path between a base and its listener whose address on the
+/// listener's side can change mid-link, as a robot's does when it moves to
+/// another Wi-Fi access point (or a NAT gives it a new mapping).
+struct MovingPath {
+    /// Where the base sends.
+    addr: SocketAddr,
+    /// The address the listener sees now: 0 or 1.
+    current: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    /// The two addresses the listener may see.
+    sides: [SocketAddr; 2],
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl MovingPath {
+    fn new(upstream: SocketAddr) -> MovingPath {
+        use std::net::UdpSocket;
+        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+        use std::sync::{Arc, Mutex};
+        let bind = || {
+            let s = UdpSocket::bind("127.0.0.1:0").unwrap();
+            s.set_read_timeout(Some(std::time::Duration::from_millis(50)))
+                .unwrap();
+            s
+        };
+        let front = bind();
+        let sides = [bind(), bind()];
+        let addrs = [
+            sides[0].local_addr().unwrap(),
+            sides[1].local_addr().unwrap(),
+        ];
+        let current = Arc::new(AtomicUsize::new(0));
+        let stop = Arc::new(AtomicBool::new(false));
+        let client: Arc<Mutex<Option<SocketAddr>>> = Arc::default();
+        let mut threads = Vec::new();
+        // Base → listener, from the side in use.
+        {
+            let (front, sides) = (
+                front.try_clone().unwrap(),
+                sides.each_ref().map(|s| s.try_clone().unwrap()),
+            );
+            let (current, stop, client) =
+                (Arc::clone(&current), Arc::clone(&stop), Arc::clone(&client));
+            threads.push(std::thread::spawn(move || {
+                let mut buf = [0u8; 2048];
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok((n, from)) = front.recv_from(&mut buf) {
+                        *client.lock().unwrap() = Some(from);
+                        let side = &sides[current.load(Ordering::Relaxed)];
+                        let _ = side.send_to(&buf[..n], upstream);
+                    }
+                }
+            }));
+        }
+        // Listener → base, from either side.
+        for side in sides {
+            let front = front.try_clone().unwrap();
+            let (stop, client) = (Arc::clone(&stop), Arc::clone(&client));
+            threads.push(std::thread::spawn(move || {
+                let mut buf = [0u8; 2048];
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok(n) = side.recv(&mut buf)
+                        && let Some(to) = *client.lock().unwrap()
+                    {
+                        let _ = front.send_to(&buf[..n], to);
+                    }
+                }
+            }));
+        }
+        MovingPath {
+            addr: front.local_addr().unwrap(),
+            current,
+            sides: addrs,
+            stop,
+            threads,
+        }
+    }
+
+    fn moved(&self) {
+        self.current.store(1, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+impl Drop for MovingPath {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+#[test]
+fn a_base_that_moves_to_another_address_keeps_its_link() {
+    let _serial = common::serial();
+    let certs = Certs::new("moves");
+    let rt = common::runtime();
+    let listener = listener(&rt, &certs);
+    let path = MovingPath::new(listener.local_addr().unwrap());
+    let base_tls = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(path.addr, config().with_tls(base_tls))
+        )
+    });
+    let (mut remote, mut base) = (remote.unwrap(), base.unwrap());
+    let robot = std::thread::spawn(move || {
+        let mut seqs = Vec::new();
+        let mut peers = Vec::new();
+        while let Ok(s) = remote.recv_timeout(std::time::Duration::from_secs(2)) {
+            seqs.push(s.seq);
+            let _ = remote.send(s.values());
+            let peer = remote.stats().and_then(|s| s.datagram_peer);
+            if peers.last() != Some(&peer) {
+                peers.push(peer);
+            }
+        }
+        (seqs, peers, remote.stats())
+    });
+    let mut answered = 0;
+    for k in 0..300 {
+        if k == 150 {
+            // The robot's new access point: the listener sees another address.
+            path.moved();
+        }
+        base.send(&[f64::from(k), 0.0]).unwrap();
+        let s = base
+            .recv_timeout(std::time::Duration::from_secs(2))
+            .unwrap();
+        if k >= 160 && s.values()[0] > 150.0 {
+            answered += 1;
+        }
+    }
+    let base_stats = base.close().unwrap();
+    let (seqs, peers, remote_stats) = robot.join().unwrap();
+    // The link went on across the move, the remote answering to the new
+    // address, and the samples around it were made good by their copies.
+    assert!(
+        answered > 100,
+        "{answered} answers after the move; {base_stats:?}"
+    );
+    assert!(
+        peers.contains(&Some(path.sides[0])) && peers.contains(&Some(path.sides[1])),
+        "{peers:?} (the sides: {:?})",
+        path.sides
+    );
+    assert!(seqs.len() > 250, "{}", seqs.len());
+    let remote_stats = remote_stats.unwrap();
+    assert_eq!(remote_stats.datagram_path_changes, 1, "{remote_stats:?}");
+    assert_eq!(base_stats.datagram_path_changes, 0, "{base_stats:?}");
+    assert!(remote_stats.endpoint.samples_lost <= 2, "{remote_stats:?}");
+    assert!(base_stats.endpoint.samples_lost <= 2, "{base_stats:?}");
+}
+
+#[test]
+fn a_stranger_that_never_finishes_its_handshake_does_not_keep_its_slot() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    let _serial = common::serial();
+    let certs = Certs::new("stalled");
+    let rt = common::runtime();
+    // One handshake at a time, half a second each.
+    let mut remote_tls = tls(&certs.remote, &certs.base);
+    remote_tls.max_pending_handshakes = 1;
+    let mut remote_config = config().with_tls(remote_tls);
+    remote_config.admission.preauth_timeout = Duration::from_millis(500);
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let upstream = listener.local_addr().unwrap();
+    // A path that passes the stranger's first packet (its Initial: the
+    // listener takes it as a new connection) and nothing after.
+    let hole = std::net::UdpSocket::bind(any).unwrap();
+    hole.set_read_timeout(Some(std::time::Duration::from_millis(50)))
+        .unwrap();
+    let hole_addr = hole.local_addr().unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stopped = Arc::clone(&stop);
+    let forwarder = std::thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        let mut passed = false;
+        while !stopped.load(Ordering::Relaxed) {
+            if let Ok((n, _)) = hole.recv_from(&mut buf)
+                && !passed
+            {
+                let _ = hole.send_to(&buf[..n], upstream);
+                passed = true;
+            }
+        }
+    });
+    let mut stranger = tls(&certs.base, &certs.remote);
+    stranger.handshake_timeout = std::time::Duration::from_millis(300);
+    let stalled = rt.block_on(Link::connect(hole_addr, config().with_tls(stranger)));
+    assert!(
+        matches!(
+            stalled,
+            Err(NetError::Handshake(HandshakeError::Timeout(_)))
+        ),
+        "{stalled:?}"
+    );
+    // The stranger holds the only slot until its budget ends: then the
+    // good base gets in.
+    let good = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        let accept = tokio::time::timeout(std::time::Duration::from_secs(5), listener.accept());
+        tokio::join!(accept, Link::connect(upstream, config().with_tls(good)))
+    });
+    assert!(
+        remote.as_ref().is_ok_and(Result::is_ok) && base.is_ok(),
+        "{remote:?} {base:?}"
+    );
+    let stats = listener.stats();
+    assert_eq!(stats.timeouts, 1, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    stop.store(true, Ordering::Relaxed);
+    forwarder.join().unwrap();
+}
