@@ -181,7 +181,7 @@ fn demo_closes_the_tracking_loop_at_the_base() {
     let commands: Vec<f64> = rows
         .lines()
         .skip(1)
-        .filter_map(|l| l.split(',').nth(4)?.parse().ok())
+        .filter_map(|l| l.split(',').nth(5)?.parse().ok())
         .collect();
     assert!(commands.iter().any(|&u| u.abs() > 1.0), "{rows}");
     // The open-loop default reports no tracking.
