@@ -422,3 +422,72 @@ fn a_stranger_that_never_finishes_its_handshake_does_not_keep_its_slot() {
     stop.store(true, Ordering::Relaxed);
     forwarder.join().unwrap();
 }
+
+#[test]
+fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
+    let _serial = common::serial();
+    let certs = Certs::new("strays");
+    let rt = common::runtime();
+    let listener = listener(&rt, &certs);
+    let addr = listener.local_addr().unwrap();
+    let base_tls = tls(&certs.base, &certs.remote);
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(addr, config().with_tls(base_tls))
+        )
+    });
+    let (remote, base) = (remote.unwrap(), base.unwrap());
+    let stranger = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    // Short headers naming no connection (one large enough for quinn to
+    // answer with a stateless reset), a long header of an unknown version,
+    // a cut one, and an empty datagram: none opens a connection.
+    let mut unknown_version = vec![0xc3, 0x0a, 0x0a, 0x0a, 0x0a, 8];
+    unknown_version.extend([7; 8]);
+    unknown_version.push(8);
+    unknown_version.extend([9; 8]);
+    unknown_version.resize(1200, 0);
+    let junk: [&[u8]; 6] = [
+        b"not a QUIC packet",
+        &[0x5a; 1200],
+        &[0x5a; 65_000],
+        &unknown_version,
+        &unknown_version[..7],
+        &[],
+    ];
+    for bytes in junk {
+        stranger.send_to(bytes, addr).unwrap();
+    }
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    let base_at = remote
+        .stats()
+        .and_then(|s| s.datagram_peer)
+        .expect("the base's address");
+    for bytes in junk {
+        stranger.send_to(bytes, base_at).unwrap();
+    }
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    // Counted while the links are up (once they close, their peers' last
+    // packets are strays too).
+    let n = junk.len() as u64;
+    let listener_stats = listener.stats();
+    assert_eq!(listener_stats.datagrams_stray, n, "{listener_stats:?}");
+    assert_eq!(listener_stats.accepted, 1, "{listener_stats:?}");
+    for (name, link) in [("remote", &remote), ("base", &base)] {
+        let stats = link.stats().expect("stats");
+        assert_eq!(stats.datagrams_stray, n, "{name}: {stats:?}");
+    }
+    let run = common::echo_run(base, remote);
+    for (name, seqs) in [("base", &run.base_seqs), ("remote", &run.remote_seqs)] {
+        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
+        assert!(
+            seqs.windows(2).all(|w| w[1] == w[0] + 1),
+            "{name}: {seqs:?}"
+        );
+    }
+    let remote = run.remote.expect("the remote's stats");
+    for s in [&run.base, &remote] {
+        assert_eq!(s.endpoint.samples_lost, 0, "{s:?}");
+        assert_ne!(s.datagram_peer, Some(stranger.local_addr().unwrap()));
+    }
+}

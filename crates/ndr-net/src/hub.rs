@@ -584,7 +584,7 @@ impl Driver {
             tracing::warn!("a datagram link could not take its socket");
             entry.endpoint.abort(LinkError::Disconnected);
         }
-        if let Some(path) = entry.quic.as_deref()
+        if let Some(path) = entry.quic.as_deref_mut()
             && !self.quic.attach(id, path)
         {
             tracing::warn!("a QUIC link could not take its endpoint");
@@ -617,7 +617,10 @@ impl Driver {
                 }
                 Ok(Msg::Quic(key, socket, endpoint)) => {
                     match self.udp.add(self.poll.registry(), key, *socket) {
-                        Ok(()) => self.quic.add(key, *endpoint),
+                        Ok(()) => {
+                            let stray = self.udp.stray(key).unwrap_or_default();
+                            self.quic.add(key, *endpoint, stray);
+                        }
                         Err(e) => tracing::warn!("a QUIC socket could not be polled: {e}"),
                     }
                 }
@@ -1159,7 +1162,9 @@ fn publish(e: &Entry, hub: HubFigures) {
         datagrams_stray: e
             .datagram
             .as_ref()
-            .map_or(0, |p| p.stray.load(AtomicOrdering::Relaxed)),
+            .map(|p| &p.stray)
+            .or_else(|| e.quic.as_deref().map(|q| &q.stray))
+            .map_or(0, |stray| stray.load(AtomicOrdering::Relaxed)),
     };
     *e.shared
         .stats

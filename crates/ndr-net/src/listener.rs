@@ -98,7 +98,8 @@ pub struct ListenerStats {
     pub accept_errors: u64,
     /// Datagram transport: datagrams to the listener's UDP port that
     /// carried no token of a link it accepted (strays, spoofs, truncated
-    /// or not samples), dropped.
+    /// or not samples), or over QUIC that no connection took and that did
+    /// not open one, dropped.
     pub datagrams_stray: u64,
 }
 

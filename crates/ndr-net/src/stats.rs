@@ -65,7 +65,8 @@ pub struct LinkStats {
     /// moved; over QUIC, the migrations the connection followed).
     pub datagram_path_changes: u64,
     /// Datagram transport: datagrams to this link's UDP socket that carried
-    /// no token of a link on it (strays, spoofs, truncated or not Bundles);
-    /// shared by every link on the socket.
+    /// no token of a link on it (strays, spoofs, truncated or not Bundles),
+    /// or over QUIC that no connection on it took (garbage, a stranger's
+    /// packets, a closed connection's); shared by every link on the socket.
     pub datagrams_stray: u64,
 }

@@ -19,6 +19,7 @@ use std::collections::HashMap;
 use std::io;
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant as StdInstant;
 
 use bytes::{Bytes, BytesMut};
@@ -73,6 +74,9 @@ pub(crate) struct QuicPath {
     pub dropped: u64,
     /// The connection's next timer.
     pub timer: Option<StdInstant>,
+    /// Datagrams to its endpoint's socket that no connection took
+    /// (shared by the links on it; set when the hub attaches the link).
+    pub stray: Arc<AtomicU64>,
     /// Where the peer is now, and how many times that changed (the peer
     /// moved, or a NAT gave it a new mapping: QUIC follows it).
     pub peer: SocketAddr,
@@ -98,6 +102,7 @@ impl QuicPath {
             close: None,
             dropped: 0,
             timer: None,
+            stray: Arc::default(),
             lost: false,
             drained: false,
         }
@@ -109,6 +114,8 @@ struct Point {
     /// Connection → link id.
     links: HashMap<ConnectionHandle, u64>,
     server: Option<(Arc<quinn_proto::ServerConfig>, Accept)>,
+    /// The socket's count of datagrams no connection took.
+    stray: Arc<AtomicU64>,
 }
 
 /// The hub's QUIC endpoints.
@@ -130,25 +137,28 @@ impl Quic {
         self.points.contains_key(&key)
     }
 
-    /// Takes the endpoint `new` on the socket `key` (already in `udp`).
-    pub(super) fn add(&mut self, key: u64, new: NewEndpoint) {
+    /// Takes the endpoint `new` on the socket `key` (already in `udp`),
+    /// counting what no connection takes in `stray`.
+    pub(super) fn add(&mut self, key: u64, new: NewEndpoint, stray: Arc<AtomicU64>) {
         self.points.insert(
             key,
             Point {
                 endpoint: new.endpoint,
                 links: HashMap::new(),
                 server: new.server,
+                stray,
             },
         );
     }
 
     /// Routes the connection of link `id` to it; `false` if its endpoint
     /// is gone.
-    pub(super) fn attach(&mut self, id: u64, path: &QuicPath) -> bool {
+    pub(super) fn attach(&mut self, id: u64, path: &mut QuicPath) -> bool {
         let Some(point) = self.points.get_mut(&path.key) else {
             return false;
         };
         point.links.insert(path.handle, id);
+        path.stray = Arc::clone(&point.stray);
         true
     }
 
@@ -224,12 +234,17 @@ impl Quic {
                     let event = point
                         .endpoint
                         .handle(at, from, None, None, data, &mut self.buf);
+                    // What no connection takes is a stray: garbage, a
+                    // stranger's packet, a link's after it left the hub.
+                    let stray = || point.stray.fetch_add(1, Ordering::Relaxed);
                     match event {
                         Some(DatagramEvent::ConnectionEvent(handle, event)) => {
-                            let Some(&id) = point.links.get(&handle) else {
-                                continue;
-                            };
-                            let Some(e) = entries.get_mut(&id) else {
+                            let Some((id, e)) = point
+                                .links
+                                .get(&handle)
+                                .and_then(|&id| Some((id, entries.get_mut(&id)?)))
+                            else {
+                                stray();
                                 continue;
                             };
                             if let Some(q) = e.quic.as_deref_mut() {
@@ -245,6 +260,7 @@ impl Quic {
                         Some(DatagramEvent::NewConnection(incoming)) => {
                             let Some((config, accept)) = point.server.as_mut() else {
                                 point.endpoint.ignore(incoming);
+                                stray();
                                 continue;
                             };
                             self.buf.clear();
@@ -279,10 +295,15 @@ impl Quic {
                             }
                         }
                         Some(DatagramEvent::Response(t)) => {
+                            // No connection's: quinn answers a stranger
+                            // (a stateless reset, a version negotiation).
+                            stray();
                             udp.out
                                 .push_to(key, u64::MAX, t.destination, slice(&self.buf, &t));
                         }
-                        None => {}
+                        None => {
+                            stray();
+                        }
                     }
                 }
             }

@@ -301,6 +301,11 @@ impl Udp {
         }
     }
 
+    /// Socket `key`'s count of datagrams no link took.
+    pub(super) fn stray(&self, key: u64) -> Option<Arc<AtomicU64>> {
+        self.sockets.get(&key).map(|s| Arc::clone(&s.stray))
+    }
+
     /// Reads a batch from socket `key` (for a QUIC endpoint): how many
     /// messages, each then read with [`received`](Self::received).
     pub(super) fn read(&mut self, key: u64) -> io::Result<usize> {
