@@ -258,3 +258,34 @@ fn help_lists_the_names_each_option_takes() {
         }
     }
 }
+
+#[test]
+fn quic_is_simulated_as_its_datagrams() {
+    let run = |transport: &str| {
+        ndr(&[
+            "sim",
+            "--profile",
+            "lan-75km",
+            "--loss",
+            "2",
+            "--transport",
+            transport,
+            "--period-ms",
+            "20",
+            "--duration-s",
+            "30",
+            "--json",
+        ])
+    };
+    let quic = run("quic:2:1");
+    assert!(
+        quic.status.success(),
+        "{}",
+        String::from_utf8_lossy(&quic.stderr)
+    );
+    assert_eq!(quic.stdout, run("datagram:2:1").stdout);
+    assert_ne!(quic.stdout, run("stream").stdout);
+    let bad = run("quic:9");
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("quic:K"));
+}

@@ -39,7 +39,12 @@ pub struct ControlArgs {
     #[arg(long, default_value = "none", conflicts_with = "family")]
     pub loss: LossModel,
     /// How samples cross (as `ndr sim --transport`), with --profile etc.
-    #[arg(long, default_value = "stream", conflicts_with = "family")]
+    #[arg(
+        long,
+        default_value = "stream",
+        conflicts_with = "family",
+        value_parser = crate::transport::simulated
+    )]
     pub transport: Transport,
     /// What the regulators do at a tick whose sample has not arrived: hold
     /// (the paper's: repeat the last sample, keep every one, the delay

@@ -60,6 +60,13 @@ impl fmt::Display for LinkTransport {
     }
 }
 
+/// `--transport` of the simulator: as [`LinkTransport`], with QUIC
+/// modelled as its datagrams (never retransmitted, as plain UDP's); its
+/// handshake and encryption take no part in the samples' timing.
+pub fn simulated(s: &str) -> Result<Transport, String> {
+    s.parse::<LinkTransport>().map(|t| t.transport)
+}
+
 impl LinkTransport {
     /// Whether the link's security fits the transport: QUIC needs TLS, and
     /// plain UDP does not run beside it.
