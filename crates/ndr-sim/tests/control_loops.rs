@@ -165,6 +165,27 @@ fn an_identified_model_comes_within_two_percent() {
     }
 }
 
+/// On a round trip of a hundred ticks and more the loop closes only once
+/// the model is identified (the axis driven open loop until then): it
+/// stays stable, and comes within 2 % of the delayed design.
+#[test]
+fn an_identified_model_on_a_long_round_trip_stays_stable() {
+    for name in ["paris-newyork", "paper-fig6"] {
+        let mut cfg = config(
+            &family(name),
+            Scenario::Tracking,
+            Controller::SmithIdentified,
+        );
+        cfg.sim.duration = Duration::from_secs(120);
+        let report = compare_links(&cfg, &[LinkKind::PaperStatic], 2).unwrap();
+        for m in &report.rows[0].seeds {
+            assert!(m.round_trip_mean_ticks > 50.0, "{name}: {m:?}");
+            assert!(m.stable, "{name}: {m:?}");
+            assert!(m.rms_vs_delayed_design_late <= 0.02, "{name}: {m:?}");
+        }
+    }
+}
+
 /// Without jitter a plain socket is a constant delay too: the Smith loop
 /// over it, given that round trip, is as exact as over the regulated
 /// links. What the regulation removes is the jitter.

@@ -80,8 +80,11 @@ impl<const H: usize> SmithPredictor<H> {
     /// A predictor that identifies its model online with `arx` from the
     /// commands and the measured states (the model of `arx` so far, if
     /// trained, is used from the start). Until the identifier has adapted
-    /// [`MIN_IDENTIFICATION_UPDATES`] times the controller is given the
-    /// measured state itself.
+    /// [`MIN_IDENTIFICATION_UPDATES`] times, on states that answer a
+    /// command (not the first round trip's, the plant at rest), the
+    /// controller is given the measured state itself. On a long round trip
+    /// a loop closed on that is unstable: drive the plant open loop until
+    /// the [`correction`](Self::correction) stays small, then close it.
     ///
     /// # Errors
     /// [`ControlError::RoundTrip`] for a round trip outside `1..=H`.
@@ -199,8 +202,12 @@ impl<const H: usize> SmithPredictor<H> {
             let back = self.output(self.next.checked_sub(d));
             self.correction = y - back;
             self.last_measured = y;
-            let u = self.command_at(self.next.checked_sub(d));
-            if let Model::Identify(arx) = &mut self.model {
+            let answered = self.next.checked_sub(d);
+            let u = self.command_at(answered);
+            // A state that answers no command yet (the plant at rest before
+            // tick 0) tells the identifier nothing: it must not count
+            // towards the model being ready.
+            if let (Model::Identify(arx), Some(_)) = (&mut self.model, answered) {
                 if !self.contiguous {
                     arx.clear_history();
                 }
@@ -462,5 +469,24 @@ mod tests {
             SmithPredictor::<8>::with_model(nan, 1),
             Err(ControlError::InvalidModel)
         );
+    }
+
+    #[test]
+    fn states_that_answer_no_command_do_not_make_the_model_ready() {
+        let mut smith =
+            SmithPredictor::<64>::identifying(Arx2::new(1.0, 1e6).unwrap(), 10).unwrap();
+        // The first round trip's states are the plant at rest, before any
+        // command: nothing to identify from.
+        for _ in 0..10 {
+            assert_eq!(smith.feedback(Some(0.0)).unwrap(), 0.0);
+            smith.command(1.0).unwrap();
+        }
+        assert!(!smith.model_ready());
+        // The identifier's own history fills first (two samples).
+        for _ in 0..MIN_IDENTIFICATION_UPDATES + 2 {
+            let _ = smith.feedback(Some(0.5)).unwrap();
+            smith.command(1.0).unwrap();
+        }
+        assert!(smith.model_ready());
     }
 }

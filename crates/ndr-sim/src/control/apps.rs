@@ -120,8 +120,22 @@ pub(crate) struct Tracking {
     /// Time at the base since the loop started, s.
     t: f64,
     last: Option<[f64; WIDTH]>,
+    /// The loop is closed (an identified model closes it once validated).
+    closed: bool,
+    /// Fresh states in a row the identified model predicted.
+    validated: u32,
     pub record: Record,
 }
+
+/// An identified model closes the loop once it has predicted this many
+/// fresh states in a row within [`VALIDATION_TOLERANCE`].
+const VALIDATION_TICKS: u32 = 50;
+/// Of the reference's amplitude.
+const VALIDATION_TOLERANCE: f64 = 1e-3;
+/// The identifier's forgetting factor: a state paired with the wrong
+/// command (the round trip stretched by an underflow, unannounced) biases
+/// the model for a few thousand ticks instead of for good.
+const FORGETTING: f64 = 0.999;
 
 impl Tracking {
     /// `smith`: whether to use a Smith predictor, with the plant's true
@@ -137,6 +151,7 @@ impl Tracking {
         fixed: Option<usize>,
     ) -> Result<Self, ControlError> {
         let plant = discretize(&plant_cfg, period_s)?;
+        let identifying = smith == Some(false);
         let feedback = match smith {
             None => Feedback::Plain,
             Some(true_model) => {
@@ -145,7 +160,7 @@ impl Tracking {
                     SmithPredictor::with_model(plant, d)?
                 } else {
                     SmithPredictor::identifying(
-                        Arx2::new(1.0, 1e6).map_err(|_| ControlError::InvalidModel)?,
+                        Arx2::new(FORGETTING, 1e6).map_err(|_| ControlError::InvalidModel)?,
                         d,
                     )?
                 };
@@ -168,6 +183,8 @@ impl Tracking {
             period_s,
             t: 0.0,
             last: None,
+            closed: !identifying,
+            validated: 0,
             record: Record::default(),
         })
     }
@@ -199,7 +216,28 @@ impl App for Tracking {
         let t = self.t;
         let r = self.reference.value(t);
         self.t += self.period_s;
-        let u = self.pid.step(r, seen)?;
+        // Identify, then close the loop: until the model has predicted the
+        // measured state for a while the axis is driven open loop by the
+        // reference (a stable position axis of unit static gain), since a
+        // loop closed on the plain delayed state, or through a model still
+        // wrong, is unstable once the round trip is long.
+        if !self.closed
+            && let Feedback::Smith { predictor, .. } = &self.feedback
+        {
+            let tolerance = VALIDATION_TOLERANCE * self.reference.amplitude.abs();
+            if !predictor.model_ready() || (rx.fresh && predictor.correction().abs() > tolerance) {
+                self.validated = 0;
+            } else if rx.fresh {
+                self.validated += 1;
+            }
+            self.closed = self.validated >= VALIDATION_TICKS;
+        }
+        let u = if self.closed {
+            self.pid.step(r, seen)?
+        } else {
+            self.pid.reset();
+            r
+        };
         if let Feedback::Smith { predictor, .. } = &mut self.feedback {
             predictor.command(u)?;
         }
