@@ -78,6 +78,13 @@ enum Command {
     /// Make a self-signed certificate and key (PEM) for a lab setup, and
     /// print its SHA-256 fingerprint (what the peer pins).
     Keygen(keygen::KeygenArgs),
+    /// Print a completion script for a shell to standard output, e.g.
+    /// `ndr completions bash > ~/.local/share/bash-completion/completions/ndr`
+    /// or `ndr completions zsh > "${fpath[1]}/_ndr"`.
+    Completions {
+        /// The shell: bash, elvish, fish, powershell or zsh.
+        shell: clap_complete::Shell,
+    },
 }
 
 fn main() -> ExitCode {
@@ -94,6 +101,11 @@ fn main() -> ExitCode {
         Command::Control(args) => control::run(args),
         Command::Soak(args) => soak::run(args),
         Command::Keygen(args) => keygen::run(args),
+        Command::Completions { shell } => {
+            let mut cmd = <Cli as clap::CommandFactory>::command();
+            clap_complete::generate(*shell, &mut cmd, "ndr", &mut std::io::stdout());
+            Ok(())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
