@@ -313,50 +313,73 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
         fwd: Duration::from_millis(15),
         bwd: Duration::from_millis(15),
     };
-    let base_tls = tls(&b, &r);
-    let (mut base, mut remote, relay) = rt.block_on(async {
-        let listener = Listener::bind(loopback(), config().with_tls(tls(&r, &b)))
-            .await
-            .unwrap();
-        let relay = Relay::bind(loopback(), listener.local_addr().unwrap(), model, 1)
-            .await
-            .unwrap()
-            .spawn()
-            .unwrap();
-        let (r, b) = tokio::join!(
-            listener.accept(),
-            Link::connect(relay.local_addr(), config().with_tls(base_tls))
+    // A host that holds a hub or the relay past the FIFO's slack makes its
+    // delay step up a period, by design (an underflow, counted): the GRTT is
+    // judged on a run with no such sign, five runs at most; the last is
+    // judged whatever it saw.
+    const ATTEMPTS: u32 = 5;
+    for attempt in 1..=ATTEMPTS {
+        let base_tls = tls(&b, &r);
+        let (mut base, mut remote, relay) = rt.block_on(async {
+            let listener = Listener::bind(loopback(), config().with_tls(tls(&r, &b)))
+                .await
+                .unwrap();
+            let relay = Relay::bind(loopback(), listener.local_addr().unwrap(), model.clone(), 1)
+                .await
+                .unwrap()
+                .spawn()
+                .unwrap();
+            let (r, b) = tokio::join!(
+                listener.accept(),
+                Link::connect(relay.local_addr(), config().with_tls(base_tls))
+            );
+            (b.unwrap(), r.unwrap(), relay)
+        });
+        let robot = std::thread::spawn(move || {
+            while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
+                let _ = remote.send(s.values());
+            }
+            remote.stats()
+        });
+        let mut seqs = Vec::new();
+        for k in 0..200 {
+            base.send(&[f64::from(k), 0.0]).unwrap();
+            let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+            if s.status == Status::Fresh {
+                seqs.push(s.seq);
+            }
+        }
+        let stats = base.close().unwrap();
+        let remote_stats = robot.join().unwrap();
+        let relayed = rt.block_on(relay.shutdown());
+        assert!(seqs.len() > 150, "{}", seqs.len());
+        assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "gap or repeat");
+        // Records, not frames, went through, unchanged (else TLS would fail).
+        assert_eq!(relayed.framing_errors, 0, "{relayed:?}");
+        assert!(relayed.forward.frames_delivered > 150, "{relayed:?}");
+        let nrtt = stats.last_nrtt.unwrap().as_secs_f64();
+        assert!((0.030..0.045).contains(&nrtt), "NRTT {nrtt} s");
+        let grtt = stats.endpoint.grtt;
+        let held = std::iter::once(&stats)
+            .chain(&remote_stats)
+            .any(|s| s.endpoint.underflows > 0 || s.lateness.max >= Duration::from_millis(1));
+        if held && attempt < ATTEMPTS {
+            eprintln!(
+                "run {attempt}: the host held a hub or the relay (underflows {}, latest \
+                 deadline {}; GRTT {} s ± {} s); judged on another",
+                stats.endpoint.underflows,
+                stats.lateness.max,
+                grtt.mean(),
+                grtt.std()
+            );
+            continue;
+        }
+        assert!(
+            grtt.std() <= 1e-3,
+            "{grtt:?}; base {stats:?}; remote {remote_stats:?}"
         );
-        (b.unwrap(), r.unwrap(), relay)
-    });
-    let robot = std::thread::spawn(move || {
-        while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
-            let _ = remote.send(s.values());
-        }
-    });
-    let mut seqs = Vec::new();
-    for k in 0..200 {
-        base.send(&[f64::from(k), 0.0]).unwrap();
-        let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
-        if s.status == Status::Fresh {
-            seqs.push(s.seq);
-        }
+        break;
     }
-    let stats = base.close().unwrap();
-    robot.join().unwrap();
-    let relayed = rt.block_on(relay.shutdown());
-    assert!(seqs.len() > 150, "{}", seqs.len());
-    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "gap or repeat");
-    // Records, not frames, went through, unchanged (else TLS would fail).
-    assert_eq!(relayed.framing_errors, 0, "{relayed:?}");
-    assert!(relayed.forward.frames_delivered > 150, "{relayed:?}");
-    let nrtt = stats.last_nrtt.unwrap().as_secs_f64();
-    assert!((0.030..0.045).contains(&nrtt), "NRTT {nrtt} s");
-    assert!(
-        stats.endpoint.grtt.std() <= 1e-3,
-        "{:?}",
-        stats.endpoint.grtt
-    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
