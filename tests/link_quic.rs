@@ -59,6 +59,23 @@ fn listener(rt: &tokio::runtime::Runtime, certs: &Certs) -> Listener {
     rt.block_on(Listener::bind(addr, config)).unwrap()
 }
 
+/// The listener's next link and a base's link to `to` (the listener, or a
+/// path to it) with `base_tls`: (remote, base).
+fn accept_and_connect(
+    rt: &tokio::runtime::Runtime,
+    listener: &Listener,
+    to: SocketAddr,
+    base_tls: TlsConfig,
+) -> (Link, Link) {
+    let (remote, base) = rt.block_on(async {
+        tokio::join!(
+            listener.accept(),
+            Link::connect(to, config().with_tls(base_tls))
+        )
+    });
+    (remote.unwrap(), base.unwrap())
+}
+
 #[test]
 fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     let _serial = common::serial();
@@ -68,13 +85,8 @@ fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
         let listener = listener(&rt, &certs);
         let addr = listener.local_addr().unwrap();
         let base_tls = tls(&certs.base, &certs.remote);
-        let (remote, base) = rt.block_on(async {
-            tokio::join!(
-                listener.accept(),
-                Link::connect(addr, config().with_tls(base_tls))
-            )
-        });
-        let run = common::echo_run(base.unwrap(), remote.unwrap());
+        let (remote, base) = accept_and_connect(&rt, &listener, addr, base_tls);
+        let run = common::echo_run(base, remote);
         assert_eq!(listener.stats().accepted, 1);
         run
     });
@@ -123,13 +135,7 @@ fn a_peer_with_an_unknown_certificate_is_refused_with_a_clear_error() {
     );
     // The listener counted the stranger; the good base still gets in.
     let good = tls(&certs.base, &certs.remote);
-    let (remote, base) = rt.block_on(async {
-        tokio::join!(
-            listener.accept(),
-            Link::connect(addr, config().with_tls(good))
-        )
-    });
-    let (mut remote, base) = (remote.unwrap(), base.unwrap());
+    let (mut remote, base) = accept_and_connect(&rt, &listener, addr, good);
     base.send(&[1.0, 2.0]).unwrap();
     let got = remote.recv_timeout(std::time::Duration::from_secs(5));
     assert!(got.is_ok(), "{got:?}");
@@ -169,13 +175,8 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
             .unwrap()
     });
     let base_tls = patient(tls(&certs.base, &certs.remote));
-    let (remote, base) = rt.block_on(async {
-        tokio::join!(
-            listener.accept(),
-            Link::connect(relay.local_addr(), config().with_tls(base_tls))
-        )
-    });
-    let run = common::echo_run(base.unwrap(), remote.unwrap());
+    let (remote, base) = accept_and_connect(&rt, &listener, relay.local_addr(), base_tls);
+    let run = common::echo_run(base, remote);
     let relayed = relay.stats().datagrams;
     let remote = run.remote.expect("the remote's stats");
     // The relay lost about one packet in ten each way.
@@ -304,13 +305,7 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     let listener = listener(&rt, &certs);
     let path = MovingPath::new(listener.local_addr().unwrap());
     let base_tls = tls(&certs.base, &certs.remote);
-    let (remote, base) = rt.block_on(async {
-        tokio::join!(
-            listener.accept(),
-            Link::connect(path.addr, config().with_tls(base_tls))
-        )
-    });
-    let (mut remote, mut base) = (remote.unwrap(), base.unwrap());
+    let (mut remote, mut base) = accept_and_connect(&rt, &listener, path.addr, base_tls);
     let robot = std::thread::spawn(move || {
         let mut seqs = Vec::new();
         let mut peers = Vec::new();
@@ -431,13 +426,7 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
     let listener = listener(&rt, &certs);
     let addr = listener.local_addr().unwrap();
     let base_tls = tls(&certs.base, &certs.remote);
-    let (remote, base) = rt.block_on(async {
-        tokio::join!(
-            listener.accept(),
-            Link::connect(addr, config().with_tls(base_tls))
-        )
-    });
-    let (remote, base) = (remote.unwrap(), base.unwrap());
+    let (remote, base) = accept_and_connect(&rt, &listener, addr, base_tls);
     let stranger = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     // Short headers naming no connection (one large enough for quinn to
     // answer with a stateless reset), a long header of an unknown version,
@@ -478,13 +467,7 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
         assert_eq!(stats.datagrams_stray, n, "{name}: {stats:?}");
     }
     let run = common::echo_run(base, remote);
-    for (name, seqs) in [("base", &run.base_seqs), ("remote", &run.remote_seqs)] {
-        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
-        assert!(
-            seqs.windows(2).all(|w| w[1] == w[0] + 1),
-            "{name}: {seqs:?}"
-        );
-    }
+    common::assert_every_sample_once_in_order(&run);
     let remote = run.remote.expect("the remote's stats");
     for s in [&run.base, &remote] {
         assert_eq!(s.endpoint.samples_lost, 0, "{s:?}");

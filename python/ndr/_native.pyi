@@ -647,8 +647,10 @@ class SmithPredictor:
 
     ``model`` is the plant's :class:`Tf2` (used as given), or an
     :class:`Arx2` that identifies it online from the commands and the
-    measured states (until it has adapted enough, the controller is given
-    the measured state itself). A local copy of the model runs undelayed
+    measured states (until it has adapted enough on states that answer a
+    command, the controller is given the measured state itself; on a long
+    round trip, drive the plant open loop until :attr:`correction` stays
+    small, then close the loop). A local copy of the model runs undelayed
     on the commands; the controller sees its newest output corrected by
     how far the plant was from it one round trip ago. With the true model
     and a constant round trip the loop is the delay-free loop, delayed.

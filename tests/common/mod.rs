@@ -120,6 +120,18 @@ pub fn echo_run(mut base: Link, mut remote: Link) -> Run {
     }
 }
 
+/// Each side released more than 250 fresh samples, each once and in
+/// order, with no gap.
+pub fn assert_every_sample_once_in_order(run: &Run) {
+    for (name, seqs) in [("base", &run.base_seqs), ("remote", &run.remote_seqs)] {
+        assert!(seqs.len() > 250, "{name}: {}", seqs.len());
+        assert!(
+            seqs.windows(2).all(|w| w[1] == w[0] + 1),
+            "{name}: {seqs:?}"
+        );
+    }
+}
+
 /// Both sides' fresh samples came once each and in order, and the base's
 /// round trip is constant: at T = 10 ms on loopback with ns = 2, GRTT is
 /// 2·ns·T to (2·ns + 2)·T depending on the phase between the two sides'
