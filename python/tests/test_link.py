@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import ndr
-from realtime import assert_constant, echo, no_gap, regulated
+from realtime import assert_constant, echo, missing_but_counted, no_gap, regulated
 from ndr.demo import run as demo_run
 
 LOOPBACK = ("127.0.0.1", 0)
@@ -76,12 +76,17 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
         op = result.operator
         assert result.robot.error is None
         assert len(op.t) >= 300, "at 100 Hz for 4 s, well over 300 ticks"
-        # The sequence numbers of the released states have no gap, no repeat.
-        released = [i for i, h in enumerate(op.held) if not h]
-        assert (np.diff(np.asarray(op.seq)[released]) == 1).all()
         return result, [op.stats, result.robot.stats]
 
-    result, stalls = regulated(run)
+    def missing(result):
+        # The released states' sequence numbers: no repeat, and a gap only
+        # where a side counted it (then the run is judged again).
+        op = result.operator
+        released = [i for i, h in enumerate(op.held) if not h]
+        counted = result.robot.stats["tx_dropped"] + op.stats["samples_lost"]
+        return missing_but_counted(np.asarray(op.seq)[released], counted)
+
+    result, stalls = regulated(run, missing)
     r = result.report
     if not stalls:
         assert r["underflows"] == 0 and r["late_samples"] == 0
@@ -100,15 +105,16 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
     assert r["x3e_rms_error"] < 0.5 * r["delayed_rms_error"]
     assert r["x3e_rms_error"] < 0.05
     if transport == "udp":
-        # Every sample came by datagram, through the relay, none lost.
-        assert r["samples_lost"] == 0
+        # Every sample came by datagram, through the relay, none lost (on a
+        # run the host did not stall).
+        assert r["samples_lost"] == 0 or stalls
         assert op.stats["datagrams_received"] > 300
         # The base sent to the relay's port all along.
         assert op.stats["datagram_path_changes"] == 0
     if transport == "quic":
         # Every sample came by QUIC datagram, through the relay, none lost,
         # and QUIC took every one.
-        assert r["samples_lost"] == 0
+        assert r["samples_lost"] == 0 or stalls
         assert op.stats["datagrams_received"] > 300
         assert op.stats["datagrams_unsent"] == 0
 

@@ -168,7 +168,13 @@ fn identified(name: &str) -> Vec<LoopMetrics> {
 /// and stays stable.
 #[test]
 fn an_identified_model_comes_within_two_percent() {
-    for name in ["lan-75km", "step", "skew+100ppm", "paris-newyork", "paper-fig6"] {
+    for name in [
+        "lan-75km",
+        "step",
+        "skew+100ppm",
+        "paris-newyork",
+        "paper-fig6",
+    ] {
         for m in identified(name) {
             assert!(m.stable, "{name}: {m:?}");
             assert!(m.rms_vs_delayed_design_late <= 0.02, "{name}: {m:?}");
