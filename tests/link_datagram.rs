@@ -219,18 +219,8 @@ fn strays_spoofs_and_cut_or_oversized_datagrams_are_counted_and_the_link_carries
         &[0x5a; 65_000],
         &[],
     ];
-    for bytes in junk {
-        stranger.send_to(bytes, port).unwrap();
-    }
-    // The same at the base's own socket, wherever the listener saw it.
-    std::thread::sleep(StdDuration::from_millis(200));
-    let base_at = remote
-        .stats()
-        .and_then(|s| s.datagram_peer)
-        .expect("the base's address");
-    for bytes in junk {
-        stranger.send_to(bytes, base_at).unwrap();
-    }
+    // At the listener's port, then at the base's own socket.
+    common::send_to_both_sides(&stranger, port, &remote, &junk);
     let run = common::echo_run(base, remote);
     common::assert_every_sample_once_in_order(&run);
     let remote = run.remote.expect("the remote's stats");

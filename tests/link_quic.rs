@@ -444,17 +444,7 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
         &unknown_version[..7],
         &[],
     ];
-    for bytes in junk {
-        stranger.send_to(bytes, addr).unwrap();
-    }
-    std::thread::sleep(std::time::Duration::from_millis(200));
-    let base_at = remote
-        .stats()
-        .and_then(|s| s.datagram_peer)
-        .expect("the base's address");
-    for bytes in junk {
-        stranger.send_to(bytes, base_at).unwrap();
-    }
+    common::send_to_both_sides(&stranger, addr, &remote, &junk);
     std::thread::sleep(std::time::Duration::from_millis(200));
     // Counted while the links are up (once they close, their peers' last
     // packets are strays too).

@@ -120,6 +120,29 @@ pub fn echo_run(mut base: Link, mut remote: Link) -> Run {
     }
 }
 
+/// Sends each of `junk` from `stranger` to the listener's `port`, then,
+/// once `remote` has heard from its base, to the base's own socket.
+// Only the datagram transports' tests send strays.
+#[allow(dead_code)]
+pub fn send_to_both_sides(
+    stranger: &std::net::UdpSocket,
+    port: std::net::SocketAddr,
+    remote: &Link,
+    junk: &[&[u8]],
+) {
+    for bytes in junk {
+        stranger.send_to(bytes, port).unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    let base_at = remote
+        .stats()
+        .and_then(|s| s.datagram_peer)
+        .expect("the base's address");
+    for bytes in junk {
+        stranger.send_to(bytes, base_at).unwrap();
+    }
+}
+
 /// Each side released more than 250 fresh samples, each once and in
 /// order, with no gap.
 // Only the datagram transports' tests judge a run this strictly.
