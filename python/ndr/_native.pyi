@@ -657,7 +657,7 @@ class SmithPredictor:
 
     Each tick: ``seen = sp.feedback(y or None)``, then the controller's
     ``u`` from ``seen``, then ``sp.command(u)``. When the link announces a
-    new delay (``"delay_changed"``, a new ``tick.grtt``), call
+    new round trip (``"round_trip_changed"``, a new ``tick.grtt``), call
     :meth:`set_round_trip` (see :func:`round_trip_ticks`).
     """
 

@@ -102,6 +102,13 @@ class Event:
       periods rounded up (no pause: the change is smooth; at periods over
       20 ms the adaptive delay moves in fractions of a period, and its
       samples are released between ticks);
+    - ``"round_trip_changed"``: the round trip of this side's own samples,
+      in whole periods, changed: ``ticks`` is ``ceil(grtt / period)`` of
+      the release that follows, ``grtt`` that release's round trip in
+      seconds (the first one measured is announced too). Under the adaptive
+      playout it moves by a tick between ``"delay_changed"`` events as
+      releases fall on either side of a tick; an underflow of the FIFO
+      stretches it. A Smith predictor follows it (``set_round_trip``);
     - ``"link_lost"``: no fresh sample for the watchdog time
       (``silent_for``): hold the robot safely;
     - ``"link_restored"``: fresh samples flow again after ``"link_lost"``;
@@ -119,6 +126,7 @@ class Event:
     silent_for: Optional[float] = None
     delay: Optional[float] = None
     ticks: Optional[int] = None
+    grtt: Optional[float] = None
     error: Optional[str] = None
     details: Dict[str, Any] = field(default_factory=dict)
 
@@ -341,6 +349,12 @@ class LinkStats(TypedDict):
     """The delay a target-delay playout holds now (0 for the FIFO)."""
     playout_delay_ticks: int
     delay_changes: int
+    round_trip_ticks: int
+    """The round trip of this side's samples in periods, ``ceil(GRTT / T)``,
+    the last measured (0 before the first)."""
+    round_trip_changes: int
+    """Changes of ``round_trip_ticks``, the first included (each one a
+    ``"round_trip_changed"`` event)."""
     rx_lag: RunningStats
     """From a frame's arrival (the kernel's stamp) to its endpoint."""
     lateness: LatenessStats
@@ -837,6 +851,7 @@ def _event(kind: str, fields: Dict[str, Any]) -> Event:
         silent_for=fields.get("silent_for"),
         delay=fields.get("delay"),
         ticks=fields.get("ticks"),
+        grtt=fields.get("grtt"),
         error=fields.get("error"),
         details=fields,
     )
@@ -850,6 +865,8 @@ def _log_event(link: Link, e: Event) -> None:
         _log.warning("%s: link closed: %s", who, e.error)
     elif e.kind == "delay_changed":
         _log.info("%s: delay now %.6g s (%s periods)", who, e.delay, e.ticks)
+    elif e.kind == "round_trip_changed":
+        _log.debug("%s: round trip now %s periods (GRTT %.6g s)", who, e.ticks, e.grtt)
     elif e.kind in ("started", "paused"):
         _log.info("%s: %s, period %.6g s, ns %s", who, e.kind, e.period, e.ns)
     else:

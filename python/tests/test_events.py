@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import ndr
 from ndr.link import Link
+from realtime import echo
 
 EVENT_RS = pathlib.Path(__file__).parents[2] / "crates/ndr-core/src/endpoint/event.rs"
 
@@ -106,6 +107,42 @@ def test_a_live_links_events_are_rust_kinds_and_none_were_dropped():
             assert base.events() == []
         t.join(5)
     finally:
+        for link in accepted:
+            link.close()
+        listener.close()
+
+
+
+def test_the_round_trip_is_announced_in_periods_with_its_grtt():
+    period = 0.02
+    listener = ndr.Link.listen(("127.0.0.1", 0), period=period)
+    accepted, stop = [], threading.Event()
+
+    def robot():
+        accepted.append(listener.accept(timeout=5))
+        echo(accepted[0], stop)
+
+    t = threading.Thread(target=robot, daemon=True)
+    t.start()
+    try:
+        with ndr.Link.connect(listener.address, period=period) as base:
+            grtts = []
+            for i in range(30):
+                base.send([float(i)])
+                tick = base.recv(timeout=3)
+                if tick.grtt is not None:
+                    grtts.append(tick.grtt)
+            trips = [e for e in base.events() if e.kind == "round_trip_changed"]
+            stats = base.stats
+        assert grtts and trips, (grtts, trips)
+        for e in trips:
+            assert e.ticks - 1 < e.grtt / period <= e.ticks + 1e-9, e
+        assert trips[0].grtt == grtts[0]
+        assert stats["round_trip_changes"] >= len(trips)
+        assert stats["round_trip_ticks"] >= 1
+    finally:
+        stop.set()
+        t.join(5)
         for link in accepted:
             link.close()
         listener.close()

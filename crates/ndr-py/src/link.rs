@@ -470,6 +470,10 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
             fields.set_item("delay", delay.as_secs_f64())?;
             fields.set_item("ticks", ticks)?;
         }
+        Event::RoundTripChanged { grtt, ticks } => {
+            fields.set_item("grtt", grtt.as_secs_f64())?;
+            fields.set_item("ticks", ticks)?;
+        }
         Event::Closed { error } => {
             let normal = matches!(
                 error,

@@ -120,11 +120,19 @@ fn a_plain_socket_breaks_passivity() {
 
 /// Under the adaptive playout the round trip a base application sees
 /// moves by a tick now and then without a delay change (the playout
-/// releases on a schedule of its own, between ticks): the predictor,
-/// following each release's GRTT, stays exact where no delay changed. Each
-/// announced change has its error peak measured.
+/// releases on a schedule of its own, between ticks): the link announces
+/// each move, and the predictor, following them, stays exact where no
+/// delay changed. Each announced delay change has its error peak
+/// measured; no change of the round trip goes unannounced, the static
+/// FIFO's stretches included.
 #[test]
 fn the_adaptive_loop_follows_the_round_trip_each_release_announces() {
+    let announced = |name: &str, m: &LoopMetrics| {
+        assert!(
+            m.unannounced_changes == 0 && m.announced_late == 0,
+            "{name}: {m:?}"
+        );
+    };
     for name in ["lan-75km", "lan-75km-loss1/datagram"] {
         let cfg = config(&family(name), Scenario::Tracking, Controller::Smith);
         let report = compare_links(&cfg, &[LinkKind::Adaptive], 3).unwrap();
@@ -136,14 +144,27 @@ fn the_adaptive_loop_follows_the_round_trip_each_release_announces() {
         assert!(moved > 0, "{name}: {:?}", report.rows[0].seeds);
         for m in &report.rows[0].seeds {
             assert!(m.rms_vs_delayed_design <= 1e-9, "{name}: {m:?}");
+            announced(name, m);
         }
     }
     for name in ["step", "spikes", "tcp-stall"] {
         let cfg = config(&family(name), Scenario::Tracking, Controller::Smith);
-        let report = compare_links(&cfg, &[LinkKind::Adaptive], 2).unwrap();
+        let report = compare_links(&cfg, &[LinkKind::Adaptive, LinkKind::PaperStatic], 2).unwrap();
         for m in &report.rows[0].seeds {
             assert!(m.announced > 0 && m.change_peak.is_some(), "{name}: {m:?}");
             assert!(m.stable && m.rms_vs_delayed_design < 0.05, "{name}: {m:?}");
+        }
+        if name != "step" {
+            // Its step comes at 60 s, the end of the run.
+            let moved: u64 = report.rows[1]
+                .seeds
+                .iter()
+                .map(|m| m.round_trip_changes)
+                .sum();
+            assert!(moved > 0, "{name}: the FIFO's round trip never moved");
+        }
+        for m in report.rows.iter().flat_map(|r| &r.seeds) {
+            announced(name, m);
         }
     }
 }

@@ -53,6 +53,9 @@ pub fn event(side: &str, event: &LinkEvent) {
         Event::DelayChanged { delay, ticks } => {
             tracing::debug!("{side}: playout delay now {delay} ({ticks} ticks)");
         }
+        Event::RoundTripChanged { grtt, ticks } => {
+            tracing::debug!("{side}: round trip now {ticks} ticks (GRTT {grtt})");
+        }
         Event::Closed { error: Some(e) } => tracing::info!("{side}: link closed: {e}"),
         Event::Closed { error: None } => tracing::info!("{side}: link closed by this side"),
         Event::Released(_) => {}

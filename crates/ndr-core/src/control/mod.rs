@@ -23,8 +23,9 @@
 //! needs the round trip in ticks — from the tick a command is sent to the
 //! tick the state it produced is taken back — and each command applied
 //! once: a base release's GRTT divided by the period, rounded up to the
-//! tick that takes it, gives the round trip ([`round_trip_ticks`]); follow
-//! it at every release, not only at the link's `DelayChanged` events (an
+//! tick that takes it, gives the round trip ([`round_trip_ticks`]), and
+//! the link announces each change of it as a `RoundTripChanged` event
+//! before the release that shows it — not only at `DelayChanged` (an
 //! adaptive playout's release can fall on either side of a tick). The wave
 //! channel needs every wave delivered at most once: a repeated sample (an
 //! underflow, a rising delay) is energy the channel did not receive, so

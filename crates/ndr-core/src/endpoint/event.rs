@@ -153,6 +153,22 @@ pub enum Event<V> {
         /// policy at a long period counts as one).
         ticks: u64,
     },
+    /// The round trip of this side's own samples, in its ticks, changed:
+    /// a fresh release's GRTT, rounded up to whole periods (the tick that
+    /// takes it), differs from the last one measured; the first measured
+    /// round trip is announced too. Emitted before that release. Under the
+    /// adaptive playout it moves by a tick between [`Event::DelayChanged`]
+    /// events as releases fall on either side of a tick (and as the peer's
+    /// tick grid drifts across this side's); under the FIFO an underflow
+    /// stretches it. A controller that compensates the round trip (a
+    /// [`SmithPredictor`](crate::control::SmithPredictor)) follows these.
+    RoundTripChanged {
+        /// The GRTT of the release that showed the change.
+        grtt: Duration,
+        /// `⌈grtt / period⌉`
+        /// ([`round_trip_ticks`](crate::control::round_trip_ticks)).
+        ticks: u64,
+    },
     /// Fresh samples flow again after a [`Event::LinkLost`].
     LinkRestored,
     /// The link ended.
@@ -165,7 +181,7 @@ pub enum Event<V> {
 impl<V> Event<V> {
     /// The event's name, the same in every binding and report:
     /// `connected`, `started`, `released`, `paused`, `link_lost`,
-    /// `delay_changed`, `link_restored`, `closed`.
+    /// `delay_changed`, `round_trip_changed`, `link_restored`, `closed`.
     #[must_use]
     pub const fn kind(&self) -> &'static str {
         match self {
@@ -175,6 +191,7 @@ impl<V> Event<V> {
             Event::Paused { .. } => "paused",
             Event::LinkLost { .. } => "link_lost",
             Event::DelayChanged { .. } => "delay_changed",
+            Event::RoundTripChanged { .. } => "round_trip_changed",
             Event::LinkRestored => "link_restored",
             Event::Closed { .. } => "closed",
         }

@@ -249,6 +249,9 @@ impl<S: Storage> Endpoint<S> {
                 // due stays at its end.
                 self.rel.due_seq = Some(slot.head.seq.saturating_add(1));
                 let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
+                if let Some(g) = grtt {
+                    self.round_trip_event(g);
+                }
                 let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
                 match &mut self.rel.last {
                     Some(last) => last.copy_from(&release),
@@ -274,6 +277,17 @@ impl<S: Storage> Endpoint<S> {
                 }
             }
             Tick::Prefilling { .. } => {}
+        }
+    }
+
+    /// Announces the round trip in ticks when a measured GRTT changes it.
+    fn round_trip_event(&mut self, grtt: Duration) {
+        let ticks = grtt.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        self.stats.round_trip_ticks = ticks;
+        if self.rel.round_trip_ticks != Some(ticks) {
+            self.rel.round_trip_ticks = Some(ticks);
+            self.stats.round_trip_changes += 1;
+            self.emit(Event::RoundTripChanged { grtt, ticks });
         }
     }
 
@@ -331,6 +345,8 @@ pub(super) struct Released<V> {
     /// A target playout other than the adaptive one: the constant
     /// end-to-end delay now, in ticks (rounded up).
     pub(super) delay_ticks: Option<u64>,
+    /// The round trip in ticks last announced.
+    pub(super) round_trip_ticks: Option<u64>,
 }
 
 impl<V> Released<V> {
@@ -344,6 +360,7 @@ impl<V> Released<V> {
             last_fresh: now,
             lost: false,
             delay_ticks: None,
+            round_trip_ticks: None,
         }
     }
 }

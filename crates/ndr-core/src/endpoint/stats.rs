@@ -193,6 +193,14 @@ pub struct Stats {
     ///
     /// [`Event::DelayChanged`]: super::Event::DelayChanged
     pub delay_changes: u64,
+    /// The round trip of this side's samples in ticks (`⌈GRTT / T⌉`), the
+    /// last measured; 0 before the first.
+    pub round_trip_ticks: u64,
+    /// Changes of `round_trip_ticks`, the first measured one included
+    /// (each one an [`Event::RoundTripChanged`]).
+    ///
+    /// [`Event::RoundTripChanged`]: super::Event::RoundTripChanged
+    pub round_trip_changes: u64,
     /// Adaptive playout: frames left out of the target's delay window
     /// because they ended a silence longer than the watchdog time, or came
     /// after such a frame still held longer than that, or in the burst held

@@ -915,6 +915,59 @@ fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
     }
 }
 
+#[test]
+fn every_change_of_the_round_trip_in_ticks_is_announced_before_its_release() {
+    // The adaptive playout releases between ticks and its remote's grid is
+    // a fraction of a period off the base's: the round trip in ticks moves
+    // between delay changes. Each move, and only a move, comes as a
+    // `RoundTripChanged` just before the release that shows it; the FIFO
+    // whose stock a step of the delay (after 10 s) runs out says so too.
+    use ndr_core::playout::Playout;
+    let t = Duration::from_millis(10);
+    for (playout, step_us) in [(Playout::ADAPTIVE, 0), (Playout::Fifo, 25_000)] {
+        let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
+        for c in [&mut base, &mut remote] {
+            c.period = t;
+            c.playout = playout;
+        }
+        remote.tick_origin = Instant::ZERO + Duration::from_micros(4_321);
+        let mut jitter = jittered(7, 3_000, 2_000);
+        let fwd: DelayFn = Box::new(move |n| {
+            jitter(n) + Duration::from_micros(if n > 1_000 { step_us } else { 0 })
+        });
+        let bwd = jittered(8, 3_000, 2_000);
+        let mut p = Pair::new(base, remote, fwd, bwd);
+        p.run_until(secs(30));
+        let case = format!("{playout:?}");
+        assert!(p.world.base_errors.is_empty(), "{case}");
+        let (mut announced, mut last, mut changes) = (None, None, 0);
+        for e in &p.world.base_events {
+            match e {
+                Event::RoundTripChanged { grtt, ticks } => {
+                    assert_eq!(*ticks, grtt.as_nanos().div_ceil(t.as_nanos()), "{case}");
+                    assert_ne!(announced, Some(*ticks), "{case}: announced twice");
+                    announced = Some(*ticks);
+                }
+                Event::Released(r) => {
+                    if let Some(g) = r.grtt {
+                        let ticks = g.as_nanos().div_ceil(t.as_nanos());
+                        assert_eq!(announced, Some(ticks), "{case}: unannounced at {r:?}");
+                        if last.is_some_and(|l| l != ticks) {
+                            changes += 1;
+                        }
+                        last = Some(ticks);
+                    }
+                }
+                _ => {}
+            }
+        }
+        assert!(changes > 0, "{case}: the round trip never moved");
+        let stats = p.base.stats();
+        assert_eq!(stats.round_trip_changes, changes + 1, "{case}");
+        assert_eq!(Some(stats.round_trip_ticks), last, "{case}");
+    }
+}
+
 /// The last sample the remote was handed, re-encoded with `edit` applied
 /// to its header: what a peer that repeats, replays or forges frames sends.
 fn forged(p: &Pair, edit: impl FnOnce(&mut wire::Header)) -> Vec<u8> {

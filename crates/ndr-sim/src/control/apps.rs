@@ -133,8 +133,8 @@ const VALIDATION_TICKS: u32 = 50;
 /// Of the reference's amplitude.
 const VALIDATION_TOLERANCE: f64 = 1e-3;
 /// The identifier's forgetting factor: a state paired with the wrong
-/// command (the round trip stretched by an underflow, unannounced) biases
-/// the model for a few thousand ticks instead of for good.
+/// command (the round trip stretched by an underflow, a command applied
+/// twice) biases the model for a few thousand ticks instead of for good.
 const FORGETTING: f64 = 0.999;
 
 impl Tracking {

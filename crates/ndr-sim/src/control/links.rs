@@ -22,6 +22,8 @@ use crate::{SimConfig, SimError};
 pub(crate) struct LinkLog {
     /// The base ticks at which either side announced a delay change.
     pub announced: Vec<u64>,
+    /// The base ticks at which the base announced a new round trip.
+    pub round_trips_announced: Vec<u64>,
     /// The times the link changed its period (paper-dynamic).
     pub period_changes: u64,
     /// The period when the loop started (the base's first release).
@@ -209,6 +211,9 @@ impl<A: App> World<Heap> for LoopWorld<'_, A> {
                 self.net.period = period;
             }
             Event::DelayChanged { .. } => self.log.announced.push(self.base_ticks),
+            Event::RoundTripChanged { .. } if side == Role::Base => {
+                self.log.round_trips_announced.push(self.base_ticks);
+            }
             Event::Closed { error: Some(e) } => {
                 return Err(link_error(side, self.net.global(side, now), e));
             }

@@ -45,8 +45,9 @@
 //!   sent the command the slave applied).
 //! - `round_trip_changes`: the round trips the Smith predictor was given;
 //!   `announced`: the delay changes the endpoints announced;
-//!   `unannounced_changes`: round-trip changes with no announcement within
-//!   a round trip of them; `announced_late`: those announced only after
+//!   `round_trips_announced`: the round trips the base announced;
+//!   `unannounced_changes`: round-trip changes with no announcement (of
+//!   either kind) within a round trip of them; `announced_late`: those announced only after
 //!   the GRTT showed them;
 //!   `change_peak`: the largest `rms_vs_delayed_design`-type error in the
 //!   [`CHANGE_WINDOW`] ticks after each announced change.
@@ -343,8 +344,12 @@ pub struct LoopMetrics {
     pub repeats: u64,
     /// Delay changes the endpoints announced.
     pub announced: u64,
-    /// Round-trip changes the Smith predictor saw with no delay change
-    /// announced within a round trip of them, before or after.
+    /// Round trips the base announced (`Event::RoundTripChanged`), the
+    /// first included.
+    pub round_trips_announced: u64,
+    /// Round-trip changes the Smith predictor saw with neither a delay
+    /// change nor a round trip announced within a round trip of them,
+    /// before or after.
     pub unannounced_changes: u64,
     /// Round-trip changes announced only after the GRTT showed them
     /// (within a round trip).
@@ -571,7 +576,12 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         rec.round_trips
             .iter()
             .skip(1)
-            .filter(|&&(k, d)| !log.announced.iter().any(|&a| near(a, k, d as u64 + 2)))
+            .filter(|&&(k, d)| {
+                !log.announced
+                    .iter()
+                    .chain(&log.round_trips_announced)
+                    .any(|&a| near(a, k, d as u64 + 2))
+            })
             .count() as u64
     };
     let mut m = LoopMetrics {
@@ -585,6 +595,7 @@ fn measure(cfg: &LoopConfig, rec: &Record, log: &links::LinkLog, design: &Record
         round_trip_changes: rec.round_trips.len().saturating_sub(1) as u64,
         repeats: rec.repeats,
         announced: log.announced.len() as u64,
+        round_trips_announced: log.round_trips_announced.len() as u64,
         unannounced_changes: changes(&|a, k, w| a + w >= k && a <= k + w),
         announced_late: changes(&|a, k, w| a <= k && a + w >= k)
             .saturating_sub(changes(&|a, k, w| a + w >= k && a <= k + w)),
@@ -794,6 +805,7 @@ fn summarise(link: LinkKind, runs: Vec<LoopMetrics>) -> LinkRow {
         round_trip_changes: runs.iter().map(|r| r.round_trip_changes).sum(),
         repeats: runs.iter().map(|r| r.repeats).sum(),
         announced: runs.iter().map(|r| r.announced).sum(),
+        round_trips_announced: runs.iter().map(|r| r.round_trips_announced).sum(),
         unannounced_changes: runs.iter().map(|r| r.unannounced_changes).sum(),
         announced_late: runs.iter().map(|r| r.announced_late).sum(),
         change_peak: runs.iter().filter_map(|r| r.change_peak).reduce(f64::max),
