@@ -60,17 +60,28 @@ def assert_constant(
     what: str = "delay",
     released_at: Optional[Sequence[float]] = None,
     period: Optional[float] = None,
+    underflows: int = 0,
 ) -> None:
     """At most 1 ms std; on a stalled run, that of the delays within 2 ms of
     the median, the others (at most 2 %) set aside, each delay less its
     release's lateness when ``released_at`` (the hub's clock, s) and the
-    ``period`` are given."""
+    ``period`` are given, and at its level: whole periods from the median,
+    the level changing at most twice per counted underflow (``underflows``:
+    past the queue's slack the FIFO's delay steps by a period, by design)."""
     d = np.asarray(delays, dtype=float)
     assert d.size > 100, f"{d.size} {what}s"
     if stalls:
         if released_at is not None and period is not None:
             d = on_schedule(d, released_at, period)
         median = float(np.median(d))
+        if period is not None:
+            level = np.round((d - median) / period)
+            steps = int(np.count_nonzero(np.diff(level)))
+            assert steps <= 2 * underflows, (
+                f"{RUNS} runs stalled by the host; in the last the {what} changed level "
+                f"{steps} times, {underflows} underflows counted"
+            )
+            d = d - level * period
         strays = d[np.abs(d - median) > 2e-3]
         assert strays.size <= d.size // 50, (
             f"{RUNS} runs stalled by the host; in the last, {strays.size} {what}s more "

@@ -66,12 +66,13 @@ def test_a_link_over_mutual_tls_runs_with_a_constant_delay(certs):
                 remote.close()
             assert lst.stats["accepted"] == 1
         assert no_gap(ticks), [(t.seq, t.status) for t in ticks]
-        return (grtt, at, ticks), stats
+        return (grtt, at, ticks, stats), stats
 
-    (grtt, at, ticks), stalls = regulated(run)
+    (grtt, at, ticks, stats), stalls = regulated(run)
     if not stalls:
         assert all(t.status == "fresh" for t in ticks)
-    assert_constant(grtt, stalls, "GRTT", released_at=at, period=0.01)
+    assert_constant(grtt, stalls, "GRTT", released_at=at, period=0.01,
+                    underflows=sum(s["underflows"] for s in stats))
 
 
 def test_a_stranger_is_refused_and_never_reaches_the_application(certs):
