@@ -15,6 +15,9 @@ import numpy as np
 import ndr
 
 RUNS = 5
+# Delays in a row at one level that make it a level of the FIFO, not an
+# excursion of the host.
+SETTLED = 10
 
 
 def host_stalls(stats: Iterable[Optional[Mapping[str, Any]]]) -> int:
@@ -66,28 +69,39 @@ def assert_constant(
     the median, the others (at most 2 %) set aside, each delay less its
     release's lateness when ``released_at`` (the hub's clock, s) and the
     ``period`` are given, and at its level: whole periods from the median,
-    the level changing at most twice per counted underflow (``underflows``:
-    past the queue's slack the FIFO's delay steps by a period, by design)."""
+    held for ``SETTLED`` delays in a row or more (a briefer excursion is
+    strays), the level changing at most twice per counted underflow
+    (``underflows``: past the queue's slack the FIFO's delay steps by a
+    period, by design)."""
     d = np.asarray(delays, dtype=float)
     assert d.size > 100, f"{d.size} {what}s"
     if stalls:
         if released_at is not None and period is not None:
             d = on_schedule(d, released_at, period)
         median = float(np.median(d))
+        brief = np.zeros(d.size, dtype=bool)
         if period is not None:
             level = np.round((d - median) / period)
-            steps = int(np.count_nonzero(np.diff(level)))
+            # Runs of one level; one held for fewer than SETTLED delays in a
+            # row is the host's excursion (its delays strays), not a level.
+            starts = np.flatnonzero(np.r_[True, np.diff(level) != 0])
+            lengths = np.diff(np.r_[starts, d.size])
+            brief = np.repeat(lengths < SETTLED, lengths)
+            settled = level[starts][lengths >= SETTLED]
+            steps = int(np.count_nonzero(np.diff(settled)))
             assert steps <= 2 * underflows, (
                 f"{RUNS} runs stalled by the host; in the last the {what} changed level "
-                f"{steps} times, {underflows} underflows counted"
+                f"{steps} times, {underflows} underflows counted: levels "
+                f"{list(zip(level[starts].tolist(), lengths.tolist()))}"
             )
             d = d - level * period
-        strays = d[np.abs(d - median) > 2e-3]
+        off = brief | (np.abs(d - median) > 2e-3)
+        strays = d[off]
         assert strays.size <= d.size // 50, (
-            f"{RUNS} runs stalled by the host; in the last, {strays.size} {what}s more "
-            f"than 2 ms from the median {median}: {strays}"
+            f"{RUNS} runs stalled by the host; in the last, {strays.size} {what}s in a brief "
+            f"excursion or more than 2 ms from the median {median}: {strays}"
         )
-        d = d[np.abs(d - median) <= 2e-3]
+        d = d[~off]
     assert float(np.std(d)) <= 1e-3, f"{what} std {np.std(d)} s (host stalls: {stalls})"
 
 

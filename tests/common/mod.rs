@@ -176,10 +176,11 @@ pub fn assert_every_sample_once_in_order(run: &Run) {
 /// not stall, `run` being repeated (five runs at most) until there is
 /// one. If all five stalled, the last is judged on the schedule, each GRTT
 /// less the lateness of the release that measured it, at its level (whole
-/// periods from the median; the level changes no more than twice per
-/// counted underflow, the FIFO's step by design): at most 2 % of them more
-/// than 2 ms from the median, the others within 1 ms std; its gaps, if
-/// any, no more than its sender counted.
+/// periods from the median, held for 10 GRTTs in a row or more; the level
+/// changes no more than twice per counted underflow, the FIFO's step by
+/// design): at most 2 % of them, and two per tick a hub missed, in a
+/// briefer excursion or more than 2 ms from the median, the others within
+/// 1 ms std; its gaps, if any, no more than its sender counted.
 pub fn assert_regulated(mut run: impl FnMut() -> Run) -> Run {
     let mut attempt = 1;
     loop {
@@ -262,31 +263,54 @@ fn assert_constant_grtt(r: &Run, stalls: u64) {
         sorted.sort_by(f64::total_cmp);
         let median = sorted[sorted.len() / 2];
         // Past the queue's slack the FIFO's delay steps by a period, once
-        // per underflow at most: each GRTT is judged at its own level.
+        // per underflow at most: each GRTT is judged at its own level, a
+        // level being one held for `SETTLED` GRTTs in a row; a shorter
+        // excursion is the host's (a hub held past a tick), its GRTTs strays.
+        const SETTLED: usize = 10;
         let period = r.base.period.as_secs_f64();
         let level = |g: f64| ((g - median) / period).round();
-        let steps = grtts
-            .windows(2)
-            .filter(|w| level(w[0]) != level(w[1]))
-            .count() as u64;
-        let underflows: u64 = std::iter::once(&r.base)
-            .chain(&r.remote)
-            .map(|s| s.endpoint.underflows)
-            .sum();
+        // Runs of one level: (level, GRTTs in a row).
+        let mut runs: Vec<(f64, usize)> = Vec::new();
+        for &g in &grtts {
+            match runs.last_mut() {
+                Some((l, n)) if *l == level(g) => *n += 1,
+                _ => runs.push((level(g), 1)),
+            }
+        }
+        let settled: Vec<f64> = runs
+            .iter()
+            .filter(|&&(_, n)| n >= SETTLED)
+            .map(|&(l, _)| l)
+            .collect();
+        let steps = settled.windows(2).filter(|w| w[0] != w[1]).count() as u64;
+        let sides = || std::iter::once(&r.base).chain(&r.remote);
+        let underflows: u64 = sides().map(|s| s.endpoint.underflows).sum();
         assert!(
             steps <= 2 * underflows,
             "{RUNS} runs stalled by the host; in the last the round trip changed level \
-             {steps} times, {underflows} underflows counted; {all:?}"
+             {steps} times, {underflows} underflows counted; (level, GRTTs) {runs:?}; {all:?}"
         );
-        let (kept, strays): (Vec<f64>, Vec<f64>) = grtts
+        let in_excursion = runs
             .iter()
-            .map(|&g| g - level(g) * period)
-            .partition(|&g| (g - median).abs() <= 2e-3);
+            .flat_map(|&(_, n)| std::iter::repeat_n(n < SETTLED, n));
+        let (mut kept, mut strays) = (Vec::new(), Vec::new());
+        for (&g, brief) in grtts.iter().zip(in_excursion) {
+            let at_level = g - level(g) * period;
+            if !brief && (at_level - median).abs() <= 2e-3 {
+                kept.push(at_level);
+            } else {
+                strays.push(g);
+            }
+        }
+        // 2 %, and two for each tick a hub served a whole period late.
+        let missed: u64 = sides().map(|s| s.lateness.missed).sum();
+        let allowed = grtts.len() / 50 + 2 * missed as usize;
         assert!(
-            strays.len() <= grtts.len() / 50,
+            strays.len() <= allowed,
             "{RUNS} runs stalled by the host; in the last, {} GRTTs (less their release's \
-             lateness, at their level) more than 2 ms from the median {median} s: {strays:?}; \
-             {all:?}",
+             lateness, at their level) in a brief excursion or more than 2 ms from the \
+             median {median} s, {allowed} allowed ({missed} ticks missed): {strays:?}; \
+             (level, GRTTs) {runs:?}; {all:?}",
             strays.len()
         );
         let n = kept.len() as f64;
