@@ -50,7 +50,7 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use common::{bundle, frame};
+use common::{bundle, frame, tls_pair};
 use ndr::core::endpoint::{Config, Transport};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
@@ -215,19 +215,6 @@ struct LinkRun {
     /// The base's and the remote's last stats.
     base: Option<LinkStats>,
     remote: Option<LinkStats>,
-}
-
-/// The remote's and the base's TLS configurations, each pinning the other,
-/// from throwaway certificates.
-fn tls_pair() -> (TlsConfig, TlsConfig) {
-    let dir = std::env::temp_dir().join(format!("ndr-bench-tls-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let b = ndr::keygen::write(&dir, "base").unwrap();
-    let r = ndr::keygen::write(&dir, "remote").unwrap();
-    let remote = TlsConfig::from_files(&r.cert, &r.key, &b.cert).unwrap();
-    let base = TlsConfig::from_files(&b.cert, &b.key, &r.cert).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    (remote, base)
 }
 
 /// `handlers`: the applications run on their hubs' threads instead of

@@ -18,14 +18,16 @@
 //! NDR_TRANSPORT=udp[:K[:R]] the links run on the datagram transport and the
 //! baseline is raw tokio UDP: a connected socket pair a link, each socket
 //! sending the same datagrams as a link (a 1-axis Bundle with its copies,
-//! and its R repeats 1 ms apart) every period.
+//! and its R repeats 1 ms apart) every period. NDR_TRANSPORT=quic[:K[:R]]:
+//! the same datagrams over QUIC (mutual TLS between throwaway identities),
+//! beside the same raw UDP baseline.
 //!
 //! `cargo bench --bench many_links` (NDR_LINKS, default 1000; NDR_SECONDS,
 //! default 10; NDR_QUEUE, the regulators' capacity, default 256;
 //! NDR_APP_QUEUE, the bound on what waits for the application, default 16;
 //! NDR_HUBS, hubs in each side's pool, default 1; NDR_PLAYOUT, the playout
 //! policy by its command-line name, default `fifo`; NDR_TRANSPORT, tcp
-//! (the default) or udp[:K[:R]]; NDR_PERIOD_MS, the
+//! (the default), udp[:K[:R]] or quic[:K[:R]]; NDR_PERIOD_MS, the
 //! period, default 10; NDR_SPIN=fixed, hubs that spin the whole default
 //! margin instead of learning a shorter one; NDR_APP=handlers, the control
 //! loops on the hubs (`Link::on_release`) instead of an application thread
@@ -39,7 +41,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use common::{bundle, frame};
+use common::{bundle, frame, tls_pair};
 use ndr::core::endpoint::{Config, REPEAT_SPACING, Transport};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
@@ -340,7 +342,13 @@ fn main() {
         .parse()
         .unwrap_or_else(|_| panic!("NDR_PLAYOUT={playout}: not a playout policy"));
     let transport = std::env::var("NDR_TRANSPORT").unwrap_or_else(|_| "tcp".into());
-    config.endpoint.transport = transport
+    // quic[:K[:R]]: the datagram transport's samples over QUIC, under
+    // mutual TLS between throwaway identities.
+    let (datagrams, tls) = match transport.strip_prefix("quic") {
+        Some(rest) => (format!("udp{rest}"), Some(tls_pair())),
+        None => (transport.clone(), None),
+    };
+    config.endpoint.transport = datagrams
         .parse()
         .unwrap_or_else(|_| panic!("NDR_TRANSPORT={transport}: not a transport"));
     // Datagrams a link sends a period: the sample's, and the repeats that
@@ -357,7 +365,14 @@ fn main() {
         let remote_hubs = HubPool::new(hubs, spin).unwrap();
         let base_hubs = HubPool::new(hubs, spin).unwrap();
         let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-        let listener = Listener::bind(any, config.clone().on_pool(remote_hubs))
+        let (remote_config, base_config) = match tls.clone() {
+            Some((remote, base)) => (
+                config.clone().with_tls(remote),
+                config.clone().with_tls(base),
+            ),
+            None => (config.clone(), config.clone()),
+        };
+        let listener = Listener::bind(any, remote_config.on_pool(remote_hubs))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();
@@ -366,7 +381,7 @@ fn main() {
         // per-source cap has its oldest evicted, as a flood would.
         let (mut bases, mut remotes) = (Vec::new(), Vec::new());
         for _ in 0..n {
-            let base = Link::connect(addr, config.clone().on_pool(base_hubs.clone()));
+            let base = Link::connect(addr, base_config.clone().on_pool(base_hubs.clone()));
             let (remote, base) = tokio::join!(listener.accept(), base);
             remotes.push(remote.unwrap());
             bases.push(base.unwrap());
@@ -486,7 +501,11 @@ fn main() {
     println!(
         "{n} links at T = {} on loopback (both ends in this process), {seconds} s window, {cpus} CPUs, transport {}, queue capacity {}, app queue {}, {hubs} hub(s) a side, playout {}, spin margin {}, control loops {}",
         c.period,
-        config.endpoint.transport,
+        format_args!(
+            "{}{}",
+            config.endpoint.transport,
+            if tls.is_some() { " over QUIC" } else { "" }
+        ),
         config.queue_capacity,
         config.app_queue,
         config.endpoint.playout,

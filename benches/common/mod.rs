@@ -2,6 +2,7 @@
 
 use ndr::core::time::Instant;
 use ndr::core::wire::{self, Header, MAX_FRAME_LEN, Message};
+use ndr::net::TlsConfig;
 
 /// One 1-axis Data frame, the bytes a link sends at each tick: the raw
 /// baselines carry the same.
@@ -43,4 +44,18 @@ pub fn bundle() -> Vec<u8> {
     let n = wire::encode(&header, &msg, &mut buf).unwrap();
     buf.truncate(n);
     buf
+}
+
+/// The remote's and the base's TLS configurations, each pinning the other,
+/// from throwaway certificates (a QUIC link needs them).
+#[allow(dead_code)]
+pub fn tls_pair() -> (TlsConfig, TlsConfig) {
+    let dir = std::env::temp_dir().join(format!("ndr-bench-tls-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let b = ndr::keygen::write(&dir, "base").unwrap();
+    let r = ndr::keygen::write(&dir, "remote").unwrap();
+    let remote = TlsConfig::from_files(&r.cert, &r.key, &b.cert).unwrap();
+    let base = TlsConfig::from_files(&b.cert, &b.key, &r.cert).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    (remote, base)
 }
