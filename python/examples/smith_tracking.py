@@ -4,9 +4,9 @@ The remote runs the plant (a slow arm axis, as ``ndr demo``'s robot); the
 base runs a PID on the remote's delayed position, through a
 :class:`ndr.SmithPredictor` whose round trip in ticks comes from the link
 (each release's GRTT, whose changes the link also announces as
-``"round_trip_changed"`` events). Both run in
-this process over loopback, through a :class:`ndr.Relay` that delays every
-frame as a real network would.
+``"round_trip_changed"`` events). Both run in this process over loopback,
+through a :class:`ndr.Relay` that delays every frame as a real network
+would.
 
 It prints the RMS tracking error against the reference, and against the
 delayed design: the same PID on the same plant without a link (computed

@@ -112,7 +112,6 @@ def test_a_live_links_events_are_rust_kinds_and_none_were_dropped():
         listener.close()
 
 
-
 def test_the_round_trip_is_announced_in_periods_with_its_grtt():
     period = 0.02
     listener = ndr.Link.listen(("127.0.0.1", 0), period=period)

@@ -1,6 +1,7 @@
 //! Releasing: which sample each tick or release hands the application, and the round trips and watchdog that follow from it.
 
 use super::{Endpoint, Event, Phase, Release, Slot, Status, Underflow, delay_quantum};
+use crate::control::round_trip_ticks;
 use crate::playout::schedule::{self, Context, Plan, Queued, Schedule};
 use crate::playout::{AdaptiveSlot, Target, TargetDelay};
 use crate::regulator::{self, Tick};
@@ -282,7 +283,9 @@ impl<S: Storage> Endpoint<S> {
 
     /// Announces the round trip in ticks when a measured GRTT changes it.
     fn round_trip_event(&mut self, grtt: Duration) {
-        let ticks = grtt.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        let Some(ticks) = round_trip_ticks(grtt, self.period).map(|t| t as u64) else {
+            return;
+        };
         self.stats.round_trip_ticks = ticks;
         if self.rel.round_trip_ticks != Some(ticks) {
             self.rel.round_trip_ticks = Some(ticks);

@@ -47,8 +47,8 @@
 //!   `announced`: the delay changes the endpoints announced;
 //!   `round_trips_announced`: the round trips the base announced;
 //!   `unannounced_changes`: round-trip changes with no announcement (of
-//!   either kind) within a round trip of them; `announced_late`: those announced only after
-//!   the GRTT showed them;
+//!   either kind) within a round trip of them; `announced_late`: those
+//!   announced only after the GRTT showed them;
 //!   `change_peak`: the largest `rms_vs_delayed_design`-type error in the
 //!   [`CHANGE_WINDOW`] ticks after each announced change.
 
