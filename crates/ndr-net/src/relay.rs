@@ -49,6 +49,17 @@
 //!   frame already in flight in that direction has been delivered; the
 //!   connection ends when both directions have ended. A partial frame at an
 //!   end of stream is dropped.
+//! - A side that fails (a read or a write returns an error: it reset, or
+//!   it is gone) ends as a path would end it: what it sent before still
+//!   arrives, then its end is passed on as a half-close; the frames still
+//!   in flight towards it are dropped (`frames_received −
+//!   frames_delivered`), and the other side is no longer read. So a peer
+//!   that sends its last frame and closes while the other still sends to
+//!   it (its kernel answers with a reset) still has that frame delivered.
+//!   Once a side has failed, the rest of the connection has 30 s to
+//!   finish (a drain towards a peer that stopped reading), then is cut.
+//!   Counted as [`RelayStats::io_errors`], with the first failure as its
+//!   [`ConnectionEnd::Io`].
 //!
 //! # Datagrams
 //!
@@ -258,7 +269,8 @@ pub enum ConnectionEnd {
         /// Bytes waiting when it overflowed, the refused frame included.
         bytes: usize,
     },
-    /// A read or write failed (a reset, a peer gone).
+    /// A read or write failed (a reset, a peer gone): the first failure
+    /// (see the module's docs for what still arrives).
     Io {
         /// The direction whose read or write failed.
         dir: Direction,

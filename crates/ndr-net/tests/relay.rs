@@ -1,5 +1,5 @@
 //! The delay relay over real loopback TCP: delays, order, bad framing,
-//! a refused upstream, and a relay killed mid-run.
+//! a refused upstream, a side that resets, and a relay killed mid-run.
 //!
 //! The machine may be loaded: timing assertions are bounds with margins,
 //! never exact timings.
@@ -356,6 +356,139 @@ async fn a_queue_over_its_bound_cuts_the_connection() {
     let received = stats.forward.frames_received;
     assert!((5..=6).contains(&received), "{stats:?}");
     assert_eq!(stats.forward.frames_delivered, 0, "{stats:?}");
+    let _ = relay.shutdown().await;
+}
+
+/// What a [`talker`] saw of one connection: the frames it read, then its
+/// end (`None`).
+type Heard = mpsc::UnboundedReceiver<Option<u64>>;
+
+/// An upstream that sends a frame every millisecond from the moment it
+/// accepts until a write fails (a remote streaming its states), and reports
+/// each frame it reads and the end of its input.
+async fn talker() -> (SocketAddr, Heard) {
+    let listener = TcpListener::bind(LOOPBACK).await.expect("bind talker");
+    let addr = listener.local_addr().expect("talker address");
+    let (tx, rx) = mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        let (stream, _) = listener.accept().await.expect("accept");
+        stream.set_nodelay(true).expect("nodelay");
+        let (mut r, mut w) = stream.into_split();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(ms(1));
+            for seq in 1000.. {
+                tick.tick().await;
+                if w.write_all(&data_frame(seq)).await.is_err() {
+                    break;
+                }
+            }
+        });
+        while let Some(frame) = read_frame(&mut r).await {
+            let _ = tx.send(Some(seq_of(&frame)));
+        }
+        let _ = tx.send(None);
+    });
+    (addr, rx)
+}
+
+/// A relay with a constant delay of `delay_ms` each way whose connection
+/// ends are collected.
+async fn watched_relay(
+    upstream: SocketAddr,
+    delay_ms: u64,
+) -> (RelayHandle, Arc<std::sync::Mutex<Vec<ConnectionEnd>>>) {
+    let ends = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let seen = Arc::clone(&ends);
+    let relay = Relay::bind(
+        LOOPBACK.parse().unwrap(),
+        upstream,
+        DelayModel::profile(&format!("constant:{delay_ms}")).unwrap(),
+        1,
+    )
+    .await
+    .expect("bind relay")
+    .on_event(move |event| {
+        if let RelayEvent::Closed(summary) = event {
+            seen.lock().unwrap().push(summary.end.clone());
+        }
+    })
+    .spawn()
+    .expect("spawn relay");
+    (relay, ends)
+}
+
+/// Everything the talker reads until its input ends (within 3 s).
+async fn heard_until_end(heard: &mut Heard) -> Vec<u64> {
+    let mut seqs = Vec::new();
+    loop {
+        match timeout(ms(3000), heard.recv()).await {
+            Ok(Some(Some(seq))) => seqs.push(seq),
+            Ok(Some(None) | None) => return seqs,
+            Err(_) => panic!("the talker's input did not end within 3 s: {seqs:?}"),
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_side_that_closes_while_the_other_still_sends_has_its_frames_delivered() {
+    // The base's way out: its last frames (a Close), its end of stream, and
+    // its socket dropped while the remote's states are still on their way;
+    // they reach a closed socket, whose kernel answers with a reset, and
+    // the relay's writes towards it fail while the last frames are in
+    // flight the other way.
+    let (upstream, mut heard) = talker().await;
+    let (relay, ends) = watched_relay(upstream, 200).await;
+    let mut client = connect(relay.local_addr()).await;
+    // Before the first state comes back (200 ms): the close sends a FIN.
+    tokio::time::sleep(ms(50)).await;
+    for seq in 0..5 {
+        client.write_all(&data_frame(seq)).await.expect("send");
+    }
+    client.shutdown().await.expect("half-close");
+    drop(client);
+
+    assert_eq!(heard_until_end(&mut heard).await, [0, 1, 2, 3, 4]);
+    let stats = stats_until(&relay, |s| s.active == 0).await;
+    assert_eq!((stats.io_errors, stats.active), (1, 0), "{stats:?}");
+    assert_eq!(stats.forward.frames_delivered, 5, "{stats:?}");
+    let ends = ends.lock().unwrap().clone();
+    assert!(
+        matches!(
+            ends.as_slice(),
+            [ConnectionEnd::Io {
+                dir: ndr_netem::Direction::Backward,
+                ..
+            }]
+        ),
+        "{ends:?}"
+    );
+    let _ = relay.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_side_that_resets_has_what_it_sent_before_delivered() {
+    let (upstream, mut heard) = talker().await;
+    let (relay, ends) = watched_relay(upstream, 100).await;
+    let mut client = connect(relay.local_addr()).await;
+    for seq in 0..5 {
+        client.write_all(&data_frame(seq)).await.expect("send");
+    }
+    stats_until(&relay, |s| s.forward.frames_received == 5).await;
+    // An abortive close: a reset, no end of stream.
+    client.set_zero_linger().expect("SO_LINGER 0");
+    drop(client);
+
+    assert_eq!(heard_until_end(&mut heard).await, [0, 1, 2, 3, 4]);
+    let stats = stats_until(&relay, |s| s.active == 0).await;
+    assert_eq!((stats.io_errors, stats.active), (1, 0), "{stats:?}");
+    assert_eq!(stats.forward.frames_delivered, 5, "{stats:?}");
+    // The reset itself, or the writes towards the gone side, whichever the
+    // relay met first.
+    let ends = ends.lock().unwrap().clone();
+    assert!(
+        matches!(ends.as_slice(), [ConnectionEnd::Io { .. }]),
+        "{ends:?}"
+    );
     let _ = relay.shutdown().await;
 }
 

@@ -4,7 +4,9 @@
 //! the byte stream into frames by their length prefix, stamps each with its
 //! release time and queues it; the writer sleeps until the head of the queue
 //! is due and writes every frame due by then in one go. Release times never
-//! decrease within a direction ([`InOrderPath`]), so a FIFO is enough.
+//! decrease within a direction ([`InOrderPath`]), so a FIFO is enough. A
+//! side that fails ends its own direction (after its frames in flight) and
+//! the one towards it; a framing error or a full queue cuts both.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -26,6 +28,9 @@ use super::{
 const READ_BUFFER: usize = 16 * 1024;
 /// Most bytes gathered into one write when several frames are due at once.
 const WRITE_BATCH: usize = 64 * 1024;
+/// Time the rest of a connection has to finish once a side has failed:
+/// bounds a drain towards a peer that stopped reading.
+const DRAIN_AFTER_FAILURE: std::time::Duration = std::time::Duration::from_secs(30);
 
 /// A frame waiting for its release time.
 struct Held {
@@ -120,14 +125,54 @@ async fn serve(
         sampler,
         tally(Direction::Backward),
     );
-    match tokio::try_join!(forward, backward) {
-        Ok(((), ())) => ConnectionEnd::Finished,
-        Err(end) => end,
+    ends(forward, backward).await
+}
+
+/// How the connection ends, given its two directions: when both have
+/// ended, or at once when one is cut; after a side has failed, what is left
+/// has [`DRAIN_AFTER_FAILURE`] to finish.
+async fn ends(
+    forward: impl Future<Output = Result<(), ConnectionEnd>>,
+    backward: impl Future<Output = Result<(), ConnectionEnd>>,
+) -> ConnectionEnd {
+    tokio::pin!(forward, backward);
+    let (first, forward_first) = tokio::select! {
+        end = &mut forward => (end, true),
+        end = &mut backward => (end, false),
+    };
+    let first = match first {
+        Ok(()) => None,
+        Err(end) if is_failed_side(&end) => Some(end),
+        // Cut: the other direction's frames in flight are dropped with it.
+        Err(end) => return end,
+    };
+    let other = async {
+        if forward_first {
+            backward.await
+        } else {
+            forward.await
+        }
+    };
+    let other = match first {
+        None => other.await,
+        Some(_) => tokio::time::timeout(DRAIN_AFTER_FAILURE, other)
+            .await
+            .unwrap_or(Ok(())),
+    };
+    match (first, other) {
+        (Some(end), _) | (None, Err(end)) => end,
+        (None, Ok(())) => ConnectionEnd::Finished,
     }
 }
 
 /// Carries one direction until its source's end of stream has been passed
-/// on, or fails (which cuts the whole connection).
+/// on, or fails.
+///
+/// A failed read (the source reset) is the source's end: the frames it sent
+/// before still arrive, then the end of stream is passed on, and the failure
+/// is returned. A failed write (the destination gone) drops the frames in
+/// flight and stops reading. Any other error (framing, a queue over its
+/// bound) is returned at once: the connection is cut.
 async fn pump<R, W>(
     ctx: &Ctx,
     dir: Direction,
@@ -142,11 +187,30 @@ where
 {
     let (tx, rx) = mpsc::channel(ctx.config.max_queue_frames.max(1));
     let queued_bytes = AtomicUsize::new(0);
-    tokio::try_join!(
-        read_side(ctx, dir, from, sampler, tx, &queued_bytes, tally),
-        write_side(dir, to, rx, &queued_bytes, tally),
-    )?;
-    Ok(())
+    // The reader owns the sender: once it returns, the writer sees the end
+    // of the queue after its last frame.
+    let reader = read_side(ctx, dir, from, sampler, tx, &queued_bytes, tally);
+    let writer = write_side(dir, to, rx, &queued_bytes, tally);
+    tokio::pin!(reader, writer);
+    tokio::select! {
+        read = &mut reader => match read {
+            Ok(()) => writer.await,
+            Err(end) if is_failed_side(&end) => {
+                // Already failed: a failed write changes nothing to report.
+                let _ = writer.await;
+                Err(end)
+            }
+            Err(end) => Err(end),
+        },
+        // The writer returns before the reader only when a write failed.
+        written = &mut writer => written,
+    }
+}
+
+/// `true` for the end of a side that failed (a reset, a peer gone), which
+/// leaves the rest of the connection to finish; any other error cuts it.
+const fn is_failed_side(end: &ConnectionEnd) -> bool {
+    matches!(end, ConnectionEnd::Io { .. })
 }
 
 async fn read_side<R: AsyncRead + Unpin>(
@@ -372,6 +436,45 @@ mod tests {
             let prefix = u32::try_from(len).unwrap().to_le_bytes();
             assert!(!is_tls(&prefix), "{len}");
         }
+    }
+
+    fn reset(dir: Direction) -> ConnectionEnd {
+        ConnectionEnd::Io {
+            dir,
+            error: "read: connection reset".into(),
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn once_a_side_has_failed_the_rest_has_a_bounded_time_to_finish() {
+        let started = TokioInstant::now();
+        let failed = async { Err(reset(Direction::Backward)) };
+        let end = ends(std::future::pending(), failed).await;
+        assert_eq!(end, reset(Direction::Backward));
+        assert_eq!(started.elapsed(), DRAIN_AFTER_FAILURE);
+
+        // A cut does not wait at all.
+        let started = TokioInstant::now();
+        let cut = async {
+            Err(ConnectionEnd::Framing {
+                dir: Direction::Forward,
+                error: WireError::LengthOutOfRange(u32::MAX),
+            })
+        };
+        let end = ends(cut, std::future::pending()).await;
+        assert!(matches!(end, ConnectionEnd::Framing { .. }), "{end:?}");
+        assert_eq!(started.elapsed(), std::time::Duration::ZERO);
+
+        // A side that finished cleanly leaves the other all the time it
+        // needs, and the other's failure is the end.
+        let started = TokioInstant::now();
+        let slow = async {
+            tokio::time::sleep(2 * DRAIN_AFTER_FAILURE).await;
+            Err(reset(Direction::Forward))
+        };
+        let end = ends(slow, async { Ok(()) }).await;
+        assert_eq!(end, reset(Direction::Forward));
+        assert_eq!(started.elapsed(), 2 * DRAIN_AFTER_FAILURE);
     }
 
     #[tokio::test]

@@ -109,7 +109,8 @@ pub struct RelayStats {
     pub framing_errors: u64,
     /// Connections cut because a direction's queue went over its bound.
     pub queue_overflows: u64,
-    /// Connections cut by a read or write error (a reset, a peer gone).
+    /// Connections ended by a read or write error (a reset, a peer gone);
+    /// what the failed side sent before it still arrived.
     pub io_errors: u64,
     /// Connections closed by [`RelayHandle::shutdown`](super::RelayHandle::shutdown)
     /// (or by dropping the handle).
