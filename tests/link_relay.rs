@@ -11,6 +11,8 @@ use ndr::net::{Link, LinkConfig, Listener, NetError, Relay, RelayHandle};
 use ndr::sim::delay::DelayModel;
 use ndr::sim::{SimConfig, run};
 
+mod common;
+
 const T: Duration = Duration::from_millis(10);
 
 fn config() -> LinkConfig {
@@ -109,53 +111,41 @@ fn through_the_relay_every_sample_arrives_once_in_order_and_grtt_matches_the_sim
     for attempt in 1..=ATTEMPTS {
         let Setup {
             rt,
-            mut base,
+            base,
             remote,
             relay,
         } = setup(DelayModel::Lan75km);
-        let robot = echo(remote);
-        let mut seqs = Vec::new();
-        for k in 0..400 {
-            base.send(&[f64::from(k)]).unwrap();
-            let s = base.recv_timeout(StdDuration::from_secs(3)).unwrap();
-            if s.status == Status::Fresh {
-                seqs.push(s.seq);
-            }
-        }
-        let stats = base.close().unwrap();
-        let (remote_seqs, _) = robot.join().unwrap();
+        let run = common::echo_run(base, remote);
         let _ = rt.block_on(relay.shutdown());
-        for (name, seqs) in [("base", &seqs), ("remote", &remote_seqs)] {
-            assert!(seqs.len() > 300, "{name}: {}", seqs.len());
-            assert!(
-                seqs.windows(2).all(|w| w[1] == w[0] + 1),
-                "{name}: gap or repeat"
-            );
-        }
-        let grtt = stats.endpoint.grtt;
-        let held = stats.lateness.max >= Duration::from_millis(1);
-        if attempt < ATTEMPTS && (held || !sims.iter().any(|r| r.ns == stats.ns)) {
+        common::assert_every_sample_once_in_order(&run);
+        // A hub served late (the network's delays make NRTT and one-way
+        // delays no sign of the host here).
+        let stalls = std::iter::once(&run.base)
+            .chain(&run.remote)
+            .flat_map(|s| [s.lateness.max, s.release_lateness.max])
+            .filter(|&late| late >= Duration::from_millis(1))
+            .count() as u64;
+        let (ns, grtt) = (run.base.ns, run.base.endpoint.grtt);
+        let simulated = sims.iter().any(|r| r.ns == ns);
+        if attempt < ATTEMPTS && (stalls > 0 || !simulated) {
             eprintln!(
-                "run {attempt}: the host held a hub (latest deadline {}) or the pattern \
-                 (ns {}, GRTT {} s ± {} s); judged on another",
-                stats.lateness.max,
-                stats.ns,
+                "run {attempt}: the host held a hub ({stalls} signs: latest deadline {}) or \
+                 the pattern (ns {ns}, GRTT {} s ± {} s); judged on another",
+                run.base.lateness.max,
                 grtt.mean(),
                 grtt.std()
             );
             continue;
         }
-        assert!(grtt.std() <= 1e-3, "GRTT std {} s", grtt.std());
+        // Constant, judged as every regulated link is (at its level, on the
+        // schedule, if the host held this last run too).
+        let (_, std) = common::grtt_judged(&run, stalls);
+        assert!(std <= 1e-3, "GRTT std {std} s ({stalls} stalls): {grtt:?}");
+        assert!(simulated, "ns {ns} never simulated");
         assert!(
             grtt.mean() >= lo - 2.0 * t - 0.002 && grtt.mean() <= hi + 2.0 * t + 0.002,
-            "GRTT real {} s (ns {}) vs simulated {lo}..{hi} s",
+            "GRTT real {} s (ns {ns}) vs simulated {lo}..{hi} s",
             grtt.mean(),
-            stats.ns
-        );
-        assert!(
-            sims.iter().any(|r| r.ns == stats.ns),
-            "ns {} never simulated",
-            stats.ns
         );
         break;
     }

@@ -249,13 +249,46 @@ pub fn host_stalls(s: &LinkStats) -> u64 {
 }
 
 fn assert_constant_grtt(r: &Run, stalls: u64) {
+    let (mean, std) = grtt_judged(r, stalls);
+    assert!(
+        std <= 1e-3,
+        "GRTT std {std} s (host stalls: {stalls}): {:?}; base {:?}; remote {:?}",
+        r.base.endpoint.grtt,
+        r.base,
+        r.remote
+    );
+    // The FIFO: 2·ns·T to (2·ns + 2)·T by the grids' phase; a target-delay
+    // playout: the delays it holds each way, up to two periods more (each
+    // side's release waits for its own tick). A period more when the
+    // remote answers from its own thread.
+    let period = r.base.period.as_secs_f64();
+    let held =
+        r.base.endpoint.playout_delay_s + r.remote.map_or(0.0, |s| s.endpoint.playout_delay_s);
+    let regulated = if held > 0.0 {
+        held
+    } else {
+        (2 * r.base.ns) as f64 * period
+    };
+    let from = regulated + f64::from(u8::from(r.answers_next_tick)) * period;
+    assert!(
+        (from - 1e-3..=from + 2.0 * period + 1e-3).contains(&mean),
+        "GRTT mean {mean}, expected from {from} (ns {}, delays held {held} s)",
+        r.base.ns
+    );
+}
+
+/// The mean and std (s) of the base's round trip in `r`, judged as
+/// [`assert_regulated`] does: all of them on a run the host did not stall;
+/// else (`stalls` signs of it) on the schedule, at their level, less the
+/// strays a stalled host makes (asserted to be few).
+pub fn grtt_judged(r: &Run, stalls: u64) -> (f64, f64) {
     let all = r.base.endpoint.grtt;
     assert!(
         all.count() > 200 && r.grtts.len() > 200,
         "{all:?}, {}",
         r.grtts.len()
     );
-    let (mean, std) = if stalls == 0 {
+    if stalls == 0 {
         (all.mean(), all.std())
     } else {
         let grtts = on_schedule(&r.grtts, r.base.period.as_nanos());
@@ -317,31 +350,7 @@ fn assert_constant_grtt(r: &Run, stalls: u64) {
         let mean = kept.iter().sum::<f64>() / n;
         let var = kept.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / n;
         (mean, var.sqrt())
-    };
-    assert!(
-        std <= 1e-3,
-        "GRTT std {std} s (host stalls: {stalls}): {all:?}; base {:?}; remote {:?}",
-        r.base,
-        r.remote
-    );
-    // The FIFO: 2·ns·T to (2·ns + 2)·T by the grids' phase; a target-delay
-    // playout: the delays it holds each way, up to two periods more (each
-    // side's release waits for its own tick). A period more when the
-    // remote answers from its own thread.
-    let period = r.base.period.as_secs_f64();
-    let held =
-        r.base.endpoint.playout_delay_s + r.remote.map_or(0.0, |s| s.endpoint.playout_delay_s);
-    let regulated = if held > 0.0 {
-        held
-    } else {
-        (2 * r.base.ns) as f64 * period
-    };
-    let from = regulated + f64::from(u8::from(r.answers_next_tick)) * period;
-    assert!(
-        (from - 1e-3..=from + 2.0 * period + 1e-3).contains(&mean),
-        "GRTT mean {mean}, expected from {from} (ns {}, delays held {held} s)",
-        r.base.ns
-    );
+    }
 }
 
 /// Each GRTT less the lateness of the release that measured it: how far
