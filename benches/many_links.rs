@@ -18,7 +18,10 @@
 //! NDR_TRANSPORT=udp[:K[:R]] the links run on the datagram transport and the
 //! baseline is raw tokio UDP: a connected socket pair a link, each socket
 //! sending the same datagrams as a link (a 1-axis Bundle with its copies,
-//! and its R repeats 1 ms apart) every period. NDR_TRANSPORT=quic[:K[:R]]:
+//! as many times a period, 1 ms apart, as the links sent in the window:
+//! their R repeats go only while a peer reports losses, and the window
+//! opens after the first REPEAT_HOLD, in which every link repeats).
+//! NDR_TRANSPORT=quic[:K[:R]]:
 //! the same datagrams over QUIC (mutual TLS between throwaway identities),
 //! beside the same raw UDP baseline.
 //!
@@ -42,7 +45,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use common::{bundle, frame, tls_pair};
-use ndr::core::endpoint::{Config, REPEAT_SPACING, Transport};
+use ndr::core::endpoint::{Config, REPEAT_HOLD, REPEAT_SPACING, Transport};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
@@ -351,9 +354,9 @@ fn main() {
     config.endpoint.transport = datagrams
         .parse()
         .unwrap_or_else(|_| panic!("NDR_TRANSPORT={transport}: not a transport"));
-    // Datagrams a link sends a period: the sample's, and the repeats that
-    // fit before the next.
-    let sends = match config.endpoint.transport {
+    // Most datagrams a link sends a period: the sample's, and the repeats
+    // that fit before the next (while the peer reports losses).
+    let most_sends = match config.endpoint.transport {
         Transport::Datagram { repeats, .. } => {
             let room = (period_ms / REPEAT_SPACING.as_secs_f64() / 1e3) as u64;
             1 + usize::from(repeats).min(room.saturating_sub(1) as usize)
@@ -415,13 +418,15 @@ fn main() {
     let stop = Arc::new(AtomicBool::new(false));
     // The frames the links have received so far, summed by the application
     // thread (which holds them) when `count` is raised, into `counted`.
-    let (count, counted) = (
+    // And the samples and datagrams they have sent, into `sent`.
+    let (count, counted, sent) = (
         Arc::new(AtomicBool::new(false)),
         Arc::new(AtomicU64::new(0)),
+        Arc::new([AtomicU64::new(0), AtomicU64::new(0)]),
     );
     let app = {
         let stop = Arc::clone(&stop);
-        let (count, counted) = (Arc::clone(&count), Arc::clone(&counted));
+        let (count, counted, sent) = (Arc::clone(&count), Arc::clone(&counted), Arc::clone(&sent));
         std::thread::spawn(move || {
             let mut released = 0u64;
             while !stop.load(Ordering::Relaxed) {
@@ -435,6 +440,14 @@ fn main() {
                         .map(|s| s.endpoint.frames_received + s.endpoint.datagrams_stale)
                         .sum();
                     counted.store(frames, Ordering::Relaxed);
+                    let (samples, datagrams) = bases
+                        .iter()
+                        .chain(&remotes)
+                        .filter_map(Link::stats)
+                        .map(|s| (s.endpoint.samples_sent, s.endpoint.datagrams_repeated))
+                        .fold((0, 0), |(a, b), (s, r)| (a + s, b + s + r));
+                    sent[0].store(samples, Ordering::Relaxed);
+                    sent[1].store(datagrams, Ordering::Relaxed);
                     count.store(false, Ordering::Release);
                 }
                 for r in &mut remotes {
@@ -457,8 +470,13 @@ fn main() {
             (bases, remotes, released)
         })
     };
-    // Start-up: handshake, 10-probe pattern and pre-fill, all under a second.
+    // Start-up: handshake, 10-probe pattern and pre-fill, all under a second;
+    // on datagrams, the repeats every link sends until its path shows no
+    // loss, too.
     std::thread::sleep(StdDuration::from_secs(3));
+    if most_sends > 1 {
+        std::thread::sleep(REPEAT_HOLD.into());
+    }
     let frames_so_far = || {
         count.store(true, Ordering::Release);
         while count.load(Ordering::Acquire) {
@@ -467,6 +485,7 @@ fn main() {
         counted.load(Ordering::Relaxed)
     };
     let frames0 = frames_so_far();
+    let sent0 = sent.each_ref().map(|a| a.load(Ordering::Relaxed));
     let (cpu0, hubs0, t0) = (
         Cpu::now(),
         run_time_s(|name| name == "ndr-hub"),
@@ -479,6 +498,15 @@ fn main() {
         t0.elapsed().as_secs_f64(),
     );
     let frames = (frames_so_far() - frames0) as f64 / elapsed;
+    // Datagrams a link sent a sample in the window: the raw baseline sends
+    // as many.
+    let sends = if most_sends > 0 {
+        let [samples, datagrams] =
+            [0, 1].map(|i| sent[i].load(Ordering::Relaxed).saturating_sub(sent0[i]));
+        (datagrams as f64 / samples.max(1) as f64).round().max(1.0) as usize
+    } else {
+        0
+    };
     let rss = rss_kib();
     stop.store(true, Ordering::Relaxed);
     let (bases, remotes, released) = app.join().unwrap();

@@ -83,6 +83,8 @@ fn wide(c: &mut Criterion) {
         b.iter(|| {
             let msg = Message::Bundle {
                 session: 0x5eed,
+                repeat: 0,
+                missed: 0,
                 newest: black_box(&values),
                 older: black_box(&older),
             };

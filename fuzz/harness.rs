@@ -116,6 +116,8 @@ fn round_trip<T: AsRef<[u8]>>(frame: &Frame<T>) {
             }
             Message::Bundle {
                 session: b.session(),
+                repeat: b.repeat(),
+                missed: b.missed(),
                 newest: &flat[..width],
                 older: &older,
             }

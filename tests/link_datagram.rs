@@ -191,6 +191,8 @@ fn bundle(session: u64, seq: u64, values: &[f64]) -> Vec<u8> {
     let header = Header::new(seq, Instant::ZERO);
     let msg = Message::Bundle {
         session,
+        repeat: 0,
+        missed: 0,
         newest: values,
         older: &[],
     };

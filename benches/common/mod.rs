@@ -37,6 +37,8 @@ pub fn bundle() -> Vec<u8> {
     });
     let msg = Message::Bundle {
         session: 0x5eed,
+        repeat: 0,
+        missed: 0,
         newest: &[0.5],
         older: &older,
     };

@@ -436,6 +436,8 @@ def _report(
         "late_samples": get(b, "late") + get(r, "late"),
         "samples_lost": get(b, "samples_lost") + get(r, "samples_lost"),
         "samples_recovered": get(b, "samples_recovered") + get(r, "samples_recovered"),
+        "samples_from_repeats": get(b, "samples_from_repeats") + get(r, "samples_from_repeats"),
+        "datagrams_repeated": get(b, "datagrams_repeated") + get(r, "datagrams_repeated"),
         "underflows": get(b, "underflows") + get(r, "underflows"),
         "link_lost": get(b, "link_lost") + get(r, "link_lost"),
         "pauses": get(b, "pauses"),
@@ -542,7 +544,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--transport", default="tcp", help="how samples cross: tcp (the "
                         "paper's stream), udp[:K[:R]] (datagrams of the newest sample and "
-                        "K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 by default) "
+                        "K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 by default, "
+                        "while the peer reports losses) "
                         "or quic[:K[:R]] (the same over QUIC, under mutual TLS 1.3 with a "
                         "throwaway pair of certificates)")
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 256)")

@@ -322,6 +322,12 @@ class LinkStats(TypedDict):
     """Datagram transport: datagrams of this session taken."""
     samples_recovered: int
     """Datagram transport: samples taken from a later datagram's copy."""
+    samples_from_repeats: int
+    """Datagram transport: samples taken from a repeat of their datagram
+    (its first send lost)."""
+    loss_reports: int
+    """Datagram transport: times the peer reported more of this side's
+    samples missed, each keeping this side's repeats going for 10 s."""
     samples_lost: int
     """Datagram transport: samples never received before a newer one."""
     datagrams_stale: int
@@ -329,7 +335,7 @@ class LinkStats(TypedDict):
     reordered, replayed; the peer's own repeats of a sample taken), dropped."""
     datagrams_repeated: int
     """Datagram transport: repeats sent (a sample's datagram again, 1 ms
-    apart)."""
+    apart), while the peer reports losses."""
     datagrams_foreign: int
     """Datagram transport: datagrams of another session, dropped."""
     datagrams_refused: int
@@ -517,8 +523,9 @@ class Link:
                 it is resent) or ``"udp"`` / ``"udp:K"`` / ``"udp:K:R"``
                 (datagrams, each carrying the newest sample and copies of
                 the K − 1 before it, 4 by default, sent R more times 1 ms
-                apart, 3 by default, so that a lost one is made good within
-                a millisecond or two; the handshake stays on TCP and the
+                apart, 3 by default, while the peer reports losses, so that
+                a lost one is made good within a millisecond or two; the
+                handshake stays on TCP and the
                 datagrams use the same port over UDP). UDP is plain:
                 loopback, or ``insecure=True``, and not with ``tls``.
                 ``"quic"`` / ``"quic:K"`` / ``"quic:K:R"``: the same

@@ -37,3 +37,35 @@ def test_a_documented_python_block_runs(name, code, capsys):
         return
     exec(compiled, {"__name__": "__docs__"})
     capsys.readouterr()
+
+
+def _wire_vector(text, n):
+    """The bytes of valid vector ``n`` of docs/wire.md §8."""
+    start = text.index(f"**Vector {n}:")
+    block = re.search(r"```hex\n(.*?)```", text[start:], re.S)
+    return bytes.fromhex(block.group(1))
+
+
+def test_the_wire_specs_reference_encoder_writes_its_vectors():
+    # The spec's Python encoder is the one a reader of the spec copies:
+    # it must write the spec's own vectors, byte for byte.
+    text = (ROOT / "docs" / "wire.md").read_text(encoding="utf-8")
+    section = text[text.index("## 7. Reference encoder") :]
+    ns = {}
+    exec(BLOCK.search(section).group(1), ns)
+    none = ns["NONE"]
+    close = ns["close"](4, seq=1, sent_at=2_000_000, echo=5_000_000, hold=500_000)
+    assert close == _wire_vector(text, 7)
+    bundle = ns["bundle"](
+        0x5555666677778888,
+        [1.5, -0.25],
+        [(41, 1_480_000_000, 39, [1.25, -0.5]), (40, 1_460_000_000, none, [1.0, -0.75])],
+        repeat=1,
+        missed=7,
+        seq=42,
+        sent_at=1_500_000_000,
+        echo=1_300_000_000,
+        hold=2_500_000,
+        released=40,
+    )
+    assert bundle == _wire_vector(text, 8)

@@ -584,3 +584,115 @@ fn a_sample_that_goes_out_after_the_close_arms_no_repeat() {
     assert_eq!(p.base.stats().samples_sent, sent + 1);
     assert_eq!(p.base.poll_timeout(), None, "closed, nothing is due");
 }
+
+/// [`Lossy`] that also loses every `every`-th bundle `from` sends between
+/// `start` and `end` (counted on their own).
+struct Spell<L, D> {
+    inner: Lossy<L, D>,
+    from: Role,
+    start: Instant,
+    end: Instant,
+    every: u64,
+    seen: u64,
+}
+
+impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for Spell<L, D> {
+    type Error = LinkError;
+
+    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
+        if from == self.from
+            && frame.get(5) == Some(&(Kind::Bundle as u8))
+            && (self.start..self.end).contains(&sent)
+        {
+            self.seen += 1;
+            if self.seen.is_multiple_of(self.every) {
+                return None;
+            }
+        }
+        self.inner.arrival(from, sent, frame)
+    }
+
+    fn event(
+        &mut self,
+        side: Role,
+        ep: &mut Endpoint<Heap>,
+        at: Instant,
+        event: Event<Box<[f64]>>,
+    ) -> Result<(), LinkError> {
+        self.inner.event(side, ep, at, event)
+    }
+
+    fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), LinkError> {
+        self.inner.failed(side, at, error)
+    }
+}
+
+#[test]
+fn repeats_go_while_the_peer_reports_losses_and_stop_on_a_clean_path() {
+    let s = |secs: u64| Instant::from_millis(secs * 1000);
+    let ep = |role| {
+        Endpoint::<Heap>::new(
+            config(role, Transport::DATAGRAM, Playout::ADAPTIVE),
+            Instant::ZERO,
+        )
+        .unwrap()
+    };
+    // A clean path, but for a spell from 20 to 25 s in which one of the
+    // base's datagrams in 7 is lost.
+    let world = Spell {
+        inner: lossy(|_| false, |_| Duration::from_millis(4)),
+        from: Role::Base,
+        start: s(20),
+        end: s(25),
+        every: 7,
+        seen: 0,
+    };
+    let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
+    let repeated = |p: &Pair<Heap, _>| {
+        [&p.base, &p.remote].map(|ep: &Endpoint<Heap>| ep.stats().datagrams_repeated)
+    };
+
+    // Nothing known of the path: every sample repeated three times (T =
+    // 10 ms) for the first 10 s.
+    p.run_until(s(9)).unwrap();
+    for ep in [&p.base, &p.remote] {
+        let st = ep.stats();
+        assert!(st.samples_sent > 800, "{st:?}");
+        assert!(st.datagrams_repeated + 3 >= 3 * st.samples_sent, "{st:?}");
+    }
+    // Then nothing lost, nothing reported: one datagram a sample.
+    p.run_until(s(11)).unwrap();
+    let quiet = repeated(&p);
+    p.run_until(s(20)).unwrap();
+    assert_eq!(repeated(&p), quiet, "repeats on a clean path");
+
+    // The spell: the remote reports the base's samples it missed, and the
+    // base repeats again; the remote, whose datagrams all arrive, does not.
+    p.run_until(s(26)).unwrap();
+    let spell = repeated(&p);
+    assert!(spell[0] > quiet[0] + 1000, "{spell:?} after {quiet:?}");
+    assert_eq!(spell[1], quiet[1], "the remote repeated");
+    let (b, r) = (p.base.stats(), p.remote.stats());
+    assert!(b.loss_reports > 10, "{b:?}");
+    assert_eq!(r.loss_reports, 0, "{r:?}");
+    // The first loss waited for the next datagram's copies; once the
+    // repeats went, a lost first send was made good by a repeat.
+    assert!(r.samples_recovered >= 1, "{r:?}");
+    assert!(r.samples_from_repeats > 50, "{r:?}");
+    assert_eq!((r.samples_lost, b.samples_from_repeats), (0, 0), "{r:?}");
+
+    // 10 s after the last report the base stops repeating.
+    p.run_until(s(36)).unwrap();
+    let after = repeated(&p);
+    p.run_until(s(45)).unwrap();
+    assert_eq!(repeated(&p), after, "repeats after the hold");
+    let w = &p.world.inner;
+    assert!(w.errors.is_empty(), "{:?}", w.errors);
+    for fresh in &w.fresh {
+        assert!(fresh.len() > 4000, "{}", fresh.len());
+        assert!(
+            fresh.windows(2).all(|w| w[1].0 == w[0].0 + 1),
+            "a gap or a repeat"
+        );
+    }
+}

@@ -309,6 +309,7 @@ proptest! {
     fn a_bundle_decodes_to_its_samples_and_survives_mutation(
         h in header(),
         (session, samples) in bundle_case(),
+        (repeat, missed) in (any::<u8>(), any::<u32>()),
         flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..8),
     ) {
         let mut h = h;
@@ -321,7 +322,7 @@ proptest! {
                 OlderSample { seq, sent_at: Instant::from_nanos(*sent_at), released: *released, values }
             })
             .collect();
-        let msg = Message::Bundle { session, newest: &samples[0].3, older: &older };
+        let msg = Message::Bundle { session, repeat, missed, newest: &samples[0].3, older: &older };
         let mut buf = vec![0u8; MAX_DATAGRAM_LEN];
         let n = encode(&h, &msg, &mut buf).expect("a valid bundle encodes");
         prop_assert_eq!(n, encoded_len(&msg));
@@ -331,6 +332,7 @@ proptest! {
             return Err(TestCaseError::fail("not a bundle"));
         };
         prop_assert_eq!((b.session(), b.count()), (session, samples.len()));
+        prop_assert_eq!((b.repeat(), b.missed()), (repeat, missed));
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         prop_assert_eq!(bits(&b.newest().iter().collect::<Vec<_>>()), bits(&samples[0].3));
         for (got, want) in b.older().zip(&older) {

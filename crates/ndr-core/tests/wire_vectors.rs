@@ -143,6 +143,8 @@ fn valid() -> Vec<(Header, Message<'static>)> {
             header(42, 1_500_000_000, echo(1_300_000_000, 2_500_000), Some(40)),
             Message::Bundle {
                 session: 0x5555_6666_7777_8888,
+                repeat: 1,
+                missed: 7,
                 newest: &[1.5, -0.25],
                 older: &OLDER,
             },
@@ -287,11 +289,14 @@ fn assert_payload_matches(payload: Payload<'_>, msg: &Message<'_>) {
             Payload::Bundle(b),
             Message::Bundle {
                 session,
+                repeat,
+                missed,
                 newest,
                 older,
             },
         ) => {
             assert_eq!((b.session(), b.count()), (*session, older.len() + 1));
+            assert_eq!((b.repeat(), b.missed()), (*repeat, *missed));
             assert_eq!(b.newest().iter().collect::<Vec<_>>(), newest.to_vec());
             for (got, want) in b.older().zip(older.iter()) {
                 assert_eq!(

@@ -257,10 +257,12 @@ struct DemoReport {
     pauses: u64,
     /// Datagram transport, both sides: samples lost for good (neither their
     /// datagram nor a later one's copies came), samples recovered from a
-    /// later datagram's copies, datagrams dropped as repeated or reordered,
-    /// and datagrams not sent.
+    /// later datagram's copies or from a repeat of their own, repeats sent,
+    /// datagrams dropped as repeated or reordered, and datagrams not sent.
     samples_lost: u64,
     samples_recovered: u64,
+    samples_from_repeats: u64,
+    datagrams_repeated: u64,
     datagrams_stale: u64,
     datagrams_unsent: u64,
     /// Both sides: samples never sent because a hub was held past its
@@ -375,6 +377,8 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         pauses: eb.pauses,
         samples_lost: eb.samples_lost + er.samples_lost,
         samples_recovered: eb.samples_recovered + er.samples_recovered,
+        samples_from_repeats: eb.samples_from_repeats + er.samples_from_repeats,
+        datagrams_repeated: eb.datagrams_repeated + er.datagrams_repeated,
         datagrams_stale: eb.datagrams_stale + er.datagrams_stale,
         datagrams_unsent: b.map_or(0, |s| s.datagrams_unsent)
             + remote.map_or(0, |s| s.datagrams_unsent),
@@ -451,8 +455,13 @@ fn print_table(r: &DemoReport) {
     );
     if r.transport != "tcp" {
         println!(
-            "  datagrams  {} samples recovered from copies · {} lost · {} stale datagrams · {} not sent",
-            r.samples_recovered, r.samples_lost, r.datagrams_stale, r.datagrams_unsent
+            "  datagrams  {} samples recovered from copies · {} from repeats · {} lost · {} repeats sent · {} stale datagrams · {} not sent",
+            r.samples_recovered,
+            r.samples_from_repeats,
+            r.samples_lost,
+            r.datagrams_repeated,
+            r.datagrams_stale,
+            r.datagrams_unsent
         );
     }
     if r.playout != "fifo" {

@@ -847,6 +847,8 @@ fn garbage_datagrams(remote: &mut Remote, kind: u64) -> (u64, u64) {
         let command = [1.0; COMMAND_WIDTH as usize];
         let msg = Message::Bundle {
             session,
+            repeat: 0,
+            missed: 0,
             newest: &command,
             older: &[],
         };

@@ -31,10 +31,14 @@ pub enum Transport {
         /// (fewer when they would not fit [`DATAGRAM_BUDGET`] bytes).
         redundancy: u8,
         /// Times each sample's datagram is sent again, [`REPEAT_SPACING`]
-        /// apart, 0 to [`MAX_REPEATS`]: a lost datagram is then made good
-        /// within a millisecond or two rather than by the next period's
-        /// copies (which a slow link waits a whole period for). Only as many
-        /// as fit in the period before the next sample go.
+        /// apart, 0 to [`MAX_REPEATS`], while the path loses datagrams: a
+        /// lost datagram is then made good within a millisecond or two
+        /// rather than by the next period's copies (which a slow link waits
+        /// a whole period for). Only as many as fit in the period before the
+        /// next sample go, and only for [`REPEAT_HOLD`] after the first
+        /// sample and after each time the peer reports one of this side's
+        /// samples missed (every datagram carries the count): a link that
+        /// loses nothing sends one datagram a sample.
         repeats: u8,
     },
 }
@@ -46,6 +50,12 @@ pub enum Transport {
 pub const DEFAULT_REPEATS: u8 = 3;
 /// Most [`Transport::Datagram::repeats`].
 pub const MAX_REPEATS: u8 = 4;
+/// How long the repeats go on after the first sample, and after each time
+/// the peer reports a sample missed: losses come in spells (a busy queue,
+/// a radio's fade or hand-over), and repeating through a quiet spell costs
+/// only datagrams, where a loss met without repeats waits a period for the
+/// next datagram's copies.
+pub const REPEAT_HOLD: Duration = Duration::from_secs(10);
 /// Between a sample's datagram and its repeats: long enough apart not to
 /// share one burst of a queue overflowing, short enough that the delay a
 /// repeat adds stays a small part of the round trip.

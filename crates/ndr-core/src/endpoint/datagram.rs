@@ -1,15 +1,16 @@
 //! The datagram transport ([`Transport::Datagram`]): samples go in
 //! Bundles, each with the newest sample and copies of the few before it,
 //! so that the receiver recovers a sample whose own datagram was lost from
-//! the next one; duplicates, reordered and replayed datagrams are dropped
-//! by `seq` and counted, and a datagram without this side's session token
-//! is dropped and counted. None of them harms the link.
+//! the next one, and sent again a few times while the peer reports losses;
+//! duplicates, reordered and replayed datagrams are dropped by `seq` and
+//! counted, and a datagram without this side's session token is dropped
+//! and counted. None of them harms the link.
 
 use core::fmt;
 
 use heapless::Vec as HVec;
 
-use super::config::{DATAGRAM_BUDGET, REPEAT_SPACING, Transport};
+use super::config::{DATAGRAM_BUDGET, REPEAT_HOLD, REPEAT_SPACING, Transport};
 use super::event::Head;
 use super::{Endpoint, LinkError, Phase, Tx};
 use crate::storage::Storage;
@@ -39,12 +40,18 @@ pub(super) struct Datagrams<V> {
     filled: usize,
     /// Samples per datagram.
     redundancy: usize,
-    /// Times each sample's datagram goes again.
+    /// Times each sample's datagram goes again, while repeating.
     repeats: u8,
-    /// The newest sample's header, for its repeats (the same bytes again).
+    /// Until when samples are repeated: [`REPEAT_HOLD`] after the first
+    /// sample, then after each report of a loss; `None` before the first.
+    repeat_until: Option<Instant>,
+    /// The peer's count of this side's samples it missed, as last seen.
+    peer_missed: u32,
+    /// The newest sample's header, for its repeats (the same samples again).
     newest: Option<Header>,
-    /// When the next repeat of it is due, and how many are left.
-    repeat: Option<(Instant, u8)>,
+    /// When the next repeat of it is due, which send it is (1: the first
+    /// repeat), and the last.
+    repeat: Option<(Instant, u8, u8)>,
     /// The peer's token (from its Hello), put in every datagram to it.
     pub(super) peer_session: u64,
     /// The newest `seq` taken from the peer.
@@ -81,6 +88,8 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
             filled: 0,
             redundancy,
             repeats,
+            repeat_until: None,
+            peer_missed: 0,
             newest: None,
             repeat: None,
             peer_session: 0,
@@ -106,12 +115,15 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
 
     /// Writes a bundle of `newest` (empty: a probe, sent alone) and the
     /// copies of the samples before it that fit [`DATAGRAM_BUDGET`]: those
-    /// of `sent` but its last `skip` (the newest itself, in a repeat).
+    /// of `sent` but its last `skip` (the newest itself, in a repeat);
+    /// `repeat` is which send of `newest` it is, `missed` this side's count
+    /// of the peer's samples it missed.
     fn encode(
         &self,
         header: &Header,
         newest: &[f64],
-        skip: usize,
+        (skip, repeat): (usize, u8),
+        missed: u32,
         buf: &mut [u8],
     ) -> Result<usize, WireError> {
         let width = newest.len();
@@ -138,6 +150,8 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
         }
         let msg = Message::Bundle {
             session: self.peer_session,
+            repeat,
+            missed,
             newest,
             older: &older,
         };
@@ -304,6 +318,13 @@ impl<S: Storage> Endpoint<S> {
         if let Some(d) = &mut self.dgram {
             d.highest = Some(seq);
             d.highest_sample = bundle.width() > 0;
+            // Taken in `seq` order, so the count only grows (modulo 2³²).
+            let grew = bundle.missed().wrapping_sub(d.peer_missed);
+            if grew != 0 && grew < 1 << 31 {
+                d.peer_missed = bundle.missed();
+                d.repeat_until = Some(now + REPEAT_HOLD);
+                self.stats.loss_reports += 1;
+            }
         }
         let counted = highest.filter(|_| after_sample && bundle.width() > 0);
         let taken = self.take_bundle(now, &frame, (highest, counted), stalled);
@@ -352,6 +373,9 @@ impl<S: Storage> Endpoint<S> {
         }
         let seq = frame.seq();
         self.stats.samples_lost += lost(next, seq);
+        if bundle.repeat() > 0 && bundle.width() > 0 {
+            self.stats.samples_from_repeats += 1;
+        }
         let head = Head {
             seq,
             sent_at: frame.sent_at(),
@@ -360,19 +384,29 @@ impl<S: Storage> Endpoint<S> {
         self.receive_data(head, frame.released(), bundle.newest(), Some(stalled))
     }
 
-    /// A sample's datagram just went out at `now`: its repeats are due
-    /// [`REPEAT_SPACING`] apart, as many as fit before the next sample's
-    /// (a repeat that would go with it is no use).
+    /// A sample's datagram just went out at `now`: while repeating, its
+    /// repeats are due [`REPEAT_SPACING`] apart, as many as fit before the
+    /// next sample's (a repeat that would go with it is no use).
     pub(super) fn arm_repeats(&mut self, now: Instant) {
         let period = self.period();
         // A sample queued before the close still goes, without repeats: no
         // deadline is left on a closed endpoint.
         if let Some(d) = self.dgram.as_mut().filter(|_| self.phase != Phase::Closed) {
+            // Nothing is known of the path at first: repeat until it shows.
+            let until = *d.repeat_until.get_or_insert(now + REPEAT_HOLD);
             let room = period.as_nanos() / REPEAT_SPACING.as_nanos().max(1);
             let fit = u8::try_from(room.saturating_sub(1)).unwrap_or(u8::MAX);
-            let n = d.repeats.min(fit);
-            d.repeat = (n > 0).then(|| (now + REPEAT_SPACING, n));
+            let n = if now < until { d.repeats.min(fit) } else { 0 };
+            d.repeat = (n > 0).then(|| (now + REPEAT_SPACING, 1, n));
         }
+    }
+
+    /// This side's count of the peer's samples it missed, for its bundles.
+    fn missed(&self) -> u32 {
+        let s = &self.stats;
+        let missed = s.samples_lost + s.samples_recovered + s.samples_from_repeats;
+        // Modulo 2³²: the peer looks only for growth.
+        missed as u32
     }
 
     /// The link closed: the repeats still due never go, and must not stay
@@ -385,7 +419,7 @@ impl<S: Storage> Endpoint<S> {
 
     /// When the next repeat is due.
     pub(super) fn repeat_due(&self) -> Option<Instant> {
-        self.dgram.as_ref()?.repeat.map(|(at, _)| at)
+        self.dgram.as_ref()?.repeat.map(|(at, _, _)| at)
     }
 
     /// Writes the newest sample's datagram again if a repeat is due at `now`.
@@ -394,23 +428,24 @@ impl<S: Storage> Endpoint<S> {
         now: Instant,
         buf: &mut [u8],
     ) -> Result<Option<usize>, LinkError> {
+        let missed = self.missed();
         let Some(d) = self.dgram.as_mut().filter(|_| self.phase != Phase::Closed) else {
             return Ok(None);
         };
-        let (Some((at, left)), Some(header)) = (d.repeat, d.newest) else {
+        let (Some((at, send, last)), Some(header)) = (d.repeat, d.newest) else {
             return Ok(None);
         };
         if at > now {
             return Ok(None);
         }
-        d.repeat = (left > 1).then(|| (at + REPEAT_SPACING, left - 1));
+        d.repeat = (send < last).then(|| (at + REPEAT_SPACING, send + 1, last));
         let Some(newest) = d.sent.last().filter(|_| d.filled > 0) else {
             return Ok(None);
         };
         let values = newest.values.as_ref();
         let width = usize::from(self.config.sent_width());
         let values = values.get(..width).unwrap_or(values);
-        match d.encode(&header, values, 1, buf) {
+        match d.encode(&header, values, (1, send), missed, buf) {
             Ok(n) => {
                 self.stats.datagrams_repeated += 1;
                 self.stats.frames_sent += 1;
@@ -441,8 +476,9 @@ impl<S: Storage> Endpoint<S> {
             Tx::Sample { .. } => sample,
             _ => &[],
         };
+        let missed = self.missed();
         if let (Some(d), Tx::Probe { .. } | Tx::Sample { .. }) = (&mut self.dgram, item) {
-            let n = d.encode(header, newest, 0, buf)?;
+            let n = d.encode(header, newest, (0, 0), missed, buf)?;
             if let Tx::Sample { .. } = item {
                 d.remember(header, newest);
             }

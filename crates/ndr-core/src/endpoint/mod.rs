@@ -45,7 +45,7 @@ use heapless::Deque;
 
 pub use config::{
     Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, DEFAULT_REPEATS,
-    MAX_REPEATS, MIN_PERIOD, Mode, REPEAT_SPACING, Transport, Underflow, UnknownName,
+    MAX_REPEATS, MIN_PERIOD, Mode, REPEAT_HOLD, REPEAT_SPACING, Transport, Underflow, UnknownName,
 };
 pub use datagram::DatagramError;
 pub use error::LinkError;

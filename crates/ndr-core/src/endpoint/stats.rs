@@ -151,6 +151,13 @@ pub struct Stats {
     /// Datagram transport: samples taken from a later datagram's copy
     /// (their own datagram was lost or came late).
     pub samples_recovered: u64,
+    /// Datagram transport: samples taken from a repeat of their datagram
+    /// (the first send was lost or came late).
+    pub samples_from_repeats: u64,
+    /// Datagram transport: times the peer's count of this side's samples
+    /// it missed grew, each keeping this side's repeats going for
+    /// [`REPEAT_HOLD`](super::REPEAT_HOLD).
+    pub loss_reports: u64,
     /// Datagram transport: samples never received, neither in their own
     /// datagram nor in a later one's copies, before a newer one came.
     pub samples_lost: u64,

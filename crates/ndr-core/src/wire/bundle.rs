@@ -1,13 +1,15 @@
 //! The Bundle (kind 5): a datagram's samples. The newest sample and up to
 //! [`MAX_BUNDLE`] − 1 before it, each with its own `seq`, stamp and
 //! `released`, so that a receiver recovers a sample whose own datagram was
-//! lost from the next one; and the receiver's session token, so that it
-//! drops a datagram that does not belong to the session.
+//! lost from the next one; the receiver's session token, so that it
+//! drops a datagram that does not belong to the session; and what the
+//! sender saw of the loss the other way, so that its peer repeats its
+//! datagrams only while they are lost.
 
 use core::fmt;
 
 use super::payload::Channels;
-use super::{HEADER_LEN, Kind, NONE, WireError, bytes_at, put};
+use super::{Kind, NONE, WireError, bytes_at, put};
 use crate::time::Instant;
 
 /// Most samples a Bundle carries.
@@ -15,7 +17,7 @@ pub const MAX_BUNDLE: usize = 8;
 /// Largest valid Bundle, in bytes: a UDP datagram's largest payload over
 /// IPv4. A sender keeps its datagrams far smaller (one path MTU).
 pub const MAX_DATAGRAM_LEN: usize = 65_507;
-/// Size of a Bundle's fixed part (session, count, width), in bytes.
+/// Size of a Bundle's fixed part (session, count, repeat, width, missed), in bytes.
 pub const BUNDLE_FIXED_LEN: usize = 16;
 /// Size of an older sample's own fields (seq, sent_at, released), in bytes.
 pub const OLDER_FIELDS_LEN: usize = 24;
@@ -46,24 +48,15 @@ impl<'a> Bundle<'a> {
             len: bytes.len(),
         };
         let fixed = bytes_at::<BUNDLE_FIXED_LEN>(bytes, 0).ok_or(bad_len)?;
-        let [_, _, _, _, _, _, _, _, count, r0, w0, w1, r1, r2, r3, r4] = fixed;
+        // `repeat` and `missed` take any value.
+        let [_, _, _, _, _, _, _, _, count, _, w0, w1, _, _, _, _] = fixed;
         let count = usize::from(count);
         if count == 0 || count > MAX_BUNDLE {
             return Err(WireError::BadBundleCount(count));
         }
-        if let Some(i) = [r0].iter().position(|&b| b != 0) {
-            return Err(WireError::ReservedNotZero {
-                offset: HEADER_LEN + 9 + i,
-            });
-        }
         let width = usize::from(u16::from_le_bytes([w0, w1]));
         if width > super::MAX_CHANNELS {
             return Err(WireError::TooManyChannels(width));
-        }
-        if let Some(i) = [r1, r2, r3, r4].iter().position(|&b| b != 0) {
-            return Err(WireError::ReservedNotZero {
-                offset: HEADER_LEN + 12 + i,
-            });
         }
         if bytes.len() != bundle_payload_len(count, width) {
             return Err(bad_len);
@@ -104,6 +97,22 @@ impl<'a> Bundle<'a> {
         usize::from(self.bytes.get(8).copied().unwrap_or(0))
     }
 
+    /// Which send of the newest sample this datagram is: 0 the first, `r`
+    /// its `r`-th repeat (the same samples again).
+    #[must_use]
+    pub fn repeat(&self) -> u8 {
+        self.bytes.get(9).copied().unwrap_or(0)
+    }
+
+    /// The sender's count, modulo 2³², of the receiver's samples it saw
+    /// lost on the way: taken from a copy or from a repeat, or lost (see
+    /// `docs/wire.md` §3.5). A receiver that sees it grow repeats its own
+    /// datagrams for a while.
+    #[must_use]
+    pub fn missed(&self) -> u32 {
+        bytes_at(self.bytes, 12).map_or(0, u32::from_le_bytes)
+    }
+
     /// Values per sample (0: probes).
     #[must_use]
     pub fn width(&self) -> usize {
@@ -140,6 +149,8 @@ impl fmt::Debug for Bundle<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Bundle")
             .field("session", &self.session())
+            .field("repeat", &self.repeat())
+            .field("missed", &self.missed())
             .field("newest", &self.newest())
             .field(
                 "older",
@@ -213,10 +224,17 @@ pub struct OlderSample<'a> {
     pub values: &'a [f64],
 }
 
+/// The fixed fields of a Bundle, as [`write`] takes them.
+pub(super) struct Fixed {
+    pub(super) session: u64,
+    pub(super) repeat: u8,
+    pub(super) missed: u32,
+}
+
 /// Writes a Bundle payload into `payload` (exactly its length).
 pub(super) fn write(
     payload: &mut [u8],
-    session: u64,
+    fixed: &Fixed,
     newest: &[f64],
     older: &[OlderSample<'_>],
 ) -> Result<(), WireError> {
@@ -239,11 +257,11 @@ pub(super) fn write(
         }
         flat += width;
     }
-    put(payload, 0, session.to_le_bytes());
+    put(payload, 0, fixed.session.to_le_bytes());
     // count <= MAX_BUNDLE and width <= MAX_CHANNELS: checked by the caller.
-    put(payload, 8, [count as u8, 0]);
+    put(payload, 8, [count as u8, fixed.repeat]);
     put(payload, 10, (width as u16).to_le_bytes());
-    put(payload, 12, [0; 4]);
+    put(payload, 12, fixed.missed.to_le_bytes());
     let mut at = put_values(payload, BUNDLE_FIXED_LEN, newest);
     for o in older {
         put(payload, at, o.seq.to_le_bytes());

@@ -394,6 +394,12 @@ pub enum Message<'a> {
     Bundle {
         /// The receiver's session token.
         session: u64,
+        /// Which send of the newest sample this is: 0 the first, `r` its
+        /// `r`-th repeat.
+        repeat: u8,
+        /// The sender's count, modulo 2³², of the receiver's samples it saw
+        /// lost (see [`Bundle::missed`]).
+        missed: u32,
         /// The newest sample's values.
         newest: &'a [f64],
         /// The older samples, newest first.
@@ -494,9 +500,18 @@ pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usiz
         }
         Message::Bundle {
             session,
+            repeat,
+            missed,
             newest,
             older,
-        } => bundle::write(payload, session, newest, older)?,
+        } => {
+            let fixed = bundle::Fixed {
+                session,
+                repeat,
+                missed,
+            };
+            bundle::write(payload, &fixed, newest, older)?;
+        }
         Message::Hello(hello) => put(payload, 0, hello.to_bytes()?),
         Message::Control(control) => put(payload, 0, control.to_bytes()?),
         Message::Close(close) => put(payload, 0, close.to_bytes()),

@@ -819,6 +819,8 @@ mod tests {
         let newest = [1.0, 2.0];
         let msg = wire::Message::Bundle {
             session: 0x1234_5678_9abc_def0,
+            repeat: 0,
+            missed: 0,
             newest: &newest,
             older: &[],
         };
