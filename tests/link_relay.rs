@@ -11,6 +11,8 @@ use ndr::net::{Link, LinkConfig, Listener, NetError, Relay, RelayHandle};
 use ndr::sim::delay::DelayModel;
 use ndr::sim::{SimConfig, run};
 
+// The shared run and its judgement, not the loopback tests' own helpers.
+#[allow(dead_code)]
 mod common;
 
 const T: Duration = Duration::from_millis(10);
