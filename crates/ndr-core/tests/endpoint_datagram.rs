@@ -342,9 +342,16 @@ fn a_lost_datagram_is_made_good_by_its_repeat_a_millisecond_later() {
             )
             .unwrap()
         };
-        let world = FirstLost {
+        // The first datagram of each sample is lost; its repeats (and the
+        // probes, which have none) go through.
+        let mut seen: [std::collections::BTreeSet<u64>; 2] = Default::default();
+        let world = Dropping {
             inner: lossy(|_| false, |_| Duration::from_millis(4)),
-            seen: Default::default(),
+            lose: move |from: Role, _: Instant, frame: &[u8]| {
+                // A bundle's width (offset 58) is 0 for a probe.
+                let sample = frame.get(58..60).is_some_and(|w| w != [0, 0]);
+                is_bundle(frame) && sample && seen[from as usize].insert(seq_of(frame))
+            },
         };
         Pair::new(ep(Role::Base), ep(Role::Remote), world)
     };
@@ -374,23 +381,22 @@ fn a_lost_datagram_is_made_good_by_its_repeat_a_millisecond_later() {
     }
 }
 
-/// [`Lossy`] that loses the first datagram of each sample, and lets its
-/// repeats (and the probes, which have none) through.
-struct FirstLost<L, D> {
+/// [`Lossy`] that also loses the frames `lose(from, sent, frame)` picks.
+struct Dropping<L, D, F> {
     inner: Lossy<L, D>,
-    seen: [std::collections::BTreeSet<u64>; 2],
+    lose: F,
 }
 
-impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for FirstLost<L, D> {
+impl<L, D, F> World<Heap> for Dropping<L, D, F>
+where
+    L: FnMut(u64) -> bool,
+    D: FnMut(u64) -> Duration,
+    F: FnMut(Role, Instant, &[u8]) -> bool,
+{
     type Error = LinkError;
 
     fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
-        // A bundle's width (offset 58) is 0 for a probe.
-        let sample = frame.get(58..60).is_some_and(|w| w != [0, 0]);
-        if frame.get(5) == Some(&(Kind::Bundle as u8))
-            && sample
-            && self.seen[from as usize].insert(seq_of(frame))
-        {
+        if (self.lose)(from, sent, frame) {
             return None;
         }
         self.inner.arrival(from, sent, frame)
@@ -409,6 +415,10 @@ impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for FirstLost
     fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), LinkError> {
         self.inner.failed(side, at, error)
     }
+}
+
+fn is_bundle(frame: &[u8]) -> bool {
+    frame.get(5) == Some(&(Kind::Bundle as u8))
 }
 
 #[test]
@@ -585,48 +595,6 @@ fn a_sample_that_goes_out_after_the_close_arms_no_repeat() {
     assert_eq!(p.base.poll_timeout(), None, "closed, nothing is due");
 }
 
-/// [`Lossy`] that also loses every `every`-th bundle `from` sends between
-/// `start` and `end` (counted on their own).
-struct Spell<L, D> {
-    inner: Lossy<L, D>,
-    from: Role,
-    start: Instant,
-    end: Instant,
-    every: u64,
-    seen: u64,
-}
-
-impl<L: FnMut(u64) -> bool, D: FnMut(u64) -> Duration> World<Heap> for Spell<L, D> {
-    type Error = LinkError;
-
-    fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
-        if from == self.from
-            && frame.get(5) == Some(&(Kind::Bundle as u8))
-            && (self.start..self.end).contains(&sent)
-        {
-            self.seen += 1;
-            if self.seen.is_multiple_of(self.every) {
-                return None;
-            }
-        }
-        self.inner.arrival(from, sent, frame)
-    }
-
-    fn event(
-        &mut self,
-        side: Role,
-        ep: &mut Endpoint<Heap>,
-        at: Instant,
-        event: Event<Box<[f64]>>,
-    ) -> Result<(), LinkError> {
-        self.inner.event(side, ep, at, event)
-    }
-
-    fn failed(&mut self, side: Role, at: Instant, error: LinkError) -> Result<(), LinkError> {
-        self.inner.failed(side, at, error)
-    }
-}
-
 #[test]
 fn repeats_go_while_the_peer_reports_losses_and_stop_on_a_clean_path() {
     let s = |secs: u64| Instant::from_millis(secs * 1000);
@@ -639,13 +607,14 @@ fn repeats_go_while_the_peer_reports_losses_and_stop_on_a_clean_path() {
     };
     // A clean path, but for a spell from 20 to 25 s in which one of the
     // base's datagrams in 7 is lost.
-    let world = Spell {
+    let mut seen = 0u64;
+    let world = Dropping {
         inner: lossy(|_| false, |_| Duration::from_millis(4)),
-        from: Role::Base,
-        start: s(20),
-        end: s(25),
-        every: 7,
-        seen: 0,
+        lose: move |from: Role, sent: Instant, frame: &[u8]| {
+            let spell = from == Role::Base && is_bundle(frame) && (s(20)..s(25)).contains(&sent);
+            seen += u64::from(spell);
+            spell && seen.is_multiple_of(7)
+        },
     };
     let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
     let repeated = |p: &Pair<Heap, _>| {

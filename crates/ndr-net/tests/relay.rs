@@ -229,23 +229,7 @@ async fn order_is_kept_under_lan_jitter() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_absurd_length_prefix_cuts_only_that_connection() {
     let (upstream, _arrivals) = echo_server().await;
-    let ends = Arc::new(std::sync::Mutex::new(Vec::new()));
-    let seen = Arc::clone(&ends);
-    let relay = Relay::bind(
-        LOOPBACK.parse().unwrap(),
-        upstream,
-        DelayModel::profile("constant:5").unwrap(),
-        1,
-    )
-    .await
-    .expect("bind relay")
-    .on_event(move |event| {
-        if let RelayEvent::Closed(summary) = event {
-            seen.lock().unwrap().push(summary.end.clone());
-        }
-    })
-    .spawn()
-    .expect("spawn relay");
+    let (relay, ends) = watched_relay(upstream, 5).await;
 
     let mut bad = connect(relay.local_addr()).await;
     bad.write_all(&data_frame(0)).await.expect("send");
@@ -429,6 +413,20 @@ async fn heard_until_end(heard: &mut Heard) -> Vec<u64> {
     }
 }
 
+/// The talker heard the client's five frames and then its end, and the
+/// relay counted one connection ended by a failed side; how it ended.
+async fn delivered_then_ended(
+    relay: &RelayHandle,
+    heard: &mut Heard,
+    ends: &std::sync::Mutex<Vec<ConnectionEnd>>,
+) -> Vec<ConnectionEnd> {
+    assert_eq!(heard_until_end(heard).await, [0, 1, 2, 3, 4]);
+    let stats = stats_until(relay, |s| s.active == 0).await;
+    assert_eq!((stats.io_errors, stats.active), (1, 0), "{stats:?}");
+    assert_eq!(stats.forward.frames_delivered, 5, "{stats:?}");
+    ends.lock().unwrap().clone()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_side_that_closes_while_the_other_still_sends_has_its_frames_delivered() {
     // The base's way out: its last frames (a Close), its end of stream, and
@@ -447,11 +445,7 @@ async fn a_side_that_closes_while_the_other_still_sends_has_its_frames_delivered
     client.shutdown().await.expect("half-close");
     drop(client);
 
-    assert_eq!(heard_until_end(&mut heard).await, [0, 1, 2, 3, 4]);
-    let stats = stats_until(&relay, |s| s.active == 0).await;
-    assert_eq!((stats.io_errors, stats.active), (1, 0), "{stats:?}");
-    assert_eq!(stats.forward.frames_delivered, 5, "{stats:?}");
-    let ends = ends.lock().unwrap().clone();
+    let ends = delivered_then_ended(&relay, &mut heard, &ends).await;
     assert!(
         matches!(
             ends.as_slice(),
@@ -478,13 +472,9 @@ async fn a_side_that_resets_has_what_it_sent_before_delivered() {
     client.set_zero_linger().expect("SO_LINGER 0");
     drop(client);
 
-    assert_eq!(heard_until_end(&mut heard).await, [0, 1, 2, 3, 4]);
-    let stats = stats_until(&relay, |s| s.active == 0).await;
-    assert_eq!((stats.io_errors, stats.active), (1, 0), "{stats:?}");
-    assert_eq!(stats.forward.frames_delivered, 5, "{stats:?}");
     // The reset itself, or the writes towards the gone side, whichever the
     // relay met first.
-    let ends = ends.lock().unwrap().clone();
+    let ends = delivered_then_ended(&relay, &mut heard, &ends).await;
     assert!(
         matches!(ends.as_slice(), [ConnectionEnd::Io { .. }]),
         "{ends:?}"
