@@ -12,7 +12,7 @@ use heapless::Vec as HVec;
 
 use super::config::{DATAGRAM_BUDGET, REPEAT_HOLD, REPEAT_SPACING, Transport};
 use super::event::Head;
-use super::{Endpoint, LinkError, Phase, Tx};
+use super::{Endpoint, LinkError, Phase, Stats, Tx};
 use crate::storage::Storage;
 use crate::time::Instant;
 use crate::wire::{
@@ -254,6 +254,13 @@ impl fmt::Display for DatagramError {
 
 impl core::error::Error for DatagramError {}
 
+/// This side's count of the peer's samples it missed, for its bundles.
+fn missed(s: &Stats) -> u32 {
+    let missed = s.samples_lost + s.samples_recovered + s.samples_from_repeats;
+    // Modulo 2³²: the peer looks only for growth.
+    missed as u32
+}
+
 impl<S: Storage> Endpoint<S> {
     /// A datagram arrived at `now` (datagram transport only). It never
     /// ends the link by itself: a datagram that is not this session's,
@@ -401,14 +408,6 @@ impl<S: Storage> Endpoint<S> {
         }
     }
 
-    /// This side's count of the peer's samples it missed, for its bundles.
-    fn missed(&self) -> u32 {
-        let s = &self.stats;
-        let missed = s.samples_lost + s.samples_recovered + s.samples_from_repeats;
-        // Modulo 2³²: the peer looks only for growth.
-        missed as u32
-    }
-
     /// The link closed: the repeats still due never go, and must not stay
     /// a deadline.
     pub(super) fn drop_repeats(&mut self) {
@@ -428,7 +427,6 @@ impl<S: Storage> Endpoint<S> {
         now: Instant,
         buf: &mut [u8],
     ) -> Result<Option<usize>, LinkError> {
-        let missed = self.missed();
         let Some(d) = self.dgram.as_mut().filter(|_| self.phase != Phase::Closed) else {
             return Ok(None);
         };
@@ -445,7 +443,7 @@ impl<S: Storage> Endpoint<S> {
         let values = newest.values.as_ref();
         let width = usize::from(self.config.sent_width());
         let values = values.get(..width).unwrap_or(values);
-        match d.encode(&header, values, (1, send), missed, buf) {
+        match d.encode(&header, values, (1, send), missed(&self.stats), buf) {
             Ok(n) => {
                 self.stats.datagrams_repeated += 1;
                 self.stats.frames_sent += 1;
@@ -476,9 +474,8 @@ impl<S: Storage> Endpoint<S> {
             Tx::Sample { .. } => sample,
             _ => &[],
         };
-        let missed = self.missed();
         if let (Some(d), Tx::Probe { .. } | Tx::Sample { .. }) = (&mut self.dgram, item) {
-            let n = d.encode(header, newest, (0, 0), missed, buf)?;
+            let n = d.encode(header, newest, (0, 0), missed(&self.stats), buf)?;
             if let Tx::Sample { .. } = item {
                 d.remember(header, newest);
             }

@@ -140,12 +140,6 @@ async fn ends(
         end = &mut forward => (end, true),
         end = &mut backward => (end, false),
     };
-    let first = match first {
-        Ok(()) => None,
-        Err(end) if is_failed_side(&end) => Some(end),
-        // Cut: the other direction's frames in flight are dropped with it.
-        Err(end) => return end,
-    };
     let other = async {
         if forward_first {
             backward.await
@@ -153,15 +147,14 @@ async fn ends(
             forward.await
         }
     };
-    let other = match first {
-        None => other.await,
-        Some(_) => tokio::time::timeout(DRAIN_AFTER_FAILURE, other)
-            .await
-            .unwrap_or(Ok(())),
-    };
-    match (first, other) {
-        (Some(end), _) | (None, Err(end)) => end,
-        (None, Ok(())) => ConnectionEnd::Finished,
+    match first {
+        Ok(()) => other.await.err().unwrap_or(ConnectionEnd::Finished),
+        Err(end) if is_failed_side(&end) => {
+            let _ = tokio::time::timeout(DRAIN_AFTER_FAILURE, other).await;
+            end
+        }
+        // Cut: the other direction's frames in flight are dropped with it.
+        Err(end) => end,
     }
 }
 
