@@ -45,7 +45,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use common::{bundle, frame, tls_pair};
-use ndr::core::endpoint::{Config, REPEAT_HOLD, REPEAT_SPACING, Transport};
+use ndr::core::endpoint::{Config, REPEAT_HOLD, Transport};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
@@ -354,14 +354,10 @@ fn main() {
     config.endpoint.transport = datagrams
         .parse()
         .unwrap_or_else(|_| panic!("NDR_TRANSPORT={transport}: not a transport"));
-    // Most datagrams a link sends a period: the sample's, and the repeats
-    // that fit before the next (while the peer reports losses).
-    let most_sends = match config.endpoint.transport {
-        Transport::Datagram { repeats, .. } => {
-            let room = (period_ms / REPEAT_SPACING.as_secs_f64() / 1e3) as u64;
-            1 + usize::from(repeats).min(room.saturating_sub(1) as usize)
-        }
-        _ => 0,
+    // On datagrams, the repeats each link may send.
+    let repeats = match config.endpoint.transport {
+        Transport::Datagram { repeats, .. } => Some(repeats),
+        _ => None,
     };
     let rss0 = rss_kib();
     let (bases, remotes) = rt.block_on(async {
@@ -433,19 +429,17 @@ fn main() {
                 if count.load(Ordering::Acquire) {
                     // A repeat that finds its sample taken is dropped as
                     // stale: moved all the same.
-                    let frames: u64 = bases
+                    let (frames, samples, datagrams) = bases
                         .iter()
                         .chain(&remotes)
                         .filter_map(Link::stats)
-                        .map(|s| s.endpoint.frames_received + s.endpoint.datagrams_stale)
-                        .sum();
+                        .map(|s| s.endpoint)
+                        .fold((0, 0, 0), |(f, n, d), e| {
+                            let sent = e.samples_sent;
+                            let moved = e.frames_received + e.datagrams_stale;
+                            (f + moved, n + sent, d + sent + e.datagrams_repeated)
+                        });
                     counted.store(frames, Ordering::Relaxed);
-                    let (samples, datagrams) = bases
-                        .iter()
-                        .chain(&remotes)
-                        .filter_map(Link::stats)
-                        .map(|s| (s.endpoint.samples_sent, s.endpoint.datagrams_repeated))
-                        .fold((0, 0), |(a, b), (s, r)| (a + s, b + s + r));
                     sent[0].store(samples, Ordering::Relaxed);
                     sent[1].store(datagrams, Ordering::Relaxed);
                     count.store(false, Ordering::Release);
@@ -474,7 +468,7 @@ fn main() {
     // on datagrams, the repeats every link sends until its path shows no
     // loss, too.
     std::thread::sleep(StdDuration::from_secs(3));
-    if most_sends > 1 {
+    if repeats.is_some_and(|r| r > 0) {
         std::thread::sleep(REPEAT_HOLD.into());
     }
     let frames_so_far = || {
@@ -500,7 +494,7 @@ fn main() {
     let frames = (frames_so_far() - frames0) as f64 / elapsed;
     // Datagrams a link sent a sample in the window: the raw baseline sends
     // as many.
-    let sends = if most_sends > 0 {
+    let sends = if repeats.is_some() {
         let [samples, datagrams] =
             [0, 1].map(|i| sent[i].load(Ordering::Relaxed).saturating_sub(sent0[i]));
         (datagrams as f64 / samples.max(1) as f64).round().max(1.0) as usize

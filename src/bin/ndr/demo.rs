@@ -66,8 +66,8 @@ pub struct LinkArgs {
     /// udp[:K[:R]] (datagrams, each with the newest sample and copies of
     /// the K − 1 before it, 4 by default, sent R more times 1 ms apart, 3
     /// by default, while the peer reports losses, so that a lost one is
-    /// made good within a millisecond or two; the handshake stays on TCP, and the datagrams go to the same
-    /// port over UDP) or quic[:K[:R]] (the same datagrams as QUIC DATAGRAM
+    /// made good within a millisecond or two; the handshake stays on TCP,
+    /// and the datagrams go to the same port over UDP) or quic[:K[:R]] (the same datagrams as QUIC DATAGRAM
     /// frames, the handshake on a QUIC stream, all under mutual TLS 1.3:
     /// base and remote need the TLS options; the demo makes a throwaway
     /// pair). UDP is plain: loopback, or --insecure, and not with TLS.

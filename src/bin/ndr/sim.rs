@@ -112,8 +112,9 @@ pub struct SimArgs {
     /// back until repaired) or datagram[:K[:R]] (each datagram carries the
     /// newest sample and copies of the K − 1 before it, default 4, and is
     /// sent R more times 1 ms apart, default 3, as many as fit before the
-    /// next sample, while the peer reports losses; the handshake stays on TCP). quic[:K[:R]] is simulated
-    /// as datagram[:K[:R]]: QUIC's datagrams are not retransmitted either.
+    /// next sample, while the peer reports losses; the handshake stays on
+    /// TCP). quic[:K[:R]] is simulated as datagram[:K[:R]]: QUIC's
+    /// datagrams are not retransmitted either.
     #[arg(long, default_value = "stream", value_parser = crate::transport::simulated)]
     pub transport: Transport,
     /// Sampling period, in ms (the paper's 200).
