@@ -428,68 +428,111 @@ fn a_relay_off_loopback_needs_insecure() {
     assert!(stderr.contains("--insecure"), "{stderr}");
 }
 
-/// The CSV's GRTTs (s) of the rows released within `from..to` seconds.
-fn grtts(csv: &Path, from: f64, to: f64) -> Vec<f64> {
+/// The CSV's rows released within `from..to` seconds: (time, status,
+/// GRTT, NRTT), the round trips in seconds.
+fn rows(csv: &Path, from: f64, to: f64) -> Vec<(f64, String, Option<f64>, Option<f64>)> {
     let text = std::fs::read_to_string(csv).expect("the CSV is written");
     text.lines()
         .skip(1)
         .filter_map(|line| {
             let cols: Vec<&str> = line.split(',').collect();
             let t: f64 = cols.first()?.parse().ok()?;
-            let g: f64 = cols.get(3)?.parse().ok()?;
-            (t >= from && t < to).then_some(g)
+            let status = (*cols.get(2)?).to_owned();
+            let grtt = cols.get(3).and_then(|g| g.parse().ok());
+            let nrtt = cols.get(4).and_then(|g| g.parse().ok());
+            (t >= from && t < to).then_some((t, status, grtt, nrtt))
         })
         .collect()
 }
 
-fn median(mut xs: Vec<f64>) -> f64 {
-    assert!(!xs.is_empty(), "no GRTT in the window");
+/// The median GRTT (s) of the rows released within `from..to` seconds;
+/// `None` if no round trip ended there.
+fn median_grtt(csv: &Path, (from, to): (f64, f64)) -> Option<f64> {
+    let mut xs: Vec<f64> = rows(csv, from, to).iter().filter_map(|r| r.2).collect();
     xs.sort_by(f64::total_cmp);
-    xs[xs.len() / 2]
+    xs.get(xs.len() / 2).copied()
+}
+
+/// The first sign, within `from..to` seconds, that a host stalled one of
+/// the processes: a network round trip of a quarter period (loopback's
+/// are well under a millisecond), or a round trip a quarter period off
+/// `grid` (the playout changes the delay it holds by whole periods here: a
+/// round trip between them is a release served late).
+fn host_stalled(csv: &Path, (from, to): (f64, f64), period: f64, grid: f64) -> Option<f64> {
+    let off_grid = |g: f64| {
+        let k = ((g - grid) / period).round();
+        (g - grid - k * period).abs() > period / 4.0
+    };
+    rows(csv, from, to)
+        .into_iter()
+        .find(|&(_, _, grtt, nrtt)| {
+            nrtt.is_some_and(|n| n > period / 4.0) || grtt.is_some_and(off_grid)
+        })
+        .map(|r| r.0)
 }
 
 #[test]
 fn a_remote_stopped_for_3_s_is_back_on_its_round_trip_within_2_s() {
     let _serial = serial();
-    // The remote's process stopped (SIGSTOP) for 3 s mid-run: on resume, the
-    // base's frames that waited are an outage, not delays to cover. The
-    // adaptive round trip held 650 ms for good (and once 3 s, falling at
-    // 0.1 s/s) after such a stop.
-    let (remote, addr) = remote(&["--once"]);
-    let csv = csv_path("stall");
-    let base = Proc::spawn(&[
-        "base",
-        "--connect",
-        &addr,
-        "--duration-s",
-        "14",
-        "--period-ms",
-        "20",
-        "--json",
-        "--out",
-        csv.to_str().unwrap(),
-    ]);
-    std::thread::sleep(Duration::from_secs(5));
-    remote.signal("STOP");
-    std::thread::sleep(Duration::from_secs(3));
-    remote.signal("CONT");
-    let (status, stdout, stderr) = base.wait(Duration::from_secs(60));
-    let report = json(&stdout, &stderr);
-    assert!(status.success(), "{report}\n{stderr}");
-    let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
-    assert!(status.success(), "{remote_err}");
-    let before = median(grtts(&csv, 2.0, 5.0));
-    let after = median(grtts(&csv, 10.0, 14.0));
-    // A period or two either way for the host's own jitter. A failing
-    // run's releases are kept for its diagnosis.
-    assert!(
-        after <= before + 0.05,
-        "GRTT {:.1} ms from 2 s after the stop, {:.1} ms before it; the releases: {}",
-        after * 1e3,
-        before * 1e3,
-        csv.display()
-    );
-    let _ = std::fs::remove_file(&csv);
+    // The remote's process stopped (SIGSTOP) for 3 s mid-run, from 5 s
+    // after the base started (a little less of the base's time): on
+    // resume, the base's frames that waited are an outage, not delays to
+    // cover. The adaptive round trip held 650 ms for good (and once 3 s,
+    // falling at 0.1 s/s) after such a stop. The round trip just before
+    // the stop is held against the one 1.5 s after the resume. A stall of
+    // the host in either window, which the playout covers as it must, is
+    // no sign of how the link took the outage: a failing run with one is
+    // run again.
+    const ATTEMPTS: usize = 3;
+    let period = 0.02;
+    let (before_at, after_at) = ((4.0, 4.5), (9.5, 10.5));
+    for attempt in 1..=ATTEMPTS {
+        let (remote, addr) = remote(&["--once"]);
+        let csv = csv_path("stall");
+        let base = Proc::spawn(&[
+            "base",
+            "--connect",
+            &addr,
+            "--duration-s",
+            "11",
+            "--period-ms",
+            "20",
+            "--json",
+            "--out",
+            csv.to_str().unwrap(),
+        ]);
+        std::thread::sleep(Duration::from_secs(5));
+        remote.signal("STOP");
+        std::thread::sleep(Duration::from_secs(3));
+        remote.signal("CONT");
+        let (status, stdout, stderr) = base.wait(Duration::from_secs(60));
+        let report = json(&stdout, &stderr);
+        assert!(status.success(), "{report}\n{stderr}");
+        let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
+        assert!(status.success(), "{remote_err}");
+        let before = median_grtt(&csv, before_at).expect("round trips before the stop");
+        // None: the round trip is longer than the time since the resume.
+        let after = median_grtt(&csv, after_at).unwrap_or(f64::INFINITY);
+        // A period or two either way for the host's own jitter.
+        if after <= before + 0.05 {
+            let _ = std::fs::remove_file(&csv);
+            return;
+        }
+        let stalled = [before_at, after_at]
+            .into_iter()
+            .find_map(|w| host_stalled(&csv, w, period, before));
+        if let Some(at) = stalled.filter(|_| attempt < ATTEMPTS) {
+            eprintln!("attempt {attempt}: the host stalled at {at:.3} s; again");
+            let _ = std::fs::remove_file(&csv);
+            continue;
+        }
+        // A failing run's releases are kept for its diagnosis.
+        panic!(
+            "GRTT {after:.3} s 1.5 s after the resume (inf: none ended), {before:.3} s before \
+             the stop (host stalled at {stalled:?} s); the releases: {}",
+            csv.display()
+        );
+    }
 }
 
 #[test]
