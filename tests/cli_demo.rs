@@ -62,6 +62,9 @@ fn demo_runs_and_reports_in_json() {
         assert!((20e-6..=200e-6).contains(&m), "{side}: {m}");
     }
     assert_eq!(r["profile"], "lan-75km");
+    // Both ends on loopback: datagrams by default, with the endpoint's
+    // copies and repeats.
+    assert_eq!(r["transport"], "udp:4:3", "{r}");
     // The default: the adaptive playout on the static handshake.
     assert_eq!(
         (&r["regulation"], &r["mode"], &r["playout"]),
@@ -211,6 +214,20 @@ fn an_unknown_controller_is_refused_with_the_valid_names() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("smith") && err.contains("pid"), "{err}");
+}
+
+#[test]
+fn a_loss_model_over_the_stream_is_refused() {
+    let out = Command::new(env!("CARGO_BIN_EXE_ndr"))
+        .args(["demo", "--transport", "tcp", "--loss", "5"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--loss 5") && stderr.contains("leave --transport out"),
+        "{stderr}"
+    );
 }
 
 #[test]

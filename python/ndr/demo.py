@@ -266,12 +266,13 @@ def run(
     signal: str = "sine",
     out: Optional[str] = "ndr-demo.csv",
     live: bool = False,
-    transport: str = "tcp",
+    transport: str = "udp",
 ) -> DemoResult:
     """Runs the demo and returns what it measured (nothing is printed but
     the live status line when ``live``). ``regulation`` and ``transport``
-    are those of :meth:`ndr.Link.connect` (``"adaptive"`` and ``"tcp"`` by
-    default), on both sides; ``mode`` and ``playout`` are deprecated as
+    are those of :meth:`ndr.Link.connect`, on both sides: ``"adaptive"``
+    by default, and ``"udp"`` (both ends are on loopback; a link's own
+    default is ``"tcp"``); ``mode`` and ``playout`` are deprecated as
     there."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
@@ -542,10 +543,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         help=argparse.SUPPRESS)
     parser.add_argument("--playout", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
-    parser.add_argument("--transport", default="tcp", help="how samples cross: tcp (the "
-                        "paper's stream), udp[:K[:R]] (datagrams of the newest sample and "
-                        "K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 by default, "
-                        "while the peer reports losses) "
+    parser.add_argument("--transport", default="udp", help="how samples cross: tcp (the "
+                        "paper's stream), udp[:K[:R]] (the default: datagrams of the newest "
+                        "sample and K - 1 copies, 4 by default, sent R more times 1 ms apart, 3 "
+                        "by default, while the peer reports losses) "
                         "or quic[:K[:R]] (the same over QUIC, under mutual TLS 1.3 with a "
                         "throwaway pair of certificates)")
     parser.add_argument("--axes", type=int, default=1, help="axes of the system (1 to 256)")

@@ -59,11 +59,12 @@ def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     # Where the series goes, said before the run; the header's labels as the
-    # Rust CLI's (`ndr demo · lan-75km · adaptive · hold · tcp · T = …`).
+    # Rust CLI's (`ndr demo · lan-75km · adaptive · hold · udp:4:3 · T = …`),
+    # over datagrams by default.
     assert proc.stderr.startswith(
         f"ndr python demo: the base's series goes to {tmp_path / 'd.csv'} (--out to change it)\n"
     ), proc.stderr
-    assert proc.stdout.startswith("ndr python demo · lan-75km · adaptive · hold · tcp · T = 20.00 ms"), proc.stdout
+    assert proc.stdout.startswith("ndr python demo · lan-75km · adaptive · hold · udp · T = 20.00 ms"), proc.stdout
     line = next(l for l in proc.stdout.splitlines() if l.strip().startswith("playout"))
     assert "forward" in line and "back" in line and "ppm" in line, line
     assert "delays announced" in line, line

@@ -18,7 +18,7 @@ use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConf
 use ndr::netem::LossModel;
 use ndr::sim::signal::Signal;
 
-use crate::transport::LinkTransport;
+use crate::transport::{LinkTransport, check_loss};
 
 use crate::report::{End, Outcome, Row, Series, finish};
 use crate::robot::{PlantArgs, StateLayout, robot};
@@ -61,21 +61,28 @@ pub struct LinkArgs {
     /// must give the same: a peer with another layout is refused.
     #[arg(long, default_value = "positions")]
     pub state: StateLayout,
-    /// How samples cross: tcp (the default, the paper's stream: a lost
-    /// packet holds back every sample behind it until it is resent) or
-    /// udp[:K[:R]] (datagrams, each with the newest sample and copies of
-    /// the K − 1 before it, 4 by default, sent R more times 1 ms apart, 3
-    /// by default, while the peer reports losses, so that a lost one is
-    /// made good within a millisecond or two; the handshake stays on TCP,
-    /// and the datagrams go to the same port over UDP) or quic[:K[:R]] (the same datagrams as QUIC DATAGRAM
-    /// frames, the handshake on a QUIC stream, all under mutual TLS 1.3:
-    /// base and remote need the TLS options; the demo makes a throwaway
-    /// pair). UDP is plain: loopback, or --insecure, and not with TLS.
-    #[arg(long, default_value = "tcp")]
-    pub transport: LinkTransport,
+    /// How samples cross: tcp (the paper's stream: a lost packet holds
+    /// back every sample behind it until it is resent; the default of base
+    /// and remote) or udp[:K[:R]] (datagrams, each with the newest sample
+    /// and copies of the K − 1 before it, 4 by default, sent R more times
+    /// 1 ms apart, 3 by default, while the peer reports losses, so that a
+    /// lost one is made good within a millisecond or two; the handshake
+    /// stays on TCP, and the datagrams go to the same port over UDP; the
+    /// default of the demo, which runs on loopback) or quic[:K[:R]] (the
+    /// same datagrams as QUIC DATAGRAM frames, the handshake on a QUIC
+    /// stream, all under mutual TLS 1.3: base and remote need the TLS
+    /// options; the demo makes a throwaway pair). UDP is plain: loopback,
+    /// or --insecure, and not with TLS.
+    #[arg(long)]
+    pub transport: Option<LinkTransport>,
 }
 
 impl LinkArgs {
+    /// `--transport`, or the paper's stream when it was not given.
+    pub fn transport(&self) -> LinkTransport {
+        self.transport.unwrap_or_default()
+    }
+
     pub fn config(&self) -> Result<LinkConfig, String> {
         let period = millis("--period-ms", self.period_ms)?;
         if period.is_zero() {
@@ -84,7 +91,7 @@ impl LinkArgs {
         let states = self.state.width(self.axes)?;
         let mut endpoint = Config::new(Role::Base).with_widths(self.axes, states);
         endpoint.layout = self.state.fingerprint(self.axes);
-        endpoint.transport = self.transport.transport;
+        endpoint.transport = self.transport().transport;
         endpoint.period = period;
         let (mode, playout, old) = self.asked()?;
         if old {
@@ -227,8 +234,8 @@ pub struct DemoArgs {
     pub plant: PlantArgs,
     /// Datagrams the relay loses each way: none, PERCENT (each
     /// independently, e.g. 1) or ge:PERCENT:BURST (in bursts of BURST
-    /// datagrams on average, e.g. ge:2:4). Datagrams (--transport udp)
-    /// only: the relay never drops TCP bytes.
+    /// datagrams on average, e.g. ge:2:4). Datagrams (udp, the default,
+    /// or quic) only: the relay never drops TCP bytes.
     #[arg(long, default_value = "none")]
     pub loss: LossModel,
     /// Seed of the relay's delays and losses.
@@ -237,16 +244,28 @@ pub struct DemoArgs {
 }
 
 pub fn run(args: &DemoArgs) -> Result<(), String> {
-    let config = args.link.config()?;
+    // Both ends and the relay on loopback: datagrams unless told otherwise,
+    // since they hold a lower delay than the stream at every loss rate
+    // (docs/benchmarks.md, "Real kernel loss").
+    let link = &LinkArgs {
+        transport: Some(args.link.transport.unwrap_or(LinkTransport::DEMO)),
+        ..args.link.clone()
+    };
+    let config = link.config()?;
+    check_loss(
+        link.transport().transport,
+        &args.loss,
+        "leave --transport out (datagrams)",
+    )?;
     // Over QUIC, each side gets a throwaway identity pinned by the other.
-    let (base_config, config) = if args.link.transport.quic {
+    let (base_config, config) = if link.transport().quic {
         let (base, remote) = throwaway_pair()?;
         (config.clone().with_tls(base), config.with_tls(remote))
     } else {
         (config.clone(), config)
     };
     check_duration(&args.run)?;
-    check_layout(args.run.controller, &args.link.state)?;
+    check_layout(args.run.controller, &link.state)?;
     let max_command = args.plant.max_command()?;
     let model = args.net.model("lan-75km")?;
     let profile = model.name();
@@ -288,7 +307,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
                 tracking: None,
             };
-            return finish(&args.link, &args.run, &with_series_error(outcome, error));
+            return finish(link, &args.run, &with_series_error(outcome, error));
         }
     };
     // The run starts with the link: the set-up waited for its handshake.
@@ -298,8 +317,8 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let remote_stats = Arc::new(Mutex::new(None::<LinkStats>));
     let robot = {
         let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
-        let axes = usize::from(args.link.axes);
-        let layout = args.link.state.clone();
+        let axes = usize::from(link.axes);
+        let layout = link.state.clone();
         let period = config.endpoint.period;
         std::thread::Builder::new()
             .name("ndr-demo-robot".into())
@@ -320,7 +339,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let (base_stats, end, tracking) = operator(
         base,
         &args.run,
-        args.link.axes,
+        link.axes,
         until,
         Some(&remote_stats),
         &mut series,
@@ -345,7 +364,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         end,
         tracking,
     };
-    finish(&args.link, &args.run, &with_series_error(outcome, error))
+    finish(link, &args.run, &with_series_error(outcome, error))
 }
 
 /// A run that completed but whose series could not be written failed.
@@ -635,6 +654,8 @@ mod tests {
             assert_eq!((c.mode, c.playout), (mode, playout), "{args:?}");
             assert_eq!(l.regulation_name(), name, "{args:?}");
         }
+        // Base and remote run the paper's stream unless told otherwise.
+        assert_eq!(link(&[]).transport().to_string(), "tcp");
         assert_eq!(link(&["--mode", "adaptive"]).legacy_mode_name(), "adaptive");
         assert_eq!(link(&[]).legacy_mode_name(), "adaptive");
         assert_eq!(

@@ -355,7 +355,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         period_s: b.map_or(link.period_ms / 1e3, |s| s.period.as_secs_f64()),
         duration_s: run.duration_s,
         axes: link.axes,
-        transport: link.transport.to_string(),
+        transport: link.transport().to_string(),
         command_width: link.axes,
         state_width: link.state.width(link.axes).unwrap_or(0),
         ns: b.map_or(0, |s| s.ns),

@@ -5,6 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use ndr::core::endpoint::Transport;
+use ndr::netem::LossModel;
 
 /// `tcp`, `udp[:K[:R]]` or `quic[:K[:R]]`: a datagram transport over
 /// plain UDP or over QUIC (mutual TLS 1.3, which then needs the TLS
@@ -67,7 +68,24 @@ pub fn simulated(s: &str) -> Result<Transport, String> {
     s.parse::<LinkTransport>().map(|t| t.transport)
 }
 
+/// The paper's stream: what base and remote run unless told otherwise.
+impl Default for LinkTransport {
+    fn default() -> LinkTransport {
+        LinkTransport {
+            transport: Transport::Stream,
+            quic: false,
+        }
+    }
+}
+
 impl LinkTransport {
+    /// `ndr demo`'s: plain UDP datagrams with the endpoint's default
+    /// copies and repeats.
+    pub const DEMO: LinkTransport = LinkTransport {
+        transport: Transport::DATAGRAM,
+        quic: false,
+    };
+
     /// Whether the link's security fits the transport: QUIC needs TLS, and
     /// plain UDP does not run beside it.
     pub fn check_security(&self, tls: bool) -> Result<(), String> {
@@ -84,6 +102,18 @@ impl LinkTransport {
             _ => Ok(()),
         }
     }
+}
+
+/// Refuses a loss model over the stream, which has no datagrams to lose;
+/// `instead` says what to give for datagrams.
+pub fn check_loss(transport: Transport, loss: &LossModel, instead: &str) -> Result<(), String> {
+    if transport == Transport::Stream && !loss.is_none() {
+        return Err(format!(
+            "--loss {loss} drops datagrams, and --transport tcp sends none (the relay never \
+             drops TCP bytes): {instead}, or leave --loss out"
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
