@@ -1,7 +1,7 @@
 //! `ndr soak`, short: every kind of fault is injected, each connection's
 //! samples come in order with none lost or repeated without a counter
-//! saying so, nothing panics. Over TCP, and over datagrams that the relay
-//! loses.
+//! saying so, nothing panics. Over TCP, and over datagrams (plain UDP or
+//! QUIC) that the relay loses.
 
 use std::process::Command;
 use std::sync::{Mutex, PoisonError};
@@ -73,7 +73,12 @@ fn assert_clean(r: &serde_json::Value) {
         n(r, "faults_stale_frames"),
         "{r}"
     );
-    assert!(n(r, "reconnections") >= 3, "{r}");
+    // A relay restart does not end a QUIC link (it moves to the new
+    // relay's address, as to a new network): only the remote's kill does.
+    let quic = r["transport"]
+        .as_str()
+        .is_some_and(|t| t.starts_with("quic"));
+    assert!(n(r, "reconnections") >= if quic { 1 } else { 3 }, "{r}");
     assert!(n(r, "samples_released") > 3000, "{r}");
 }
 
@@ -97,20 +102,38 @@ fn a_short_soak_under_faults_loses_nothing() {
     assert_eq!(n(&r, "datagrams_received"), 0, "{r}");
 }
 
-/// The datagram transport as it ships (three samples per datagram): 2 %
-/// of the datagrams lost each way, nearly all made good from the next
-/// datagrams' copies, the rest counted.
-#[test]
-fn a_short_soak_over_lossy_datagrams_recovers_or_counts_every_sample() {
-    let r = soak(&["--transport", "udp", "--loss", "2"]);
+/// A soak over `transport` (udp or quic) with 2 % of the datagrams lost
+/// each way: nearly all made good from the next datagrams' copies, the
+/// rest counted, the garbage datagrams counted as strays.
+fn lossy_datagrams_recover_or_count(transport: &str) {
+    let r = soak(&["--transport", transport, "--loss", "2"]);
     assert_clean(&r);
-    assert_eq!(r["transport"], "udp", "{r}");
+    assert_eq!(r["transport"], transport, "{r}");
     assert!(n(&r, "relay_datagrams_lost") > 100, "{r}");
     assert!(n(&r, "datagrams_received") > 3000, "{r}");
     // Both ways: the base's states and the remote's commands.
     assert!(n(&r, "samples_recovered") > 20, "{r}");
     assert!(n(&r, "remote_samples_recovered") > 20, "{r}");
     assert_garbage_datagrams_counted(&r);
+}
+
+/// The datagram transport as it ships (three samples per datagram): 2 %
+/// of the datagrams lost each way, nearly all made good from the next
+/// datagrams' copies, the rest counted.
+#[test]
+fn a_short_soak_over_lossy_datagrams_recovers_or_counts_every_sample() {
+    lossy_datagrams_recover_or_count("udp");
+}
+
+/// QUIC: the same datagrams as QUIC DATAGRAM frames under mutual TLS 1.3
+/// (the soak makes both sides' throwaway identities and pins them), 2 %
+/// of them lost each way by the relay: QUIC resends none of them, so the
+/// copies make good nearly every loss and the rest is counted, as over
+/// plain UDP. The garbage datagrams go to the remote's QUIC port; the
+/// garbage connection is a stranger's handshake, refused.
+#[test]
+fn a_short_soak_over_lossy_quic_recovers_or_counts_every_sample() {
+    lossy_datagrams_recover_or_count("quic");
 }
 
 /// One sample per datagram: each datagram the relay loses is a sample

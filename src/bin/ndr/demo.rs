@@ -18,6 +18,7 @@ use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConf
 use ndr::netem::LossModel;
 use ndr::sim::signal::Signal;
 
+use crate::keygen::Throwaway;
 use crate::transport::{LinkTransport, check_loss};
 
 use crate::report::{End, Outcome, Row, Series, finish};
@@ -393,17 +394,9 @@ pub fn check_duration(run: &RunArgs) -> Result<(), String> {
 /// TLS for a base and a remote that trust each other's certificate only,
 /// made for this run and gone with it.
 fn throwaway_pair() -> Result<(TlsConfig, TlsConfig), String> {
-    let dir = std::env::temp_dir().join(format!("ndr-demo-quic-{}", std::process::id()));
-    let made = (|| {
-        let base = ndr::keygen::write(&dir, "base")?;
-        let remote = ndr::keygen::write(&dir, "remote")?;
-        let tls = |own: &ndr::keygen::KeyPair, peer: &ndr::keygen::KeyPair| {
-            TlsConfig::from_files(&own.cert, &own.key, &peer.cert).map_err(|e| e.to_string())
-        };
-        Ok::<_, String>((tls(&base, &remote)?, tls(&remote, &base)?))
-    })();
-    let _ = std::fs::remove_dir_all(&dir);
-    made.map_err(|e| format!("cannot make the demo's QUIC certificates: {e}"))
+    Throwaway::new("demo-quic")
+        .and_then(|ids| ids.pair())
+        .map_err(|e| format!("cannot make the demo's QUIC certificates: {e}"))
 }
 
 pub fn runtime() -> Result<tokio::runtime::Runtime, String> {
