@@ -436,7 +436,27 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
     unknown_version.push(8);
     unknown_version.extend([9; 8]);
     unknown_version.resize(1200, 0);
-    let junk: [&[u8]; 6] = [
+    // And version 1 Initials that do not decrypt (random connection ids
+    // and payloads): about one in four has reserved bits that read right
+    // once its header protection is off, so that quinn takes it for a
+    // client's first packet and refuses it only when the listener accepts.
+    let mut x = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let initials: Vec<Vec<u8>> = (0..8)
+        .map(|_| {
+            let mut d = vec![0xc3, 0, 0, 0, 1, 8];
+            d.extend(next().to_be_bytes());
+            d.extend([0, 0, 0x44, 0x9e]);
+            d.extend((d.len()..1200).map(|_| next() as u8));
+            d
+        })
+        .collect();
+    let mut junk: Vec<&[u8]> = vec![
         b"not a QUIC packet",
         &[0x5a; 1200],
         &[0x5a; 65_000],
@@ -444,6 +464,7 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
         &unknown_version[..7],
         &[],
     ];
+    junk.extend(initials.iter().map(Vec::as_slice));
     common::send_to_both_sides(&stranger, addr, &remote, &junk);
     std::thread::sleep(std::time::Duration::from_millis(200));
     // Counted while the links are up (once they close, their peers' last

@@ -282,6 +282,10 @@ impl Quic {
                                     }
                                 },
                                 Err(refused) => {
+                                    // No connection took it either: an
+                                    // Initial that does not decrypt (quinn
+                                    // finds out only here), or one refused.
+                                    stray();
                                     if let Some(t) = refused.response {
                                         let out = &mut udp.out;
                                         out.push_to(
