@@ -56,7 +56,7 @@ use ndr::core::wire::Role;
 use ndr::core::wire::{self, Header, Hello, Message, close_reason};
 use ndr::net::{
     Deframer, Fingerprint, HandshakeError, Hub, Link, LinkConfig, LinkStats, Listener, NetError,
-    Relay, RelayConfig, RelayHandle, RelayStats, TlsConfig,
+    Relay, RelayConfig, RelayHandle, RelayStats,
 };
 use ndr::sim::delay::{DelayModel, LossModel, Trace, TraceRow};
 use serde::Serialize;
@@ -535,22 +535,32 @@ fn dropped(s: &LinkStats) -> u64 {
 }
 
 /// What a soak over QUIC runs with: the throwaway identities (their
-/// directory goes with this), the base's TLS and a stranger's (a
+/// directory goes with this), the base's link configuration (`config`
+/// with its TLS), the same for the faults' own bases, and a stranger's (a
 /// certificate the remote does not pin; it pins the remote), and the
 /// remote's options.
 struct Quic {
     _ids: Throwaway,
-    base: TlsConfig,
-    stranger: TlsConfig,
+    base: LinkConfig,
+    side: LinkConfig,
+    stranger: LinkConfig,
     remote: Vec<String>,
 }
 
 impl Quic {
-    fn new() -> Result<Quic, String> {
+    fn new(config: &LinkConfig) -> Result<Quic, String> {
+        // The faults' own links share one hub for the whole soak: a hub
+        // each (a thread each) would leave the process a little larger at
+        // each fault (each new thread's malloc arena keeps what it freed),
+        // which the memory check would take for the link's.
+        let hub = Hub::new(config.spin_margin).map_err(|e| e.to_string())?;
         let made = (|| {
             let ids = Throwaway::new("soak-quic")?;
             let (base, _) = ids.pair()?;
+            let base = config.clone().with_tls(base);
+            let side = base.clone().on_hub(hub.clone());
             let stranger = Throwaway::tls(&ids.another("stranger")?, &ids.remote)?;
+            let stranger = config.clone().with_tls(stranger).on_hub(hub);
             let path = |p: &std::path::Path| p.display().to_string();
             let remote = vec![
                 "--cert".into(),
@@ -563,6 +573,7 @@ impl Quic {
             Ok::<_, String>(Quic {
                 _ids: ids,
                 base,
+                side,
                 stranger,
                 remote,
             })
@@ -575,14 +586,13 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     // First made, last dropped: the identities' directory outlives the
     // remote, and goes however the soak ends.
     let quic = if args.transport.quic {
-        Some(Quic::new()?)
+        Some(Quic::new(&config)?)
     } else {
         None
     };
-    let base_config = match &quic {
-        Some(q) => config.clone().with_tls(q.base.clone()),
-        None => config.clone(),
-    };
+    let base_config = quic
+        .as_ref()
+        .map_or_else(|| config.clone(), |q| q.base.clone());
     let remote_tls = quic.as_ref().map(|q| q.remote.clone()).unwrap_or_default();
     let panics = Arc::new(AtomicU64::new(0));
     {
@@ -694,7 +704,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                     r.faults_garbage += 1;
                     let cut_off = match &quic {
                         // No TCP port to send garbage to: a stranger's handshake.
-                        Some(q) => stranger_refused(&rt, remote_addr, &config, &q.stranger),
+                        Some(q) => stranger_refused(&rt, remote_addr, q.stranger.clone()),
                         None => inject_garbage(remote_addr, fault / 3),
                     };
                     if cut_off {
@@ -730,22 +740,18 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
                 4 => {
                     idle.clear();
                     r.faults_hung_bases += 1;
-                    let side = base_config.clone();
-                    let quic = quic.is_some();
-                    let check = std::thread::spawn(move || {
-                        if quic {
-                            quic_hung_base(remote_addr, side)
-                        } else {
-                            hung_base(remote_addr, period, session, LIVENESS)
-                        }
+                    let side = quic.as_ref().map(|q| (rt.handle().clone(), q.side.clone()));
+                    let check = std::thread::spawn(move || match side {
+                        Some((rt, side)) => quic_hung_base(&rt, remote_addr, side),
+                        None => hung_base(remote_addr, period, session, LIVENESS),
                     });
                     checks.push((check, |r| r.hung_bases_dropped += 1));
                 }
                 _ => {
                     r.faults_stale_frames += 1;
-                    if quic.is_some() {
-                        let side = base_config.clone();
-                        let check = std::thread::spawn(move || quic_replay(remote_addr, side));
+                    if let Some(q) = &quic {
+                        let (rt, side) = (rt.handle().clone(), q.side.clone());
+                        let check = std::thread::spawn(move || quic_replay(&rt, remote_addr, side));
                         checks.push((check, |r| r.stale_frames_refused += 1));
                     } else if stale_frame(remote_addr, period, session) {
                         r.stale_frames_refused += 1;
@@ -1062,16 +1068,10 @@ fn garbage_datagrams(remote: &mut Remote, kind: u64) -> (u64, u64) {
     (sent, counted)
 }
 
-/// Over QUIC, the garbage connection's form: a stranger, whose
+/// Over QUIC, the garbage connection's form: a stranger (`config`), whose
 /// certificate the remote does not pin (it pins the remote's), tries the
 /// handshake; `true` if the remote refused it for its certificate.
-fn stranger_refused(
-    rt: &tokio::runtime::Runtime,
-    addr: SocketAddr,
-    config: &LinkConfig,
-    stranger: &TlsConfig,
-) -> bool {
-    let config = config.clone().with_tls(stranger.clone());
+fn stranger_refused(rt: &tokio::runtime::Runtime, addr: SocketAddr, config: LinkConfig) -> bool {
     let attempt = rt.block_on(async {
         tokio::time::timeout(StdDuration::from_secs(1), Link::connect(addr, config)).await
     });
@@ -1111,7 +1111,7 @@ impl SidePath {
         let forward = {
             let (cut, stop, base) = (Arc::clone(&cut), Arc::clone(&stop), Arc::clone(&base));
             std::thread::spawn(move || {
-                let mut buf = vec![0u8; 1 << 16];
+                let mut buf = [0u8; 1 << 16];
                 let mut stale: VecDeque<(StdInstant, Vec<u8>)> = VecDeque::new();
                 while !stop.load(Ordering::Relaxed) {
                     let now = StdInstant::now();
@@ -1136,7 +1136,7 @@ impl SidePath {
         let backward = {
             let stop = Arc::clone(&stop);
             std::thread::spawn(move || {
-                let mut buf = vec![0u8; 1 << 16];
+                let mut buf = [0u8; 1 << 16];
                 while !stop.load(Ordering::Relaxed) {
                     if let Ok(n) = back_up.recv(&mut buf)
                         && let Some(to) = *base.lock().unwrap_or_else(PoisonError::into_inner)
@@ -1173,11 +1173,11 @@ impl Drop for SidePath {
 /// a [`SidePath`] completes its handshakes, then the path passes nothing
 /// more of it. `true` if the remote ended it with Close "timeout" (its
 /// liveness) within its liveness time and 3 s.
-fn quic_hung_base(remote: SocketAddr, config: LinkConfig) -> bool {
+fn quic_hung_base(rt: &tokio::runtime::Handle, remote: SocketAddr, config: LinkConfig) -> bool {
     let Ok(path) = SidePath::open(remote, false) else {
         return false;
     };
-    let Ok(mut link) = Link::connect_blocking(path.addr, config) else {
+    let Ok(mut link) = rt.block_on(Link::connect(path.addr, config)) else {
         return false;
     };
     path.cut();
@@ -1209,11 +1209,11 @@ fn quic_hung_base(remote: SocketAddr, config: LinkConfig) -> bool {
 /// remote saw no command repeated or reordered. (Not that the remote
 /// counted no stale datagram: over QUIC a few come now and then without
 /// any replay, as the soak's own link counts at the base.)
-fn quic_replay(remote: SocketAddr, config: LinkConfig) -> bool {
+fn quic_replay(rt: &tokio::runtime::Handle, remote: SocketAddr, config: LinkConfig) -> bool {
     let Ok(path) = SidePath::open(remote, true) else {
         return false;
     };
-    let Ok(mut link) = Link::connect_blocking(path.addr, config) else {
+    let Ok(mut link) = rt.block_on(Link::connect(path.addr, config)) else {
         return false;
     };
     let mut r = SoakReport::default();
