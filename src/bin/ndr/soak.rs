@@ -248,13 +248,11 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
     if period.is_zero() {
         return Err("--period-ms must be positive".into());
     }
-    if args.transport.transport == Transport::Stream && !args.loss.is_none() {
-        return Err(format!(
-            "--loss {} drops datagrams, and --transport tcp sends none (the relay never drops \
-             TCP bytes): add --transport udp or --transport quic, or leave --loss out",
-            args.loss
-        ));
-    }
+    crate::transport::check_loss(
+        args.transport.transport,
+        &args.loss,
+        "add --transport udp or --transport quic",
+    )?;
     let config = link_config(period, args.transport.transport)?;
     if let Some(addr) = args.serve {
         let config = if args.transport.quic {
