@@ -71,6 +71,14 @@ fn demo_runs_and_reports_in_json() {
         (&"adaptive".into(), &"adaptive".into(), &"adaptive".into())
     );
     assert!(r["grtt_count"].as_u64().unwrap() > 50, "{r}");
+    // The host's pauses, and the late samples told apart by them: each
+    // on one side or the other.
+    for key in ["host_pauses", "host_paused_s", "host_pause_max_s"] {
+        assert!(r[key].is_number(), "missing {key}: {r}");
+    }
+    let placed = r["late_in_host_pauses"].as_u64().unwrap()
+        + r["late_outside_host_pauses"].as_u64().unwrap();
+    assert_eq!(placed, r["late_samples"].as_u64().unwrap(), "{r}");
     let rows = std::fs::read_to_string(&csv).unwrap();
     assert!(rows.starts_with("t_s,seq,status,grtt_s,nrtt_s,command,state"));
     assert!(rows.lines().count() > 50);

@@ -1,6 +1,6 @@
 //! `ndr demo`: the whole link for real, in one process — a remote with the
 //! simulated plant, a delaying relay, and a base whose operator follows a
-//! signal — over loopback TCP.
+//! signal — over loopback, on UDP datagrams unless told otherwise.
 
 use std::io::{IsTerminal, Write};
 use std::net::SocketAddr;
@@ -21,8 +21,9 @@ use ndr::sim::signal::Signal;
 use crate::keygen::Throwaway;
 use crate::transport::{LinkTransport, check_loss};
 
+use crate::pauses::{self, LateTicks};
 use crate::report::{End, Outcome, Row, Series, finish};
-use crate::robot::{PlantArgs, StateLayout, robot};
+use crate::robot::{DriveSpec, PlantArgs, StateLayout, robot};
 use crate::sim::NetArgs;
 use crate::size::millis;
 use crate::tracking::{ControllerKind, Tracker, TrackingSummary, check_layout};
@@ -307,6 +308,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 series,
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
                 tracking: None,
+                host: None,
             };
             return finish(link, &args.run, &with_series_error(outcome, error));
         }
@@ -316,24 +318,20 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
 
     let stop = Arc::new(AtomicBool::new(false));
     let remote_stats = Arc::new(Mutex::new(None::<LinkStats>));
+    let (base_late, remote_late) = (Mutex::default(), Arc::new(Mutex::default()));
+    let watch = pauses::Watch::start();
     let robot = {
         let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
-        let axes = usize::from(link.axes);
-        let layout = link.state.clone();
-        let period = config.endpoint.period;
+        let late = Arc::clone(&remote_late);
+        let spec = DriveSpec {
+            axes: usize::from(link.axes),
+            layout: link.state.clone(),
+            period: config.endpoint.period,
+            max_command,
+        };
         std::thread::Builder::new()
             .name("ndr-demo-robot".into())
-            .spawn(move || {
-                robot(
-                    remote,
-                    axes,
-                    layout,
-                    period,
-                    max_command,
-                    &stop,
-                    &remote_stats,
-                )
-            })
+            .spawn(move || robot(remote, spec, &stop, &remote_stats, Some(&late)))
             .map_err(|e| e.to_string())?
     };
 
@@ -344,6 +342,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         until,
         Some(&remote_stats),
         &mut series,
+        Some(&base_late),
     );
     stop.store(true, Ordering::Relaxed);
     match robot.join() {
@@ -355,6 +354,16 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let remote_final = *remote_stats
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let host = pauses::summarize(
+        watch,
+        &[&base_late, &remote_late],
+        pause_aftermath(base_stats.as_ref(), remote_final.as_ref()),
+        [base_stats.as_ref(), remote_final.as_ref()]
+            .iter()
+            .flatten()
+            .map(|s| s.endpoint.late)
+            .sum(),
+    );
     let (series, error) = series.close();
     let outcome = Outcome {
         profile,
@@ -364,8 +373,26 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         series,
         end,
         tracking,
+        host,
     };
     finish(link, &args.run, &with_series_error(outcome, error))
+}
+
+/// How long after a host pause its late ticks may still come: the samples
+/// it held back cross the network and wait out the playout, so twice the
+/// longer of the delay either side holds and half the round trip, and at
+/// least two periods.
+fn pause_aftermath(base: Option<&LinkStats>, remote: Option<&LinkStats>) -> StdDuration {
+    let held = |s: Option<&LinkStats>| {
+        s.map_or(0.0, |s| {
+            let e = &s.endpoint;
+            e.playout_delay_s
+                .max(e.grtt.mean() / 2.0)
+                .max(2.0 * s.period.as_secs_f64())
+        })
+    };
+    let d = held(base).max(held(remote));
+    StdDuration::try_from_secs_f64(2.0 * d).unwrap_or(StdDuration::ZERO)
 }
 
 /// A run that completed but whose series could not be written failed.
@@ -418,6 +445,7 @@ pub fn operator(
     until: StdInstant,
     remote_stats: Option<&Mutex<Option<LinkStats>>>,
     series: &mut Series,
+    late: Option<&Mutex<LateTicks>>,
 ) -> (Option<LinkStats>, End, Option<TrackingSummary>) {
     let start = StdInstant::now();
     // Made at the first release, at the period the link runs at.
@@ -492,6 +520,13 @@ pub fn operator(
                             break;
                         }
                     }
+                }
+                if let Some(late) = late
+                    && s.status == Status::Held
+                {
+                    late.lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .push(&link, s.released_at);
                 }
                 let row = Row {
                     t_s: t,

@@ -8,6 +8,7 @@ mod doc_commands;
 mod keygen;
 mod logging;
 mod paper;
+mod pauses;
 mod peers;
 mod relay;
 mod report;
@@ -46,7 +47,8 @@ enum Command {
     Size(size::SizeArgs),
     /// The main job: a remote robot (simulated plant), a delaying relay and a
     /// base whose operator follows a signal, all in this process over loopback
-    /// TCP; a live status line, then NRTT beside GRTT and everything counted.
+    /// (UDP datagrams unless --transport says otherwise); a live status line,
+    /// then NRTT beside GRTT and everything counted.
     Demo(demo::DemoArgs),
     /// The operator's side as its own process: connect to a remote (or a
     /// relay), follow a signal, report like `ndr demo`. Exits non-zero, with

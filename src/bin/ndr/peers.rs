@@ -9,7 +9,7 @@ use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 use crate::demo::{LinkArgs, RunArgs, check_duration, operator, runtime, with_series_error};
 use crate::keygen::SecurityArgs;
 use crate::report::{End, Outcome, Series, finish};
-use crate::robot::{PlantArgs, robot};
+use crate::robot::{DriveSpec, PlantArgs, robot};
 use crate::signals::{self, Stop, counters};
 
 #[derive(clap::Args)]
@@ -77,7 +77,15 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
     let (stats, end, tracking) = match connected {
-        Ok(Ok(link)) => operator(link, &args.run, args.link.axes, until, None, &mut series),
+        Ok(Ok(link)) => operator(
+            link,
+            &args.run,
+            args.link.axes,
+            until,
+            None,
+            &mut series,
+            None,
+        ),
         Ok(Err(e)) => (
             None,
             End::NeverConnected(format!("cannot connect to {connect_to}: {e}")),
@@ -101,6 +109,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         series,
         end,
         tracking,
+        host: None,
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
@@ -167,15 +176,13 @@ fn serve(
         let peer = link.peer_addr();
         eprintln!("ndr remote: base {peer} connected");
         let stats = Mutex::new(None::<LinkStats>);
-        let end = robot(
-            link,
-            usize::from(args.link.axes),
-            args.link.state.clone(),
+        let spec = DriveSpec {
+            axes: usize::from(args.link.axes),
+            layout: args.link.state.clone(),
             period,
             max_command,
-            stop.flag(),
-            &stats,
-        );
+        };
+        let end = robot(link, spec, stop.flag(), &stats, None);
         let last = *stats
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);

@@ -12,6 +12,7 @@ use ndr::net::{LinkStats, RelayStats};
 use serde::Serialize;
 
 use crate::demo::{LinkArgs, RunArgs};
+use crate::pauses::PauseSummary;
 use crate::tracking::TrackingSummary;
 
 /// How a run of the operator ended.
@@ -210,6 +211,8 @@ pub struct Outcome<'a> {
     pub end: End,
     /// What the base's tracking loop measured (`--controller`).
     pub tracking: Option<TrackingSummary>,
+    /// The host's pauses and the late ticks they explain (`ndr demo`).
+    pub host: Option<PauseSummary>,
 }
 
 /// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
@@ -313,6 +316,12 @@ struct DemoReport {
     /// and against the delay-free design delayed by the round trip, the
     /// mean round trip it was given (ticks) and its changes.
     tracking: Option<TrackingSummary>,
+    /// `ndr demo`: the host's own pauses (a thread's oversleeps past 2 ms:
+    /// the whole process held), and the late ticks within a pause or just
+    /// after it, against the others: the late rate the link is answerable
+    /// for is the latter's.
+    #[serde(flatten)]
+    host: Option<PauseSummary>,
 }
 
 /// Prints the report (table or JSON), whatever the end; then the end as
@@ -409,6 +418,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         csv_rows: o.series.rows,
         controller: run.controller.name(),
         tracking: o.tracking,
+        host: o.host,
     }
 }
 
@@ -508,6 +518,16 @@ fn print_table(r: &DemoReport) {
     ) && f + b + lost > 0
     {
         println!("             {f} datagrams forward, {b} back, {lost} lost by its loss model");
+    }
+    if let Some(h) = &r.host {
+        println!(
+            "  host       {} pauses of this process (longest {}, {} in all) · {} late within them or just after · {} late outside",
+            h.host_pauses,
+            ms(h.host_pause_max_s),
+            ms(h.host_paused_s),
+            h.late_in_host_pauses,
+            h.late_outside_host_pauses
+        );
     }
     if let Some(t) = &r.tracking {
         println!(

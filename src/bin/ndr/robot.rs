@@ -8,11 +8,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration as StdDuration;
 
 use ndr::core::arx::{Tf2, Tf2State};
-use ndr::core::endpoint::{Event, LinkError};
+use ndr::core::endpoint::{Event, LinkError, Status};
 use ndr::core::time::Duration;
 use ndr::core::wire::close_reason;
 use ndr::net::{Link, LinkStats, NetError};
 use ndr::sim::PlantConfig;
+
+use crate::pauses::LateTicks;
 
 /// The simulated drive's limits, for `demo` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
@@ -280,18 +282,32 @@ impl Drive {
     }
 }
 
+/// The simulated drive a remote runs: its axes, what its state holds, the
+/// period it starts at, and the largest command it takes.
+pub struct DriveSpec {
+    pub axes: usize,
+    pub layout: StateLayout,
+    pub period: Duration,
+    pub max_command: f64,
+}
+
 /// The remote's session with one base: each released command moves the
 /// drive, whose state goes back. Returns how the session ended; `stats`
-/// holds the link's latest counters (the final ones at the end).
+/// holds the link's latest counters (the final ones at the end), `late`
+/// (if given) when ticks went without their command.
 pub fn robot(
     mut link: Link,
-    axes: usize,
-    layout: StateLayout,
-    period: Duration,
-    max_command: f64,
+    spec: DriveSpec,
     stop: &AtomicBool,
     stats: &Mutex<Option<LinkStats>>,
+    late: Option<&Mutex<LateTicks>>,
 ) -> SessionEnd {
+    let DriveSpec {
+        axes,
+        layout,
+        period,
+        max_command,
+    } = spec;
     let set_stats = |s: Option<LinkStats>| {
         *stats
             .lock()
@@ -335,6 +351,13 @@ pub fn robot(
         }
         if let Some(why) = failed {
             break Some(SessionEnd::AppFailure(why));
+        }
+        if let (Ok(command), Some(late)) = (&received, late)
+            && command.status == Status::Held
+        {
+            late.lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .push(&link, command.released_at);
         }
         match received {
             Ok(command) => match drive.step(command.values()) {
