@@ -151,6 +151,77 @@ fn a_short_soak_over_lossy_datagrams_without_copies_counts_every_loss() {
     assert_garbage_datagrams_counted(&r);
 }
 
+/// Ctrl-C (SIGINT) stops a soak in order: it reports what it saw so far,
+/// says it was cut short (a non-zero exit), stops its remote, and leaves
+/// none of its throwaway identities behind.
+#[test]
+fn an_interrupted_quic_soak_reports_and_leaves_no_keys_behind() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+    let tmp = std::env::temp_dir().join(format!("ndr-soak-int-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).unwrap();
+    let left = || {
+        std::fs::read_dir(&tmp)
+            .unwrap()
+            .filter_map(Result::ok)
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|name| name.starts_with("ndr-soak-quic"))
+            .collect::<Vec<_>>()
+    };
+    let mut soak = Command::new(env!("CARGO_BIN_EXE_ndr"));
+    soak.args([
+        "soak",
+        "--transport",
+        "quic",
+        "--duration-s",
+        "120",
+        "--json",
+    ])
+    .env("TMPDIR", &tmp)
+    .stdout(std::process::Stdio::piped())
+    .stderr(std::process::Stdio::piped());
+    // In a group of its own, which gets the signal, as the foreground
+    // group at a terminal gets a Ctrl-C.
+    std::os::unix::process::CommandExt::process_group(&mut soak, 0);
+    let mut child = soak.spawn().expect("ndr runs");
+    // Its identities made, then a second or two of soak.
+    let made = std::time::Instant::now();
+    while left().is_empty() {
+        assert!(made.elapsed().as_secs() < 20, "no identities made");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let sent = Command::new("kill")
+        .args(["-INT", "--", &format!("-{}", child.id())])
+        .status()
+        .expect("kill runs");
+    assert!(sent.success());
+    let asked = std::time::Instant::now();
+    let out = loop {
+        if child.try_wait().unwrap().is_some() {
+            break child.wait_with_output().unwrap();
+        }
+        assert!(
+            asked.elapsed().as_secs() < 30,
+            "still running 30 s after SIGINT"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stdout}\n{stderr}");
+    assert!(stderr.contains("interrupted after"), "{stderr}");
+    let r: serde_json::Value = serde_json::from_str(&stdout).expect("one JSON object");
+    assert_eq!(r["interrupted"], true, "{r}");
+    assert_eq!(r["ok"], true, "{r}");
+    assert!(r["ran_s"].as_f64().unwrap() < 60.0, "{r}");
+    assert!(n(&r, "samples_released") > 0, "{r}");
+    // Its remote was stopped, not lost: it is in a group of its own, and
+    // the Ctrl-C was the soak's alone.
+    assert_eq!(n(&r, "remote_crashes"), 0, "{r}");
+    assert_eq!(left(), Vec::<String>::new());
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
 #[test]
 fn bad_options_are_refused() {
     let out = Command::new(env!("CARGO_BIN_EXE_ndr"))

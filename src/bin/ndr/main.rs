@@ -75,7 +75,8 @@ enum Command {
     /// Run a 1 kHz link through the relay under a schedule of faults (relay
     /// restarts, garbage, the remote killed) and check that nothing is lost,
     /// duplicated or reordered without a counter, nothing panics and memory
-    /// stays flat.
+    /// stays flat. Ctrl-C (or SIGTERM) stops it in order: it reports the
+    /// time so far, exits non-zero, and leaves no remote or keys behind.
     Soak(soak::SoakArgs),
     /// Make a self-signed certificate and key (PEM) for a lab setup, and
     /// print its SHA-256 fingerprint (what the peer pins).

@@ -1,5 +1,6 @@
-//! `ndr remote`'s signals: SIGUSR1 prints the listener's counters,
-//! SIGINT and SIGTERM stop it in order.
+//! Signals: `ndr remote`'s (SIGUSR1 prints the listener's counters,
+//! SIGINT and SIGTERM stop it in order), and a long run's stop in order
+//! (`ndr soak`).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -101,4 +102,58 @@ pub fn watch(
         }
     });
     Ok(())
+}
+
+/// SIGINT and SIGTERM set the flag returned (the handlers are in place
+/// when it returns), for a loop that then stops in order; `who` says so on
+/// stderr. A second one ends the process at once.
+#[cfg(unix)]
+pub fn interrupts(
+    rt: &tokio::runtime::Runtime,
+    who: &'static str,
+) -> Result<Arc<AtomicBool>, String> {
+    use tokio::signal::unix::{SignalKind, signal};
+
+    let _runtime = rt.enter();
+    let handler = |kind: SignalKind, name: &str| {
+        signal(kind).map_err(|e| format!("cannot handle {name}: {e}"))
+    };
+    let mut int = handler(SignalKind::interrupt(), "SIGINT")?;
+    let mut term = handler(SignalKind::terminate(), "SIGTERM")?;
+    let flag = Arc::new(AtomicBool::new(false));
+    let set = Arc::clone(&flag);
+    rt.spawn(async move {
+        loop {
+            let name = tokio::select! {
+                Some(()) = int.recv() => "SIGINT",
+                Some(()) = term.recv() => "SIGTERM",
+                else => return,
+            };
+            if set.swap(true, Ordering::Relaxed) {
+                eprintln!("{who}: {name} again: ending now");
+                std::process::exit(130);
+            }
+            eprintln!("{who}: {name}: stopping in order (again to end at once)");
+        }
+    });
+    Ok(flag)
+}
+
+/// Without Unix signals: Ctrl-C.
+#[cfg(not(unix))]
+pub fn interrupts(
+    rt: &tokio::runtime::Runtime,
+    who: &'static str,
+) -> Result<Arc<AtomicBool>, String> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let set = Arc::clone(&flag);
+    rt.spawn(async move {
+        while tokio::signal::ctrl_c().await.is_ok() {
+            if set.swap(true, Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+            eprintln!("{who}: Ctrl-C: stopping in order (again to end at once)");
+        }
+    });
+    Ok(flag)
 }

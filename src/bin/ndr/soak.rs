@@ -240,6 +240,10 @@ struct SoakReport {
     rss_growth_kib: i64,
     remote_rss_peak_kib: u64,
     ended_by: Vec<String>,
+    /// Stopped early by SIGINT or SIGTERM, after `ran_s` of the
+    /// `duration_s` asked: the counters cover that time.
+    interrupted: bool,
+    ran_s: f64,
     ok: bool,
 }
 
@@ -289,10 +293,16 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
     } else {
         print_table(&report);
     }
-    if report.ok {
-        Ok(())
-    } else {
+    if !report.ok {
         Err("the soak found a problem (see the counters above)".into())
+    } else if report.interrupted {
+        Err(format!(
+            "interrupted after {:.0} s of the {:.0} s asked: the counters above cover that \
+             time and found no problem",
+            report.ran_s, report.duration_s
+        ))
+    } else {
+        Ok(())
     }
 }
 
@@ -425,14 +435,20 @@ impl Remote {
         } else {
             std::env::current_exe().map_err(|e| format!("cannot find ndr itself: {e}"))?
         };
-        let mut child = Command::new(exe)
+        let mut command = Command::new(exe);
+        command
             .args(["soak", "--serve", &addr.to_string()])
             .args(["--period-ms", &period_ms.to_string()])
             .args(["--transport", &transport.to_string()])
             .args(&tls)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
-            .stderr(Stdio::null())
+            .stderr(Stdio::null());
+        // A group of its own: a Ctrl-C at the terminal is the soak's to
+        // handle (it stops the remote in order), not a crash of the remote.
+        #[cfg(unix)]
+        std::os::unix::process::CommandExt::process_group(&mut command, 0);
+        let mut child = command
             .spawn()
             .map_err(|e| format!("cannot start the remote: {e}"))?;
         let mut line = String::new();
@@ -602,6 +618,9 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
         }));
     }
     let rt = runtime()?;
+    // Stopped early, it still reports, stops its remote and removes its
+    // identities.
+    let interrupted = crate::signals::interrupts(&rt, "ndr soak")?;
     let hub = Hub::new(config.spin_margin).map_err(|e| e.to_string())?;
     let remote_addr = free_port()?;
     let relay_addr = free_port()?;
@@ -674,7 +693,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     // with what it adds to the report once it passed.
     let mut idle: Vec<tokio::net::TcpStream> = Vec::new();
     let mut checks: Vec<Check> = Vec::new();
-    while StdInstant::now() < end {
+    while StdInstant::now() < end && !interrupted.load(Ordering::Relaxed) {
         join_checks(&mut r, &mut checks, false);
         let now = StdInstant::now();
         if now >= next_sample {
@@ -805,6 +824,8 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
         r.remote_crashes += 1;
     }
     drop(remote);
+    r.interrupted = interrupted.load(Ordering::Relaxed);
+    r.ran_s = start.elapsed().as_secs_f64();
     r.rss_end_kib = rss_kib("/proc/self/statm");
     r.rss_growth_kib = r.rss_end_kib as i64 - rss_after_warm.unwrap_or(r.rss_start_kib) as i64;
     r.panics = panics.load(Ordering::Relaxed);
