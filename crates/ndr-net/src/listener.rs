@@ -17,6 +17,7 @@ mod first;
 mod gate;
 mod handshake;
 mod ledger;
+mod source;
 
 use std::fmt;
 use std::io;

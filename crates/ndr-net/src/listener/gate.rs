@@ -15,7 +15,7 @@
 //! before it. Until its first message is whole, a connection reaches
 //! neither TLS nor the hub.
 
-use std::net::{IpAddr, SocketAddr};
+use std::net::SocketAddr;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
@@ -25,6 +25,7 @@ use tokio::task::{AbortHandle, Id, JoinError, JoinSet};
 
 use super::first::{self, Said};
 use super::handshake::{Progress, handshake};
+use super::source::Source;
 use super::{Common, Refusal};
 use crate::link::Link;
 
@@ -34,24 +35,7 @@ use crate::link::Link;
 const ACCEPT_BACKOFF: StdDuration = StdDuration::from_millis(20);
 /// A handshake that has not got any further for this long is the first
 /// to lose its slot: a real peer moves on within a round trip or two.
-const GRACE: StdDuration = StdDuration::from_millis(100);
-
-/// Where connections come from, for the per-source cap: an IPv4 address,
-/// or an IPv6 /64 (one host may own a whole /64).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-enum Source {
-    V4(std::net::Ipv4Addr),
-    V6Prefix(u64),
-}
-
-impl Source {
-    fn of(ip: IpAddr) -> Source {
-        match ip.to_canonical() {
-            IpAddr::V4(v4) => Source::V4(v4),
-            IpAddr::V6(v6) => Source::V6Prefix((v6.to_bits() >> 64) as u64),
-        }
-    }
-}
+pub(super) const GRACE: StdDuration = StdDuration::from_millis(100);
 
 /// A handshake under way.
 struct Pending {
@@ -271,23 +255,4 @@ impl Gate {
 /// no orderly goodbye, and this side keeps no TIME_WAIT for it.
 fn reset(stream: &TcpStream) {
     let _ = stream.set_zero_linger();
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sources_are_addresses_and_ipv6_prefixes() {
-        let a: IpAddr = "192.0.2.1".parse().expect("v4");
-        let mapped: IpAddr = "::ffff:192.0.2.1".parse().expect("mapped");
-        assert_eq!(Source::of(a), Source::of(mapped));
-        let (x, y, z): (IpAddr, IpAddr, IpAddr) = (
-            "2001:db8:1:2::1".parse().expect("v6"),
-            "2001:db8:1:2:ffff::9".parse().expect("v6"),
-            "2001:db8:1:3::1".parse().expect("v6"),
-        );
-        assert_eq!(Source::of(x), Source::of(y));
-        assert_ne!(Source::of(x), Source::of(z));
-    }
 }
