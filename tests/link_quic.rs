@@ -354,68 +354,172 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     assert!(base_stats.endpoint.samples_lost <= 2, "{base_stats:?}");
 }
 
-#[test]
-fn a_stranger_that_never_finishes_its_handshake_does_not_keep_its_slot() {
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, Ordering};
+/// A UDP path to `upstream` that passes a client's first packet (its
+/// Initial: the listener takes it as a new connection), sent from `ip`,
+/// and nothing after: the client's handshake stalls at the listener.
+struct Hole {
+    addr: SocketAddr,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
 
-    let _serial = common::serial();
-    let certs = Certs::new("stalled");
-    let rt = common::runtime();
-    // One handshake at a time, half a second each.
-    let mut remote_tls = tls(&certs.remote, &certs.base);
-    remote_tls.max_pending_handshakes = 1;
-    let mut remote_config = config().with_tls(remote_tls);
-    remote_config.admission.preauth_timeout = Duration::from_millis(500);
-    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
-    let upstream = listener.local_addr().unwrap();
-    // A path that passes the stranger's first packet (its Initial: the
-    // listener takes it as a new connection) and nothing after.
-    let hole = std::net::UdpSocket::bind(any).unwrap();
-    hole.set_read_timeout(Some(std::time::Duration::from_millis(50)))
-        .unwrap();
-    let hole_addr = hole.local_addr().unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let stopped = Arc::clone(&stop);
-    let forwarder = std::thread::spawn(move || {
-        let mut buf = [0u8; 2048];
-        let mut passed = false;
-        while !stopped.load(Ordering::Relaxed) {
-            if let Ok((n, _)) = hole.recv_from(&mut buf)
-                && !passed
-            {
-                let _ = hole.send_to(&buf[..n], upstream);
-                passed = true;
+impl Hole {
+    fn new(upstream: SocketAddr, ip: &str) -> Hole {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let hole = std::net::UdpSocket::bind((ip, 0)).unwrap();
+        hole.set_read_timeout(Some(std::time::Duration::from_millis(50)))
+            .unwrap();
+        let addr = hole.local_addr().unwrap();
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let stopped = std::sync::Arc::clone(&stop);
+        let thread = std::thread::spawn(move || {
+            let mut buf = [0u8; 2048];
+            let mut passed = false;
+            while !stopped.load(Ordering::Relaxed) {
+                if let Ok((n, from)) = hole.recv_from(&mut buf)
+                    && !passed
+                    && from != upstream
+                {
+                    let _ = hole.send_to(&buf[..n], upstream);
+                    passed = true;
+                }
             }
+        });
+        Hole {
+            addr,
+            stop,
+            thread: Some(thread),
         }
-    });
-    let mut stranger = tls(&certs.base, &certs.remote);
+    }
+}
+
+impl Drop for Hole {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Strangers (trusted by nobody here, but that is never found out) whose
+/// handshakes with the listener at `upstream` stall, one from each of
+/// `ips`, all at once; each gives up after 300 ms, its handshake left
+/// pending at the listener.
+fn stall(rt: &tokio::runtime::Runtime, certs: &Certs, upstream: SocketAddr, ips: &[&str]) {
+    let holes: Vec<Hole> = ips.iter().map(|ip| Hole::new(upstream, ip)).collect();
+    let mut stranger = tls(&certs.other, &certs.remote);
     stranger.handshake_timeout = std::time::Duration::from_millis(300);
-    let stalled = rt.block_on(Link::connect(hole_addr, config().with_tls(stranger)));
-    assert!(
-        matches!(
-            stalled,
-            Err(NetError::Handshake(HandshakeError::Timeout(_)))
-        ),
-        "{stalled:?}"
-    );
-    // The stranger holds the only slot until its budget ends: then the
-    // good base gets in.
-    let good = tls(&certs.base, &certs.remote);
+    let tries: Vec<_> = holes
+        .iter()
+        .map(|h| rt.spawn(Link::connect(h.addr, config().with_tls(stranger.clone()))))
+        .collect();
+    for t in tries {
+        let stalled = rt.block_on(t).unwrap();
+        assert!(
+            matches!(
+                stalled,
+                Err(NetError::Handshake(HandshakeError::Timeout(_)))
+            ),
+            "{stalled:?}"
+        );
+    }
+}
+
+/// A listener with `slots` handshakes at once, `per_source` per source,
+/// and a budget long enough that strangers hold their slots throughout a
+/// test unless evicted.
+fn guarded_listener(
+    rt: &tokio::runtime::Runtime,
+    certs: &Certs,
+    slots: usize,
+    per_source: usize,
+) -> Listener {
+    let mut remote_tls = tls(&certs.remote, &certs.base);
+    remote_tls.max_pending_handshakes = slots;
+    remote_tls.handshake_timeout = std::time::Duration::from_secs(20);
+    let mut remote_config = config().with_tls(remote_tls);
+    remote_config.admission.preauth_timeout = Duration::from_secs(20);
+    remote_config.admission.max_pending_per_source = per_source;
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    rt.block_on(Listener::bind(any, remote_config)).unwrap()
+}
+
+/// The good base connects to `listener` from 127.0.0.1 and is accepted
+/// within 2 s (well within both budgets).
+fn good_base_gets_in(rt: &tokio::runtime::Runtime, certs: &Certs, listener: &Listener) {
+    let mut good = tls(&certs.base, &certs.remote);
+    good.handshake_timeout = std::time::Duration::from_secs(2);
+    let addr = listener.local_addr().unwrap();
     let (remote, base) = rt.block_on(async {
-        let accept = tokio::time::timeout(std::time::Duration::from_secs(5), listener.accept());
-        tokio::join!(accept, Link::connect(upstream, config().with_tls(good)))
+        let accept = tokio::time::timeout(std::time::Duration::from_secs(2), listener.accept());
+        tokio::join!(accept, Link::connect(addr, config().with_tls(good)))
     });
     assert!(
         remote.as_ref().is_ok_and(Result::is_ok) && base.is_ok(),
-        "{remote:?} {base:?}"
+        "{remote:?} {base:?} {:?}",
+        listener.stats()
     );
+}
+
+#[test]
+fn a_stranger_that_never_finishes_its_handshake_does_not_keep_its_slot() {
+    let _serial = common::serial();
+    let certs = Certs::new("stalled");
+    let rt = common::runtime();
+    // One handshake at a time.
+    let listener = guarded_listener(&rt, &certs, 1, 8);
+    stall(&rt, &certs, listener.local_addr().unwrap(), &["127.0.0.1"]);
+    // The stranger holds the only slot until the good base comes: the base
+    // takes it.
+    good_base_gets_in(&rt, &certs, &listener);
     let stats = listener.stats();
-    assert_eq!(stats.timeouts, 1, "{stats:?}");
+    assert_eq!(stats.evicted, 1, "{stats:?}");
     assert_eq!(stats.accepted, 1, "{stats:?}");
-    stop.store(true, Ordering::Relaxed);
-    forwarder.join().unwrap();
+    assert_eq!(stats.timeouts, 0, "{stats:?}");
+}
+
+#[test]
+fn one_source_may_hold_only_a_few_pending_quic_handshakes() {
+    let _serial = common::serial();
+    let certs = Certs::new("per-source");
+    let rt = common::runtime();
+    let listener = guarded_listener(&rt, &certs, 8, 2);
+    // Five from one address: two get a slot, three are refused at once.
+    let upstream = listener.local_addr().unwrap();
+    stall(&rt, &certs, upstream, &["127.0.0.2"; 5]);
+    let stats = listener.stats();
+    assert_eq!(stats.refused_per_source, 3, "{stats:?}");
+    // Another address is not held back by that one.
+    stall(&rt, &certs, upstream, &["127.0.0.3"]);
+    good_base_gets_in(&rt, &certs, &listener);
+    let stats = listener.stats();
+    assert_eq!(stats.refused_per_source, 3, "{stats:?}");
+    assert_eq!(stats.evicted, 0, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+}
+
+#[test]
+fn strangers_holding_every_quic_slot_make_room_for_a_base() {
+    let _serial = common::serial();
+    let certs = Certs::new("evicted");
+    let rt = common::runtime();
+    // Two slots, each held by a stranger from its own address.
+    let listener = guarded_listener(&rt, &certs, 2, 8);
+    let upstream = listener.local_addr().unwrap();
+    stall(&rt, &certs, upstream, &["127.0.0.2", "127.0.0.3"]);
+    good_base_gets_in(&rt, &certs, &listener);
+    let stats = listener.stats();
+    assert_eq!(stats.evicted, 1, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    assert_eq!(stats.refused_per_source, 0, "{stats:?}");
+    assert_eq!(stats.timeouts, 0, "{stats:?}");
+    // And again: the newcomer evicts the remaining stranger, not a link.
+    stall(&rt, &certs, upstream, &["127.0.0.4"]);
+    good_base_gets_in(&rt, &certs, &listener);
+    let stats = listener.stats();
+    assert_eq!(stats.evicted, 2, "{stats:?}");
+    assert_eq!(stats.accepted, 2, "{stats:?}");
 }
 
 #[test]

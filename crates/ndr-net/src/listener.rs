@@ -12,17 +12,24 @@
 //! when all are taken. Peers that never authenticate therefore cannot lock
 //! out one who does. Every refusal is counted by reason
 //! ([`ListenerStats`]) and logged, at most one line per reason a second.
+//!
+//! A QUIC listener's hub accepts connections and runs their handshakes, so
+//! the listener sees only when each starts and ends: the same slots and
+//! cap per source apply, and when all slots are taken the newcomer takes
+//! that of the oldest pending handshake of the source holding the most
+//! (one younger than a round trip or two goes last).
 
 mod first;
 mod gate;
 mod handshake;
 mod ledger;
+mod quic_slots;
 mod source;
 
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use ndr_core::endpoint::{LinkError, Phase, Transport};
@@ -371,48 +378,72 @@ impl Listener {
         };
         let key = hub.next_id();
         let stray = Arc::new(AtomicU64::new(0));
-        let slots = tls.max_pending_handshakes.max(1);
         let accept_queue = config.admission.accept_queue.max(1);
         let udp = DatagramSocket {
             hub: hub.clone(),
             key,
             stray: Arc::clone(&stray),
         };
+        let slots = quic_slots::Slots::new(
+            tls.max_pending_handshakes,
+            config.admission.max_pending_per_source,
+        );
         let common = Common::new(config, Some(udp), Some(tls.clone()), hubs);
         let (tx, rx) = mpsc::channel(accept_queue);
-        let (started_tx, mut started_rx) = mpsc::channel::<Link>(slots);
-        let pending = Arc::new(AtomicUsize::new(0));
+        // Room for every slot twice: an evicted handshake's link may wait
+        // here for its task beside the one that took its slot.
+        let (started_tx, mut started_rx) =
+            mpsc::channel::<(Link, quic_slots::Slot)>(2 * slots.capacity());
         let accept = {
             let common = Arc::clone(&common);
-            let pending = Arc::clone(&pending);
             let hub = hub.clone();
-            move |handle, conn| {
-                // Every handshake slot taken: quinn closes the connection.
-                if pending.load(Ordering::Relaxed) >= slots {
+            // Runs on the hub's thread: it must never wait on the hub.
+            move |handle, conn: quinn_proto::Connection| {
+                let peer = conn.remote_address();
+                let admitted = match slots.admit(peer, std::time::Instant::now()) {
+                    Ok(admitted) => admitted,
+                    // quinn closes the connection.
+                    Err(full) => {
+                        common.refuse(
+                            Refusal::PerSource,
+                            peer,
+                            &format_args!(
+                                "{} QUIC handshakes from its source are already pending, the \
+                                 most one source may have \
+                                 (LinkConfig::admission.max_pending_per_source)",
+                                full.held
+                            ),
+                        );
+                        return None;
+                    }
+                };
+                if let Some(gone) = admitted.evicted {
                     common.refuse(
                         Refusal::Evicted,
-                        None,
-                        &"every QUIC handshake slot is taken (TlsConfig::max_pending_handshakes)",
+                        gone,
+                        &format_args!(
+                            "its QUIC handshake was cut short to make room: all {} handshake \
+                             slots were taken (TlsConfig::max_pending_handshakes), and it was \
+                             the oldest of the source holding the most",
+                            slots.capacity()
+                        ),
                     );
-                    return None;
                 }
                 let (role, _) = common.setup();
                 let path = QuicPath::new(key, handle, conn);
                 let (id, entry, link) = match Link::start_quic(&common.config, role, &hub, path) {
                     Ok(started) => started,
                     Err(e) => {
-                        common.refuse(Refusal::of_link(&e), None, &e);
+                        common.refuse(Refusal::of_link(&e), peer, &e);
                         return None;
                     }
                 };
-                pending.fetch_add(1, Ordering::Relaxed);
-                match started_tx.try_send(link) {
+                match started_tx.try_send((link, admitted.slot)) {
                     Ok(()) => Some((id, entry)),
                     Err(
-                        mpsc::error::TrySendError::Full(link)
-                        | mpsc::error::TrySendError::Closed(link),
+                        mpsc::error::TrySendError::Full((link, _))
+                        | mpsc::error::TrySendError::Closed((link, _)),
                     ) => {
-                        pending.fetch_sub(1, Ordering::Relaxed);
                         // Not dropped here: that would wait on this hub.
                         link.dismiss(LinkError::Busy);
                         None
@@ -438,13 +469,8 @@ impl Listener {
         let handshakes = {
             let common = Arc::clone(&common);
             async move {
-                while let Some(link) = started_rx.recv().await {
-                    let task = handshake::quic(
-                        Arc::clone(&common),
-                        link,
-                        Arc::clone(&pending),
-                        tx.clone(),
-                    );
+                while let Some((link, slot)) = started_rx.recv().await {
+                    let task = handshake::quic(Arc::clone(&common), link, slot, tx.clone());
                     tokio::spawn(task);
                 }
             }

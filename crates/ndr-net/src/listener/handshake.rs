@@ -16,6 +16,7 @@ use tokio::sync::mpsc;
 use tokio::time::Instant as TokioInstant;
 
 use super::first::{self, Heard};
+use super::quic_slots::Slot;
 use super::{Common, Refusal};
 use crate::link::Link;
 use crate::tls::HandshakeError;
@@ -200,14 +201,9 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
 
 /// A QUIC link its listener's hub accepted: its handshakes (QUIC's TLS,
 /// then ndr's Hello, both on the hub) within the pre-authentication
-/// budget, then its place in the accept queue; `pending` counts it until
-/// then.
-pub(super) async fn quic(
-    common: Arc<Common>,
-    link: Link,
-    pending: Arc<AtomicUsize>,
-    ready: mpsc::Sender<Link>,
-) {
+/// budget, then its place in the accept queue; it holds `slot` until then,
+/// unless a newcomer takes it first (the link then ends as busy).
+pub(super) async fn quic(common: Arc<Common>, link: Link, slot: Slot, ready: mpsc::Sender<Link>) {
     let budget: StdDuration = common.config.admission.preauth_timeout.into();
     // QUIC's own handshake timeout is TLS's.
     let budget = match &common.tls {
@@ -225,11 +221,20 @@ pub(super) async fn quic(
         )
     };
     let peer = link.peer_addr();
-    let outcome = hello(link, deadline, late).await;
-    pending.fetch_sub(1, Ordering::Relaxed);
+    let outcome = tokio::select! {
+        // The handshake first: once polled it owns the link, and dropping
+        // it then ends the link as busy instead of waiting on the hub.
+        biased;
+        outcome = hello(link, deadline, late) => Some(outcome),
+        () = slot.cut() => None,
+    };
+    // Evicted (counted then): its link has been ended as busy, or is now.
+    let held = slot.release();
     match outcome {
-        Ok(link) => enqueue(&common, link, peer, &ready),
-        Err((why, what)) => common.refuse(why, peer, &what),
+        Some(Ok(link)) if held => enqueue(&common, link, peer, &ready),
+        Some(Ok(link)) => link.dismiss(LinkError::Busy),
+        Some(Err((why, what))) if held => common.refuse(why, peer, &what),
+        Some(Err(_)) | None => {}
     }
 }
 
