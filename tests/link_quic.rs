@@ -356,7 +356,10 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
 
 /// A UDP path to `upstream` that passes a client's first packet (its
 /// Initial: the listener takes it as a new connection), sent from `ip`,
-/// and nothing after: the client's handshake stalls at the listener.
+/// and nothing after: the client's handshake stalls at the listener. If
+/// the listener asks the client to prove its address (a QUIC Retry), the
+/// Retry and the client's answer pass too, unless the hole is `blind`,
+/// standing for a spoofed source that never gets what is sent to it.
 struct Hole {
     addr: SocketAddr,
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
@@ -364,7 +367,7 @@ struct Hole {
 }
 
 impl Hole {
-    fn new(upstream: SocketAddr, ip: &str) -> Hole {
+    fn new(upstream: SocketAddr, ip: &str, blind: bool) -> Hole {
         use std::sync::atomic::{AtomicBool, Ordering};
         let hole = std::net::UdpSocket::bind((ip, 0)).unwrap();
         hole.set_read_timeout(Some(std::time::Duration::from_millis(50)))
@@ -374,14 +377,29 @@ impl Hole {
         let stopped = std::sync::Arc::clone(&stop);
         let thread = std::thread::spawn(move || {
             let mut buf = [0u8; 2048];
-            let mut passed = false;
+            // Client packets still to pass, and where the client is.
+            let mut to_pass = 1;
+            let mut client = None;
+            let mut retried = false;
             while !stopped.load(Ordering::Relaxed) {
-                if let Ok((n, from)) = hole.recv_from(&mut buf)
-                    && !passed
-                    && from != upstream
+                let Ok((n, from)) = hole.recv_from(&mut buf) else {
+                    continue;
+                };
+                if from != upstream {
+                    client = Some(from);
+                    if to_pass > 0 {
+                        let _ = hole.send_to(&buf[..n], upstream);
+                        to_pass -= 1;
+                    }
+                } else if let Some(client) = client
+                    && !blind
+                    && !retried
+                    // A long header of type Retry.
+                    && buf[0] & 0xf0 == 0xf0
                 {
-                    let _ = hole.send_to(&buf[..n], upstream);
-                    passed = true;
+                    let _ = hole.send_to(&buf[..n], client);
+                    retried = true;
+                    to_pass += 1;
                 }
             }
         });
@@ -404,10 +422,19 @@ impl Drop for Hole {
 
 /// Strangers (trusted by nobody here, but that is never found out) whose
 /// handshakes with the listener at `upstream` stall, one from each of
-/// `ips`, all at once; each gives up after 300 ms, its handshake left
-/// pending at the listener.
-fn stall(rt: &tokio::runtime::Runtime, certs: &Certs, upstream: SocketAddr, ips: &[&str]) {
-    let holes: Vec<Hole> = ips.iter().map(|ip| Hole::new(upstream, ip)).collect();
+/// `ips`, all at once, through [`Hole`]s; each gives up after 300 ms, its
+/// handshake left pending at the listener if it got a slot.
+fn stall_through(
+    rt: &tokio::runtime::Runtime,
+    certs: &Certs,
+    upstream: SocketAddr,
+    ips: &[&str],
+    blind: bool,
+) {
+    let holes: Vec<Hole> = ips
+        .iter()
+        .map(|ip| Hole::new(upstream, ip, blind))
+        .collect();
     let mut stranger = tls(&certs.other, &certs.remote);
     stranger.handshake_timeout = std::time::Duration::from_millis(300);
     let tries: Vec<_> = holes
@@ -424,6 +451,11 @@ fn stall(rt: &tokio::runtime::Runtime, certs: &Certs, upstream: SocketAddr, ips:
             "{stalled:?}"
         );
     }
+}
+
+/// Strangers that get what is sent to them stall (see [`stall_through`]).
+fn stall(rt: &tokio::runtime::Runtime, certs: &Certs, upstream: SocketAddr, ips: &[&str]) {
+    stall_through(rt, certs, upstream, ips, false);
 }
 
 /// A listener with `slots` handshakes at once, `per_source` per source,
@@ -477,6 +509,8 @@ fn a_stranger_that_never_finishes_its_handshake_does_not_keep_its_slot() {
     assert_eq!(stats.evicted, 1, "{stats:?}");
     assert_eq!(stats.accepted, 1, "{stats:?}");
     assert_eq!(stats.timeouts, 0, "{stats:?}");
+    // The only slot taken, the base proved its address first.
+    assert_eq!(stats.retried, 1, "{stats:?}");
 }
 
 #[test]
@@ -520,6 +554,34 @@ fn strangers_holding_every_quic_slot_make_room_for_a_base() {
     let stats = listener.stats();
     assert_eq!(stats.evicted, 2, "{stats:?}");
     assert_eq!(stats.accepted, 2, "{stats:?}");
+}
+
+#[test]
+fn once_half_the_quic_slots_are_taken_spoofed_sources_take_none() {
+    let _serial = common::serial();
+    let certs = Certs::new("retry");
+    let rt = common::runtime();
+    let listener = guarded_listener(&rt, &certs, 2, 8);
+    let upstream = listener.local_addr().unwrap();
+    // One stranger takes half the slots; then sources that never get what
+    // is sent to them are asked to prove their address, and cannot.
+    stall(&rt, &certs, upstream, &["127.0.0.2"]);
+    stall_through(
+        &rt,
+        &certs,
+        upstream,
+        &["127.0.0.3", "127.0.0.4", "127.0.0.5"],
+        true,
+    );
+    let stats = listener.stats();
+    assert_eq!(stats.retried, 3, "{stats:?}");
+    assert_eq!(stats.evicted, 0, "{stats:?}");
+    // The base proves its address and takes the free slot: no one evicted.
+    good_base_gets_in(&rt, &certs, &listener);
+    let stats = listener.stats();
+    assert_eq!(stats.retried, 4, "{stats:?}");
+    assert_eq!(stats.evicted, 0, "{stats:?}");
+    assert_eq!(stats.accepted, 1, "{stats:?}");
 }
 
 #[test]

@@ -270,6 +270,10 @@ class ListenerStats(TypedDict):
     datagrams_stray: int
     """Datagram transport: datagrams to the listener's UDP port with no
     token of a link it accepted (strays, spoofs, cut short), dropped."""
+    retried: int
+    """QUIC: new connections asked to prove their address first (a
+    stateless Retry) because half the handshake slots or more were
+    taken; a spoofed source never answers and takes no slot."""
 
 
 class LinkStats(TypedDict):
@@ -989,9 +993,9 @@ class Listener:
         mode), ``refused_wire_version``, ``refused_protocol``; ``timeouts``,
         ``failed_other``; and those the listener turned away before they
         authenticated or after: ``evicted``, ``refused_per_source``,
-        ``refused_busy``, ``unclaimed``; ``accept_errors``. Connections are
-        accepted and handshaken in the background, also while the
-        application is busy with a link."""
+        ``refused_busy``, ``unclaimed``; ``accept_errors``; over QUIC,
+        ``retried``. Connections are accepted and handshaken in the
+        background, also while the application is busy with a link."""
         return self._native.stats
 
     def close(self) -> None:

@@ -16,7 +16,7 @@ mod quic;
 mod tls_io;
 mod udp;
 
-pub(crate) use quic::{NewEndpoint, QuicPath};
+pub(crate) use quic::{NewEndpoint, QuicPath, Server as QuicServer};
 pub(crate) use tls_io::Session;
 pub(crate) use udp::{DatagramPath, NewSocket, bind as bind_datagram_socket};
 

@@ -17,7 +17,10 @@
 //! the listener sees only when each starts and ends: the same slots and
 //! cap per source apply, and when all slots are taken the newcomer takes
 //! that of the oldest pending handshake of the source holding the most
-//! (one younger than a round trip or two goes last).
+//! (one younger than a round trip or two goes last). Once half the slots
+//! are taken, a new connection must first prove it gets what is sent to
+//! its address (QUIC's stateless Retry), so that spoofed sources take
+//! none.
 
 mod first;
 mod gate;
@@ -40,7 +43,7 @@ use tokio::sync::mpsc;
 
 use crate::config::LinkConfig;
 use crate::error::NetError;
-use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, bind_datagram_socket};
+use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, QuicServer, bind_datagram_socket};
 use crate::link::{Link, not_in_a_runtime, own_runtime, plain_allowed};
 use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
@@ -109,6 +112,12 @@ pub struct ListenerStats {
     /// or not samples), or over QUIC that no connection took and that did
     /// not open one, dropped.
     pub datagrams_stray: u64,
+    /// QUIC: new connections asked to prove their address first (a
+    /// stateless Retry, answered by the peer's QUIC without a round trip
+    /// of the application's) because at least half the handshake slots
+    /// were taken. A source that does not get what is sent to it (a
+    /// spoofed one) never answers and takes no slot.
+    pub retried: u64,
 }
 
 /// Where a listener puts the links it accepts.
@@ -129,6 +138,8 @@ struct DatagramSocket {
     hub: Hub,
     key: u64,
     stray: Arc<AtomicU64>,
+    /// QUIC's Retries ([`ListenerStats::retried`]).
+    retried: Arc<AtomicU64>,
 }
 
 /// What the listener, its accept loop and its handshakes share.
@@ -274,7 +285,12 @@ fn datagram_socket(local: SocketAddr, hubs: &Hubs) -> Result<DatagramSocket, Net
             "the listener's hub thread has stopped",
         )));
     }
-    Ok(DatagramSocket { hub, key, stray })
+    Ok(DatagramSocket {
+        hub,
+        key,
+        stray,
+        retried: Arc::default(),
+    })
 }
 
 fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
@@ -378,11 +394,13 @@ impl Listener {
         };
         let key = hub.next_id();
         let stray = Arc::new(AtomicU64::new(0));
+        let retried = Arc::new(AtomicU64::new(0));
         let accept_queue = config.admission.accept_queue.max(1);
         let udp = DatagramSocket {
             hub: hub.clone(),
             key,
             stray: Arc::clone(&stray),
+            retried: Arc::clone(&retried),
         };
         let slots = quic_slots::Slots::new(
             tls.max_pending_handshakes,
@@ -397,6 +415,7 @@ impl Listener {
         let accept = {
             let common = Arc::clone(&common);
             let hub = hub.clone();
+            let slots = Arc::clone(&slots);
             // Runs on the hub's thread: it must never wait on the hub.
             move |handle, conn: quinn_proto::Connection| {
                 let peer = conn.remote_address();
@@ -454,7 +473,12 @@ impl Listener {
         let server = Arc::new(server);
         let point = NewEndpoint {
             endpoint: crate::quic::endpoint(Some(Arc::clone(&server))),
-            server: Some((server, Box::new(accept))),
+            server: Some(QuicServer {
+                config: server,
+                accept: Box::new(accept),
+                crowded: Box::new(move || slots.crowded()),
+                retried,
+            }),
         };
         let new = NewSocket {
             socket,
@@ -548,6 +572,7 @@ impl Listener {
             .stats;
         if let Some(udp) = &self.common.udp {
             stats.datagrams_stray = udp.stray.load(Ordering::Relaxed);
+            stats.retried = udp.retried.load(Ordering::Relaxed);
         }
         stats
     }

@@ -50,8 +50,19 @@ pub(crate) type Accept =
 /// A QUIC endpoint handed to a hub ([`super::Msg::Quic`]).
 pub(crate) struct NewEndpoint {
     pub endpoint: quinn_proto::Endpoint,
-    /// A listener's: the server configuration and what builds the links.
-    pub server: Option<(Arc<quinn_proto::ServerConfig>, Accept)>,
+    /// A listener's: what it accepts connections with.
+    pub server: Option<Server>,
+}
+
+/// A listener's side of its endpoint.
+pub(crate) struct Server {
+    pub config: Arc<quinn_proto::ServerConfig>,
+    pub accept: Accept,
+    /// Whether the listener is crowded: a new connection from an address
+    /// not validated yet must then prove it first (a stateless Retry).
+    pub crowded: Box<dyn Fn() -> bool + Send>,
+    /// Retries sent.
+    pub retried: Arc<AtomicU64>,
 }
 
 /// One link's QUIC connection.
@@ -113,7 +124,7 @@ struct Point {
     endpoint: quinn_proto::Endpoint,
     /// Connection → link id.
     links: HashMap<ConnectionHandle, u64>,
-    server: Option<(Arc<quinn_proto::ServerConfig>, Accept)>,
+    server: Option<Server>,
     /// The socket's count of datagrams no connection took.
     stray: Arc<AtomicU64>,
 }
@@ -258,19 +269,38 @@ impl Quic {
                             }
                         }
                         Some(DatagramEvent::NewConnection(incoming)) => {
-                            let Some((config, accept)) = point.server.as_mut() else {
+                            let Some(server) = point.server.as_mut() else {
                                 point.endpoint.ignore(incoming);
                                 stray();
                                 continue;
                             };
                             self.buf.clear();
+                            // Under load a peer must show it gets what is
+                            // sent to its address before it takes a slot:
+                            // a spoofed source cannot, and costs no state.
+                            if !incoming.remote_address_validated() && (server.crowded)() {
+                                match point.endpoint.retry(incoming, &mut self.buf) {
+                                    Ok(t) => {
+                                        server.retried.fetch_add(1, Ordering::Relaxed);
+                                        udp.out.push_to(
+                                            key,
+                                            u64::MAX,
+                                            t.destination,
+                                            slice(&self.buf, &t),
+                                        );
+                                    }
+                                    // Not validated, so always retriable.
+                                    Err(e) => point.endpoint.ignore(e.into_incoming()),
+                                }
+                                continue;
+                            }
                             match point.endpoint.accept(
                                 incoming,
                                 at,
                                 &mut self.buf,
-                                Some(Arc::clone(config)),
+                                Some(Arc::clone(&server.config)),
                             ) {
-                                Ok((handle, conn)) => match accept(handle, conn) {
+                                Ok((handle, conn)) => match (server.accept)(handle, conn) {
                                     Some((id, entry)) => {
                                         point.links.insert(handle, id);
                                         accepted.push((id, entry));

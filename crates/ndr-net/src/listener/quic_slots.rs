@@ -72,6 +72,12 @@ impl Slots {
         self.slots
     }
 
+    /// Whether half the slots or more are taken: new connections must
+    /// then prove their address before they get one.
+    pub(super) fn crowded(&self) -> bool {
+        2 * self.held().pending.len() >= self.slots
+    }
+
     fn held(&self) -> std::sync::MutexGuard<'_, Held> {
         self.held.lock().unwrap_or_else(PoisonError::into_inner)
     }
@@ -203,6 +209,19 @@ mod tests {
         assert!(slots.held().pending.is_empty());
         let again = slots.admit(peer("192.0.2.1"), t).ok().expect("a slot");
         assert!(again.evicted.is_none());
+    }
+
+    #[test]
+    fn half_the_slots_taken_is_crowded() {
+        let slots = Slots::new(4, 8);
+        let t = StdInstant::now();
+        let a = slots.admit(peer("192.0.2.1"), t).ok().expect("a slot");
+        assert!(!slots.crowded());
+        let b = slots.admit(peer("192.0.2.2"), t).ok().expect("a slot");
+        assert!(slots.crowded());
+        drop(a);
+        assert!(!slots.crowded());
+        drop(b);
     }
 
     #[test]
