@@ -521,13 +521,7 @@ pub fn operator(
                         }
                     }
                 }
-                if let Some(late) = late
-                    && s.status == Status::Held
-                {
-                    late.lock()
-                        .unwrap_or_else(std::sync::PoisonError::into_inner)
-                        .push(&link, s.released_at);
-                }
+                pauses::note(late, &link, &s);
                 let row = Row {
                     t_s: t,
                     seq: s.seq,

@@ -15,8 +15,9 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
+use ndr::core::endpoint::Status;
 use ndr::core::time::Instant;
-use ndr::net::Link;
+use ndr::net::{Link, Sample};
 
 /// How long the watcher sleeps at a time.
 const NAP: StdDuration = StdDuration::from_millis(1);
@@ -99,10 +100,21 @@ pub struct LateTicks {
     at: Vec<StdInstant>,
 }
 
+/// Notes `sample` in `late` if its tick went without it (held).
+pub fn note(late: Option<&Mutex<LateTicks>>, link: &Link, sample: &Sample) {
+    if let Some(late) = late
+        && sample.status == Status::Held
+    {
+        late.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(link, sample.released_at);
+    }
+}
+
 impl LateTicks {
     /// A tick `link` released at `released_at` (its clock) went without
     /// its sample.
-    pub fn push(&mut self, link: &Link, released_at: Instant) {
+    fn push(&mut self, link: &Link, released_at: Instant) {
         if self.at.len() >= MAX_KEPT {
             return;
         }

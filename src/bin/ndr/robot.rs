@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration as StdDuration;
 
 use ndr::core::arx::{Tf2, Tf2State};
-use ndr::core::endpoint::{Event, LinkError, Status};
+use ndr::core::endpoint::{Event, LinkError};
 use ndr::core::time::Duration;
 use ndr::core::wire::close_reason;
 use ndr::net::{Link, LinkStats, NetError};
@@ -352,12 +352,8 @@ pub fn robot(
         if let Some(why) = failed {
             break Some(SessionEnd::AppFailure(why));
         }
-        if let (Ok(command), Some(late)) = (&received, late)
-            && command.status == Status::Held
-        {
-            late.lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .push(&link, command.released_at);
+        if let Ok(command) = &received {
+            crate::pauses::note(late, &link, command);
         }
         match received {
             Ok(command) => match drive.step(command.values()) {

@@ -57,12 +57,9 @@ pub fn watch(
     listener: Arc<Listener>,
     stop: Arc<Stop>,
 ) -> Result<(), String> {
-    use tokio::signal::unix::{SignalKind, signal};
+    use tokio::signal::unix::SignalKind;
 
     let _runtime = rt.enter();
-    let handler = |kind: SignalKind, name: &str| {
-        signal(kind).map_err(|e| format!("cannot handle {name}: {e}"))
-    };
     let mut usr1 = handler(SignalKind::user_defined1(), "SIGUSR1")?;
     let mut int = handler(SignalKind::interrupt(), "SIGINT")?;
     let mut term = handler(SignalKind::terminate(), "SIGTERM")?;
@@ -112,12 +109,9 @@ pub fn interrupts(
     rt: &tokio::runtime::Runtime,
     who: &'static str,
 ) -> Result<Arc<AtomicBool>, String> {
-    use tokio::signal::unix::{SignalKind, signal};
+    use tokio::signal::unix::SignalKind;
 
     let _runtime = rt.enter();
-    let handler = |kind: SignalKind, name: &str| {
-        signal(kind).map_err(|e| format!("cannot handle {name}: {e}"))
-    };
     let mut int = handler(SignalKind::interrupt(), "SIGINT")?;
     let mut term = handler(SignalKind::terminate(), "SIGTERM")?;
     let flag = Arc::new(AtomicBool::new(false));
@@ -156,4 +150,13 @@ pub fn interrupts(
         }
     });
     Ok(flag)
+}
+
+/// A stream of `kind` signals; `name` for the error.
+#[cfg(unix)]
+fn handler(
+    kind: tokio::signal::unix::SignalKind,
+    name: &str,
+) -> Result<tokio::signal::unix::Signal, String> {
+    tokio::signal::unix::signal(kind).map_err(|e| format!("cannot handle {name}: {e}"))
 }
