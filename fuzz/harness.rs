@@ -32,8 +32,8 @@
 
 use ndr_core::drive::{self, Turn};
 use ndr_core::endpoint::{
-    Config, DatagramError, Endpoint, Event, LinkError, Mode, Phase, Stats, Status, Transport,
-    Underflow,
+    Config, DatagramError, Endpoint, Event, LinkError, Mode, Origin, Phase, Stats, Status,
+    Transport, Underflow,
 };
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
@@ -125,6 +125,7 @@ fn round_trip<T: AsRef<[u8]>>(frame: &Frame<T>) {
         Payload::Hello(h) => Message::Hello(h),
         Payload::Control(c) => Message::Control(c),
         Payload::Close(c) => Message::Close(c),
+        Payload::Token(t) => Message::Token(t),
     };
     // As long as the frame: a re-encoding that needs more is not the same.
     let mut buf = vec![0u8; frame.as_bytes().len()];
@@ -393,7 +394,13 @@ pub fn pair_stats(data: &[u8]) -> Option<[Stats; 2]> {
                     input.take(n).to_vec()
                 };
                 if bytes.get(5) == Some(&(wire::Kind::Bundle as u8)) {
-                    let _ = pair.endpoint(side).handle_datagram(now, &bytes);
+                    // From the path, or from an address not validated.
+                    let origin = if input.byte() & 1 == 0 {
+                        Origin::Path
+                    } else {
+                        Origin::Elsewhere
+                    };
+                    let _ = pair.endpoint(side).handle_datagram(now, &bytes, origin);
                 } else {
                     let _ = pair.endpoint(side).handle_frame(now, &bytes);
                 }
@@ -1023,7 +1030,7 @@ impl DgramLink {
         let i = side as usize;
         let ep = &mut self.eps[i];
         let (before, phase) = (ep.stats(), ep.phase());
-        let result = ep.handle_datagram(self.now, bytes);
+        let result = ep.handle_datagram(self.now, bytes, Origin::Path);
         let after = ep.stats();
         let grew = |f: fn(&Stats) -> u64| f(&after) - f(&before);
         let counts = [
@@ -1040,7 +1047,7 @@ impl DgramLink {
         }
         taken.handed += 1;
         let cfg = ep.config();
-        if matches!(result, Ok(()) | Err(DatagramError::Link(_))) {
+        if matches!(result, Ok(_) | Err(DatagramError::Link(_))) {
             let session = Frame::new_checked(bytes)
                 .ok()
                 .and_then(|f| match f.payload() {
@@ -1068,6 +1075,18 @@ impl DgramLink {
             | (Expected::Fresh { .. }, Err(DatagramError::Stamp(_))) => {
                 assert_eq!(counts, [0, 0, 0, 1], "refused: {result:?}");
             }
+            // Further ahead than its stamp leaves room for: a forgery.
+            (
+                &Expected::Fresh { seq, .. },
+                &Err(DatagramError::Ahead {
+                    seq: got,
+                    expected,
+                    room,
+                }),
+            ) => {
+                assert!(got == seq && seq > expected && seq - expected >= room);
+                assert_eq!(counts, [0, 0, 0, 1], "refused: {result:?}");
+            }
             (Expected::Foreign, Err(DatagramError::Foreign { session })) => {
                 assert_ne!(*session, cfg.session);
                 assert_eq!(counts, [0, 0, 1, 0], "foreign");
@@ -1080,7 +1099,10 @@ impl DgramLink {
                 );
                 assert_eq!(counts, [0, 1, 0, 0], "stale");
             }
-            (&Expected::Fresh { seq, width, copies }, Ok(()) | Err(DatagramError::Link(_))) => {
+            (
+                &Expected::Fresh { seq, width, copies },
+                Ok(ndr_core::endpoint::Taken::Samples) | Err(DatagramError::Link(_)),
+            ) => {
                 assert_eq!(counts, [1, 0, 0, 0], "taken");
                 assert_eq!(after.frames_received - before.frames_received, 1);
                 let prev = taken.highest.replace((seq, width > 0));
@@ -1114,7 +1136,8 @@ impl DgramLink {
                 s.datagrams_received
                     + s.datagrams_stale
                     + s.datagrams_foreign
-                    + s.datagrams_refused,
+                    + s.datagrams_refused
+                    + s.datagrams_off_path,
                 self.taken[i].handed,
                 "each datagram handed to an open link counted once ({s:?})"
             );
@@ -1402,8 +1425,11 @@ impl Invariants {
 }
 
 /// The counters that only ever grow.
-fn counters(s: &Stats) -> [u64; 21] {
+fn counters(s: &Stats) -> [u64; 24] {
     [
+        s.datagrams_off_path,
+        s.tokens_renewed,
+        s.paths_validated,
         s.frames_missing,
         s.datagrams_received,
         s.samples_recovered,

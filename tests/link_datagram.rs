@@ -239,3 +239,174 @@ fn strays_spoofs_and_cut_or_oversized_datagrams_are_counted_and_the_link_carries
     }
     assert_eq!(run.base.datagram_path_changes, 0);
 }
+
+/// Someone on the path of a datagram link: the base connects to it; it
+/// pipes the TCP bytes to the remote's listener and forwards the datagrams
+/// both ways through `upstream` (the base's address as the remote sees it).
+/// Once armed, it hands the next sample datagram it sees to `attack` before
+/// forwarding it: what a stranger who sees one datagram can do.
+struct Tap {
+    addr: SocketAddr,
+    upstream: std::sync::Arc<UdpSocket>,
+    armed: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Tap {
+    fn new(remote: SocketAddr, attack: impl Fn(&UdpSocket, &[u8]) + Send + 'static) -> Tap {
+        use std::sync::Arc;
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let tcp = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = tcp.local_addr().unwrap();
+        let down = UdpSocket::bind(addr).unwrap();
+        let upstream = Arc::new(UdpSocket::bind("127.0.0.1:0").unwrap());
+        let (armed, stop) = (
+            Arc::new(AtomicBool::new(false)),
+            Arc::new(AtomicBool::new(false)),
+        );
+        std::thread::spawn(move || {
+            let (from_base, _) = tcp.accept().unwrap();
+            let to_remote = std::net::TcpStream::connect(remote).unwrap();
+            let (mut a, mut b) = (
+                from_base.try_clone().unwrap(),
+                to_remote.try_clone().unwrap(),
+            );
+            std::thread::spawn(move || std::io::copy(&mut a, &mut b));
+            let (mut a, mut b) = (to_remote, from_base);
+            let _ = std::io::copy(&mut a, &mut b);
+        });
+        let timeout = Some(StdDuration::from_millis(50));
+        down.set_read_timeout(timeout).unwrap();
+        upstream.set_read_timeout(timeout).unwrap();
+        let down = Arc::new(down);
+        let base = Arc::new(std::sync::Mutex::new(None::<SocketAddr>));
+        let (up, dn, b, arm, halt) = (
+            Arc::clone(&upstream),
+            Arc::clone(&down),
+            Arc::clone(&base),
+            Arc::clone(&armed),
+            Arc::clone(&stop),
+        );
+        std::thread::spawn(move || {
+            let mut buf = vec![0; 65_536];
+            while !halt.load(Ordering::Relaxed) {
+                let Ok((n, from)) = dn.recv_from(&mut buf) else {
+                    continue;
+                };
+                *b.lock().unwrap() = Some(from);
+                let bytes = &buf[..n];
+                // A sample's first send (width > 0, repeat 0): not a probe,
+                // nor a repeat of a sample the remote has.
+                let first = bytes.len() > 64 && bytes[57] == 0;
+                if first && arm.swap(false, Ordering::Relaxed) {
+                    attack(&up, bytes);
+                }
+                let _ = up.send_to(bytes, remote);
+            }
+        });
+        let (up, halt) = (Arc::clone(&upstream), Arc::clone(&stop));
+        std::thread::spawn(move || {
+            let mut buf = vec![0; 65_536];
+            while !halt.load(Ordering::Relaxed) {
+                let Ok(n) = up.recv(&mut buf) else { continue };
+                if let Some(to) = *base.lock().unwrap() {
+                    let _ = down.send_to(&buf[..n], to);
+                }
+            }
+        });
+        Tap {
+            addr,
+            upstream,
+            armed,
+            stop,
+        }
+    }
+}
+
+impl Drop for Tap {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// `sniffed` (a bundle) with one sample of `values` numbered `seq`, the
+/// rest of its header as it was.
+fn forged(sniffed: &[u8], seq: u64, values: &[f64]) -> Vec<u8> {
+    let frame = wire::Frame::new_checked(sniffed).unwrap();
+    let wire::Payload::Bundle(b) = frame.payload() else {
+        panic!("a bundle")
+    };
+    let mut header = frame.header();
+    header.seq = seq;
+    let msg = Message::Bundle {
+        session: b.session(),
+        repeat: 0,
+        missed: b.missed(),
+        newest: values,
+        older: &[],
+    };
+    let mut buf = vec![0; wire::MAX_FRAME_LEN];
+    let n = wire::encode(&header, &msg, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+#[test]
+fn a_stranger_who_sees_one_datagram_can_neither_drive_the_robot_nor_move_its_stream() {
+    let _serial = common::serial();
+    let rt = common::runtime();
+    let listener = listener(&rt);
+    let stranger = std::sync::Arc::new(UdpSocket::bind("127.0.0.3:0").unwrap());
+    let s = std::sync::Arc::clone(&stranger);
+    let port = listener.local_addr().unwrap();
+    // Before the real datagram: the same sample, the robot driven to 777,
+    // from the stranger's own address; then numbered 2⁶⁴ − 2, from the
+    // base's own address (as one who can spoof it would).
+    let tap = Tap::new(port, move |upstream, sniffed| {
+        let seq = wire::Frame::new_checked(sniffed).unwrap().seq();
+        for _ in 0..3 {
+            s.send_to(&forged(sniffed, seq, &[777.0, 777.0]), port)
+                .unwrap();
+        }
+        for seq in [u64::MAX - 1, seq + 1_000] {
+            upstream
+                .send_to(&forged(sniffed, seq, &[777.0, 777.0]), port)
+                .unwrap();
+        }
+    });
+    let (r, b) =
+        rt.block_on(async { tokio::join!(listener.accept(), Link::connect(tap.addr, config())) });
+    let (base, remote) = (b.unwrap(), r.unwrap());
+    let armed = std::sync::Arc::clone(&tap.armed);
+    std::thread::spawn(move || {
+        std::thread::sleep(StdDuration::from_millis(1_000));
+        armed.store(true, std::sync::atomic::Ordering::Relaxed);
+    });
+    // The base checks that every state is a command of its own echoed whole.
+    let run = common::echo_run(base, remote);
+    common::assert_every_sample_once_in_order(&run);
+    let remote = run.remote.expect("the remote's stats");
+    let e = &remote.endpoint;
+    assert!(
+        !tap.armed.load(std::sync::atomic::Ordering::Relaxed),
+        "attacked"
+    );
+    // The stranger's three, and the base's first ones before its address
+    // was validated.
+    assert!(e.datagrams_off_path >= 4, "{e:?}");
+    assert_eq!(e.datagrams_refused, 2, "{e:?}");
+    // The stranger's address was offered a new token, which the base used
+    // from its own address: the stream stays where it was.
+    assert!(e.tokens_renewed >= 2 && e.paths_validated >= 2, "{e:?}");
+    let upstream = tap.upstream.local_addr().unwrap();
+    assert_eq!(remote.datagram_peer, Some(upstream));
+    assert_eq!(remote.datagram_path_changes, 1, "the first address only");
+    // Nothing was sent to the stranger: no bytes to an address not validated.
+    stranger
+        .set_read_timeout(Some(StdDuration::from_millis(100)))
+        .unwrap();
+    assert!(
+        stranger.recv(&mut [0; 2048]).is_err(),
+        "a byte to the stranger"
+    );
+}

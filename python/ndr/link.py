@@ -344,6 +344,16 @@ class LinkStats(TypedDict):
     """Datagram transport: datagrams of another session, dropped."""
     datagrams_refused: int
     """Datagram transport: datagrams refused for anything else, dropped."""
+    datagrams_off_path: int
+    """Datagram transport: valid datagrams from an address not validated as
+    the peer's (a peer that moved, before it is validated; a stranger who
+    saw a token), dropped."""
+    tokens_renewed: int
+    """Datagram transport: new tokens given to the peer to validate the
+    address of a datagram from elsewhere."""
+    paths_validated: int
+    """Datagram transport: new tokens that came back in a datagram,
+    validating the address it came from as the peer's."""
     nrtt: RunningStats
     """The network round trip."""
     grtt: RunningStats

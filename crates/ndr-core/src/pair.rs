@@ -66,7 +66,7 @@ use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use crate::drive::{self, Turn};
-use crate::endpoint::{DatagramError, Endpoint, Event, LinkError};
+use crate::endpoint::{DatagramError, Endpoint, Event, LinkError, Origin};
 use crate::storage::Storage;
 use crate::time::Instant;
 use crate::wire::{self, MAX_DATAGRAM_LEN, Role};
@@ -283,7 +283,10 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
             // A datagram's samples (a Bundle) go to the datagram path: one
             // that is refused is counted there and harms nothing.
             let result = if wire::is_bundle(&bytes) {
-                match self.endpoint(side).handle_datagram(at, &bytes) {
+                match self
+                    .endpoint(side)
+                    .handle_datagram(at, &bytes, Origin::Path)
+                {
                     Err(DatagramError::Link(e)) => Err(e),
                     _ => Ok(()),
                 }

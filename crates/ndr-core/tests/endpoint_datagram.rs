@@ -2,7 +2,8 @@
 //! reorders and repeats, the handshake and control on a reliable path.
 
 use ndr_core::endpoint::{
-    Config, ConfigError, DatagramError, Endpoint, Event, LinkError, Status, Transport, Underflow,
+    Config, ConfigError, DatagramError, Endpoint, Event, LinkError, Origin, RenewError, Status,
+    Taken, Transport, Underflow,
 };
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
@@ -194,7 +195,7 @@ fn over_a_stream_the_same_losses_cannot_happen_and_bundles_are_refused() {
     )
     .unwrap();
     assert_eq!(
-        remote.handle_datagram(Instant::ZERO, &[0; 60]),
+        remote.handle_datagram(Instant::ZERO, &[0; 60], Origin::Path),
         Err(DatagramError::NotDatagram)
     );
 }
@@ -217,32 +218,35 @@ fn stray_spoofed_garbage_and_replayed_datagrams_are_counted_and_harm_nothing() {
     let bundle = bundle.expect("the base sent a bundle");
     let remote = &mut p.remote;
     let at = now + T + Duration::from_millis(3);
-    assert_eq!(remote.handle_datagram(at, &bundle), Ok(()));
+    assert_eq!(
+        remote.handle_datagram(at, &bundle, Origin::Path),
+        Ok(Taken::Samples)
+    );
     // Repeated by the network, or replayed.
     assert!(matches!(
-        remote.handle_datagram(at, &bundle),
+        remote.handle_datagram(at, &bundle, Origin::Path),
         Err(DatagramError::Stale { .. })
     ));
     // Another session's token (a stray, or a spoof that guessed wrong).
     let mut foreign = bundle.clone();
     foreign[48] ^= 0xff;
     assert!(matches!(
-        remote.handle_datagram(at, &foreign),
+        remote.handle_datagram(at, &foreign, Origin::Path),
         Err(DatagramError::Foreign { .. })
     ));
     // Truncated, oversized, garbage, and a frame of the reliable path.
     let err = remote
-        .handle_datagram(at, &bundle[..bundle.len() - 3])
+        .handle_datagram(at, &bundle[..bundle.len() - 3], Origin::Path)
         .unwrap_err();
     assert!(matches!(err, DatagramError::Wire(_)), "{err}");
     let mut oversized = bundle.clone();
     oversized.extend([0; 8]);
     assert!(matches!(
-        remote.handle_datagram(at, &oversized),
+        remote.handle_datagram(at, &oversized, Origin::Path),
         Err(DatagramError::Wire(_))
     ));
     assert!(matches!(
-        remote.handle_datagram(at, b"GET / HTTP/1.1\r\n\r\n"),
+        remote.handle_datagram(at, b"GET / HTTP/1.1\r\n\r\n", Origin::Path),
         Err(DatagramError::Wire(_))
     ));
     let s = remote.stats();
@@ -516,7 +520,7 @@ fn a_datagram_numbered_the_wires_none_is_refused_and_the_link_runs_on() {
     forged[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
     let at = now + T + Duration::from_millis(3);
     assert_eq!(
-        p.remote.handle_datagram(at, &forged),
+        p.remote.handle_datagram(at, &forged, Origin::Path),
         Err(DatagramError::Sequence { seq: u64::MAX })
     );
     let s = p.remote.stats();
@@ -528,17 +532,18 @@ fn a_datagram_numbered_the_wires_none_is_refused_and_the_link_runs_on() {
     assert!(p.base.stats().released_fresh > 150);
 }
 
-#[test]
-fn a_forged_datagram_near_the_end_of_the_count_is_taken_without_overflow() {
-    // A datagram with this side's token is believed: one numbered
-    // 2⁶⁴ − 2 is taken and released, and the FIFO's slot due after it
-    // then ran past 2⁶⁴ − 1 at the next underflow.
+/// A lossless wire whose datagrams take half a period.
+type Plain = Lossy<fn(u64) -> bool, fn(u64) -> Duration>;
+
+/// A pair run 5 s, and the next bundle the base sends: what a stranger
+/// who sees one datagram of the link gets.
+fn running_and_a_sniffed_bundle() -> (Pair<Heap, Plain>, Vec<u8>) {
     let ep = |role| {
         let mut c = config(role, COPIES_ONLY, Playout::Fifo);
         c.underflow = Underflow::Hold;
         Endpoint::<Heap>::new(c, Instant::ZERO).unwrap()
     };
-    let world = lossy(|_| false, |_| T / 2);
+    let world: Plain = lossy(|_| false, |_| T / 2);
     let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
     p.run_until(Instant::from_millis(5_000)).unwrap();
     let mut bundle = None;
@@ -551,18 +556,160 @@ fn a_forged_datagram_near_the_end_of_the_count_is_taken_without_overflow() {
             bundle = Some(buf[..n].to_vec());
         }
     }
-    let mut forged = bundle.expect("the base sent a bundle");
-    forged[8..16].copy_from_slice(&(u64::MAX - 1).to_le_bytes());
+    (p, bundle.expect("the base sent a bundle"))
+}
+
+/// `bundle` with its newest sample numbered `seq` and its values `v`.
+fn forge(bundle: &[u8], seq: u64, v: f64) -> Vec<u8> {
+    let mut forged = bundle.to_vec();
+    forged[8..16].copy_from_slice(&seq.to_le_bytes());
+    // One sample, so that no copy's order gives the forgery away.
+    forged[56] = 1;
+    forged[64..72].copy_from_slice(&v.to_le_bytes());
+    forged[72..80].copy_from_slice(&v.to_le_bytes());
+    forged.truncate(80);
+    forged[0..4].copy_from_slice(&80u32.to_le_bytes());
+    forged
+}
+
+#[test]
+fn a_forged_datagram_numbered_far_ahead_is_refused_and_the_link_runs_on() {
+    // Taken, one datagram numbered 2⁶⁴ − 2 made the robot apply its values
+    // and every real datagram stale until both ends gave up.
+    let (mut p, bundle) = running_and_a_sniffed_bundle();
+    let now = p.now();
     let at = now + T + Duration::from_millis(3);
-    assert_eq!(p.remote.handle_datagram(at, &forged), Ok(()));
+    for (i, seq) in [u64::MAX - 1, 1 << 40, bundle_seq(&bundle) + 400]
+        .into_iter()
+        .enumerate()
+    {
+        let err = p
+            .remote
+            .handle_datagram(at, &forge(&bundle, seq, 777.0), Origin::Path)
+            .unwrap_err();
+        assert!(matches!(err, DatagramError::Ahead { .. }), "{i}: {err}");
+    }
     let s = p.remote.stats();
+    assert_eq!(s.datagrams_refused, 3, "{s:?}");
     p.run_until(now + Duration::from_secs(1)).unwrap();
     let after = p.remote.stats();
-    assert_eq!(p.world.fresh[1].last().map(|r| r.0), Some(u64::MAX - 1));
-    // The base's own datagrams are stale after it, and the ticks underflow.
-    assert!(after.datagrams_stale > s.datagrams_stale + 50, "{after:?}");
-    assert!(after.underflows > s.underflows + 50, "{after:?}");
     assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
+    assert!(
+        p.world.fresh[1].iter().all(|r| r.0 < 1 << 40),
+        "nothing forged released"
+    );
+    assert_eq!(after.datagrams_stale, s.datagrams_stale, "{after:?}");
+    assert_eq!(after.underflows, s.underflows, "{after:?}");
+    assert!(after.released_fresh > s.released_fresh + 90, "{after:?}");
+}
+
+fn bundle_seq(bundle: &[u8]) -> u64 {
+    u64::from_le_bytes(bundle[8..16].try_into().unwrap())
+}
+
+#[test]
+fn a_datagrams_seq_may_run_ahead_by_the_ticks_its_stamp_leaves_room_for() {
+    let (mut p, bundle) = running_and_a_sniffed_bundle();
+    let seq = bundle_seq(&bundle);
+    let stamp = u64::from_le_bytes(bundle[16..24].try_into().unwrap());
+    let at = p.now() + T + Duration::from_millis(3);
+    assert_eq!(
+        p.remote.handle_datagram(at, &bundle, Origin::Path),
+        Ok(Taken::Samples)
+    );
+    // Stamped one period later: two half-period ticks fit, so the next
+    // seq but one passes, and one more does not.
+    let later = |seq: u64| {
+        let mut b = forge(&bundle, seq, 1.0);
+        b[16..24].copy_from_slice(&(stamp + T.as_nanos()).to_le_bytes());
+        b
+    };
+    assert_eq!(
+        p.remote
+            .handle_datagram(at + T, &later(seq + 3), Origin::Path)
+            .unwrap_err(),
+        DatagramError::Ahead {
+            seq: seq + 3,
+            expected: seq + 1,
+            room: 2
+        }
+    );
+    assert_eq!(
+        p.remote
+            .handle_datagram(at + T, &later(seq + 2), Origin::Path),
+        Ok(Taken::Samples)
+    );
+}
+
+/// Runs `p` until the remote's next bundle for the base carries `token`,
+/// and returns it.
+fn base_bundle_with(p: &mut Pair<Heap, Plain>, token: u64) -> Vec<u8> {
+    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    for _ in 0..100 {
+        let now = p.now() + T;
+        p.base.handle_timeout(now);
+        let mut found = None;
+        while let Some(n) = p.base.poll_transmit(now, &mut buf).unwrap() {
+            if buf[5] == Kind::Bundle as u8 && buf[48..56] == token.to_le_bytes() {
+                found = Some(buf[..n].to_vec());
+            }
+        }
+        if let Some(b) = found {
+            return b;
+        }
+        p.run_until(now).unwrap();
+    }
+    panic!("no bundle with the new token");
+}
+
+#[test]
+fn a_datagram_from_elsewhere_is_not_taken_until_a_new_token_validates_its_address() {
+    let (mut p, bundle) = running_and_a_sniffed_bundle();
+    let now = p.now();
+    let at = now + T + Duration::from_millis(3);
+    // A stranger's datagram, well numbered, from its own address.
+    let forged = forge(&bundle, bundle_seq(&bundle), 777.0);
+    assert_eq!(
+        p.remote.handle_datagram(at, &forged, Origin::Elsewhere),
+        Err(DatagramError::OffPath)
+    );
+    assert_eq!(p.remote.stats().datagrams_off_path, 1);
+    assert_eq!(
+        p.remote.stats().released_fresh,
+        p.world.fresh[1].len() as u64
+    );
+    // The driver validates that address: a new token, on the reliable path.
+    let fresh = 0x0123_4567_89ab_cdef;
+    assert_eq!(p.remote.renew_session(0), Err(RenewError::Token));
+    assert_eq!(p.remote.renew_session(fresh), Ok(None));
+    assert_eq!(p.remote.pending_session(), Some(fresh));
+    // The old token stays good meanwhile, from the path.
+    assert_eq!(
+        p.remote.handle_datagram(at, &bundle, Origin::Path),
+        Ok(Taken::Samples)
+    );
+    // The base gets the Token frame, and its datagrams carry the new token:
+    // the first one taken validates the address it comes from.
+    let with_fresh = base_bundle_with(&mut p, fresh);
+    let stamp = u64::from_le_bytes(with_fresh[16..24].try_into().unwrap());
+    let at = Instant::from_nanos(stamp) + Duration::from_millis(3);
+    let retired = SESSIONS[1];
+    assert_eq!(
+        p.remote.handle_datagram(at, &with_fresh, Origin::Elsewhere),
+        Ok(Taken::Validated { retired })
+    );
+    assert_eq!(p.remote.pending_session(), None);
+    let s = p.remote.stats();
+    assert_eq!((s.tokens_renewed, s.paths_validated), (1, 1), "{s:?}");
+    // The old token is another session's now.
+    let old = forge(&bundle, bundle_seq(&with_fresh) + 1, 1.0);
+    assert!(matches!(
+        p.remote.handle_datagram(at, &old, Origin::Path),
+        Err(DatagramError::Foreign { .. })
+    ));
+    p.run_until(p.now() + Duration::from_secs(1)).unwrap();
+    assert!(p.world.errors.is_empty(), "{:?}", p.world.errors);
+    assert!(p.world.fresh[1].iter().all(|r| r.0 < 1 << 40));
 }
 
 #[test]

@@ -4,8 +4,8 @@
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
     Close, Control, Echo, Frame, HEADER_LEN, Header, Hello, Kind, MAX_BUNDLE, MAX_CHANNELS,
-    MAX_DATAGRAM_LEN, MAX_FRAME_LEN, Message, OlderSample, Payload, Role, VERSION, WireError,
-    encode, encoded_len, frame_len,
+    MAX_DATAGRAM_LEN, MAX_FRAME_LEN, Message, OlderSample, Payload, Role, Token, VERSION,
+    WireError, encode, encoded_len, frame_len,
 };
 use proptest::prelude::*;
 
@@ -61,6 +61,7 @@ enum Owned {
     Hello(Hello),
     Control(Control),
     Close(Close),
+    Token(Token),
 }
 
 impl Owned {
@@ -70,6 +71,7 @@ impl Owned {
             Owned::Hello(h) => Message::Hello(*h),
             Owned::Control(c) => Message::Control(*c),
             Owned::Close(c) => Message::Close(*c),
+            Owned::Token(t) => Message::Token(*t),
         }
     }
 }
@@ -104,6 +106,7 @@ fn message() -> impl Strategy<Value = Owned> {
             })
         }),
         1 => any::<u16>().prop_map(|reason| Owned::Close(Close { reason })),
+        1 => (1..=u64::MAX).prop_map(|session| Owned::Token(Token { session })),
     ]
 }
 
@@ -132,6 +135,7 @@ fn touch_everything(frame: &Frame<&[u8]>) {
         Payload::Hello(h) => assert!(!h.period.is_zero()),
         Payload::Control(c) => assert_ne!(c.op, 0),
         Payload::Close(_) => {}
+        Payload::Token(t) => assert_ne!(t.session, 0),
         Payload::Bundle(b) => {
             assert!((1..=MAX_BUNDLE).contains(&b.count()));
             assert_eq!(b.newest().len(), b.width());
@@ -194,6 +198,7 @@ proptest! {
             (Payload::Hello(got), Owned::Hello(want)) => prop_assert_eq!(got, *want),
             (Payload::Control(got), Owned::Control(want)) => prop_assert_eq!(got, *want),
             (Payload::Close(got), Owned::Close(want)) => prop_assert_eq!(got, *want),
+            (Payload::Token(got), Owned::Token(want)) => prop_assert_eq!(got, *want),
             (p, m) => prop_assert!(false, "decoded {:?} from {:?}", p, m),
         }
     }

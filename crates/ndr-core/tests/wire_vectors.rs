@@ -4,7 +4,7 @@
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
     Close, Control, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN, Message, OlderSample, Payload,
-    Role, WireError, close_reason, control_op, encode, frame_len, mode, underflow,
+    Role, Token, WireError, close_reason, control_op, encode, frame_len, mode, underflow,
 };
 
 const DOC: &str = include_str!("../docs/wire.md");
@@ -149,6 +149,17 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 older: &OLDER,
             },
         ),
+        (
+            header(
+                1300,
+                260_000_000_000,
+                echo(259_990_000_000, 2_000_000),
+                Some(1290),
+            ),
+            Message::Token(Token {
+                session: 0x0123_4567_89ab_cdef,
+            }),
+        ),
     ]
 }
 
@@ -221,7 +232,7 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
             },
         ),
         (patch(&v[3], 4, &[1]), WireError::UnsupportedVersion(1)),
-        (patch(&bare, 5, &[6]), WireError::UnknownKind(6)),
+        (patch(&bare, 5, &[7]), WireError::UnknownKind(7)),
         (patch(&v[2], 6, &[1]), WireError::UnsupportedFlags(1)),
         (patch(&v[1], 32, &[0x10]), WireError::HoldWithoutEcho),
         (
@@ -270,6 +281,7 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
             patch(&v[7], 80, &42u64.to_le_bytes()),
             WireError::BundleOrder { index: 1 },
         ),
+        (patch(&v[8], 48, &[0; 8]), WireError::ZeroToken),
     ]
 }
 
@@ -285,6 +297,7 @@ fn assert_payload_matches(payload: Payload<'_>, msg: &Message<'_>) {
         (Payload::Hello(h), Message::Hello(m)) => assert_eq!(h, *m),
         (Payload::Control(c), Message::Control(m)) => assert_eq!(c, *m),
         (Payload::Close(c), Message::Close(m)) => assert_eq!(c, *m),
+        (Payload::Token(t), Message::Token(m)) => assert_eq!(t, *m),
         (
             Payload::Bundle(b),
             Message::Bundle {

@@ -18,7 +18,7 @@ mod udp;
 
 pub(crate) use quic::{NewEndpoint, QuicPath, Server as QuicServer};
 pub(crate) use tls_io::Session;
-pub(crate) use udp::{DatagramPath, NewSocket, bind as bind_datagram_socket};
+pub(crate) use udp::{DatagramPath, NewSocket, bind as bind_datagram_socket, session_token};
 
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::io::{self, Write as _};

@@ -701,20 +701,9 @@ struct Carrier {
     quic: Option<Box<QuicPath>>,
 }
 
-/// A link's datagram session token: random, never 0, so that a datagram
-/// of another session (or a guess) is not taken for one of this session.
+/// A link's datagram session token.
 fn session_token() -> Result<u64, NetError> {
-    use ring::rand::{SecureRandom as _, SystemRandom};
-    let rng = SystemRandom::new();
-    loop {
-        let mut bytes = [0; 8];
-        rng.fill(&mut bytes)
-            .map_err(|_| io::Error::other("no randomness for the datagram session token"))?;
-        let token = u64::from_le_bytes(bytes);
-        if token != 0 {
-            return Ok(token);
-        }
-    }
+    Ok(crate::hub::session_token()?)
 }
 
 impl HubPool {

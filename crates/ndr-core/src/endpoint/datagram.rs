@@ -5,6 +5,17 @@
 //! duplicates, reordered and replayed datagrams are dropped by `seq` and
 //! counted, and a datagram without this side's session token is dropped
 //! and counted. None of them harms the link.
+//!
+//! A datagram is bound to its path as QUIC binds its packets: its `seq`
+//! may run ahead of the last one taken only by the ticks its stamp leaves
+//! room for (a forged `seq` of 2⁶⁴ − 2 would make every real datagram
+//! stale), and it is taken only from the address the driver has validated
+//! ([`Origin::Path`]). A valid datagram from elsewhere is dropped and
+//! counted; the driver may then give the peer a new token on the reliable
+//! path ([`Endpoint::renew_session`]), and the address the first datagram
+//! carrying it comes from becomes the peer's ([`Taken::Validated`]). Only
+//! the peer reads the reliable path, so a stranger who saw a token can
+//! neither move the stream of samples nor stop it.
 
 use core::fmt;
 
@@ -15,6 +26,7 @@ use super::event::Head;
 use super::{Endpoint, LinkError, Phase, Stats, Tx};
 use crate::storage::Storage;
 use crate::time::Instant;
+use crate::wire::Token;
 use crate::wire::{
     self, BUNDLE_FIXED_LEN, Control, Frame, HEADER_LEN, Header, Kind, MAX_BUNDLE, Message,
     OLDER_FIELDS_LEN, OlderSample, Payload, WireError,
@@ -52,10 +64,19 @@ pub(super) struct Datagrams<V> {
     /// When the next repeat of it is due, which send it is (1: the first
     /// repeat), and the last.
     repeat: Option<(Instant, u8, u8)>,
-    /// The peer's token (from its Hello), put in every datagram to it.
+    /// The peer's token (from its Hello, or its newest Token frame), put
+    /// in every datagram to it.
     pub(super) peer_session: u64,
+    /// This side's token: what the peer's datagrams carry.
+    own: u64,
+    /// A token given to the peer and not yet seen in a datagram.
+    fresh: Option<u64>,
     /// The newest `seq` taken from the peer.
     highest: Option<u64>,
+    /// The `seq` the next datagram should carry and the stamp it follows
+    /// (the peer's Hello's, then the newest taken): a `seq` ahead of it by
+    /// more ticks than its stamp leaves room for is refused.
+    pub(super) anchor: Option<(u64, Instant)>,
     /// Whether it was a sample's (a gap between two samples is samples
     /// lost; one next to a probe may be probes).
     highest_sample: bool,
@@ -64,7 +85,11 @@ pub(super) struct Datagrams<V> {
 impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
     /// For `transport`, with sample buffers from `make`; `None` on a stream,
     /// or if a buffer cannot be made.
-    pub(super) fn new(transport: Transport, make: impl Fn() -> Option<V>) -> Option<Self> {
+    pub(super) fn new(
+        transport: Transport,
+        own: u64,
+        make: impl Fn() -> Option<V>,
+    ) -> Option<Self> {
         let Transport::Datagram {
             redundancy,
             repeats,
@@ -93,7 +118,10 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
             newest: None,
             repeat: None,
             peer_session: 0,
+            own,
+            fresh: None,
             highest: None,
+            anchor: None,
             highest_sample: false,
         })
     }
@@ -202,6 +230,21 @@ pub enum DatagramError {
         /// Its newest sample's `seq`.
         seq: u64,
     },
+    /// A `seq` further ahead of the one expected than the ticks its stamp
+    /// leaves room for: forged, since an honest sender numbers its ticks
+    /// (`datagrams_refused`).
+    Ahead {
+        /// Its newest sample's `seq`.
+        seq: u64,
+        /// The `seq` expected next.
+        expected: u64,
+        /// The most ticks its stamp leaves room for.
+        room: u64,
+    },
+    /// A valid datagram from an address the driver has not validated as
+    /// the peer's (`datagrams_off_path`): not taken. The driver may
+    /// validate the address with [`Endpoint::renew_session`].
+    OffPath,
     /// A stamp the receive checks refuse (from the future:
     /// `datagrams_refused`).
     Stamp(LinkError),
@@ -246,6 +289,19 @@ impl fmt::Display for DatagramError {
                 "a datagram with sample {seq}, past any sender's count (the wire's 'none'), \
                  dropped"
             ),
+            DatagramError::Ahead {
+                seq,
+                expected,
+                room,
+            } => write!(
+                f,
+                "a datagram with sample {seq} where {expected} was expected and its stamp \
+                 leaves room for {room} ticks (forged: a sender numbers its ticks), dropped"
+            ),
+            DatagramError::OffPath => f.write_str(
+                "a datagram from an address not validated as the peer's, dropped (the peer \
+                 is given a new token to validate it)",
+            ),
             DatagramError::Stamp(e) => write!(f, "a datagram the receive checks refuse: {e}"),
             DatagramError::Link(e) => write!(f, "{e}"),
         }
@@ -253,6 +309,60 @@ impl fmt::Display for DatagramError {
 }
 
 impl core::error::Error for DatagramError {}
+
+/// Where a datagram came from, as its driver sees it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Origin {
+    /// The address validated as the peer's, or a transport that validates
+    /// its paths itself (QUIC) or has no addresses (a simulator).
+    Path,
+    /// Any other address: none is validated yet (a listener's side before
+    /// the first), or the datagram came from elsewhere.
+    Elsewhere,
+}
+
+/// What a datagram that was taken means for its driver.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[must_use = "a validated path changes where datagrams go"]
+pub enum Taken {
+    /// Its samples were taken.
+    Samples,
+    /// Its samples were taken, and it carried the token given last
+    /// ([`Endpoint::renew_session`]): its address is the peer's, where this
+    /// side's datagrams go from now on, and the token before, `retired`,
+    /// is no longer this link's.
+    Validated {
+        /// The token the peer's datagrams carried before.
+        retired: u64,
+    },
+}
+
+/// Why [`Endpoint::renew_session`] gave no token.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum RenewError {
+    /// This endpoint runs over a stream: it has no datagrams.
+    NotDatagram,
+    /// Before the handshake is over, or after the link closed: the peer
+    /// could not take a token.
+    NotRunning,
+    /// The token is 0 or the one in use: draw another.
+    Token,
+}
+
+impl fmt::Display for RenewError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            RenewError::NotDatagram => "this endpoint runs over a stream: it has no datagram token",
+            RenewError::NotRunning => {
+                "a new datagram token goes to the peer only between the handshake and the close"
+            }
+            RenewError::Token => "a datagram token is never 0 nor the one in use: draw another",
+        })
+    }
+}
+
+impl core::error::Error for RenewError {}
 
 /// This side's count of the peer's samples it missed, for its bundles.
 fn missed(s: &Stats) -> u32 {
@@ -262,19 +372,25 @@ fn missed(s: &Stats) -> u32 {
 }
 
 impl<S: Storage> Endpoint<S> {
-    /// A datagram arrived at `now` (datagram transport only). It never
-    /// ends the link by itself: a datagram that is not this session's,
-    /// not valid, or older than one taken is dropped, counted, and
-    /// reported; the error is fatal only as [`DatagramError::Link`].
-    pub fn handle_datagram(&mut self, now: Instant, bytes: &[u8]) -> Result<(), DatagramError> {
+    /// A datagram arrived at `now` from `origin` (datagram transport only).
+    /// It never ends the link by itself: a datagram that is not this
+    /// session's, not valid, older than one taken, too far ahead, or from
+    /// an address not validated is dropped, counted, and reported; the
+    /// error is fatal only as [`DatagramError::Link`].
+    pub fn handle_datagram(
+        &mut self,
+        now: Instant,
+        bytes: &[u8],
+        origin: Origin,
+    ) -> Result<Taken, DatagramError> {
         if self.phase == Phase::Closed {
             return Err(DatagramError::Closed);
         }
-        let Some((highest, after_sample)) =
-            self.dgram.as_ref().map(|d| (d.highest, d.highest_sample))
-        else {
+        let Some(d) = self.dgram.as_ref() else {
             return Err(DatagramError::NotDatagram);
         };
+        let (highest, after_sample, anchor) = (d.highest, d.highest_sample, d.anchor);
+        let (own, fresh) = (d.own, d.fresh);
         let refused = |ep: &mut Self, e: DatagramError| {
             ep.stats.datagrams_refused += 1;
             Err(e)
@@ -286,11 +402,11 @@ impl<S: Storage> Endpoint<S> {
         let Payload::Bundle(bundle) = frame.payload() else {
             return refused(self, DatagramError::NotABundle(frame.kind()));
         };
-        if bundle.session() != self.config.session {
+        let token = bundle.session();
+        let validates = fresh == Some(token);
+        if token != own && !validates {
             self.stats.datagrams_foreign += 1;
-            return Err(DatagramError::Foreign {
-                session: bundle.session(),
-            });
+            return Err(DatagramError::Foreign { session: token });
         }
         if self.phase == Phase::Handshake {
             return refused(self, DatagramError::BeforeHandshake);
@@ -305,6 +421,22 @@ impl<S: Storage> Endpoint<S> {
         if seq == u64::MAX {
             return refused(self, DatagramError::Sequence { seq });
         }
+        let sent_at = frame.sent_at();
+        if let Some((expected, since)) = anchor.filter(|&(e, _)| seq > e) {
+            // The ticks from the one before `expected` to this one's, each
+            // half the shortest period apart at least.
+            let room = self.heard.check.tick_room(since, sent_at);
+            if seq - expected >= room {
+                return refused(
+                    self,
+                    DatagramError::Ahead {
+                        seq,
+                        expected,
+                        room,
+                    },
+                );
+            }
+        }
         let width = self.config.received_width();
         if bundle.width() != 0 && bundle.width() != usize::from(width) {
             return refused(
@@ -315,15 +447,26 @@ impl<S: Storage> Endpoint<S> {
                 },
             );
         }
-        let sent_at = frame.sent_at();
         let stalled = self.driver_stalled(now);
         if let Err(e) = self.check_stamp(now, sent_at, frame.echo()) {
             return refused(self, DatagramError::Stamp(e));
         }
+        if origin == Origin::Elsewhere && !validates {
+            self.stats.datagrams_off_path += 1;
+            return Err(DatagramError::OffPath);
+        }
         self.stats.frames_received += 1;
         self.stats.datagrams_received += 1;
+        let mut taken = Taken::Samples;
         if let Some(d) = &mut self.dgram {
+            if validates {
+                taken = Taken::Validated { retired: d.own };
+                d.own = token;
+                d.fresh = None;
+                self.stats.paths_validated += 1;
+            }
             d.highest = Some(seq);
+            d.anchor = Some((seq + 1, sent_at));
             d.highest_sample = bundle.width() > 0;
             // Taken in `seq` order, so the count only grows (modulo 2³²).
             let grew = bundle.missed().wrapping_sub(d.peer_missed);
@@ -334,8 +477,62 @@ impl<S: Storage> Endpoint<S> {
             }
         }
         let counted = highest.filter(|_| after_sample && bundle.width() > 0);
-        let taken = self.take_bundle(now, &frame, (highest, counted), stalled);
-        taken.map_err(|e| DatagramError::Link(self.fail(e)))
+        self.take_bundle(now, &frame, (highest, counted), stalled)
+            .map_err(|e| DatagramError::Link(self.fail(e)))?;
+        Ok(taken)
+    }
+
+    /// Gives the peer `token` for the datagrams it sends here, on the
+    /// reliable path, to validate the address a datagram came from
+    /// ([`DatagramError::OffPath`]). Until a datagram carrying it is taken
+    /// the token before stays good too; the driver routes both to this
+    /// link. A token given before and not yet used is replaced (returned:
+    /// no longer this link's), for a peer that never used it.
+    pub fn renew_session(&mut self, token: u64) -> Result<Option<u64>, RenewError> {
+        if matches!(self.phase, Phase::Handshake | Phase::Closed) {
+            return Err(if self.dgram.is_some() {
+                RenewError::NotRunning
+            } else {
+                RenewError::NotDatagram
+            });
+        }
+        let Some(d) = &mut self.dgram else {
+            return Err(RenewError::NotDatagram);
+        };
+        if token == 0 || token == d.own {
+            return Err(RenewError::Token);
+        }
+        let replaced = d.fresh.replace(token);
+        self.stats.tokens_renewed += 1;
+        self.queue_tx(Tx::Token { session: token });
+        Ok(replaced)
+    }
+
+    /// The peer's Hello, numbered `seq` (what its first Data frame will
+    /// carry) and stamped `sent_at`, anchors the window of its first
+    /// datagrams: its first ticks may be stamped a little before it.
+    pub(super) fn anchor_datagrams(&mut self, seq: u64, sent_at: Instant) {
+        let lead = self.period().saturating_mul(2);
+        if let Some(d) = &mut self.dgram {
+            d.anchor = Some((seq, sent_at.checked_sub(lead).unwrap_or(Instant::ZERO)));
+        }
+    }
+
+    /// The peer's new token for the datagrams this side sends it.
+    pub(super) fn receive_token(&mut self, token: Token) -> Result<(), LinkError> {
+        match &mut self.dgram {
+            Some(d) if self.phase != Phase::Handshake => {
+                d.peer_session = token.session;
+                Ok(())
+            }
+            _ => Err(self.unexpected(Kind::Token)),
+        }
+    }
+
+    /// The token given to the peer and not yet seen in a datagram.
+    #[must_use]
+    pub fn pending_session(&self) -> Option<u64> {
+        self.dgram.as_ref()?.fresh
     }
 
     /// A fresh bundle's timing and samples: the copies not taken yet,
@@ -486,6 +683,7 @@ impl<S: Storage> Endpoint<S> {
             Tx::Probe { .. } | Tx::Sample { .. } => Message::Data(newest),
             Tx::Control { op, ns, period } => Message::Control(Control { op, ns, period }),
             Tx::Close { reason } => Message::Close(wire::Close { reason }),
+            Tx::Token { session } => Message::Token(Token { session }),
         };
         wire::encode(header, &msg, buf)
     }

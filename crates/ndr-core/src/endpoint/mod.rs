@@ -47,7 +47,7 @@ pub use config::{
     Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, DEFAULT_REPEATS,
     MAX_REPEATS, MIN_PERIOD, Mode, REPEAT_HOLD, REPEAT_SPACING, Transport, Underflow, UnknownName,
 };
-pub use datagram::DatagramError;
+pub use datagram::{DatagramError, Origin, RenewError, Taken};
 pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
@@ -127,6 +127,7 @@ enum Tx {
     Sample { seq: u64 },
     Control { op: u8, ns: u16, period: Duration },
     Close { reason: u16 },
+    Token { session: u64 },
 }
 
 /// The regulator of an endpoint of storage `S`.
@@ -221,8 +222,10 @@ impl<S: Storage> Endpoint<S> {
         let dgram = match config.transport {
             Transport::Stream => None,
             transport => Some(
-                datagram::Datagrams::new(transport, || S::values(usize::from(config.sent_width())))
-                    .ok_or(too_wide)?,
+                datagram::Datagrams::new(transport, config.session, || {
+                    S::values(usize::from(config.sent_width()))
+                })
+                .ok_or(too_wide)?,
             ),
         };
         let no_room = ConfigError::Capacity { asked: capacity };

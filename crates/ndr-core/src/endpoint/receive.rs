@@ -26,7 +26,11 @@ impl<S: Storage> Endpoint<S> {
         }
         self.hear(now, sent_at, frame.echo())?;
         match frame.payload() {
-            Payload::Hello(hello) => self.receive_hello(now, hello),
+            Payload::Hello(hello) => {
+                self.receive_hello(now, hello)?;
+                self.anchor_datagrams(frame.seq(), sent_at);
+                Ok(())
+            }
             Payload::Data(channels) => {
                 let head = Head {
                     seq: frame.seq(),
@@ -40,6 +44,7 @@ impl<S: Storage> Endpoint<S> {
                 reason: close.reason,
             }),
             Payload::Bundle(_) => Err(self.unexpected(Kind::Bundle)),
+            Payload::Token(token) => self.receive_token(token),
         }
     }
 

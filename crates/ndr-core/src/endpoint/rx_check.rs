@@ -132,6 +132,13 @@ impl RxCheck {
         Ok(missing)
     }
 
+    /// How many ticks fit between the stamps `from` and `to`: ticks are
+    /// half the shortest period apart at least.
+    pub(super) fn tick_room(&self, from: Instant, to: Instant) -> u64 {
+        let step = (self.smallest_period / 2).as_nanos().max(1);
+        to.saturating_duration_since(from).as_nanos() / step
+    }
+
     /// The peer echoed our frame sent at `ours` (our clock), holding it for
     /// `hold`, in its frame stamped `theirs`, which arrived at `now`.
     pub(super) fn observe_echo(

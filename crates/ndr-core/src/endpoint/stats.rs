@@ -171,6 +171,16 @@ pub struct Stats {
     /// valid Bundle, another width, before the handshake, a `seq` of
     /// 2⁶⁴ − 1, a stamp from the future), dropped; the link carries on.
     pub datagrams_refused: u64,
+    /// Datagram transport: valid datagrams from an address not validated
+    /// as the peer's (a peer that moved, before it is validated, or a
+    /// stranger who saw a token), dropped.
+    pub datagrams_off_path: u64,
+    /// Datagram transport: new tokens given to the peer to validate the
+    /// address of a datagram from elsewhere.
+    pub tokens_renewed: u64,
+    /// Datagram transport: tokens given that came back in a datagram,
+    /// validating the address it came from as the peer's.
+    pub paths_validated: u64,
     /// Network round-trip times, in seconds.
     pub nrtt: Running,
     /// Round trips as the application sees them, in seconds.

@@ -32,7 +32,7 @@ pub enum WireError {
     UnsupportedVersion(u8),
     /// The kind byte names no known frame kind.
     UnknownKind(u8),
-    /// Header flags are set; version 2 defines none.
+    /// Header flags are set; version 3 defines none.
     UnsupportedFlags(u16),
     /// A reserved byte (at `offset` in the frame) is not zero.
     ReservedNotZero {
@@ -85,6 +85,8 @@ pub enum WireError {
     },
     /// A Control frame has op code 0.
     ZeroControlOp,
+    /// A Token frame carries the token 0 (a stream's "no datagrams").
+    ZeroToken,
     /// `echo_hold` is non-zero although `echo` says nothing was received yet.
     HoldWithoutEcho,
     /// A header value equals `u64::MAX`, which the wire reserves for "none"
@@ -146,11 +148,11 @@ impl fmt::Display for WireError {
             ),
             WireError::UnsupportedVersion(v) => write!(
                 f,
-                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 2 came with per-direction widths)"
+                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 3 came with the datagram path's Token frame)"
             ),
             WireError::UnknownKind(k) => write!(
                 f,
-                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close, 5 Bundle)"
+                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close, 5 Bundle, 6 Token)"
             ),
             WireError::UnsupportedFlags(flags) => write!(
                 f,
@@ -207,6 +209,10 @@ impl fmt::Display for WireError {
                 }
             ),
             WireError::ZeroControlOp => write!(f, "Control op code 0 is invalid"),
+            WireError::ZeroToken => write!(
+                f,
+                "Token frame carries the token 0; a session token is never 0"
+            ),
             WireError::HoldWithoutEcho => write!(
                 f,
                 "echo_hold is non-zero but echo says nothing was received yet (u64::MAX)"

@@ -1,4 +1,4 @@
-//! The frame codec: ndr wire format version 2.
+//! The frame codec: ndr wire format version 3.
 //!
 //! A frame is a fixed 48-byte little-endian header followed by a payload whose
 //! layout depends on its [`Kind`]. The byte-exact specification, with test
@@ -46,14 +46,14 @@ pub use bundle::{
 };
 pub use error::WireError;
 pub use payload::{
-    Channels, ChannelsIter, Close, Control, Hello, Payload, Role, close_reason, control_op, mode,
-    underflow,
+    Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Token, close_reason, control_op,
+    mode, underflow,
 };
 
 use crate::time::{Duration, Instant};
 
 /// The wire version this build speaks.
-pub const VERSION: u8 = 2;
+pub const VERSION: u8 = 3;
 /// Size of the fixed header, in bytes.
 pub const HEADER_LEN: usize = 48;
 /// Most channels a Data frame carries.
@@ -116,6 +116,8 @@ pub enum Kind {
     Close = 4,
     /// A datagram's samples (the newest and those before it).
     Bundle = 5,
+    /// A new session token for the datagrams to the sender (reliable path).
+    Token = 6,
 }
 
 impl Kind {
@@ -128,6 +130,7 @@ impl Kind {
             Kind::Hello => Some(Hello::LEN),
             Kind::Control => Some(Control::LEN),
             Kind::Close => Some(Close::LEN),
+            Kind::Token => Some(Token::LEN),
         }
     }
 }
@@ -141,6 +144,7 @@ impl TryFrom<u8> for Kind {
             3 => Ok(Kind::Control),
             4 => Ok(Kind::Close),
             5 => Ok(Kind::Bundle),
+            6 => Ok(Kind::Token),
             _ => Err(WireError::UnknownKind(code)),
         }
     }
@@ -266,6 +270,7 @@ fn check(buf: &[u8]) -> Result<Kind, WireError> {
         Kind::Hello => Hello::parse(payload).map(drop),
         Kind::Control => Control::parse(payload).map(drop),
         Kind::Close => Close::parse(payload).map(drop),
+        Kind::Token => Token::parse(payload).map(drop),
     }?;
     Ok(kind)
 }
@@ -370,6 +375,7 @@ impl<T: AsRef<[u8]>> Frame<T> {
             Kind::Hello => Hello::parse(bytes).map_or(broken, Payload::Hello),
             Kind::Control => Control::parse(bytes).map_or(broken, Payload::Control),
             Kind::Close => Close::parse(bytes).map_or(broken, Payload::Close),
+            Kind::Token => Token::parse(bytes).map_or(broken, Payload::Token),
         }
     }
 }
@@ -411,6 +417,8 @@ pub enum Message<'a> {
     Control(Control),
     /// Goodbye.
     Close(Close),
+    /// A new session token for the datagrams to the sender.
+    Token(Token),
 }
 
 impl Message<'_> {
@@ -423,6 +431,7 @@ impl Message<'_> {
             Message::Hello(_) => Kind::Hello,
             Message::Control(_) => Kind::Control,
             Message::Close(_) => Kind::Close,
+            Message::Token(_) => Kind::Token,
         }
     }
 }
@@ -440,6 +449,7 @@ pub const fn encoded_len(msg: &Message<'_>) -> usize {
         Message::Hello(_) => Hello::LEN,
         Message::Control(_) => Control::LEN,
         Message::Close(_) => Close::LEN,
+        Message::Token(_) => Token::LEN,
     };
     HEADER_LEN.saturating_add(payload)
 }
@@ -453,7 +463,8 @@ pub const fn encoded_len(msg: &Message<'_>) -> usize {
 /// `u64::MAX`), [`BufferTooSmall`](WireError::BufferTooSmall), then the
 /// payload: [`NonFinite`](WireError::NonFinite),
 /// [`ZeroPeriod`](WireError::ZeroPeriod) (Hello),
-/// [`ZeroControlOp`](WireError::ZeroControlOp). On error the contents of
+/// [`ZeroControlOp`](WireError::ZeroControlOp),
+/// [`ZeroToken`](WireError::ZeroToken). On error the contents of
 /// `buf` are unspecified.
 pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usize, WireError> {
     if let Message::Data(values) = msg
@@ -515,6 +526,7 @@ pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usiz
         Message::Hello(hello) => put(payload, 0, hello.to_bytes()?),
         Message::Control(control) => put(payload, 0, control.to_bytes()?),
         Message::Close(close) => put(payload, 0, close.to_bytes()),
+        Message::Token(token) => put(payload, 0, token.to_bytes()?),
     }
     // len <= MAX_DATAGRAM_LEN here, so the cast is lossless.
     put(head, field::LENGTH, (len as u32).to_le_bytes());

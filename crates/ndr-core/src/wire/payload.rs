@@ -21,6 +21,8 @@ pub enum Payload<'a> {
     Control(Control),
     /// Goodbye.
     Close(Close),
+    /// A new session token for the datagrams to the sender.
+    Token(Token),
 }
 
 impl Payload<'_> {
@@ -33,6 +35,7 @@ impl Payload<'_> {
             Payload::Hello(_) => Kind::Hello,
             Payload::Control(_) => Kind::Control,
             Payload::Close(_) => Kind::Close,
+            Payload::Token(_) => Kind::Token,
         }
     }
 }
@@ -494,5 +497,40 @@ impl Close {
 impl fmt::Display for Close {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{} ({})", close_reason::name(self.reason), self.reason)
+    }
+}
+
+/// A new session token (datagram transport, on the reliable path): from
+/// now on the receiver puts `session` in the datagrams it sends to the
+/// sender, and the address the first of them comes from becomes the one
+/// the sender's datagrams go to. Only someone who reads the reliable path
+/// learns it before it is used, so a datagram carrying it proves that its
+/// address is the peer's (path validation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Token {
+    /// The token; never 0 (a stream's "no datagrams").
+    pub session: u64,
+}
+
+impl Token {
+    /// Payload size in bytes.
+    pub const LEN: usize = 8;
+
+    pub(super) fn parse(bytes: &[u8]) -> Result<Token, WireError> {
+        let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
+            kind: Kind::Token,
+            len: bytes.len(),
+        })?;
+        match u64::from_le_bytes(*b) {
+            0 => Err(WireError::ZeroToken),
+            session => Ok(Token { session }),
+        }
+    }
+
+    pub(super) fn to_bytes(self) -> Result<[u8; Self::LEN], WireError> {
+        match self.session {
+            0 => Err(WireError::ZeroToken),
+            session => Ok(session.to_le_bytes()),
+        }
     }
 }

@@ -177,8 +177,8 @@ fn error_unsupported_version() {
     assert_eq!(err.close_reason(), close_reason::VERSION_MISMATCH);
     assert_eq!(
         err.to_string(),
-        "peer speaks ndr wire version 1, this build speaks 2; upgrade the older side \
-         (version 2 came with per-direction widths)"
+        "peer speaks ndr wire version 1, this build speaks 3; upgrade the older side \
+         (version 3 came with the datagram path's Token frame)"
     );
 }
 
@@ -206,7 +206,7 @@ fn error_width_out_of_range_names_the_direction() {
 
 #[test]
 fn error_unknown_kind() {
-    for kind in [0, 6, 255] {
+    for kind in [0, 7, 255] {
         let bytes = with(data(&[]), 5, kind);
         assert_eq!(decode(&bytes), Err(WireError::UnknownKind(kind)));
     }
@@ -217,6 +217,7 @@ fn error_unknown_kind() {
         Kind::Control,
         Kind::Close,
         Kind::Bundle,
+        Kind::Token,
     ] {
         assert_eq!(Kind::try_from(u8::from(kind)), Ok(kind));
     }
@@ -356,6 +357,32 @@ fn error_zero_control_op() {
     // Unknown non-zero ops are the endpoint's business.
     let bytes = with(frame_bytes(&Message::Control(control())), 48, 200);
     assert_eq!(decode(&bytes), Ok(Kind::Control));
+}
+
+#[test]
+fn error_zero_token() {
+    let token = Message::Token(Token { session: 0x0102 });
+    let bytes = frame_bytes(&token);
+    assert_eq!(bytes.len(), HEADER_LEN + Token::LEN);
+    assert_eq!(decode(&bytes), Ok(Kind::Token));
+    let mut zero = bytes.clone();
+    zero[48..56].copy_from_slice(&[0; 8]);
+    assert_eq!(decode(&zero), Err(WireError::ZeroToken));
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    assert_eq!(
+        encode(&header(), &Message::Token(Token { session: 0 }), &mut buf),
+        Err(WireError::ZeroToken)
+    );
+    let mut short = bytes;
+    short.truncate(HEADER_LEN + 4);
+    short[0..4].copy_from_slice(&(HEADER_LEN as u32 + 4).to_le_bytes());
+    assert_eq!(
+        decode(&short),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Token,
+            len: 4
+        })
+    );
 }
 
 #[test]
@@ -532,6 +559,7 @@ fn every_error_has_a_message() {
         WireError::BadRole(5),
         WireError::ZeroPeriod,
         WireError::ZeroControlOp,
+        WireError::ZeroToken,
         WireError::HoldWithoutEcho,
         WireError::SentinelValue { offset: 24 },
         WireError::BufferTooSmall { needed: 64, got: 8 },

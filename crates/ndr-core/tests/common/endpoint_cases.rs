@@ -508,7 +508,7 @@ fn garbage_and_wrong_version_end_the_link_with_a_close() {
     // (3 axes, 200 ms: the bytes an older build sends).
     let mut base = Ep::new(config(Role::Base), Instant::ZERO).unwrap();
     let n = base.poll_transmit(now, &mut buf).unwrap().unwrap();
-    buf[4] = 3;
+    buf[4] = wire::VERSION + 1;
     let newer = buf[..n].to_vec();
     let v1: Vec<u8> = [
         [0x40, 0, 0, 0, 1, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0],
@@ -521,7 +521,7 @@ fn garbage_and_wrong_version_end_the_link_with_a_close() {
         [0, 1, 0, 0, 3, 0, 0, 0, 0, 0xc2, 0xeb, 0x0b, 0, 0, 0, 0],
     ]
     .concat();
-    for (peer, hello) in [(3, newer), (1, v1)] {
+    for (peer, hello) in [(wire::VERSION + 1, newer), (1, v1)] {
         let mut remote = Ep::new(config(Role::Remote), Instant::ZERO).unwrap();
         let err = remote.handle_frame(now, &hello).unwrap_err();
         assert_eq!(err, LinkError::VersionMismatch { peer });

@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant as StdInstant;
 
 use bytes::{Bytes, BytesMut};
-use ndr_core::endpoint::LinkError;
+use ndr_core::endpoint::{LinkError, Origin};
 use ndr_core::time::Instant;
 use ndr_core::wire::{Frame, Kind};
 use quinn_proto::{
@@ -428,10 +428,13 @@ pub(super) fn input(e: &mut Entry, origin: StdInstant, at: StdInstant) {
             quinn_proto::Event::Stream(StreamEvent::Writable { .. }) => write_pending(e),
             quinn_proto::Event::DatagramReceived => {
                 while let Some(bytes) = q.conn.datagrams().recv() {
-                    // Refused datagrams are counted by the endpoint.
-                    let _ = e
-                        .endpoint
-                        .handle_datagram(Instant::from_std(origin, at), &bytes);
+                    // Refused datagrams are counted by the endpoint; QUIC
+                    // validates its paths itself.
+                    let _ = e.endpoint.handle_datagram(
+                        Instant::from_std(origin, at),
+                        &bytes,
+                        Origin::Path,
+                    );
                 }
             }
             quinn_proto::Event::ConnectionLost { reason } => {

@@ -11,12 +11,14 @@
 //! tick follows the peers' addresses, not the links.
 //!
 //! A datagram goes to the link whose session token it carries (a Bundle
-//! names its receiver's token). Once that link's endpoint has taken it (the
-//! right session, valid, newer than any before), the address it came from
-//! becomes the link's path: a listener's side learns where its peer is
-//! from the first datagram, and a peer behind a NAT, or one that moved, is
-//! answered where it is now. A datagram without a known token is dropped
-//! and counted on its socket.
+//! names its receiver's token). Its endpoint takes samples only from the
+//! link's path, the address validated as the peer's. A valid datagram from
+//! elsewhere (the first ones, on a listener's side; a peer behind a NAT
+//! that mapped it anew, or one that moved; a stranger who saw a token) is
+//! dropped, and the endpoint gives the peer a new token on the reliable
+//! path: the address of the first datagram carrying it becomes the path.
+//! Nothing is sent to an address before it is validated. A datagram
+//! without a known token is dropped and counted on its socket.
 
 use std::collections::HashMap;
 use std::io;
@@ -28,7 +30,7 @@ use std::time::Instant as StdInstant;
 
 use mio::net::UdpSocket;
 use mio::{Interest, Registry, Token};
-use ndr_core::endpoint::DatagramError;
+use ndr_core::endpoint::{DatagramError, Origin, Taken};
 use ndr_core::time::Instant;
 use ndr_core::wire::{self, HEADER_LEN};
 
@@ -45,6 +47,10 @@ const _: () = assert!(SLOT >= HEADER_LEN + wire::BUNDLE_FIXED_LEN + 8 * wire::MA
 const MAX_SEGMENTS: usize = 64;
 /// Bytes in one segmented message: under the largest UDP payload over IPv6.
 const MAX_SEGMENTED_LEN: usize = 65_000;
+/// How long a token given to validate an address may go unused before
+/// another replaces it: a peer that got it answers within a round trip,
+/// and a stranger's datagrams from elsewhere do not renew it faster.
+const RENEWAL_SPACING: std::time::Duration = std::time::Duration::from_secs(1);
 /// Kernel buffers asked for each socket (best effort: the kernel caps them
 /// at `net.core.rmem_max` / `wmem_max`): a tick of many links sends them
 /// all at one instant.
@@ -56,14 +62,17 @@ pub(crate) struct DatagramPath {
     pub socket: u64,
     /// Its own session token: the datagrams for it carry this.
     pub session: u64,
-    /// Where its datagrams go: the peer's newest address; `None` until
-    /// the peer's first datagram (a listener's side).
+    /// A new token given to the peer to validate an address, routed to
+    /// the link too until the peer uses it; and when it was given.
+    pub renewal: Option<(u64, StdInstant)>,
+    /// Where its datagrams go: the address validated as the peer's; `None`
+    /// until the first is (a listener's side).
     pub peer: Option<SocketAddr>,
     /// Datagrams not sent: no address for the peer yet, or the socket
     /// refused them (its buffer full, the path unreachable).
     pub unsent: u64,
     /// Times the peer's address changed (a NAT's new mapping, a peer that
-    /// moved, or the first datagram of a listener's side).
+    /// moved, or the first address validated on a listener's side).
     pub path_changes: u64,
     /// Datagrams to its socket with no link's token (shared by the links on it).
     pub stray: Arc<AtomicU64>,
@@ -76,6 +85,7 @@ impl DatagramPath {
         DatagramPath {
             socket,
             session,
+            renewal: None,
             peer,
             unsent: 0,
             path_changes: 0,
@@ -283,10 +293,13 @@ impl Udp {
 
     /// Link `id` has left the hub.
     pub(super) fn detach(&mut self, registry: &Registry, id: u64, path: &DatagramPath) {
-        if let Some(sock) = self.sockets.get_mut(&path.socket)
-            && sock.sessions.get(&path.session) == Some(&id)
-        {
-            sock.sessions.remove(&path.session);
+        if let Some(sock) = self.sockets.get_mut(&path.socket) {
+            let renewal = path.renewal.map(|(token, _)| token);
+            for token in [Some(path.session), renewal].into_iter().flatten() {
+                if sock.sessions.get(&token) == Some(&id) {
+                    sock.sessions.remove(&token);
+                }
+            }
         }
         self.close_if_unused(registry, path.socket);
     }
@@ -353,7 +366,7 @@ impl Udp {
                 // stopping here.
                 Err(_) => return,
             };
-            let Some(sock) = self.sockets.get(&key) else {
+            let Some(sock) = self.sockets.get_mut(&key) else {
                 return;
             };
             let handled = StdInstant::now();
@@ -637,11 +650,11 @@ impl Udp {
 }
 
 /// Hands one received datagram to the link whose token it names (a stray
-/// is counted on its socket); a link whose endpoint took it, or ended, is
-/// added to `touched`.
+/// is counted on its socket); a link whose endpoint took it, ended, or has
+/// a Token frame to send is added to `touched`.
 #[allow(clippy::too_many_arguments)]
 fn deliver(
-    sock: &Sock,
+    sock: &mut Sock,
     entries: &mut HashMap<u64, Entry>,
     touched: &mut Vec<u64>,
     bytes: &[u8],
@@ -651,28 +664,93 @@ fn deliver(
     origin: StdInstant,
 ) {
     let link = session_of(bytes).and_then(|s| sock.sessions.get(&s).copied());
-    let Some(e) = link.and_then(|id| entries.get_mut(&id)) else {
+    let Some((id, e)) = link.and_then(|id| Some((id, entries.get_mut(&id)?))) else {
         sock.stray.fetch_add(1, Ordering::Relaxed);
+        return;
+    };
+    let Some(path) = e.datagram.as_mut() else {
         return;
     };
     e.rx_lag
         .push_duration(handled.saturating_duration_since(at).into());
+    let seen = if from.is_some() && from == path.peer {
+        Origin::Path
+    } else {
+        Origin::Elsewhere
+    };
     let taken = e
         .endpoint
-        .handle_datagram(Instant::from_std(origin, at), bytes);
-    if let (Ok(()), Some(path), Some(from)) = (taken, e.datagram.as_mut(), from)
-        && path.peer != Some(from)
-    {
-        tracing::debug!(from = %from, before = ?path.peer, "datagram path changed");
-        path.peer = Some(from);
-        path.path_changes += 1;
+        .handle_datagram(Instant::from_std(origin, at), bytes, seen);
+    let mut act = matches!(taken, Ok(_) | Err(DatagramError::Link(_)));
+    match taken {
+        Ok(Taken::Validated { retired }) => {
+            sock.sessions.remove(&retired);
+            if let Some((token, _)) = path.renewal.take() {
+                path.session = token;
+            }
+            if path.peer != from {
+                tracing::debug!(from = ?from, before = ?path.peer, "datagram path validated");
+                path.peer = from;
+                path.path_changes += 1;
+            }
+        }
+        Err(DatagramError::OffPath) => act = renew(sock, id, e, handled),
+        _ => {}
     }
-    // Refused datagrams are counted by the endpoint; only an ended link
-    // needs its hub to act.
-    if matches!(taken, Ok(()) | Err(DatagramError::Link(_)))
-        && let Some(id) = link.filter(|id| !touched.contains(id))
-    {
+    // Refused datagrams are counted by the endpoint; only a link with
+    // something to do needs its hub to act.
+    if act && !touched.contains(&id) {
         touched.push(id);
+    }
+}
+
+/// Gives link `id`'s peer a new token to validate the address of a
+/// datagram from elsewhere, unless one given lately is still unused;
+/// whether the link has a Token frame to send.
+fn renew(sock: &mut Sock, id: u64, e: &mut Entry, now: StdInstant) -> bool {
+    let Some(path) = e.datagram.as_mut() else {
+        return false;
+    };
+    if path
+        .renewal
+        .is_some_and(|(_, given)| now.saturating_duration_since(given) < RENEWAL_SPACING)
+    {
+        return false;
+    }
+    let Some(token) = session_token()
+        .ok()
+        .filter(|t| !sock.sessions.contains_key(t))
+    else {
+        return false;
+    };
+    match e.endpoint.renew_session(token) {
+        Ok(replaced) => {
+            if let Some(old) = replaced {
+                sock.sessions.remove(&old);
+            }
+            sock.sessions.insert(token, id);
+            path.renewal = Some((token, now));
+            true
+        }
+        // Before the handshake is over or after the close: the datagram
+        // waits for nothing.
+        Err(_) => false,
+    }
+}
+
+/// A datagram session token: random, never 0, so that a datagram of
+/// another session (or a guess) is not taken for one of this session.
+pub(crate) fn session_token() -> io::Result<u64> {
+    use ring::rand::{SecureRandom as _, SystemRandom};
+    let rng = SystemRandom::new();
+    loop {
+        let mut bytes = [0; 8];
+        rng.fill(&mut bytes)
+            .map_err(|_| io::Error::other("no randomness for a datagram session token"))?;
+        let token = u64::from_le_bytes(bytes);
+        if token != 0 {
+            return Ok(token);
+        }
     }
 }
 
