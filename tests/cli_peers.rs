@@ -288,6 +288,50 @@ fn a_base_run_to_its_end_completes_and_streams_its_rows() {
 }
 
 #[test]
+fn a_udp_links_dropped_datagrams_are_in_both_reports() {
+    let _serial = serial();
+    let (remote, addr) = remote(&["--once", "--transport", "udp"]);
+    // A stranger's datagrams at the remote's port: strays, counted.
+    let stranger = std::net::UdpSocket::bind("127.0.0.3:0").unwrap();
+    for _ in 0..5 {
+        stranger.send_to(b"not an ndr datagram", &addr).unwrap();
+    }
+    let csv = csv_path("udp-counts");
+    let (status, r, stderr) = base(&addr, "3", &csv, &["--transport", "udp"]);
+    assert!(status.success(), "{r}\n{stderr}");
+    for key in [
+        "datagrams_stale",
+        "datagrams_foreign",
+        "datagrams_refused",
+        "datagrams_off_path",
+        "datagrams_stray",
+    ] {
+        assert!(r[key].is_u64(), "{key}: {r}");
+    }
+    let (status, _, stderr) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{stderr}");
+    let line = stderr
+        .lines()
+        .find(|l| l.contains("closed in order by the base"))
+        .unwrap_or_else(|| panic!("{stderr}"));
+    for part in [
+        "datagrams ",
+        " stale",
+        " foreign",
+        " refused",
+        " not validated",
+    ] {
+        assert!(line.contains(part), "{part}: {line}");
+    }
+    // The strays reached the listener's socket before the link was on it.
+    assert!(
+        stderr.contains("datagrams_stray: 5") || line.contains("5 strays"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_file(csv);
+}
+
+#[test]
 fn a_base_whose_relay_dies_reports_the_failed_link() {
     let _serial = serial();
     let (mut remote, remote_addr) = remote(&[]);

@@ -187,8 +187,10 @@ fn serve(
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let counted = last.map_or_else(String::new, |s| {
+            let datagrams =
+                crate::report::datagram_counts(&s).map_or_else(String::new, |d| format!("; {d}"));
             format!(
-                " after {} samples released ({} underflows, {} late)",
+                " after {} samples released ({} underflows, {} late){datagrams}",
                 s.endpoint.released_fresh, s.endpoint.underflows, s.endpoint.late
             )
         });

@@ -268,6 +268,15 @@ struct DemoReport {
     datagrams_repeated: u64,
     datagrams_stale: u64,
     datagrams_unsent: u64,
+    /// Datagram transport, both sides: datagrams dropped as another
+    /// session's (a token their link no longer uses), refused (invalid,
+    /// too far ahead, stamped in the future), from an address not
+    /// validated, or with no link's token at all (strays, counted on the
+    /// hubs' sockets).
+    datagrams_foreign: u64,
+    datagrams_refused: u64,
+    datagrams_off_path: u64,
+    datagrams_stray: u64,
     /// Both sides: samples never sent because a hub was held past its
     /// endpoint's transmit queue (the host's doing, not the network's; the
     /// peer counts them as lost), and samples sent again because the
@@ -391,6 +400,11 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         datagrams_stale: eb.datagrams_stale + er.datagrams_stale,
         datagrams_unsent: b.map_or(0, |s| s.datagrams_unsent)
             + remote.map_or(0, |s| s.datagrams_unsent),
+        datagrams_foreign: eb.datagrams_foreign + er.datagrams_foreign,
+        datagrams_refused: eb.datagrams_refused + er.datagrams_refused,
+        datagrams_off_path: eb.datagrams_off_path + er.datagrams_off_path,
+        datagrams_stray: b.map_or(0, |s| s.datagrams_stray)
+            + remote.map_or(0, |s| s.datagrams_stray),
         tx_dropped: eb.tx_dropped + er.tx_dropped,
         samples_repeated: eb.samples_repeated + er.samples_repeated,
         one_way_fwd_mean_s: er.one_way_rx.mean(),
@@ -473,6 +487,10 @@ fn print_table(r: &DemoReport) {
             r.datagrams_stale,
             r.datagrams_unsent
         );
+        println!(
+            "  dropped    {} foreign · {} refused · {} from an address not validated · {} strays (datagrams)",
+            r.datagrams_foreign, r.datagrams_refused, r.datagrams_off_path, r.datagrams_stray
+        );
     }
     if r.playout != "fifo" {
         // A target-delay playout: the constant delay each side holds now,
@@ -541,6 +559,32 @@ fn print_table(r: &DemoReport) {
         );
     }
     println!("  series     {} ({} rows)", r.csv, r.csv_rows);
+}
+
+/// A datagram link's counts, for the remote's line on each base: `None` on
+/// a stream.
+pub fn datagram_counts(s: &LinkStats) -> Option<String> {
+    let e = &s.endpoint;
+    let handed = e.datagrams_received
+        + e.datagrams_stale
+        + e.datagrams_foreign
+        + e.datagrams_refused
+        + e.datagrams_off_path;
+    (handed > 0).then(|| {
+        format!(
+            "datagrams {} taken, {} stale, {} foreign, {} refused, {} from an address not \
+             validated, {} strays; samples {} recovered, {} lost; {} path changes",
+            e.datagrams_received,
+            e.datagrams_stale,
+            e.datagrams_foreign,
+            e.datagrams_refused,
+            e.datagrams_off_path,
+            s.datagrams_stray,
+            e.samples_recovered + e.samples_from_repeats,
+            e.samples_lost,
+            s.datagram_path_changes
+        )
+    })
 }
 
 #[cfg(test)]

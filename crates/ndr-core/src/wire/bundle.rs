@@ -148,7 +148,7 @@ impl<'a> Bundle<'a> {
 impl fmt::Debug for Bundle<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Bundle")
-            .field("session", &self.session())
+            .field("session", &super::Secret(self.session()))
             .field("repeat", &self.repeat())
             .field("missed", &self.missed())
             .field("newest", &self.newest())

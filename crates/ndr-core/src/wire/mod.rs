@@ -67,6 +67,17 @@ pub const PREFIX_LEN: usize = 4;
 /// Wire value of `echo` and `released` meaning "none yet".
 const NONE: u64 = u64::MAX;
 
+/// A session token as `Debug` shows it: whether it is set, never its
+/// value, which is a bearer secret of the datagram path and must not reach
+/// a log.
+struct Secret(u64);
+
+impl fmt::Debug for Secret {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(if self.0 == 0 { "0" } else { "<token>" })
+    }
+}
+
 /// Header field offsets (widths follow from the types read there).
 mod field {
     pub const LENGTH: usize = 0;

@@ -324,8 +324,9 @@ pub mod close_reason {
     }
 }
 
-/// Handshake: what the sender is and how it wants the link run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// Handshake: what the sender is and how it wants the link run. Its
+/// `Debug` form leaves the session token out.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Hello {
     /// The sender's role.
     pub role: Role,
@@ -420,6 +421,21 @@ impl Hello {
     }
 }
 
+impl fmt::Debug for Hello {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Hello")
+            .field("role", &self.role)
+            .field("mode", &self.mode)
+            .field("underflow", &self.underflow)
+            .field("command_width", &self.command_width)
+            .field("state_width", &self.state_width)
+            .field("period", &self.period)
+            .field("layout", &self.layout)
+            .field("session", &super::Secret(self.session))
+            .finish()
+    }
+}
+
 /// Pause / resume negotiation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Control {
@@ -505,8 +521,9 @@ impl fmt::Display for Close {
 /// sender, and the address the first of them comes from becomes the one
 /// the sender's datagrams go to. Only someone who reads the reliable path
 /// learns it before it is used, so a datagram carrying it proves that its
-/// address is the peer's (path validation).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// address is the peer's (path validation). Its `Debug` form leaves the
+/// token out.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Token {
     /// The token; never 0 (a stream's "no datagrams").
     pub session: u64,
@@ -532,5 +549,13 @@ impl Token {
             0 => Err(WireError::ZeroToken),
             session => Ok(session.to_le_bytes()),
         }
+    }
+}
+
+impl fmt::Debug for Token {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Token")
+            .field("session", &super::Secret(self.session))
+            .finish()
     }
 }

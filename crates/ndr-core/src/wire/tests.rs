@@ -595,3 +595,45 @@ fn a_tls_record_where_a_frame_was_expected_is_named_in_the_error() {
     let e = frame_len(b"GET ").unwrap_err();
     assert!(!e.to_string().contains("TLS"), "{e}");
 }
+
+#[test]
+fn debug_forms_never_show_a_session_token() {
+    let token: u64 = 0x5eed_1234_abcd_9876;
+    let secret = [
+        std::format!("{token}"),
+        std::format!("{token:x}"),
+        std::format!("{token:#x}"),
+    ];
+    let mut h = hello();
+    h.session = token;
+    let b = bundle_bytes(token);
+    let frames = [
+        frame_bytes(&Message::Hello(h)),
+        frame_bytes(&Message::Token(Token { session: token })),
+        b,
+    ];
+    for bytes in &frames {
+        let frame = Frame::new_checked(&bytes[..]).unwrap();
+        let shown = std::format!("{frame:?} {:?}", frame.payload());
+        assert!(shown.contains("<token>"), "{shown}");
+        for s in &secret {
+            assert!(!shown.contains(s.as_str()), "{shown}");
+        }
+    }
+    // A stream's Hello says it has none.
+    let stream = Hello {
+        session: 0,
+        ..hello()
+    };
+    assert!(std::format!("{stream:?}").contains("session: 0"));
+}
+
+fn bundle_bytes(session: u64) -> Vec<u8> {
+    frame_bytes(&Message::Bundle {
+        session,
+        repeat: 0,
+        missed: 0,
+        newest: &[1.0],
+        older: &[],
+    })
+}
