@@ -2,9 +2,10 @@
 //!
 //! `ndr-core` holds the link as a sans-IO state machine; this crate drives it
 //! over TCP (plain or mutual TLS 1.3), UDP datagrams, or QUIC (the datagram
-//! transport with TLS: [`quic`]), keeps its release clock and runs the
-//! delay relay (whose delay models are `ndr-netem`'s, the simulator's,
-//! without the simulator).
+//! transport with TLS: [`quic`]) and keeps its release clock. Two optional
+//! features hold tooling a robot does not run: `relay`, the delay relay
+//! (whose delay models are `ndr-netem`'s, the simulator's, without the
+//! simulator), and `keygen`, self-signed identities for a lab pair.
 //!
 //! # The drive loop
 //!
@@ -47,11 +48,13 @@ mod error;
 pub mod framing;
 pub mod hub;
 mod keepalive;
+#[cfg(feature = "keygen")]
 pub mod keygen;
 pub mod link;
 mod listener;
 pub mod pool;
 pub mod quic;
+#[cfg(feature = "relay")]
 pub mod relay;
 mod seats;
 pub mod spin;
@@ -65,5 +68,6 @@ pub use hub::Hub;
 pub use link::{Link, LinkConfig, LinkSender, LinkStats, NetError, Sample};
 pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
+#[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};
