@@ -24,6 +24,7 @@ use crate::rls::{Rls, RlsError};
 
 /// Why a model could not be built or identified.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum ArxError {
     /// The natural frequency is not finite and positive (rad/s).
     InvalidNaturalFrequency(f64),

@@ -68,6 +68,7 @@ pub const MIN_IDENTIFICATION_UPDATES: u64 = 5;
 
 /// Why the estimator could not be built or stepped.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum EstimatorError {
     /// The command history capacity `H` cannot cover the delays: it must be at
     /// least `Df + Db + 3`.

@@ -10,6 +10,7 @@ pub const DEFAULT_DECAY: f64 = 1.00005;
 
 /// Errors of the filters.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum FilterError {
     /// An input was NaN or infinite; the filter state is unchanged.
     NonFinite(f64),

@@ -29,6 +29,7 @@ pub const DEFAULT_HORIZON: u32 = 50;
 
 /// Errors of [`Kalman3`].
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum KalmanError {
     /// σQ must be finite and positive.
     BadSigma(f64),

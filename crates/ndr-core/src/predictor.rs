@@ -30,6 +30,7 @@ use crate::time::Duration;
 
 /// Errors of configuring a [`NetworkPredictor`].
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum PredictorError {
     /// A filter parameter is invalid.
     Filter(FilterError),
@@ -62,6 +63,7 @@ impl From<KalmanError> for PredictorError {
 
 /// The predictor's constants; [`PredictorConfig::paper`] gives the paper's.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct PredictorConfig {
     /// The period `T` at which [`NetworkPredictor::step`] is called.
     pub period: Duration,

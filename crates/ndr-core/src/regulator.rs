@@ -49,6 +49,7 @@ impl<T: fmt::Debug> core::error::Error for Full<T> {}
 
 /// Errors of configuring a [`Regulator`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum RegulatorError {
     /// The nominal size must leave room for one more sample: `ns < N`.
     NominalSize {

@@ -45,6 +45,7 @@ pub const DEFAULT_TRACE_FACTOR: f64 = 1e6;
 
 /// Why an [`Rls`] could not be built or updated.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum RlsError {
     /// The forgetting factor is not in `(0, 1]` (or is NaN).
     InvalidForgettingFactor(f64),

@@ -36,6 +36,7 @@ pub const DEFAULT_MIN_PERIOD: Duration = Duration::from_millis(50);
 
 /// Errors of sizing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SizingError {
     /// η must be finite and positive.
     BadEta,

@@ -355,6 +355,7 @@ impl LatenessHistogram {
 /// A summary of tick lateness (see [`LatenessHistogram::stats`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct LatenessStats {
     /// Ticks served.
     pub count: u64,

@@ -121,6 +121,7 @@ pub enum Trust {
 }
 
 /// Why TLS could not be set up from the given files or values.
+#[non_exhaustive]
 pub enum TlsError {
     /// A file could not be read.
     Read {
@@ -439,6 +440,7 @@ impl TlsConfig {
 
 /// Why a TLS handshake failed; the link was never set up.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum HandshakeError {
     /// The peer's certificate is not trusted here (unknown issuer, pin
     /// mismatch, bad name), or this side's was refused by the peer.

@@ -238,6 +238,7 @@ pub enum DelayModel {
 
 /// Why a profile name was refused.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum DelayError {
     /// Not one of [`PROFILE_NAMES`].
     UnknownProfile(String),

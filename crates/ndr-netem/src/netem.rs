@@ -34,6 +34,7 @@ pub struct DistTable {
 
 /// Why a distribution table was refused.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum DistError {
     /// The text holds no entry at all.
     Empty,

@@ -76,6 +76,7 @@ impl Column {
 /// Why a trace was refused. Line numbers are 1-based and count every line
 /// of the file, the header included.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum TraceError {
     /// No header: the text is empty or holds only comments and blank lines.
     Empty,

@@ -34,6 +34,7 @@ pub(crate) type SimEndpoint = Endpoint<Heap>;
 /// The remote's plant: per axis, a second-order low-pass system discretized
 /// at the link's period by the bilinear transform.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct PlantConfig {
     /// Natural frequency, Hz.
     pub natural_hz: f64,
@@ -67,6 +68,7 @@ impl PlantConfig {
 
 /// One simulation run.
 #[derive(Clone, Debug)]
+#[non_exhaustive]
 pub struct SimConfig {
     /// The network's delays.
     pub model: DelayModel,
@@ -150,6 +152,7 @@ impl SimConfig {
 
 /// Why a simulation could not run or ended early.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum SimError {
     /// More axes than the simulator carries.
     Axes(u16),

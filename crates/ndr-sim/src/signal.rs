@@ -129,6 +129,7 @@ impl fmt::Display for Signal {
 
 /// Why a signal description was refused.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SignalError {
     /// Not `sine`, `steps` or `constant`.
     UnknownKind(String),
