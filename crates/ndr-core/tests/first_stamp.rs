@@ -4,7 +4,7 @@
 //! (a first probe at its clock's start that echoes nothing, a probe stamped
 //! before its Hello), the remote serves it, at the delay of the wire.
 
-use ndr_core::endpoint::{Config, Endpoint, Event, Status};
+use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Status};
 use ndr_core::playout::Playout;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
@@ -182,9 +182,10 @@ fn frame(header: &Header, msg: &Message<'_>) -> Vec<u8> {
 }
 
 /// What the remote (of `playout`) did with a hand-written base started as
-/// `start`, over `COMMANDS` commands and a second more: the commands it
-/// released fresh, in order, and its playout delay then.
-fn serve(start: Start, playout: Playout) -> (Vec<u64>, Option<Duration>) {
+/// `start`, over `COMMANDS` commands and two seconds more: the commands it
+/// released fresh, in order, and its playout delay then; or the error that
+/// ended the link.
+fn serve(start: Start, playout: Playout) -> Result<(Vec<u64>, Option<Duration>), LinkError> {
     let mut c = Config::new(Role::Remote);
     c.period = T;
     c.playout = playout;
@@ -216,9 +217,7 @@ fn serve(start: Start, playout: Playout) -> (Vec<u64>, Option<Duration>) {
         }
         while to_remote.first().is_some_and(|f| f.0 <= now) {
             let (at, bytes) = to_remote.remove(0);
-            if let Err(e) = remote.handle_frame(at, &bytes) {
-                panic!("{start:?}: the remote refused a frame: {e}");
-            }
+            remote.handle_frame(at, &bytes)?;
         }
         while to_base.first().is_some_and(|f| f.0 <= now) {
             let (at, bytes) = to_base.remove(0);
@@ -235,7 +234,7 @@ fn serve(start: Start, playout: Playout) -> (Vec<u64>, Option<Duration>) {
                     }
                     remote.set_sample(r.values()).expect("a valid sample");
                 }
-                Event::Closed { error } => panic!("{start:?}: the remote closed: {error:?}"),
+                Event::Closed { error } => return Err(error.unwrap_or(LinkError::Closed)),
                 _ => {}
             }
         }
@@ -247,7 +246,7 @@ fn serve(start: Start, playout: Playout) -> (Vec<u64>, Option<Duration>) {
             to_remote.push((now + WIRE, f));
         }
     }
-    (released, delay(&remote))
+    Ok((released, delay(&remote)))
 }
 
 #[test]
@@ -255,22 +254,31 @@ fn a_base_whose_first_probe_is_stamped_at_its_clocks_start_is_served() {
     let us = Duration::from_micros;
     let (ms, s) = (Duration::from_millis, Duration::from_secs);
     let unix_time = 1_700_000_000_000_000_000;
+    // The last hour of the stamps a clock may read.
+    let last_hour = (1 << 63) - 3_600_000_000_000;
     let (mut cases, mut failed) = (0, Vec::new());
     for playout in [Playout::ADAPTIVE, Playout::Fifo] {
         for remote_up in [ms(1400), Duration::ZERO, s(3600)] {
-            for clock in [0, 1, unix_time] {
+            for clock in [0, 1, unix_time, last_hour] {
                 // The Hello at its start or just after, or a period after
                 // its first probe's stamp; the first tick at its start, a
                 // nanosecond after, or a period after.
                 for hello in [Duration::ZERO, us(50), T] {
                     for first_tick in [Duration::ZERO, Duration::from_nanos(1), T] {
+                        cases += 1;
                         let start = Start {
                             remote_up,
                             clock,
                             hello,
                             first_tick,
                         };
-                        let (released, delay) = serve(start, playout);
+                        let (released, delay) = match serve(start, playout) {
+                            Ok(served) => served,
+                            Err(e) => {
+                                failed.push(format!("{playout:?} {start:?}: {e}"));
+                                continue;
+                            }
+                        };
                         let first = released.iter().take_while(|&&v| v <= COMMANDS);
                         let in_order = first.copied().eq(1..=COMMANDS);
                         // The adaptive playout at the wire's delay, not at
@@ -282,17 +290,39 @@ fn a_base_whose_first_probe_is_stamped_at_its_clocks_start_is_served() {
                                 "{playout:?} {start:?}: {n} of {COMMANDS} released, delay {delay:?}"
                             ));
                         }
-                        cases += 1;
                     }
                 }
             }
         }
     }
-    assert_eq!(cases, 2 * 3 * 3 * 3 * 3);
+    assert_eq!(cases, 2 * 3 * 4 * 3 * 3);
     assert!(
         failed.is_empty(),
         "{} of {cases} not served:\n{}",
         failed.len(),
         failed.join("\n")
     );
+}
+
+#[test]
+fn a_base_whose_clock_passes_2_to_the_63_is_refused_with_that_error() {
+    // 2⁶³ ns is 292 years: no clock reads it, and the clock arithmetic
+    // takes stamps as signed nanoseconds. A base whose clock gets there a
+    // second into the link is refused at its first frame stamped there.
+    let start = Start {
+        remote_up: Duration::from_millis(1400),
+        clock: (1 << 63) - 1_000_000_000,
+        hello: Duration::ZERO,
+        first_tick: Duration::ZERO,
+    };
+    for playout in [Playout::ADAPTIVE, Playout::Fifo] {
+        let refused = serve(start, playout).map(|_| ());
+        // Its tick 20, a second on.
+        let got = Instant::from_nanos(1 << 63);
+        assert_eq!(
+            refused,
+            Err(LinkError::StampOutOfRange { got }),
+            "{playout:?}"
+        );
+    }
 }
