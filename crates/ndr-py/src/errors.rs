@@ -93,7 +93,8 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
         | CoreError::ChannelCount { .. }
         | CoreError::OutOfSequence { .. }
         | CoreError::StampBehind { .. }
-        | CoreError::StampAhead { .. } => ProtocolError::new_err(msg),
+        | CoreError::StampAhead { .. }
+        | CoreError::StampOutOfRange { .. } => ProtocolError::new_err(msg),
         CoreError::PeerClosed { reason } => peer_closed(py, msg, reason),
         // A peer silent past the liveness time: hung, or the connection
         // half-open; for the application, the connection is gone.

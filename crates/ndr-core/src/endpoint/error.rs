@@ -118,6 +118,13 @@ pub enum LinkError {
         /// How far past its arrival, on the peer's clock as estimated.
         ahead: Duration,
     },
+    /// A frame stamped at or past 2⁶³ ns from its sender's origin, 292
+    /// years, which no clock reads (ends the link): the clock arithmetic
+    /// takes stamps as signed nanoseconds.
+    StampOutOfRange {
+        /// The stamp it carried.
+        got: Instant,
+    },
     /// The peer closed the link, with its reason code.
     PeerClosed {
         /// The [`close_reason`] code.
@@ -179,7 +186,9 @@ impl LinkError {
             LinkError::Timeout | LinkError::PeerSilent { .. } => close_reason::TIMEOUT,
             LinkError::Busy => close_reason::BUSY,
             LinkError::OutOfSequence { .. } => close_reason::SEQUENCE,
-            LinkError::StampBehind { .. } | LinkError::StampAhead { .. } => close_reason::STAMP,
+            LinkError::StampBehind { .. }
+            | LinkError::StampAhead { .. }
+            | LinkError::StampOutOfRange { .. } => close_reason::STAMP,
             LinkError::PeerClosed { reason } => *reason,
             LinkError::Closed => close_reason::NORMAL,
             LinkError::HandlerPanicked | LinkError::Abandoned => close_reason::APPLICATION,
@@ -320,6 +329,11 @@ impl fmt::Display for LinkError {
                 f,
                 "protocol error: a Data frame stamped {ahead} after it arrived (a stamp from the \
                  future); nothing of it was released"
+            ),
+            LinkError::StampOutOfRange { got } => write!(
+                f,
+                "protocol error: a frame stamped {got}, 2^63 ns (292 years) or more from its \
+                 sender's origin, which no clock reads; nothing of it was used"
             ),
             LinkError::PeerClosed { reason } if reason == close_reason::BUSY => f.write_str(
                 "the peer is busy serving another peer (a robot serves one base at a time): \

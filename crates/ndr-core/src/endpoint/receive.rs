@@ -84,8 +84,8 @@ impl<S: Storage> Endpoint<S> {
         echo: Option<Echo>,
     ) -> Result<(), LinkError> {
         let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
-        // A stamp nothing could check yet (the first Hello) stays out of the
-        // clock estimate.
+        // A stamp nothing could check yet (the first Hello, a first probe
+        // that echoes nothing) stays out of the clock estimate.
         if self.heard.check.bounded() {
             self.sync.observe_arrival(sent_at, now);
         }
@@ -425,6 +425,10 @@ impl<S: Storage> Endpoint<S> {
                 }
                 above
             }
+            // Adaptive before any echo has bounded the clocks (a peer's
+            // first frames may echo nothing): its raw delay is the clocks'
+            // offset, not a delay, and would set the target to it.
+            None if self.schedule.is_some() => return,
             None => arrived - sent_at,
         };
         if let Some(target) = &mut self.target {

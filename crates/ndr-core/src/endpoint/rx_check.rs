@@ -27,6 +27,11 @@ const SKEW_ALLOWED: f64 = 1e-3;
 /// kernel receive stamp turned into a monotonic instant.
 const STAMP_SLACK: Duration = Duration::from_millis(1);
 
+/// The latest stamp a clock may read: 2⁶³ − 1 ns, 292 years from its
+/// origin. The clocks' offset, the delays and the release slots are signed
+/// nanoseconds, exact for any two stamps up to this one.
+pub(super) const LAST_STAMP: Instant = Instant::from_nanos(i64::MAX as u64);
+
 /// The checks on received frames, and what they remember.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct RxCheck {
@@ -69,10 +74,10 @@ impl RxCheck {
     }
 
     /// A frame stamped `sent_at` (peer clock) arrived at `now`: an error if
-    /// it cannot have been sent yet.
+    /// it cannot have been sent yet, or no clock reads it.
     pub(super) fn check_stamp(&self, sent_at: Instant, now: Instant) -> Result<(), LinkError> {
         let Some((floor, found)) = self.offset_floor else {
-            return Ok(());
+            return Self::in_range(sent_at);
         };
         let drift = now.saturating_duration_since(found).as_secs_f64() * SKEW_ALLOWED;
         let allowed = i128::from(STAMP_SLACK.as_nanos()) + (drift * 1e9) as i128;
@@ -82,6 +87,13 @@ impl RxCheck {
             return Err(LinkError::StampAhead {
                 ahead: Duration::from_nanos(ahead),
             });
+        }
+        Self::in_range(sent_at)
+    }
+
+    fn in_range(sent_at: Instant) -> Result<(), LinkError> {
+        if sent_at > LAST_STAMP {
+            return Err(LinkError::StampOutOfRange { got: sent_at });
         }
         Ok(())
     }
@@ -246,10 +258,7 @@ mod tests {
     fn a_stamp_from_the_future_is_refused_once_an_echo_bounds_the_clocks() {
         let mut c = RxCheck::new(T);
         // Before any echo, nothing bounds the offset.
-        assert_eq!(
-            c.check_stamp(Instant::from_nanos(1 << 63), at_ms(0)),
-            Ok(())
-        );
+        assert_eq!(c.check_stamp(LAST_STAMP, at_ms(0)), Ok(()));
         // The peer's clock is 1 000 ms behind ours, 5 ms each way: our frame
         // sent at 2 000 reached it at its 1 005, answered at its 1 008.
         c.observe_echo(
@@ -272,6 +281,21 @@ mod tests {
             c.check_stamp(Instant::from_nanos(1 << 63), at_ms(2023)),
             Err(LinkError::StampAhead { .. })
         ));
+        // Our frame sent at 0 reached a peer whose clock is near its end at
+        // its 2⁶³ − 2 s: a stamp no clock reads is never ahead of that
+        // bound, and refused before it as after.
+        let mut fresh = RxCheck::new(T);
+        let past = Instant::from_nanos(1 << 63);
+        let out = Err(LinkError::StampOutOfRange { got: past });
+        assert_eq!(fresh.check_stamp(past, at_ms(0)), out);
+        fresh.observe_echo(
+            at_ms(0),
+            Duration::ZERO,
+            Instant::from_nanos((1 << 63) - 2_000_000_000),
+            at_ms(10),
+        );
+        assert_eq!(fresh.check_stamp(LAST_STAMP, at_ms(2010)), Ok(()));
+        assert_eq!(fresh.check_stamp(past, at_ms(2010)), out);
         // An hour later, the skew allowed (3.6 s) covers a drifting clock.
         let hour = 3_600_000;
         assert_eq!(
