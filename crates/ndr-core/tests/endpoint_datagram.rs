@@ -608,6 +608,31 @@ fn bundle_seq(bundle: &[u8]) -> u64 {
 }
 
 #[test]
+fn a_copy_stamped_after_its_newest_sample_is_refused() {
+    let (mut p, bundle) = running_and_a_sniffed_bundle();
+    let frame = ndr_core::wire::Frame::new_checked(&bundle[..]).unwrap();
+    assert!(frame_copies(&bundle) > 0, "a bundle with copies");
+    let newest = frame.sent_at().as_nanos();
+    // The first copy's stamp, at 64 + 8 · width + 8.
+    let mut forged = bundle.clone();
+    let at = 64 + 8 * 2 + 8;
+    for stamp in [newest + 1, u64::MAX - 5] {
+        forged[at..at + 8].copy_from_slice(&stamp.to_le_bytes());
+        let seq = u64::from_le_bytes(forged[at - 8..at].try_into().unwrap());
+        let when = p.now() + T + Duration::from_millis(3);
+        assert_eq!(
+            p.remote.handle_datagram(when, &forged, Origin::Path),
+            Err(DatagramError::CopyStamp { seq })
+        );
+    }
+    assert_eq!(p.remote.stats().datagrams_refused, 2);
+}
+
+fn frame_copies(bundle: &[u8]) -> usize {
+    usize::from(bundle[56]) - 1
+}
+
+#[test]
 fn a_datagrams_seq_may_run_ahead_by_the_ticks_its_stamp_leaves_room_for() {
     let (mut p, bundle) = running_and_a_sniffed_bundle();
     let seq = bundle_seq(&bundle);

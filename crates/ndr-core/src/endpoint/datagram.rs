@@ -241,6 +241,12 @@ pub enum DatagramError {
         /// The most ticks its stamp leaves room for.
         room: u64,
     },
+    /// A copy stamped after the newest sample of its bundle, which an
+    /// honest sender stamped later (`datagrams_refused`).
+    CopyStamp {
+        /// The copy's `seq`.
+        seq: u64,
+    },
     /// A valid datagram from an address the driver has not validated as
     /// the peer's (`datagrams_off_path`): not taken. The driver may
     /// validate the address with [`Endpoint::renew_session`].
@@ -297,6 +303,11 @@ impl fmt::Display for DatagramError {
                 f,
                 "a datagram with sample {seq} where {expected} was expected and its stamp \
                  leaves room for {room} ticks (forged: a sender numbers its ticks), dropped"
+            ),
+            DatagramError::CopyStamp { seq } => write!(
+                f,
+                "a datagram whose copy of sample {seq} is stamped after its newest sample \
+                 (forged: a sender stamps its ticks in order), dropped"
             ),
             DatagramError::OffPath => f.write_str(
                 "a datagram from an address not validated as the peer's, dropped (the peer \
@@ -450,6 +461,10 @@ impl<S: Storage> Endpoint<S> {
         let stalled = self.driver_stalled(now);
         if let Err(e) = self.check_stamp(now, sent_at, frame.echo()) {
             return refused(self, DatagramError::Stamp(e));
+        }
+        // The newest's stamp is checked: its copies' come before it.
+        if let Some(o) = bundle.older().find(|o| o.sent_at > sent_at) {
+            return refused(self, DatagramError::CopyStamp { seq: o.seq });
         }
         if origin == Origin::Elsewhere && !validates {
             self.stats.datagrams_off_path += 1;
