@@ -69,3 +69,12 @@ def test_the_wire_specs_reference_encoder_writes_its_vectors():
         released=40,
     )
     assert bundle == _wire_vector(text, 8)
+    token = ns["token"](
+        0x0123456789ABCDEF,
+        seq=1300,
+        sent_at=260_000_000_000,
+        echo=259_990_000_000,
+        hold=2_000_000,
+        released=1290,
+    )
+    assert token == _wire_vector(text, 9)
