@@ -188,7 +188,11 @@ fn sixty_four_values_each_way_at_1_khz_over_tcp() {
 
 /// A Bundle of one sample for the link whose token is `session`.
 fn bundle(session: u64, seq: u64, values: &[f64]) -> Vec<u8> {
-    let header = Header::new(seq, Instant::ZERO);
+    bundle_of(&Header::new(seq, Instant::ZERO), session, values)
+}
+
+/// A Bundle of one sample, first sent, under `header`.
+fn bundle_of(header: &Header, session: u64, values: &[f64]) -> Vec<u8> {
     let msg = Message::Bundle {
         session,
         repeat: 0,
@@ -197,7 +201,7 @@ fn bundle(session: u64, seq: u64, values: &[f64]) -> Vec<u8> {
         older: &[],
     };
     let mut buf = vec![0; wire::MAX_FRAME_LEN + 64];
-    let n = wire::encode(&header, &msg, &mut buf).unwrap();
+    let n = wire::encode(header, &msg, &mut buf).unwrap();
     buf.truncate(n);
     buf
 }
@@ -336,19 +340,11 @@ fn forged(sniffed: &[u8], seq: u64, values: &[f64]) -> Vec<u8> {
     let wire::Payload::Bundle(b) = frame.payload() else {
         panic!("a bundle")
     };
-    let mut header = frame.header();
-    header.seq = seq;
-    let msg = Message::Bundle {
-        session: b.session(),
-        repeat: 0,
-        missed: b.missed(),
-        newest: values,
-        older: &[],
+    let header = Header {
+        seq,
+        ..frame.header()
     };
-    let mut buf = vec![0; wire::MAX_FRAME_LEN];
-    let n = wire::encode(&header, &msg, &mut buf).unwrap();
-    buf.truncate(n);
-    buf
+    bundle_of(&header, b.session(), values)
 }
 
 #[test]
