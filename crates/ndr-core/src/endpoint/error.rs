@@ -95,6 +95,15 @@ pub enum LinkError {
     /// This side serves as many peers as it may: the peer was refused
     /// after its handshake (sent by a listener; ends the link).
     Busy,
+    /// This side (a listener) cut the peer's handshake short to make room
+    /// for a newer connection: from the same source, which had as many
+    /// handshakes pending as one may have (`per_source`), or when every
+    /// handshake slot was taken (ends the link; the peer gets Close
+    /// [`close_reason::EVICTED_SOURCE`] or [`close_reason::EVICTED`]).
+    Evicted {
+        /// The source's cap, rather than the listener's, was reached.
+        per_source: bool,
+    },
     /// A Data frame that is not the next one (ends the link): over a
     /// stream every frame is the one after the previous, so a repeated,
     /// skipped or replayed sequence number is an error, never a release.
@@ -185,6 +194,8 @@ impl LinkError {
             LinkError::ModeMismatch { .. } => close_reason::MODE_MISMATCH,
             LinkError::Timeout | LinkError::PeerSilent { .. } => close_reason::TIMEOUT,
             LinkError::Busy => close_reason::BUSY,
+            LinkError::Evicted { per_source: true } => close_reason::EVICTED_SOURCE,
+            LinkError::Evicted { per_source: false } => close_reason::EVICTED,
             LinkError::OutOfSequence { .. } => close_reason::SEQUENCE,
             LinkError::StampBehind { .. }
             | LinkError::StampAhead { .. }
@@ -315,6 +326,14 @@ impl fmt::Display for LinkError {
                 "the listener serves as many peers as it may (a robot serves one base at a \
                  time): try again once the other peer is done",
             ),
+            LinkError::Evicted { per_source: true } => f.write_str(
+                "the peer's handshake was cut short to make room for a newer connection from \
+                 its address, which had as many handshakes pending as one address may have",
+            ),
+            LinkError::Evicted { per_source: false } => f.write_str(
+                "the peer's handshake was cut short to make room for a newer connection: every \
+                 handshake slot was taken",
+            ),
             LinkError::OutOfSequence { expected, got } => write!(
                 f,
                 "protocol error: a Data frame with sequence number {got} where {expected} was due \
@@ -339,6 +358,36 @@ impl fmt::Display for LinkError {
                 "the peer is busy serving another peer (a robot serves one base at a time): \
                  try again once it is done",
             ),
+            LinkError::PeerClosed { reason } if reason == close_reason::EVICTED_SOURCE => {
+                write!(
+                    f,
+                    "the peer refused this connection: too many handshakes pending from this \
+                     side's address (code {reason}): something else at the same address (behind \
+                     the same NAT or relay) opens connections that do not complete their \
+                     handshake; try again (a peer that completes its handshake promptly gets \
+                     in), and find what else connects from this address"
+                )
+            }
+            LinkError::PeerClosed { reason } if reason == close_reason::EVICTED => write!(
+                f,
+                "the peer refused this connection: every handshake slot was taken (code \
+                 {reason}), a flood of connections that do not complete their handshake; try \
+                 again (a peer that completes its handshake promptly gets in)"
+            ),
+            LinkError::PeerClosed { reason } if reason == close_reason::VERSION_MISMATCH => write!(
+                f,
+                "the peer refused this side's wire version (code {reason}): it speaks another \
+                 version of ndr's wire format than ndr wire version {}; upgrade the older side",
+                wire::VERSION
+            ),
+            LinkError::PeerClosed { reason } if reason == close_reason::TRANSPORT_MISMATCH => {
+                write!(
+                    f,
+                    "transport mismatch: the peer carries samples over another transport than \
+                     this side (code {reason}: one over a stream, the other over datagrams); \
+                     give both the same transport"
+                )
+            }
             LinkError::PeerClosed { reason } => write!(
                 f,
                 "the peer closed the link: {} (code {reason})",

@@ -300,6 +300,13 @@ pub mod close_reason {
     pub const LAYOUT_MISMATCH: u16 = 12;
     /// One peer runs over a stream, the other over datagrams.
     pub const TRANSPORT_MISMATCH: u16 = 13;
+    /// The listener cut the handshake short to make room for a newer
+    /// connection from the same address: that address had as many
+    /// handshakes pending as one source may have.
+    pub const EVICTED_SOURCE: u16 = 14;
+    /// The listener cut the handshake short to make room for a newer
+    /// connection: every handshake slot was taken.
+    pub const EVICTED: u16 = 15;
 
     /// A short name for `code`, `"unknown"` for codes this build does not know.
     #[must_use]
@@ -319,6 +326,8 @@ pub mod close_reason {
             STAMP => "send stamp out of time",
             LAYOUT_MISMATCH => "layout mismatch",
             TRANSPORT_MISMATCH => "transport mismatch",
+            EVICTED_SOURCE => "evicted: too many handshakes pending from this address",
+            EVICTED => "evicted: too many handshakes pending",
             _ => "unknown",
         }
     }
