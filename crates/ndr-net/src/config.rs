@@ -131,10 +131,16 @@ pub struct Admission {
     /// `handshake_timeout`).
     pub preauth_timeout: Duration,
     /// Most handshakes pending at once from one source (an IPv4 address,
-    /// or an IPv6 /64); a connection beyond it is closed at once and
-    /// counted in [`ListenerStats::refused_per_source`](crate::ListenerStats::refused_per_source). Default 8 (at
-    /// least 1). Peers behind one NAT share a source: raise it for many
-    /// operators behind one address.
+    /// or an IPv6 /64). A new connection from a source that has as many
+    /// takes the slot of one of them: one that has not sent its whole first
+    /// message before one that has, the one stuck longest first; that one is
+    /// closed, its peer told why (Close `EVICTED_SOURCE`), and counted in
+    /// [`ListenerStats::refused_per_source`](crate::ListenerStats::refused_per_source).
+    /// So a base that completes its handshake promptly gets in however
+    /// fast stale connections from its address come (over QUIC, a
+    /// connection beyond the cap is closed at once instead). Default 8 (at
+    /// least 1). Peers behind one NAT, or the clients of one relay, share a
+    /// source: raise it for many operators behind one address.
     pub max_pending_per_source: usize,
     /// The kernel's queue of connections not yet accepted (`listen`'s
     /// backlog; the kernel caps it at `net.core.somaxconn`). Default 1024.

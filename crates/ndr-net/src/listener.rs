@@ -8,19 +8,25 @@
 //! ndr's Hello), it gets little: a short budget of time
 //! ([`Admission::preauth_timeout`](crate::Admission::preauth_timeout)), one of a fixed number of handshake
 //! slots, at most a few of them per source
-//! ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)), and its slot goes to a newcomer
-//! when all are taken. Peers that never authenticate therefore cannot lock
-//! out one who does. Every refusal is counted by reason
-//! ([`ListenerStats`]) and logged, at most one line per reason a second.
+//! ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)). A newcomer is never
+//! refused for want of a slot: at its source's cap it takes the slot of
+//! one of that source's handshakes that has said least for longest, and
+//! when all slots are taken that of a handshake stuck for a while, of the
+//! source holding the most. Peers that never authenticate therefore cannot
+//! lock out one who does, even from its own address (a NAT, a relay); the
+//! peer whose slot is taken is told why (a Close with reason
+//! `EVICTED_SOURCE` or `EVICTED`) where it can be. Every refusal is counted
+//! by reason ([`ListenerStats`]) and logged, at most one line per reason a
+//! second.
 //!
 //! A QUIC listener's hub accepts connections and runs their handshakes, so
 //! the listener sees only when each starts and ends: the same slots and
-//! cap per source apply, and when all slots are taken the newcomer takes
-//! that of the oldest pending handshake of the source holding the most
-//! (one younger than a round trip or two goes last). Once half the slots
-//! are taken, a new connection must first prove it gets what is sent to
-//! its address (QUIC's stateless Retry), so that spoofed sources take
-//! none.
+//! cap per source apply (a connection beyond its source's cap is closed at
+//! once), and when all slots are taken the newcomer takes that of the
+//! oldest pending handshake of the source holding the most (one younger
+//! than a round trip or two goes last). Once half the slots are taken, a
+//! new connection must first prove it gets what is sent to its address
+//! (QUIC's stateless Retry), so that spoofed sources take none.
 
 mod first;
 mod gate;
@@ -86,13 +92,22 @@ pub struct ListenerStats {
     pub refused_wire_version: u64,
     /// ndr handshakes refused: the peer sent bytes that are not ndr frames.
     pub refused_protocol: u64,
+    /// ndr handshakes refused: the peer runs another transport (one side
+    /// over a stream, the other over datagrams).
+    pub refused_transport: u64,
     /// Pending handshakes closed to make room for a new connection, every
     /// slot being taken ([`TlsConfig::max_pending_handshakes`]): the oldest
-    /// of the source holding the most slots goes. Many mean a flood of
-    /// connections that do not authenticate.
+    /// of the source holding the most slots goes, its peer told why (Close
+    /// `EVICTED`) where it can be. Many mean a flood of connections that do
+    /// not authenticate.
     pub evicted: u64,
-    /// Connections closed at once because their source already had
-    /// [`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source) handshakes pending.
+    /// Pending handshakes closed to make room for a newer connection from
+    /// the same source, which already had
+    /// [`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)
+    /// handshakes pending: one that had said least (silent, or part of its
+    /// first message) for longest goes, its peer told why (Close
+    /// `EVICTED_SOURCE`) where it can be. Over QUIC: connections closed at
+    /// once for that cap instead.
     pub refused_per_source: u64,
     /// Peers refused after their handshake because the listener served as
     /// many links as [`Listener::with_max_links`] allows: each got a Close

@@ -887,6 +887,7 @@ impl PyListener {
             + s.refused_settings
             + s.refused_wire_version
             + s.refused_protocol
+            + s.refused_transport
             + s.evicted
             + s.refused_per_source
             + s.refused_busy

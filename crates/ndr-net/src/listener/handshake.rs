@@ -9,7 +9,8 @@ use std::sync::atomic::{AtomicU8, AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr_core::endpoint::LinkError;
-use ndr_core::wire::Role;
+use ndr_core::time::Instant;
+use ndr_core::wire::{self, Close, Header, Message, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::mpsc;
@@ -22,19 +23,19 @@ use crate::link::Link;
 use crate::tls::HandshakeError;
 
 /// The stages of a handshake, in order.
-mod stage {
+pub(super) mod stage {
     use super::Heard;
 
     /// Accepted; the peer has sent nothing yet.
-    pub(super) const SILENT: u8 = 0;
+    pub(in crate::listener) const SILENT: u8 = 0;
     /// Part of its first message (TLS's ClientHello, or ndr's Hello).
-    pub(super) const SPEAKING: u8 = 1;
+    pub(in crate::listener) const SPEAKING: u8 = 1;
     /// All of its first message.
-    pub(super) const SPOKEN: u8 = 2;
+    pub(in crate::listener) const SPOKEN: u8 = 2;
     /// On the hub, past TLS if the listener has it: ndr's Hello exchange.
-    pub(super) const ON_HUB: u8 = 3;
+    pub(in crate::listener) const ON_HUB: u8 = 3;
 
-    pub(super) fn of(heard: Heard) -> u8 {
+    pub(in crate::listener) fn of(heard: Heard) -> u8 {
         match heard {
             Heard::Nothing => SILENT,
             Heard::Part(_) => SPEAKING,
@@ -52,18 +53,22 @@ pub(super) struct Progress {
     /// When it last got further, in µs since `epoch`.
     moved: AtomicU64,
     epoch: StdInstant,
+    /// Why the gate cut it short, if it did: set before its task is
+    /// cancelled, so that the peer can be told.
+    cut: Cut,
 }
 
 impl Progress {
-    pub(super) fn new(epoch: StdInstant, heard: Heard) -> Progress {
+    /// A handshake accepted at `now`, its peer having sent `heard`.
+    pub(super) fn at(epoch: StdInstant, heard: Heard, now: StdInstant) -> Progress {
         let p = Progress {
             stage: AtomicU8::new(stage::of(heard)),
             bytes: AtomicUsize::new(0),
             moved: AtomicU64::new(0),
             epoch,
+            cut: Cut::default(),
         };
-        p.moved
-            .store(p.micros(StdInstant::now()), Ordering::Relaxed);
+        p.moved.store(p.micros(now), Ordering::Relaxed);
         p
     }
 
@@ -73,13 +78,17 @@ impl Progress {
 
     /// It reached `stage` with `bytes` of its first message seen.
     fn advance(&self, to: u8, bytes: usize) {
+        self.advance_at(to, bytes, StdInstant::now());
+    }
+
+    /// [`advance`](Self::advance) at `now`.
+    pub(super) fn advance_at(&self, to: u8, bytes: usize, now: StdInstant) {
         let (was, had) = (
             self.stage.fetch_max(to, Ordering::Relaxed),
             self.bytes.fetch_max(bytes, Ordering::Relaxed),
         );
         if to > was || bytes > had {
-            self.moved
-                .store(self.micros(StdInstant::now()), Ordering::Relaxed);
+            self.moved.store(self.micros(now), Ordering::Relaxed);
         }
     }
 
@@ -93,17 +102,96 @@ impl Progress {
         let moved = self.moved.load(Ordering::Relaxed);
         StdDuration::from_micros(self.micros(now).saturating_sub(moved))
     }
+
+    /// Marks it cut short by the gate (`per_source`: for its source's cap).
+    pub(super) fn cut(&self, per_source: bool) {
+        self.cut.set(per_source);
+    }
 }
 
-/// A link whose handshake is under way: if its task is cancelled (the
-/// slot evicted, the listener dropped), the link ends at once and its
-/// peer is told the listener is busy.
-struct Unfinished(Option<Link>);
+/// Why a handshake was cut short to make room, if it was: what its task
+/// tells the peer as it ends.
+#[derive(Default)]
+pub(super) struct Cut(AtomicU8);
 
-impl Drop for Unfinished {
+impl Cut {
+    const NONE: u8 = 0;
+    const SOURCE: u8 = 1;
+    const FULL: u8 = 2;
+
+    pub(super) fn set(&self, per_source: bool) {
+        let why = if per_source { Cut::SOURCE } else { Cut::FULL };
+        self.0.store(why, Ordering::Relaxed);
+    }
+
+    /// The error the link ends with (its Close reason the peer's).
+    pub(super) fn error(&self) -> Option<LinkError> {
+        match self.0.load(Ordering::Relaxed) {
+            Cut::NONE => None,
+            why => Some(LinkError::Evicted {
+                per_source: why == Cut::SOURCE,
+            }),
+        }
+    }
+}
+
+/// A plain connection before it reaches the hub: if its task is cancelled
+/// because the gate cut it short, the peer gets a Close saying so rather
+/// than a bare reset. (Under TLS nothing can be said before its handshake.)
+struct Unheard<'a> {
+    stream: Option<TcpStream>,
+    cut: &'a Cut,
+    tls: bool,
+}
+
+impl Drop for Unheard<'_> {
     fn drop(&mut self) {
-        if let Some(link) = self.0.take() {
-            link.dismiss(LinkError::Busy);
+        if let (Some(stream), Some(why), false) = (self.stream.take(), self.cut.error(), self.tls) {
+            tell(stream, why.close_reason());
+        }
+    }
+}
+
+/// Writes a Close with `reason` on `stream` without waiting, having read
+/// what the peer sent (closing with unread bytes would reset the
+/// connection, and the peer could lose the Close with it).
+fn tell(stream: TcpStream, reason: u16) {
+    use std::io::{Read, Write};
+    // Plain non-blocking calls: tokio's `try_` calls answer from readiness
+    // it may not have seen yet.
+    let Ok(mut stream) = stream.into_std() else {
+        return;
+    };
+    let mut sink = [0u8; 512];
+    // A few reads: a Hello is far shorter; a peer that sends more gets a
+    // reset, as any.
+    for _ in 0..4 {
+        match stream.read(&mut sink) {
+            Ok(n) if n > 0 => {}
+            _ => break,
+        }
+    }
+    let mut frame = [0u8; wire::MAX_FRAME_LEN];
+    let header = Header::new(0, Instant::ZERO);
+    if let Ok(n) = wire::encode(&header, &Message::Close(Close { reason }), &mut frame)
+        && let Some(bytes) = frame.get(..n)
+    {
+        let _ = stream.write(bytes);
+    }
+}
+
+/// A link whose handshake is under way: if its task is cancelled, the
+/// link ends at once and its peer is told why: evicted if its slot went
+/// to a newcomer (`cut` says so), else busy (the listener dropped).
+struct Unfinished<'a> {
+    link: Option<Link>,
+    cut: &'a Cut,
+}
+
+impl Drop for Unfinished<'_> {
+    fn drop(&mut self) {
+        if let Some(link) = self.link.take() {
+            link.dismiss(self.cut.error().unwrap_or(LinkError::Busy));
         }
     }
 }
@@ -140,6 +228,12 @@ pub(super) async fn handshake(
 /// TLS (if any) and ndr's Hello, within the pre-authentication budget,
 /// telling `progress` how far it got.
 async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Result<Link, Failed> {
+    let tls = common.tls.is_some();
+    let mut unheard = Unheard {
+        stream: Some(stream),
+        cut: &progress.cut,
+        tls,
+    };
     let budget: StdDuration = common.config.admission.preauth_timeout.into();
     let start = TokioInstant::now();
     let deadline = (!budget.is_zero()).then(|| start + budget);
@@ -160,10 +254,11 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
     // The peer speaks first under TLS (its ClientHello) and on a plain link
     // to a remote (the base's Hello): until its first message is whole, its
     // connection stays off TLS and the hub (it costs a socket and a task).
-    let tls = common.tls.is_some();
-    if tls || role == Role::Remote {
+    if (tls || role == Role::Remote)
+        && let Some(stream) = unheard.stream.as_ref()
+    {
         let told = |heard, bytes| progress.advance(stage::of(heard), bytes);
-        match within(speak_by, first::wait_whole(&stream, tls, told)).await {
+        match within(speak_by, first::wait_whole(stream, tls, told)).await {
             None => {
                 return Err(match tls_first {
                     Some(t) => (Refusal::Timeout, HandshakeError::Timeout(t).to_string()),
@@ -177,6 +272,10 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
             Some(Err(e)) => return Err((Refusal::Other, e.to_string())),
         }
     }
+    let stream = unheard
+        .stream
+        .take()
+        .ok_or_else(|| (Refusal::Other, "lost its connection".to_string()))?;
     let (stream, conn) = match &common.tls {
         None => (stream, None),
         Some(tls) => match within(deadline, tls.accept(stream)).await {
@@ -196,7 +295,7 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
     )
     .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
     progress.advance(stage::ON_HUB, 0);
-    hello(link, deadline, late).await
+    hello(link, deadline, late, &progress.cut).await
 }
 
 /// A QUIC link its listener's hub accepted: its handshakes (QUIC's TLS,
@@ -221,18 +320,23 @@ pub(super) async fn quic(common: Arc<Common>, link: Link, slot: Slot, ready: mps
         )
     };
     let peer = link.peer_addr();
+    let cut = Cut::default();
     let outcome = tokio::select! {
         // The handshake first: once polled it owns the link, and dropping
-        // it then ends the link as busy instead of waiting on the hub.
+        // it then ends the link as evicted instead of waiting on the hub.
         biased;
-        outcome = hello(link, deadline, late) => Some(outcome),
-        () = slot.cut() => None,
+        outcome = hello(link, deadline, late, &cut) => Some(outcome),
+        () = async {
+            slot.cut().await;
+            // Before the handshake is dropped: its link says why it ends.
+            cut.set(false);
+        } => None,
     };
-    // Evicted (counted then): its link has been ended as busy, or is now.
+    // Evicted (counted then): its link has been ended, or is now.
     let held = slot.release();
     match outcome {
         Some(Ok(link)) if held => enqueue(&common, link, peer, &ready),
-        Some(Ok(link)) => link.dismiss(LinkError::Busy),
+        Some(Ok(link)) => link.dismiss(LinkError::Evicted { per_source: false }),
         Some(Err((why, what))) if held => common.refuse(why, peer, &what),
         Some(Err(_)) | None => {}
     }
@@ -243,22 +347,26 @@ async fn hello(
     link: Link,
     deadline: Option<TokioInstant>,
     late: impl Fn() -> Failed,
+    cut: &Cut,
 ) -> Result<Link, Failed> {
-    let mut unfinished = Unfinished(Some(link));
-    let Some(link) = unfinished.0.as_mut() else {
+    let mut unfinished = Unfinished {
+        link: Some(link),
+        cut,
+    };
+    let Some(link) = unfinished.link.as_mut() else {
         return Err((Refusal::Other, "lost its link".into()));
     };
     let outcome = within(deadline, link.handshake()).await;
     match outcome {
         None => {
-            if let Some(link) = unfinished.0.take() {
+            if let Some(link) = unfinished.link.take() {
                 link.dismiss(LinkError::Timeout);
             }
             Err(late())
         }
         Some(Err(e)) => Err((Refusal::of_link(&e), e.to_string())),
         Some(Ok(())) => unfinished
-            .0
+            .link
             .take()
             .ok_or_else(|| (Refusal::Other, "lost its link".into())),
     }

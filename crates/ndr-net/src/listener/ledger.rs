@@ -29,6 +29,7 @@ pub(crate) enum Refusal {
     Settings,
     WireVersion,
     Protocol,
+    Transport,
     Evicted,
     PerSource,
     Busy,
@@ -38,7 +39,7 @@ pub(crate) enum Refusal {
 
 impl Refusal {
     /// Every reason, in the order of their counters.
-    const ALL: [Refusal; 15] = [
+    const ALL: [Refusal; 16] = [
         Refusal::Certificate,
         Refusal::NoCertificate,
         Refusal::TlsVersion,
@@ -49,6 +50,7 @@ impl Refusal {
         Refusal::Settings,
         Refusal::WireVersion,
         Refusal::Protocol,
+        Refusal::Transport,
         Refusal::Evicted,
         Refusal::PerSource,
         Refusal::Busy,
@@ -86,6 +88,12 @@ impl Refusal {
             NetError::Link(
                 LinkError::Wire(_) | LinkError::Unexpected { .. } | LinkError::ChannelCount { .. },
             ) => Refusal::Protocol,
+            NetError::Link(
+                LinkError::TransportMismatch { .. }
+                | LinkError::PeerClosed {
+                    reason: why::TRANSPORT_MISMATCH,
+                },
+            ) => Refusal::Transport,
             NetError::Link(LinkError::Timeout) | NetError::Timeout => Refusal::Timeout,
             NetError::Link(LinkError::CertificateRefused) => Refusal::Certificate,
             NetError::Handshake(e) => Refusal::of_tls(e),
@@ -117,6 +125,7 @@ impl Refusal {
             Refusal::Settings => "refused_settings",
             Refusal::WireVersion => "refused_wire_version",
             Refusal::Protocol => "refused_protocol",
+            Refusal::Transport => "refused_transport",
             Refusal::Evicted => "evicted",
             Refusal::PerSource => "refused_per_source",
             Refusal::Busy => "refused_busy",
@@ -137,6 +146,7 @@ impl Refusal {
             Refusal::Settings => &mut s.refused_settings,
             Refusal::WireVersion => &mut s.refused_wire_version,
             Refusal::Protocol => &mut s.refused_protocol,
+            Refusal::Transport => &mut s.refused_transport,
             Refusal::Evicted => &mut s.evicted,
             Refusal::PerSource => &mut s.refused_per_source,
             Refusal::Busy => &mut s.refused_busy,
@@ -233,6 +243,23 @@ mod tests {
         assert_eq!(ledger.count(Refusal::PerSource, later), Some(5));
         assert_eq!(ledger.stats.refused_per_source, 7);
         assert_eq!(ledger.stats.evicted, 1);
+    }
+
+    #[test]
+    fn a_transport_mismatch_is_counted_as_such_from_either_side() {
+        let ours = NetError::Link(LinkError::TransportMismatch {
+            ours: "stream",
+            theirs: "datagram",
+        });
+        let theirs = NetError::Link(LinkError::PeerClosed {
+            reason: ndr_core::wire::close_reason::TRANSPORT_MISMATCH,
+        });
+        assert_eq!(Refusal::of_link(&ours), Refusal::Transport);
+        assert_eq!(Refusal::of_link(&theirs), Refusal::Transport);
+        let mut ledger = Ledger::default();
+        ledger.count(Refusal::of_link(&ours), StdInstant::now());
+        assert_eq!(ledger.stats.refused_transport, 1);
+        assert_eq!(ledger.stats.failed_other, 0);
     }
 
     #[test]
