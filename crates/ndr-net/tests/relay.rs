@@ -266,6 +266,8 @@ async fn a_refused_upstream_drops_the_client_and_the_relay_goes_on() {
     let relay = start(DelayModel::profile("constant:1").unwrap(), nowhere).await;
     for _ in 0..2 {
         let mut client = connect(relay.local_addr()).await;
+        // The relay connects when the first frame is due.
+        client.write_all(&data_frame(0)).await.expect("send");
         assert!(sees_end(&mut client).await, "dropped within 1 s");
     }
     let stats = stats_until(&relay, |s| s.upstream_failures == 2).await;
@@ -273,6 +275,84 @@ async fn a_refused_upstream_drops_the_client_and_the_relay_goes_on() {
         (stats.connections, stats.upstream_failures, stats.active),
         (2, 2, 0)
     );
+    let _ = relay.shutdown().await;
+}
+
+/// When an upstream accepted a connection, and when its first frame came.
+type Times = mpsc::UnboundedReceiver<StdInstant>;
+
+/// An upstream that reports when it accepts each connection and when the
+/// first frame of each comes.
+async fn accept_times() -> (SocketAddr, Times, Times) {
+    let listener = TcpListener::bind(LOOPBACK).await.expect("bind upstream");
+    let addr = listener.local_addr().expect("upstream address");
+    let (accepted_tx, accepted) = mpsc::unbounded_channel();
+    let (first_tx, first) = mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while let Ok((mut stream, _)) = listener.accept().await {
+            let _ = accepted_tx.send(StdInstant::now());
+            let first_tx = first_tx.clone();
+            tokio::spawn(async move {
+                if read_frame(&mut stream).await.is_some() {
+                    let _ = first_tx.send(StdInstant::now());
+                }
+            });
+        }
+    });
+    (addr, accepted, first)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_upstream_is_connected_when_the_first_frame_is_due_or_after_a_silent_second() {
+    let (upstream, mut seen, mut first_frames) = accept_times().await;
+    let relay = start(DelayModel::profile("constant:300").unwrap(), upstream).await;
+    // A client that speaks at once: its connection reaches the upstream
+    // with its first frame, 300 ms later.
+    let asked = StdInstant::now();
+    let mut speaker = connect(relay.local_addr()).await;
+    speaker.write_all(&data_frame(0)).await.expect("send");
+    speaker.shutdown().await.expect("half-close");
+    let accepted = timeout(ms(3000), seen.recv())
+        .await
+        .expect("connected upstream within 3 s")
+        .expect("an upstream connection");
+    assert!(
+        accepted.duration_since(asked) >= ms(295),
+        "{:?}",
+        accepted.duration_since(asked)
+    );
+    let first = timeout(ms(3000), first_frames.recv())
+        .await
+        .expect("its first frame within 3 s")
+        .expect("its first frame");
+    assert!(
+        first.duration_since(accepted) < ms(200),
+        "{:?}",
+        first.duration_since(accepted)
+    );
+
+    // A client that says nothing gets its upstream after a second (a
+    // protocol whose server speaks first still works).
+    let asked = StdInstant::now();
+    let silent = connect(relay.local_addr()).await;
+    let accepted = timeout(ms(5000), seen.recv())
+        .await
+        .expect("connected upstream within 5 s")
+        .expect("an upstream connection");
+    assert!(
+        accepted.duration_since(asked) >= ms(990),
+        "{:?}",
+        accepted.duration_since(asked)
+    );
+    drop(silent);
+
+    // One that leaves without a word never reaches the upstream, and ends
+    // as finished.
+    let quiet = connect(relay.local_addr()).await;
+    drop(quiet);
+    let stats = stats_until(&relay, |s| s.active == 0 && s.finished == 3).await;
+    assert_eq!((stats.connections, stats.finished), (3, 3), "{stats:?}");
+    assert!(seen.try_recv().is_err(), "no third upstream connection");
     let _ = relay.shutdown().await;
 }
 

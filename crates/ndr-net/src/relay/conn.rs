@@ -1,4 +1,14 @@
-//! One relayed connection: connect upstream, then one pump per direction.
+//! One relayed connection: one pump per direction, the upstream connected
+//! when the client's first frame leaves.
+//!
+//! A path's connection setup takes its delay as its data does: the relay
+//! connects to the upstream only when the client's first frame (or TLS
+//! record) is due there, and writes it at once. So the upstream sees a new
+//! connection with its first message, as it would across the network, and
+//! a client that says nothing takes none of the upstream's handshake slots
+//! (all the relay's clients share its one address there). A client that
+//! has said nothing after [`SILENT_CLIENT_WAIT`] gets its upstream
+//! connection anyway, for a protocol whose server speaks first.
 //!
 //! A pump is two halves joined in the connection's task: the reader cuts
 //! the byte stream into frames by their length prefix, stamps each with its
@@ -14,9 +24,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use ndr_core::time::Instant;
 use ndr_core::wire::{self, PREFIX_LEN, WireError};
 use ndr_netem::{DelaySampler, Direction, InOrderPath};
-use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
-use tokio::sync::{mpsc, watch};
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
+use tokio::sync::{mpsc, oneshot, watch};
 use tokio::time::Instant as TokioInstant;
 
 use super::stats::{DirCounters, Tally};
@@ -31,6 +42,9 @@ const WRITE_BATCH: usize = 64 * 1024;
 /// Time the rest of a connection has to finish once a side has failed:
 /// bounds a drain towards a peer that stopped reading.
 const DRAIN_AFTER_FAILURE: std::time::Duration = std::time::Duration::from_secs(30);
+/// How long a client may say nothing before the relay connects to the
+/// upstream for it all the same.
+pub(super) const SILENT_CLIENT_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// A frame waiting for its release time.
 struct Held {
@@ -79,53 +93,103 @@ async fn serve(
     client: TcpStream,
     local: &[DirCounters; 2],
 ) -> ConnectionEnd {
-    let timeout = ctx.config.connect_timeout;
-    let upstream = match tokio::time::timeout(timeout, TcpStream::connect(ctx.upstream)).await {
-        Ok(Ok(stream)) => stream,
-        Ok(Err(e)) => {
-            return ConnectionEnd::UpstreamFailed {
-                error: format!("cannot connect to {}: {e}", ctx.upstream),
-            };
-        }
-        Err(_) => {
-            return ConnectionEnd::UpstreamFailed {
-                error: format!("{} did not answer within {timeout:?}", ctx.upstream),
-            };
-        }
-    };
     // Frames are small and timed: Nagle's algorithm would hold them back.
-    for stream in [&client, &upstream] {
-        if let Err(e) = stream.set_nodelay(true) {
-            tracing::debug!(conn = index, "relay: cannot set TCP_NODELAY: {e}");
-        }
+    if let Err(e) = client.set_nodelay(true) {
+        tracing::debug!(conn = index, "relay: cannot set TCP_NODELAY: {e}");
     }
     // Each direction draws from its own stream of the sampler, and the
     // processes shared by both are functions of (seed, time): a clone per
     // direction gives the same delays as one shared sampler.
     let sampler = ctx.model.sampler(connection_seed(ctx.seed, index));
     let (client_rx, client_tx) = client.into_split();
-    let (upstream_rx, upstream_tx) = upstream.into_split();
     let tally = |dir: Direction| Tally {
         global: &ctx.counters.dirs[dir.index()],
         local: &local[dir.index()],
+    };
+    let (opened, upstream_rx) = oneshot::channel();
+    let upstream = Upstream {
+        ctx,
+        index,
+        opened,
+        give_up: TokioInstant::now() + SILENT_CLIENT_WAIT,
     };
     let forward = pump(
         ctx,
         Direction::Forward,
         client_rx,
-        upstream_tx,
+        Out::Connect(upstream),
         sampler.clone(),
         tally(Direction::Forward),
     );
-    let backward = pump(
-        ctx,
-        Direction::Backward,
-        upstream_rx,
-        client_tx,
-        sampler,
-        tally(Direction::Backward),
-    );
+    let backward = async {
+        match upstream_rx.await {
+            Ok(upstream_rx) => {
+                pump(
+                    ctx,
+                    Direction::Backward,
+                    upstream_rx,
+                    Out::Open(client_tx),
+                    sampler,
+                    tally(Direction::Backward),
+                )
+                .await
+            }
+            // The client ended without a word: no upstream, nothing back.
+            Err(_) => {
+                let mut client_tx = client_tx;
+                if let Err(e) = client_tx.shutdown().await {
+                    tracing::debug!(conn = index, "relay: half-close failed: {e}");
+                }
+                Ok(())
+            }
+        }
+    };
     ends(forward, backward).await
+}
+
+/// Where a direction writes: a side already open, or the upstream, to be
+/// connected when the first frame is due.
+enum Out<'a> {
+    Open(OwnedWriteHalf),
+    Connect(Upstream<'a>),
+}
+
+/// The upstream connection to open for a client.
+struct Upstream<'a> {
+    ctx: &'a Ctx,
+    index: u64,
+    /// Where its read half goes: the backward pump.
+    opened: oneshot::Sender<OwnedReadHalf>,
+    /// When to connect even though the client has said nothing.
+    give_up: TokioInstant,
+}
+
+impl Upstream<'_> {
+    /// Connects; the write half for the forward pump.
+    async fn open(self) -> Result<OwnedWriteHalf, ConnectionEnd> {
+        let ctx = self.ctx;
+        let timeout = ctx.config.connect_timeout;
+        let stream = match tokio::time::timeout(timeout, TcpStream::connect(ctx.upstream)).await {
+            Ok(Ok(stream)) => stream,
+            Ok(Err(e)) => {
+                return Err(ConnectionEnd::UpstreamFailed {
+                    error: format!("cannot connect to {}: {e}", ctx.upstream),
+                });
+            }
+            Err(_) => {
+                return Err(ConnectionEnd::UpstreamFailed {
+                    error: format!("{} did not answer within {timeout:?}", ctx.upstream),
+                });
+            }
+        };
+        if let Err(e) = stream.set_nodelay(true) {
+            tracing::debug!(conn = self.index, "relay: cannot set TCP_NODELAY: {e}");
+        }
+        let (rx, tx) = stream.into_split();
+        // The backward pump is gone only once the connection is ending.
+        let _ = self.opened.send(rx);
+        Ok(tx)
+    }
 }
 
 /// How the connection ends, given its two directions: when both have
@@ -166,17 +230,16 @@ async fn ends(
 /// is returned. A failed write (the destination gone) drops the frames in
 /// flight and stops reading. Any other error (framing, a queue over its
 /// bound) is returned at once: the connection is cut.
-async fn pump<R, W>(
+async fn pump<R>(
     ctx: &Ctx,
     dir: Direction,
     from: R,
-    to: W,
+    to: Out<'_>,
     sampler: DelaySampler,
     tally: Tally<'_>,
 ) -> Result<(), ConnectionEnd>
 where
     R: AsyncRead + Unpin,
-    W: AsyncWrite + Unpin,
 {
     let (tx, rx) = mpsc::channel(ctx.config.max_queue_frames.max(1));
     let queued_bytes = AtomicUsize::new(0);
@@ -195,7 +258,8 @@ where
             }
             Err(end) => Err(end),
         },
-        // The writer returns before the reader only when a write failed.
+        // The writer returns before the reader only when a write (or the
+        // upstream's connection) failed.
         written = &mut writer => written,
     }
 }
@@ -271,24 +335,51 @@ async fn read_side<R: AsyncRead + Unpin>(
     }
 }
 
-async fn write_side<W: AsyncWrite + Unpin>(
+async fn write_side(
     dir: Direction,
-    mut to: W,
+    to: Out<'_>,
     mut rx: mpsc::Receiver<Held>,
     queued_bytes: &AtomicUsize,
     tally: Tally<'_>,
 ) -> Result<(), ConnectionEnd> {
+    let (mut to, mut connect) = match to {
+        Out::Open(to) => (Some(to), None),
+        Out::Connect(upstream) => (None, Some(upstream)),
+    };
     let mut batch = Vec::with_capacity(WRITE_BATCH);
     let mut next: Option<Held> = None;
     loop {
         let head = match next.take() {
             Some(held) => held,
-            None => match rx.recv().await {
-                Some(held) => held,
-                None => break,
-            },
+            None => {
+                let give_up = connect.as_ref().map(|c| c.give_up);
+                let got = match give_up {
+                    Some(at) => tokio::select! {
+                        got = rx.recv() => Some(got),
+                        () = tokio::time::sleep_until(at) => None,
+                    },
+                    None => Some(rx.recv().await),
+                };
+                match got {
+                    Some(Some(held)) => held,
+                    Some(None) => break,
+                    // Nothing from the client yet: connect all the same.
+                    None => {
+                        if let Some(upstream) = connect.take() {
+                            to = Some(upstream.open().await?);
+                        }
+                        continue;
+                    }
+                }
+            }
         };
         tokio::time::sleep_until(head.at).await;
+        if let Some(upstream) = connect.take() {
+            to = Some(upstream.open().await?);
+        }
+        let Some(out) = to.as_mut() else {
+            break;
+        };
         batch.clear();
         batch.extend_from_slice(&head.bytes);
         let mut frames = 1;
@@ -301,7 +392,7 @@ async fn write_side<W: AsyncWrite + Unpin>(
             batch.extend_from_slice(&held.bytes);
             frames += 1;
         }
-        to.write_all(&batch).await.map_err(|e| ConnectionEnd::Io {
+        out.write_all(&batch).await.map_err(|e| ConnectionEnd::Io {
             dir,
             error: format!("write: {e}"),
         })?;
@@ -309,8 +400,11 @@ async fn write_side<W: AsyncWrite + Unpin>(
         tally.delivered(frames, batch.len() as u64);
     }
     // The source has closed and everything in flight is delivered: pass the
-    // end of stream on (a half-close; the other direction carries on).
-    if let Err(e) = to.shutdown().await {
+    // end of stream on (a half-close; the other direction carries on). A
+    // client that never said a word has no upstream to tell.
+    if let Some(mut out) = to
+        && let Err(e) = out.shutdown().await
+    {
         tracing::debug!(?dir, "relay: half-close failed: {e}");
     }
     Ok(())
