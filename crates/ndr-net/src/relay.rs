@@ -9,7 +9,13 @@
 //!
 //! Put it between the two peers: the base connects to the relay's listening
 //! address, and for each client the relay connects to `upstream` (the
-//! remote). Client → upstream is [`Direction::Forward`], upstream → client
+//! remote) when the client's first frame is due there, so that the
+//! upstream sees the connection arrive with its first message, as across a
+//! real path (a client that says nothing for a second gets its upstream
+//! connection then, for a protocol whose server speaks first). All the
+//! relay's clients share its one address at the upstream: a client that
+//! says nothing so takes none of the upstream's handshake slots for that
+//! address. Client → upstream is [`Direction::Forward`], upstream → client
 //! [`Direction::Backward`]. In each direction of a TCP connection the relay:
 //!
 //! 1. reads whole frames by their 4-byte length prefix
@@ -85,12 +91,17 @@
 //!   `upstream`, so that the upstream's answers on it go back to that
 //!   client, from the listening socket. Client → upstream is
 //!   [`Direction::Forward`], upstream → client [`Direction::Backward`]. At
-//!   most [`RelayConfig::max_flows`] flows are open at once (a datagram from
-//!   one more client is dropped and counted); a flow with no datagram
-//!   received or sent for [`RelayConfig::flow_idle_timeout`], and none
-//!   waiting, is removed with its socket. A flow is not tied to a TCP
-//!   connection: the relay cannot tell which connection a datagram belongs
-//!   to.
+//!   most [`RelayConfig::max_flows`] flows are open at once; a flow with no
+//!   datagram received or sent for [`RelayConfig::flow_idle_timeout`], and
+//!   none waiting, is removed with its socket. A flow holds its place only
+//!   once the upstream has answered on it: a datagram from a new client
+//!   when all flows are open removes the idle ones at once, else takes the
+//!   flow of a client the upstream never answered (the least recently
+//!   active), so that one-datagram senders, whose addresses cost nothing
+//!   to forge, cannot keep a real peer out for their idle time; it is
+//!   dropped and counted only when every flow is answered and active. A
+//!   flow is not tied to a TCP connection: the relay cannot tell which
+//!   connection a datagram belongs to.
 //! - **Loss, then delay.** Each datagram is dropped or kept by
 //!   [`RelayConfig::loss`], then held for its delay as a TCP frame is:
 //!   flow `k` (counted from 0 on its own: the first flow has the first
@@ -210,8 +221,11 @@ pub struct RelayConfig {
     /// How datagrams are lost, each direction of each flow (default: none).
     /// TCP frames are never dropped: see the module's docs.
     pub loss: LossModel,
-    /// Most datagram flows (client addresses) open at once; a datagram from
-    /// one more client is dropped and counted
+    /// Most datagram flows (client addresses) open at once. A datagram
+    /// from one more client takes an idle flow's place, else that of a
+    /// flow the upstream never answered on
+    /// ([`DatagramStats::flows_evicted`]); only when every flow is answered
+    /// and active is it dropped and counted
     /// ([`DatagramStats::flows_refused`]). `0` refuses every datagram.
     pub max_flows: usize,
     /// A flow with no datagram received or sent, either way, for this long,
@@ -339,7 +353,8 @@ pub struct ConnectionSummary {
 /// What a relay reports to its observer (see [`Relay::on_event`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum RelayEvent {
-    /// A client was accepted; the relay now connects to the upstream for it.
+    /// A client was accepted; the relay connects to the upstream for it when
+    /// its first frame is due there (or after a second without one).
     Opened {
         /// Index of the connection (see [`connection_seed`]).
         conn: u64,

@@ -329,6 +329,74 @@ async fn datagrams_from_a_client_over_the_flow_limit_are_dropped_and_counted() {
     let _ = relay.shutdown().await;
 }
 
+/// An upstream that reports every datagram and answers only those tagged
+/// `answered` (a remote answers its base, never a stray).
+async fn picky_echo(answered: u8) -> (SocketAddr, mpsc::UnboundedReceiver<Arrival>) {
+    let socket = UdpSocket::bind(LOOPBACK).await.expect("bind echo");
+    let addr = socket.local_addr().expect("echo address");
+    let (tx, rx) = mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        let mut buf = vec![0u8; 1 << 16];
+        loop {
+            let Ok((n, from)) = socket.recv_from(&mut buf).await else {
+                continue;
+            };
+            let _ = tx.send((buf[..n].to_vec(), from, StdInstant::now()));
+            if buf[0] == answered {
+                let _ = socket.send_to(&buf[..n], from).await;
+            }
+        }
+    });
+    (addr, rx)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn at_the_flow_limit_a_new_client_takes_an_unanswered_flow_never_an_answered_one() {
+    let (upstream, mut arrivals) = picky_echo(1).await;
+    let config = RelayConfig {
+        max_flows: 2,
+        ..RelayConfig::default()
+    };
+    let relay = start(constant(1, 1), upstream, config).await;
+    let answered = client(&relay).await;
+    answered.send(&tagged(1, 0)).await.expect("send");
+    assert_eq!(recv(&answered, ms(3000)).await, Some(tagged(1, 0)));
+    // Senders the upstream never answers, one after the other: each takes
+    // the last one's flow.
+    for tag in 2..6 {
+        let sender = client(&relay).await;
+        sender.send(&tagged(tag, 0)).await.expect("send");
+        let stats = stats_until(&relay, |s| s.datagrams.forward.delivered == u64::from(tag)).await;
+        assert_eq!(
+            stats.datagrams.forward.delivered,
+            u64::from(tag),
+            "{stats:?}"
+        );
+    }
+    let stats = relay.stats();
+    let d = stats.datagrams;
+    assert_eq!(
+        (
+            d.flows_opened,
+            d.flows_active,
+            d.flows_evicted,
+            d.flows_refused
+        ),
+        (5, 2, 3, 0),
+        "{stats:?}"
+    );
+    assert_eq!(d.forward.evicted, 0, "nothing was waiting: {stats:?}");
+    // Every sender's datagram reached the upstream, and the answered flow
+    // still carries its client's.
+    answered.send(&tagged(1, 1)).await.expect("send");
+    assert_eq!(recv(&answered, ms(3000)).await, Some(tagged(1, 1)));
+    let tags: Vec<u8> = std::iter::from_fn(|| arrivals.try_recv().ok())
+        .map(|(bytes, _, _)| bytes[0])
+        .collect();
+    assert_eq!(tags, [1, 2, 3, 4, 5, 1]);
+    let _ = relay.shutdown().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_idle_flow_expires_with_its_socket_but_not_while_a_datagram_waits() {
     let (upstream, mut arrivals) = udp_echo().await;

@@ -158,11 +158,13 @@ fn datagrams_json(d: &DatagramStats) -> serde_json::Value {
             "bytes_delivered": d.bytes_delivered,
             "send_failed": d.send_failed,
             "held_back": d.held_back,
+            "evicted": d.evicted,
         })
     };
     serde_json::json!({
         "flows_opened": d.flows_opened,
         "flows_refused": d.flows_refused,
+        "flows_evicted": d.flows_evicted,
         "flows_expired": d.flows_expired,
         "forward": direction(&d.forward),
         "backward": direction(&d.backward),
@@ -194,11 +196,12 @@ fn print_table(stats: &RelayStats, ran: f64) {
     }
     let d = &stats.datagrams;
     println!(
-        "datagrams: {} flows opened, {} datagrams refused over the flow limit, {} flows expired",
-        d.flows_opened, d.flows_refused, d.flows_expired
+        "datagrams: {} flows opened, {} datagrams refused over the flow limit, {} unanswered \
+         flows evicted for new clients, {} flows expired",
+        d.flows_opened, d.flows_refused, d.flows_evicted, d.flows_expired
     );
     println!(
-        "{:<10} {:>12} {:>10} {:>11} {:>12} {:>14} {:>12} {:>10}",
+        "{:<10} {:>12} {:>10} {:>11} {:>12} {:>14} {:>12} {:>10} {:>8}",
         "direction",
         "dgrams in",
         "lost",
@@ -206,18 +209,20 @@ fn print_table(stats: &RelayStats, ran: f64) {
         "dgrams out",
         "bytes out",
         "send failed",
-        "held back"
+        "held back",
+        "evicted"
     );
     for (name, d) in [("forward", &d.forward), ("backward", &d.backward)] {
         println!(
-            "{name:<10} {:>12} {:>10} {:>11} {:>12} {:>14} {:>12} {:>10}",
+            "{name:<10} {:>12} {:>10} {:>11} {:>12} {:>14} {:>12} {:>10} {:>8}",
             d.received,
             d.lost,
             d.queue_full,
             d.delivered,
             d.bytes_delivered,
             d.send_failed,
-            d.held_back
+            d.held_back,
+            d.evicted
         );
     }
 }

@@ -11,13 +11,21 @@
 //! decrease within a direction ([`InOrderPath`]), so a FIFO is enough. The
 //! dispatcher removes idle flows on a periodic sweep by aborting their
 //! task, which closes their socket.
+//!
+//! A flow holds its place only once the upstream has answered on it: a
+//! source address costs nothing to forge, and a flood of one-datagram
+//! senders would otherwise keep every flow for its idle time. When a new
+//! client comes and every flow is taken, the idle flows go first, then the
+//! unanswered flow least recently active (one with nothing waiting before
+//! one with datagrams in flight); a new client is refused only when every
+//! flow has been answered and is active.
 
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::io;
 use std::net::{Ipv4Addr, Ipv6Addr, SocketAddr};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::time::Duration as StdDuration;
 
 use ndr_core::time::Instant;
@@ -101,6 +109,9 @@ struct FlowState {
     last_active: AtomicU64,
     /// Per direction.
     waiting: [Waiting; 2],
+    /// The upstream has sent a datagram on it: a real peer's flow, which
+    /// a newcomer does not evict.
+    answered: AtomicBool,
 }
 
 fn nanos_since(origin: std::time::Instant, now: std::time::Instant) -> u64 {
@@ -112,7 +123,16 @@ impl FlowState {
         FlowState {
             last_active: AtomicU64::new(nanos_since(origin, now)),
             waiting: [Waiting::default(), Waiting::default()],
+            answered: AtomicBool::new(false),
         }
+    }
+
+    fn answered(&self) -> bool {
+        self.answered.load(Ordering::Relaxed)
+    }
+
+    fn has_waiting(&self) -> bool {
+        !self.waiting.iter().all(Waiting::is_empty)
     }
 
     fn touch(&self, origin: std::time::Instant, now: std::time::Instant) {
@@ -288,7 +308,11 @@ async fn recv_into(socket: &UdpSocket, mut take: impl FnMut(&[u8])) -> io::Resul
 /// the flow lives.
 async fn read_upstream(ctx: &Ctx, upstream: &UdpSocket, mut lane: Lane, state: &FlowState) {
     loop {
-        match recv_into(upstream, |bytes| lane.offer(ctx, state, bytes)).await {
+        let take = |bytes: &[u8]| {
+            state.answered.store(true, Ordering::Relaxed);
+            lane.offer(ctx, state, bytes);
+        };
+        match recv_into(upstream, take).await {
             Ok(()) => {}
             Err(e) if is_icmp_report(&e) => {}
             Err(e) => {
@@ -395,20 +419,11 @@ impl Flows {
     }
 
     fn open(&mut self, client: SocketAddr) -> Option<Flow> {
-        let ctx = &self.ctx;
-        let counters = &ctx.counters.datagrams;
-        if self.map.len() >= ctx.config.max_flows {
-            count(&counters.flows_refused);
-            if !self.warned_full {
-                self.warned_full = true;
-                tracing::warn!(
-                    %client,
-                    max_flows = ctx.config.max_flows,
-                    "relay: datagram flows at their limit: datagrams from new clients are dropped"
-                );
-            }
+        if self.map.len() >= self.ctx.config.max_flows && !self.make_room(client) {
             return None;
         }
+        let ctx = &self.ctx;
+        let counters = &ctx.counters.datagrams;
         let upstream = match upstream_socket(ctx.upstream) {
             Ok(socket) => socket,
             Err(e) => {
@@ -459,6 +474,47 @@ impl Flows {
         })
     }
 
+    /// Frees a flow for `client` when all are taken: the idle ones go, else
+    /// the unanswered one [`victim`] names; `false` (the datagram refused
+    /// and counted) if every flow is answered and active.
+    fn make_room(&mut self, client: SocketAddr) -> bool {
+        self.expire();
+        let ctx = &self.ctx;
+        let counters = &ctx.counters.datagrams;
+        if self.map.len() < ctx.config.max_flows {
+            return true;
+        }
+        let gone = victim(self.map.iter().map(|(addr, flow)| (*addr, &*flow.state)))
+            .and_then(|addr| self.map.remove(&addr).map(|flow| (addr, flow)));
+        let Some((addr, flow)) = gone else {
+            count(&counters.flows_refused);
+            if !self.warned_full {
+                self.warned_full = true;
+                tracing::warn!(
+                    %client,
+                    max_flows = ctx.config.max_flows,
+                    "relay: datagram flows at their limit, every one answered by the upstream: \
+                     datagrams from new clients are dropped"
+                );
+            }
+            return false;
+        };
+        flow.task.abort();
+        count(&counters.flows_evicted);
+        // Whatever waited in it is dropped with it.
+        for (dir, waiting) in counters.dirs.iter().zip(&flow.state.waiting) {
+            let n = waiting.datagrams.load(Ordering::Relaxed) as u64;
+            dir.evicted.fetch_add(n, Ordering::Relaxed);
+        }
+        tracing::debug!(
+            flow = flow.index,
+            client = %addr,
+            "relay: unanswered datagram flow evicted for a new client"
+        );
+        self.gauge();
+        true
+    }
+
     /// Removes the flows idle for the timeout, with nothing waiting.
     fn expire(&mut self) {
         let (ctx, now) = (&self.ctx, std::time::Instant::now());
@@ -496,6 +552,22 @@ impl Flows {
         self.map.clear();
         self.gauge();
     }
+}
+
+/// The flow a new client takes when every flow is taken and none is idle:
+/// of the flows the upstream has not answered, one with nothing waiting
+/// before one with datagrams in flight, then the least recently active.
+/// `None` if the upstream has answered on every flow.
+fn victim<'a>(flows: impl Iterator<Item = (SocketAddr, &'a FlowState)>) -> Option<SocketAddr> {
+    flows
+        .filter(|(_, state)| !state.answered())
+        .min_by_key(|(_, state)| {
+            (
+                state.has_waiting(),
+                state.last_active.load(Ordering::Relaxed),
+            )
+        })
+        .map(|(addr, _)| addr)
 }
 
 fn sweep_period(idle: StdDuration) -> StdDuration {
@@ -661,6 +733,32 @@ mod tests {
         assert!(!state.is_idle(origin, t(5000), idle));
         state.waiting[1].release(10);
         assert!(state.is_idle(origin, t(5000), idle));
+    }
+
+    #[test]
+    fn a_new_client_takes_the_flow_of_the_stalest_unanswered_sender_never_an_answered_one() {
+        let origin = std::time::Instant::now();
+        let t = |ms| origin + StdDuration::from_millis(ms);
+        let addr = |port: u16| SocketAddr::from(([127, 0, 0, 1], port));
+        // A base's flow, answered by the upstream, quiet for a while.
+        let base = FlowState::new(origin, t(0));
+        base.answered.store(true, Ordering::Relaxed);
+        // One-datagram senders: the first long ago, the second lately.
+        let old = FlowState::new(origin, t(10));
+        let recent = FlowState::new(origin, t(900));
+        let flows = [(addr(1), &base), (addr(2), &old), (addr(3), &recent)];
+        assert_eq!(victim(flows.into_iter()), Some(addr(2)));
+        // One with a datagram still in flight goes after one without, even
+        // a more recent one.
+        let config = RelayConfig::default();
+        assert!(old.waiting[0].reserve(10, &config));
+        assert_eq!(victim(flows.into_iter()), Some(addr(3)));
+        old.waiting[0].release(10);
+        // A sender that keeps sending stays ahead of one that stopped.
+        old.touch(origin, t(1000));
+        assert_eq!(victim(flows.into_iter()), Some(addr(3)));
+        // Only answered flows: no room.
+        assert_eq!(victim([(addr(1), &base)].into_iter()), None);
     }
 
     #[test]

@@ -24,8 +24,9 @@ pub struct DirectionStats {
 /// Counters of one direction of the datagram path, summed over its flows.
 ///
 /// Each datagram received is counted once more when it leaves: lost,
-/// dropped for a full queue, delivered or failed to send; the ones still
-/// waiting at a shutdown are dropped uncounted.
+/// dropped for a full queue, delivered, failed to send, or dropped with its
+/// flow when a new client took it; the ones still waiting at a shutdown are
+/// dropped uncounted.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
 #[non_exhaustive]
@@ -49,6 +50,9 @@ pub struct DatagramDirectionStats {
     /// Datagrams that left later than their own delay said, held back behind
     /// an earlier, slower one.
     pub held_back: u64,
+    /// Dropped while they waited, their flow evicted for a new client
+    /// ([`DatagramStats::flows_evicted`]).
+    pub evicted: u64,
 }
 
 /// Counters of the datagram path: its flows, and each direction.
@@ -61,9 +65,16 @@ pub struct DatagramStats {
     /// Flows open now.
     pub flows_active: u64,
     /// Datagrams from a new client address dropped because
-    /// [`max_flows`](super::RelayConfig::max_flows) flows were open (or its
-    /// upstream socket could not be opened): each such datagram counts.
+    /// [`max_flows`](super::RelayConfig::max_flows) flows were open, every
+    /// one answered by the upstream and active (or its upstream socket
+    /// could not be opened): each such datagram counts.
     pub flows_refused: u64,
+    /// Flows the upstream never answered on, removed with their socket to
+    /// make room for a new client when
+    /// [`max_flows`](super::RelayConfig::max_flows) flows were open and
+    /// none idle: one-datagram senders (spoofed addresses among them) take
+    /// no flow from a real peer.
+    pub flows_evicted: u64,
     /// Flows removed, with their socket, after
     /// [`flow_idle_timeout`](super::RelayConfig::flow_idle_timeout) without
     /// a datagram either way (see the config).
@@ -234,6 +245,7 @@ pub(super) struct DatagramCounters {
     pub(super) flows_opened: AtomicU64,
     pub(super) flows_active: AtomicU64,
     pub(super) flows_refused: AtomicU64,
+    pub(super) flows_evicted: AtomicU64,
     pub(super) flows_expired: AtomicU64,
     pub(super) dirs: [DatagramDirCounters; 2],
 }
@@ -245,6 +257,7 @@ impl DatagramCounters {
             flows_opened: get(&self.flows_opened),
             flows_active: get(&self.flows_active),
             flows_refused: get(&self.flows_refused),
+            flows_evicted: get(&self.flows_evicted),
             flows_expired: get(&self.flows_expired),
             forward: self.dirs[0].snapshot(),
             backward: self.dirs[1].snapshot(),
@@ -262,6 +275,7 @@ pub(super) struct DatagramDirCounters {
     pub(super) bytes_delivered: AtomicU64,
     pub(super) send_failed: AtomicU64,
     pub(super) held_back: AtomicU64,
+    pub(super) evicted: AtomicU64,
 }
 
 impl DatagramDirCounters {
@@ -275,6 +289,7 @@ impl DatagramDirCounters {
             bytes_delivered: get(&self.bytes_delivered),
             send_failed: get(&self.send_failed),
             held_back: get(&self.held_back),
+            evicted: get(&self.evicted),
         }
     }
 }
