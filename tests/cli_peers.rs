@@ -221,6 +221,69 @@ fn a_base_whose_peer_never_answers_says_so_and_fails() {
     let _ = std::fs::remove_file(csv);
 }
 
+/// A remote that answers the base's Hello with a Close `reason` (a
+/// listener's refusal), then waits for the base to hang up.
+fn refusing_remote(reason: u16) -> (String, std::thread::JoinHandle<()>) {
+    use ndr::core::time::Instant as CoreInstant;
+    use ndr::core::wire::{self, Close, Header, Message};
+    use std::io::Write;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let serving = std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        let mut hello = [0u8; 80];
+        s.read_exact(&mut hello).unwrap();
+        let mut close = [0u8; wire::MAX_FRAME_LEN];
+        let header = Header::new(0, CoreInstant::ZERO);
+        let n = wire::encode(&header, &Message::Close(Close { reason }), &mut close).unwrap();
+        s.write_all(&close[..n]).unwrap();
+        let _ = s.read_to_end(&mut Vec::new());
+    });
+    (addr, serving)
+}
+
+#[test]
+fn a_base_refused_by_the_remote_says_why_in_its_error_and_its_report() {
+    use ndr::core::wire::close_reason as why;
+    let _serial = serial();
+    let csv = csv_path("refused-why");
+    for (reason, refused, says) in [
+        (why::BUSY, "busy", "busy serving another peer"),
+        (
+            why::EVICTED_SOURCE,
+            "per_source",
+            "too many handshakes pending from this side's address",
+        ),
+        (why::EVICTED, "evicted", "every handshake slot was taken"),
+        (
+            why::VERSION_MISMATCH,
+            "version",
+            "refused this side's wire version",
+        ),
+    ] {
+        let (addr, remote) = refusing_remote(reason);
+        let (status, r, stderr) = base(&addr, "3", &csv, &[]);
+        remote.join().unwrap();
+        assert!(!status.success(), "{r}");
+        assert_eq!(r["ok"], false, "{r}");
+        assert_eq!(r["refused"], refused, "{r}");
+        let end = r["end"].as_str().unwrap();
+        assert!(end.starts_with("never connected: "), "{end}");
+        assert!(end.contains(says), "{end}");
+        assert!(stderr.contains(says), "{stderr}");
+    }
+    // Any other end names no refusal.
+    let addr = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .to_string();
+    let (_, r, _) = base(&addr, "1", &csv, &[]);
+    assert!(r["refused"].is_null(), "{r}");
+    let _ = std::fs::remove_file(csv);
+}
+
 #[test]
 fn a_base_that_cannot_connect_still_reports() {
     let _serial = serial();

@@ -803,14 +803,18 @@ class LinkError(ConnectionError):
     """The link failed or ended; every link failure is a subclass."""
 
 class HandshakeError(LinkError):
-    """The peers disagree (version, role, widths, layout, period, mode) or the
-    handshake did not finish in time."""
+    """The peers disagree (version, role, widths, layout, transport, period,
+    mode) or the handshake did not finish in time."""
 
 class ProtocolError(LinkError):
     """The peer sent bytes that are not a valid ndr frame."""
 
 class PeerClosedError(LinkError):
-    """The peer ended the link; ``reason`` 0 is a normal end."""
+    """The peer ended the link; ``reason`` 0 is a normal end. A remote that
+    refused the link for now says why: 9 busy (it serves another base), 14
+    (too many handshakes pending from this side's address: something else
+    behind the same NAT or relay keeps connecting), 15 (every handshake
+    slot taken); trying again may succeed."""
 
     reason: int
     reason_name: str

@@ -201,6 +201,8 @@ class RelayDatagramDirectionStats(TypedDict):
     send_failed: int
     held_back: int
     """Sent later than their own delay, behind an earlier, slower one."""
+    evicted: int
+    """Dropped while they waited, their flow evicted for a new client."""
 
 
 class RelayDatagramStats(TypedDict):
@@ -210,7 +212,11 @@ class RelayDatagramStats(TypedDict):
     flows_opened: int
     flows_active: int
     flows_refused: int
-    """Datagrams from a new client dropped at the flow limit."""
+    """Datagrams from a new client dropped at the flow limit, every flow
+    answered by the upstream and active."""
+    flows_evicted: int
+    """Flows the upstream never answered on, given to a new client at the
+    flow limit."""
     flows_expired: int
     forward: RelayDatagramDirectionStats
     backward: RelayDatagramDirectionStats
@@ -252,12 +258,17 @@ class ListenerStats(TypedDict):
     refused_settings: int
     refused_wire_version: int
     refused_protocol: int
+    refused_transport: int
+    """The peer runs another transport (one side over a stream, the other
+    over datagrams)."""
     evicted: int
     """Pending handshakes cut short to make room for a new connection,
-    every handshake slot being taken."""
+    every handshake slot being taken (the peer gets Close 15)."""
     refused_per_source: int
-    """Connections closed at once: their source already had the most
-    pending handshakes one source may have (8)."""
+    """Pending handshakes cut short to make room for a newer connection
+    from the same source, which had the most pending handshakes one source
+    may have (8): one that had said least for longest goes (the peer gets
+    Close 14). Over QUIC: the newer connection is closed at once instead."""
     refused_busy: int
     """Peers refused as busy after their handshake: the listener served as
     many links as it may."""
@@ -1000,7 +1011,8 @@ class Listener:
         ``accepted``; TLS: ``refused_certificate``,
         ``refused_no_certificate``, ``refused_version``; ndr's handshake:
         ``refused_role``, ``refused_layout``, ``refused_settings`` (period,
-        mode), ``refused_wire_version``, ``refused_protocol``; ``timeouts``,
+        mode), ``refused_wire_version``, ``refused_protocol``,
+        ``refused_transport``; ``timeouts``,
         ``failed_other``; and those the listener turned away before they
         authenticated or after: ``evicted``, ``refused_per_source``,
         ``refused_busy``, ``unclaimed``; ``accept_errors``; over QUIC,

@@ -81,6 +81,7 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
         | CoreError::RoleMismatch { .. }
         | CoreError::WidthMismatch { .. }
         | CoreError::LayoutMismatch { .. }
+        | CoreError::TransportMismatch { .. }
         | CoreError::PeriodMismatch { .. }
         | CoreError::ModeMismatch { .. }
         | CoreError::BadParameters { .. }
@@ -115,7 +116,10 @@ fn peer_closed(py: Python<'_>, msg: String, reason: u16) -> PyErr {
         | close_reason::WIDTH_MISMATCH
         | close_reason::LAYOUT_MISMATCH
         | close_reason::PERIOD_MISMATCH
-        | close_reason::MODE_MISMATCH => HandshakeError::new_err(msg),
+        | close_reason::MODE_MISMATCH
+        | close_reason::TRANSPORT_MISMATCH => HandshakeError::new_err(msg),
+        // Refused for now (busy, or its slot taken for a newer
+        // connection): `reason` says which; trying again may succeed.
         _ => PeerClosedError::new_err(msg),
     };
     let value = err.value(py);

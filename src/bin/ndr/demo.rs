@@ -22,7 +22,7 @@ use crate::keygen::Throwaway;
 use crate::transport::{LinkTransport, check_loss};
 
 use crate::pauses::{self, LateTicks};
-use crate::report::{End, Outcome, Row, Series, finish};
+use crate::report::{End, Outcome, Row, Series, finish, link_ended};
 use crate::robot::{DriveSpec, PlantArgs, StateLayout, robot};
 use crate::sim::NetArgs;
 use crate::size::millis;
@@ -456,14 +456,6 @@ pub fn operator(
     let mut command = vec![0.0; usize::from(axes)];
     let mut last_grtt = f64::NAN;
     let mut released = 0_u64;
-    // An end that depends on whether the link ever released a sample.
-    let link_ended = |e: String, released: u64| {
-        if released == 0 {
-            End::NeverConnected(e)
-        } else {
-            End::LinkFailed(e)
-        }
-    };
     let mut end = None;
     loop {
         let now = StdInstant::now();
@@ -482,7 +474,7 @@ pub fn operator(
         match link.send(&command) {
             Ok(()) => {}
             Err(NetError::Link(e)) if e.is_fatal() => {
-                end = Some(link_ended(e.to_string(), released));
+                end = Some(link_ended(&NetError::Link(e), released));
                 break;
             }
             Err(e) => {
@@ -541,7 +533,7 @@ pub fn operator(
             }
             Err(NetError::Timeout) => {}
             Err(e) => {
-                end = Some(link_ended(e.to_string(), released));
+                end = Some(link_ended(&e, released));
                 break;
             }
         }

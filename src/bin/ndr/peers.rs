@@ -88,7 +88,13 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         ),
         Ok(Err(e)) => (
             None,
-            End::NeverConnected(format!("cannot connect to {connect_to}: {e}")),
+            match crate::report::refusal(&e) {
+                Some(reason) => End::Refused {
+                    reason,
+                    why: format!("cannot connect to {connect_to}: {e}"),
+                },
+                None => End::NeverConnected(format!("cannot connect to {connect_to}: {e}")),
+            },
             None,
         ),
         Err(_) => (

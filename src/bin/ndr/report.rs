@@ -6,9 +6,10 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use ndr::core::endpoint::LinkError;
 use ndr::core::time::Duration;
 use ndr::net::clock::LatenessStats;
-use ndr::net::{LinkStats, RelayStats};
+use ndr::net::{LinkStats, NetError, RelayStats};
 use serde::Serialize;
 
 use crate::demo::{LinkArgs, RunArgs};
@@ -22,6 +23,8 @@ pub enum End {
     Completed,
     /// No link came up: no connection, or no sample was ever released.
     NeverConnected(String),
+    /// No link came up: the peer refused it, for `reason` (a [`refusal`]).
+    Refused { reason: &'static str, why: String },
     /// The link came up, then ended before the run did.
     LinkFailed(String),
     /// This side failed (its command refused, its series unwritable): the
@@ -36,11 +39,65 @@ impl End {
     }
 }
 
+/// Why the peer refused a link that never came up, as the report's
+/// `refused` names it: `busy` (it serves another base), `per_source` (too
+/// many handshakes pending from this side's address), `evicted` (every
+/// handshake slot taken), `version`, `role`, `width`, `layout`, `period`,
+/// `mode`, `transport` (the peers' settings differ); `None` for any other
+/// end.
+pub fn refusal(e: &NetError) -> Option<&'static str> {
+    use ndr::core::wire::close_reason as why;
+    let NetError::Link(e) = e else {
+        return None;
+    };
+    let reason = match *e {
+        LinkError::PeerClosed { reason } => reason,
+        LinkError::VersionMismatch { .. }
+        | LinkError::RoleMismatch { .. }
+        | LinkError::WidthMismatch { .. }
+        | LinkError::LayoutMismatch { .. }
+        | LinkError::PeriodMismatch { .. }
+        | LinkError::ModeMismatch { .. }
+        | LinkError::TransportMismatch { .. } => e.close_reason(),
+        _ => return None,
+    };
+    Some(match reason {
+        why::BUSY => "busy",
+        why::EVICTED_SOURCE => "per_source",
+        why::EVICTED => "evicted",
+        why::VERSION_MISMATCH => "version",
+        why::ROLE_MISMATCH => "role",
+        why::WIDTH_MISMATCH => "width",
+        why::LAYOUT_MISMATCH => "layout",
+        why::PERIOD_MISMATCH => "period",
+        why::MODE_MISMATCH => "mode",
+        why::TRANSPORT_MISMATCH => "transport",
+        _ => return None,
+    })
+}
+
+/// How a link that failed after `released` samples ended the run: refused,
+/// never connected, or failed.
+pub fn link_ended(e: &NetError, released: u64) -> End {
+    if released > 0 {
+        return End::LinkFailed(e.to_string());
+    }
+    match refusal(e) {
+        Some(reason) => End::Refused {
+            reason,
+            why: e.to_string(),
+        },
+        None => End::NeverConnected(e.to_string()),
+    }
+}
+
 impl fmt::Display for End {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             End::Completed => f.write_str("completed"),
-            End::NeverConnected(why) => write!(f, "never connected: {why}"),
+            End::NeverConnected(why) | End::Refused { why, .. } => {
+                write!(f, "never connected: {why}")
+            }
             End::LinkFailed(why) => write!(f, "link failed: {why}"),
             End::AppFailure(why) => write!(f, "application failure: {why}"),
         }
@@ -224,6 +281,9 @@ struct DemoReport {
     /// How it ended: `completed`, `never connected: …`, `link failed: …`
     /// or `application failure: …`.
     end: String,
+    /// Why the peer refused the link, if it did (see [`refusal`]): `busy`,
+    /// `per_source`, `evicted`, `version`, …; null otherwise.
+    refused: Option<&'static str>,
     profile: String,
     /// How the delay was regulated (`--regulation`'s name).
     regulation: String,
@@ -364,6 +424,10 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         command: if relay.is_some() { "demo" } else { "base" },
         ok: o.end.ok(),
         end: o.end.to_string(),
+        refused: match o.end {
+            End::Refused { reason, .. } => Some(reason),
+            _ => None,
+        },
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
         mode: link.legacy_mode_name(),
