@@ -132,9 +132,11 @@ pub struct Admission {
     pub preauth_timeout: Duration,
     /// Most handshakes pending at once from one source (an IPv4 address,
     /// or an IPv6 /64). A new connection from a source that has as many
-    /// takes the slot of one of them: one that has not sent its whole first
-    /// message before one that has, the one stuck longest first; that one is
-    /// closed, its peer told why (Close `EVICTED_SOURCE`), and counted in
+    /// takes the slot of one that has said less than it (silent, before a
+    /// whole first message) or not moved for a while; one that finds none
+    /// waits a moment for its first message, or is turned away. Whoever
+    /// loses is closed, its peer told why (Close `EVICTED_SOURCE`), and
+    /// counted in
     /// [`ListenerStats::refused_per_source`](crate::ListenerStats::refused_per_source).
     /// So a base that completes its handshake promptly gets in however
     /// fast stale connections from its address come (over QUIC, a

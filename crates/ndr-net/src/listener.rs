@@ -8,13 +8,14 @@
 //! ndr's Hello), it gets little: a short budget of time
 //! ([`Admission::preauth_timeout`](crate::Admission::preauth_timeout)), one of a fixed number of handshake
 //! slots, at most a few of them per source
-//! ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)). A newcomer is never
-//! refused for want of a slot: at its source's cap it takes the slot of
-//! one of that source's handshakes that has said least for longest, and
-//! when all slots are taken that of a handshake stuck for a while, of the
-//! source holding the most. Peers that never authenticate therefore cannot
-//! lock out one who does, even from its own address (a NAT, a relay); the
-//! peer whose slot is taken is told why (a Close with reason
+//! ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)). At its source's cap
+//! a newcomer takes the slot of one of that source's handshakes that has
+//! said less than it, or not moved for a while (else it waits a moment on
+//! probation for its first message, or is turned away), and when all slots
+//! are taken that of a handshake stuck for a while, of the source holding
+//! the most. Peers that never authenticate therefore cannot lock out one
+//! who does, even from its own address (a NAT, a relay); the peer whose
+//! slot is taken, or that is turned away, is told why (a Close with reason
 //! `EVICTED_SOURCE` or `EVICTED`) where it can be. Every refusal is counted
 //! by reason ([`ListenerStats`]) and logged, at most one line per reason a
 //! second.
@@ -32,6 +33,7 @@ mod first;
 mod gate;
 mod handshake;
 mod ledger;
+mod probation;
 mod quic_slots;
 mod source;
 
@@ -101,13 +103,15 @@ pub struct ListenerStats {
     /// `EVICTED`) where it can be. Many mean a flood of connections that do
     /// not authenticate.
     pub evicted: u64,
-    /// Pending handshakes closed to make room for a newer connection from
-    /// the same source, which already had
-    /// [`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)
-    /// handshakes pending: one that had said least (silent, or part of its
-    /// first message) for longest goes, its peer told why (Close
+    /// Connections closed for their source's cap
+    /// ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)
+    /// handshakes pending from one source): a pending handshake whose slot
+    /// went to a newer connection from its source that had said more, or
+    /// to any once it had not moved for a while; or a newcomer that found
+    /// no such slot (at once if its first message was whole, else after a
+    /// moment on probation without it). Its peer is told why (Close
     /// `EVICTED_SOURCE`) where it can be. Over QUIC: connections closed at
-    /// once for that cap instead.
+    /// once for that cap.
     pub refused_per_source: u64,
     /// Peers refused after their handshake because the listener served as
     /// many links as [`Listener::with_max_links`] allows: each got a Close

@@ -155,7 +155,7 @@ impl Drop for Unheard<'_> {
 /// Writes a Close with `reason` on `stream` without waiting, having read
 /// what the peer sent (closing with unread bytes would reset the
 /// connection, and the peer could lose the Close with it).
-fn tell(stream: TcpStream, reason: u16) {
+pub(super) fn tell(stream: TcpStream, reason: u16) {
     use std::io::{Read, Write};
     // Plain non-blocking calls: tokio's `try_` calls answer from readiness
     // it may not have seen yet.
