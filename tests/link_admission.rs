@@ -215,7 +215,12 @@ fn base_retrying(addr: SocketAddr, datagrams: bool) -> Result<StdDuration, Vec<S
         std::thread::sleep(at.saturating_duration_since(StdInstant::now()));
         let deadline = (at + StdDuration::from_secs(1)).min(start + SERVED_WITHIN);
         match attempt(addr, datagrams, deadline) {
-            Ok(()) => return Ok(start.elapsed()),
+            Ok(()) => {
+                if !errors.is_empty() {
+                    eprintln!("served after: {errors:?}");
+                }
+                return Ok(start.elapsed());
+            }
             Err(e) => errors.push(format!(
                 "{:.1} s: {e}",
                 at.duration_since(start).as_secs_f64()
@@ -282,43 +287,42 @@ fn one_datagram_senders_do_not_keep_a_udp_base_from_its_samples_through_the_rela
     let rt = common::runtime();
     let relay = relay(&rt, robot.addr());
     let to = relay.local_addr();
-    // Each from an address and port of its own, as spoofed ones would be;
-    // paced, so that no socket buffer on loopback overflows.
-    for i in 0..SENDERS {
-        let host = Ipv4Addr::new(
-            127,
-            0,
-            1 + u8::try_from(i / 250).unwrap(),
-            1 + (i % 250) as u8,
-        );
-        let socket = std::net::UdpSocket::bind((host, 0)).unwrap();
-        socket.send_to(&[0x5a; 72], to).unwrap();
-        if i % 50 == 49 {
-            std::thread::sleep(StdDuration::from_millis(2));
-        }
-    }
-    let filled = StdInstant::now() + StdDuration::from_secs(5);
+    // Each from an address and port of its own, as spoofed ones would be,
+    // in paced batches until the relay has had 1 100 (loopback drops what
+    // a busy relay does not read in time).
+    let max_flows = ndr::net::relay::DEFAULT_MAX_FLOWS as u64;
+    let give_up = StdInstant::now() + StdDuration::from_secs(10);
+    let mut sent = 0usize;
     while relay.stats().datagrams.forward.received < SENDERS as u64 {
-        assert!(StdInstant::now() < filled, "{:?}", relay.stats());
-        std::thread::sleep(StdDuration::from_millis(10));
+        assert!(
+            StdInstant::now() < give_up,
+            "{sent} sent; {:?}",
+            relay.stats()
+        );
+        for _ in 0..25 {
+            let host = Ipv4Addr::new(
+                127,
+                0,
+                1 + u8::try_from(sent / 250).unwrap(),
+                1 + (sent % 250) as u8,
+            );
+            let socket = std::net::UdpSocket::bind((host, 0)).unwrap();
+            socket.send_to(&[0x5a; 72], to).unwrap();
+            sent += 1;
+        }
+        std::thread::sleep(StdDuration::from_millis(2));
     }
     let before = relay.stats().datagrams;
-    assert_eq!(
-        before.flows_active,
-        ndr::net::relay::DEFAULT_MAX_FLOWS as u64,
-        "{before:?}"
-    );
+    assert_eq!(before.flows_active, max_flows, "{before:?}");
+    assert_eq!(before.flows_refused, 0, "{before:?}");
     let served = base_retrying(to, true);
     let stats = relay.stats().datagrams;
     eprintln!("udp through the relay: served {served:?}; relay {stats:?}");
     if let Err(errors) = served {
         panic!("not served within {SERVED_WITHIN:?}: {errors:?}; {stats:?}");
     }
-    // The senders gave way, the base's flow was never refused.
-    assert!(
-        stats.flows_evicted > (SENDERS - before.flows_active as usize) as u64,
-        "{stats:?}"
-    );
+    // Senders gave way to the base's flow, which was never refused.
+    assert!(stats.flows_evicted > before.flows_evicted, "{stats:?}");
     assert_eq!(stats.flows_refused, 0, "{stats:?}");
 }
 

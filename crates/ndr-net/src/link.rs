@@ -26,7 +26,7 @@ use std::time::Instant as StdInstant;
 use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running, Transport};
 use ndr_core::storage::Heap;
 use ndr_core::time::Instant;
-use ndr_core::wire::{HEADER_LEN, Role};
+use ndr_core::wire::{self, HEADER_LEN, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
@@ -36,6 +36,7 @@ use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
 use crate::hub::{
     DatagramPath, Entry, Hub, Msg, NewEndpoint, NewSocket, QuicPath, Session, Shared,
+    write_or_queue,
 };
 use crate::pool::HubPool;
 use crate::seats::Seat;
@@ -197,7 +198,10 @@ impl Link {
             datagram,
             quic: None,
         };
-        let (id, entry, link) = Link::assemble(cfg, &config, hub, carrier, peer)?;
+        let (id, mut entry, link) = Link::assemble(cfg, &config, hub, carrier, peer)?;
+        if role == Role::Base && entry.tls.is_none() {
+            say_hello(&mut entry, hub.origin());
+        }
         if !hub.send(Msg::Add(id, Box::new(entry))) {
             return Err(NetError::Io(io::Error::other(
                 "the link's hub thread has stopped",
@@ -704,6 +708,26 @@ struct Carrier {
 /// A link's datagram session token.
 fn session_token() -> Result<u64, NetError> {
     Ok(crate::hub::session_token()?)
+}
+
+/// Writes a plain base's Hello now, from the connecting task, rather than
+/// when its hub next runs: it leaves with the connection, so a listener
+/// that looks at the connection as it accepts it sees a peer that spoke,
+/// not a silent one it could take for a stale connection from the same
+/// address. Anything the socket does not take waits for the hub.
+fn say_hello(entry: &mut Entry, origin: StdInstant) {
+    let Some(socket) = entry.socket.as_mut() else {
+        return;
+    };
+    let mut frame = [0u8; HEADER_LEN + 64];
+    let now = Instant::from_std(origin, StdInstant::now());
+    // The Hello alone is queued when a base's endpoint is made.
+    if let Ok(Some(n)) = entry.endpoint.poll_transmit(now, &mut frame)
+        && let Some(bytes) = frame.get(..n)
+        && !wire::is_bundle(bytes)
+    {
+        write_or_queue(socket, &mut entry.pending, bytes);
+    }
 }
 
 impl HubPool {
