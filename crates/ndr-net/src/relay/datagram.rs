@@ -407,11 +407,15 @@ impl Flows {
     /// Hands a datagram from `client` to its flow, opened if new.
     fn dispatch(&mut self, client: SocketAddr, bytes: &[u8]) {
         if !self.map.contains_key(&client) {
-            let Some(flow) = self.open(client) else {
-                return;
-            };
-            self.map.insert(client, flow);
+            let opened = self.open(client);
+            if let Some(flow) = opened {
+                self.map.insert(client, flow);
+            }
+            // Once, whether a flow was evicted, opened or both.
             self.gauge();
+            if !self.map.contains_key(&client) {
+                return;
+            }
         }
         if let Some(flow) = self.map.get_mut(&client) {
             flow.forward.offer(&self.ctx, &flow.state, bytes);
@@ -511,7 +515,6 @@ impl Flows {
             client = %addr,
             "relay: unanswered datagram flow evicted for a new client"
         );
-        self.gauge();
         true
     }
 
