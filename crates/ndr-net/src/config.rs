@@ -133,7 +133,8 @@ pub struct Admission {
     /// Most handshakes pending at once from one source (an IPv4 address,
     /// or an IPv6 /64). A new connection from a source that has as many
     /// takes the slot of one that has said less than it (silent, before a
-    /// whole first message) or not moved for a while; one that finds none
+    /// whole first message), or as much and not moved for a while; one that
+    /// finds none
     /// waits a moment for its first message, or is turned away. Whoever
     /// loses is closed, its peer told why (Close `EVICTED_SOURCE`), and
     /// counted in

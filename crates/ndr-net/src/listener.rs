@@ -10,7 +10,7 @@
 //! slots, at most a few of them per source
 //! ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)). At its source's cap
 //! a newcomer takes the slot of one of that source's handshakes that has
-//! said less than it, or not moved for a while (else it waits a moment on
+//! said less than it, or as much and not moved for a while (else it waits a moment on
 //! probation for its first message, or is turned away), and when all slots
 //! are taken that of a handshake stuck for a while, of the source holding
 //! the most. Peers that never authenticate therefore cannot lock out one
@@ -107,7 +107,7 @@ pub struct ListenerStats {
     /// ([`Admission::max_pending_per_source`](crate::Admission::max_pending_per_source)
     /// handshakes pending from one source): a pending handshake whose slot
     /// went to a newer connection from its source that had said more, or
-    /// to any once it had not moved for a while; or a newcomer that found
+    /// as much once it had not moved for a while; or a newcomer that found
     /// no such slot (at once if its first message was whole, else after a
     /// moment on probation without it). Its peer is told why (Close
     /// `EVICTED_SOURCE`) where it can be. Over QUIC: connections closed at

@@ -12,7 +12,8 @@
 //!   message before one that has, before one past TLS; among equals, one
 //!   that has not got any further for a while ([`GRACE`]) before a fresher
 //!   one, then the one stuck longest. It takes it only if that one has said
-//!   less than the newcomer or is stale. Else a newcomer that has sent its
+//!   less than the newcomer, or as much and is stale: never the slot of one
+//!   that has said more. Else a newcomer that has sent its
 //!   whole first message is turned away (told why, on a plain link), and
 //!   one that has not waits on probation ([`super::probation`]) for it: a
 //!   real peer's first message may be a moment behind its connection. So
@@ -110,7 +111,8 @@ fn said(stage: u8) -> u8 {
 /// What a newcomer from `source` that has said `stage` of its first
 /// message gets at `now`: a free slot; else, if its source holds
 /// `per_source` slots, the slot of [`source_victim`] if that one has said
-/// less than the newcomer or not moved for [`GRACE`], or none; else, if
+/// less than the newcomer, or as much and not moved for [`GRACE`], or
+/// none; else, if
 /// all `slots` are taken, the slot of [`victim`]. At most one slot is
 /// taken: one taken for the source's cap is also one more free.
 fn make_room<T>(
@@ -127,8 +129,10 @@ fn make_room<T>(
             return Room::Refused { held };
         };
         let p = pending.get(index).map(|p| &p.progress);
-        let gives_way =
-            p.is_some_and(|p| said(p.stage()) < said(stage) || p.stuck_for(now) >= GRACE);
+        let gives_way = p.is_some_and(|p| {
+            let (theirs, ours) = (said(p.stage()), said(stage));
+            theirs < ours || (theirs == ours && p.stuck_for(now) >= GRACE)
+        });
         return if gives_way {
             Room::Take(Evict {
                 index,
@@ -585,6 +589,12 @@ mod tests {
             t.come("192.0.2.1", Heard::Nothing, 150).0,
             Got::Took(b, true)
         );
+        // Never the slot of one that has said more, however long it has
+        // waited (a TLS handshake over a slow path).
+        let mut t = Table::new(64, 2);
+        t.accept("192.0.2.1", Heard::Whole, 0);
+        t.accept("192.0.2.1", Heard::Whole, 0);
+        assert_eq!(t.come("192.0.2.1", Heard::Nothing, 5000).0, Got::Refused);
     }
 
     #[test]
