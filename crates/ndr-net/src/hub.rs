@@ -555,6 +555,9 @@ impl Driver {
             &mut accepted,
         );
         for (id, entry) in accepted.drain(..) {
+            // Counted as `Hub::send` counts a link handed over: its
+            // leaving is counted down.
+            self.links.fetch_add(1, AtomicOrdering::Relaxed);
             self.add(id, entry);
         }
         for &id in &touched {
