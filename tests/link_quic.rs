@@ -558,6 +558,56 @@ fn strangers_holding_every_quic_slot_make_room_for_a_base() {
 }
 
 #[test]
+fn strangers_handshakes_run_apart_from_the_hub_that_drives_the_links() {
+    use ndr::net::Hub;
+
+    let _serial = common::serial();
+    let certs = Certs::new("apart");
+    let rt = common::runtime();
+    // The links' hub, named: it drives what the listener accepts.
+    let hub = Hub::with_defaults().unwrap();
+    let mut remote_tls = tls(&certs.remote, &certs.base);
+    remote_tls.handshake_timeout = std::time::Duration::from_secs(20);
+    let mut remote_config = config().with_tls(remote_tls).on_hub(hub.clone());
+    remote_config.admission.preauth_timeout = Duration::from_secs(20);
+    let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let upstream = listener.local_addr().unwrap();
+    // Three strangers' handshakes pending at the listener: none on the
+    // links' hub, where each would be work for anyone who asks.
+    stall(
+        &rt,
+        &certs,
+        upstream,
+        &["127.0.0.2", "127.0.0.3", "127.0.0.4"],
+    );
+    assert_eq!(hub.links(), 0, "{:?}", listener.stats());
+    // A base that authenticates is driven there.
+    let base_tls = tls(&certs.base, &certs.remote);
+    let (mut remote, mut base) = accept_and_connect(&rt, &listener, upstream, base_tls);
+    assert_eq!(hub.links(), 1, "{:?}", listener.stats());
+    // And its link works from there: samples both ways.
+    base.send(&[1.0, 2.0]).unwrap();
+    let got = remote
+        .recv_timeout(std::time::Duration::from_secs(5))
+        .unwrap();
+    remote.send(got.values()).unwrap();
+    let back = (0..100)
+        .filter_map(|_| base.recv_timeout(std::time::Duration::from_secs(5)).ok())
+        .find(|s| s.values()[0] == 1.0);
+    assert!(back.is_some(), "{:?}", base.stats());
+    let stats = listener.stats();
+    assert_eq!(stats.accepted, 1, "{stats:?}");
+    // It leaves the hub when it ends, and the hub's count says so.
+    drop((base, remote));
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(2);
+    while hub.links() != 0 && std::time::Instant::now() < end {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert_eq!(hub.links(), 0);
+}
+
+#[test]
 fn once_half_the_quic_slots_are_taken_spoofed_sources_take_none() {
     let _serial = common::serial();
     let certs = Certs::new("retry");

@@ -16,7 +16,7 @@ mod quic;
 mod tls_io;
 mod udp;
 
-pub(crate) use quic::{NewEndpoint, QuicPath, Server as QuicServer};
+pub(crate) use quic::{Move as QuicMove, NewEndpoint, QuicPath, Server as QuicServer};
 pub(crate) use tls_io::Session;
 pub(crate) use udp::{DatagramPath, NewSocket, bind as bind_datagram_socket, session_token};
 
@@ -102,6 +102,15 @@ pub(crate) enum Msg {
     ReleaseSocket(u64),
     /// A QUIC endpoint on a UDP socket, polled under this key.
     Quic(u64, Box<NewSocket>, Box<NewEndpoint>),
+    /// A listener's link, its handshakes done, leaves for the hub that
+    /// will drive it.
+    Move(u64, Box<quic::Move>),
+    /// A packet of a link's connection (or an answer), from the hub of
+    /// the endpoint that routes it.
+    QuicForwarded(u64, Box<quic::Forwarded>),
+    /// A request of a moved link's connection to the endpoint under this
+    /// key.
+    QuicRequest(u64, Box<quic::Request>),
 }
 
 struct Inner {
@@ -555,6 +564,9 @@ impl Driver {
             &mut accepted,
         );
         for (id, entry) in accepted.drain(..) {
+            // Counted as `Hub::send` counts a link handed over: its
+            // leaving is counted down.
+            self.links.fetch_add(1, AtomicOrdering::Relaxed);
             self.add(id, entry);
         }
         for &id in &touched {
@@ -625,6 +637,17 @@ impl Driver {
                     }
                 }
                 Ok(Msg::Add(id, entry)) => self.add(id, *entry),
+                Ok(Msg::Move(id, to)) => self.move_out(id, *to),
+                Ok(Msg::QuicForwarded(id, f)) => {
+                    quic::forwarded(self.entries.get_mut(&id), *f, self.origin);
+                    self.flush(id);
+                }
+                Ok(Msg::QuicRequest(key, r)) => {
+                    if self.quic.request(key, *r) {
+                        self.udp.send_all(&mut self.entries);
+                        self.udp.release(self.poll.registry(), key);
+                    }
+                }
                 Ok(Msg::Close(id)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
                         e.endpoint.close();
@@ -651,6 +674,33 @@ impl Driver {
                     return !self.entries.is_empty();
                 }
             }
+        }
+    }
+
+    /// Hands link `id` to the hub `m.to` (`hub::quic`), whose id for it
+    /// `m.reply` is told; it stays if it has ended or cannot move.
+    fn move_out(&mut self, id: u64, m: quic::Move) {
+        let new_id = m.to.next_id();
+        let moved = self
+            .entries
+            .get_mut(&id)
+            .is_some_and(|e| self.quic.move_out(e, new_id, &m.to, m.from));
+        let Some(mut e) = moved.then(|| self.entries.remove(&id)).flatten() else {
+            let _ = m.reply.send(None);
+            return;
+        };
+        if let Some(old) = e.deadline.take() {
+            self.timers.remove(&(old, id));
+        }
+        let route = e.quic.as_deref().map(|q| (q.key, q.handle));
+        self.links.fetch_sub(1, AtomicOrdering::Relaxed);
+        if m.to.send(Msg::Add(new_id, Box::new(e))) {
+            let _ = m.reply.send(Some(new_id));
+        } else if let Some((key, handle)) = route
+            && self.quic.forget(key, handle)
+        {
+            // The link is gone with the hub that was to take it.
+            self.udp.release(self.poll.registry(), key);
         }
     }
 

@@ -35,7 +35,7 @@ use crate::arrival;
 use crate::delivery::{self, Delivery, Inbox};
 use crate::framing::Deframer;
 use crate::hub::{
-    DatagramPath, Entry, Hub, Msg, NewEndpoint, NewSocket, QuicPath, Session, Shared,
+    DatagramPath, Entry, Hub, Msg, NewEndpoint, NewSocket, QuicMove, QuicPath, Session, Shared,
     write_or_queue,
 };
 use crate::pool::HubPool;
@@ -298,6 +298,32 @@ impl Link {
     pub(crate) fn dismiss(mut self, error: LinkError) {
         self.shut = true;
         let _ = self.hub.send(Msg::Fail(self.id, error));
+    }
+
+    /// Moves a listener's QUIC link, its handshakes done, from the hub of
+    /// the listener's endpoint to `to` (`hub::quic`); `false` if it stays
+    /// (it has ended, or `to` keeps another clock).
+    pub(crate) async fn move_to(&mut self, to: &Hub) -> bool {
+        if to.origin() != self.hub.origin() {
+            return false;
+        }
+        let (reply, moved) = tokio::sync::oneshot::channel();
+        let m = QuicMove {
+            to: to.clone(),
+            from: self.hub.clone(),
+            reply,
+        };
+        if !self.hub.send(Msg::Move(self.id, Box::new(m))) {
+            return false;
+        }
+        match moved.await {
+            Ok(Some(id)) => {
+                self.id = id;
+                self.hub = to.clone();
+                true
+            }
+            _ => false,
+        }
     }
 
     /// Keeps `seat` until the link is dropped.
@@ -841,6 +867,7 @@ impl Hub {
         let point = NewEndpoint {
             endpoint,
             server: None,
+            socket: None,
         };
         if !self.send(Msg::Quic(key, Box::new(new), Box::new(point))) {
             return Err(NetError::Io(io::Error::other(

@@ -20,14 +20,17 @@
 //! by reason ([`ListenerStats`]) and logged, at most one line per reason a
 //! second.
 //!
-//! A QUIC listener's hub accepts connections and runs their handshakes, so
-//! the listener sees only when each starts and ends: the same slots and
-//! cap per source apply (a connection beyond its source's cap is closed at
-//! once), and when all slots are taken the newcomer takes that of the
-//! oldest pending handshake of the source holding the most (one younger
-//! than a round trip or two goes last). Once half the slots are taken, a
-//! new connection must first prove it gets what is sent to its address
-//! (QUIC's stateless Retry), so that spoofed sources take none.
+//! A QUIC listener's endpoint has a hub of its own, which accepts
+//! connections and runs their handshakes: strangers' handshakes never run
+//! on a hub that releases a live link's samples; a link moves to the hub
+//! that will drive it once its handshakes are done. The listener sees only
+//! when each handshake starts and ends: the same slots and cap per source
+//! apply (a connection beyond its source's cap is closed at once), and when
+//! all slots are taken the newcomer takes that of the oldest pending
+//! handshake of the source holding the most (one younger than a round trip
+//! or two goes last). Once half the slots are taken, a new connection must
+//! first prove it gets what is sent to its address (QUIC's stateless
+//! Retry), so that spoofed sources take none.
 
 mod first;
 mod gate;
@@ -57,6 +60,7 @@ use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
 
 use crate::seats::Seats;
+use crate::spin::SpinMargin;
 use ledger::{Ledger, Refusal};
 
 /// Connections a [`Listener`] accepted, and those it refused before they
@@ -193,6 +197,15 @@ impl Common {
             ledger: Mutex::new(Ledger::default()),
             stopped: Mutex::new(None),
         })
+    }
+
+    /// The hub that will drive a QUIC link whose handshakes are done.
+    fn live_hub(&self) -> Hub {
+        let setup = self.setup.lock().unwrap_or_else(PoisonError::into_inner);
+        match &setup.hubs {
+            Hubs::One(hub) => hub.clone(),
+            Hubs::Pool(pool) => pool.least_loaded().clone(),
+        }
     }
 
     /// The role and the hub for a link starting now.
@@ -392,11 +405,11 @@ impl Listener {
         })
     }
 
-    /// A QUIC listener: one QUIC endpoint on a UDP socket at `addr`, on one
-    /// hub, which accepts connections and drives their handshakes; a task
-    /// on the current runtime waits for each (within the
-    /// pre-authentication budget) and queues the links for
-    /// [`accept`](Self::accept).
+    /// A QUIC listener: one QUIC endpoint on a UDP socket at `addr`, on a
+    /// hub of its own, which accepts connections and drives their
+    /// handshakes; a task on the current runtime waits for each (within
+    /// the pre-authentication budget), moves its link to one of `hubs`
+    /// and queues it for [`accept`](Self::accept).
     fn bind_quic(
         addr: SocketAddr,
         config: LinkConfig,
@@ -407,10 +420,15 @@ impl Listener {
             .map_err(|e| NetError::Handshake(crate::tls::HandshakeError::Other(e.to_string())))?;
         let socket = bind_datagram_socket(addr)?;
         let local = socket.local_addr()?;
-        let hub = match &hubs {
-            Hubs::One(hub) => hub.clone(),
-            Hubs::Pool(pool) => pool.least_loaded().clone(),
+        // The links' packets leave from the listener's port.
+        let send = Arc::new(socket.try_clone()?);
+        let origin = match &hubs {
+            Hubs::One(hub) => hub.origin(),
+            Hubs::Pool(pool) => pool.least_loaded().origin(),
         };
+        // On the links' clock, so that a link keeps its tick grid when it
+        // moves; its deadlines (handshake timers) need no spin.
+        let hub = Hub::with_origin(SpinMargin::fixed(ndr_core::time::Duration::ZERO), origin)?;
         let key = hub.next_id();
         let stray = Arc::new(AtomicU64::new(0));
         let retried = Arc::new(AtomicU64::new(0));
@@ -491,6 +509,7 @@ impl Listener {
         };
         let server = Arc::new(server);
         let point = NewEndpoint {
+            socket: Some(send),
             endpoint: crate::quic::endpoint(Some(Arc::clone(&server))),
             server: Some(QuicServer {
                 config: server,

@@ -124,6 +124,55 @@ fn closed_links_and_their_listener_leave_no_hub_thread() {
     settles_to(before);
 }
 
+#[cfg(feature = "keygen")]
+#[test]
+fn a_quic_listener_and_its_closed_links_leave_no_hub_thread() {
+    use ndr_core::endpoint::Transport;
+    use ndr_net::TlsConfig;
+
+    let _serial = serial();
+    let dir = std::env::temp_dir().join(format!("ndr-hub-threads-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let base = ndr_net::keygen::write(&dir, "base").expect("a certificate");
+    let remote = ndr_net::keygen::write(&dir, "remote").expect("a certificate");
+    let quic = |role, own: &ndr_net::keygen::KeyPair, peer: &ndr_net::keygen::KeyPair| {
+        let mut c = Config::new(role);
+        c.transport = Transport::DATAGRAM;
+        let tls = TlsConfig::from_files(&own.cert, &own.key, &peer.cert).expect("TLS");
+        LinkConfig::new(c).with_tls(tls)
+    };
+    let before = hub_threads();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("runtime");
+    for _ in 0..3 {
+        // Its endpoint's hub and its links' hub.
+        let listener = rt
+            .block_on(Listener::bind(
+                "127.0.0.1:0".parse().expect("addr"),
+                quic(Role::Remote, &remote, &base),
+            ))
+            .expect("bind");
+        let addr = listener.local_addr().expect("address");
+        let (b, r) = rt.block_on(async {
+            tokio::join!(
+                Link::connect(addr, quic(Role::Base, &base, &remote)),
+                listener.accept()
+            )
+        });
+        let (b, r) = (b.expect("connect"), r.expect("accept"));
+        // The link, moved to the links' hub, keeps its endpoint's hub
+        // until it ends.
+        drop(listener);
+        let _ = r.close();
+        let _ = b.close();
+    }
+    settles_to(before);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn a_dropped_blocking_listener_ends_its_threads() {
     let _serial = serial();

@@ -14,10 +14,19 @@
 //! The endpoint's Close frame travels as the reason of QUIC's
 //! CONNECTION_CLOSE, which QUIC sends at once and does not hold behind
 //! the stream: the peer hands it to its endpoint as the last frame.
+//!
+//! A listener's endpoint runs on a hub of its own, with the handshakes
+//! (anyone may start one, and each costs a key exchange and a
+//! signature): no stranger's work runs on a hub that releases a live
+//! link's samples. Once a link's handshakes are done, it moves to the hub
+//! that will drive it ([`Move`]): its connection goes with it, and the
+//! endpoint's hub, which still reads the port, hands it each of its
+//! packets ([`Forwarded`]) and takes its requests ([`Request`]); the link
+//! sends from the same port itself.
 
 use std::collections::HashMap;
 use std::io;
-use std::net::SocketAddr;
+use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant as StdInstant;
@@ -27,12 +36,12 @@ use ndr_core::endpoint::{LinkError, Origin};
 use ndr_core::time::Instant;
 use ndr_core::wire::{Frame, Kind};
 use quinn_proto::{
-    ConnectionError, ConnectionHandle, DatagramEvent, Dir, EndpointEvent, StreamEvent, StreamId,
-    VarInt,
+    ConnectionError, ConnectionEvent, ConnectionHandle, DatagramEvent, Dir, EndpointEvent,
+    StreamEvent, StreamId, VarInt,
 };
 
 use super::udp::{Outgoing, Udp};
-use super::{Entry, handle_frames};
+use super::{Entry, Hub, Msg, handle_frames};
 
 /// Frames a link may have waiting for its stream (flow control, or the
 /// stream not open yet) before it is cut off.
@@ -52,6 +61,51 @@ pub(crate) struct NewEndpoint {
     pub endpoint: quinn_proto::Endpoint,
     /// A listener's: what it accepts connections with.
     pub server: Option<Server>,
+    /// A handle on the endpoint's socket, for the links that move to
+    /// another hub to send from (a listener's).
+    pub socket: Option<Arc<UdpSocket>>,
+}
+
+/// A link leaving its endpoint's hub for the hub `to`, which will drive
+/// it (`Msg::Move`); `from` is the endpoint's hub. Told its id there, or
+/// `None` if it stays (it has ended, or cannot move).
+pub(crate) struct Move {
+    pub to: Hub,
+    pub from: Hub,
+    pub reply: tokio::sync::oneshot::Sender<Option<u64>>,
+}
+
+/// What a moved link's endpoint hands its connection (`Msg::QuicForwarded`):
+/// a packet and when it arrived (counted as a stray of the endpoint's
+/// socket if the link has left its hub meanwhile), or the answer to a
+/// request.
+pub(crate) struct Forwarded {
+    event: ConnectionEvent,
+    arrived: Option<(StdInstant, Arc<AtomicU64>)>,
+}
+
+/// What a moved link's connection asks of its endpoint
+/// (`Msg::QuicRequest`): new connection ids, retiring old ones, and that
+/// it forget the connection once it has ended.
+pub(crate) struct Request {
+    handle: ConnectionHandle,
+    event: EndpointEvent,
+}
+
+/// A moved link's way back to its endpoint.
+struct Home {
+    /// The endpoint's hub.
+    hub: Hub,
+    /// The endpoint's socket: the link's packets leave from its port.
+    socket: Arc<UdpSocket>,
+}
+
+/// Where an endpoint's hub hands a connection's packets.
+enum Route {
+    /// To link `id` on this hub.
+    Here(u64),
+    /// To link `id` on the hub it moved to.
+    Moved { hub: Hub, id: u64 },
 }
 
 /// A listener's side of its endpoint.
@@ -97,6 +151,8 @@ pub(crate) struct QuicPath {
     /// Its endpoint has forgotten it (a handle it may give another
     /// connection now).
     drained: bool,
+    /// Its endpoint's hub, once the link has moved to another.
+    home: Option<Home>,
 }
 
 impl QuicPath {
@@ -116,17 +172,20 @@ impl QuicPath {
             stray: Arc::default(),
             lost: false,
             drained: false,
+            home: None,
         }
     }
 }
 
 struct Point {
     endpoint: quinn_proto::Endpoint,
-    /// Connection → link id.
-    links: HashMap<ConnectionHandle, u64>,
+    /// Connection → its link.
+    links: HashMap<ConnectionHandle, Route>,
     server: Option<Server>,
     /// The socket's count of datagrams no connection took.
     stray: Arc<AtomicU64>,
+    /// For the links that move.
+    socket: Option<Arc<UdpSocket>>,
 }
 
 /// The hub's QUIC endpoints.
@@ -158,19 +217,84 @@ impl Quic {
                 links: HashMap::new(),
                 server: new.server,
                 stray,
+                socket: new.socket,
             },
         );
     }
 
     /// Routes the connection of link `id` to it; `false` if its endpoint
-    /// is gone.
+    /// is gone. A moved link's endpoint routes it already.
     pub(super) fn attach(&mut self, id: u64, path: &mut QuicPath) -> bool {
+        if path.home.is_some() {
+            return true;
+        }
         let Some(point) = self.points.get_mut(&path.key) else {
             return false;
         };
-        point.links.insert(path.handle, id);
+        point.links.insert(path.handle, Route::Here(id));
         path.stray = Arc::clone(&point.stray);
         true
+    }
+
+    /// The connection of link `e` leaves with its link for the hub `to`,
+    /// where it is link `id`; `from` is this hub. `false` if it cannot
+    /// (not a listener's connection): the link stays.
+    pub(super) fn move_out(&mut self, e: &mut Entry, id: u64, to: &Hub, from: Hub) -> bool {
+        let Some(q) = e.quic.as_deref_mut() else {
+            return false;
+        };
+        let Some(point) = self.points.get_mut(&q.key) else {
+            return false;
+        };
+        let Some(socket) = point.socket.clone() else {
+            return false;
+        };
+        point.links.insert(
+            q.handle,
+            Route::Moved {
+                hub: to.clone(),
+                id,
+            },
+        );
+        q.home = Some(Home { hub: from, socket });
+        true
+    }
+
+    /// The link that was to take over connection `handle` of endpoint
+    /// `key` never will (its hub has stopped): the endpoint forgets it;
+    /// `true` if the endpoint closed now.
+    pub(super) fn forget(&mut self, key: u64, handle: ConnectionHandle) -> bool {
+        if let Some(point) = self.points.get_mut(&key) {
+            point.links.remove(&handle);
+            let _ = point
+                .endpoint
+                .handle_event(handle, EndpointEvent::drained());
+        }
+        self.close_if_unused(key)
+    }
+
+    /// A moved link's connection asks its endpoint `key`; the answer goes
+    /// back to it. `true` if the endpoint closed now (it forgot its last
+    /// connection, and its listener is gone).
+    pub(super) fn request(&mut self, key: u64, r: Request) -> bool {
+        let Some(point) = self.points.get_mut(&key) else {
+            return false;
+        };
+        let drained = r.event.is_drained();
+        if let Some(back) = point.endpoint.handle_event(r.handle, r.event)
+            && let Some(Route::Moved { hub, id }) = point.links.get(&r.handle)
+        {
+            let answer = Box::new(Forwarded {
+                event: back,
+                arrived: None,
+            });
+            let _ = hub.send(Msg::QuicForwarded(*id, answer));
+        }
+        if drained {
+            point.links.remove(&r.handle);
+            return self.close_if_unused(key);
+        }
+        false
     }
 
     /// The listener is gone: its endpoint accepts no more connections and
@@ -196,6 +320,16 @@ impl Quic {
     /// Link `id` has left the hub: its connection is forgotten; `true` if
     /// its endpoint closed with it (its socket can go).
     pub(super) fn detach(&mut self, path: &QuicPath) -> bool {
+        if let Some(home) = &path.home {
+            if !path.drained {
+                let forget = Request {
+                    handle: path.handle,
+                    event: EndpointEvent::drained(),
+                };
+                let _ = home.hub.send(Msg::QuicRequest(path.key, Box::new(forget)));
+            }
+            return false;
+        }
         if let Some(point) = self.points.get_mut(&path.key) {
             point.links.remove(&path.handle);
             // The connection is dropped with its link: its endpoint forgets
@@ -250,11 +384,24 @@ impl Quic {
                     let stray = || point.stray.fetch_add(1, Ordering::Relaxed);
                     match event {
                         Some(DatagramEvent::ConnectionEvent(handle, event)) => {
-                            let Some((id, e)) = point
-                                .links
-                                .get(&handle)
-                                .and_then(|&id| Some((id, entries.get_mut(&id)?)))
-                            else {
+                            let id = match point.links.get(&handle) {
+                                Some(&Route::Here(id)) => id,
+                                Some(Route::Moved { hub, id }) => {
+                                    let packet = Box::new(Forwarded {
+                                        event,
+                                        arrived: Some((at, Arc::clone(&point.stray))),
+                                    });
+                                    if !hub.send(Msg::QuicForwarded(*id, packet)) {
+                                        stray();
+                                    }
+                                    continue;
+                                }
+                                None => {
+                                    stray();
+                                    continue;
+                                }
+                            };
+                            let Some(e) = entries.get_mut(&id) else {
                                 stray();
                                 continue;
                             };
@@ -302,7 +449,7 @@ impl Quic {
                             ) {
                                 Ok((handle, conn)) => match (server.accept)(handle, conn) {
                                     Some((id, entry)) => {
-                                        point.links.insert(handle, id);
+                                        point.links.insert(handle, Route::Here(id));
                                         accepted.push((id, entry));
                                     }
                                     None => {
@@ -353,6 +500,10 @@ impl Quic {
         let Some(q) = e.quic.as_deref_mut() else {
             return;
         };
+        if q.home.is_some() {
+            self.output_moved(q, now);
+            return;
+        }
         let point = self.points.get_mut(&q.key);
         if let Some(point) = point {
             while let Some(event) = q.conn.poll_endpoint_events() {
@@ -369,14 +520,76 @@ impl Quic {
             };
             out.push_to(q.key, id, t.destination, slice(&self.buf, &t));
         }
-        q.timer = q.conn.poll_timeout();
-        let peer = q.conn.remote_address();
-        if peer != q.peer {
-            tracing::debug!(from = %peer, before = %q.peer, "QUIC path changed");
-            q.peer = peer;
-            q.path_changes += 1;
-        }
+        note_output(q);
     }
+
+    /// [`output`](Self::output) for a moved link: its requests go to its
+    /// endpoint's hub, its packets from the endpoint's socket.
+    fn output_moved(&mut self, q: &mut QuicPath, now: StdInstant) {
+        let Some(home) = &q.home else {
+            return;
+        };
+        while let Some(event) = q.conn.poll_endpoint_events() {
+            q.drained |= event.is_drained();
+            let request = Box::new(Request {
+                handle: q.handle,
+                event,
+            });
+            // Its hub gone, the endpoint is too: nothing routes to it.
+            let _ = home.hub.send(Msg::QuicRequest(q.key, request));
+        }
+        loop {
+            self.buf.clear();
+            let Some(t) = q.conn.poll_transmit(now, 1, &mut self.buf) else {
+                break;
+            };
+            // Refused (a full buffer, an unreachable path): lost, as on
+            // the network.
+            if home
+                .socket
+                .send_to(slice(&self.buf, &t), t.destination)
+                .is_err()
+            {
+                q.dropped += 1;
+            }
+        }
+        note_output(q);
+    }
+}
+
+/// The connection's next timer, and where its peer is now.
+fn note_output(q: &mut QuicPath) {
+    q.timer = q.conn.poll_timeout();
+    let peer = q.conn.remote_address();
+    if peer != q.peer {
+        tracing::debug!(from = %peer, before = %q.peer, "QUIC path changed");
+        q.peer = peer;
+        q.path_changes += 1;
+    }
+}
+
+/// A packet (or an answer) a moved link's endpoint handed it; `e` is
+/// `None` if the link has left the hub.
+pub(super) fn forwarded(e: Option<&mut Entry>, f: Forwarded, origin: StdInstant) {
+    let Some(e) = e.filter(|e| e.quic.is_some()) else {
+        if let Some((_, stray)) = f.arrived {
+            stray.fetch_add(1, Ordering::Relaxed);
+        }
+        return;
+    };
+    if let Some(q) = e.quic.as_deref_mut() {
+        q.conn.handle_event(f.event);
+    }
+    let now = StdInstant::now();
+    let at = match f.arrived {
+        Some((at, _)) => {
+            e.rx_lag
+                .push_duration(now.saturating_duration_since(at).into());
+            at
+        }
+        None => now,
+    };
+    input(e, origin, at);
 }
 
 fn slice<'a>(buf: &'a [u8], t: &quinn_proto::Transmit) -> &'a [u8] {

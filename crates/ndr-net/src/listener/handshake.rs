@@ -335,7 +335,14 @@ pub(super) async fn quic(common: Arc<Common>, link: Link, slot: Slot, ready: mps
     // Evicted (counted then): its link has been ended, or is now.
     let held = slot.release();
     match outcome {
-        Some(Ok(link)) if held => enqueue(&common, link, peer, &ready),
+        Some(Ok(mut link)) if held => {
+            // Authenticated: to the hub that drives the listener's links,
+            // away from strangers' handshakes.
+            if !link.move_to(&common.live_hub()).await {
+                tracing::debug!(%peer, "a QUIC link stays on its listener's hub");
+            }
+            enqueue(&common, link, peer, &ready);
+        }
         Some(Ok(link)) => link.dismiss(LinkError::Evicted { per_source: false }),
         Some(Err((why, what))) if held => common.refuse(why, peer, &what),
         Some(Err(_)) | None => {}
