@@ -418,3 +418,22 @@ fn side_by_side_20_s() {
         report(name, &m);
     }
 }
+
+/// The flood alone, at a listener of another process (`ndr remote
+/// --transport quic` say): `NDR_FLOOD_AT=HOST:PORT`, `NDR_FLOOD_RATE`
+/// handshakes a second (200), for `NDR_FLOOD_SECONDS` (20).
+#[test]
+#[ignore = "a tool: NDR_FLOOD_AT=127.0.0.1:7300 cargo test -p ndr-net --features keygen \
+            --release --test quic_flood flood_at -- --ignored"]
+fn flood_at() {
+    let env = |name: &str| std::env::var(name).ok();
+    let aim: SocketAddr = env("NDR_FLOOD_AT")
+        .expect("NDR_FLOOD_AT=HOST:PORT: the listener to flood")
+        .parse()
+        .expect("NDR_FLOOD_AT: an address (HOST:PORT)");
+    let rate = env("NDR_FLOOD_RATE").map_or(200, |r| r.parse().expect("NDR_FLOOD_RATE"));
+    let seconds = env("NDR_FLOOD_SECONDS").map_or(20, |s| s.parse().expect("NDR_FLOOD_SECONDS"));
+    let flood = Flood::start(aim, Schedule::Steady { rate }, 50);
+    std::thread::sleep(StdDuration::from_secs(seconds));
+    println!("{:?}", flood.stop());
+}
