@@ -28,7 +28,7 @@ use std::collections::HashMap;
 use std::io;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::Instant as StdInstant;
 
 use bytes::{Bytes, BytesMut};
@@ -49,6 +49,10 @@ const MAX_PENDING: usize = 1 << 16;
 /// QUIC's application error code for a link that ended: the reason is then
 /// the endpoint's Close frame.
 const CLOSED: VarInt = VarInt::from_u32(0);
+/// Packets of a moved link that may wait for its hub; past them one is
+/// dropped (counted as a stray), as the kernel drops what a full socket
+/// buffer cannot take.
+const MAX_FORWARDED: usize = 1024;
 
 /// Builds the link for a connection a listener's endpoint accepted: its
 /// id and entry for the hub, or `None` if the listener refuses it (its
@@ -98,14 +102,21 @@ struct Home {
     hub: Hub,
     /// The endpoint's socket: the link's packets leave from its port.
     socket: Arc<UdpSocket>,
+    /// Its packets handed over and not handled yet.
+    backlog: Arc<AtomicUsize>,
 }
 
 /// Where an endpoint's hub hands a connection's packets.
 enum Route {
     /// To link `id` on this hub.
     Here(u64),
-    /// To link `id` on the hub it moved to.
-    Moved { hub: Hub, id: u64 },
+    /// To link `id` on the hub it moved to, with the count of its packets
+    /// waiting there.
+    Moved {
+        hub: Hub,
+        id: u64,
+        backlog: Arc<AtomicUsize>,
+    },
 }
 
 /// A listener's side of its endpoint.
@@ -249,14 +260,20 @@ impl Quic {
         let Some(socket) = point.socket.clone() else {
             return false;
         };
+        let backlog = Arc::new(AtomicUsize::new(0));
         point.links.insert(
             q.handle,
             Route::Moved {
                 hub: to.clone(),
                 id,
+                backlog: Arc::clone(&backlog),
             },
         );
-        q.home = Some(Home { hub: from, socket });
+        q.home = Some(Home {
+            hub: from,
+            socket,
+            backlog,
+        });
         true
     }
 
@@ -282,7 +299,7 @@ impl Quic {
         };
         let drained = r.event.is_drained();
         if let Some(back) = point.endpoint.handle_event(r.handle, r.event)
-            && let Some(Route::Moved { hub, id }) = point.links.get(&r.handle)
+            && let Some(Route::Moved { hub, id, .. }) = point.links.get(&r.handle)
         {
             let answer = Box::new(Forwarded {
                 event: back,
@@ -386,7 +403,12 @@ impl Quic {
                         Some(DatagramEvent::ConnectionEvent(handle, event)) => {
                             let id = match point.links.get(&handle) {
                                 Some(&Route::Here(id)) => id,
-                                Some(Route::Moved { hub, id }) => {
+                                Some(Route::Moved { hub, id, backlog }) => {
+                                    if backlog.fetch_add(1, Ordering::Relaxed) >= MAX_FORWARDED {
+                                        backlog.fetch_sub(1, Ordering::Relaxed);
+                                        stray();
+                                        continue;
+                                    }
                                     let packet = Box::new(Forwarded {
                                         event,
                                         arrived: Some((at, Arc::clone(&point.stray))),
@@ -579,6 +601,9 @@ pub(super) fn forwarded(e: Option<&mut Entry>, f: Forwarded, origin: StdInstant)
     };
     if let Some(q) = e.quic.as_deref_mut() {
         q.conn.handle_event(f.event);
+        if let (Some(home), Some(_)) = (&q.home, &f.arrived) {
+            home.backlog.fetch_sub(1, Ordering::Relaxed);
+        }
     }
     let now = StdInstant::now();
     let at = match f.arrived {
