@@ -133,12 +133,13 @@ pub(super) async fn wait_whole(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use ndr_core::time::{Duration, Instant};
     use ndr_core::wire::{Header, Hello, Message, Role};
 
-    fn hello() -> Vec<u8> {
+    /// A base's Hello, whole: what a real peer sends first.
+    pub(in crate::listener) fn hello() -> Vec<u8> {
         let header = Header::new(0, Instant::ZERO);
         let hello = Hello {
             role: Role::Base,

@@ -153,28 +153,10 @@ pub(super) fn refuse(stream: TcpStream, plain: bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndr_core::time::{Duration, Instant};
-    use ndr_core::wire::{self, Header, Hello, Message, Payload, Role};
+    use crate::listener::first::tests::hello;
+    use ndr_core::wire::{self, Payload};
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpListener;
-
-    fn hello() -> Vec<u8> {
-        let hello = Hello {
-            role: Role::Base,
-            mode: 0,
-            underflow: 0,
-            command_width: 1,
-            state_width: 1,
-            period: Duration::from_millis(10),
-            layout: 0,
-            session: 0,
-        };
-        let mut buf = vec![0; wire::MAX_FRAME_LEN];
-        let header = Header::new(0, Instant::ZERO);
-        let n = wire::encode(&header, &Message::Hello(hello), &mut buf).expect("encode");
-        buf.truncate(n);
-        buf
-    }
 
     /// A client and the listener's side of its connection.
     async fn pair(listener: &TcpListener) -> (TcpStream, TcpStream, SocketAddr) {
