@@ -35,8 +35,8 @@ mod matched;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
-use ndr_core::endpoint::{Mode, Underflow, delay_quantum, delay_quantum_for};
-use ndr_core::playout::{DEFAULT_FIXED_LATENCY, Playout};
+use ndr_core::endpoint::{Mode, Underflow};
+use ndr_core::playout::{DEFAULT_FIXED_LATENCY, Playout, delay_quantum, delay_quantum_for};
 use ndr_core::regulation::Regulation;
 use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
