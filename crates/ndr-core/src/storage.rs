@@ -40,6 +40,8 @@ pub trait Queue<T> {
     fn pop_front(&mut self) -> Option<T>;
     /// The oldest item.
     fn front(&self) -> Option<&T>;
+    /// The `index`-th oldest item.
+    fn get(&self, index: usize) -> Option<&T>;
     /// Items queued now.
     fn len(&self) -> usize;
     /// Whether no item is queued.
@@ -67,6 +69,10 @@ impl<T, const N: usize> Queue<T> for Deque<T, N> {
 
     fn front(&self) -> Option<&T> {
         Deque::front(self)
+    }
+
+    fn get(&self, index: usize) -> Option<&T> {
+        Deque::get(self, index)
     }
 
     fn len(&self) -> usize {
@@ -222,6 +228,10 @@ mod heap {
 
         fn front(&self) -> Option<&T> {
             self.items.front()
+        }
+
+        fn get(&self, index: usize) -> Option<&T> {
+            self.items.get(index)
         }
 
         fn len(&self) -> usize {

@@ -183,7 +183,13 @@ impl Policy for Counted {
     fn lost(&mut self) {
         self.inner.lost();
     }
-    fn tick(&mut self, at: Instant, t: Instant, next: Option<Instant>, view: &View<'_>) -> bool {
+    fn tick(
+        &mut self,
+        at: Instant,
+        t: Instant,
+        next: Option<Instant>,
+        view: &View<'_>,
+    ) -> Option<Due> {
         count(&self.calls.tick);
         self.inner.tick(at, t, next, view)
     }

@@ -624,10 +624,10 @@ impl<S: Storage> Endpoint<S> {
             Phase::Running => {
                 let next_tick = self.next_tick;
                 let (policy, view) = self.policy_view();
-                let releases = policy.tick(at, t, next_tick, &view);
+                let due = policy.tick(at, t, next_tick, &view);
                 self.heed();
-                if releases {
-                    self.release(at, t);
+                if let Some(due) = due {
+                    self.take(at, t, due);
                 }
                 let seq = self.take_seq(at);
                 // An adaptive remote ticks with its releases: its grid moves

@@ -10,11 +10,12 @@ use crate::wire::Role;
 
 impl<S: Storage> Endpoint<S> {
     /// The policy, and what it is told things with.
+    #[inline]
     pub(super) fn policy_view(&mut self) -> (&mut S::Policy, View<'_>) {
         let view = View::new(&self.sync, &self.regulator).with(
             self.heard.prev_data,
             self.rel.released_seq,
-            self.predictor.last(),
+            &self.predictor,
         );
         (&mut self.policy, view)
     }
@@ -31,8 +32,8 @@ impl<S: Storage> Endpoint<S> {
         }
     }
 
-    /// The release scheduled at `at`, run (and stamped) at `t`: at a tick,
-    /// or at a time of the policy's own ([`Policy::next_release`]).
+    /// A release of the policy's own schedule ([`Policy::next_release`]),
+    /// scheduled at `at`, run (and stamped) at `t`.
     pub(super) fn release(&mut self, at: Instant, t: Instant) {
         if self.phase != Phase::Running {
             self.policy.stop();
@@ -41,6 +42,11 @@ impl<S: Storage> Endpoint<S> {
         let (policy, view) = self.policy_view();
         let due = policy.due(at, t, &view);
         self.heed();
+        self.take(at, t, due);
+    }
+
+    /// The release scheduled at `at` and run at `t` takes what `due` says.
+    pub(super) fn take(&mut self, at: Instant, t: Instant, due: Due) {
         let tick = match due {
             Due::Later(slot) => {
                 // A remote's tick moves with its release, so that its state
@@ -205,7 +211,7 @@ impl<V, Q: Queue<Slot<V>>> Queued for RegulatorIn<Slot<V>, Q> {
     }
 
     fn get(&self, i: usize) -> Option<Stamps> {
-        self.iter().nth(i).map(|s| s.head)
+        RegulatorIn::get(self, i).map(|s| s.head)
     }
 
     fn prefilling(&self) -> bool {

@@ -70,7 +70,7 @@ impl<A: AdaptiveSlot> AdaptivePlayout<A> {
             len: view.queue.len(),
         };
         let lead = view
-            .forecast
+            .forecast()
             .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
         let cx = Context {
             policy: &self.quantile,
@@ -183,12 +183,12 @@ impl<A: AdaptiveSlot> Policy for AdaptivePlayout<A> {
         t: Instant,
         next_tick: Option<Instant>,
         view: &View<'_>,
-    ) -> bool {
+    ) -> Option<Due> {
         // Its releases have their own schedule, each at its sample's slot;
         // until the delay is set, the ticks.
         let (s, cx) = self.parts(view);
         s.on_tick(at, t, next_tick, &cx);
-        false
+        None
     }
 
     fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {

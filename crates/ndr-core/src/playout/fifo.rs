@@ -50,12 +50,8 @@ impl Policy for Fifo {
         }
     }
 
-    fn tick(&mut self, _: Instant, _: Instant, _: Option<Instant>, _: &View<'_>) -> bool {
-        true
-    }
-
-    fn due(&mut self, _at: Instant, _t: Instant, view: &View<'_>) -> Due {
-        match (self.underflow, self.due) {
+    fn tick(&mut self, _: Instant, _: Instant, _: Option<Instant>, view: &View<'_>) -> Option<Due> {
+        Some(match (self.underflow, self.due) {
             (Underflow::DropLate, Some(due)) => {
                 let mut late = 0;
                 while view.queue.get(late).is_some_and(|s| s.seq < due) {
@@ -68,7 +64,7 @@ impl Policy for Fifo {
                 }
             }
             _ => Due::FRONT,
-        }
+        })
     }
 
     fn released(&mut self, _at: Instant, _t: Instant, outcome: Outcome, _view: &View<'_>) {

@@ -4,7 +4,7 @@
 use core::fmt;
 
 use crate::endpoint::Underflow;
-use crate::predictor::Prediction;
+use crate::predictor::{NetworkPredictor, Prediction};
 use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
 use crate::wire::Role;
@@ -62,22 +62,25 @@ pub trait Policy: fmt::Debug + Send + PolicyClone {
     fn lost(&mut self) {}
 
     /// A tick of the sending grid, scheduled at `at` and run at `t`, the
-    /// next one at `next_tick`. Returns whether the tick releases a sample
-    /// ([`Policy::due`] follows); a policy that releases on a schedule of
-    /// its own ([`Policy::next_release`]) answers `false`.
+    /// next one at `next_tick`: what it releases, `None` for a policy that
+    /// releases on a schedule of its own ([`Policy::next_release`]).
     fn tick(
         &mut self,
         at: Instant,
         t: Instant,
         next_tick: Option<Instant>,
         view: &View<'_>,
-    ) -> bool;
+    ) -> Option<Due>;
 
-    /// A release scheduled at `at` runs at `t`: what it takes.
-    fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due;
+    /// A release of its own schedule ([`Policy::next_release`]) scheduled
+    /// at `at` runs at `t`: what it takes. (The default, for a policy that
+    /// releases at the ticks: nothing.)
+    fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
+        let _ = (at, t, view);
+        Due::NotYet
+    }
 
-    /// What the release [`Policy::due`] planned gave (not called after
-    /// [`Due::Later`]).
+    /// What a release gave (not called after [`Due::Later`]).
     fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
         let _ = (at, t, outcome, view);
     }
@@ -185,8 +188,8 @@ pub struct View<'a> {
     pub newest: Option<(Instant, Instant)>,
     /// The newest sample released.
     pub released: Option<u64>,
-    /// The network predictor's latest forecast.
-    pub forecast: Option<Prediction>,
+    /// The network predictor, if the endpoint runs one.
+    pub predictor: Option<&'a NetworkPredictor>,
 }
 
 impl<'a> View<'a> {
@@ -198,22 +201,29 @@ impl<'a> View<'a> {
             queue,
             newest: None,
             released: None,
-            forecast: None,
+            predictor: None,
         }
     }
 
-    /// This view with the newest frame, the newest release and the forecast.
+    /// This view with the newest frame, the newest release and the
+    /// network predictor.
     #[must_use]
     pub fn with(
         mut self,
         newest: Option<(Instant, Instant)>,
         released: Option<u64>,
-        forecast: Option<Prediction>,
+        predictor: &'a NetworkPredictor,
     ) -> Self {
         self.newest = newest;
         self.released = released;
-        self.forecast = forecast;
+        self.predictor = Some(predictor);
         self
+    }
+
+    /// The network predictor's latest forecast.
+    #[must_use]
+    pub fn forecast(&self) -> Option<Prediction> {
+        self.predictor?.last()
     }
 }
 
@@ -525,57 +535,73 @@ mod boxed {
     }
 
     impl Policy for Box<dyn Policy> {
+        #[inline]
         fn start(&mut self, ns: usize) -> usize {
             (**self).start(ns)
         }
+        #[inline]
         fn set_period(&mut self, period: Duration) {
             (**self).set_period(period);
         }
+        #[inline]
         fn stop(&mut self) {
             (**self).stop();
         }
+        #[inline]
         fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed {
             (**self).arrival(arrival, view)
         }
+        #[inline]
         fn floor_moved(&mut self, from: f64, to: f64) {
             (**self).floor_moved(from, to);
         }
+        #[inline]
         fn admit(&self, sample: &Stamps, now: Instant, view: &View<'_>) -> Admit {
             (**self).admit(sample, now, view)
         }
+        #[inline]
         fn queued(&mut self, view: &View<'_>) {
             (**self).queued(view);
         }
+        #[inline]
         fn lost(&mut self) {
             (**self).lost();
         }
+        #[inline]
         fn tick(
             &mut self,
             at: Instant,
             t: Instant,
             next_tick: Option<Instant>,
             view: &View<'_>,
-        ) -> bool {
+        ) -> Option<Due> {
             (**self).tick(at, t, next_tick, view)
         }
+        #[inline]
         fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
             (**self).due(at, t, view)
         }
+        #[inline]
         fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
             (**self).released(at, t, outcome, view);
         }
+        #[inline]
         fn next_release(&self) -> Option<Instant> {
             (**self).next_release()
         }
+        #[inline]
         fn delay(&self) -> Option<Duration> {
             (**self).delay()
         }
+        #[inline]
         fn poll_announcement(&mut self) -> Option<Announcement> {
             (**self).poll_announcement()
         }
+        #[inline]
         fn following_tick(&self, plain: Instant) -> Instant {
             (**self).following_tick(plain)
         }
+        #[inline]
         fn grid_settled(&self, at: Instant) -> bool {
             (**self).grid_settled(at)
         }

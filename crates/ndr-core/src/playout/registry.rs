@@ -428,57 +428,73 @@ impl<A: AdaptiveSlot> Room for Builtin<A> {
 }
 
 impl<A: AdaptiveSlot> Policy for Builtin<A> {
+    #[inline]
     fn start(&mut self, ns: usize) -> usize {
         self.get_mut().start(ns)
     }
+    #[inline]
     fn set_period(&mut self, period: Duration) {
         self.get_mut().set_period(period);
     }
+    #[inline]
     fn stop(&mut self) {
         self.get_mut().stop();
     }
+    #[inline]
     fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed {
         self.get_mut().arrival(arrival, view)
     }
+    #[inline]
     fn floor_moved(&mut self, from: f64, to: f64) {
         self.get_mut().floor_moved(from, to);
     }
+    #[inline]
     fn admit(&self, sample: &Stamps, now: Instant, view: &View<'_>) -> Admit {
         self.get().admit(sample, now, view)
     }
+    #[inline]
     fn queued(&mut self, view: &View<'_>) {
         self.get_mut().queued(view);
     }
+    #[inline]
     fn lost(&mut self) {
         self.get_mut().lost();
     }
+    #[inline]
     fn tick(
         &mut self,
         at: Instant,
         t: Instant,
         next_tick: Option<Instant>,
         view: &View<'_>,
-    ) -> bool {
+    ) -> Option<Due> {
         self.get_mut().tick(at, t, next_tick, view)
     }
+    #[inline]
     fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
         self.get_mut().due(at, t, view)
     }
+    #[inline]
     fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
         self.get_mut().released(at, t, outcome, view);
     }
+    #[inline]
     fn next_release(&self) -> Option<Instant> {
         self.get().next_release()
     }
+    #[inline]
     fn delay(&self) -> Option<Duration> {
         self.get().delay()
     }
+    #[inline]
     fn poll_announcement(&mut self) -> Option<Announcement> {
         self.get_mut().poll_announcement()
     }
+    #[inline]
     fn following_tick(&self, plain: Instant) -> Instant {
         self.get().following_tick(plain)
     }
+    #[inline]
     fn grid_settled(&self, at: Instant) -> bool {
         self.get().grid_settled(at)
     }

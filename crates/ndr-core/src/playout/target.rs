@@ -88,23 +88,23 @@ impl<T: TargetDelay + Clone + core::fmt::Debug + Send + 'static> Policy for OnTi
         }
     }
 
-    fn tick(&mut self, _: Instant, _: Instant, _: Option<Instant>, _: &View<'_>) -> bool {
-        if let Some(d) = self.target.target() {
-            self.held = Some(d);
-            let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
-            if self.announced != Some(ticks) {
-                self.announced = Some(ticks);
-                self.pending = Some(Announcement::DelayChanged { delay: d, ticks });
-            }
+    fn tick(
+        &mut self,
+        at: Instant,
+        _: Instant,
+        _: Option<Instant>,
+        view: &View<'_>,
+    ) -> Option<Due> {
+        let Some(d) = self.target.target() else {
+            return Some(Due::NotYet);
+        };
+        self.held = Some(d);
+        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
+        if self.announced != Some(ticks) {
+            self.announced = Some(ticks);
+            self.pending = Some(Announcement::DelayChanged { delay: d, ticks });
         }
-        true
-    }
-
-    fn due(&mut self, at: Instant, _t: Instant, view: &View<'_>) -> Due {
-        match self.target.target() {
-            Some(d) => self.slots.take(view, at - d, false, self.underflow),
-            None => Due::NotYet,
-        }
+        Some(self.slots.take(view, at - d, false, self.underflow))
     }
 
     fn delay(&self) -> Option<Duration> {
