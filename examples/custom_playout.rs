@@ -140,10 +140,10 @@ fn main() -> Result<(), Box<dyn Error>> {
     let n = grtts.len().max(1) as f64;
     let mean = grtts.iter().sum::<f64>() / n;
     let std = (grtts.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / n).sqrt();
-    let delay = stats.map_or(f64::NAN, |s| s.endpoint.playout_delay_s * 1e3);
+    let delay = stats.map_or(f64::NAN, |s| s.endpoint.playout_delay_s * 1e6);
     println!(
         "loopback,  {:<13} GRTT {:6.1} ± {:4.1} ms over {} round trips, {held} states held, \
-         playout delay {delay:.2} ms",
+         playout delay {delay:.0} µs",
         playout.to_string(),
         mean * 1e3,
         std * 1e3,
