@@ -159,14 +159,15 @@ mod heap {
     use core::fmt;
 
     use super::{MAX_CAPACITY, Queue, Storage};
-    use crate::playout::Policy;
+    use crate::playout::HeapRoom;
     use crate::time::Instant;
 
     /// Storage on the heap, each buffer sized once when the endpoint is
     /// made: values as wide as the link, a queue as long as asked, and the
-    /// playout policy boxed (any policy, the application's own too), as
-    /// large as the one the link runs. A received sample's values are one
-    /// allocation, handed on in its release.
+    /// playout policy ([`HeapRoom`]: a built-in one, the adaptive
+    /// playout's state only when the link runs it, or the application's
+    /// own, boxed). A received sample's values are one allocation, handed
+    /// on in its release.
     #[derive(Clone, Copy, Debug)]
     pub struct Heap;
 
@@ -174,7 +175,7 @@ mod heap {
         type Values = Box<[f64]>;
         type Queue<T: Clone + fmt::Debug> = HeapQueue<T>;
         type Ticks = Box<[(u64, Instant)]>;
-        type Policy = Box<dyn Policy>;
+        type Policy = HeapRoom;
         const DEFAULT_CAPACITY: usize = 256;
 
         fn values(width: usize) -> Option<Box<[f64]>> {

@@ -9,8 +9,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Underflow};
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::{
-    Admit, Announcement, Arrival, Custom, Due, Factory, NoRoom, Observed, OnTicks, Outcome,
-    Playout, Policy, Room, Setup, Stamps, TargetDelay, View,
+    Admit, Announcement, Arrival, Builtin, Custom, Due, Factory, NoAdaptive, NoRoom, Observed,
+    OnTicks, Outcome, Playout, Policy, Room, Setup, Stamps, TargetDelay, View,
 };
 use ndr_core::regulation::Regulation;
 use ndr_core::storage::{Heap, Inline};
@@ -266,9 +266,13 @@ fn a_policy_of_its_own_around_the_adaptive_playout_changes_nothing() {
 fn inline_storage_refuses_a_policy_of_its_own() {
     let mut c = Config::new(Role::Remote);
     c.playout = Playout::Custom(Custom::new(&HOLD_40));
-    let refused = Endpoint::<Inline<1, 16>>::new(c, Instant::ZERO).err();
-    assert_eq!(refused, Some(ConfigError::NoRoom(NoRoom::Custom)));
-    assert!(refused.unwrap().to_string().contains("Heap"));
+    for refused in [
+        Endpoint::<Inline<1, 16>>::new(c, Instant::ZERO).err(),
+        Endpoint::<Inline<1, 16, Builtin<NoAdaptive>>>::new(c, Instant::ZERO).err(),
+    ] {
+        assert_eq!(refused, Some(ConfigError::NoRoom(NoRoom::Custom)));
+        assert!(refused.unwrap().to_string().contains("Heap"));
+    }
     assert!(Endpoint::<Heap>::new(c, Instant::ZERO).is_ok());
 }
 

@@ -21,6 +21,7 @@ impl<S: Storage> Endpoint<S> {
     }
 
     /// What the policy announced, as events.
+    #[inline]
     pub(super) fn heed(&mut self) {
         while let Some(announcement) = self.policy.poll_announcement() {
             match announcement {

@@ -53,6 +53,46 @@ impl AdaptiveSlot for Adaptive {
     }
 }
 
+/// The state on the heap: what a [`Heap`](crate::storage::Heap) endpoint
+/// holds, taken only by a link that runs the adaptive playout.
+#[cfg(feature = "alloc")]
+impl<A: AdaptiveSlot> AdaptiveSlot for alloc::boxed::Box<A> {
+    fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self> {
+        A::build(period, epsilon, quantum).map(alloc::boxed::Box::new)
+    }
+
+    fn rebase(&mut self, by: Duration, rose: bool) {
+        (**self).rebase(by, rose);
+    }
+
+    fn note_late(&mut self) {
+        (**self).note_late();
+    }
+
+    fn budget_used(&self, more: u64) -> f64 {
+        (**self).budget_used(more)
+    }
+
+    fn sample_cost(&self) -> Duration {
+        (**self).sample_cost()
+    }
+
+    fn margin(&self) -> Duration {
+        (**self).margin()
+    }
+}
+
+#[cfg(feature = "alloc")]
+impl<A: TargetDelay> TargetDelay for alloc::boxed::Box<A> {
+    fn observe(&mut self, sent_at: Instant, delay: Duration) {
+        (**self).observe(sent_at, delay);
+    }
+
+    fn target(&self) -> Option<Duration> {
+        (**self).target()
+    }
+}
+
 /// An [`AdaptiveSlot`] with no room: a [`Builtin<NoAdaptive>`](super::Builtin) is the size of
 /// the other policies' largest state (NetEQ's 2 KiB), and asking it for
 /// [`Playout::Adaptive`](super::Playout::Adaptive) is a

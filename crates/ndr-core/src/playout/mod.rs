@@ -50,7 +50,7 @@ pub use policy::{
     Queued, Room, Setup, Stamps, View,
 };
 #[cfg(feature = "alloc")]
-pub use policy::{Custom, Factory};
+pub use policy::{Custom, Factory, HeapRoom};
 pub use registry::{
     Builtin, InvalidPlayout, Playout, PlayoutName, PlayoutNames, Syntax, UnknownPlayout,
 };

@@ -379,9 +379,10 @@ pub enum Announcement {
 
 /// Where an endpoint keeps its policy, made from the
 /// [`Playout`](super::Playout) its configuration names:
-/// [`Builtin`](super::Builtin) (the built-in policies, no heap), or
-/// `Box<dyn Policy>` (feature `alloc`: any policy, a
-/// [`Custom`](super::Custom) one too).
+/// [`Builtin`](super::Builtin) (the built-in policies, no heap),
+/// [`HeapRoom`](super::HeapRoom) (feature `alloc`: those, or a
+/// [`Custom`](super::Custom) one, boxed), or `Box<dyn Policy>` (any policy,
+/// each boxed).
 pub trait Room: Policy + Clone + Sized {
     /// The policy `playout` names, for `setup`.
     ///
@@ -397,7 +398,7 @@ pub trait Room: Policy + Clone + Sized {
 pub enum NoRoom {
     /// The adaptive playout on a [`Builtin<NoAdaptive>`](super::Builtin).
     Adaptive,
-    /// A policy of the application's own needs the heap.
+    /// A policy of the application's own in a room for the built-in ones.
     Custom,
 }
 
@@ -419,7 +420,7 @@ impl fmt::Display for NoRoom {
 impl core::error::Error for NoRoom {}
 
 #[cfg(feature = "alloc")]
-pub use boxed::{Custom, Factory, PolicyClone};
+pub use boxed::{Custom, Factory, HeapRoom, PolicyClone};
 
 #[cfg(not(feature = "alloc"))]
 pub use unboxed::PolicyClone;
@@ -442,7 +443,7 @@ mod boxed {
         Admit, Announcement, Arrival, Due, NoRoom, Observed, Outcome, Policy, Room, Setup, Stamps,
         View,
     };
-    use crate::playout::{Builtin, Playout};
+    use crate::playout::{Adaptive, Builtin, Playout};
     use crate::time::{Duration, Instant};
 
     /// Makes one policy of the application's own for each endpoint (the
@@ -531,6 +532,110 @@ mod boxed {
                 Playout::Custom(custom) => Ok(custom.0.build(setup)),
                 builtin => Ok(Builtin::<crate::playout::Adaptive>::make(builtin, setup)?.boxed()),
             }
+        }
+    }
+
+    /// Where a [`Heap`](crate::storage::Heap) endpoint keeps its policy:
+    /// a built-in one in the registry's enum, its calls made without a
+    /// vtable (the adaptive playout's histogram boxed, so that a link that
+    /// does not run it does not carry it), or the application's own, boxed.
+    #[derive(Clone, Debug)]
+    #[allow(clippy::large_enum_variant)]
+    pub enum HeapRoom {
+        /// A built-in policy.
+        Builtin(Builtin<Box<Adaptive>>),
+        /// A policy of the application's own.
+        Custom(Box<dyn Policy>),
+    }
+
+    impl Room for HeapRoom {
+        fn make(playout: Playout, setup: &Setup) -> Result<Self, NoRoom> {
+            match playout {
+                Playout::Custom(custom) => Ok(HeapRoom::Custom(custom.0.build(setup))),
+                builtin => Ok(HeapRoom::Builtin(Builtin::make(builtin, setup)?)),
+            }
+        }
+    }
+
+    macro_rules! either {
+        ($self:ident, $p:ident => $call:expr) => {
+            match $self {
+                HeapRoom::Builtin($p) => $call,
+                HeapRoom::Custom($p) => $call,
+            }
+        };
+    }
+
+    impl Policy for HeapRoom {
+        #[inline]
+        fn start(&mut self, ns: usize) -> usize {
+            either!(self, p => p.start(ns))
+        }
+        #[inline]
+        fn set_period(&mut self, period: Duration) {
+            either!(self, p => p.set_period(period));
+        }
+        #[inline]
+        fn stop(&mut self) {
+            either!(self, p => p.stop());
+        }
+        #[inline]
+        fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed {
+            either!(self, p => p.arrival(arrival, view))
+        }
+        #[inline]
+        fn floor_moved(&mut self, from: f64, to: f64) {
+            either!(self, p => p.floor_moved(from, to));
+        }
+        #[inline]
+        fn admit(&self, sample: &Stamps, now: Instant, view: &View<'_>) -> Admit {
+            either!(self, p => p.admit(sample, now, view))
+        }
+        #[inline]
+        fn queued(&mut self, view: &View<'_>) {
+            either!(self, p => p.queued(view));
+        }
+        #[inline]
+        fn lost(&mut self) {
+            either!(self, p => p.lost());
+        }
+        #[inline]
+        fn tick(
+            &mut self,
+            at: Instant,
+            t: Instant,
+            next_tick: Option<Instant>,
+            view: &View<'_>,
+        ) -> Option<Due> {
+            either!(self, p => p.tick(at, t, next_tick, view))
+        }
+        #[inline]
+        fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
+            either!(self, p => p.due(at, t, view))
+        }
+        #[inline]
+        fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
+            either!(self, p => p.released(at, t, outcome, view));
+        }
+        #[inline]
+        fn next_release(&self) -> Option<Instant> {
+            either!(self, p => p.next_release())
+        }
+        #[inline]
+        fn delay(&self) -> Option<Duration> {
+            either!(self, p => p.delay())
+        }
+        #[inline]
+        fn poll_announcement(&mut self) -> Option<Announcement> {
+            either!(self, p => p.poll_announcement())
+        }
+        #[inline]
+        fn following_tick(&self, plain: Instant) -> Instant {
+            either!(self, p => p.following_tick(plain))
+        }
+        #[inline]
+        fn grid_settled(&self, at: Instant) -> bool {
+            either!(self, p => p.grid_settled(at))
         }
     }
 

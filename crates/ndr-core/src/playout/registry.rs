@@ -74,8 +74,10 @@ macro_rules! registry {
         }
 
         /// Every built-in policy in one value that needs no heap: where an
-        /// [`Inline`](crate::storage::Inline) endpoint keeps its policy. The
-        /// adaptive playout's state is `A`: [`Adaptive`] (about 7 KiB), or
+        /// endpoint keeps a built-in policy, its calls made by a match rather
+        /// than through a vtable. The adaptive playout's state is `A`: [`Adaptive`]
+        /// (about 7 KiB inline), `Box<Adaptive>` ([`HeapRoom`](super::HeapRoom),
+        /// on the heap only when the link runs it), or
         /// [`NoAdaptive`](super::NoAdaptive) for an endpoint that never runs
         /// it.
         // No heap in the core: an endpoint holds one, so the size of the
@@ -86,19 +88,82 @@ macro_rules! registry {
             $( $(#[$doc])* $variant($policy), )*
         }
 
+        // Each call goes to its policy by a match, not through a vtable:
+        // a built-in policy's calls inline into the endpoint.
+        impl<A: AdaptiveSlot> Policy for Builtin<A> {
+            #[inline]
+            fn start(&mut self, ns: usize) -> usize {
+                match self { $( Builtin::$variant(p) => p.start(ns), )* }
+            }
+            #[inline]
+            fn set_period(&mut self, period: Duration) {
+                match self { $( Builtin::$variant(p) => p.set_period(period), )* }
+            }
+            #[inline]
+            fn stop(&mut self) {
+                match self { $( Builtin::$variant(p) => p.stop(), )* }
+            }
+            #[inline]
+            fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed {
+                match self { $( Builtin::$variant(p) => p.arrival(arrival, view), )* }
+            }
+            #[inline]
+            fn floor_moved(&mut self, from: f64, to: f64) {
+                match self { $( Builtin::$variant(p) => p.floor_moved(from, to), )* }
+            }
+            #[inline]
+            fn admit(&self, sample: &Stamps, now: Instant, view: &View<'_>) -> Admit {
+                match self { $( Builtin::$variant(p) => p.admit(sample, now, view), )* }
+            }
+            #[inline]
+            fn queued(&mut self, view: &View<'_>) {
+                match self { $( Builtin::$variant(p) => p.queued(view), )* }
+            }
+            #[inline]
+            fn lost(&mut self) {
+                match self { $( Builtin::$variant(p) => p.lost(), )* }
+            }
+            #[inline]
+            fn tick(
+                &mut self,
+                at: Instant,
+                t: Instant,
+                next_tick: Option<Instant>,
+                view: &View<'_>,
+            ) -> Option<Due> {
+                match self { $( Builtin::$variant(p) => p.tick(at, t, next_tick, view), )* }
+            }
+            #[inline]
+            fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
+                match self { $( Builtin::$variant(p) => p.due(at, t, view), )* }
+            }
+            #[inline]
+            fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
+                match self { $( Builtin::$variant(p) => p.released(at, t, outcome, view), )* }
+            }
+            #[inline]
+            fn next_release(&self) -> Option<Instant> {
+                match self { $( Builtin::$variant(p) => p.next_release(), )* }
+            }
+            #[inline]
+            fn delay(&self) -> Option<Duration> {
+                match self { $( Builtin::$variant(p) => p.delay(), )* }
+            }
+            #[inline]
+            fn poll_announcement(&mut self) -> Option<Announcement> {
+                match self { $( Builtin::$variant(p) => p.poll_announcement(), )* }
+            }
+            #[inline]
+            fn following_tick(&self, plain: Instant) -> Instant {
+                match self { $( Builtin::$variant(p) => p.following_tick(plain), )* }
+            }
+            #[inline]
+            fn grid_settled(&self, at: Instant) -> bool {
+                match self { $( Builtin::$variant(p) => p.grid_settled(at), )* }
+            }
+        }
+
         impl<A: AdaptiveSlot> Builtin<A> {
-            fn get(&self) -> &dyn Policy {
-                match self {
-                    $( Builtin::$variant(p) => p, )*
-                }
-            }
-
-            fn get_mut(&mut self) -> &mut dyn Policy {
-                match self {
-                    $( Builtin::$variant(p) => p, )*
-                }
-            }
-
             /// The policy on the heap.
             #[cfg(feature = "alloc")]
             pub(crate) fn boxed(self) -> alloc::boxed::Box<dyn Policy>
@@ -424,78 +489,5 @@ pub(crate) fn write_millis(f: &mut fmt::Formatter<'_>, d: Duration) -> fmt::Resu
 impl<A: AdaptiveSlot> Room for Builtin<A> {
     fn make(playout: Playout, setup: &Setup) -> Result<Self, NoRoom> {
         Self::build(playout, setup)
-    }
-}
-
-impl<A: AdaptiveSlot> Policy for Builtin<A> {
-    #[inline]
-    fn start(&mut self, ns: usize) -> usize {
-        self.get_mut().start(ns)
-    }
-    #[inline]
-    fn set_period(&mut self, period: Duration) {
-        self.get_mut().set_period(period);
-    }
-    #[inline]
-    fn stop(&mut self) {
-        self.get_mut().stop();
-    }
-    #[inline]
-    fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed {
-        self.get_mut().arrival(arrival, view)
-    }
-    #[inline]
-    fn floor_moved(&mut self, from: f64, to: f64) {
-        self.get_mut().floor_moved(from, to);
-    }
-    #[inline]
-    fn admit(&self, sample: &Stamps, now: Instant, view: &View<'_>) -> Admit {
-        self.get().admit(sample, now, view)
-    }
-    #[inline]
-    fn queued(&mut self, view: &View<'_>) {
-        self.get_mut().queued(view);
-    }
-    #[inline]
-    fn lost(&mut self) {
-        self.get_mut().lost();
-    }
-    #[inline]
-    fn tick(
-        &mut self,
-        at: Instant,
-        t: Instant,
-        next_tick: Option<Instant>,
-        view: &View<'_>,
-    ) -> Option<Due> {
-        self.get_mut().tick(at, t, next_tick, view)
-    }
-    #[inline]
-    fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
-        self.get_mut().due(at, t, view)
-    }
-    #[inline]
-    fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
-        self.get_mut().released(at, t, outcome, view);
-    }
-    #[inline]
-    fn next_release(&self) -> Option<Instant> {
-        self.get().next_release()
-    }
-    #[inline]
-    fn delay(&self) -> Option<Duration> {
-        self.get().delay()
-    }
-    #[inline]
-    fn poll_announcement(&mut self) -> Option<Announcement> {
-        self.get_mut().poll_announcement()
-    }
-    #[inline]
-    fn following_tick(&self, plain: Instant) -> Instant {
-        self.get().following_tick(plain)
-    }
-    #[inline]
-    fn grid_settled(&self, at: Instant) -> bool {
-        self.get().grid_settled(at)
     }
 }
