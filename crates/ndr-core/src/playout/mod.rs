@@ -32,7 +32,7 @@ mod classic;
 mod fifo;
 mod policy;
 mod registry;
-pub mod schedule;
+mod schedule;
 mod target;
 
 pub use adaptive::{
@@ -51,9 +51,7 @@ pub use policy::{
 };
 #[cfg(feature = "alloc")]
 pub use policy::{Custom, Factory, HeapRoom};
-pub use registry::{
-    Builtin, InvalidPlayout, Playout, PlayoutName, PlayoutNames, Syntax, UnknownPlayout,
-};
+pub use registry::{Builtin, InvalidPlayout, Playout, PlayoutName, Syntax, UnknownPlayout};
 pub use schedule::{DELAY_QUANTUM, Schedule, delay_quantum, delay_quantum_for};
 pub use target::{OnTicks, TargetDelay};
 

@@ -338,7 +338,7 @@ impl Playout {
 /// The names of every built-in policy with its values
 /// (`fifo, ramjee-1, …, adaptive[:PERCENT[:QUANTUM_MS]] (…)`), for messages.
 #[derive(Clone, Copy, Debug)]
-pub struct PlayoutNames;
+pub(crate) struct PlayoutNames;
 
 impl fmt::Display for PlayoutNames {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
