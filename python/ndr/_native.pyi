@@ -25,6 +25,8 @@ __all__ = [
     "MAX_AXES",
     "MAX_WIDTH",
     "MAX_CAPACITY",
+    "REGULATIONS",
+    "REGULATION_NAMES",
     "DisconnectedError",
     "HandshakeError",
     "LinkClosedError",
@@ -911,8 +913,6 @@ class _LinkSettings:
         state_width: Optional[int],
         period: float,
         regulation: Optional[str],
-        mode: Optional[str],
-        playout: Optional[str],
         underflow: str,
         watchdog: Optional[float],
         liveness: Optional[float],
@@ -1023,8 +1023,6 @@ def sim_run(
     mean: Optional[float] = None,
     std: Optional[float] = None,
     regulation: Optional[str] = None,
-    mode: Optional[str] = None,
-    playout: Optional[str] = None,
     underflow: str = "hold",
     period: float = 0.2,
     duration: float = 600.0,
@@ -1041,15 +1039,19 @@ def sim_run(
 def _regulation(
     *,
     regulation: Optional[str],
-    mode: Optional[str],
-    playout: Optional[str],
     default: str,
-    stacklevel: int,
-) -> Tuple[Optional[str], str, str]:
-    """``(name, mode, playout)`` of ``regulation=`` or of the deprecated
-    ``mode=`` and ``playout=`` (a ``DeprecationWarning`` at ``stacklevel``),
-    as reports write them (``name`` is None for the pairing no regulation
-    names); ``ValueError`` as ``ndr.Link.connect``."""
+) -> Tuple[str, str, str]:
+    """``(name, mode, playout)`` of ``regulation=`` (``default`` when None)
+    as reports write them; ``ValueError`` as ``ndr.Link.connect``."""
+
+REGULATIONS: Tuple[str, ...]
+"""The regulations named without a value, in the order of the Rust core's
+playout registry (:data:`ndr.sim.REGULATIONS`)."""
+
+REGULATION_NAMES: str
+"""Every name ``regulation=`` takes, with the values of those that take
+one (``adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static, …``),
+from the playout registry."""
 
 # -- logging ------------------------------------------------------------------
 

@@ -13,20 +13,17 @@ controllers a user writes.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import sys
 import tempfile
 import threading
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import (
     Any,
     Callable,
     Dict,
-    Iterator,
     List,
     Mapping,
     Optional,
@@ -245,9 +242,7 @@ class _Settings(TypedDict):
 
     axes: int
     period: float
-    regulation: Optional[str]
-    mode: Optional[str]
-    playout: Optional[str]
+    regulation: str
     underflow: str
     transport: str
 
@@ -258,8 +253,6 @@ def run(
     period: float = 0.05,
     duration: float = 20.0,
     regulation: Optional[str] = None,
-    mode: Optional[str] = None,
-    playout: Optional[str] = None,
     underflow: str = "hold",
     axes: int = 1,
     seed: int = 1,
@@ -272,31 +265,18 @@ def run(
     the live status line when ``live``). ``regulation`` and ``transport``
     are those of :meth:`ndr.Link.connect`, on both sides: ``"adaptive"``
     by default, and ``"udp"`` (both ends are on loopback; a link's own
-    default is ``"tcp"``); ``mode`` and ``playout`` are deprecated as
-    there."""
+    default is ``"tcp"``)."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
-    asked_mode = mode
-    name, mode, playout = _native._regulation(
-        regulation=regulation, mode=mode, playout=playout, default="adaptive", stacklevel=2
-    )
-    # The report's deprecated `mode`, as the Rust CLI gives it: what was
-    # asked, or `adaptive` for the adaptive playout over the static handshake.
-    if asked_mode is not None:
-        legacy_mode = asked_mode
-    elif (mode, playout) == ("paper-static", "adaptive"):
-        legacy_mode = "adaptive"
-    else:
-        legacy_mode = mode
+    name, mode, playout = _native._regulation(regulation=regulation, default="adaptive")
+    # The report's `mode`, as the Rust CLI gives it: `adaptive` for the
+    # adaptive playout over the static handshake.
+    legacy_mode = "adaptive" if (mode, playout) == ("paper-static", "adaptive") else mode
     sig = Signal(signal)
-    # The pairing no regulation names goes to the links by its parts, whose
-    # warning was just given once.
     settings = _Settings(
         axes=axes,
         period=period,
         regulation=name,
-        mode=None if name else mode,
-        playout=None if name else playout,
         underflow=underflow,
         transport=transport,
     )
@@ -305,7 +285,7 @@ def run(
     stop = threading.Event()
     # Over QUIC, each side gets a throwaway identity pinned by the other.
     base_tls, remote_tls = _throwaway_pair() if transport.startswith("quic") else (None, None)
-    with _quiet_if(name is None), Link.listen(
+    with Link.listen(
         loopback, tls=remote_tls, **settings
     ) as listener, Relay(
         loopback, listener.address, profile=profile, seed=seed
@@ -324,8 +304,7 @@ def run(
         remote = threading.Thread(target=serve, name="ndr-demo-robot", daemon=True)
         remote.start()
         try:
-            with _quiet_if(name is None):
-                base = Link.connect(relay.address, tls=base_tls, **settings)
+            base = Link.connect(relay.address, tls=base_tls, **settings)
             with base:
                 op = operator(base, duration, sig, status=_status_line if live else None)
         finally:
@@ -338,7 +317,7 @@ def run(
         _write_csv(out, op)
     report = _report(
         profile=relay.model,
-        regulation=name or f"{mode} with {playout}",
+        regulation=name,
         mode=legacy_mode,
         playout=playout,
         underflow=underflow,
@@ -372,18 +351,6 @@ def _write_csv(path: str, op: OperatorLog) -> None:
             t, seq, held, grtt, nrtt, u, y, x = row
             g, n, xe = ("" if math.isnan(v) else f"{v:.6f}" for v in (grtt, nrtt, x))
             f.write(f"{t:.6f},{seq},{'held' if held else 'fresh'},{g},{n},{u:.6f},{y:.6f},{xe}\n")
-
-
-@contextlib.contextmanager
-def _quiet_if(quiet: bool) -> Iterator[None]:
-    """Silences the deprecation warning of ``mode=`` and ``playout=`` when
-    ``quiet`` (the caller was warned already)."""
-    if not quiet:
-        yield
-        return
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        yield
 
 
 def _report(
@@ -535,13 +502,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         "(paris-newyork, lan-75km, paper-fig6, constant:MS)")
     parser.add_argument("--period-ms", type=float, default=50.0, help="sampling period, ms")
     parser.add_argument("--duration-s", type=float, default=20.0, help="how long to run, s")
-    parser.add_argument("--regulation", default=None, help="how the delay is regulated: "
-                        "adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static, "
-                        "paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS")
-    # The old spellings, for one release: a DeprecationWarning names the regulation.
-    parser.add_argument("--mode", default=None, choices=("paper-static", "paper-dynamic"),
-                        help=argparse.SUPPRESS)
-    parser.add_argument("--playout", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--regulation", default=None,
+                        help=f"how the delay is regulated: {_native.REGULATION_NAMES}")
     parser.add_argument("--underflow", default="hold", choices=("hold", "drop-late"))
     parser.add_argument("--transport", default="udp", help="how samples cross: tcp (the "
                         "paper's stream), udp[:K[:R]] (the default: datagrams of the newest "
@@ -564,24 +526,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not (math.isfinite(args.duration_s) and args.duration_s > 0):
         parser.error(f"--duration-s must be a positive number of seconds, got {args.duration_s:g}")
     try:
-        with warnings.catch_warnings():
-            # Said below in the command line's own words.
-            warnings.simplefilter("ignore", DeprecationWarning)
-            name, mode, playout = _native._regulation(
-                regulation=args.regulation,
-                mode=args.mode,
-                playout=args.playout,
-                default="adaptive",
-                stacklevel=1,
-            )
+        name, _, _ = _native._regulation(regulation=args.regulation, default="adaptive")
     except ValueError as e:
         parser.error(str(e))
-    if args.mode is not None or args.playout is not None:
-        instead = f"--regulation {name}" if name else "--regulation (this pairing has no name)"
-        print(
-            f"warning: --mode and --playout are deprecated and go in the next release: use {instead}",
-            file=sys.stderr,
-        )
     if not args.json:
         # Said up front, as the Rust CLI does: the file lands in the current
         # directory by default.
@@ -590,22 +537,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             file=sys.stderr,
         )
     try:
-        with _quiet_if(name is None):
-            result = run(
-                profile=args.profile,
-                period=args.period_ms / 1e3,
-                duration=args.duration_s,
-                regulation=name,
-                mode=None if name else mode,
-                playout=None if name else playout,
-                underflow=args.underflow,
-                axes=args.axes,
-                seed=args.seed,
-                signal=args.signal,
-                out=args.out,
-                live=not args.json and sys.stderr.isatty(),
-                transport=args.transport,
-            )
+        result = run(
+            profile=args.profile,
+            period=args.period_ms / 1e3,
+            duration=args.duration_s,
+            regulation=name,
+            underflow=args.underflow,
+            axes=args.axes,
+            seed=args.seed,
+            signal=args.signal,
+            out=args.out,
+            live=not args.json and sys.stderr.isatty(),
+            transport=args.transport,
+        )
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130

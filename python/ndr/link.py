@@ -140,8 +140,6 @@ _SETTINGS = {
     "state_width": "state_width",
     "period": "period",
     "regulation": "regulation",
-    "mode": "mode",
-    "playout": "playout",
     "underflow": "underflow",
     "watchdog": "watchdog",
     "liveness": "liveness",
@@ -463,8 +461,6 @@ class Link:
         state_width: Optional[int] = None,
         period: float = 0.05,
         regulation: Optional[str] = None,
-        mode: Optional[str] = None,
-        playout: Optional[str] = None,
         underflow: str = "hold",
         watchdog: Optional[float] = 1.0,
         liveness: Optional[float] = 10.0,
@@ -509,11 +505,6 @@ class Link:
                 pause, as the network changes; both peers must say it),
                 ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``,
                 ``"fixed[:MS]"`` or ``"constant:MS"``.
-            mode: deprecated, goes in the next release (a
-                ``DeprecationWarning`` names the ``regulation`` to give
-                instead): ``"paper-static"`` or ``"paper-dynamic"``.
-            playout: deprecated, as ``mode``: ``"fifo"``, or a target-delay
-                name of ``regulation``.
             underflow: what a tick does when its sample has not arrived:
                 ``"hold"`` (the paper's FIFO: repeat the last sample, keep
                 every sample) or ``"drop-late"`` (keep the delay constant:
@@ -564,8 +555,7 @@ class Link:
             ConnectionRefusedError: nothing listens at ``address``.
             HandshakeError: the peer has other settings, or did not answer.
             TimeoutError: no connection within ``connect_timeout``.
-            ValueError: a setting is invalid (the message says which;
-                ``regulation`` with ``mode`` or ``playout``, too), or a
+            ValueError: a setting is invalid (the message says which), or a
                 plain link off loopback without ``insecure=True``.
         """
         native = _native.connect(
@@ -584,8 +574,6 @@ class Link:
         state_width: Optional[int] = None,
         period: float = 0.05,
         regulation: Optional[str] = None,
-        mode: Optional[str] = None,
-        playout: Optional[str] = None,
         underflow: str = "hold",
         watchdog: Optional[float] = 1.0,
         liveness: Optional[float] = 10.0,

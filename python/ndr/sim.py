@@ -32,8 +32,6 @@ __all__ = [
     "run",
     "PROFILES",
     "REGULATIONS",
-    "MODES",
-    "PLAYOUTS",
     "UNDERFLOWS",
 ]
 
@@ -41,7 +39,8 @@ __all__ = [
 PROFILES = ("paris-newyork", "lan-75km", "paper-fig6")
 #: How the delay is regulated, each accepted as it is written here (the
 #: names of ``ndr sim --regulation``, ``ndr.Link.connect(regulation=…)`` and
-#: the reports' ``"regulation"``): ``"paper-static"`` (the paper's FIFO,
+#: the reports' ``"regulation"``, from the playout registry of the Rust
+#: core, :data:`ndr._native.REGULATION_NAMES`): ``"paper-static"`` (the paper's FIFO,
 #: sized once; the simulator's default), ``"paper-dynamic"`` (resized as the
 #: network changes), ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``,
 #: ``"fixed"`` (200 ms above the smallest delay seen) and ``"adaptive"`` (a
@@ -53,15 +52,9 @@ PROFILES = ("paris-newyork", "lan-75km", "paper-fig6")
 #: the delay is held in (1 to 10 000 ms; by default 20 ms, or the period
 #: when shorter), e.g. ``"adaptive:0.1:10"``: a finer step holds a lower
 #: delay that changes more often.
-REGULATIONS = ("paper-static", "paper-dynamic", "ramjee-1", "ramjee-4", "neteq", "fixed", "adaptive")
-#: The parts of a regulation, for the deprecated ``mode=`` (both peers'
-#: sizing)…
-MODES = ("paper-static", "paper-dynamic")
+REGULATIONS: tuple[str, ...] = _native.REGULATIONS
 #: Underflow policies.
 UNDERFLOWS = ("hold", "drop-late")
-#: …and ``playout=`` (each side's release policy: ``"fifo"`` is the paper's
-#: queue, the others as in :data:`REGULATIONS`).
-PLAYOUTS = ("fifo", "ramjee-1", "ramjee-4", "neteq", "fixed", "adaptive")
 
 
 class SimSummary(TypedDict):
@@ -80,15 +73,14 @@ class SimSummary(TypedDict):
     profile: str
     """The delay model's name."""
     regulation: str
-    """How the delay was regulated (:data:`REGULATIONS`), or ``"MODE with
-    PLAYOUT"`` for the pairing no regulation names."""
+    """How the delay was regulated (:data:`REGULATIONS`)."""
     mode: str
     """``"paper-static"`` or ``"paper-dynamic"``: a part of ``regulation``."""
     underflow: str
     """``"hold"`` or ``"drop-late"``."""
     playout: str
-    """The regulators' playout policy, a part of ``regulation``
-    (:data:`PLAYOUTS`)."""
+    """The regulators' playout policy, a part of ``regulation``: ``"fifo"``
+    (the paper's queue) or the target-delay policy's name."""
     seed: int
     duration_s: float
     """Simulated time."""
@@ -236,8 +228,6 @@ def run(
     mean: Optional[float] = None,
     std: Optional[float] = None,
     regulation: Optional[str] = None,
-    mode: Optional[str] = None,
-    playout: Optional[str] = None,
     underflow: str = "hold",
     period: float = 0.2,
     duration: float = 600.0,
@@ -261,9 +251,6 @@ def run(
             ``"paper-dynamic"``, ``"ramjee-1"``, ``"ramjee-4"``, ``"neteq"``,
             ``"fixed[:MS]"``, ``"constant:MS"`` or
             ``"adaptive[:PERCENT[:QUANTUM_MS]]"``.
-        mode: deprecated (a ``DeprecationWarning`` names the regulation to
-            give instead; goes in the next release): :data:`MODES`.
-        playout: deprecated, as ``mode``: :data:`PLAYOUTS`.
         underflow: ``"hold"`` or ``"drop-late"``.
         period: the sampling period, seconds (the paper's 0.2).
         duration: simulated time, seconds.
@@ -291,8 +278,7 @@ def run(
         was measured (a run too short for a GRTT, a forecast, …).
 
     Raises:
-        ValueError: an invalid option (``regulation`` with ``mode`` or
-            ``playout``, too), an unreadable trace or table, or a link that
+        ValueError: an invalid option, an unreadable trace or table, or a link that
             failed during the run (the message says when and why).
     """
     summary, columns = _native.sim_run(
@@ -302,8 +288,6 @@ def run(
         mean=mean,
         std=std,
         regulation=regulation,
-        mode=mode,
-        playout=playout,
         underflow=underflow,
         period=period,
         duration=duration,

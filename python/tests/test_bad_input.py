@@ -147,7 +147,7 @@ CASES = [
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="lifo"), ValueError, "regulation"),
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="fifo"), ValueError, "paper-dynamic"),
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="neteq", mode="paper-static"),
-     ValueError, "give regulation alone"),
+     TypeError, "mode"),
 ]
 
 

@@ -81,14 +81,15 @@ def test_bad_options_exit_with_a_message():
     assert proc.returncode == 2 and "unknown command" in proc.stderr
 
 
-def test_the_old_flags_are_refused_when_mixed_and_named_when_alone():
-    # Both spellings at once: refused before anything runs.
-    proc = subprocess.run(
-        [sys.executable, "-m", "ndr", "demo", "--regulation", "adaptive", "--mode", "paper-static"],
-        capture_output=True, text=True, timeout=30,
-    )
-    assert proc.returncode == 2
-    assert "give regulation alone" in proc.stderr
+def test_regulation_is_the_only_flag_and_a_wrong_name_says_the_valid_ones():
+    # The old spellings are gone: refused before anything runs.
+    for flag, value in (("--mode", "paper-static"), ("--playout", "fifo")):
+        proc = subprocess.run(
+            [sys.executable, "-m", "ndr", "demo", "--regulation", "adaptive", flag, value],
+            capture_output=True, text=True, timeout=30,
+        )
+        assert proc.returncode == 2
+        assert f"unrecognized arguments: {flag}" in proc.stderr
     # An unknown name: the valid ones.
     proc = subprocess.run(
         [sys.executable, "-m", "ndr", "demo", "--regulation", "lifo"],

@@ -1,10 +1,6 @@
 """One name for how the delay is regulated: ``regulation=``, the names of
-``ndr demo --regulation`` and of the reports' ``"regulation"``. The old
-``mode=`` and ``playout=`` still work for one release, with a
-``DeprecationWarning`` at the caller's line that names the regulation to
-give instead."""
-
-import warnings
+``ndr demo --regulation`` and of the reports' ``"regulation"``, all from the
+Rust core's playout registry. There is no other spelling."""
 
 import pytest
 
@@ -15,37 +11,26 @@ from ndr import _native
 LOOPBACK = ("127.0.0.1", 0)
 
 
-def test_the_old_spellings_give_the_same_run_and_name_the_regulation():
-    new = ndr.sim.run("lan-75km", regulation="paper-dynamic", duration=60, series=False)
-    with pytest.warns(DeprecationWarning, match='use regulation="paper-dynamic"') as record:
-        old = ndr.sim.run("lan-75km", mode="paper-dynamic", duration=60, series=False)
-    assert old.summary == new.summary
-    assert new["regulation"] == "paper-dynamic"
-    # At the caller's line, not inside the package.
-    assert record[0].filename == __file__
-    with pytest.warns(DeprecationWarning, match='use regulation="neteq"'):
+def test_regulation_is_the_only_word():
+    with pytest.raises(TypeError, match="mode"):
+        ndr.sim.run("lan-75km", mode="paper-dynamic", duration=5, series=False)
+    with pytest.raises(TypeError, match="playout"):
         ndr.sim.run("lan-75km", playout="neteq", duration=5, series=False)
+    with pytest.raises(TypeError, match="playout"):
+        ndr.Link.listen(LOOPBACK, playout="fifo")
+    with pytest.raises(TypeError, match="mode"):
+        ndr.Link.connect(("127.0.0.1", 9), mode="paper-static")
+    with ndr.Link.listen(LOOPBACK, regulation="paper-dynamic"):
+        pass
 
 
-def test_a_link_takes_the_old_spellings_with_a_warning_at_the_callers_line():
-    with pytest.warns(DeprecationWarning, match='use regulation="paper-static"') as record:
-        with ndr.Link.listen(LOOPBACK, mode="paper-static", playout="fifo"):
-            pass
-    assert record[0].filename == __file__
-    with warnings.catch_warnings(record=True) as seen:
-        warnings.simplefilter("always")
-        with ndr.Link.listen(LOOPBACK, regulation="paper-dynamic"):
-            pass
-    assert not [w for w in seen if issubclass(w.category, DeprecationWarning)]
-
-
-def test_the_pairing_no_regulation_names_still_runs_by_its_parts():
-    with pytest.warns(DeprecationWarning, match="has no name"):
-        r = ndr.sim.run(
-            "lan-75km", mode="paper-dynamic", playout="adaptive", duration=30, series=False
-        )
-    assert r["regulation"] == "paper-dynamic with adaptive"
-    assert (r["mode"], r["playout"]) == ("paper-dynamic", "adaptive")
+def test_the_listed_names_come_from_the_registry():
+    assert ndr.sim.REGULATIONS == (
+        "paper-static", "paper-dynamic", "ramjee-1", "ramjee-4", "neteq", "fixed", "adaptive"
+    )
+    assert _native.REGULATION_NAMES.startswith("adaptive[:PERCENT[:QUANTUM_MS]] (the default), ")
+    for name in ndr.sim.REGULATIONS:
+        assert name in _native.REGULATION_NAMES
 
 
 @pytest.mark.parametrize(
@@ -59,10 +44,9 @@ def test_the_pairing_no_regulation_names_still_runs_by_its_parts():
     ],
 )
 def test_each_regulation_is_a_mode_and_a_playout(given, parts):
-    got = _native._regulation(
-        regulation=given, mode=None, playout=None, default="adaptive", stacklevel=1
-    )
+    got = _native._regulation(regulation=given, default="adaptive")
     assert got == parts
+    assert _native._regulation(regulation=None, default=given) == parts
 
 
 def test_a_wrong_name_says_what_is_valid():
@@ -71,5 +55,3 @@ def test_a_wrong_name_says_what_is_valid():
     # `fifo` is the queue, not how it is sized: the message says both ways.
     with pytest.raises(ValueError, match="paper-static .* paper-dynamic"):
         ndr.Link.listen(LOOPBACK, regulation="fifo")
-    with pytest.raises(ValueError, match="give regulation alone"):
-        ndr.Link.listen(LOOPBACK, regulation="adaptive", playout="fifo")

@@ -104,7 +104,6 @@ def test_a_trace_file_drives_the_network(tmp_path):
         (dict(dist="normal.dist"), "mean and std"),
         (dict(profile="lan-75km", mean=0.1), "dist"),
         (dict(regulation="warp"), "regulation"),
-        (dict(regulation="neteq", playout="fifo"), "give regulation alone"),
         (dict(underflow="skip"), "underflow"),
         (dict(period=0), "period"),
         (dict(duration=-1), "duration"),

@@ -27,10 +27,12 @@
 //! - [`regulation`]: how the delay is regulated, by the one name users give
 //!   ([`Regulation`]: `adaptive`, `paper-static`, `paper-dynamic`, …): the
 //!   [`Mode`] both peers agree on and this side's [`Playout`].
-//! - [`playout`]: when a regulator releases each sample: the paper's FIFO or
-//!   a target delay (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like
-//!   quantile, a fixed latency, a constant, and the adaptive timestamp-based
-//!   policy), [`Playout`].
+//! - [`playout`]: when a regulator releases each sample, behind one
+//!   interface ([`playout::Policy`]): the paper's FIFO or a target delay
+//!   (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like quantile, a fixed
+//!   latency, a constant, and the adaptive timestamp-based policy), named by
+//!   [`Playout`]; a policy of the application's own plugs in through a
+//!   [`playout::Factory`].
 //! - [`sync`]: the peers' clock offset and skew from the timestamps the link
 //!   already exchanges (Moon et al.'s hull of the delay floors, NTP's formula
 //!   on them), which the adaptive playout and the one-way delays use.

@@ -184,6 +184,26 @@ impl Regulation {
     pub const fn is_paper(self) -> bool {
         matches!(self.playout(), Playout::Fifo)
     }
+
+    /// The names it takes ([`RegulationNames`]), for help texts.
+    #[must_use]
+    pub const fn names() -> RegulationNames {
+        RegulationNames::with_default(Regulation::ADAPTIVE)
+    }
+
+    /// Every regulation the registry names by a bare name, in the order of
+    /// [`Regulation::names`]'s list after the default: the paper's two, then
+    /// each target policy at its defaults (one that needs a value, such as
+    /// `constant:MS`, is left out). What `ndr compare` runs by default.
+    pub fn every() -> impl Iterator<Item = Regulation> {
+        [Regulation::PaperStatic, Regulation::PaperDynamic]
+            .into_iter()
+            .chain(
+                Playout::registered()
+                    .iter()
+                    .filter_map(|s| s.name.parse::<Regulation>().ok()),
+            )
+    }
 }
 
 impl fmt::Display for Regulation {
@@ -226,14 +246,82 @@ pub enum UnknownRegulation {
     Value(UnknownPlayout),
 }
 
-/// The names [`Regulation`] takes, for messages and help texts.
-pub const REGULATION_NAMES: &str = "adaptive[:PERCENT[:QUANTUM_MS]] (the default), \
-    paper-static, paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS";
+/// The names [`Regulation`] takes, for messages and help texts, from the
+/// playout registry: the default first, then the paper's two (its FIFO
+/// sized once or resized) and the other policies in the registry's order
+/// (`adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static,
+/// paper-dynamic, ramjee-1, …`).
+#[derive(Clone, Copy, Debug)]
+pub struct RegulationNames {
+    default: Option<Regulation>,
+}
+
+impl RegulationNames {
+    /// The same names with `default` first, marked as the default.
+    #[must_use]
+    pub const fn with_default(default: Regulation) -> Self {
+        RegulationNames {
+            default: Some(default),
+        }
+    }
+
+    /// The same names in the registry's order, none marked.
+    #[must_use]
+    pub const fn plain(self) -> Self {
+        RegulationNames { default: None }
+    }
+
+    /// Each name's syntax and whether it names the default, in the
+    /// registry's order (the FIFO's entry is the paper's two).
+    fn each(self) -> impl Iterator<Item = (&'static str, bool)> {
+        let fifo = Playout::Fifo.syntax();
+        let default = self.default;
+        Playout::registered().iter().flat_map(move |s| {
+            let paper = Some(s) == fifo;
+            let one = if paper {
+                Mode::PaperStatic.name()
+            } else {
+                s.syntax
+            };
+            let named = |r: Regulation| match r {
+                Regulation::PaperStatic => paper && one == Mode::PaperStatic.name(),
+                Regulation::PaperDynamic => false,
+                Regulation::Target(p) => !paper && p.syntax() == Some(s),
+            };
+            let first = (one, default.is_some_and(named));
+            let second = paper.then_some((
+                Mode::PaperDynamic.name(),
+                default == Some(Regulation::PaperDynamic),
+            ));
+            core::iter::once(first).chain(second)
+        })
+    }
+}
+
+impl fmt::Display for RegulationNames {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut first = true;
+        for (name, _) in self.each().filter(|&(_, d)| d) {
+            write!(f, "{name} (the default)")?;
+            first = false;
+        }
+        for (name, _) in self.each().filter(|&(_, d)| !d) {
+            if !first {
+                f.write_str(", ")?;
+            }
+            f.write_str(name)?;
+            first = false;
+        }
+        Ok(())
+    }
+}
 
 impl fmt::Display for UnknownRegulation {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            UnknownRegulation::Name => write!(f, "unknown regulation; valid: {REGULATION_NAMES}"),
+            UnknownRegulation::Name => {
+                write!(f, "unknown regulation; valid: {}", Regulation::names())
+            }
             UnknownRegulation::Fifo => f.write_str(
                 "`fifo` is the paper's queue: say how it is sized, paper-static (once, \
                  at the handshake) or paper-dynamic (again when the network changes)",
@@ -318,6 +406,38 @@ mod tests {
         assert_eq!(r.to_string(), "paper-static");
         assert_eq!((r.mode(), r.playout()), (Mode::PaperStatic, Playout::Fifo));
         assert!(r.is_paper() && !Regulation::ADAPTIVE.is_paper());
+    }
+
+    #[test]
+    fn the_names_come_from_the_registry() {
+        assert_eq!(
+            Regulation::names().to_string(),
+            "adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static, paper-dynamic, \
+             ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS"
+        );
+        assert_eq!(
+            RegulationNames::with_default(Regulation::PaperStatic).to_string(),
+            "paper-static (the default), paper-dynamic, ramjee-1, ramjee-4, neteq, \
+             fixed[:MS], constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]"
+        );
+        assert_eq!(
+            Regulation::names().plain().to_string(),
+            "paper-static, paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS, \
+             adaptive[:PERCENT[:QUANTUM_MS]]"
+        );
+        let every: std::vec::Vec<_> = Regulation::every().map(|r| r.to_string()).collect();
+        assert_eq!(
+            every,
+            [
+                "paper-static",
+                "paper-dynamic",
+                "ramjee-1",
+                "ramjee-4",
+                "neteq",
+                "fixed:200",
+                "adaptive"
+            ]
+        );
     }
 
     #[test]

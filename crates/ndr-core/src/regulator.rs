@@ -329,6 +329,12 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
         self.queue.front()
     }
 
+    /// The `index`-th oldest queued sample.
+    #[must_use]
+    pub fn get(&self, index: usize) -> Option<&T> {
+        self.queue.get(index)
+    }
+
     /// The queued samples, oldest first.
     pub fn iter(&self) -> impl Iterator<Item = &T> {
         self.queue.iter()

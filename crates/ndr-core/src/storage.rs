@@ -25,7 +25,7 @@ use core::marker::PhantomData;
 
 use heapless::Deque;
 
-use crate::playout::{Adaptive, AdaptiveSlot};
+use crate::playout::{Builtin, Room};
 use crate::time::Instant;
 
 /// The largest regulator a [`Heap`] storage holds: a nominal size is at
@@ -40,6 +40,8 @@ pub trait Queue<T> {
     fn pop_front(&mut self) -> Option<T>;
     /// The oldest item.
     fn front(&self) -> Option<&T>;
+    /// The `index`-th oldest item.
+    fn get(&self, index: usize) -> Option<&T>;
     /// Items queued now.
     fn len(&self) -> usize;
     /// Whether no item is queued.
@@ -69,6 +71,10 @@ impl<T, const N: usize> Queue<T> for Deque<T, N> {
         Deque::front(self)
     }
 
+    fn get(&self, index: usize) -> Option<&T> {
+        Deque::get(self, index)
+    }
+
     fn len(&self) -> usize {
         Deque::len(self)
     }
@@ -91,7 +97,7 @@ impl<T, const N: usize> Queue<T> for Deque<T, N> {
 
 /// How an [`Endpoint`](crate::endpoint::Endpoint) keeps its buffers: a
 /// sample's values, its regulator's queue, the send times of its recent
-/// ticks and the adaptive playout's state.
+/// ticks and its playout policy.
 pub trait Storage {
     /// One sample's values.
     type Values: AsRef<[f64]> + AsMut<[f64]> + Clone + fmt::Debug + PartialEq;
@@ -99,8 +105,8 @@ pub trait Storage {
     type Queue<T: Clone + fmt::Debug>: Queue<T> + Clone + fmt::Debug;
     /// One entry per queued sample the endpoint can hold.
     type Ticks: AsRef<[(u64, Instant)]> + AsMut<[(u64, Instant)]> + Clone + fmt::Debug;
-    /// The adaptive playout's state, or [`NoAdaptive`](crate::playout::NoAdaptive).
-    type Adaptive: AdaptiveSlot;
+    /// Where the playout policy is kept.
+    type Policy: Room;
     /// The capacity [`Endpoint::new`](crate::endpoint::Endpoint::new) asks for.
     const DEFAULT_CAPACITY: usize;
 
@@ -113,18 +119,20 @@ pub trait Storage {
 }
 
 /// Storage in arrays: samples of up to `C` channels, `N` of them queued,
-/// and the adaptive playout's state in `A` (its histogram is about 7 KiB:
-/// an endpoint that never runs that policy can drop it with
-/// [`NoAdaptive`](crate::playout::NoAdaptive)). An endpoint of this
-/// storage holds about `N·(8·C + 64)` bytes inline: box it when `N` is large.
+/// and the playout policy in `P`: [`Builtin`], every built-in policy
+/// inline (the adaptive playout's histogram is about 7 KiB: an endpoint
+/// that never runs it can drop it with
+/// `Builtin<`[`NoAdaptive`](crate::playout::NoAdaptive)`>`). An endpoint of
+/// this storage holds about `N·(8·C + 64)` bytes inline: box it when `N`
+/// is large.
 #[derive(Clone, Debug)]
-pub struct Inline<const C: usize, const N: usize, A = Adaptive>(PhantomData<A>);
+pub struct Inline<const C: usize, const N: usize, P = Builtin>(PhantomData<P>);
 
-impl<const C: usize, const N: usize, A: AdaptiveSlot> Storage for Inline<C, N, A> {
+impl<const C: usize, const N: usize, P: Room> Storage for Inline<C, N, P> {
     type Values = [f64; C];
     type Queue<T: Clone + fmt::Debug> = Deque<T, N>;
     type Ticks = [(u64, Instant); N];
-    type Adaptive = A;
+    type Policy = P;
     const DEFAULT_CAPACITY: usize = N;
 
     fn values(width: usize) -> Option<[f64; C]> {
@@ -151,13 +159,15 @@ mod heap {
     use core::fmt;
 
     use super::{MAX_CAPACITY, Queue, Storage};
-    use crate::playout::Adaptive;
+    use crate::playout::HeapRoom;
     use crate::time::Instant;
 
     /// Storage on the heap, each buffer sized once when the endpoint is
     /// made: values as wide as the link, a queue as long as asked, and the
-    /// adaptive playout's state only when the link runs it. A received
-    /// sample's values are one allocation, handed on in its release.
+    /// playout policy ([`HeapRoom`]: a built-in one, the adaptive
+    /// playout's state only when the link runs it, or the application's
+    /// own, boxed). A received sample's values are one allocation, handed
+    /// on in its release.
     #[derive(Clone, Copy, Debug)]
     pub struct Heap;
 
@@ -165,7 +175,7 @@ mod heap {
         type Values = Box<[f64]>;
         type Queue<T: Clone + fmt::Debug> = HeapQueue<T>;
         type Ticks = Box<[(u64, Instant)]>;
-        type Adaptive = Box<Adaptive>;
+        type Policy = HeapRoom;
         const DEFAULT_CAPACITY: usize = 256;
 
         fn values(width: usize) -> Option<Box<[f64]>> {
@@ -219,6 +229,10 @@ mod heap {
 
         fn front(&self) -> Option<&T> {
             self.items.front()
+        }
+
+        fn get(&self, index: usize) -> Option<&T> {
+            self.items.get(index)
         }
 
         fn len(&self) -> usize {

@@ -14,12 +14,12 @@ mod cases;
 #[test]
 fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_playout() {
     use ndr_core::endpoint::ConfigError;
-    use ndr_core::playout::{NoAdaptive, NoAdaptiveRoom, Playout};
-    type Lean = Endpoint<Inline<4, 16, NoAdaptive>>;
+    use ndr_core::playout::{Builtin, NoAdaptive, NoRoom, Playout};
+    type Lean = Endpoint<Inline<4, 16, Builtin<NoAdaptive>>>;
     let mut c = cases::config(Role::Remote);
     c.playout = Playout::ADAPTIVE;
     let refused = Lean::new(c, Instant::ZERO).err();
-    assert_eq!(refused, Some(ConfigError::NoAdaptiveRoom(NoAdaptiveRoom)));
+    assert_eq!(refused, Some(ConfigError::NoRoom(NoRoom::Adaptive)));
     assert!(
         refused
             .unwrap()

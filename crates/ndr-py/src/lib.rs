@@ -19,8 +19,8 @@
 //!   subclasses) and [`blocking`] (waits without the GIL, Ctrl-C);
 //! - [`relay`]: `Relay`, the delaying proxy;
 //! - [`sim`]: `sim_run`, the simulator behind `ndr.sim.run`;
-//! - [`regulation`]: `regulation=` and the deprecated `mode=` and `playout=`,
-//!   read once for every function that takes them;
+//! - [`regulation`]: `regulation=`, read once for every function that
+//!   takes it, and the names it takes;
 //! - [`delay`]: the delay model of either from its keyword arguments;
 //! - [`log`]: Rust's `tracing` records into Python's `logging`.
 //!
@@ -142,6 +142,14 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<relay::PyRelay>()?;
     m.add_function(wrap_pyfunction!(sim::run, m)?)?;
     m.add_function(wrap_pyfunction!(regulation::parts, m)?)?;
+    m.add(
+        "REGULATIONS",
+        pyo3::types::PyTuple::new(m.py(), regulation::bare_names())?,
+    )?;
+    m.add(
+        "REGULATION_NAMES",
+        ndr_core::regulation::Regulation::names().to_string(),
+    )?;
     m.add_class::<sim::PySignal>()?;
     m.add_function(wrap_pyfunction!(log::set_log_level, m)?)?;
     m.add_function(wrap_pyfunction!(log::flush_logs, m)?)?;

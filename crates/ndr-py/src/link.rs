@@ -522,18 +522,15 @@ impl PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, mode, playout, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport))]
+    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport))]
     #[allow(clippy::too_many_arguments)]
     fn new(
-        py: Python<'_>,
         role: &str,
         axes: &Bound<'_, PyAny>,
         command_width: &Bound<'_, PyAny>,
         state_width: &Bound<'_, PyAny>,
         period: f64,
         regulation: Option<&str>,
-        mode: Option<&str>,
-        playout: Option<&str>,
         underflow: &str,
         watchdog: Option<f64>,
         liveness: Option<f64>,
@@ -566,10 +563,7 @@ impl PyLinkSettings {
         let app_queue = count("queue", app_queue, 1, MAX_APP_QUEUE)?;
         let mut endpoint = Config::new(role).with_widths(widths.0, widths.1);
         endpoint.period = positive("period", period)?;
-        // Called from `ndr.link._settings`, from `Link.connect` or
-        // `Link.listen`: the user's call is three frames up.
-        (endpoint.mode, endpoint.playout) =
-            regulation::mode_playout(py, (regulation, mode, playout), Regulation::ADAPTIVE, 3)?;
+        endpoint = endpoint.with_regulation(regulation::read(regulation, Regulation::ADAPTIVE)?);
         endpoint.underflow = underflow
             .parse::<Underflow>()
             .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;

@@ -20,7 +20,7 @@ use crate::log;
 
 /// One simulation; returns `(summary_json, series)`.
 #[pyfunction]
-#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, mode = None, playout = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true, loss = "none", transport = "stream"))]
+#[pyo3(name = "sim_run", signature = (*, profile = None, trace = None, dist = None, mean = None, std = None, regulation = None, underflow = "hold", period = 0.2, duration = 600.0, seed = 1, axes = 1, signal = "sine", series = true, loss = "none", transport = "stream"))]
 #[allow(clippy::too_many_arguments)]
 pub fn run<'py>(
     py: Python<'py>,
@@ -30,8 +30,6 @@ pub fn run<'py>(
     mean: Option<f64>,
     std: Option<f64>,
     regulation: Option<&str>,
-    mode: Option<&str>,
-    playout: Option<&str>,
     underflow: &str,
     period: f64,
     duration: f64,
@@ -46,14 +44,10 @@ pub fn run<'py>(
     let max_axes = u16::try_from(MAX_SIM_AXES).unwrap_or(u16::MAX);
     let axes = in_range("axes", axes, 1, max_axes)?;
     let model = delay_model(profile, trace, dist, mean, std, "paris-newyork")?;
-    let mut cfg = SimConfig::paper(model);
-    // Called from `ndr.sim.run`: the user's call is two frames up.
-    (cfg.mode, cfg.playout) = crate::regulation::mode_playout(
-        py,
-        (regulation, mode, playout),
+    let mut cfg = SimConfig::paper(model).with_regulation(crate::regulation::read(
+        regulation,
         Regulation::PaperStatic,
-        2,
-    )?;
+    )?);
     cfg.underflow = underflow
         .parse::<Underflow>()
         .map_err(|e| PyValueError::new_err(format!("underflow: {e}")))?;

@@ -15,7 +15,7 @@
 //! the same way (receiver's release tick − sender's stamp), so the oracle
 //! and the policies are compared on the same grid. The comparison harness
 //! builds it on the grid of the adaptive delay's quantum
-//! ([`delay_quantum`](ndr_core::endpoint::delay_quantum): the period up to
+//! ([`delay_quantum`](ndr_core::playout::delay_quantum): the period up to
 //! 20 ms, a fraction of it beyond), where the adaptive playout releases
 //! between ticks.
 

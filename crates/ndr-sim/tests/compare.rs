@@ -6,7 +6,7 @@ use ndr_core::Regulation;
 use ndr_core::endpoint::Underflow;
 use ndr_core::playout::Playout;
 use ndr_core::time::{Duration, Instant};
-use ndr_sim::compare::{self, CompareConfig, DEFAULT_REGULATIONS, Family, builtin, run_one};
+use ndr_sim::compare::{self, CompareConfig, Family, builtin, default_regulations, run_one};
 use ndr_sim::delay::DelayModel;
 
 const T: Duration = Duration::from_millis(20);
@@ -121,12 +121,12 @@ fn the_endpoint_reproduces_the_oracle() {
 
 #[test]
 fn no_policy_beats_the_oracle_on_its_own_trace() {
-    let policies = DEFAULT_REGULATIONS;
+    let policies = default_regulations();
     // Any trace: a policy that releases k samples fresh waits at least the
     // k smallest slot delays.
     for name in ["lan-75km", "step", "spikes", "tcp-stall", "skew-100ppm"] {
         let f = short(named(name), 60);
-        for p in policies {
+        for &p in &policies {
             for seed in 1..=2 {
                 let m = run_one(&f, p, seed, (T, WINDOW)).unwrap();
                 let bound = m.oracle.lower_bound(m.released);
@@ -143,7 +143,7 @@ fn no_policy_beats_the_oracle_on_its_own_trace() {
     // oracle at its own late rate, time-sharing between two constant
     // targets allowed (the oracle's convex envelope).
     let f = short(named("lan-75km"), 60);
-    for p in policies {
+    for &p in &policies {
         for seed in 1..=3 {
             let m = run_one(&f, p, seed, (T, WINDOW)).unwrap();
             let r = m.metrics;
@@ -274,7 +274,7 @@ fn the_comparison_is_deterministic_and_complete() {
     assert_eq!(one.families.len(), 2);
     for f in &one.families {
         let names: Vec<String> = f.regulations.iter().map(|p| p.regulation.clone()).collect();
-        let mut want: Vec<String> = DEFAULT_REGULATIONS
+        let mut want: Vec<String> = default_regulations()
             .iter()
             .map(ToString::to_string)
             .collect();

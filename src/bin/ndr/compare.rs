@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::time::Instant as WallClock;
 
 use ndr::core::endpoint::Underflow;
-use ndr::core::regulation::Regulation;
+use ndr::core::regulation::{Regulation, RegulationNames};
 use ndr::core::time::Duration;
 use ndr::sim::compare::{
     self, CompareConfig, CompareReport, Family, Matched, RegulationResult, Stat, TC_DIRS,
@@ -71,10 +71,14 @@ pub struct CompareArgs {
     /// netem-pareto, netem-paretonormal, netem-experimental.
     #[arg(long = "family", value_name = "NAME")]
     pub families: Vec<String>,
-    /// Regulations to run (repeatable; default all but constant): paper-static,
-    /// paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
-    /// adaptive[:PERCENT[:QUANTUM_MS]].
-    #[arg(long = "regulation", value_name = "NAME")]
+    #[arg(
+        long = "regulation",
+        value_name = "NAME",
+        help = format!(
+            "Regulations to run (repeatable; default each one named without a value): {}",
+            RegulationNames::with_default(Regulation::PaperStatic).plain()
+        )
+    )]
     pub regulations: Vec<String>,
     /// Deprecated spelling of --regulation.
     #[arg(long = "policy", value_name = "NAME", hide = true)]

@@ -31,12 +31,16 @@ use crate::tracking::{ControllerKind, Tracker, TrackingSummary, check_layout};
 /// The link's settings, shared by `demo`, `base` and `remote`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct LinkArgs {
-    /// How the delay is regulated: adaptive[:PERCENT[:QUANTUM_MS]] (the
-    /// default: a target delay above each sample's send time, the lowest
-    /// with a late rate of PERCENT, 0.1 by default), paper-static or
-    /// paper-dynamic (the paper's FIFO, sized once or resized as the network
-    /// changes), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS.
-    #[arg(long, value_name = "NAME")]
+    #[arg(
+        long,
+        value_name = "NAME",
+        help = format!(
+            "How the delay is regulated: {} (adaptive: a target delay above each sample's \
+             send time, the lowest with a late rate of PERCENT, 0.1 by default; paper-static \
+             or paper-dynamic: the paper's FIFO, sized once or resized as the network changes)",
+            Regulation::names()
+        )
+    )]
     pub regulation: Option<Regulation>,
     /// Deprecated: --regulation (paper-static, paper-dynamic, adaptive).
     #[arg(long, hide = true, value_parser = link_mode)]

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use ndr::core::endpoint::{Mode, Transport, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::regulation::Regulation;
+use ndr::core::regulation::{Regulation, RegulationNames};
 use ndr::core::time::Duration;
 use ndr::sim::delay::{DelayModel, DistTable, LossModel, Trace};
 use ndr::sim::signal::Signal;
@@ -81,11 +81,15 @@ fn with_path(path: &Path, e: &dyn std::fmt::Display) -> String {
 pub struct SimArgs {
     #[command(flatten)]
     pub net: NetArgs,
-    /// How both sides regulate the delay: paper-static (the default, the
-    /// paper's FIFO sized once), paper-dynamic (resized as the network
-    /// changes), ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS,
-    /// adaptive[:PERCENT[:QUANTUM_MS]] (see `ndr compare`).
-    #[arg(long, value_name = "NAME")]
+    #[arg(
+        long,
+        value_name = "NAME",
+        help = format!(
+            "How both sides regulate the delay: {} (paper-static: the paper's FIFO sized once; \
+             paper-dynamic: resized as the network changes; see `ndr compare`)",
+            RegulationNames::with_default(Regulation::PaperStatic)
+        )
+    )]
     pub regulation: Option<Regulation>,
     /// Deprecated: --regulation (paper-static or paper-dynamic).
     #[arg(long, hide = true)]

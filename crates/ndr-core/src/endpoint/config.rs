@@ -423,14 +423,7 @@ impl Config {
                 session: self.session,
             });
         }
-        if let crate::playout::Playout::Adaptive {
-            quantum: Some(q), ..
-        } = self.playout
-            && !(crate::playout::MIN_QUANTUM..=crate::playout::MAX_QUANTUM).contains(&q)
-        {
-            return Err(ConfigError::Quantum(q));
-        }
-        Ok(())
+        self.playout.validate().map_err(ConfigError::Playout)
     }
 
     pub(crate) fn predictor_config(&self) -> PredictorConfig {
@@ -480,13 +473,10 @@ pub enum ConfigError {
     Liveness,
     /// The predictor's constants are invalid.
     Predictor(crate::predictor::PredictorError),
-    /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) on an
-    /// endpoint built without room for its state.
-    NoAdaptiveRoom(crate::playout::NoAdaptiveRoom),
-    /// The adaptive playout's quantum asked for is outside
-    /// [`MIN_QUANTUM`](crate::playout::MIN_QUANTUM) to
-    /// [`MAX_QUANTUM`](crate::playout::MAX_QUANTUM).
-    Quantum(Duration),
+    /// The endpoint's storage holds no room for the playout policy asked.
+    NoRoom(crate::playout::NoRoom),
+    /// A value of the playout policy is out of its range.
+    Playout(crate::playout::InvalidPlayout),
     /// The datagram transport needs a redundancy of 1 to
     /// [`MAX_BUNDLE`](crate::wire::MAX_BUNDLE) and a session token other
     /// than 0.
@@ -530,14 +520,8 @@ impl fmt::Display for ConfigError {
                 "the liveness time must be positive; use None to wait for a silent peer for ever",
             ),
             ConfigError::Predictor(e) => write!(f, "{e}"),
-            ConfigError::NoAdaptiveRoom(e) => write!(f, "{e}"),
-            ConfigError::Quantum(q) => write!(
-                f,
-                "the adaptive playout's quantum {q} is outside {} to {}; ask for a step in \
-                 that range, or none for the default",
-                crate::playout::MIN_QUANTUM,
-                crate::playout::MAX_QUANTUM
-            ),
+            ConfigError::NoRoom(e) => write!(f, "{e}"),
+            ConfigError::Playout(e) => write!(f, "{e}"),
             ConfigError::Datagram {
                 redundancy,
                 session: 0,

@@ -99,12 +99,7 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Release<V> {
 }
 
 /// The timing part of a queued sample.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct Head {
-    pub seq: u64,
-    pub sent_at: Instant,
-    pub arrived_at: Instant,
-}
+pub(crate) type Head = crate::playout::Stamps;
 
 /// Something the application should know; drain with
 /// [`Endpoint::poll_event`](super::Endpoint::poll_event).
@@ -143,7 +138,7 @@ pub enum Event<V> {
     /// Target-delay playout: the end-to-end delay of the released samples
     /// changed: by at least a tick for the fixed policies; by whole quanta
     /// for the adaptive one (periods up to 20 ms, `T/⌈T/20 ms⌉` beyond,
-    /// [`DELAY_QUANTUM`](super::DELAY_QUANTUM)), without a pause: a repeated
+    /// [`DELAY_QUANTUM`](crate::playout::DELAY_QUANTUM)), without a pause: a repeated
     /// sample when it rises, releases brought forward when it falls.
     DelayChanged {
         /// The new delay (release on this side's clock − send on the peer's,

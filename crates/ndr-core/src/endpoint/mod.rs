@@ -52,12 +52,7 @@ pub use error::LinkError;
 pub use event::{Event, Release, Status};
 pub use stats::{Running, Stats};
 
-pub use crate::playout::schedule::{
-    DELAY_QUANTUM, MAPPING_SLEW, RELEASE_SLEW_STEPS, delay_quantum, delay_quantum_for,
-};
-
-use crate::playout::Target;
-use crate::playout::schedule::Schedule;
+use crate::playout::{Policy, Room, Setup};
 use crate::predictor::{NetworkPredictor, Prediction};
 use crate::regulator::{Occupancy, RegulatorIn};
 use crate::storage::Storage;
@@ -73,10 +68,6 @@ use release::Released;
 /// what it needs (its probes at the period, plus the slowest round trip
 /// seen) before it times out, if that is longer than the handshake timeout.
 pub const PATTERN_SLACK: u64 = 3;
-
-fn ns_i64(t: Instant) -> i64 {
-    i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
-}
 
 /// Where the endpoint is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -154,12 +145,10 @@ pub struct Endpoint<S: Storage> {
     period: Duration,
     ns: usize,
     regulator: SlotRegulator<S>,
-    /// Target-delay playout: the policy's state (`None`: the paper's FIFO).
-    target: Option<Target<S::Adaptive>>,
+    /// When the regulator releases each sample.
+    policy: S::Policy,
     /// The peer's clock offset and skew.
     sync: ClockSync,
-    /// Adaptive playout: its release schedule.
-    schedule: Option<Schedule>,
     predictor: NetworkPredictor,
     next_tick: Option<Instant>,
     deadline: Option<Instant>,
@@ -234,17 +223,20 @@ impl<S: Storage> Endpoint<S> {
         let regulator = RegulatorIn::with_queue(queue, 0).map_err(|_| no_room)?;
         let predictor =
             NetworkPredictor::new(config.predictor_config()).map_err(ConfigError::Predictor)?;
+        let setup = Setup::new(
+            config.role,
+            config.period,
+            config.underflow,
+            config.watchdog,
+        );
+        let policy = S::Policy::make(config.playout, &setup).map_err(ConfigError::NoRoom)?;
         let mut ep = Endpoint {
             phase: Phase::Handshake,
             period: config.period,
             ns: 0,
             regulator,
-            target: config
-                .playout
-                .target_in(config.period)
-                .map_err(ConfigError::NoAdaptiveRoom)?,
+            policy,
             sync: ClockSync::new(),
-            schedule: None,
             predictor,
             next_tick: None,
             deadline: Some(now + config.handshake_timeout),
@@ -266,14 +258,6 @@ impl<S: Storage> Endpoint<S> {
             stats: Stats::default(),
             config,
         };
-        if ep.is_adaptive() {
-            ep.schedule = Some(Schedule::new(
-                config.role,
-                config.period,
-                ep.quantum_at(config.period),
-                config.watchdog,
-            ));
-        }
         if config.role == Role::Base {
             ep.queue_tx(Tx::Hello);
         }
@@ -314,10 +298,10 @@ impl<S: Storage> Endpoint<S> {
             // neither bunches the send stamps of two ticks (which the
             // adaptive playout would take for two samples due at once) nor
             // makes a late release find the next sample due too.
-            let release = self.schedule.as_ref().and_then(Schedule::next_release);
+            let release = self.policy.next_release();
             match (release.filter(|&r| r <= now), tick) {
-                (Some(r), Some(t)) if r <= t => self.release_apart(r, now),
-                (Some(r), None) => self.release_apart(r, now),
+                (Some(r), Some(t)) if r <= t => self.release(r, now),
+                (Some(r), None) => self.release(r, now),
                 (_, Some(t)) => {
                     self.next_tick = Some(self.following_tick(t));
                     self.tick(t, now);
@@ -340,7 +324,7 @@ impl<S: Storage> Endpoint<S> {
     pub fn poll_timeout(&self) -> Option<Instant> {
         [
             self.next_tick,
-            self.schedule.as_ref().and_then(Schedule::next_release),
+            self.policy.next_release(),
             self.deadline,
             self.liveness_deadline(),
             self.repeat_due(),
@@ -507,11 +491,9 @@ impl<S: Storage> Endpoint<S> {
     #[must_use]
     pub fn stats(&self) -> Stats {
         let mut stats = self.stats;
-        if let Some(s) = &self.schedule
-            && let (Some(d), Some(ticks)) = (s.delay(), s.delay_ticks())
-        {
+        if let Some(d) = self.policy.delay() {
             stats.playout_delay_s = d.as_secs_f64();
-            stats.playout_delay_ticks = ticks;
+            stats.playout_delay_ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
         }
         stats
     }
@@ -546,15 +528,14 @@ impl<S: Storage> Endpoint<S> {
         &self.sync
     }
 
-    /// Target-delay playout: the end-to-end delay samples get now (the
-    /// release time on the local clock minus the send time on the peer's,
-    /// corrected by the offset estimate for [`Playout::Adaptive`]); `None`
-    /// for the FIFO and before the policy has a target.
-    ///
-    /// [`Playout::Adaptive`]: crate::playout::Playout::Adaptive
+    /// The end-to-end delay the playout policy holds now (the release time
+    /// on the local clock minus the send time on the peer's, corrected by
+    /// the offset estimate for a policy that maps the clocks); `None` for
+    /// the FIFO, whose delay is its queue's, and before the policy has one.
     #[must_use]
     pub fn playout_delay(&self) -> Option<Duration> {
-        self.current_delay(self.last_tick()?)
+        self.last_tick()?;
+        self.policy.delay()
     }
 
     /// The peer's Hello, once the handshake is done.
@@ -616,9 +597,7 @@ impl<S: Storage> Endpoint<S> {
     fn enter_closed(&mut self, error: Option<LinkError>) {
         self.phase = Phase::Closed;
         self.next_tick = None;
-        if let Some(s) = &mut self.schedule {
-            s.stop();
-        }
+        self.policy.stop();
         self.deadline = None;
         self.drop_repeats();
         self.emit(Event::Closed { error });
@@ -644,15 +623,11 @@ impl<S: Storage> Endpoint<S> {
             }
             Phase::Running => {
                 let next_tick = self.next_tick;
-                if let Some((s, cx)) = self.adaptive() {
-                    // Its releases have their own schedule, each at its
-                    // sample's slot; until the delay is set, the ticks.
-                    s.on_tick(at, t, next_tick, &cx);
-                    self.delay_events();
-                } else {
-                    self.track_delay(t);
-                    self.release(at, t);
-                    self.watch(t);
+                let (policy, view) = self.policy_view();
+                let due = policy.tick(at, t, next_tick, &view);
+                self.heed();
+                if let Some(due) = due {
+                    self.take(at, t, due);
                 }
                 let seq = self.take_seq(at);
                 // An adaptive remote ticks with its releases: its grid moves
@@ -666,7 +641,7 @@ impl<S: Storage> Endpoint<S> {
                 if !self.regime.grid_settled
                     && (self.config.role == Role::Base
                         || self.regime.ticks_running >= GRID_SETTLE_TICKS
-                        || self.schedule.as_ref().is_none_or(|s| s.on_release_grid(at)))
+                        || self.policy.grid_settled(at))
                 {
                     self.regime.grid_settled = true;
                 }
@@ -710,10 +685,6 @@ impl<S: Storage> Endpoint<S> {
         seq
     }
 
-    fn is_adaptive(&self) -> bool {
-        matches!(self.target, Some(Target::Adaptive(_)))
-    }
-
     /// When the peer will have been silent for [`Config::liveness`], after
     /// the handshake.
     fn liveness_deadline(&self) -> Option<Instant> {
@@ -732,16 +703,13 @@ impl<S: Storage> Endpoint<S> {
         (now >= due).then(|| now - arrived)
     }
 
-    /// The tick after the one scheduled at `t`: a period later, but for an
-    /// adaptive remote, whose ticks follow its releases
-    /// ([`Schedule::following_tick`]). Two hubs start their grids anywhere
+    /// The tick after the one scheduled at `t`: a period later, unless the
+    /// policy moves a remote's ticks onto its releases
+    /// ([`Policy::following_tick`]). Two hubs start their grids anywhere
     /// within a period of each other, and a grid left apart by `φ` made each
     /// direction's true delay its announced one plus or minus `φ`.
     fn following_tick(&self, t: Instant) -> Instant {
-        let plain = t + self.period;
-        self.schedule
-            .as_ref()
-            .map_or(plain, |s| s.following_tick(plain))
+        self.policy.following_tick(t + self.period)
     }
 
     fn last_tick(&self) -> Option<Instant> {

@@ -2,8 +2,8 @@
 
 use super::event::Head;
 use super::rx_check::RxCheck;
-use super::{Endpoint, Event, LinkError, Phase, Slot, Transport, Tx, Underflow, ns_i64};
-use crate::playout::{AdaptiveSlot, Target, TargetDelay};
+use super::{Endpoint, Event, LinkError, Phase, Slot, Transport, Tx};
+use crate::playout::{Admit, Arrival, Observed, Policy};
 use crate::sizing::INIT_EXCHANGES;
 use crate::storage::Storage;
 use crate::time::{Duration, Instant};
@@ -83,23 +83,17 @@ impl<S: Storage> Endpoint<S> {
         sent_at: Instant,
         echo: Option<Echo>,
     ) -> Result<(), LinkError> {
-        let (floor, shifts) = (self.floor_ns(now), self.sync.rx().shifts());
+        let (floor, shifts) = (self.sync.floor_at(now), self.sync.rx().shifts());
         // A stamp nothing could check yet (the first Hello, a first probe
         // that echoes nothing) stays out of the clock estimate.
         if self.heard.check.bounded() {
             self.sync.observe_arrival(sent_at, now);
         }
-        // A level shift of the received floor (a route change): the delays
-        // in the adaptive window since the shift were measured above the
-        // old floor, and would count the shift twice on top of the new one.
+        // A level shift of the received floor (a route change).
         if self.sync.rx().shifts() != shifts
-            && let (Some(before), Some(after), Some(Target::Adaptive(a))) =
-                (floor, self.floor_ns(now), &mut self.target)
+            && let (Some(from), Some(to)) = (floor, self.sync.floor_at(now))
         {
-            a.rebase(
-                Duration::from_nanos(after.saturating_sub(before).unsigned_abs()),
-                after > before,
-            );
+            self.policy.floor_moved(from, to);
         }
         if let Some(theta) = self.sync.offset_at(now) {
             self.stats.clock_offset_s = theta;
@@ -123,23 +117,25 @@ impl<S: Storage> Endpoint<S> {
         stalled: Option<bool>,
     ) -> Result<(), LinkError> {
         let (sent_at, now) = (head.sent_at, head.arrived_at);
-        if let Some(stalled) = stalled {
-            let prev = self.heard.prev_data.replace((sent_at, now));
-            if let Some((prev_sent, prev_arrived)) = prev {
-                // How much later than its schedule this frame came,
-                // relative to the previous one (never negative).
-                let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
-                self.predictor.observe_gap(gap);
+        let arrival = match stalled {
+            Some(stalled) => {
+                let prev = self.heard.prev_data.replace((sent_at, now));
+                if let Some((prev_sent, prev_arrived)) = prev {
+                    // How much later than its schedule this frame came,
+                    // relative to the previous one (never negative).
+                    let gap = (now - prev_arrived).saturating_sub(sent_at - prev_sent);
+                    self.predictor.observe_gap(gap);
+                }
+                if let Some(d) = self.sync.one_way_rx(sent_at, now) {
+                    self.stats.one_way_rx.push(d);
+                }
+                Arrival::frame(sent_at, now, prev, stalled)
             }
-            self.observe_one_way(sent_at, now, prev, stalled);
-        } else if !self.heard.outage_burst
-            && let (Some(floor), Some(target)) = (self.floor_ns(now), &mut self.target)
-        {
-            // A copy recovered from a later datagram: the delay it really
-            // had is one the playout must cover to keep its late rate.
-            let raw = ns_i64(now).saturating_sub(ns_i64(sent_at));
-            let above = u64::try_from(raw.saturating_sub(floor)).unwrap_or(0);
-            target.observe(sent_at, Duration::from_nanos(above));
+            None => Arrival::copy(sent_at, now),
+        };
+        let (policy, view) = self.policy_view();
+        if policy.arrival(&arrival, &view) == Observed::Outage {
+            self.stats.outage_delays += 1;
         }
         if channels.is_empty() {
             self.stats.probes_received += 1;
@@ -311,30 +307,24 @@ impl<S: Storage> Endpoint<S> {
                 return Ok(());
             }
         }
-        if self.config.underflow == Underflow::DropLate && self.slot_passed(&slot) {
-            self.stats.late += 1;
-            self.note_lost();
-            return Ok(());
-        }
-        // Adaptive under hold: a sample held behind an outage, past its
-        // slot, is stale; kept, it would stretch the delay to the outage's
-        // length and replay the outage's commands.
-        if self.heard.outage_burst
-            && self
-                .schedule
-                .as_ref()
-                .and_then(|s| s.slot_at(slot.head.sent_at, now, &self.sync))
-                .is_some_and(|s| s < now)
-        {
-            self.stats.discarded += 1;
-            return Ok(());
+        let (policy, view) = self.policy_view();
+        match policy.admit(&slot.head, now, &view) {
+            Admit::Queue => {}
+            Admit::Late => {
+                self.stats.late += 1;
+                self.policy.lost();
+                return Ok(());
+            }
+            Admit::Stale => {
+                self.stats.discarded += 1;
+                return Ok(());
+            }
         }
         if self.regulator.push(slot).is_err() {
             self.stats.rejected += 1;
         }
-        if let Some((s, cx)) = self.adaptive() {
-            s.on_queued(&cx);
-        }
+        let (policy, view) = self.policy_view();
+        policy.queued(&view);
         Ok(())
     }
 
@@ -381,70 +371,6 @@ impl<S: Storage> Endpoint<S> {
             _ => Err(self.unexpected(Kind::Control)),
         }
     }
-
-    /// A one-way delay sample for the playout policy, from a frame's send
-    /// stamp (peer clock) and its arrival (local clock). The one place where
-    /// the two clocks meet: the adaptive policy gets the delay above the
-    /// floor of the clock estimate; the others take the clocks as one (a
-    /// simulation, or hosts synchronized by PTP or GPS).
-    pub(super) fn observe_one_way(
-        &mut self,
-        sent_at: Instant,
-        arrived: Instant,
-        prev: Option<(Instant, Instant)>,
-        stalled: bool,
-    ) {
-        if let Some(d) = self.sync.one_way_rx(sent_at, arrived) {
-            self.stats.one_way_rx.push(d);
-        }
-        let delay = match self.floor_ns(arrived) {
-            // Adaptive: the delay above the floor, whatever the clocks.
-            Some(floor) => {
-                let raw = ns_i64(arrived).saturating_sub(ns_i64(sent_at));
-                let above =
-                    Duration::from_nanos(u64::try_from(raw.saturating_sub(floor)).unwrap_or(0));
-                // A frame after a silence longer than the watchdog allows
-                // ends an outage, not a delay; so do the frames after it
-                // while they are still held longer than the watchdog, or
-                // come in the burst held behind them (faster than they
-                // were sent). Counted as delays, they would fill the
-                // window's tail, and the target would cover the outage for
-                // the window's length. So do the frames a stalled driver hands over
-                // late, stamped when it read them.
-                let over = |d: Duration| self.config.watchdog.is_some_and(|w| d > w);
-                self.heard.outage_burst = stalled
-                    || prev.is_some_and(|(ps, pa)| {
-                        let silence = arrived - pa;
-                        over(silence)
-                            || (self.heard.outage_burst
-                                && (over(above) || silence * 2 < sent_at - ps))
-                    });
-                if self.heard.outage_burst {
-                    self.stats.outage_delays += 1;
-                    return;
-                }
-                above
-            }
-            // Adaptive before any echo has bounded the clocks (a peer's
-            // first frames may echo nothing): its raw delay is the clocks'
-            // offset, not a delay, and would set the target to it.
-            None if self.schedule.is_some() => return,
-            None => arrived - sent_at,
-        };
-        if let Some(target) = &mut self.target {
-            target.observe(sent_at, delay);
-        }
-    }
-
-    /// Under drop-late: whether `slot` arrived after its release slot.
-    pub(super) fn slot_passed(&self, slot: &Slot<S::Values>) -> bool {
-        if self.target.is_some() {
-            self.rel.released_seq.is_some_and(|r| slot.head.seq <= r)
-                || self.rel.passed.is_some_and(|p| slot.head.sent_at <= p)
-        } else {
-            self.rel.due_seq.is_some_and(|due| slot.head.seq < due)
-        }
-    }
 }
 
 /// What came from the peer, and when.
@@ -465,8 +391,6 @@ pub(super) struct Heard {
     pub(super) recent: [Option<(Instant, Instant)>; ECHO_CANDIDATES],
     /// Previous Data frame received, for the reception gap.
     pub(super) prev_data: Option<(Instant, Instant)>,
-    /// Adaptive: the frames now arriving drain an outage's backlog.
-    pub(super) outage_burst: bool,
     /// Newest of our frames an NRTT was measured on.
     pub(super) newest_echo: Option<Instant>,
     pub(super) last_nrtt: Option<Duration>,
@@ -499,7 +423,6 @@ impl Heard {
             newest: None,
             recent: [None; ECHO_CANDIDATES],
             prev_data: None,
-            outage_burst: false,
             newest_echo: None,
             last_nrtt: None,
         }

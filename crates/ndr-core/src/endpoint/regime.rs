@@ -1,6 +1,7 @@
 //! Regimes: the initialization pattern, the start of a running regime, and the paper's dynamic pause-and-resize.
 
 use super::{Endpoint, Event, LinkError, MIN_PERIOD, Mode, PATTERN_SLACK, Phase, Tx};
+use crate::playout::Policy;
 use crate::predictor::Prediction;
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
 use crate::storage::Storage;
@@ -16,10 +17,7 @@ impl<S: Storage> Endpoint<S> {
 
     pub(super) fn change_period(&mut self, period: Duration) -> Result<(), LinkError> {
         self.period = period;
-        let quantum = self.quantum_at(period);
-        if let Some(s) = &mut self.schedule {
-            s.set_period(period, quantum);
-        }
+        self.policy.set_period(period);
         self.heard.check.period_changed(period);
         self.predictor
             .set_period(period)
@@ -94,9 +92,9 @@ impl<S: Storage> Endpoint<S> {
 
     pub(super) fn start_running(&mut self, ns: usize) {
         self.discard_queue();
-        // `ns < N` was checked by the caller. A target delay keeps no stock:
-        // each sample waits for its own slot.
-        let stock = if self.target.is_some() { 0 } else { ns };
+        // `ns < N` was checked by the caller. The policy says what stock the
+        // queue keeps (a target delay none: each sample waits for its slot).
+        let stock = self.policy.start(ns);
         let _ = self.regulator.set_nominal(stock);
         self.regulator.restart_prefill();
         // Occupancy statistics describe the current parameters.
@@ -105,11 +103,7 @@ impl<S: Storage> Endpoint<S> {
         // Round trips count from this regime's first sample: an echo of a
         // sample sent before a pause would measure the pause.
         self.rel.grtt_acked = self.out.next_seq.checked_sub(1);
-        self.rel.due_seq = None;
-        self.rel.passed = None;
-        if let Some(s) = &mut self.schedule {
-            s.restart();
-        }
+        self.rel.armed = false;
         self.regime.ticks_running = 0;
         self.regime.grid_settled = false;
         self.deadline = None;

@@ -1,81 +1,55 @@
 //! Releasing: which sample each tick or release hands the application, and the round trips and watchdog that follow from it.
 
-use super::{Endpoint, Event, Phase, Release, Slot, Status, Underflow, delay_quantum};
+use super::{Endpoint, Event, Phase, Release, Slot, Status, Underflow};
 use crate::control::round_trip_ticks;
-use crate::playout::schedule::{self, Context, Plan, Queued, Schedule};
-use crate::playout::{AdaptiveSlot, Target, TargetDelay};
-use crate::regulator::{self, Tick};
-use crate::storage::Storage;
+use crate::playout::{Announcement, Due, Lost, Outcome, Policy, Queued, Stamps, View};
+use crate::regulator::{self, RegulatorIn, Tick};
+use crate::storage::{Queue, Storage};
 use crate::time::{Duration, Instant};
 use crate::wire::Role;
 
 impl<S: Storage> Endpoint<S> {
-    /// The adaptive schedule and what it decides on now, `None` under
-    /// another playout.
-    pub(super) fn adaptive(&mut self) -> Option<(&mut Schedule, Context<'_, S::Adaptive>)> {
-        let (Some(schedule), Some(Target::Adaptive(policy))) = (&mut self.schedule, &self.target)
-        else {
-            return None;
-        };
-        let mut queue = self.regulator.iter().map(|s| s.head.sent_at);
-        let queued = Queued {
-            front: queue.next(),
-            second: queue.next(),
-            len: self.regulator.len(),
-        };
-        // The paper's predictor steers the delay ahead: half the rise of the
-        // mean round trip it forecasts over its horizon.
-        let lead = self
-            .predictor
-            .last()
-            .map_or(0.0, |p| (p.nrtt_ahead - p.nrtt_mean).max(0.0) / 2.0);
-        let cx = Context {
-            policy,
-            sync: &self.sync,
-            queued,
-            newest: self.heard.prev_data,
-            outage: self.heard.outage_burst,
-            lead,
-        };
-        Some((schedule, cx))
+    /// The policy, and what it is told things with.
+    #[inline]
+    pub(super) fn policy_view(&mut self) -> (&mut S::Policy, View<'_>) {
+        let view = View::new(&self.sync, &self.regulator).with(
+            self.heard.prev_data,
+            self.rel.released_seq,
+            &self.predictor,
+        );
+        (&mut self.policy, view)
     }
 
-    /// Each delay the adaptive schedule settled on, as an event.
-    pub(super) fn delay_events(&mut self) {
-        while let Some((delay, ticks)) = self
-            .schedule
-            .as_mut()
-            .and_then(Schedule::poll_delay_changed)
-        {
-            self.stats.delay_changes += 1;
-            self.emit(Event::DelayChanged { delay, ticks });
+    /// What the policy announced, as events.
+    #[inline]
+    pub(super) fn heed(&mut self) {
+        while let Some(announcement) = self.policy.poll_announcement() {
+            match announcement {
+                Announcement::DelayChanged { delay, ticks } => {
+                    self.stats.delay_changes += 1;
+                    self.emit(Event::DelayChanged { delay, ticks });
+                }
+            }
         }
     }
 
-    /// The adaptive delay's quantum at `period`.
-    pub(super) fn quantum_at(&self, period: Duration) -> Duration {
-        self.config
-            .playout
-            .quantum(period)
-            .unwrap_or_else(|| delay_quantum(period))
+    /// A release of the policy's own schedule ([`Policy::next_release`]),
+    /// scheduled at `at`, run (and stamped) at `t`.
+    pub(super) fn release(&mut self, at: Instant, t: Instant) {
+        if self.phase != Phase::Running {
+            self.policy.stop();
+            return;
+        }
+        let (policy, view) = self.policy_view();
+        let due = policy.due(at, t, &view);
+        self.heed();
+        self.take(at, t, due);
     }
 
-    /// Adaptive playout: one release, at its sample's slot, the schedule
-    /// deciding when and at what delay (see [`Schedule`]).
-    pub(super) fn release_apart(&mut self, at: Instant, t: Instant) {
-        let running = self.phase == Phase::Running;
-        let Some((s, cx)) = self.adaptive() else {
-            return;
-        };
-        let plan = if running {
-            s.before_release(at, t, &cx)
-        } else {
-            s.stop();
-            return;
-        };
-        self.delay_events();
-        let pending = match plan {
-            Plan::Later(slot) => {
+    /// The release scheduled at `at` and run at `t` takes what `due` says.
+    pub(super) fn take(&mut self, at: Instant, t: Instant, due: Due) {
+        let tick = match due {
+            Due::Later(slot) => {
                 // A remote's tick moves with its release, so that its state
                 // still answers the command.
                 if self.config.role == Role::Remote && self.next_tick == Some(at) {
@@ -83,172 +57,44 @@ impl<S: Storage> Endpoint<S> {
                 }
                 return;
             }
-            Plan::Now(pending) => pending,
-        };
-        let fresh = self.stats.released_fresh;
-        self.release(at, t);
-        self.watch(t);
-        let stamp = match &self.rel.last {
-            Some(r) if self.stats.released_fresh > fresh => Some(r.sent_at),
-            _ => None,
-        };
-        if let Some((s, cx)) = self.adaptive() {
-            s.after_release(at, t, pending, stamp, &cx);
-        }
-        self.delay_events();
-    }
-
-    /// Adaptive: a sample lost (late or skipped) spends the late rate.
-    pub(super) fn note_lost(&mut self) {
-        if let Some(Target::Adaptive(a)) = &mut self.target {
-            a.note_late();
-        }
-    }
-
-    /// The release scheduled at `at`, run (and stamped) at `t`.
-    pub(super) fn release(&mut self, at: Instant, t: Instant) {
-        let unset = self.schedule.as_ref().map(Schedule::delay) == Some(None);
-        let outcome = match self.target.as_ref().map(TargetDelay::target) {
-            // Adaptive: nothing is due before the delay is set.
-            Some(_) if unset => self.not_started(),
-            Some(target) => self.release_target(at, target),
-            None => self.release_fifo(),
-        };
-        self.deliver(t, outcome);
-    }
-
-    pub(super) fn release_fifo(&mut self) -> Tick<Slot<S::Values>> {
-        match (self.config.underflow, self.rel.due_seq) {
-            (Underflow::DropLate, Some(due)) => {
-                while self.regulator.front().is_some_and(|s| s.head.seq < due) {
-                    let _ = self.regulator.discard_front();
-                    self.stats.late += 1;
+            // Nothing released yet: not an underflow.
+            Due::NotYet => Tick::Prefilling {
+                have: self.regulator.len(),
+                need: 1,
+            },
+            Due::Release {
+                passed,
+                lost_as,
+                release,
+            } => {
+                for _ in 0..passed {
+                    if self.regulator.discard_front().is_none() {
+                        break;
+                    }
+                    match lost_as {
+                        Lost::Late => self.stats.late += 1,
+                        Lost::Skipped => self.stats.skipped += 1,
+                    }
+                    self.policy.lost();
                 }
-                self.regulator.tick_if(|s| s.head.seq == due)
+                self.regulator.tick_if(|_| release)
             }
-            _ => self.regulator.tick(),
-        }
-    }
-
-    /// One tick of a target-delay playout: the sample whose slot (the first
-    /// tick at or after `sent_at + D`) is this tick is released. Until the
-    /// policy has a target and the first sample is due, ticks release
-    /// nothing and count nothing (like the FIFO's pre-fill).
-    pub(super) fn release_target(
-        &mut self,
-        t: Instant,
-        target: Option<Duration>,
-    ) -> Tick<Slot<S::Values>> {
-        let Some(d) = target else {
-            return self.not_started();
         };
-        let mut cutoff = self.release_cutoff(t, d);
-        // Adaptive, more than one due: stamps bunched (a send that left late,
-        // or the clock estimate moved the slots earlier). The delay rises by
-        // as many ticks instead of skipping samples, and this release takes
-        // the oldest of them, so that each later release has one due: were
-        // it to take none, the same samples would be due again at the next
-        // release, and the delay would rise without end.
-        let mut oldest = false;
-        let bunched = self.schedule.is_some()
-            && self
-                .regulator
-                .iter()
-                .take_while(|s| s.head.sent_at <= cutoff)
-                .count()
-                > 1;
-        let second = self.regulator.iter().nth(1).map(|s| s.head.sent_at);
-        if let (Some(s), true, Some(second)) = (&mut self.schedule, bunched, second)
-            && s.rise_past(cutoff, second)
-        {
-            self.delay_events();
-            cutoff = self.release_cutoff(t, d);
-            oldest = true;
-        }
-        let due = |s: &Slot<S::Values>| s.head.sent_at <= cutoff;
-        if self.config.underflow == Underflow::DropLate {
-            // The target fell: older samples share this tick's slot with a
-            // newer one. The newest due is released, the others skipped.
-            while self.regulator.iter().nth(1).is_some_and(due) {
-                let _ = self.regulator.discard_front();
-                self.stats.skipped += 1;
-                self.note_lost();
-            }
-            self.rel.passed = Some(self.rel.passed.map_or(cutoff, |p| p.max(cutoff)));
-        }
-        let release = |s: &Slot<S::Values>| oldest || due(s);
-        if self.regulator.phase() == regulator::Phase::Prefilling
-            && !self.regulator.front().is_some_and(release)
-        {
-            return self.not_started();
-        }
-        self.regulator.tick_if(release)
+        let outcome = self.deliver(t, tick);
+        self.watch(t);
+        let (policy, view) = self.policy_view();
+        policy.released(at, t, outcome, &view);
+        self.heed();
     }
 
-    /// Nothing released yet: not an underflow.
-    pub(super) fn not_started(&self) -> Tick<Slot<S::Values>> {
-        Tick::Prefilling {
-            have: self.regulator.len(),
-            need: 1,
-        }
-    }
-
-    /// The end-to-end delay a sample released at `t` gets: for the adaptive
-    /// policy the delay it keeps, for the others their target.
-    pub(super) fn current_delay(&self, _t: Instant) -> Option<Duration> {
-        match &self.schedule {
-            Some(s) => s.delay(),
-            None => self.target.as_ref()?.target(),
-        }
-    }
-
-    /// Frames sent (peer clock) at or before this have their slot at or
-    /// before the tick `t` for a target delay `d` (the adaptive schedule's
-    /// own delay and clock mapping once it has them; the other policies
-    /// take the two clocks as one).
-    pub(super) fn release_cutoff(&self, t: Instant, d: Duration) -> Instant {
-        match &self.schedule {
-            Some(s) => s.release_cutoff(t, d, &self.sync),
-            None => t - d,
-        }
-    }
-
-    /// Adaptive: the floor of the raw delays at `t` (ns), to which its
-    /// target is relative; `None` under another playout.
-    pub(super) fn floor_ns(&self, t: Instant) -> Option<i64> {
-        self.schedule.as_ref()?;
-        schedule::floor_ns(&self.sync, t)
-    }
-
-    /// A target playout other than the adaptive one: sets the delay and
-    /// emits [`Event::DelayChanged`] when the delay in ticks changes.
-    pub(super) fn track_delay(&mut self, t: Instant) {
-        let Some(d) = self.current_delay(t) else {
-            return;
-        };
-        let ticks = d.as_nanos().div_ceil(self.period.as_nanos().max(1));
-        self.announce(d, ticks);
-    }
-
-    pub(super) fn announce(&mut self, d: Duration, ticks: u64) {
-        self.stats.playout_delay_s = d.as_secs_f64();
-        self.stats.playout_delay_ticks = ticks;
-        if self.rel.delay_ticks != Some(ticks) {
-            self.rel.delay_ticks = Some(ticks);
-            self.stats.delay_changes += 1;
-            self.emit(Event::DelayChanged { delay: d, ticks });
-        }
-    }
-
-    pub(super) fn deliver(&mut self, t: Instant, outcome: Tick<Slot<S::Values>>) {
+    pub(super) fn deliver(&mut self, t: Instant, outcome: Tick<Slot<S::Values>>) -> Outcome {
         match outcome {
             Tick::Released(slot) => {
                 self.stats.released_fresh += 1;
                 self.rel.last_fresh = t;
                 self.rel.released_seq = Some(slot.head.seq);
-                // A forged `seq` may be near the end of the count: the slot
-                // due stays at its end.
-                self.rel.due_seq = Some(slot.head.seq.saturating_add(1));
+                self.rel.armed = true;
+                let stamps = slot.head;
                 let grtt = slot.peer_released.and_then(|k| self.measure_grtt(t, k));
                 if let Some(g) = grtt {
                     self.round_trip_event(g);
@@ -259,15 +105,12 @@ impl<S: Storage> Endpoint<S> {
                     None => self.rel.last = Some(release.clone()),
                 }
                 self.emit(Event::Released(release));
+                Outcome::Released(stamps)
             }
             Tick::Underflow => {
                 self.stats.underflows += 1;
                 if self.config.underflow == Underflow::Hold {
                     self.stats.late += 1;
-                }
-                if self.target.is_none() {
-                    // FIFO slots are one per tick: this tick's slot is gone.
-                    self.rel.due_seq = self.rel.due_seq.map(|d| d.saturating_add(1));
                 }
                 if let Some(mut held) = self.rel.last.clone() {
                     held.status = Status::Held;
@@ -276,8 +119,9 @@ impl<S: Storage> Endpoint<S> {
                     self.stats.released_held += 1;
                     self.emit(Event::Released(held));
                 }
+                Outcome::Underflow
             }
-            Tick::Prefilling { .. } => {}
+            Tick::Prefilling { .. } => Outcome::Nothing,
         }
     }
 
@@ -297,7 +141,7 @@ impl<S: Storage> Endpoint<S> {
     /// The watchdog: an application must know when fresh samples stop.
     pub(super) fn watch(&mut self, t: Instant) {
         // Armed from the first release of a regime: pre-fill is silent by design.
-        let (Some(limit), Some(_)) = (self.config.watchdog, self.rel.due_seq) else {
+        let (Some(limit), true) = (self.config.watchdog, self.rel.armed) else {
             return;
         };
         let silent_for = t - self.rel.last_fresh;
@@ -335,19 +179,14 @@ impl<S: Storage> Endpoint<S> {
 /// releases and round trips go by, the last release, the watchdog.
 #[derive(Clone, Debug)]
 pub(super) struct Released<V> {
-    /// Target-delay playout: frames sent at or before this (peer clock) had
-    /// their slot at a tick already run.
-    pub(super) passed: Option<Instant>,
     pub(super) released_seq: Option<u64>,
     pub(super) grtt_acked: Option<u64>,
-    pub(super) due_seq: Option<u64>,
+    /// A fresh sample was released in this regime: the watchdog is armed.
+    pub(super) armed: bool,
     pub(super) last: Option<Release<V>>,
     /// Last fresh release, or the start of the running phase, for the watchdog.
     pub(super) last_fresh: Instant,
     pub(super) lost: bool,
-    /// A target playout other than the adaptive one: the constant
-    /// end-to-end delay now, in ticks (rounded up).
-    pub(super) delay_ticks: Option<u64>,
     /// The round trip in ticks last announced.
     pub(super) round_trip_ticks: Option<u64>,
 }
@@ -355,15 +194,28 @@ pub(super) struct Released<V> {
 impl<V> Released<V> {
     pub(super) fn new(now: Instant) -> Self {
         Released {
-            passed: None,
             released_seq: None,
             grtt_acked: None,
-            due_seq: None,
+            armed: false,
             last: None,
             last_fresh: now,
             lost: false,
-            delay_ticks: None,
             round_trip_ticks: None,
         }
+    }
+}
+
+/// The regulator's samples, as a policy sees them.
+impl<V, Q: Queue<Slot<V>>> Queued for RegulatorIn<Slot<V>, Q> {
+    fn len(&self) -> usize {
+        RegulatorIn::len(self)
+    }
+
+    fn get(&self, i: usize) -> Option<Stamps> {
+        RegulatorIn::get(self, i).map(|s| s.head)
+    }
+
+    fn prefilling(&self) -> bool {
+        self.phase() == regulator::Phase::Prefilling
     }
 }

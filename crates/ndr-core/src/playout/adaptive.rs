@@ -4,13 +4,13 @@
 
 use core::fmt;
 
-use super::TargetDelay;
+use super::target::TargetDelay;
 use crate::time::{Duration, Instant};
 
-/// Where a [`Target`](super::Target) keeps [`Playout::Adaptive`](super::Playout::Adaptive)'s state: [`Adaptive`]
+/// Where a [`Builtin`](super::Builtin) keeps [`Playout::Adaptive`](super::Playout::Adaptive)'s state: [`Adaptive`]
 /// itself (about 7 KiB, the default), or [`NoAdaptive`], nothing, for an
 /// endpoint that never runs that policy and should not carry its histogram.
-pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + PartialEq {
+pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + Send + 'static {
     /// The state for `period`, late rate `epsilon` and the delay's
     /// `quantum`; `None` if this slot holds none.
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self>;
@@ -53,8 +53,8 @@ impl AdaptiveSlot for Adaptive {
     }
 }
 
-/// A slot on the heap, taken only by a link that runs the adaptive
-/// playout ([`Heap`](crate::storage::Heap) storage).
+/// The state on the heap: what a [`Heap`](crate::storage::Heap) endpoint
+/// holds, taken only by a link that runs the adaptive playout.
 #[cfg(feature = "alloc")]
 impl<A: AdaptiveSlot> AdaptiveSlot for alloc::boxed::Box<A> {
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self> {
@@ -93,9 +93,10 @@ impl<A: TargetDelay> TargetDelay for alloc::boxed::Box<A> {
     }
 }
 
-/// An [`AdaptiveSlot`] with no room: a [`Target<NoAdaptive>`](super::Target) is the size of
+/// An [`AdaptiveSlot`] with no room: a [`Builtin<NoAdaptive>`](super::Builtin) is the size of
 /// the other policies' largest state (NetEQ's 2 KiB), and asking it for
-/// [`Playout::Adaptive`](super::Playout::Adaptive) is a [`NoAdaptiveRoom`] error.
+/// [`Playout::Adaptive`](super::Playout::Adaptive) is a
+/// [`NoRoom::Adaptive`](super::NoRoom::Adaptive) error.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NoAdaptive {}
 
@@ -134,21 +135,6 @@ impl AdaptiveSlot for NoAdaptive {
         match *self {}
     }
 }
-
-/// [`Playout::Adaptive`](super::Playout::Adaptive) asked of a [`Target<NoAdaptive>`](super::Target).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct NoAdaptiveRoom;
-
-impl fmt::Display for NoAdaptiveRoom {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(
-            "the adaptive playout needs room for its histogram: \
-             build the endpoint with the default `Adaptive` slot, not `NoAdaptive`",
-        )
-    }
-}
-
-impl core::error::Error for NoAdaptiveRoom {}
 
 /// Buckets of the adaptive policy's histogram (log-linear, module docs):
 /// delays above the floor up to 13.1 s, the last bucket holding any

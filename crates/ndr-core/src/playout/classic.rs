@@ -2,7 +2,11 @@
 //! Ramjee et al.'s algorithms 1 and 4, a NetEQ-like quantile of relative
 //! delays, and a fixed latency above the smallest delay seen.
 
-use super::TargetDelay;
+use core::fmt;
+
+use super::policy::{NoRoom, Setup};
+use super::registry::{Entry, UnknownPlayout, bare, millis, write_millis};
+use super::target::{OnTicks, TargetDelay};
 use crate::time::{Duration, Instant};
 
 fn mean_plus_4dev(d: f64, v: f64) -> Duration {
@@ -282,5 +286,109 @@ impl TargetDelay for FixedAboveMin {
 
     fn target(&self) -> Option<Duration> {
         self.min.map(|m| m + self.latency)
+    }
+}
+
+/// A constant target delay.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Constant(pub Duration);
+
+impl TargetDelay for Constant {
+    fn observe(&mut self, _sent_at: Instant, _delay: Duration) {}
+
+    fn target(&self) -> Option<Duration> {
+        Some(self.0)
+    }
+}
+
+/// GStreamer rtpjitterbuffer's default latency.
+pub const DEFAULT_FIXED_LATENCY: Duration = Duration::from_millis(200);
+
+const MILLIS: &str = "fixed:MS and constant:MS take milliseconds, finite and not negative";
+
+impl Entry for OnTicks<Ramjee1> {
+    type Fields = ();
+    const NAME: &'static str = "ramjee-1";
+    const SYNTAX: &'static str = "ramjee-1";
+
+    fn parse(value: Option<&str>) -> Result<(), UnknownPlayout> {
+        bare(value)
+    }
+
+    fn build((): (), setup: &Setup) -> Result<Self, NoRoom> {
+        Ok(OnTicks::new(Ramjee1::new(), setup))
+    }
+}
+
+impl Entry for OnTicks<Ramjee4> {
+    type Fields = ();
+    const NAME: &'static str = "ramjee-4";
+    const SYNTAX: &'static str = "ramjee-4";
+
+    fn parse(value: Option<&str>) -> Result<(), UnknownPlayout> {
+        bare(value)
+    }
+
+    fn build((): (), setup: &Setup) -> Result<Self, NoRoom> {
+        Ok(OnTicks::new(Ramjee4::new(), setup))
+    }
+}
+
+impl Entry for OnTicks<NetEq> {
+    type Fields = ();
+    const NAME: &'static str = "neteq";
+    const SYNTAX: &'static str = "neteq";
+
+    fn parse(value: Option<&str>) -> Result<(), UnknownPlayout> {
+        bare(value)
+    }
+
+    fn build((): (), setup: &Setup) -> Result<Self, NoRoom> {
+        Ok(OnTicks::new(NetEq::new(setup.period), setup))
+    }
+}
+
+impl Entry for OnTicks<FixedAboveMin> {
+    type Fields = (Duration,);
+    const NAME: &'static str = "fixed";
+    const SYNTAX: &'static str = "fixed[:MS]";
+
+    fn parse(value: Option<&str>) -> Result<(Duration,), UnknownPlayout> {
+        match value {
+            None => Ok((DEFAULT_FIXED_LATENCY,)),
+            Some(v) => millis(v).map(|d| (d,)).ok_or(UnknownPlayout::value(MILLIS)),
+        }
+    }
+
+    fn write_value(&(latency,): &(Duration,), f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(":")?;
+        write_millis(f, latency)
+    }
+
+    fn build((latency,): (Duration,), setup: &Setup) -> Result<Self, NoRoom> {
+        Ok(OnTicks::new(FixedAboveMin::new(latency), setup))
+    }
+}
+
+impl Entry for OnTicks<Constant> {
+    type Fields = (Duration,);
+    const NAME: &'static str = "constant";
+    const SYNTAX: &'static str = "constant:MS";
+    const VALUES: &'static str = "milliseconds, finite, not negative";
+
+    fn parse(value: Option<&str>) -> Result<(Duration,), UnknownPlayout> {
+        match value {
+            None => Err(UnknownPlayout::NAME),
+            Some(v) => millis(v).map(|d| (d,)).ok_or(UnknownPlayout::value(MILLIS)),
+        }
+    }
+
+    fn write_value(&(delay,): &(Duration,), f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(":")?;
+        write_millis(f, delay)
+    }
+
+    fn build((delay,): (Duration,), setup: &Setup) -> Result<Self, NoRoom> {
+        Ok(OnTicks::new(Constant(delay), setup))
     }
 }

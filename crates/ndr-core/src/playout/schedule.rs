@@ -1,41 +1,5 @@
-//! When the adaptive playout releases each sample: its release schedule.
-//!
-//! [`Playout::Adaptive`](super::Playout::Adaptive) keeps the end-to-end
-//! delay constant at a whole number of quanta ([`delay_quantum_for`]) over
-//! the delay its quantile policy ([`Adaptive`](super::Adaptive)) asks for.
-//! A sample sent at stamp `s` (peer clock) has its **slot** at
-//! `s + θ + D` on the local clock (`θ` the clock mapping, `D` the delay),
-//! and is released there, apart from the ticks that send.
-//!
-//! [`Schedule`] holds that decision and nothing else: it reads no clock,
-//! holds no sample and touches no counter. Its owner (the endpoint) tells it
-//! what happened — a tick ([`on_tick`](Schedule::on_tick)), a sample queued
-//! ([`on_queued`](Schedule::on_queued)), a release due
-//! ([`before_release`](Schedule::before_release), then
-//! [`after_release`](Schedule::after_release)), stamps bunched
-//! ([`rise_past`](Schedule::rise_past)) — with a [`Context`]: the quantile
-//! policy, the clock estimate, the queue's front, the newest frame. It
-//! answers when the next release is ([`next_release`](Schedule::next_release)),
-//! which samples are due ([`release_cutoff`](Schedule::release_cutoff)), the
-//! delay now ([`delay`](Schedule::delay)), and each delay it settles on
-//! ([`poll_delay_changed`](Schedule::poll_delay_changed)).
-//!
-//! Its decisions:
-//!
-//! - **Rise** at once to the quantum over the need (the quantile's delay
-//!   above the floor of the clock estimate, plus the floor's one-way delay),
-//!   once the measured need passes the delay, or the need passes it by
-//!   [`HYSTERESIS`] quanta. A rise repeats a sample, or brings the release
-//!   later when it is small.
-//! - **Hold a silence**: a stall of the path past a slot, while it is cheap
-//!   or the late budget is spent, holds the delay ahead of it, so that its
-//!   burst is released in order rather than dropped as late; the delay then
-//!   falls back to where it was.
-//! - **Fall** a quantum at a time by `T / RELEASE_SLEW_STEPS` per release,
-//!   once the need is [`HYSTERESIS`] quanta under the quantum below: the
-//!   releases come that much earlier, and no sample is skipped.
-//! - **Outage**: a silence past the watchdog is not a delay to cover; the
-//!   delay goes back at once to where it was before it.
+//! When the adaptive playout releases each sample: its release schedule
+//! ([`Schedule`]).
 
 use heapless::Deque;
 
@@ -48,22 +12,22 @@ use crate::wire::Role;
 /// quanta ([`DELAY_QUANTUM`]) below the quantum under it: a quantile that
 /// wobbles must not move the delay back and forth (each rise repeats a
 /// sample).
-pub const HYSTERESIS: f64 = 0.5;
+pub(crate) const HYSTERESIS: f64 = 0.5;
 
 /// The adaptive delay falls by bringing its releases forward by
 /// `T / RELEASE_SLEW_STEPS` per release (releases every 0.9·T while it
 /// falls): no sample is skipped.
-pub const RELEASE_SLEW_STEPS: u64 = 10;
+pub(crate) const RELEASE_SLEW_STEPS: u64 = 10;
 
 /// The share of its late budget the adaptive window must have used before
 /// a silence is held for being cheap (see [`Schedule::before_release`]):
 /// below it, the late rate is under its target anyway.
-pub const BINDING: f64 = 0.5;
+pub(crate) const BINDING: f64 = 0.5;
 
 /// The release schedule follows the clock estimate by at most
 /// `T / MAPPING_SLEW` per release: an update of the offset estimate moves
 /// the releases over several periods, not in one.
-pub const MAPPING_SLEW: u64 = 20;
+pub(crate) const MAPPING_SLEW: u64 = 20;
 
 /// The adaptive delay is a whole number of quanta `q = T/⌈T/20 ms⌉`: whole
 /// periods up to 20 ms, a fraction of the period beyond (15 ms at
@@ -105,7 +69,7 @@ fn dur_i64(d: Duration) -> i64 {
 /// The floor of the received frames' raw delays at `t` (ns): what the
 /// adaptive policy's delays are measured above.
 #[must_use]
-pub fn floor_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
+pub(crate) fn floor_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
     Some((sync.floor_at(t)? * 1e9) as i64)
 }
 
@@ -113,7 +77,7 @@ pub fn floor_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
 /// until the offset is known, the floor (as if the fastest frame took no
 /// time).
 #[must_use]
-pub fn mapping_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
+pub(crate) fn mapping_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
     let floor = floor_ns(sync, t)?;
     Some(
         sync.offset_at(t)
@@ -123,7 +87,7 @@ pub fn mapping_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
 
 /// The samples waiting for their slots, as the schedule sees them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Queued {
+pub(crate) struct Queued {
     /// The oldest one's send stamp (peer clock).
     pub front: Option<Instant>,
     /// The second oldest one's.
@@ -134,7 +98,7 @@ pub struct Queued {
 
 /// What the schedule decides on, as its owner knows it at one instant.
 #[derive(Clone, Copy, Debug)]
-pub struct Context<'a, A> {
+pub(crate) struct Context<'a, A> {
     /// The quantile policy: the delay above the floor it asks for, its late
     /// budget, its warm-up margin.
     pub policy: &'a A,
@@ -155,7 +119,7 @@ pub struct Context<'a, A> {
 /// What [`Schedule::before_release`] decided.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[must_use]
-pub enum Plan {
+pub(crate) enum Plan {
     /// The delay rose by up to half a period: the release moves later, to
     /// the slot given, and nothing is released now.
     Later(Instant),
@@ -166,7 +130,7 @@ pub enum Plan {
 /// A release decided by [`Schedule::before_release`], for
 /// [`Schedule::after_release`].
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pending {
+pub(crate) struct Pending {
     need: Option<f64>,
     silence: Option<f64>,
     expected: Option<Instant>,
@@ -176,7 +140,42 @@ pub struct Pending {
 /// delay at the end of a silence and rise at once after it.
 const CHANGES: usize = 2;
 
-/// The adaptive playout's release schedule (see the [module](self)).
+/// The adaptive playout's release schedule.
+///
+/// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) keeps the end-to-end
+/// delay constant at a whole number of quanta ([`delay_quantum_for`]) over
+/// the delay its quantile policy ([`Adaptive`](crate::playout::Adaptive)) asks for.
+/// A sample sent at stamp `s` (peer clock) has its **slot** at
+/// `s + θ + D` on the local clock (`θ` the clock mapping, `D` the delay),
+/// and is released there, apart from the ticks that send.
+///
+/// [`Schedule`] holds that decision and nothing else: it reads no clock,
+/// holds no sample and touches no counter. Its owner
+/// ([`AdaptivePlayout`](crate::playout::AdaptivePlayout)) tells it what
+/// happened — a tick, a sample queued, a release due, stamps bunched — with
+/// what the endpoint knows then (the quantile policy, the clock estimate,
+/// the queue's front, the newest frame). It answers when the next release
+/// is ([`next_release`](Schedule::next_release)), which samples are due
+/// ([`release_cutoff`](Schedule::release_cutoff)), the delay now
+/// ([`delay`](Schedule::delay)), and each delay it settles on
+/// ([`poll_delay_changed`](Schedule::poll_delay_changed)).
+///
+/// Its decisions:
+///
+/// - **Rise** at once to the quantum over the need (the quantile's delay
+///   above the floor of the clock estimate, plus the floor's one-way delay),
+///   once the measured need passes the delay, or the need passes it by
+///   `HYSTERESIS` (½) quanta. A rise repeats a sample, or brings the release
+///   later when it is small.
+/// - **Hold a silence**: a stall of the path past a slot, while it is cheap
+///   or the late budget is spent, holds the delay ahead of it, so that its
+///   burst is released in order rather than dropped as late; the delay then
+///   falls back to where it was.
+/// - **Fall** a quantum at a time by `T / RELEASE_SLEW_STEPS` per release,
+///   once the need is `HYSTERESIS` quanta under the quantum below: the
+///   releases come that much earlier, and no sample is skipped.
+/// - **Outage**: a silence past the watchdog is not a delay to cover; the
+///   delay goes back at once to where it was before it.
 #[derive(Clone, Debug)]
 pub struct Schedule {
     role: Role,
@@ -285,7 +284,7 @@ impl Schedule {
     /// as it can be (so that the first release is at its sample's slot
     /// rather than at a tick past it, two due there: a rise), and the next
     /// release is at the next slot, or the next tick.
-    pub fn on_tick<A: AdaptiveSlot>(
+    pub(crate) fn on_tick<A: AdaptiveSlot>(
         &mut self,
         at: Instant,
         t: Instant,
@@ -339,7 +338,7 @@ impl Schedule {
     /// period of the slot expected: the remote's ticks move with its
     /// delay, and a release at the expected slot would take its sample a
     /// little early or late.
-    pub fn on_queued<A: AdaptiveSlot>(&mut self, cx: &Context<'_, A>) {
+    pub(crate) fn on_queued<A: AdaptiveSlot>(&mut self, cx: &Context<'_, A>) {
         let (Role::Base, 1, Some(next), Some((at, _))) =
             (self.role, cx.queued.len, self.next_release, self.last_slot)
         else {
@@ -406,7 +405,7 @@ impl Schedule {
     /// a period repeats the last sample), a silence is followed or let go.
     /// Nothing scheduled stays: [`after_release`](Self::after_release)
     /// schedules the next.
-    pub fn before_release<A: AdaptiveSlot>(
+    pub(crate) fn before_release<A: AdaptiveSlot>(
         &mut self,
         at: Instant,
         t: Instant,
@@ -446,7 +445,7 @@ impl Schedule {
     /// `fresh` is the send stamp of the sample it released, if any. The
     /// delay falls a step, and the next release is scheduled at the next
     /// sample's slot (`cx` as after the release).
-    pub fn after_release<A: AdaptiveSlot>(
+    pub(crate) fn after_release<A: AdaptiveSlot>(
         &mut self,
         at: Instant,
         t: Instant,

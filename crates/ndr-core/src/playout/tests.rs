@@ -2,6 +2,7 @@
 
 use super::adaptive::{bucket_of, bucket_upper};
 use super::*;
+use crate::time::{Duration, Instant};
 
 fn ms(x: u64) -> Duration {
     Duration::from_millis(x)
@@ -441,9 +442,17 @@ fn the_quantum_asked_for_divides_the_period() {
         Duration::from_nanos(16_666_666)
     );
     // The target's warm-up floor is a quantum, the one asked for.
-    let Some(Target::Adaptive(a)) = adaptive(1000, Some(ms(5))).target(ms(20)) else {
+    let setup = Setup::new(
+        crate::wire::Role::Base,
+        ms(20),
+        crate::Underflow::Hold,
+        None,
+    );
+    let Ok(Builtin::Adaptive(p)) = Builtin::<Adaptive>::make(adaptive(1000, Some(ms(5))), &setup)
+    else {
         panic!("not adaptive");
     };
-    assert_eq!(a, Adaptive::with_quantum(ms(20), 1e-3, ms(5)));
-    assert_ne!(a, Adaptive::new(ms(20), 1e-3));
+    let a = p.quantile();
+    assert_eq!(*a, Adaptive::with_quantum(ms(20), 1e-3, ms(5)));
+    assert_ne!(*a, Adaptive::new(ms(20), 1e-3));
 }

@@ -35,8 +35,8 @@ mod matched;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
-use ndr_core::endpoint::{Mode, Underflow, delay_quantum, delay_quantum_for};
-use ndr_core::playout::{DEFAULT_FIXED_LATENCY, Playout};
+use ndr_core::endpoint::{Mode, Underflow};
+use ndr_core::playout::{delay_quantum, delay_quantum_for};
 use ndr_core::regulation::Regulation;
 use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
@@ -67,19 +67,13 @@ pub const DEFAULT_WINDOW: Duration = Duration::from_secs(10);
 /// The version of the JSON report's layout.
 pub const SCHEMA: &str = "ndr-compare/2";
 
-/// The regulations `ndr compare` runs by default: the paper's two modes,
-/// the classic target-delay playouts, and ndr's adaptive one.
-pub const DEFAULT_REGULATIONS: [Regulation; 7] = [
-    Regulation::PaperStatic,
-    Regulation::PaperDynamic,
-    Regulation::Target(Playout::Ramjee1),
-    Regulation::Target(Playout::Ramjee4),
-    Regulation::Target(Playout::NetEq),
-    Regulation::Target(Playout::FixedAboveMin {
-        latency: DEFAULT_FIXED_LATENCY,
-    }),
-    Regulation::ADAPTIVE,
-];
+/// The regulations `ndr compare` runs by default: every one the playout
+/// registry names by a bare name ([`Regulation::every`]): the paper's two
+/// modes, the classic target-delay playouts, and ndr's adaptive one.
+#[must_use]
+pub fn default_regulations() -> Vec<Regulation> {
+    Regulation::every().collect()
+}
 
 /// The regulation under comparison: the name the harness used before the
 /// crates shared one vocabulary.
@@ -121,7 +115,7 @@ impl CompareConfig {
     pub fn new(families: Vec<Family>) -> Self {
         CompareConfig {
             families,
-            regulations: DEFAULT_REGULATIONS.to_vec(),
+            regulations: default_regulations(),
             seeds: 10,
             period: COMPARE_PERIOD,
             epsilon: DEFAULT_EPSILON,
