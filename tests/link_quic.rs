@@ -8,17 +8,16 @@ mod common;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
-use ndr::core::endpoint::{Config, Transport};
+use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::keygen::{self, KeyPair};
-use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
+use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig, Transport};
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base).with_width(2);
     c.period = Duration::from_millis(10);
-    c.transport = Transport::DATAGRAM;
-    LinkConfig::new(c)
+    LinkConfig::new(c).with_transport(Transport::QUIC)
 }
 
 /// Throwaway certificates for one test: base, remote and a stranger.

@@ -43,6 +43,7 @@
 mod arrival;
 pub mod clock;
 mod config;
+mod connect;
 mod delivery;
 mod error;
 pub mod framing;
@@ -56,10 +57,12 @@ pub mod pool;
 pub mod quic;
 #[cfg(feature = "relay")]
 pub mod relay;
+mod runtime;
 mod seats;
 pub mod spin;
 mod stats;
 pub mod tls;
+mod transport;
 
 pub use clock::LatenessStats;
 pub use config::Admission;
@@ -71,3 +74,4 @@ pub use pool::{HubChoice, HubPool};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};
+pub use transport::{Transport, TransportError};

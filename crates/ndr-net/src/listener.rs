@@ -46,7 +46,7 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use ndr_core::endpoint::{LinkError, Phase, Transport};
+use ndr_core::endpoint::{LinkError, Phase};
 use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpSocket};
 use tokio::runtime::Handle;
@@ -55,8 +55,9 @@ use tokio::sync::mpsc;
 use crate::config::LinkConfig;
 use crate::error::NetError;
 use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, QuicServer, bind_datagram_socket};
-use crate::link::{Link, not_in_a_runtime, own_runtime, plain_allowed};
+use crate::link::Link;
 use crate::pool::{HubChoice, HubPool};
+use crate::runtime::{not_in_a_runtime, own_runtime, plain_allowed};
 use crate::tls::TlsConfig;
 
 use crate::seats::Seats;
@@ -355,26 +356,16 @@ impl Listener {
         Listener::bind_with(addr, config).await
     }
 
-    /// [`bind`](Self::bind) over mutual TLS 1.3.
-    #[deprecated(note = "set the TLS in the configuration: \
-                         `Listener::bind(addr, config.with_tls(tls.clone()))`")]
-    pub async fn bind_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Listener, NetError> {
-        Listener::bind_with(addr, config.with_tls(tls.clone())).await
-    }
-
     async fn bind_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         let tls = config.tls.clone();
-        let datagrams = matches!(config.endpoint.transport, Transport::Datagram { .. });
+        let transport = config.checked_transport(tls.is_some())?;
+        let datagrams = transport.datagrams();
         let hubs = match &config.hub {
             HubChoice::Own => Hubs::One(Hub::new(config.spin_margin)?),
             HubChoice::Shared(hub) => Hubs::One(hub.clone()),
             HubChoice::Pool(pool) => Hubs::Pool(pool.clone()),
         };
-        if let (true, Some(tls)) = (datagrams, tls.as_ref()) {
+        if let (true, Some(tls)) = (transport.is_quic(), tls.as_ref()) {
             return Listener::bind_quic(addr, config.clone(), tls, hubs);
         }
         let socket = listen(addr, config.admission.backlog)?;
@@ -580,17 +571,6 @@ impl Listener {
         Listener::bind_blocking_with(addr, config)
     }
 
-    /// [`bind_blocking`](Self::bind_blocking) over mutual TLS 1.3.
-    #[deprecated(note = "set the TLS in the configuration: \
-                         `Listener::bind_blocking(addr, config.with_tls(tls.clone()))`")]
-    pub fn bind_blocking_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Listener, NetError> {
-        Listener::bind_blocking_with(addr, config.with_tls(tls.clone()))
-    }
-
     fn bind_blocking_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         not_in_a_runtime("Listener::bind_blocking", "Listener::bind(..).await")?;
         let rt = own_runtime()?;
@@ -626,34 +606,6 @@ impl Listener {
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .role = role;
-        self
-    }
-
-    /// Puts the links it accepts on `hub` (shared with other listeners or
-    /// connections) instead of a hub of its own.
-    #[must_use]
-    #[deprecated(note = "name the hub in the configuration: \
-                         `Listener::bind(addr, config.on_hub(hub))`")]
-    pub fn with_hub(self, hub: Hub) -> Listener {
-        self.common
-            .setup
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .hubs = Hubs::One(hub);
-        self
-    }
-
-    /// Spreads the links it accepts over a pool of hubs (each to the least
-    /// loaded one) instead of a hub of its own.
-    #[must_use]
-    #[deprecated(note = "name the pool in the configuration: \
-                         `Listener::bind(addr, config.on_pool(pool))`")]
-    pub fn with_pool(self, pool: HubPool) -> Listener {
-        self.common
-            .setup
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .hubs = Hubs::Pool(pool);
         self
     }
 

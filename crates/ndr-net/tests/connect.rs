@@ -74,22 +74,6 @@ fn a_plain_link_off_loopback_is_refused_before_any_socket() {
 }
 
 #[test]
-#[allow(deprecated)]
-fn the_deprecated_spellings_still_connect() {
-    let rt = runtime();
-    let hub = Hub::new(DEFAULT_SPIN_MARGIN).expect("hub");
-    let listener = rt
-        .block_on(Listener::bind(loopback(), config()))
-        .expect("bind")
-        .with_hub(hub.clone());
-    let addr = listener.local_addr().expect("address");
-    let (remote, base) =
-        rt.block_on(async { tokio::join!(listener.accept(), hub.connect(addr, config())) });
-    assert!(remote.is_ok() && base.is_ok());
-    assert_eq!(hub.links(), 2);
-}
-
-#[test]
 fn links_are_spread_over_the_hubs_and_leave_them_when_closed() {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)

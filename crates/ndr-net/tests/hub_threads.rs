@@ -127,8 +127,7 @@ fn closed_links_and_their_listener_leave_no_hub_thread() {
 #[cfg(feature = "keygen")]
 #[test]
 fn a_quic_listener_and_its_closed_links_leave_no_hub_thread() {
-    use ndr_core::endpoint::Transport;
-    use ndr_net::TlsConfig;
+    use ndr_net::{TlsConfig, Transport};
 
     let _serial = serial();
     let dir = std::env::temp_dir().join(format!("ndr-hub-threads-{}", std::process::id()));
@@ -136,10 +135,10 @@ fn a_quic_listener_and_its_closed_links_leave_no_hub_thread() {
     let base = ndr_net::keygen::write(&dir, "base").expect("a certificate");
     let remote = ndr_net::keygen::write(&dir, "remote").expect("a certificate");
     let quic = |role, own: &ndr_net::keygen::KeyPair, peer: &ndr_net::keygen::KeyPair| {
-        let mut c = Config::new(role);
-        c.transport = Transport::DATAGRAM;
         let tls = TlsConfig::from_files(&own.cert, &own.key, &peer.cert).expect("TLS");
-        LinkConfig::new(c).with_tls(tls)
+        LinkConfig::new(Config::new(role))
+            .with_transport(Transport::QUIC)
+            .with_tls(tls)
     };
     let before = hub_threads();
     let rt = tokio::runtime::Builder::new_multi_thread()

@@ -97,7 +97,6 @@ impl LinkArgs {
         let states = self.state.width(self.axes)?;
         let mut endpoint = Config::new(Role::Base).with_widths(self.axes, states);
         endpoint.layout = self.state.fingerprint(self.axes);
-        endpoint.transport = self.transport().transport;
         endpoint.period = period;
         let (mode, playout, old) = self.asked()?;
         if old {
@@ -110,7 +109,7 @@ impl LinkArgs {
         let mut checked = endpoint;
         checked.session = checked.session.max(1);
         checked.validate().map_err(|e| e.to_string())?;
-        Ok(LinkConfig::new(endpoint))
+        Ok(LinkConfig::new(endpoint).with_transport(self.transport()))
     }
 
     /// The mode and playout asked for, and whether through the deprecated
@@ -254,17 +253,17 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     // since they hold a lower delay than the stream at every loss rate
     // (docs/benchmarks.md, "Real kernel loss").
     let link = &LinkArgs {
-        transport: Some(args.link.transport.unwrap_or(LinkTransport::DEMO)),
+        transport: Some(args.link.transport.unwrap_or(LinkTransport::UDP)),
         ..args.link.clone()
     };
     let config = link.config()?;
     check_loss(
-        link.transport().transport,
+        link.transport().carriage(),
         &args.loss,
         "leave --transport out (datagrams)",
     )?;
     // Over QUIC, each side gets a throwaway identity pinned by the other.
-    let (base_config, config) = if link.transport().quic {
+    let (base_config, config) = if link.transport().is_quic() {
         let (base, remote) = throwaway_pair()?;
         (config.clone().with_tls(base), config.with_tls(remote))
     } else {

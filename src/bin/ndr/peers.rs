@@ -59,7 +59,7 @@ pub fn resolve(flag: &str, text: &str) -> Result<SocketAddr, String> {
 pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
-    args.link.transport().check_security(tls.is_some())?;
+    crate::transport::check_security(args.link.transport(), tls.is_some())?;
     check_duration(&args.run)?;
     crate::tracking::check_layout(args.run.controller, &args.link.state)?;
     let connect_to = resolve("--connect", &args.connect)?;
@@ -125,7 +125,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
-    args.link.transport().check_security(tls.is_some())?;
+    crate::transport::check_security(args.link.transport(), tls.is_some())?;
     let max_command = args.plant.max_command()?;
     let rt = runtime()?;
     config.tls = tls;

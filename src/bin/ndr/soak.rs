@@ -50,7 +50,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::{Config, LinkError, Phase, Status, Transport, Underflow};
+use ndr::core::endpoint::{Config, LinkError, Phase, Status, Underflow};
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::Role;
 use ndr::core::wire::{self, Header, Hello, Message, close_reason};
@@ -253,13 +253,13 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
         return Err("--period-ms must be positive".into());
     }
     crate::transport::check_loss(
-        args.transport.transport,
+        args.transport.carriage(),
         &args.loss,
         "add --transport udp or --transport quic",
     )?;
-    let config = link_config(period, args.transport.transport)?;
+    let config = link_config(period, args.transport)?;
     if let Some(addr) = args.serve {
-        let config = if args.transport.quic {
+        let config = if args.transport.is_quic() {
             let (Some(cert), Some(key), Some(pin)) = (&args.cert, &args.key, args.pin) else {
                 return Err(
                     "ndr soak --serve over QUIC needs --cert, --key and --pin (the \
@@ -306,11 +306,11 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
     }
 }
 
-fn link_config(period: Duration, transport: Transport) -> Result<LinkConfig, String> {
+fn link_config(period: Duration, transport: LinkTransport) -> Result<LinkConfig, String> {
     // The paper's FIFO: what docs/reliability.md's soak runs measured.
     let mut endpoint = Config::paper(Role::Base);
     endpoint = endpoint.with_widths(COMMAND_WIDTH, STATE_WIDTH);
-    endpoint.transport = transport;
+    endpoint.transport = transport.carriage();
     endpoint.period = period;
     // A delay spike then costs late samples (dropped and counted) instead of
     // a delay that grows by the spike's length each time.
@@ -322,7 +322,7 @@ fn link_config(period: Duration, transport: Transport) -> Result<LinkConfig, Str
     let mut checked = endpoint;
     checked.session = checked.session.max(1);
     checked.validate().map_err(|e| e.to_string())?;
-    Ok(LinkConfig::new(endpoint))
+    Ok(LinkConfig::new(endpoint).with_transport(transport))
 }
 
 // ----- the remote (child process) --------------------------------------------
@@ -599,7 +599,7 @@ impl Quic {
 fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     // First made, last dropped: the identities' directory outlives the
     // remote, and goes however the soak ends.
-    let quic = if args.transport.quic {
+    let quic = if args.transport.is_quic() {
         Some(Quic::new(&config)?)
     } else {
         None
@@ -658,7 +658,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     };
     let mut relay = Some(start_relay(&rt, 1)?);
     let mut relay_started = StdInstant::now();
-    let datagrams = args.transport.transport != Transport::Stream;
+    let datagrams = args.transport.datagrams();
     // What the hung and stale-frame bases say in their Hello: a token on
     // datagrams (0 would be a stream, which the remote refuses).
     let session = if datagrams { FAKE_SESSION } else { 0 };
@@ -669,7 +669,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
         // As `--transport` was given: tcp, udp, udp:K, udp:K:R, quic, …
         transport: args
             .transport
-            .transport
+            .carriage()
             .to_string()
             .replacen("stream", "tcp", 1)
             .replacen("datagram", if quic.is_some() { "quic" } else { "udp" }, 1),
