@@ -246,7 +246,7 @@ fn link_nrtt(
             remote_config.tls = Some(remote_tls.clone());
             base_config.tls = Some(base_tls.clone());
         }
-        let listener = Listener::bind(any, remote_config.on_hub(remote_hub))
+        let listener = Listener::listen(any, remote_config.on_hub(remote_hub))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();

@@ -368,7 +368,7 @@ fn main() {
             ),
             None => (config.clone(), config.clone()),
         };
-        let listener = Listener::bind(any, remote_config.on_pool(remote_hubs))
+        let listener = Listener::listen(any, remote_config.on_pool(remote_hubs))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();

@@ -55,7 +55,7 @@ fn tls(own: &KeyPair, peer: &KeyPair) -> TlsConfig {
 fn listener(rt: &tokio::runtime::Runtime, certs: &Certs) -> Listener {
     let addr: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let config = config().with_tls(tls(&certs.remote, &certs.base));
-    rt.block_on(Listener::bind(addr, config)).unwrap()
+    rt.block_on(Listener::listen(addr, config)).unwrap()
 }
 
 /// The listener's next link and a base's link to `to` (the listener, or a
@@ -159,14 +159,14 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
     };
     let mut remote_config = config().with_tls(patient(tls(&certs.remote, &certs.base)));
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
-    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let listener = rt.block_on(Listener::listen(any, remote_config)).unwrap();
     let lossy = RelayConfig {
         loss: LossModel::Bernoulli { rate: 0.1 },
         ..RelayConfig::default()
     };
     let relay = rt.block_on(async {
         let model = DelayModel::profile("constant:5").unwrap();
-        Relay::bind(any, listener.local_addr().unwrap(), model, 7)
+        Relay::listen(any, listener.local_addr().unwrap(), model, 7)
             .await
             .unwrap()
             .with_config(lossy)
@@ -474,7 +474,7 @@ fn guarded_listener(
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
     remote_config.admission.max_pending_per_source = per_source;
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-    rt.block_on(Listener::bind(any, remote_config)).unwrap()
+    rt.block_on(Listener::listen(any, remote_config)).unwrap()
 }
 
 /// The good base connects to `listener` from 127.0.0.1 and is accepted
@@ -570,7 +570,7 @@ fn strangers_handshakes_run_apart_from_the_hub_that_drives_the_links() {
     let mut remote_config = config().with_tls(remote_tls).on_hub(hub.clone());
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let listener = rt.block_on(Listener::listen(any, remote_config)).unwrap();
     let upstream = listener.local_addr().unwrap();
     // Three strangers' handshakes pending at the listener: none on the
     // links' hub, where each would be work for anyone who asks.

@@ -139,7 +139,7 @@
 //!
 //! let listen = "127.0.0.1:7000".parse().unwrap();
 //! let remote = "127.0.0.1:7001".parse().unwrap();
-//! let relay = Relay::bind(listen, remote, DelayModel::ParisNewYork, 1).await?;
+//! let relay = Relay::listen(listen, remote, DelayModel::ParisNewYork, 1).await?;
 //! let handle = relay.spawn()?;
 //! // ... the base connects to 127.0.0.1:7000 (and sends datagrams to UDP 7000) ...
 //! let stats = handle.shutdown().await;
@@ -455,8 +455,8 @@ impl Relay {
     /// loopback address
     /// (`PermissionDenied`): the relay passes plain links through, and
     /// would put a remote that trusts its loopback on the network; use
-    /// [`bind_insecure`](Self::bind_insecure) to mean it.
-    pub async fn bind(
+    /// [`listen_insecure`](Self::listen_insecure) to mean it.
+    pub async fn listen(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
@@ -468,19 +468,19 @@ impl Relay {
                 format!(
                     "relay: refusing to listen on {listen}: it is not loopback, and the relay \
                      passes plain links through to the network; listen on 127.0.0.1, or pass \
-                     --insecure (Python: insecure=True; Rust: Relay::bind_insecure)"
+                     --insecure (Python: insecure=True; Rust: Relay::listen_insecure)"
                 ),
             ));
         }
-        Relay::bind_insecure(listen, upstream, model, seed).await
+        Relay::listen_insecure(listen, upstream, model, seed).await
     }
 
-    /// [`bind`](Self::bind) on any address, loopback or not.
+    /// [`listen`](Self::listen) on any address, loopback or not.
     ///
     /// # Errors
     ///
     /// A listening socket cannot be bound (address in use, no permission…).
-    pub async fn bind_insecure(
+    pub async fn listen_insecure(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,

@@ -35,7 +35,7 @@ fn a_link_and_a_listener_run_on_the_hub_their_configuration_names() {
     );
     assert!(matches!(config().hub, HubChoice::Own));
     let listener = rt
-        .block_on(Listener::bind(
+        .block_on(Listener::listen(
             loopback(),
             config().on_pool(remotes.clone()),
         ))
@@ -69,7 +69,7 @@ fn a_plain_link_off_loopback_is_refused_before_any_socket() {
     let refused = rt.block_on(Link::connect(far, config()));
     assert!(matches!(refused, Err(NetError::Insecure(a)) if a == far));
     let any: SocketAddr = "0.0.0.0:0".parse().expect("address");
-    let refused = rt.block_on(Listener::bind(any, config()));
+    let refused = rt.block_on(Listener::listen(any, config()));
     assert!(matches!(refused, Err(NetError::Insecure(_))));
 }
 
@@ -87,7 +87,7 @@ fn links_are_spread_over_the_hubs_and_leave_them_when_closed() {
     let remotes = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
     let links = rt.block_on(async {
         let any: SocketAddr = "127.0.0.1:0".parse().expect("address");
-        let listener = Listener::bind(any, config.clone().on_pool(remotes.clone()))
+        let listener = Listener::listen(any, config.clone().on_pool(remotes.clone()))
             .await
             .expect("bind");
         let addr = listener.local_addr().expect("address");

@@ -89,7 +89,7 @@ const ANY: &str = "127.0.0.1:0";
 fn live_link(rt: &tokio::runtime::Runtime, certs: &Certs, slots: usize) -> (Listener, Link, Link) {
     let any: SocketAddr = ANY.parse().expect("an address");
     let listener = rt
-        .block_on(Listener::bind(any, certs.remote(slots)))
+        .block_on(Listener::listen(any, certs.remote(slots)))
         .expect("a listener");
     let addr = listener.local_addr().expect("its address");
     let (remote, base) =
@@ -289,7 +289,7 @@ fn run(certs: &Certs, plan: Plan) -> Measured {
     let (listener, mut remote, mut base) = live_link(&rt, certs, slots);
     let other = (!plan.at_live).then(|| {
         let any: SocketAddr = ANY.parse().expect("an address");
-        rt.block_on(Listener::bind(any, certs.remote(slots)))
+        rt.block_on(Listener::listen(any, certs.remote(slots)))
             .expect("another listener")
     });
     let aim = other

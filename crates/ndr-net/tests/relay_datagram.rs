@@ -52,7 +52,7 @@ async fn udp_echo() -> (SocketAddr, mpsc::UnboundedReceiver<Arrival>) {
 }
 
 async fn start(model: DelayModel, upstream: SocketAddr, config: RelayConfig) -> RelayHandle {
-    Relay::bind(LOOPBACK.parse().unwrap(), upstream, model, 7)
+    Relay::listen(LOOPBACK.parse().unwrap(), upstream, model, 7)
         .await
         .expect("bind relay")
         .with_config(config)
@@ -121,7 +121,7 @@ async fn a_udp_port_taken_is_a_clear_error() {
     for _ in 0..5 {
         let udp = std::net::UdpSocket::bind(LOOPBACK).expect("bind UDP");
         let addr = udp.local_addr().expect("address");
-        let e = Relay::bind(addr, upstream, constant(1, 1), 1)
+        let e = Relay::listen(addr, upstream, constant(1, 1), 1)
             .await
             .expect_err("UDP is taken");
         if e.to_string().contains("cannot listen") {

@@ -740,7 +740,7 @@ pub fn listen(
     config.tls = tls.map(|t| t.get().inner.clone());
     settings.check_tls(config.tls.is_some())?;
     let listener = py
-        .detach(|| rt.block_on(Listener::bind(addr, config)))
+        .detach(|| rt.block_on(Listener::listen(addr, config)))
         .map_err(|e| net_error(py, e))?
         .with_role(role);
     let local = listener.local_addr().map_err(|e| net_error(py, e))?;

@@ -285,8 +285,8 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let rt = runtime()?;
     let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
     let set_up = rt.block_on(async {
-        let listener = Listener::bind(loopback, config.clone()).await?;
-        let relay = Relay::bind(loopback, listener.local_addr()?, model, args.seed)
+        let listener = Listener::listen(loopback, config.clone()).await?;
+        let relay = Relay::listen(loopback, listener.local_addr()?, model, args.seed)
             .await?
             .with_config(RelayConfig {
                 loss: args.loss,

@@ -130,7 +130,7 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let rt = runtime()?;
     config.tls = tls;
     let listener = rt
-        .block_on(Listener::bind(args.listen, config.clone()))
+        .block_on(Listener::listen(args.listen, config.clone()))
         .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?
         // One base at a time: the next one is told the robot is busy.
         .with_max_links(1);

@@ -62,16 +62,16 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
         }
     };
     let model_name = model.name();
-    let bind = if args.insecure {
-        BlockingRelay::bind_insecure
+    let start = if args.insecure {
+        BlockingRelay::listen_insecure
     } else {
-        BlockingRelay::bind
+        BlockingRelay::listen
     };
     let config = RelayConfig {
         loss: args.loss,
         ..RelayConfig::default()
     };
-    let relay = bind(listen, upstream, model, args.seed)
+    let relay = start(listen, upstream, model, args.seed)
         .map_err(|e| e.to_string())?
         .with_config(config)
         .on_event(print_event);

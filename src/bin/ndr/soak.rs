@@ -335,7 +335,7 @@ fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> {
     let deadline = StdInstant::now() + StdDuration::from_secs(5);
     // The previous remote may have just died: its port frees up shortly.
     let listener = loop {
-        match rt.block_on(Listener::bind(addr, config.clone())) {
+        match rt.block_on(Listener::listen(addr, config.clone())) {
             Ok(l) => break l,
             Err(e) if StdInstant::now() < deadline => {
                 let _ = e;
@@ -637,7 +637,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
         let deadline = StdInstant::now() + StdDuration::from_secs(5);
         loop {
             let bound = rt.block_on(async {
-                Relay::bind(
+                Relay::listen(
                     relay_addr,
                     remote_addr,
                     DelayModel::Trace(Arc::clone(&trace)),

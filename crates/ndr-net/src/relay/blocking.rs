@@ -27,7 +27,7 @@ pub struct StopWhen {
 /// use ndr_netem::DelayModel;
 /// use ndr_net::relay::{BlockingRelay, StopWhen};
 ///
-/// let relay = BlockingRelay::bind(
+/// let relay = BlockingRelay::listen(
 ///     "127.0.0.1:7000".parse().unwrap(),
 ///     "127.0.0.1:7001".parse().unwrap(),
 ///     DelayModel::ParisNewYork,
@@ -44,37 +44,37 @@ pub struct BlockingRelay {
 }
 
 impl BlockingRelay {
-    /// Starts a runtime and binds the relay on it (see [`Relay::bind`]); it
+    /// Starts a runtime and starts the relay on it (see [`Relay::listen`]); it
     /// serves from [`serve`](Self::serve) on.
     ///
     /// # Errors
     ///
     /// The runtime cannot start, or the listening socket cannot be bound.
-    pub fn bind(
+    pub fn listen(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Self> {
-        BlockingRelay::bind_with(listen, upstream, model, seed, false)
+        BlockingRelay::listen_with(listen, upstream, model, seed, false)
     }
 
-    /// [`bind`](Self::bind) on any address, loopback or not (see
-    /// [`Relay::bind_insecure`]).
+    /// [`listen`](Self::listen) on any address, loopback or not (see
+    /// [`Relay::listen_insecure`]).
     ///
     /// # Errors
     ///
     /// The runtime cannot start, or the listening socket cannot be bound.
-    pub fn bind_insecure(
+    pub fn listen_insecure(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Self> {
-        BlockingRelay::bind_with(listen, upstream, model, seed, true)
+        BlockingRelay::listen_with(listen, upstream, model, seed, true)
     }
 
-    fn bind_with(
+    fn listen_with(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
@@ -88,9 +88,9 @@ impl BlockingRelay {
             .map_err(|e| io::Error::new(e.kind(), format!("relay: cannot start tokio: {e}")))?;
         let relay = runtime.block_on(async {
             if insecure {
-                Relay::bind_insecure(listen, upstream, model, seed).await
+                Relay::listen_insecure(listen, upstream, model, seed).await
             } else {
-                Relay::bind(listen, upstream, model, seed).await
+                Relay::listen(listen, upstream, model, seed).await
             }
         })?;
         Ok(BlockingRelay { runtime, relay })
