@@ -339,7 +339,7 @@ fn main() {
     };
     let mut config = LinkConfig::new(c);
     config.app_queue = env("NDR_APP_QUEUE", 16.0) as usize;
-    config.queue_capacity = env("NDR_QUEUE", ndr::net::link::QUEUE as f64) as usize;
+    config.queue_capacity = env("NDR_QUEUE", ndr::net::QUEUE as f64) as usize;
     let playout = std::env::var("NDR_PLAYOUT").unwrap_or_else(|_| "fifo".into());
     config.endpoint.playout = playout
         .parse()

@@ -26,10 +26,10 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
+use ndr::net::Hub;
 use ndr::net::clock::{
     DEFAULT_SPIN_MARGIN, LatenessHistogram, LatenessStats, SchedPolicy, current_thread_policy,
 };
-use ndr::net::hub::Hub;
 use ndr::net::spin::SpinMargin;
 use ndr::net::{Link, LinkConfig, Listener};
 use tokio::time::MissedTickBehavior;

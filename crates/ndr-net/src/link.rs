@@ -40,11 +40,10 @@ use crate::runtime::{not_in_a_runtime, own_runtime};
 use crate::seats::Seat;
 use crate::transport::{Transport, TransportError};
 
-pub use crate::config::{Admission, LinkConfig, QUEUE};
-pub use crate::delivery::{LinkEvent, Sample};
-pub use crate::error::NetError;
-pub use crate::pool::HubChoice;
-pub use crate::stats::LinkStats;
+use crate::config::LinkConfig;
+use crate::delivery::{LinkEvent, Sample};
+use crate::error::NetError;
+use crate::stats::LinkStats;
 
 /// Events a [`Link`] keeps for [`drain_events`](Link::drain_events); past
 /// it the oldest go, counted in [`LinkStats::events_dropped`].

@@ -22,7 +22,7 @@ use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
 use ndr_core::wire::Role;
-use ndr_net::link::{EVENT_BACKLOG, LinkEvent};
+use ndr_net::{EVENT_BACKLOG, LinkEvent};
 use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;

@@ -6,7 +6,7 @@ use std::io::IsTerminal;
 use ndr::core::endpoint::{Event, Mode};
 use ndr::core::playout::Playout;
 use ndr::core::regulation::Regulation;
-use ndr::net::link::LinkEvent;
+use ndr::net::LinkEvent;
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::filter::LevelFilter;
 
