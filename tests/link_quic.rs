@@ -160,10 +160,7 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
     let mut remote_config = config().with_tls(patient(tls(&certs.remote, &certs.base)));
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
     let listener = rt.block_on(Listener::listen(any, remote_config)).unwrap();
-    let lossy = RelayConfig {
-        loss: LossModel::Bernoulli { rate: 0.1 },
-        ..RelayConfig::default()
-    };
+    let lossy = RelayConfig::default().with_loss(LossModel::Bernoulli { rate: 0.1 });
     let relay = rt.block_on(async {
         let model = DelayModel::profile("constant:5").unwrap();
         Relay::listen(any, listener.local_addr().unwrap(), model, 7)

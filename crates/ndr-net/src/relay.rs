@@ -205,6 +205,7 @@ const BIND_ATTEMPTS: u32 = 8;
 /// stops reading or the delays are absurd. The datagram path holds at most
 /// `max_flows × 2` such queues.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct RelayConfig {
     /// Most frames waiting in one direction of one connection; one more cuts
     /// the connection ([`ConnectionEnd::QueueFull`]). `0` counts as `1`.
@@ -234,6 +235,15 @@ pub struct RelayConfig {
     pub flow_idle_timeout: StdDuration,
 }
 
+impl RelayConfig {
+    /// The same, losing datagrams as `loss` says.
+    #[must_use]
+    pub fn with_loss(mut self, loss: LossModel) -> Self {
+        self.loss = loss;
+        self
+    }
+}
+
 impl Default for RelayConfig {
     fn default() -> Self {
         RelayConfig {
@@ -249,6 +259,7 @@ impl Default for RelayConfig {
 
 /// How a relayed connection ended.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ConnectionEnd {
     /// Both directions reached their end of stream and delivered every
     /// frame in flight.
@@ -335,6 +346,7 @@ impl fmt::Display for ConnectionEnd {
 
 /// What one connection did, reported when it ends.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct ConnectionSummary {
     /// Index of the connection: 0 for the first client accepted, then 1, 2, …
     pub conn: u64,
@@ -352,6 +364,7 @@ pub struct ConnectionSummary {
 
 /// What a relay reports to its observer (see [`Relay::on_event`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum RelayEvent {
     /// A client was accepted; the relay connects to the upstream for it when
     /// its first frame is due there (or after a second without one).

@@ -393,10 +393,8 @@ async fn shutdown_mid_run_closes_every_connection() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_queue_over_its_bound_cuts_the_connection() {
     let (upstream, _arrivals) = echo_server().await;
-    let config = RelayConfig {
-        max_queue_frames: 4,
-        ..RelayConfig::default()
-    };
+    let mut config = RelayConfig::default();
+    config.max_queue_frames = 4;
     let relay = Relay::listen(
         LOOPBACK.parse().unwrap(),
         upstream,

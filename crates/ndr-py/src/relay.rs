@@ -73,10 +73,7 @@ impl PyRelay {
                     Relay::listen(listen, upstream, model, seed).await?
                 };
                 relay
-                    .with_config(RelayConfig {
-                        loss,
-                        ..RelayConfig::default()
-                    })
+                    .with_config(RelayConfig::default().with_loss(loss))
                     .spawn()
             })
         });

@@ -288,10 +288,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         let listener = Listener::listen(loopback, config.clone()).await?;
         let relay = Relay::listen(loopback, listener.local_addr()?, model, args.seed)
             .await?
-            .with_config(RelayConfig {
-                loss: args.loss,
-                ..RelayConfig::default()
-            })
+            .with_config(RelayConfig::default().with_loss(args.loss))
             .spawn()?;
         let (remote, base) = tokio::join!(
             listener.accept(),

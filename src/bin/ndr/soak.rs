@@ -627,10 +627,7 @@ fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     let mut remote = Remote::start(remote_addr, args.period_ms, args.transport, remote_tls)?;
     let spike_every = args.fault_every_s * SPIKE_EVERY_FAULTS;
     let trace = Arc::new(spike_trace(args.duration_s, spike_every)?);
-    let relay_config = RelayConfig {
-        loss: args.loss,
-        ..RelayConfig::default()
-    };
+    let relay_config = RelayConfig::default().with_loss(args.loss);
     // Each relay started draws other losses (`seed`): the same delays, but
     // not the same datagrams lost after each restart.
     let start_relay = |rt: &tokio::runtime::Runtime, seed: u64| -> Result<RelayHandle, String> {

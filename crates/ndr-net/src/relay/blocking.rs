@@ -12,12 +12,31 @@ use super::{Relay, RelayConfig, RelayEvent, RelayStats};
 /// When [`BlockingRelay::serve`] stops. With neither set it serves until the
 /// process ends.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct StopWhen {
     /// Stop on Ctrl-C (SIGINT). Once asked for, the process no longer ends
     /// on Ctrl-C by itself.
     pub ctrl_c: bool,
     /// Stop after this long.
     pub after: Option<StdDuration>,
+}
+
+impl StopWhen {
+    /// Stop on Ctrl-C.
+    #[must_use]
+    pub fn ctrl_c() -> Self {
+        StopWhen {
+            ctrl_c: true,
+            after: None,
+        }
+    }
+
+    /// The same, and also after `after` if given.
+    #[must_use]
+    pub fn or_after(mut self, after: Option<StdDuration>) -> Self {
+        self.after = after;
+        self
+    }
 }
 
 /// A [`Relay`] on its own multi-threaded tokio runtime, driven from
@@ -33,7 +52,7 @@ pub struct StopWhen {
 ///     DelayModel::ParisNewYork,
 ///     1,
 /// )?;
-/// let stats = relay.serve(StopWhen { ctrl_c: true, after: None })?;
+/// let stats = relay.serve(StopWhen::ctrl_c())?;
 /// println!("{} connections", stats.connections);
 /// # Ok::<(), std::io::Error>(())
 /// ```
