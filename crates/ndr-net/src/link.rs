@@ -81,10 +81,11 @@ impl fmt::Debug for Link {
 
 impl Link {
     /// Connects to a remote (this side is the base) on the current tokio
-    /// runtime: over mutual TLS 1.3 if [`LinkConfig::tls`] is set (a failed
-    /// handshake is [`NetError::Handshake`]; with the datagram transport,
-    /// over QUIC, returning once QUIC's handshake and the Hello are done),
-    /// else plain TCP, refused with
+    /// runtime, over the [`LinkConfig::transport`] (one that does not fit
+    /// the TLS is [`NetError::Transport`]): over mutual TLS 1.3 if
+    /// [`LinkConfig::tls`] is set (a failed handshake is
+    /// [`NetError::Handshake`]; over `quic`, returning once QUIC's handshake
+    /// and the Hello are done), else plain, refused with
     /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
     /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
@@ -147,7 +148,8 @@ impl Link {
                 })
             }
             Transport::Tcp => None,
-            // Checked above: QUIC runs on no TCP stream.
+            // Not reached: a QUIC link starts in `start_quic` (`dial`,
+            // `listen_quic`), and one without TLS is refused above.
             _ => return Err(NetError::Transport(TransportError::QuicWithoutTls)),
         };
         cfg.validate().map_err(NetError::Config)?;

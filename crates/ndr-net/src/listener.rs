@@ -340,16 +340,17 @@ fn tcp_listener(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
 
 impl Listener {
     /// Listens on `addr`; the accept loop runs on the current tokio runtime
-    /// (on a current-thread runtime, only while it runs). Over mutual TLS 1.3
-    /// if [`LinkConfig::tls`] is set (with the datagram transport, over
-    /// QUIC: one UDP port at `addr`, no TCP): a peer whose handshake fails
-    /// is counted
-    /// ([`stats`](Self::stats)), logged and dropped, and never returned by
-    /// [`accept`](Self::accept). Plain links are refused with
+    /// (on a current-thread runtime, only while it runs), over the
+    /// [`LinkConfig::transport`] (one that does not fit the TLS is
+    /// [`NetError::Transport`]). Over mutual TLS 1.3 if [`LinkConfig::tls`]
+    /// is set (over `quic`: one UDP port at `addr`, no TCP): a peer whose
+    /// handshake fails is counted ([`stats`](Self::stats)), logged and
+    /// dropped, and never returned by [`accept`](Self::accept). Plain links are refused with
     /// [`NetError::Insecure`] unless `addr` is loopback (then no other host
     /// can connect) or [`LinkConfig::insecure`]. The links it accepts go to
     /// the hub [`LinkConfig::hub`] names (a hub of its own by default).
     pub async fn listen(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        config.checked_transport(config.tls.is_some())?;
         if config.tls.is_none() {
             plain_allowed(addr, &config)?;
         }
@@ -565,6 +566,7 @@ impl Listener {
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn listen_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        config.checked_transport(config.tls.is_some())?;
         if config.tls.is_none() {
             plain_allowed(addr, &config)?;
         }

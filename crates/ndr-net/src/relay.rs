@@ -80,7 +80,7 @@
 //! address over UDP, and the remote answers to the address it saw them
 //! come from: the relay's.
 //!
-//! A QUIC link (the datagram transport with TLS) is all UDP: one flow
+//! A QUIC link (`Transport::Quic`) is all UDP: one flow
 //! carries its handshake, its stream and its datagrams, encrypted, which
 //! the relay delays and loses as it does any datagram (QUIC resends what
 //! its stream lost; the samples' copies make good the rest). No option is
