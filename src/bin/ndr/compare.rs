@@ -80,9 +80,6 @@ pub struct CompareArgs {
         )
     )]
     pub regulations: Vec<String>,
-    /// Deprecated spelling of --regulation.
-    #[arg(long = "policy", value_name = "NAME", hide = true)]
-    pub policies: Vec<String>,
     /// Seeds per family (1..=N).
     #[arg(long, default_value_t = 10)]
     pub seeds: u64,
@@ -221,13 +218,10 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
         families = families.into_iter().map(|f| f.with_duration(d)).collect();
     }
     let mut cfg = CompareConfig::new(families);
-    if !args.policies.is_empty() {
-        crate::logging::deprecated("--policy", "--regulation (the same names)");
-    }
-    let asked: Vec<&String> = args.regulations.iter().chain(&args.policies).collect();
-    if !asked.is_empty() {
-        cfg.regulations = asked
-            .into_iter()
+    if !args.regulations.is_empty() {
+        cfg.regulations = args
+            .regulations
+            .iter()
             .map(|r| regulation(r))
             .collect::<Result<_, _>>()?;
     }

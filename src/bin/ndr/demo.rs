@@ -42,12 +42,6 @@ pub struct LinkArgs {
         )
     )]
     pub regulation: Option<Regulation>,
-    /// Deprecated: --regulation (paper-static, paper-dynamic, adaptive).
-    #[arg(long, hide = true, value_parser = link_mode)]
-    pub mode: Option<LinkMode>,
-    /// Deprecated: --regulation (the same names; fifo is paper-static).
-    #[arg(long, hide = true)]
-    pub playout: Option<Playout>,
     /// What a tick does when its sample has not arrived: hold (the default:
     /// repeat the last sample and keep every one; the paper's FIFO then
     /// releases the late one a tick later) or drop-late (keep the delay
@@ -99,12 +93,9 @@ impl LinkArgs {
         endpoint.layout = self.state.fingerprint(self.axes);
         endpoint.transport = self.transport().transport;
         endpoint.period = period;
-        let (mode, playout, old) = self.asked()?;
-        if old {
-            crate::logging::deprecated_mode_playout(mode, playout);
-        }
-        endpoint.mode = mode;
-        endpoint.playout = playout;
+        let regulation = self.regulation();
+        endpoint.mode = regulation.mode();
+        endpoint.playout = regulation.playout();
         endpoint.underflow = self.underflow;
         // The link draws its datagram session token when it starts.
         let mut checked = endpoint;
@@ -113,91 +104,30 @@ impl LinkArgs {
         Ok(LinkConfig::new(endpoint))
     }
 
-    /// The mode and playout asked for, and whether through the deprecated
-    /// `--mode` or `--playout`.
-    fn asked(&self) -> Result<(Mode, Playout, bool), String> {
-        if let Some(r) = self.regulation {
-            if self.mode.is_some() || self.playout.is_some() {
-                return Err(
-                    "--regulation replaces --mode and --playout: give --regulation alone".into(),
-                );
-            }
-            return Ok((r.mode(), r.playout(), false));
-        }
-        let mode = self.mode.unwrap_or(LinkMode::ADAPTIVE);
-        let playout = self.playout.unwrap_or(if mode.adaptive {
-            Playout::ADAPTIVE
-        } else {
-            Playout::Fifo
-        });
-        let old = self.mode.is_some() || self.playout.is_some();
-        Ok((mode.mode, playout, old))
+    /// `--regulation`, or the adaptive default.
+    pub fn regulation(&self) -> Regulation {
+        self.regulation.unwrap_or_default()
     }
 
-    /// The regulation's name for reports: its own, or `MODE with PLAYOUT`
-    /// for the pairing no regulation names.
+    /// The regulation's name, for reports.
     pub fn regulation_name(&self) -> String {
-        self.asked().map_or_else(
-            |_| String::new(),
-            |(mode, playout, _)| Regulation::name_of(mode, playout).to_string(),
-        )
+        self.regulation().to_string()
     }
 
     /// This side's playout's name, for reports.
     pub fn playout_name(&self) -> String {
-        self.asked()
-            .map_or_else(|_| String::new(), |(_, playout, _)| playout.to_string())
+        self.regulation().playout().to_string()
     }
 
-    /// The report's deprecated `mode`: what `--mode` said, `adaptive` for
-    /// the adaptive playout over the static handshake.
-    pub fn legacy_mode_name(&self) -> &'static str {
-        match (self.mode, self.asked()) {
-            (Some(m), _) => m.name(),
-            (None, Ok((Mode::PaperStatic, Playout::Adaptive { .. }, _))) => "adaptive",
-            (None, Ok((mode, _, _))) => mode.name(),
-            (None, Err(_)) => "",
+    /// The report's `mode`: `adaptive` for the adaptive playout over the
+    /// static handshake, else the mode's name.
+    pub fn mode_name(&self) -> &'static str {
+        let r = self.regulation();
+        match (r.mode(), r.playout()) {
+            (Mode::PaperStatic, Playout::Adaptive { .. }) => "adaptive",
+            (mode, _) => mode.name(),
         }
     }
-}
-
-/// `--mode`: a paper mode, or `adaptive`.
-#[derive(Clone, Copy, Debug)]
-pub struct LinkMode {
-    /// The mode stated in the Hello.
-    pub mode: Mode,
-    /// `--mode adaptive`: the static mode with the adaptive playout.
-    pub adaptive: bool,
-}
-
-impl LinkMode {
-    /// `--mode adaptive`, the default when neither `--regulation` nor
-    /// `--mode` is given.
-    const ADAPTIVE: LinkMode = LinkMode {
-        mode: Mode::PaperStatic,
-        adaptive: true,
-    };
-
-    /// The name given on the command line.
-    pub fn name(self) -> &'static str {
-        if self.adaptive {
-            "adaptive"
-        } else {
-            self.mode.name()
-        }
-    }
-}
-
-fn link_mode(s: &str) -> Result<LinkMode, String> {
-    if s.trim() == "adaptive" {
-        return Ok(LinkMode::ADAPTIVE);
-    }
-    s.parse::<Mode>()
-        .map(|mode| LinkMode {
-            mode,
-            adaptive: false,
-        })
-        .map_err(|e| format!("{e}; or adaptive"))
 }
 
 /// The operator's run, shared by `demo` and `base`.
@@ -638,12 +568,26 @@ mod tests {
 
     #[test]
     fn the_regulation_sets_the_mode_and_the_playout() {
-        let cases: [(&[&str], Mode, Playout, &str); 5] = [
-            (&[], Mode::PaperStatic, Playout::ADAPTIVE, "adaptive"),
+        let cases: [(&[&str], Mode, Playout, &str, &str); 4] = [
+            (
+                &[],
+                Mode::PaperStatic,
+                Playout::ADAPTIVE,
+                "adaptive",
+                "adaptive",
+            ),
+            (
+                &["--regulation", "paper-static"],
+                Mode::PaperStatic,
+                Playout::Fifo,
+                "paper-static",
+                "paper-static",
+            ),
             (
                 &["--regulation", "paper-dynamic"],
                 Mode::PaperDynamic,
                 Playout::Fifo,
+                "paper-dynamic",
                 "paper-dynamic",
             ),
             (
@@ -651,43 +595,22 @@ mod tests {
                 Mode::PaperStatic,
                 Playout::NetEq,
                 "neteq",
-            ),
-            // The old spellings, as before.
-            (
-                &["--mode", "paper-static"],
-                Mode::PaperStatic,
-                Playout::Fifo,
                 "paper-static",
             ),
-            (
-                &["--mode", "paper-dynamic", "--playout", "adaptive"],
-                Mode::PaperDynamic,
-                Playout::ADAPTIVE,
-                "paper-dynamic with adaptive",
-            ),
         ];
-        for (args, mode, playout, name) in cases {
+        for (args, mode, playout, name, mode_name) in cases {
             let l = link(args);
             let c = l.config().expect("a valid configuration").endpoint;
             assert_eq!((c.mode, c.playout), (mode, playout), "{args:?}");
             assert_eq!(l.regulation_name(), name, "{args:?}");
+            assert_eq!(l.mode_name(), mode_name, "{args:?}");
         }
         // Base and remote run the paper's stream unless told otherwise.
         assert_eq!(link(&[]).transport().to_string(), "tcp");
-        assert_eq!(link(&["--mode", "adaptive"]).legacy_mode_name(), "adaptive");
-        assert_eq!(link(&[]).legacy_mode_name(), "adaptive");
-        assert_eq!(
-            link(&["--regulation", "paper-dynamic"]).legacy_mode_name(),
-            "paper-dynamic"
-        );
     }
 
     #[test]
-    fn both_spellings_at_once_or_a_wrong_name_is_an_error() {
-        let err = link(&["--regulation", "neteq", "--playout", "fifo"])
-            .config()
-            .unwrap_err();
-        assert!(err.contains("give --regulation alone"), "{err}");
+    fn a_wrong_name_or_an_old_flag_is_an_error() {
         let err = Cli::try_parse_from(["ndr", "--regulation", "fifo"])
             .err()
             .expect("fifo is no regulation")
@@ -696,5 +619,11 @@ mod tests {
             err.contains("paper-static") && err.contains("paper-dynamic"),
             "{err}"
         );
+        for old in ["--mode", "--playout"] {
+            assert!(
+                Cli::try_parse_from(["ndr", old, "paper-static"]).is_err(),
+                "{old}"
+            );
+        }
     }
 }

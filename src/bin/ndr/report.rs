@@ -430,7 +430,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         },
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
-        mode: link.legacy_mode_name(),
+        mode: link.mode_name(),
         playout: link.playout_name(),
         underflow: link.underflow.name(),
         // The link's (a dynamic mode may change it), else the one asked for.

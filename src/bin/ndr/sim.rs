@@ -5,8 +5,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ndr::core::endpoint::{Mode, Transport, Underflow};
-use ndr::core::playout::Playout;
+use ndr::core::endpoint::{Transport, Underflow};
 use ndr::core::regulation::{Regulation, RegulationNames};
 use ndr::core::time::Duration;
 use ndr::sim::delay::{DelayModel, DistTable, LossModel, Trace};
@@ -91,18 +90,12 @@ pub struct SimArgs {
         )
     )]
     pub regulation: Option<Regulation>,
-    /// Deprecated: --regulation (paper-static or paper-dynamic).
-    #[arg(long, hide = true)]
-    pub mode: Option<Mode>,
     /// What both regulators do at a tick whose sample has not arrived: hold
     /// (the default: repeat the last sample and keep every one) or drop-late
     /// (keep the delay constant: a sample that missed its tick is dropped
     /// and counted).
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
-    /// Deprecated: --regulation (the same names; fifo is paper-static).
-    #[arg(long, hide = true)]
-    pub playout: Option<Playout>,
     /// The remote's clock runs this many ppm fast (negative: slow).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub remote_skew_ppm: f64,
@@ -161,20 +154,9 @@ impl SimArgs {
             ));
         }
         let mut cfg = SimConfig::paper(self.net.model("lan-75km")?);
-        (cfg.mode, cfg.playout) = match (self.regulation, self.mode, self.playout) {
-            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => {
-                return Err(
-                    "--regulation replaces --mode and --playout: give --regulation alone".into(),
-                );
-            }
-            (Some(r), None, None) => (r.mode(), r.playout()),
-            (None, None, None) => (Mode::PaperStatic, Playout::Fifo),
-            (None, mode, playout) => {
-                let (mode, playout) = (mode.unwrap_or_default(), playout.unwrap_or_default());
-                crate::logging::deprecated_mode_playout(mode, playout);
-                (mode, playout)
-            }
-        };
+        let regulation = self.regulation.unwrap_or(Regulation::PaperStatic);
+        cfg.mode = regulation.mode();
+        cfg.playout = regulation.playout();
         cfg.underflow = self.underflow;
         if !(self.remote_skew_ppm.is_finite() && self.remote_skew_ppm.abs() <= 1e5) {
             return Err(format!(
