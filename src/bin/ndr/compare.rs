@@ -11,7 +11,7 @@ use ndr::sim::compare::{
 };
 use ndr::sim::delay::Trace;
 
-use crate::size::millis;
+use crate::args::millis;
 
 /// `--duration-s`'s range: runs measure all but their last 10 s; an hour
 /// at most bounds a run's memory, as the simulator logs every command (at

@@ -12,7 +12,7 @@ use ndr::net::clock::LatenessStats;
 use ndr::net::{LinkStats, NetError, RelayStats};
 use serde::Serialize;
 
-use crate::demo::{LinkArgs, RunArgs};
+use crate::args::{LinkArgs, RunArgs};
 use crate::pauses::PauseSummary;
 use crate::tracking::TrackingSummary;
 
@@ -391,6 +391,18 @@ struct DemoReport {
     /// for is the latter's.
     #[serde(flatten)]
     host: Option<PauseSummary>,
+}
+
+/// A run that completed but whose series could not be written failed.
+pub fn with_series_error(mut outcome: Outcome<'_>, error: Option<String>) -> Outcome<'_> {
+    if let Some(e) = error {
+        if outcome.end.ok() {
+            outcome.end = End::AppFailure(e);
+        } else {
+            tracing::error!("{e}");
+        }
+    }
+    outcome
 }
 
 /// Prints the report (table or JSON), whatever the end; then the end as

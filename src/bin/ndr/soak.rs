@@ -61,9 +61,9 @@ use ndr::net::{
 use ndr::sim::delay::{DelayModel, LossModel, Trace, TraceRow};
 use serde::Serialize;
 
-use crate::demo::runtime;
-use crate::keygen::{Throwaway, pinned};
-use crate::size::millis;
+use crate::args::millis;
+use crate::runtime::runtime;
+use crate::throwaway::{Throwaway, pinned};
 use crate::transport::LinkTransport;
 
 #[derive(clap::Args)]
