@@ -15,7 +15,7 @@ pub(super) struct Remote {
     transport: LinkTransport,
     /// Over QUIC, its identity and the base's pin: `--cert`, `--key`, `--pin`.
     tls: Vec<String>,
-    /// Where it is asked, and answers (see [`answer`]).
+    /// Where it is asked, and answers (see `serve::answer`).
     ask: ChildStdin,
     answers: BufReader<ChildStdout>,
 }

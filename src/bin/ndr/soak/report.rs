@@ -189,7 +189,7 @@ pub(super) fn print_table(r: &SoakReport) {
             r.garbage_datagrams_harmed
         );
     }
-    // Over QUIC, the faults' QUIC forms (see the module's doc).
+    // Over QUIC, the faults' QUIC forms (see the soak module's doc).
     let (garbage, idle, stale) = if r.transport.starts_with("quic") {
         (
             "strangers refused",
