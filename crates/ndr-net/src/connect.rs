@@ -1,5 +1,6 @@
-//! A base's side of connecting: a TCP stream (plain or over TLS), or a
-//! QUIC connection, handed to the hub that will drive the link.
+//! A base's side of connecting ([`Link::connect`]): a TCP stream (plain or
+//! over TLS), or a QUIC connection, handed to the hub that will drive the
+//! link.
 
 use std::io;
 use std::net::SocketAddr;
@@ -15,16 +16,39 @@ use crate::config::LinkConfig;
 use crate::error::NetError;
 use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, bind_datagram_socket};
 use crate::link::Link;
-use crate::runtime::plain_allowed;
+use crate::runtime::{not_in_a_runtime, own_runtime, plain_allowed};
 use crate::tls::TlsConfig;
 use crate::transport::Transport;
 
+impl Link {
+    /// Connects to a remote (this side is the base) on the current tokio
+    /// runtime, over the [`LinkConfig::transport`] (one that does not fit
+    /// the TLS is [`NetError::Transport`]): over mutual TLS 1.3 if
+    /// [`LinkConfig::tls`] is set (a failed handshake is
+    /// [`NetError::Handshake`]; over `quic`, returning once QUIC's handshake
+    /// and the Hello are done), else plain, refused with
+    /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
+    /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
+    pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        let hub = config.hub.pick(config.spin_margin)?;
+        dial(&hub, addr, config).await
+    }
+
+    /// [`connect`](Self::connect) for programs without a tokio runtime: a
+    /// small runtime of its own makes the connection and the handshakes,
+    /// and is gone when this returns; the link's hub drives it after that.
+    pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+        not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
+        let rt = own_runtime()?;
+        let hub = config.hub.pick(config.spin_margin)?;
+        // Only the connection and the handshakes need the runtime: its hub
+        // drives the link, and its thread ends here.
+        rt.block_on(dial(&hub, addr, config))
+    }
+}
+
 /// Connects as `config` says, and drives the link on `hub`.
-pub(crate) async fn dial(
-    hub: &Hub,
-    addr: SocketAddr,
-    config: LinkConfig,
-) -> Result<Link, NetError> {
+async fn dial(hub: &Hub, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
     let transport = config.checked_transport(config.tls.is_some())?;
     let Some(tls) = config.tls.clone() else {
         plain_allowed(addr, &config)?;

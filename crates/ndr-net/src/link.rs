@@ -36,7 +36,6 @@ use crate::delivery::{self, Delivery, Inbox};
 use crate::hub::{
     DatagramPath, Entry, Hub, Msg, Path, QuicMove, QuicPath, Session, Shared, Stream,
 };
-use crate::runtime::{not_in_a_runtime, own_runtime};
 use crate::seats::Seat;
 use crate::transport::{Transport, TransportError};
 
@@ -80,31 +79,6 @@ impl fmt::Debug for Link {
 }
 
 impl Link {
-    /// Connects to a remote (this side is the base) on the current tokio
-    /// runtime, over the [`LinkConfig::transport`] (one that does not fit
-    /// the TLS is [`NetError::Transport`]): over mutual TLS 1.3 if
-    /// [`LinkConfig::tls`] is set (a failed handshake is
-    /// [`NetError::Handshake`]; over `quic`, returning once QUIC's handshake
-    /// and the Hello are done), else plain, refused with
-    /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
-    /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
-    pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        let hub = config.hub.pick(config.spin_margin)?;
-        crate::connect::dial(&hub, addr, config).await
-    }
-
-    /// [`connect`](Self::connect) for programs without a tokio runtime: a
-    /// small runtime of its own makes the connection and the handshakes,
-    /// and is gone when this returns; the link's hub drives it after that.
-    pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
-        let rt = own_runtime()?;
-        let hub = config.hub.pick(config.spin_margin)?;
-        // Only the connection and the handshakes need the runtime: its hub
-        // drives the link, and its thread ends here.
-        rt.block_on(crate::connect::dial(&hub, addr, config))
-    }
-
     /// Drives an already connected stream in `role`.
     /// The stream is taken as it is: no TLS (so `tcp` or `udp`, refused
     /// with [`NetError::Transport`] otherwise), and no check of its peer's
