@@ -51,10 +51,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use common::{bundle, frame, tls_pair};
-use ndr::core::endpoint::{Config, Transport};
+use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
-use ndr::net::{Hub, Link, LinkConfig, LinkStats, Listener, TlsConfig};
+use ndr::net::{Hub, Link, LinkConfig, LinkStats, Listener, TlsConfig, Transport};
 use ndr::sim::percentile;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -231,8 +231,7 @@ fn link_nrtt(
     let mut c = Config::paper(Role::Base);
     c = c.with_width(1);
     c.period = Duration::from_millis(period_ms);
-    c.transport = transport;
-    let config = LinkConfig::new(c);
+    let config = LinkConfig::new(c).with_transport(transport);
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let hub = |margin| Hub::new(margin).unwrap();
     // Two machines' tick grids are unrelated; two hubs made at once in one
@@ -247,7 +246,7 @@ fn link_nrtt(
             remote_config.tls = Some(remote_tls.clone());
             base_config.tls = Some(base_tls.clone());
         }
-        let listener = Listener::bind(any, remote_config.on_hub(remote_hub))
+        let listener = Listener::listen(any, remote_config.on_hub(remote_hub))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();
@@ -359,25 +358,25 @@ fn main() {
         rx_lag,
         base,
         remote,
-    } = link_nrtt(&rt, seconds, period_ms, None, false, Transport::Stream);
-    let handled = link_nrtt(&rt, seconds, period_ms, None, true, Transport::Stream);
+    } = link_nrtt(&rt, seconds, period_ms, None, false, Transport::Tcp);
+    let handled = link_nrtt(&rt, seconds, period_ms, None, true, Transport::Tcp);
     let tls_run = link_nrtt(
         &rt,
         seconds,
         period_ms,
         Some(&tls_pair()),
         false,
-        Transport::Stream,
+        Transport::Tcp,
     );
     let mut raw_udp_held = raw_udp_two_threads(seconds, period_ms, hold);
-    let udp_run = link_nrtt(&rt, seconds, period_ms, None, false, Transport::DATAGRAM);
+    let udp_run = link_nrtt(&rt, seconds, period_ms, None, false, Transport::UDP);
     let quic_run = link_nrtt(
         &rt,
         seconds,
         period_ms,
         Some(&tls_pair()),
         false,
-        Transport::DATAGRAM,
+        Transport::QUIC,
     );
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
     println!(

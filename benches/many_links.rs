@@ -45,12 +45,12 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use common::{bundle, frame, tls_pair};
-use ndr::core::endpoint::{Config, REPEAT_HOLD, Transport};
+use ndr::core::endpoint::{Config, REPEAT_HOLD};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::clock::DEFAULT_SPIN_MARGIN;
 use ndr::net::spin::SpinMargin;
-use ndr::net::{HubPool, Link, LinkConfig, Listener};
+use ndr::net::{HubPool, Link, LinkConfig, Listener, Transport};
 
 fn env(name: &str, default: f64) -> f64 {
     std::env::var(name)
@@ -339,24 +339,21 @@ fn main() {
     };
     let mut config = LinkConfig::new(c);
     config.app_queue = env("NDR_APP_QUEUE", 16.0) as usize;
-    config.queue_capacity = env("NDR_QUEUE", ndr::net::link::QUEUE as f64) as usize;
+    config.queue_capacity = env("NDR_QUEUE", ndr::net::QUEUE as f64) as usize;
     let playout = std::env::var("NDR_PLAYOUT").unwrap_or_else(|_| "fifo".into());
     config.endpoint.playout = playout
         .parse()
         .unwrap_or_else(|_| panic!("NDR_PLAYOUT={playout}: not a playout policy"));
-    let transport = std::env::var("NDR_TRANSPORT").unwrap_or_else(|_| "tcp".into());
-    // quic[:K[:R]]: the datagram transport's samples over QUIC, under
-    // mutual TLS between throwaway identities.
-    let (datagrams, tls) = match transport.strip_prefix("quic") {
-        Some(rest) => (format!("udp{rest}"), Some(tls_pair())),
-        None => (transport.clone(), None),
-    };
-    config.endpoint.transport = datagrams
+    let name = std::env::var("NDR_TRANSPORT").unwrap_or_else(|_| "tcp".into());
+    let transport: Transport = name
         .parse()
-        .unwrap_or_else(|_| panic!("NDR_TRANSPORT={transport}: not a transport"));
+        .unwrap_or_else(|e| panic!("NDR_TRANSPORT={name}: {e}"));
+    config = config.with_transport(transport);
+    // quic[:K[:R]]: under mutual TLS between throwaway identities.
+    let tls = transport.is_quic().then(tls_pair);
     // On datagrams, the repeats each link may send.
-    let repeats = match config.endpoint.transport {
-        Transport::Datagram { repeats, .. } => Some(repeats),
+    let repeats = match transport {
+        Transport::Udp { repeats, .. } | Transport::Quic { repeats, .. } => Some(repeats),
         _ => None,
     };
     let rss0 = rss_kib();
@@ -371,7 +368,7 @@ fn main() {
             ),
             None => (config.clone(), config.clone()),
         };
-        let listener = Listener::bind(any, remote_config.on_pool(remote_hubs))
+        let listener = Listener::listen(any, remote_config.on_pool(remote_hubs))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();

@@ -26,10 +26,10 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
+use ndr::net::Hub;
 use ndr::net::clock::{
     DEFAULT_SPIN_MARGIN, LatenessHistogram, LatenessStats, SchedPolicy, current_thread_policy,
 };
-use ndr::net::hub::Hub;
 use ndr::net::spin::SpinMargin;
 use ndr::net::{Link, LinkConfig, Listener};
 use tokio::time::MissedTickBehavior;
@@ -88,7 +88,7 @@ fn hub_clock(n: u64, spin: SpinMargin) -> (LatenessStats, String) {
         LinkConfig::new(c).on_hub(hub.clone())
     };
     let any: SocketAddr = "127.0.0.1:0".parse().expect("an address");
-    let listener = Listener::bind_blocking(any, config(Role::Remote)).expect("a listener");
+    let listener = Listener::listen_blocking(any, config(Role::Remote)).expect("a listener");
     let addr = listener.local_addr().expect("its address");
     let accept = std::thread::spawn(move || listener.accept_blocking());
     let mut base = Link::connect_blocking(addr, config(Role::Base)).expect("a link");

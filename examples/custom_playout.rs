@@ -113,7 +113,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         endpoint.playout = playout;
         LinkConfig::new(endpoint)
     };
-    let listener = Listener::bind_blocking("127.0.0.1:0".parse()?, config(Role::Remote))?;
+    let listener = Listener::listen_blocking("127.0.0.1:0".parse()?, config(Role::Remote))?;
     let addr: SocketAddr = listener.local_addr()?;
     let robot = thread::spawn(move || -> Result<(), String> {
         let mut link = listener.accept_blocking().map_err(|e| e.to_string())?;

@@ -6,7 +6,7 @@
 //! follows a sine and reads the states. Each side holds the default
 //! playout, a delay chosen from the measured one-way delays (`Config::new`;
 //! `Config::paper` for the paper's FIFO). Neither needs a tokio runtime of its
-//! own: `Listener::bind_blocking` and `Link::connect_blocking` bring one for
+//! own: `Listener::listen_blocking` and `Link::connect_blocking` bring one for
 //! the connection, and each link is then driven by its hub thread. Across
 //! two hosts, the same code with an address that is not loopback takes
 //! `TlsConfig` (`LinkConfig::with_tls`).
@@ -52,7 +52,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             .map_err(|_| format!("SECONDS: not a number: {s:?}"))?,
         None => 3.0,
     };
-    let listener = Listener::bind_blocking("127.0.0.1:0".parse()?, config(Role::Remote))?;
+    let listener = Listener::listen_blocking("127.0.0.1:0".parse()?, config(Role::Remote))?;
     let addr: SocketAddr = listener.local_addr()?;
     let robot = thread::spawn(move || robot(listener).map_err(|e| e.to_string()));
 

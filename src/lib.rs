@@ -41,7 +41,7 @@
 //! }
 //!
 //! // The robot's side.
-//! let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, config(Role::Remote))?;
+//! let listener = Listener::listen_blocking("127.0.0.1:7300".parse()?, config(Role::Remote))?;
 //! let mut link = listener.accept_blocking()?;
 //! while let Ok(command) = link.recv() {
 //!     // Each command at its release tick, the delay constant; the state

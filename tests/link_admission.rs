@@ -53,7 +53,7 @@ impl Robot {
     fn start(datagrams: bool) -> Robot {
         let rt = common::runtime();
         let listener = Arc::new(
-            rt.block_on(Listener::bind(
+            rt.block_on(Listener::listen(
                 "127.0.0.1:0".parse().unwrap(),
                 config(datagrams),
             ))
@@ -103,7 +103,7 @@ impl Drop for Robot {
 /// A relay with 5 ms each way in front of `upstream`.
 fn relay(rt: &tokio::runtime::Runtime, upstream: SocketAddr) -> RelayHandle {
     rt.block_on(async {
-        Relay::bind(
+        Relay::listen(
             "127.0.0.1:0".parse().unwrap(),
             upstream,
             DelayModel::profile("constant:5").unwrap(),

@@ -567,7 +567,7 @@ fn served_through_a_flood(name: &str, tls: Option<Certs>, holders: Holders) {
     let mut with = config();
     with.tls = tls.as_ref().map(|c| c.robot.clone());
     let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), with))
+        .block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), with))
         .unwrap()
         .with_max_links(1);
     let robot = Robot::serve(listener, rt, false);
@@ -624,7 +624,7 @@ fn a_second_base_is_told_at_once_that_the_robot_is_busy() {
     let _serial = common::serial();
     let rt = common::runtime();
     let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+        .block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), config()))
         .unwrap()
         .with_max_links(1);
     let robot = Robot::serve(listener, rt, false);
@@ -702,7 +702,7 @@ fn a_base_that_hangs_after_its_handshake_is_dropped_and_the_next_is_served() {
     let mut remote = config();
     remote.endpoint.liveness = Some(LIVENESS.into());
     let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), remote))
+        .block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), remote))
         .unwrap()
         .with_max_links(1);
     // The robot keeps the ended link: it no longer counts as served.
@@ -752,7 +752,7 @@ fn a_peer_that_trickles_its_hello_is_cut_off_at_the_pre_authentication_budget() 
     let mut remote = config();
     remote.admission.preauth_timeout = Duration::from_secs(1);
     let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), remote))
+        .block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), remote))
         .unwrap();
     let robot = Robot::serve(listener, rt, false);
     // Half a Hello, then a byte every 300 ms: never a whole one in time.

@@ -20,7 +20,7 @@ fn config() -> LinkConfig {
 }
 
 fn listener(rt: &tokio::runtime::Runtime) -> Listener {
-    rt.block_on(Listener::bind(
+    rt.block_on(Listener::listen(
         "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
         config(),
     ))
@@ -87,7 +87,7 @@ fn wide_run(transport: Transport, commands: u16, states: u16, period_ms: u64) {
     let rt = common::runtime();
     let run = common::assert_regulated(|| {
         let listener = rt
-            .block_on(Listener::bind(
+            .block_on(Listener::listen(
                 "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
                 wide(transport, commands, states, period_ms),
             ))

@@ -29,7 +29,7 @@ fn serve(
     Arc<Listener>,
 ) {
     let listener = Arc::new(
-        rt.block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+        rt.block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), config()))
             .unwrap(),
     );
     let addr = listener.local_addr().unwrap();
@@ -212,7 +212,7 @@ fn silent_peers_of_one_source_are_capped_and_a_base_is_served_at_once() {
         .build()
         .unwrap();
     let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+        .block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), config()))
         .unwrap();
     let addr = listener.local_addr().unwrap();
     let cap = config().admission.max_pending_per_source as u64;

@@ -188,7 +188,7 @@ fn a_base_whose_first_probe_is_stamped_0_is_served() {
     let mut config = Config::new(Role::Remote);
     config.period = PERIOD;
     let listener = rt
-        .block_on(Listener::bind(
+        .block_on(Listener::listen(
             "127.0.0.1:0".parse().expect("an address"),
             LinkConfig::new(config),
         ))

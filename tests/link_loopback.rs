@@ -28,7 +28,7 @@ fn pair(rt: &tokio::runtime::Runtime) -> (Link, Link) {
 /// the base's at connect).
 fn pair_apart(rt: &tokio::runtime::Runtime, gap: StdDuration) -> (Link, Link) {
     let listener = rt
-        .block_on(Listener::bind(
+        .block_on(Listener::listen(
             "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
             config(),
         ))
@@ -146,7 +146,7 @@ fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others()
     let rt = common::runtime();
     let hub = ndr::net::Hub::with_defaults().unwrap();
     let listener = rt
-        .block_on(Listener::bind(
+        .block_on(Listener::listen(
             "127.0.0.1:0".parse::<SocketAddr>().unwrap(),
             config().on_hub(hub),
         ))
@@ -203,7 +203,7 @@ fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others()
 #[test]
 fn a_blocking_listener_serves_bases_one_after_another_without_a_runtime() {
     let _serial = common::serial();
-    let listener = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
+    let listener = Listener::listen_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
     let addr = listener.local_addr().unwrap();
     // The robot: echoes each command until its base closes, for two bases.
     let robot = std::thread::spawn(move || {
@@ -257,21 +257,21 @@ fn a_blocking_listener_serves_bases_one_after_another_without_a_runtime() {
 fn blocking_calls_on_a_runtime_or_an_async_listener_say_what_to_await() {
     let rt = common::runtime();
     let listener = rt
-        .block_on(Listener::bind("127.0.0.1:0".parse().unwrap(), config()))
+        .block_on(Listener::listen("127.0.0.1:0".parse().unwrap(), config()))
         .unwrap();
     let err = listener.accept_blocking().unwrap_err();
     assert!(err.to_string().contains("accept().await"), "{err}");
     // A blocking listener dropped inside async code does not panic, and the
     // blocking calls made there are refused, not a panic of tokio's.
-    let blocking = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
+    let blocking = Listener::listen_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap();
     let addr = listener.local_addr().unwrap();
     rt.block_on(async move {
         let err = blocking.accept_blocking().unwrap_err();
         assert!(err.to_string().contains("accept().await"), "{err}");
         drop(blocking);
-        let err = Listener::bind_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap_err();
+        let err = Listener::listen_blocking("127.0.0.1:0".parse().unwrap(), config()).unwrap_err();
         assert!(
-            err.to_string().contains("Listener::bind(..).await"),
+            err.to_string().contains("Listener::listen(..).await"),
             "{err}"
         );
         let err = Link::connect_blocking(addr, config()).unwrap_err();

@@ -8,17 +8,16 @@ mod common;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
-use ndr::core::endpoint::{Config, Transport};
+use ndr::core::endpoint::Config;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::keygen::{self, KeyPair};
-use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig};
+use ndr::net::{HandshakeError, Link, LinkConfig, Listener, NetError, TlsConfig, Transport};
 
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base).with_width(2);
     c.period = Duration::from_millis(10);
-    c.transport = Transport::DATAGRAM;
-    LinkConfig::new(c)
+    LinkConfig::new(c).with_transport(Transport::QUIC)
 }
 
 /// Throwaway certificates for one test: base, remote and a stranger.
@@ -56,7 +55,7 @@ fn tls(own: &KeyPair, peer: &KeyPair) -> TlsConfig {
 fn listener(rt: &tokio::runtime::Runtime, certs: &Certs) -> Listener {
     let addr: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let config = config().with_tls(tls(&certs.remote, &certs.base));
-    rt.block_on(Listener::bind(addr, config)).unwrap()
+    rt.block_on(Listener::listen(addr, config)).unwrap()
 }
 
 /// The listener's next link and a base's link to `to` (the listener, or a
@@ -160,14 +159,11 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
     };
     let mut remote_config = config().with_tls(patient(tls(&certs.remote, &certs.base)));
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
-    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
-    let lossy = RelayConfig {
-        loss: LossModel::Bernoulli { rate: 0.1 },
-        ..RelayConfig::default()
-    };
+    let listener = rt.block_on(Listener::listen(any, remote_config)).unwrap();
+    let lossy = RelayConfig::default().with_loss(LossModel::Bernoulli { rate: 0.1 });
     let relay = rt.block_on(async {
         let model = DelayModel::profile("constant:5").unwrap();
-        Relay::bind(any, listener.local_addr().unwrap(), model, 7)
+        Relay::listen(any, listener.local_addr().unwrap(), model, 7)
             .await
             .unwrap()
             .with_config(lossy)
@@ -475,7 +471,7 @@ fn guarded_listener(
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
     remote_config.admission.max_pending_per_source = per_source;
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-    rt.block_on(Listener::bind(any, remote_config)).unwrap()
+    rt.block_on(Listener::listen(any, remote_config)).unwrap()
 }
 
 /// The good base connects to `listener` from 127.0.0.1 and is accepted
@@ -571,7 +567,7 @@ fn strangers_handshakes_run_apart_from_the_hub_that_drives_the_links() {
     let mut remote_config = config().with_tls(remote_tls).on_hub(hub.clone());
     remote_config.admission.preauth_timeout = Duration::from_secs(20);
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
-    let listener = rt.block_on(Listener::bind(any, remote_config)).unwrap();
+    let listener = rt.block_on(Listener::listen(any, remote_config)).unwrap();
     let upstream = listener.local_addr().unwrap();
     // Three strangers' handshakes pending at the listener: none on the
     // links' hub, where each would be work for anyone who asks.

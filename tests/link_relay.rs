@@ -39,8 +39,8 @@ fn setup(model: DelayModel) -> Setup {
         .unwrap();
     let any: SocketAddr = "127.0.0.1:0".parse().unwrap();
     let (base, remote, relay) = rt.block_on(async {
-        let listener = Listener::bind(any, config()).await.unwrap();
-        let relay = Relay::bind(any, listener.local_addr().unwrap(), model, 7)
+        let listener = Listener::listen(any, config()).await.unwrap();
+        let relay = Relay::listen(any, listener.local_addr().unwrap(), model, 7)
             .await
             .unwrap()
             .spawn()

@@ -66,7 +66,7 @@ fn lab(test: &str, handshake_timeout: Option<StdDuration>) -> Lab {
         remote_tls.handshake_timeout = t;
     }
     let listener = rt
-        .block_on(Listener::bind(loopback(), config().with_tls(remote_tls)))
+        .block_on(Listener::listen(loopback(), config().with_tls(remote_tls)))
         .unwrap();
     let addr = listener.local_addr().unwrap();
     Lab {
@@ -235,15 +235,15 @@ fn plain_links_off_loopback_are_refused_unless_insecure() {
     assert!(start.elapsed() < StdDuration::from_millis(500));
     let any: SocketAddr = "0.0.0.0:0".parse().unwrap();
     assert!(Matches::insecure(
-        rt.block_on(Listener::bind(any, config()))
+        rt.block_on(Listener::listen(any, config()))
     ));
     let mut insecure = config();
     insecure.insecure = true;
-    let listener = rt.block_on(Listener::bind(any, insecure)).unwrap();
+    let listener = rt.block_on(Listener::listen(any, insecure)).unwrap();
     let port = listener.local_addr().unwrap().port();
     assert_ne!(port, 0);
     // Loopback stays plain without asking.
-    assert!(rt.block_on(Listener::bind(loopback(), config())).is_ok());
+    assert!(rt.block_on(Listener::listen(loopback(), config())).is_ok());
 }
 
 struct Matches;
@@ -321,10 +321,10 @@ fn the_relay_delays_tls_records_in_order_and_the_link_stays_regulated() {
     for attempt in 1..=ATTEMPTS {
         let base_tls = tls(&b, &r);
         let (mut base, mut remote, relay) = rt.block_on(async {
-            let listener = Listener::bind(loopback(), config().with_tls(tls(&r, &b)))
+            let listener = Listener::listen(loopback(), config().with_tls(tls(&r, &b)))
                 .await
                 .unwrap();
-            let relay = Relay::bind(loopback(), listener.local_addr().unwrap(), model.clone(), 1)
+            let relay = Relay::listen(loopback(), listener.local_addr().unwrap(), model.clone(), 1)
                 .await
                 .unwrap()
                 .spawn()
@@ -416,7 +416,7 @@ fn peers_trusted_through_a_ca_link_and_a_wrong_server_name_is_refused() {
     let misnamed = TlsConfig::from_files_with_ca(&bc, &bk, &ca_file, "robot").unwrap();
     let rt = common::runtime();
     rt.block_on(async {
-        let listener = Listener::bind(loopback(), config().with_tls(remote.clone()))
+        let listener = Listener::listen(loopback(), config().with_tls(remote.clone()))
             .await
             .unwrap();
         let addr = listener.local_addr().unwrap();

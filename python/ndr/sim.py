@@ -271,7 +271,9 @@ def run(
             ``K - 1`` before it (default 4) and is sent ``R`` more times 1 ms
             apart (default 3, as many as fit before the next sample), so a
             lost one is made good by a repeat or the next one's copies; the
-            handshake stays on TCP.
+            handshake stays on TCP. The link's names read too: ``"tcp"``,
+            ``"udp[:K[:R]]"``, and ``"quic[:K[:R]]"``, simulated as its
+            datagrams.
 
     Returns:
         A :class:`SimResult`; its ``summary`` holds ``None`` where nothing

@@ -4,7 +4,7 @@
 //!
 //! The NDR releases one sample per period `T`. tokio's timers round up to
 //! whole milliseconds, too coarse for that, so the hub
-//! ([`crate::hub`]) keeps its links' deadlines on its own thread: absolute
+//! ([`Hub`](crate::Hub)) keeps its links' deadlines on its own thread: absolute
 //! deadlines `origin + k·T` computed from integers (they never drift, and a
 //! late tick does not delay the next one), a native sleep until a *spin
 //! margin* before each, learned from how late its sleeps wake

@@ -7,6 +7,7 @@ use ndr_core::time::Duration;
 use crate::hub::Hub;
 use crate::pool::{HubChoice, HubPool};
 use crate::tls::TlsConfig;
+use crate::transport::{Transport, TransportError};
 
 /// Default capacity of a link's regulator: `ns` up to 255.
 pub const QUEUE: usize = 256;
@@ -47,15 +48,16 @@ pub struct LinkConfig {
     /// [`Stats::clamped`](ndr_core::endpoint::Stats::clamped); a remote that
     /// cannot hold it ends the link with [`LinkError::BadParameters`](ndr_core::endpoint::LinkError::BadParameters)).
     pub queue_capacity: usize,
+    /// How the samples cross: `tcp` (the default), `udp` or `quic`. Set it
+    /// with [`with_transport`](Self::with_transport), which also tells the
+    /// endpoint ([`Config::transport`]) whether it sends a stream or
+    /// datagrams; [`new`](Self::new) takes `tcp` or `udp` from the
+    /// endpoint's. QUIC needs [`tls`](Self::tls), plain UDP refuses it
+    /// ([`Transport::check_security`]).
+    pub transport: Transport,
     /// Mutual TLS 1.3 with these identities and pins; `None` (the default):
-    /// plain TCP, which only a loopback address or [`insecure`](Self::insecure)
-    /// allows. With the datagram transport
-    /// ([`Transport::Datagram`](ndr_core::endpoint::Transport::Datagram)),
-    /// TLS makes the link a QUIC link ([`crate::quic`]): one UDP port, the
-    /// samples as QUIC datagrams. Plain UDP carries no TLS, so a datagram
-    /// link with TLS can only mean QUIC, and the endpoint needs to know
-    /// nothing of it: one switch, not a third transport beside the two the
-    /// endpoint has.
+    /// a plain link, which only a loopback address or
+    /// [`insecure`](Self::insecure) allows.
     pub tls: Option<TlsConfig>,
     /// Which hub drives the link (a listener: the links it accepts); a hub
     /// of its own by default.
@@ -71,10 +73,12 @@ pub struct LinkConfig {
 }
 
 impl LinkConfig {
-    /// Defaults around an endpoint configuration.
+    /// Defaults around an endpoint configuration, over `tcp` or `udp` as
+    /// its `transport` says.
     #[must_use]
     pub fn new(endpoint: Config) -> Self {
         LinkConfig {
+            transport: Transport::plain(endpoint.transport),
             endpoint,
             spin_margin: crate::clock::DEFAULT_SPIN_MARGIN,
             app_queue: 1024,
@@ -84,6 +88,29 @@ impl LinkConfig {
             insecure: false,
             admission: Admission::default(),
         }
+    }
+
+    /// The same, over `transport` (its endpoint told whether it sends a
+    /// stream or datagrams).
+    #[must_use]
+    pub fn with_transport(mut self, transport: Transport) -> Self {
+        self.transport = transport;
+        self.endpoint.transport = transport.carriage();
+        self
+    }
+
+    /// The link's transport, checked against its security (`tls`: whether
+    /// the link runs TLS): QUIC needs TLS, plain UDP refuses it, and the
+    /// endpoint must carry what the transport does.
+    pub(crate) fn checked_transport(&self, tls: bool) -> Result<Transport, TransportError> {
+        if self.endpoint.transport != self.transport.carriage() {
+            return Err(TransportError::Mismatch {
+                link: self.transport,
+                endpoint: self.endpoint.transport,
+            });
+        }
+        self.transport.check_security(tls)?;
+        Ok(self.transport)
     }
 
     /// The same, over mutual TLS 1.3 ([`tls`](Self::tls)).

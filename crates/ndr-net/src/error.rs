@@ -7,6 +7,7 @@ use std::net::SocketAddr;
 use ndr_core::endpoint::{ConfigError, LinkError};
 
 use crate::tls::HandshakeError;
+use crate::transport::TransportError;
 
 /// Why a link could not be set up or used.
 #[derive(Debug)]
@@ -25,11 +26,9 @@ pub enum NetError {
     Insecure(SocketAddr),
     /// The TLS handshake failed: no link was set up.
     Handshake(HandshakeError),
-    /// The datagram transport asked of a TCP stream that already carries
-    /// TLS (an internal path): its datagrams would travel unencrypted. A
-    /// datagram link with TLS runs over QUIC ([`Link::connect`](crate::Link::connect),
-    /// [`Listener::bind`](crate::Listener::bind)).
-    DatagramsWithTls,
+    /// The transport does not fit the link's security (QUIC without TLS,
+    /// plain UDP with it) or its endpoint's configuration.
+    Transport(TransportError),
 }
 
 impl fmt::Display for NetError {
@@ -45,11 +44,7 @@ impl fmt::Display for NetError {
                  (--cert, --key, --peer-cert or --pin) or pass --insecure (Python: insecure=True)"
             ),
             NetError::Handshake(e) => write!(f, "{e}"),
-            NetError::DatagramsWithTls => f.write_str(
-                "a TLS stream does not take the datagram transport (its datagrams would be \
-                 plain): a datagram link with TLS runs over QUIC (--transport quic, Python: \
-                 transport=\"quic\")",
-            ),
+            NetError::Transport(e) => write!(f, "{e}"),
         }
     }
 }
@@ -61,7 +56,8 @@ impl std::error::Error for NetError {
             NetError::Config(e) => Some(e),
             NetError::Link(e) => Some(e),
             NetError::Handshake(e) => Some(e),
-            NetError::Timeout | NetError::Insecure(_) | NetError::DatagramsWithTls => None,
+            NetError::Transport(e) => Some(e),
+            NetError::Timeout | NetError::Insecure(_) => None,
         }
     }
 }
@@ -69,5 +65,11 @@ impl std::error::Error for NetError {
 impl From<io::Error> for NetError {
     fn from(e: io::Error) -> Self {
         NetError::Io(e)
+    }
+}
+
+impl From<TransportError> for NetError {
+    fn from(e: TransportError) -> Self {
+        NetError::Transport(e)
     }
 }

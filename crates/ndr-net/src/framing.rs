@@ -14,11 +14,11 @@ use ndr_core::wire::{self, Control, Frame, HEADER_LEN, Hello, MAX_FRAME_LEN, Wir
 
 /// Frames of the largest size a [`Deframer`] holds at once (what one read
 /// can take when frames wait in the socket).
-pub const READ_FRAMES: usize = 4;
+pub(crate) const READ_FRAMES: usize = 4;
 
 /// The smallest limit a [`Deframer`] takes: the largest frame of fixed size
 /// (a Hello or a Control; a Close is shorter).
-pub const MIN_MAX_FRAME: usize = HEADER_LEN
+pub(crate) const MIN_MAX_FRAME: usize = HEADER_LEN
     + if Hello::LEN > Control::LEN {
         Hello::LEN
     } else {
@@ -121,10 +121,10 @@ impl Deframer {
         Self::with_max_frame(MAX_FRAME_LEN)
     }
 
-    /// An empty deframer for frames of at most `max_frame` bytes (clamped to
-    /// [`MIN_MAX_FRAME`]..=[`MAX_FRAME_LEN`]), holding [`READ_FRAMES`] of
-    /// them (at most `MAX_FRAME_LEN` bytes); a longer frame is
-    /// [`FramingError::TooLong`].
+    /// An empty deframer for frames of at most `max_frame` bytes (clamped
+    /// from the largest frame of fixed size, a Hello or a Control, to
+    /// [`MAX_FRAME_LEN`]), holding four of them (at most `MAX_FRAME_LEN`
+    /// bytes); a longer frame is [`FramingError::TooLong`].
     #[must_use]
     pub fn with_max_frame(max_frame: usize) -> Self {
         let max = max_frame.clamp(MIN_MAX_FRAME, MAX_FRAME_LEN);

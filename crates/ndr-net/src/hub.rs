@@ -64,28 +64,164 @@ pub(crate) type Handler = Box<dyn FnMut(&Sample) + Send>;
 
 /// One link as the hub drives it.
 pub(crate) struct Entry {
-    pub endpoint: Endpoint<Heap>,
-    pub shared: Arc<Shared>,
-    pub deliveries: Outbox,
-    /// The TCP stream of the link's frames; `None` on a QUIC link.
-    pub socket: Option<MioStream>,
-    pub deframer: Deframer,
-    /// Bytes the socket would not take yet, in order.
-    pub pending: Vec<u8>,
-    /// The TLS session continued from the handshake; `None` on a plain link.
-    pub tls: Option<Box<tls_io::Session>>,
-    pub kernel_stamps: bool,
-    pub app_dropped: u64,
+    endpoint: Endpoint<Heap>,
+    shared: Arc<Shared>,
+    deliveries: Outbox,
+    /// How its frames reach the peer: the link's transport.
+    path: Path,
+    deframer: Deframer,
+    /// Bytes the TCP stream would not take yet, in order.
+    pending: Vec<u8>,
+    app_dropped: u64,
     /// From a frame's arrival (the kernel's stamp) to the hub handling it.
-    pub rx_lag: Running,
+    rx_lag: Running,
     /// The deadline this entry holds in the hub's index.
-    pub deadline: Option<Instant>,
+    deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
-    pub handler: Option<Handler>,
-    /// The datagram transport's path; `None` on a stream.
-    pub datagram: Option<DatagramPath>,
-    /// The QUIC connection of a QUIC link.
-    pub quic: Option<Box<QuicPath>>,
+    handler: Option<Handler>,
+}
+
+/// A link's TCP stream, as the hub reads and writes it.
+pub(crate) struct Stream {
+    socket: MioStream,
+    /// The kernel stamps what arrives on it (`SO_TIMESTAMPNS`).
+    kernel_stamps: bool,
+}
+
+impl Stream {
+    pub(crate) fn new(socket: MioStream, kernel_stamps: bool) -> Stream {
+        Stream {
+            socket,
+            kernel_stamps,
+        }
+    }
+}
+
+/// How a link's frames reach its peer: one per transport.
+pub(crate) enum Path {
+    /// Every frame on a plain TCP stream.
+    Tcp(Stream),
+    /// Every frame on a TCP stream, in the TLS session continued from the
+    /// handshake.
+    Tls(Stream, Box<tls_io::Session>),
+    /// The samples as UDP datagrams, the rest on the TCP stream.
+    Udp(Stream, DatagramPath),
+    /// Every frame on a QUIC connection: the samples as its datagrams.
+    Quic(Box<QuicPath>),
+}
+
+impl Path {
+    fn stream(&self) -> Option<&Stream> {
+        match self {
+            Path::Tcp(s) | Path::Tls(s, _) | Path::Udp(s, _) => Some(s),
+            Path::Quic(_) => None,
+        }
+    }
+
+    fn socket(&self) -> Option<&MioStream> {
+        self.stream().map(|s| &s.socket)
+    }
+
+    fn socket_mut(&mut self) -> Option<&mut MioStream> {
+        match self {
+            Path::Tcp(s) | Path::Tls(s, _) | Path::Udp(s, _) => Some(&mut s.socket),
+            Path::Quic(_) => None,
+        }
+    }
+
+    fn kernel_stamps(&self) -> bool {
+        self.stream().is_none_or(|s| s.kernel_stamps)
+    }
+
+    fn has_tls(&self) -> bool {
+        matches!(self, Path::Tls(..))
+    }
+
+    /// The TLS session and its stream.
+    fn tls_mut(&mut self) -> Option<(&mut tls_io::Session, &mut Stream)> {
+        match self {
+            Path::Tls(s, tls) => Some((tls, s)),
+            _ => None,
+        }
+    }
+
+    fn datagram(&self) -> Option<&DatagramPath> {
+        match self {
+            Path::Udp(_, d) => Some(d),
+            _ => None,
+        }
+    }
+
+    fn datagram_mut(&mut self) -> Option<&mut DatagramPath> {
+        match self {
+            Path::Udp(_, d) => Some(d),
+            _ => None,
+        }
+    }
+
+    fn quic(&self) -> Option<&QuicPath> {
+        match self {
+            Path::Quic(q) => Some(q),
+            _ => None,
+        }
+    }
+
+    fn quic_mut(&mut self) -> Option<&mut QuicPath> {
+        match self {
+            Path::Quic(q) => Some(q),
+            _ => None,
+        }
+    }
+}
+
+impl Entry {
+    /// A link for the hub: its endpoint, what its handle shares, its queue
+    /// to the application and its path; frames of at most `max_frame` bytes
+    /// come in.
+    pub(crate) fn new(
+        endpoint: Endpoint<Heap>,
+        shared: Arc<Shared>,
+        deliveries: Outbox,
+        path: Path,
+        max_frame: usize,
+    ) -> Entry {
+        Entry {
+            endpoint,
+            shared,
+            deliveries,
+            path,
+            deframer: Deframer::with_max_frame(max_frame),
+            pending: Vec::new(),
+            app_dropped: 0,
+            rx_lag: Running::default(),
+            deadline: None,
+            handler: None,
+        }
+    }
+
+    /// Writes a plain base's Hello now, from the connecting task, rather
+    /// than when its hub next runs: it leaves with the connection, so a
+    /// listener that looks at the connection as it accepts it sees a peer
+    /// that spoke, not a silent one it could take for a stale connection
+    /// from the same address. Anything the socket does not take waits for
+    /// the hub.
+    pub(crate) fn say_hello(&mut self, origin: StdInstant) {
+        if self.path.has_tls() {
+            return;
+        }
+        let Some(socket) = self.path.socket_mut() else {
+            return;
+        };
+        let mut frame = [0u8; HEADER_LEN + 64];
+        let now = Instant::from_std(origin, StdInstant::now());
+        // The Hello alone is queued when a base's endpoint is made.
+        if let Ok(Some(n)) = self.endpoint.poll_transmit(now, &mut frame)
+            && let Some(bytes) = frame.get(..n)
+            && !ndr_core::wire::is_bundle(bytes)
+        {
+            write_or_queue(socket, &mut self.pending, bytes);
+        }
+    }
 }
 
 pub(crate) enum Msg {
@@ -580,7 +716,7 @@ impl Driver {
     /// Takes link `id`'s entry and runs it once.
     fn add(&mut self, id: u64, mut entry: Entry) {
         let token = Token(id as usize);
-        if let Some(socket) = entry.socket.as_mut()
+        if let Some(socket) = entry.path.socket_mut()
             && self
                 .poll
                 .registry()
@@ -589,20 +725,20 @@ impl Driver {
         {
             entry.endpoint.abort(LinkError::Disconnected);
         }
-        if let Some(path) = entry.datagram.as_mut()
+        if let Some(path) = entry.path.datagram_mut()
             && !self.udp.attach(id, path)
         {
             // Its socket failed, or a token drawn twice.
             tracing::warn!("a datagram link could not take its socket");
             entry.endpoint.abort(LinkError::Disconnected);
         }
-        if let Some(path) = entry.quic.as_deref_mut()
+        if let Some(path) = entry.path.quic_mut()
             && !self.quic.attach(id, path)
         {
             tracing::warn!("a QUIC link could not take its endpoint");
             entry.endpoint.abort(LinkError::Disconnected);
         }
-        let tls = entry.tls.is_some();
+        let tls = entry.path.has_tls();
         self.entries.insert(id, entry);
         if tls {
             // The handshake may have read records past its end:
@@ -692,7 +828,7 @@ impl Driver {
         if let Some(old) = e.deadline.take() {
             self.timers.remove(&(old, id));
         }
-        let route = e.quic.as_deref().map(|q| (q.key, q.handle));
+        let route = e.path.quic().map(|q| (q.key, q.handle));
         self.links.fetch_sub(1, AtomicOrdering::Relaxed);
         if m.to.send(Msg::Add(new_id, Box::new(e))) {
             let _ = m.reply.send(Some(new_id));
@@ -711,17 +847,17 @@ impl Driver {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
-        if e.tls.is_some() {
+        if e.path.has_tls() {
             tls_io::read(e, origin, drain);
             return;
         }
         loop {
             let spare = e.deframer.spare();
             let room = spare.len();
-            let Some(socket) = e.socket.as_ref() else {
+            let Some(socket) = e.path.socket() else {
                 return;
             };
-            match crate::arrival::read_now(socket, spare, e.kernel_stamps) {
+            match crate::arrival::read_now(socket, spare, e.path.kernel_stamps()) {
                 Ok((0, _)) => {
                     e.endpoint.abort(LinkError::Disconnected);
                     return;
@@ -753,7 +889,7 @@ impl Driver {
         let Some(e) = self.entries.get_mut(&id) else {
             return;
         };
-        let Some(socket) = e.socket.as_mut() else {
+        let Some(socket) = e.path.socket_mut() else {
             return;
         };
         while !e.pending.is_empty() {
@@ -902,7 +1038,7 @@ impl Driver {
                 wants_write |= transmit(e, id, now, &mut self.buf, &mut self.udp.out);
             }
         }
-        if e.quic.is_some() {
+        if e.path.quic().is_some() {
             // What the frames and the timers gave the connection (its end,
             // the stream opening) may give the endpoint more to say.
             let std_now = StdInstant::now();
@@ -918,7 +1054,7 @@ impl Driver {
             e.pending.clear();
             e.endpoint.abort(LinkError::Disconnected);
         }
-        if wants_write && let Some(socket) = e.socket.as_mut() {
+        if wants_write && let Some(socket) = e.path.socket_mut() {
             let _ = self.poll.registry().reregister(
                 socket,
                 Token(id as usize),
@@ -952,17 +1088,17 @@ impl Driver {
             // that nothing more will come.
             if let Some(mut gone) = self.entries.remove(&id) {
                 tls_io::close_notify(&mut gone);
-                if let Some(path) = &gone.datagram {
+                if let Some(path) = gone.path.datagram() {
                     self.udp.detach(self.poll.registry(), id, path);
                 }
-                if let Some(path) = gone.quic.as_deref()
+                if let Some(path) = gone.path.quic()
                     && self.quic.detach(path)
                 {
                     // Its CONNECTION_CLOSE goes before its socket closes.
                     self.udp.send_all(&mut self.entries);
                     self.udp.release(self.poll.registry(), path.key);
                 }
-                if let Some(socket) = gone.socket.as_mut() {
+                if let Some(socket) = gone.path.socket_mut() {
                     let _ = self.poll.registry().deregister(socket);
                     let _ = socket.shutdown(std::net::Shutdown::Write);
                 }
@@ -1038,9 +1174,9 @@ fn transmit(e: &mut Entry, id: u64, now: Instant, buf: &mut [u8], out: &mut udp:
     let mut wants_write = false;
     while let Ok(Some(n)) = e.endpoint.poll_transmit(now, buf) {
         let frame = buf.get(..n).unwrap_or_default();
-        match e.datagram.as_mut() {
-            Some(path) if ndr_core::wire::is_bundle(frame) => out.push(id, path, frame),
-            _ if e.quic.is_some() => quic::send(e, frame),
+        match &mut e.path {
+            Path::Udp(_, path) if ndr_core::wire::is_bundle(frame) => out.push(id, path, frame),
+            Path::Quic(_) => quic::send(e, frame),
             _ => wants_write |= send_frame(e, frame),
         }
     }
@@ -1144,10 +1280,10 @@ pub(crate) fn handle_frames(e: &mut Entry, origin: StdInstant, at: StdInstant) -
 /// (frames stay in order); `true` if bytes are left waiting for the socket.
 /// On a TLS link the frame is sealed into records first.
 fn send_frame(e: &mut Entry, bytes: &[u8]) -> bool {
-    if e.tls.is_some() {
+    if e.path.has_tls() {
         return tls_io::send(e, bytes);
     }
-    match e.socket.as_mut() {
+    match e.path.socket_mut() {
         Some(socket) => write_or_queue(socket, &mut e.pending, bytes),
         None => false,
     }
@@ -1201,19 +1337,19 @@ fn publish(e: &Entry, hub: HubFigures) {
         endpoint_events_dropped: ep.events_dropped(),
         rx_lag: e.rx_lag,
         datagram_peer: e
-            .datagram
-            .as_ref()
+            .path
+            .datagram()
             .and_then(|p| p.peer)
             .or_else(|| quic::peer(e)),
-        datagrams_unsent: e.datagram.as_ref().map_or(0, |p| p.unsent)
-            + e.quic.as_deref().map_or(0, |q| q.dropped),
-        datagram_path_changes: e.datagram.as_ref().map_or(0, |p| p.path_changes)
-            + e.quic.as_deref().map_or(0, |q| q.path_changes),
+        datagrams_unsent: e.path.datagram().map_or(0, |p| p.unsent)
+            + e.path.quic().map_or(0, |q| q.dropped),
+        datagram_path_changes: e.path.datagram().map_or(0, |p| p.path_changes)
+            + e.path.quic().map_or(0, |q| q.path_changes),
         datagrams_stray: e
-            .datagram
-            .as_ref()
+            .path
+            .datagram()
             .map(|p| &p.stray)
-            .or_else(|| e.quic.as_deref().map(|q| &q.stray))
+            .or_else(|| e.path.quic().map(|q| &q.stray))
             .map_or(0, |stray| stray.load(AtomicOrdering::Relaxed)),
     };
     *e.shared

@@ -43,31 +43,38 @@
 mod arrival;
 pub mod clock;
 mod config;
+mod connect;
 mod delivery;
 mod error;
-pub mod framing;
-pub mod hub;
+mod framing;
+mod hub;
 mod keepalive;
 #[cfg(feature = "keygen")]
 pub mod keygen;
-pub mod link;
+mod link;
 mod listener;
-pub mod pool;
+mod pool;
 pub mod quic;
 #[cfg(feature = "relay")]
 pub mod relay;
+mod runtime;
 mod seats;
 pub mod spin;
 mod stats;
 pub mod tls;
+mod transport;
 
 pub use clock::LatenessStats;
-pub use config::Admission;
+pub use config::{Admission, LinkConfig, QUEUE};
+pub use delivery::{LinkEvent, Sample};
+pub use error::NetError;
 pub use framing::{Deframer, FramingError};
 pub use hub::Hub;
-pub use link::{Link, LinkConfig, LinkSender, LinkStats, NetError, Sample};
+pub use link::{EVENT_BACKLOG, Link, LinkSender};
 pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
+pub use stats::LinkStats;
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};
+pub use transport::{Transport, TransportError};

@@ -23,30 +23,26 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError, Running, Transport};
+use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError};
 use ndr_core::storage::Heap;
 use ndr_core::time::Instant;
-use ndr_core::wire::{self, HEADER_LEN, Role};
+use ndr_core::wire::{HEADER_LEN, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::Notify;
 
 use crate::arrival;
 use crate::delivery::{self, Delivery, Inbox};
-use crate::framing::Deframer;
 use crate::hub::{
-    DatagramPath, Entry, Hub, Msg, NewEndpoint, NewSocket, QuicMove, QuicPath, Session, Shared,
-    write_or_queue,
+    DatagramPath, Entry, Hub, Msg, Path, QuicMove, QuicPath, Session, Shared, Stream,
 };
-use crate::pool::HubPool;
 use crate::seats::Seat;
-use crate::tls::TlsConfig;
+use crate::transport::{Transport, TransportError};
 
-pub use crate::config::{Admission, LinkConfig, QUEUE};
-pub use crate::delivery::{LinkEvent, Sample};
-pub use crate::error::NetError;
-pub use crate::pool::HubChoice;
-pub use crate::stats::LinkStats;
+use crate::config::LinkConfig;
+use crate::delivery::{LinkEvent, Sample};
+use crate::error::NetError;
+use crate::stats::LinkStats;
 
 /// Events a [`Link`] keeps for [`drain_events`](Link::drain_events); past
 /// it the oldest go, counted in [`LinkStats::events_dropped`].
@@ -83,61 +79,12 @@ impl fmt::Debug for Link {
 }
 
 impl Link {
-    /// Connects to a remote (this side is the base) on the current tokio
-    /// runtime: over mutual TLS 1.3 if [`LinkConfig::tls`] is set (a failed
-    /// handshake is [`NetError::Handshake`]; with the datagram transport,
-    /// over QUIC, returning once QUIC's handshake and the Hello are done),
-    /// else plain TCP, refused with
-    /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
-    /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
-    pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        let hub = config.hub.pick(config.spin_margin)?;
-        hub.connect_with(addr, config).await
-    }
-
-    /// [`connect`](Self::connect) over mutual TLS 1.3.
-    #[deprecated(note = "set the TLS in the configuration: \
-                         `Link::connect(addr, config.with_tls(tls.clone()))`")]
-    pub async fn connect_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Link, NetError> {
-        Link::connect(addr, config.with_tls(tls.clone())).await
-    }
-
-    /// [`connect`](Self::connect) for programs without a tokio runtime: a
-    /// small runtime of its own makes the connection and the handshakes,
-    /// and is gone when this returns; the link's hub drives it after that.
-    pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        Link::connect_blocking_with(addr, config)
-    }
-
-    /// [`connect_blocking`](Self::connect_blocking) over mutual TLS 1.3.
-    #[deprecated(note = "set the TLS in the configuration: \
-                         `Link::connect_blocking(addr, config.with_tls(tls.clone()))`")]
-    pub fn connect_blocking_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Link, NetError> {
-        Link::connect_blocking_with(addr, config.with_tls(tls.clone()))
-    }
-
-    fn connect_blocking_with(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
-        let rt = own_runtime()?;
-        let hub = config.hub.pick(config.spin_margin)?;
-        // Only the connection and the handshakes need the runtime: its hub
-        // drives the link, and its thread ends here.
-        rt.block_on(hub.connect_with(addr, config))
-    }
-
     /// Drives an already connected stream in `role`.
-    /// The stream is taken as it is: no TLS, and no check of its peer's
+    /// The stream is taken as it is: no TLS (so `tcp` or `udp`, refused
+    /// with [`NetError::Transport`] otherwise), and no check of its peer's
     /// address.
-    /// On the datagram transport, its datagrams go to the stream's peer
-    /// address (the same port, over UDP) from the hub's own UDP socket.
+    /// Over `udp`, its datagrams go to the stream's peer address (the same
+    /// port, over UDP) from the hub's own UDP socket.
     pub fn from_stream(
         stream: TcpStream,
         role: Role,
@@ -159,14 +106,12 @@ impl Link {
         tls: Option<rustls::Connection>,
         udp: Option<u64>,
     ) -> Result<Link, NetError> {
+        let transport = config.checked_transport(tls.is_some())?;
         let mut cfg = config.endpoint;
         cfg.role = role;
         cfg.tick_origin = Instant::ZERO;
-        let datagram = match cfg.transport {
-            Transport::Datagram { .. } => {
-                if tls.is_some() {
-                    return Err(NetError::DatagramsWithTls);
-                }
+        let datagram = match transport {
+            Transport::Udp { .. } => {
                 cfg.session = session_token()?;
                 let peer = stream.peer_addr()?;
                 Some(match udp {
@@ -176,7 +121,10 @@ impl Link {
                     }
                 })
             }
-            _ => None,
+            Transport::Tcp => None,
+            // Not reached: a QUIC link starts in `start_quic` (`dial`,
+            // `listen_quic`), and one without TLS is refused above.
+            _ => return Err(NetError::Transport(TransportError::QuicWithoutTls)),
         };
         cfg.validate().map_err(NetError::Config)?;
         stream.set_nodelay(true)?;
@@ -191,16 +139,15 @@ impl Link {
         let std_stream = stream.into_std()?;
         std_stream.set_nonblocking(true)?;
         let kernel_stamps = arrival::enable(&std_stream);
-        let carrier = Carrier {
-            socket: Some(mio::net::TcpStream::from_std(std_stream)),
-            kernel_stamps,
-            tls: tls.map(|conn| Box::new(Session::new(conn))),
-            datagram,
-            quic: None,
+        let socket = Stream::new(mio::net::TcpStream::from_std(std_stream), kernel_stamps);
+        let path = match (tls, datagram) {
+            (Some(conn), _) => Path::Tls(socket, Box::new(Session::new(conn))),
+            (None, Some(datagram)) => Path::Udp(socket, datagram),
+            (None, None) => Path::Tcp(socket),
         };
-        let (id, mut entry, link) = Link::assemble(cfg, &config, hub, carrier, peer)?;
-        if role == Role::Base && entry.tls.is_none() {
-            say_hello(&mut entry, hub.origin());
+        let (id, mut entry, link) = Link::assemble(cfg, &config, hub, path, peer)?;
+        if role == Role::Base {
+            entry.say_hello(hub.origin());
         }
         if !hub.send(Msg::Add(id, Box::new(entry))) {
             return Err(NetError::Io(io::Error::other(
@@ -226,14 +173,7 @@ impl Link {
         cfg.session = session_token()?;
         cfg.validate().map_err(NetError::Config)?;
         let peer = path.conn.remote_address();
-        let carrier = Carrier {
-            socket: None,
-            kernel_stamps: true,
-            tls: None,
-            datagram: None,
-            quic: Some(Box::new(path)),
-        };
-        Link::assemble(cfg, config, hub, carrier, peer)
+        Link::assemble(cfg, config, hub, Path::Quic(Box::new(path)), peer)
     }
 
     /// The endpoint, the entry its hub drives and the application's handle.
@@ -241,7 +181,7 @@ impl Link {
         cfg: ndr_core::endpoint::Config,
         config: &LinkConfig,
         hub: &Hub,
-        carrier: Carrier,
+        path: Path,
         peer: SocketAddr,
     ) -> Result<(u64, Entry, Link), NetError> {
         let widths = (
@@ -259,23 +199,9 @@ impl Link {
         let now = Instant::from_std(hub.origin(), StdInstant::now());
         let endpoint = Endpoint::<Heap>::with_capacity(cfg, now, config.queue_capacity)
             .map_err(NetError::Config)?;
-        let entry = Entry {
-            endpoint,
-            shared: Arc::clone(&shared),
-            deliveries: del_tx,
-            socket: carrier.socket,
-            // Memory per link follows the width the peer's samples carry.
-            deframer: Deframer::with_max_frame(HEADER_LEN + 8 * widths.1),
-            pending: Vec::new(),
-            tls: carrier.tls,
-            kernel_stamps: carrier.kernel_stamps,
-            app_dropped: 0,
-            rx_lag: Running::default(),
-            deadline: None,
-            handler: None,
-            datagram: carrier.datagram,
-            quic: carrier.quic,
-        };
+        // Memory per link follows the width the peer's samples carry.
+        let max_frame = HEADER_LEN + 8 * widths.1;
+        let entry = Entry::new(endpoint, Arc::clone(&shared), del_tx, path, max_frame);
         let link = Link {
             id,
             deliveries: del_rx,
@@ -691,220 +617,9 @@ fn keep_event(events: &mut VecDeque<LinkEvent>, dropped: &AtomicU64, e: LinkEven
     events.push_back(e);
 }
 
-/// A blocking call made on a tokio runtime's thread would block that
-/// runtime (and tokio refuses to run a runtime inside another): an error
-/// that names the async call to make instead, rather than tokio's panic.
-pub(crate) fn not_in_a_runtime(call: &str, instead: &str) -> Result<(), NetError> {
-    match Handle::try_current() {
-        Ok(_) => Err(NetError::Io(io::Error::other(format!(
-            "{call} was called on a tokio runtime's thread, which it would block: \
-             use {instead} there"
-        )))),
-        Err(_) => Ok(()),
-    }
-}
-
-pub(crate) fn own_runtime() -> Result<tokio::runtime::Runtime, NetError> {
-    Ok(tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .thread_name("ndr-io")
-        .enable_io()
-        .enable_time()
-        .build()?)
-}
-
-/// Refuses a plain link with a non-loopback address unless insecure.
-pub(crate) fn plain_allowed(addr: SocketAddr, config: &LinkConfig) -> Result<(), NetError> {
-    if crate::tls::plain_allowed(addr.ip(), config.insecure) {
-        Ok(())
-    } else {
-        Err(NetError::Insecure(addr))
-    }
-}
-
-/// How a link's entry reaches its peer.
-struct Carrier {
-    socket: Option<mio::net::TcpStream>,
-    kernel_stamps: bool,
-    tls: Option<Box<Session>>,
-    datagram: Option<DatagramPath>,
-    quic: Option<Box<QuicPath>>,
-}
-
 /// A link's datagram session token.
 fn session_token() -> Result<u64, NetError> {
     Ok(crate::hub::session_token()?)
-}
-
-/// Writes a plain base's Hello now, from the connecting task, rather than
-/// when its hub next runs: it leaves with the connection, so a listener
-/// that looks at the connection as it accepts it sees a peer that spoke,
-/// not a silent one it could take for a stale connection from the same
-/// address. Anything the socket does not take waits for the hub.
-fn say_hello(entry: &mut Entry, origin: StdInstant) {
-    let Some(socket) = entry.socket.as_mut() else {
-        return;
-    };
-    let mut frame = [0u8; HEADER_LEN + 64];
-    let now = Instant::from_std(origin, StdInstant::now());
-    // The Hello alone is queued when a base's endpoint is made.
-    if let Ok(Some(n)) = entry.endpoint.poll_transmit(now, &mut frame)
-        && let Some(bytes) = frame.get(..n)
-        && !wire::is_bundle(bytes)
-    {
-        write_or_queue(socket, &mut entry.pending, bytes);
-    }
-}
-
-impl HubPool {
-    /// Connects to a remote (this side is the base) and drives the link on
-    /// the least loaded hub, on the current tokio runtime.
-    #[deprecated(note = "use `Link::connect(addr, config.on_pool(pool.clone()))`")]
-    pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        Link::connect(addr, config.on_pool(self.clone())).await
-    }
-
-    /// [`connect`](Self::connect) over mutual TLS 1.3.
-    #[deprecated(
-        note = "use `Link::connect(addr, config.on_pool(pool.clone()).with_tls(tls.clone()))`"
-    )]
-    pub async fn connect_tls(
-        &self,
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Link, NetError> {
-        Link::connect(addr, config.on_pool(self.clone()).with_tls(tls.clone())).await
-    }
-}
-
-impl Hub {
-    /// Connects to a remote (this side is the base) and drives the link on
-    /// this hub, on the current tokio runtime; without TLS, refused as
-    /// [`Link::connect`] is.
-    #[deprecated(note = "name the hub in the configuration: \
-                         `Link::connect(addr, config.on_hub(hub.clone()))`")]
-    pub async fn connect(&self, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        self.connect_with(addr, config).await
-    }
-
-    /// [`connect`](Self::connect) over mutual TLS 1.3 (see [`Link::connect`]).
-    #[deprecated(note = "name the hub and the TLS in the configuration: \
-                         `Link::connect(addr, config.on_hub(hub.clone()).with_tls(tls.clone()))`")]
-    pub async fn connect_tls(
-        &self,
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Link, NetError> {
-        self.connect_with(addr, config.with_tls(tls.clone())).await
-    }
-
-    /// Connects as `config` says, and drives the link on this hub.
-    pub(crate) async fn connect_with(
-        &self,
-        addr: SocketAddr,
-        config: LinkConfig,
-    ) -> Result<Link, NetError> {
-        let Some(tls) = config.tls.clone() else {
-            plain_allowed(addr, &config)?;
-            let stream = TcpStream::connect(addr).await?;
-            return Link::start(
-                stream,
-                Role::Base,
-                config,
-                Handle::current(),
-                self,
-                None,
-                None,
-            );
-        };
-        if matches!(config.endpoint.transport, Transport::Datagram { .. }) {
-            return self.connect_quic(addr, config, &tls).await;
-        }
-        let stream = TcpStream::connect(addr).await?;
-        let (stream, conn) = tls.connect(stream).await.map_err(NetError::Handshake)?;
-        Link::start(
-            stream,
-            Role::Base,
-            config,
-            Handle::current(),
-            self,
-            Some(conn),
-            None,
-        )
-    }
-}
-
-impl Hub {
-    /// A QUIC link to `addr` from an endpoint (and UDP socket) of its own,
-    /// returned once the QUIC handshake and ndr's Hello are done (or have
-    /// failed: an unknown certificate is [`NetError::Handshake`]).
-    async fn connect_quic(
-        &self,
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Link, NetError> {
-        let client = crate::quic::client(&config.endpoint, tls)
-            .map_err(|e| NetError::Handshake(crate::tls::HandshakeError::Other(e.to_string())))?;
-        let any: SocketAddr = if addr.is_ipv6() {
-            (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
-        } else {
-            (std::net::Ipv4Addr::UNSPECIFIED, 0).into()
-        };
-        let socket = crate::hub::bind_datagram_socket(any)?;
-        let mut endpoint = crate::quic::endpoint(None);
-        let (handle, conn) = endpoint
-            .connect(StdInstant::now(), client, addr, &tls.server_name())
-            .map_err(|e| NetError::Io(io::Error::other(format!("QUIC connect to {addr}: {e}"))))?;
-        let key = self.next_id();
-        let new = NewSocket {
-            socket,
-            stray: Arc::default(),
-            held: true,
-        };
-        let point = NewEndpoint {
-            endpoint,
-            server: None,
-            socket: None,
-        };
-        if !self.send(Msg::Quic(key, Box::new(new), Box::new(point))) {
-            return Err(NetError::Io(io::Error::other(
-                "the hub's thread has stopped",
-            )));
-        }
-        let path = QuicPath::new(key, handle, conn);
-        let started = Link::start_quic(&config, Role::Base, self, path);
-        let (id, entry, mut link) = match started {
-            Ok(started) => started,
-            Err(e) => {
-                let _ = self.send(Msg::ReleaseSocket(key));
-                return Err(e);
-            }
-        };
-        if !self.send(Msg::Add(id, Box::new(entry))) {
-            return Err(NetError::Io(io::Error::other(
-                "the link's hub thread has stopped",
-            )));
-        }
-        let wait = tls.handshake_timeout;
-        match tokio::time::timeout(wait, link.handshake()).await {
-            Ok(Ok(())) => Ok(link),
-            Ok(Err(NetError::Link(LinkError::CertificateRefused))) => Err(NetError::Handshake(
-                crate::tls::HandshakeError::UnknownCertificate(
-                    "QUIC: a certificate was refused by this side or the peer".into(),
-                ),
-            )),
-            Ok(Err(e)) => Err(e),
-            Err(_) => {
-                link.dismiss(LinkError::Timeout);
-                Err(NetError::Handshake(crate::tls::HandshakeError::Timeout(
-                    wait,
-                )))
-            }
-        }
-    }
 }
 
 #[cfg(test)]

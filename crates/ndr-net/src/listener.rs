@@ -46,7 +46,7 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use ndr_core::endpoint::{LinkError, Phase, Transport};
+use ndr_core::endpoint::{LinkError, Phase};
 use ndr_core::wire::Role;
 use tokio::net::{TcpListener, TcpSocket};
 use tokio::runtime::Handle;
@@ -55,8 +55,9 @@ use tokio::sync::mpsc;
 use crate::config::LinkConfig;
 use crate::error::NetError;
 use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, QuicServer, bind_datagram_socket};
-use crate::link::{Link, not_in_a_runtime, own_runtime, plain_allowed};
+use crate::link::Link;
 use crate::pool::{HubChoice, HubPool};
+use crate::runtime::{not_in_a_runtime, own_runtime, plain_allowed};
 use crate::tls::TlsConfig;
 
 use crate::seats::Seats;
@@ -149,7 +150,7 @@ enum Hubs {
     Pool(HubPool),
 }
 
-/// What the builders set after binding, read by each handshake as it starts.
+/// What the builders set after listening, read by each handshake as it starts.
 struct Setup {
     role: Role,
     hubs: Hubs,
@@ -226,7 +227,7 @@ impl Common {
 
 /// Accepts links as the remote side, one per connecting base.
 ///
-/// From [`bind`](Self::bind) on, a task on the listener's runtime accepts
+/// From [`listen`](Self::listen) on, a task on the listener's runtime accepts
 /// connections and runs their handshakes, whether or not the application is
 /// in [`accept`](Self::accept): a peer that comes while the application
 /// serves another is answered at once (queued, or refused as busy with
@@ -244,7 +245,7 @@ pub struct Listener {
     /// The listening socket's other descriptor, to stop listening at once
     /// on drop whether or not the runtime gets to cancel the accept loop.
     listening: Option<std::os::fd::OwnedFd>,
-    /// The runtime of a listener made by [`Listener::bind_blocking`]: its
+    /// The runtime of a listener made by [`Listener::listen_blocking`]: its
     /// accepts and handshakes run there.
     runtime: Option<tokio::runtime::Runtime>,
 }
@@ -325,7 +326,7 @@ fn datagram_socket(local: SocketAddr, hubs: &Hubs) -> Result<DatagramSocket, Net
     })
 }
 
-fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
+fn tcp_listener(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
     let socket = if addr.is_ipv4() {
         TcpSocket::new_v4()?
     } else {
@@ -339,45 +340,36 @@ fn listen(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
 
 impl Listener {
     /// Listens on `addr`; the accept loop runs on the current tokio runtime
-    /// (on a current-thread runtime, only while it runs). Over mutual TLS 1.3
-    /// if [`LinkConfig::tls`] is set (with the datagram transport, over
-    /// QUIC: one UDP port at `addr`, no TCP): a peer whose handshake fails
-    /// is counted
-    /// ([`stats`](Self::stats)), logged and dropped, and never returned by
-    /// [`accept`](Self::accept). Plain links are refused with
+    /// (on a current-thread runtime, only while it runs), over the
+    /// [`LinkConfig::transport`] (one that does not fit the TLS is
+    /// [`NetError::Transport`]). Over mutual TLS 1.3 if [`LinkConfig::tls`]
+    /// is set (over `quic`: one UDP port at `addr`, no TCP): a peer whose
+    /// handshake fails is counted ([`stats`](Self::stats)), logged and
+    /// dropped, and never returned by [`accept`](Self::accept). Plain links are refused with
     /// [`NetError::Insecure`] unless `addr` is loopback (then no other host
     /// can connect) or [`LinkConfig::insecure`]. The links it accepts go to
     /// the hub [`LinkConfig::hub`] names (a hub of its own by default).
-    pub async fn bind(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+    pub async fn listen(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        config.checked_transport(config.tls.is_some())?;
         if config.tls.is_none() {
             plain_allowed(addr, &config)?;
         }
-        Listener::bind_with(addr, config).await
+        Listener::listen_with(addr, config).await
     }
 
-    /// [`bind`](Self::bind) over mutual TLS 1.3.
-    #[deprecated(note = "set the TLS in the configuration: \
-                         `Listener::bind(addr, config.with_tls(tls.clone()))`")]
-    pub async fn bind_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Listener, NetError> {
-        Listener::bind_with(addr, config.with_tls(tls.clone())).await
-    }
-
-    async fn bind_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+    async fn listen_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         let tls = config.tls.clone();
-        let datagrams = matches!(config.endpoint.transport, Transport::Datagram { .. });
+        let transport = config.checked_transport(tls.is_some())?;
+        let datagrams = transport.datagrams();
         let hubs = match &config.hub {
             HubChoice::Own => Hubs::One(Hub::new(config.spin_margin)?),
             HubChoice::Shared(hub) => Hubs::One(hub.clone()),
             HubChoice::Pool(pool) => Hubs::Pool(pool.clone()),
         };
-        if let (true, Some(tls)) = (datagrams, tls.as_ref()) {
-            return Listener::bind_quic(addr, config.clone(), tls, hubs);
+        if let (true, Some(tls)) = (transport.is_quic(), tls.as_ref()) {
+            return Listener::listen_quic(addr, config.clone(), tls, hubs);
         }
-        let socket = listen(addr, config.admission.backlog)?;
+        let socket = tcp_listener(addr, config.admission.backlog)?;
         let accept_queue = config.admission.accept_queue.max(1);
         let local = socket.local_addr()?;
         let udp = if datagrams {
@@ -410,7 +402,7 @@ impl Listener {
     /// handshakes; a task on the current runtime waits for each (within
     /// the pre-authentication budget), moves its link to one of `hubs`
     /// and queues it for [`accept`](Self::accept).
-    fn bind_quic(
+    fn listen_quic(
         addr: SocketAddr,
         config: LinkConfig,
         tls: &TlsConfig,
@@ -548,7 +540,7 @@ impl Listener {
         })
     }
 
-    /// [`bind`](Self::bind) for programs without a tokio runtime: the
+    /// [`listen`](Self::listen) for programs without a tokio runtime: the
     /// listener gets a small runtime of its own (one `ndr-io` thread), on
     /// which it accepts and runs the handshakes.
     /// The links it accepts need no runtime: their hub drives them.
@@ -562,7 +554,7 @@ impl Listener {
     /// let mut endpoint = Config::new(Role::Remote).with_width(2);
     /// endpoint.period = Duration::from_millis(10);
     /// // One base at a time: another is told the robot is busy.
-    /// let listener = Listener::bind_blocking("127.0.0.1:7300".parse()?, LinkConfig::new(endpoint))?
+    /// let listener = Listener::listen_blocking("127.0.0.1:7300".parse()?, LinkConfig::new(endpoint))?
     ///     .with_max_links(1);
     /// loop {
     ///     let mut link = listener.accept_blocking()?; // one base after another
@@ -573,28 +565,18 @@ impl Listener {
     /// }
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
-    pub fn bind_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+    pub fn listen_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        config.checked_transport(config.tls.is_some())?;
         if config.tls.is_none() {
             plain_allowed(addr, &config)?;
         }
-        Listener::bind_blocking_with(addr, config)
+        Listener::listen_blocking_with(addr, config)
     }
 
-    /// [`bind_blocking`](Self::bind_blocking) over mutual TLS 1.3.
-    #[deprecated(note = "set the TLS in the configuration: \
-                         `Listener::bind_blocking(addr, config.with_tls(tls.clone()))`")]
-    pub fn bind_blocking_tls(
-        addr: SocketAddr,
-        config: LinkConfig,
-        tls: &TlsConfig,
-    ) -> Result<Listener, NetError> {
-        Listener::bind_blocking_with(addr, config.with_tls(tls.clone()))
-    }
-
-    fn bind_blocking_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
-        not_in_a_runtime("Listener::bind_blocking", "Listener::bind(..).await")?;
+    fn listen_blocking_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
+        not_in_a_runtime("Listener::listen_blocking", "Listener::listen(..).await")?;
         let rt = own_runtime()?;
-        let mut listener = rt.block_on(Listener::bind_with(addr, config))?;
+        let mut listener = rt.block_on(Listener::listen_with(addr, config))?;
         listener.runtime = Some(rt);
         Ok(listener)
     }
@@ -618,7 +600,7 @@ impl Listener {
     /// Takes `role` in the links it accepts instead of the remote's (a base
     /// that waits for its robot to dial in). Like the other `with_`
     /// settings, it applies to the handshakes that start after it: set it
-    /// right after binding.
+    /// right after listening.
     #[must_use]
     pub fn with_role(self, role: Role) -> Listener {
         self.common
@@ -626,34 +608,6 @@ impl Listener {
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .role = role;
-        self
-    }
-
-    /// Puts the links it accepts on `hub` (shared with other listeners or
-    /// connections) instead of a hub of its own.
-    #[must_use]
-    #[deprecated(note = "name the hub in the configuration: \
-                         `Listener::bind(addr, config.on_hub(hub))`")]
-    pub fn with_hub(self, hub: Hub) -> Listener {
-        self.common
-            .setup
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .hubs = Hubs::One(hub);
-        self
-    }
-
-    /// Spreads the links it accepts over a pool of hubs (each to the least
-    /// loaded one) instead of a hub of its own.
-    #[must_use]
-    #[deprecated(note = "name the pool in the configuration: \
-                         `Listener::bind(addr, config.on_pool(pool))`")]
-    pub fn with_pool(self, pool: HubPool) -> Listener {
-        self.common
-            .setup
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .hubs = Hubs::Pool(pool);
         self
     }
 
@@ -682,7 +636,7 @@ impl Listener {
     /// [`with_role`](Self::with_role) said otherwise), waiting until there
     /// is one.
     ///
-    /// The handshakes run in the background from [`bind`](Self::bind), side
+    /// The handshakes run in the background from [`listen`](Self::listen), side
     /// by side (at most [`TlsConfig::max_pending_handshakes`], or
     /// [`DEFAULT_MAX_PENDING_HANDSHAKES`](crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES)
     /// without TLS): first TLS's, if the listener has it, then ndr's Hello,
@@ -707,7 +661,7 @@ impl Listener {
                     .clone()
                     .unwrap_or_else(|| "it was shut down".into());
                 return Err(NetError::Io(io::Error::other(format!(
-                    "the listener on {} stopped listening: {why}; bind a new one",
+                    "the listener on {} stopped listening: {why}; make a new one (Listener::listen)",
                     self.local
                 ))));
             };
@@ -730,8 +684,8 @@ impl Listener {
     }
 
     /// [`accept`](Self::accept) on the calling thread, for a listener made
-    /// by [`bind_blocking`](Self::bind_blocking); one made on a tokio
-    /// runtime (by [`bind`](Self::bind)) is refused with an error that
+    /// by [`listen_blocking`](Self::listen_blocking); one made on a tokio
+    /// runtime (by [`listen`](Self::listen)) is refused with an error that
     /// says to `.await` [`accept`](Self::accept) instead.
     pub fn accept_blocking(&self) -> Result<Link, NetError> {
         match &self.runtime {
@@ -740,7 +694,7 @@ impl Listener {
                 rt.block_on(self.accept())
             }
             None => Err(NetError::Io(io::Error::other(
-                "accept_blocking needs a listener made by Listener::bind_blocking; \
+                "accept_blocking needs a listener made by Listener::listen_blocking; \
                  this one runs on the caller's tokio runtime: use accept().await",
             ))),
         }

@@ -1,6 +1,6 @@
 //! The QUIC transport of a link: what its connections are configured with.
 //!
-//! A link over QUIC is a datagram link ([`Transport::Datagram`]) with
+//! A link over QUIC ([`Transport::Quic`](crate::Transport::Quic)) needs a
 //! [`TlsConfig`]: the samples go as QUIC DATAGRAM frames (RFC 9221),
 //! encrypted and authenticated by the TLS 1.3 handshake QUIC runs with the
 //! same identities, pins or CA, and verifiers as a TLS link over TCP; the

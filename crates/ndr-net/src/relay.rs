@@ -80,7 +80,7 @@
 //! address over UDP, and the remote answers to the address it saw them
 //! come from: the relay's.
 //!
-//! A QUIC link (the datagram transport with TLS) is all UDP: one flow
+//! A QUIC link (`Transport::Quic`) is all UDP: one flow
 //! carries its handshake, its stream and its datagrams, encrypted, which
 //! the relay delays and loses as it does any datagram (QUIC resends what
 //! its stream lost; the samples' copies make good the rest). No option is
@@ -139,7 +139,7 @@
 //!
 //! let listen = "127.0.0.1:7000".parse().unwrap();
 //! let remote = "127.0.0.1:7001".parse().unwrap();
-//! let relay = Relay::bind(listen, remote, DelayModel::ParisNewYork, 1).await?;
+//! let relay = Relay::listen(listen, remote, DelayModel::ParisNewYork, 1).await?;
 //! let handle = relay.spawn()?;
 //! // ... the base connects to 127.0.0.1:7000 (and sends datagrams to UDP 7000) ...
 //! let stats = handle.shutdown().await;
@@ -205,6 +205,7 @@ const BIND_ATTEMPTS: u32 = 8;
 /// stops reading or the delays are absurd. The datagram path holds at most
 /// `max_flows × 2` such queues.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct RelayConfig {
     /// Most frames waiting in one direction of one connection; one more cuts
     /// the connection ([`ConnectionEnd::QueueFull`]). `0` counts as `1`.
@@ -234,6 +235,15 @@ pub struct RelayConfig {
     pub flow_idle_timeout: StdDuration,
 }
 
+impl RelayConfig {
+    /// The same, losing datagrams as `loss` says.
+    #[must_use]
+    pub fn with_loss(mut self, loss: LossModel) -> Self {
+        self.loss = loss;
+        self
+    }
+}
+
 impl Default for RelayConfig {
     fn default() -> Self {
         RelayConfig {
@@ -249,6 +259,7 @@ impl Default for RelayConfig {
 
 /// How a relayed connection ended.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ConnectionEnd {
     /// Both directions reached their end of stream and delivered every
     /// frame in flight.
@@ -335,6 +346,7 @@ impl fmt::Display for ConnectionEnd {
 
 /// What one connection did, reported when it ends.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct ConnectionSummary {
     /// Index of the connection: 0 for the first client accepted, then 1, 2, …
     pub conn: u64,
@@ -352,6 +364,7 @@ pub struct ConnectionSummary {
 
 /// What a relay reports to its observer (see [`Relay::on_event`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum RelayEvent {
     /// A client was accepted; the relay connects to the upstream for it when
     /// its first frame is due there (or after a second without one).
@@ -455,8 +468,8 @@ impl Relay {
     /// loopback address
     /// (`PermissionDenied`): the relay passes plain links through, and
     /// would put a remote that trusts its loopback on the network; use
-    /// [`bind_insecure`](Self::bind_insecure) to mean it.
-    pub async fn bind(
+    /// [`listen_insecure`](Self::listen_insecure) to mean it.
+    pub async fn listen(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
@@ -468,19 +481,19 @@ impl Relay {
                 format!(
                     "relay: refusing to listen on {listen}: it is not loopback, and the relay \
                      passes plain links through to the network; listen on 127.0.0.1, or pass \
-                     --insecure (Python: insecure=True; Rust: Relay::bind_insecure)"
+                     --insecure (Python: insecure=True; Rust: Relay::listen_insecure)"
                 ),
             ));
         }
-        Relay::bind_insecure(listen, upstream, model, seed).await
+        Relay::listen_insecure(listen, upstream, model, seed).await
     }
 
-    /// [`bind`](Self::bind) on any address, loopback or not.
+    /// [`listen`](Self::listen) on any address, loopback or not.
     ///
     /// # Errors
     ///
     /// A listening socket cannot be bound (address in use, no permission…).
-    pub async fn bind_insecure(
+    pub async fn listen_insecure(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,

@@ -42,7 +42,7 @@ pub struct LinkStats {
     /// Samples and events dropped because the application did not read them.
     pub app_dropped: u64,
     /// Events dropped, the oldest first, because more than
-    /// [`EVENT_BACKLOG`](crate::link::EVENT_BACKLOG) waited for [`Link::drain_events`](crate::Link::drain_events).
+    /// [`EVENT_BACKLOG`](crate::EVENT_BACKLOG) waited for [`Link::drain_events`](crate::Link::drain_events).
     pub events_dropped: u64,
     /// Events the endpoint itself dropped, releases among them: a driver
     /// held for more ticks than the endpoint queues events for runs the

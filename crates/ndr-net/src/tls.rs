@@ -112,6 +112,7 @@ impl std::str::FromStr for Fingerprint {
 
 /// How a peer's certificate is trusted.
 #[derive(Clone, Debug)]
+#[non_exhaustive]
 pub enum Trust {
     /// Its chain leads to one of these roots (and a server's certificate
     /// names the `server_name` of [`TlsConfig::from_files_with_ca`]).

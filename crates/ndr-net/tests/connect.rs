@@ -1,12 +1,14 @@
-//! One way to connect and one to listen: TLS and the hub that drives a link
-//! are in its `LinkConfig`; the older per-variant functions still work.
+//! One way to connect and one to listen: the transport, TLS and the hub
+//! that drives a link are in its `LinkConfig`.
 
 use std::net::SocketAddr;
 
-use ndr_core::endpoint::Config;
+use ndr_core::endpoint::{Config, Transport as Carriage};
 use ndr_core::wire::Role;
 use ndr_net::clock::DEFAULT_SPIN_MARGIN;
-use ndr_net::{Hub, HubChoice, HubPool, Link, LinkConfig, Listener, NetError};
+use ndr_net::{
+    Hub, HubChoice, HubPool, Link, LinkConfig, Listener, NetError, Transport, TransportError,
+};
 
 fn config() -> LinkConfig {
     let mut c = Config::new(Role::Base);
@@ -35,7 +37,7 @@ fn a_link_and_a_listener_run_on_the_hub_their_configuration_names() {
     );
     assert!(matches!(config().hub, HubChoice::Own));
     let listener = rt
-        .block_on(Listener::bind(
+        .block_on(Listener::listen(
             loopback(),
             config().on_pool(remotes.clone()),
         ))
@@ -69,24 +71,67 @@ fn a_plain_link_off_loopback_is_refused_before_any_socket() {
     let refused = rt.block_on(Link::connect(far, config()));
     assert!(matches!(refused, Err(NetError::Insecure(a)) if a == far));
     let any: SocketAddr = "0.0.0.0:0".parse().expect("address");
-    let refused = rt.block_on(Listener::bind(any, config()));
+    let refused = rt.block_on(Listener::listen(any, config()));
     assert!(matches!(refused, Err(NetError::Insecure(_))));
 }
 
 #[test]
-#[allow(deprecated)]
-fn the_deprecated_spellings_still_connect() {
+fn a_transport_that_does_not_fit_is_refused_before_any_socket() {
     let rt = runtime();
-    let hub = Hub::new(DEFAULT_SPIN_MARGIN).expect("hub");
-    let listener = rt
-        .block_on(Listener::bind(loopback(), config()))
-        .expect("bind")
-        .with_hub(hub.clone());
-    let addr = listener.local_addr().expect("address");
-    let (remote, base) =
-        rt.block_on(async { tokio::join!(listener.accept(), hub.connect(addr, config())) });
-    assert!(remote.is_ok() && base.is_ok());
-    assert_eq!(hub.links(), 2);
+    // Off loopback: the transport is named before the missing TLS.
+    let far: SocketAddr = "192.0.2.7:7300".parse().expect("address");
+    let quic = config().with_transport(Transport::QUIC);
+    let refused = rt.block_on(Link::connect(far, quic.clone()));
+    assert!(
+        matches!(
+            refused,
+            Err(NetError::Transport(TransportError::QuicWithoutTls))
+        ),
+        "{refused:?}"
+    );
+    let any: SocketAddr = "0.0.0.0:0".parse().expect("address");
+    let refused = rt.block_on(Listener::listen(any, quic));
+    assert!(
+        matches!(
+            refused,
+            Err(NetError::Transport(TransportError::QuicWithoutTls))
+        ),
+        "{:?}",
+        refused.err()
+    );
+    // The endpoint's transport changed behind the link's back.
+    let mut mismatched = config().with_transport(Transport::UDP);
+    mismatched.endpoint.transport = Carriage::Stream;
+    let refused = rt.block_on(Link::connect(loopback(), mismatched));
+    assert!(
+        matches!(
+            refused,
+            Err(NetError::Transport(TransportError::Mismatch {
+                link: Transport::UDP,
+                endpoint: Carriage::Stream,
+            }))
+        ),
+        "{refused:?}"
+    );
+}
+
+#[test]
+fn the_endpoint_carries_what_the_transport_says() {
+    let udp = LinkConfig::new(Config::new(Role::Base)).with_transport("udp:2:1".parse().unwrap());
+    assert_eq!(
+        udp.endpoint.transport,
+        Carriage::Datagram {
+            redundancy: 2,
+            repeats: 1
+        }
+    );
+    let quic = udp.with_transport(Transport::QUIC);
+    assert_eq!(quic.endpoint.transport, Carriage::DATAGRAM);
+    // A configuration made around an endpoint takes tcp or udp from it.
+    let mut c = Config::new(Role::Base);
+    c.transport = Carriage::DATAGRAM;
+    assert_eq!(LinkConfig::new(c).transport, Transport::UDP);
+    assert_eq!(config().transport, Transport::Tcp);
 }
 
 #[test]
@@ -103,7 +148,7 @@ fn links_are_spread_over_the_hubs_and_leave_them_when_closed() {
     let remotes = HubPool::new(2, DEFAULT_SPIN_MARGIN).expect("hubs");
     let links = rt.block_on(async {
         let any: SocketAddr = "127.0.0.1:0".parse().expect("address");
-        let listener = Listener::bind(any, config.clone().on_pool(remotes.clone()))
+        let listener = Listener::listen(any, config.clone().on_pool(remotes.clone()))
             .await
             .expect("bind");
         let addr = listener.local_addr().expect("address");

@@ -70,7 +70,7 @@ fn a_dropped_listener_ends_its_hub_thread() {
     let before = hub_threads();
     for _ in 0..5 {
         let l = rt
-            .block_on(Listener::bind(
+            .block_on(Listener::listen(
                 "127.0.0.1:0".parse().expect("addr"),
                 LinkConfig::new(Config::new(Role::Remote)),
             ))
@@ -103,7 +103,7 @@ fn closed_links_and_their_listener_leave_no_hub_thread() {
         .expect("runtime");
     for _ in 0..3 {
         let listener = rt
-            .block_on(Listener::bind(
+            .block_on(Listener::listen(
                 "127.0.0.1:0".parse().expect("addr"),
                 LinkConfig::new(Config::new(Role::Remote)),
             ))
@@ -127,8 +127,7 @@ fn closed_links_and_their_listener_leave_no_hub_thread() {
 #[cfg(feature = "keygen")]
 #[test]
 fn a_quic_listener_and_its_closed_links_leave_no_hub_thread() {
-    use ndr_core::endpoint::Transport;
-    use ndr_net::TlsConfig;
+    use ndr_net::{TlsConfig, Transport};
 
     let _serial = serial();
     let dir = std::env::temp_dir().join(format!("ndr-hub-threads-{}", std::process::id()));
@@ -136,10 +135,10 @@ fn a_quic_listener_and_its_closed_links_leave_no_hub_thread() {
     let base = ndr_net::keygen::write(&dir, "base").expect("a certificate");
     let remote = ndr_net::keygen::write(&dir, "remote").expect("a certificate");
     let quic = |role, own: &ndr_net::keygen::KeyPair, peer: &ndr_net::keygen::KeyPair| {
-        let mut c = Config::new(role);
-        c.transport = Transport::DATAGRAM;
         let tls = TlsConfig::from_files(&own.cert, &own.key, &peer.cert).expect("TLS");
-        LinkConfig::new(c).with_tls(tls)
+        LinkConfig::new(Config::new(role))
+            .with_transport(Transport::QUIC)
+            .with_tls(tls)
     };
     let before = hub_threads();
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -150,7 +149,7 @@ fn a_quic_listener_and_its_closed_links_leave_no_hub_thread() {
     for _ in 0..3 {
         // Its endpoint's hub and its links' hub.
         let listener = rt
-            .block_on(Listener::bind(
+            .block_on(Listener::listen(
                 "127.0.0.1:0".parse().expect("addr"),
                 quic(Role::Remote, &remote, &base),
             ))
@@ -178,7 +177,7 @@ fn a_dropped_blocking_listener_ends_its_threads() {
     let _serial = serial();
     let before = hub_threads();
     for _ in 0..5 {
-        let l = Listener::bind_blocking(
+        let l = Listener::listen_blocking(
             "127.0.0.1:0".parse().expect("addr"),
             LinkConfig::new(Config::new(Role::Remote)),
         )
@@ -191,7 +190,7 @@ fn a_dropped_blocking_listener_ends_its_threads() {
 #[test]
 fn a_connected_blocking_link_keeps_no_runtime_of_its_own() {
     let _serial = serial();
-    let listener = Listener::bind_blocking(
+    let listener = Listener::listen_blocking(
         "127.0.0.1:0".parse().expect("addr"),
         LinkConfig::new(Config::new(Role::Remote)),
     )

@@ -10,11 +10,11 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr_core::endpoint::{Config, Status, Transport};
+use ndr_core::endpoint::{Config, Status};
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
 use ndr_net::keygen::{self, KeyPair};
-use ndr_net::{Link, LinkConfig, LinkStats, Listener, ListenerStats, TlsConfig};
+use ndr_net::{Link, LinkConfig, LinkStats, Listener, ListenerStats, TlsConfig, Transport};
 
 use flooder::{Flood, Flooded, Schedule};
 
@@ -30,8 +30,7 @@ const PERIOD: StdDuration = StdDuration::from_millis(10);
 fn config() -> LinkConfig {
     let mut c = Config::paper(Role::Base).with_width(2);
     c.period = Duration::from_millis(10);
-    c.transport = Transport::DATAGRAM;
-    LinkConfig::new(c)
+    LinkConfig::new(c).with_transport(Transport::QUIC)
 }
 
 /// Throwaway certificates for one test: base and remote.
@@ -90,7 +89,7 @@ const ANY: &str = "127.0.0.1:0";
 fn live_link(rt: &tokio::runtime::Runtime, certs: &Certs, slots: usize) -> (Listener, Link, Link) {
     let any: SocketAddr = ANY.parse().expect("an address");
     let listener = rt
-        .block_on(Listener::bind(any, certs.remote(slots)))
+        .block_on(Listener::listen(any, certs.remote(slots)))
         .expect("a listener");
     let addr = listener.local_addr().expect("its address");
     let (remote, base) =
@@ -290,7 +289,7 @@ fn run(certs: &Certs, plan: Plan) -> Measured {
     let (listener, mut remote, mut base) = live_link(&rt, certs, slots);
     let other = (!plan.at_live).then(|| {
         let any: SocketAddr = ANY.parse().expect("an address");
-        rt.block_on(Listener::bind(any, certs.remote(slots)))
+        rt.block_on(Listener::listen(any, certs.remote(slots)))
             .expect("another listener")
     });
     let aim = other

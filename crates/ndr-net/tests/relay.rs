@@ -77,7 +77,7 @@ async fn echo_server() -> (SocketAddr, mpsc::UnboundedReceiver<(u64, StdInstant)
 }
 
 async fn start(model: DelayModel, upstream: SocketAddr) -> RelayHandle {
-    Relay::bind(LOOPBACK.parse().unwrap(), upstream, model, 7)
+    Relay::listen(LOOPBACK.parse().unwrap(), upstream, model, 7)
         .await
         .expect("bind relay")
         .spawn()
@@ -393,11 +393,9 @@ async fn shutdown_mid_run_closes_every_connection() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_queue_over_its_bound_cuts_the_connection() {
     let (upstream, _arrivals) = echo_server().await;
-    let config = RelayConfig {
-        max_queue_frames: 4,
-        ..RelayConfig::default()
-    };
-    let relay = Relay::bind(
+    let mut config = RelayConfig::default();
+    config.max_queue_frames = 4;
+    let relay = Relay::listen(
         LOOPBACK.parse().unwrap(),
         upstream,
         DelayModel::profile("constant:1000").unwrap(),
@@ -463,7 +461,7 @@ async fn watched_relay(
 ) -> (RelayHandle, Arc<std::sync::Mutex<Vec<ConnectionEnd>>>) {
     let ends = Arc::new(std::sync::Mutex::new(Vec::new()));
     let seen = Arc::clone(&ends);
-    let relay = Relay::bind(
+    let relay = Relay::listen(
         LOOPBACK.parse().unwrap(),
         upstream,
         DelayModel::profile(&format!("constant:{delay_ms}")).unwrap(),
@@ -568,18 +566,18 @@ async fn a_relay_off_loopback_needs_bind_insecure() {
     // remote that trusts its loopback on the network.
     let any: SocketAddr = "0.0.0.0:0".parse().unwrap();
     let upstream: SocketAddr = "127.0.0.1:9".parse().unwrap();
-    let e = Relay::bind(any, upstream, DelayModel::Lan75km, 1)
+    let e = Relay::listen(any, upstream, DelayModel::Lan75km, 1)
         .await
         .expect_err("refused off loopback");
     assert_eq!(e.kind(), std::io::ErrorKind::PermissionDenied);
     assert!(e.to_string().contains("insecure"), "{e}");
-    let relay = Relay::bind_insecure(any, upstream, DelayModel::Lan75km, 1)
+    let relay = Relay::listen_insecure(any, upstream, DelayModel::Lan75km, 1)
         .await
         .expect("bind_insecure listens anywhere");
     assert!(relay.local_addr().ip().is_unspecified());
     let lo: SocketAddr = "127.0.0.1:0".parse().unwrap();
     assert!(
-        Relay::bind(lo, upstream, DelayModel::Lan75km, 1)
+        Relay::listen(lo, upstream, DelayModel::Lan75km, 1)
             .await
             .is_ok()
     );

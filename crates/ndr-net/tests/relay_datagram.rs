@@ -52,7 +52,7 @@ async fn udp_echo() -> (SocketAddr, mpsc::UnboundedReceiver<Arrival>) {
 }
 
 async fn start(model: DelayModel, upstream: SocketAddr, config: RelayConfig) -> RelayHandle {
-    Relay::bind(LOOPBACK.parse().unwrap(), upstream, model, 7)
+    Relay::listen(LOOPBACK.parse().unwrap(), upstream, model, 7)
         .await
         .expect("bind relay")
         .with_config(config)
@@ -121,7 +121,7 @@ async fn a_udp_port_taken_is_a_clear_error() {
     for _ in 0..5 {
         let udp = std::net::UdpSocket::bind(LOOPBACK).expect("bind UDP");
         let addr = udp.local_addr().expect("address");
-        let e = Relay::bind(addr, upstream, constant(1, 1), 1)
+        let e = Relay::listen(addr, upstream, constant(1, 1), 1)
             .await
             .expect_err("UDP is taken");
         if e.to_string().contains("cannot listen") {
@@ -207,10 +207,7 @@ async fn datagrams_cross_the_relay_both_ways_with_their_delays() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn at_full_loss_no_datagram_arrives_and_the_counters_say_so() {
     let (upstream, mut arrivals) = udp_echo().await;
-    let config = RelayConfig {
-        loss: LossModel::Bernoulli { rate: 1.0 },
-        ..RelayConfig::default()
-    };
+    let config = RelayConfig::default().with_loss(LossModel::Bernoulli { rate: 1.0 });
     let relay = start(constant(1, 1), upstream, config).await;
     let socket = client(&relay).await;
     let n = 50;
@@ -239,10 +236,7 @@ async fn at_full_loss_no_datagram_arrives_and_the_counters_say_so() {
 async fn bernoulli_loss_drops_exactly_what_the_seeded_sampler_draws() {
     let (upstream, mut arrivals) = udp_echo().await;
     let loss = LossModel::Bernoulli { rate: 0.3 };
-    let config = RelayConfig {
-        loss,
-        ..RelayConfig::default()
-    };
+    let config = RelayConfig::default().with_loss(loss);
     let relay = start(constant(2, 2), upstream, config).await;
     let socket = client(&relay).await;
     let n = 200u32;
@@ -293,10 +287,8 @@ async fn bernoulli_loss_drops_exactly_what_the_seeded_sampler_draws() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn datagrams_from_a_client_over_the_flow_limit_are_dropped_and_counted() {
     let (upstream, mut arrivals) = udp_echo().await;
-    let config = RelayConfig {
-        max_flows: 2,
-        ..RelayConfig::default()
-    };
+    let mut config = RelayConfig::default();
+    config.max_flows = 2;
     let relay = start(constant(1, 1), upstream, config).await;
     let (a, b, c) = (
         client(&relay).await,
@@ -353,10 +345,8 @@ async fn picky_echo(answered: u8) -> (SocketAddr, mpsc::UnboundedReceiver<Arriva
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn at_the_flow_limit_a_new_client_takes_an_unanswered_flow_never_an_answered_one() {
     let (upstream, mut arrivals) = picky_echo(1).await;
-    let config = RelayConfig {
-        max_flows: 2,
-        ..RelayConfig::default()
-    };
+    let mut config = RelayConfig::default();
+    config.max_flows = 2;
     let relay = start(constant(1, 1), upstream, config).await;
     let answered = client(&relay).await;
     answered.send(&tagged(1, 0)).await.expect("send");
@@ -401,11 +391,9 @@ async fn at_the_flow_limit_a_new_client_takes_an_unanswered_flow_never_an_answer
 async fn an_idle_flow_expires_with_its_socket_but_not_while_a_datagram_waits() {
     let (upstream, mut arrivals) = udp_echo().await;
     // Each datagram waits 600 ms each way, longer than the idle timeout.
-    let config = RelayConfig {
-        max_flows: 1,
-        flow_idle_timeout: ms(200),
-        ..RelayConfig::default()
-    };
+    let mut config = RelayConfig::default();
+    config.max_flows = 1;
+    config.flow_idle_timeout = ms(200);
     let relay = start(constant(600, 600), upstream, config).await;
     let a = client(&relay).await;
     let sent = StdInstant::now();

@@ -22,8 +22,8 @@ use std::io;
 
 use ndr_core::endpoint::LinkError as CoreError;
 use ndr_core::wire::close_reason;
-use ndr_net::NetError;
 use ndr_net::tls::HandshakeError as TlsHandshakeError;
+use ndr_net::{NetError, TransportError};
 use pyo3::create_exception;
 use pyo3::exceptions::{
     PyConnectionError, PyOSError, PyRuntimeError, PyTimeoutError, PyValueError,
@@ -145,11 +145,23 @@ pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
              tls=ndr.TlsConfig(...) (mutual TLS), or insecure=True to send plain TCP \
              (anyone on the path can read and forge the samples)"
         )),
-        NetError::DatagramsWithTls => PyValueError::new_err(
-            "a TLS stream does not take the datagram transport: a datagram link with tls= \
-             runs over QUIC (transport=\"quic\")",
-        ),
+        NetError::Transport(t) => transport_error(&t),
         other => PyRuntimeError::new_err(other.to_string()),
+    }
+}
+
+/// A transport that does not fit the link's security, in the words of
+/// the Python API.
+pub fn transport_error(e: &TransportError) -> PyErr {
+    match e {
+        TransportError::QuicWithoutTls => PyValueError::new_err(
+            "transport=\"quic\" runs mutual TLS 1.3: pass tls=ndr.TlsConfig(...) on both sides",
+        ),
+        TransportError::UdpWithTls => PyValueError::new_err(
+            "transport=\"udp\" is plain UDP: with tls=, use transport=\"quic\" \
+             (datagrams over QUIC) or \"tcp\"",
+        ),
+        other => PyValueError::new_err(format!("transport: {other}")),
     }
 }
 

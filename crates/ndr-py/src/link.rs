@@ -17,12 +17,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
-use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Transport, Underflow};
+use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
 use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
 use ndr_core::wire::Role;
-use ndr_net::link::{EVENT_BACKLOG, LinkEvent};
+use ndr_net::{EVENT_BACKLOG, LinkEvent};
 use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
@@ -31,7 +31,7 @@ use pyo3::types::{PyDict, PyList};
 
 use crate::blocking::{self, timed_out, wait};
 use crate::convert::{count, int_in, period as positive, sample as to_sample, serialized};
-use crate::errors::{link_error, net_error, os_error};
+use crate::errors::{link_error, net_error, os_error, transport_error};
 use crate::log;
 use crate::regulation;
 use crate::tls::PyTlsConfig;
@@ -496,26 +496,16 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
 pub struct PyLinkSettings {
     config: LinkConfig,
     role: Role,
-    /// `transport="quic…"`: the datagrams go over QUIC, which needs `tls`.
-    quic: bool,
 }
 
 impl PyLinkSettings {
     /// Whether `tls` fits the transport: QUIC runs mutual TLS, plain UDP
     /// does not run beside it.
     fn check_tls(&self, tls: bool) -> PyResult<()> {
-        let datagrams = matches!(self.config.endpoint.transport, Transport::Datagram { .. });
-        match (self.quic, datagrams, tls) {
-            (true, _, false) => Err(PyValueError::new_err(
-                "transport=\"quic\" runs mutual TLS 1.3: pass tls=ndr.TlsConfig(...) on \
-                 both sides",
-            )),
-            (false, true, true) => Err(PyValueError::new_err(
-                "transport=\"udp\" is plain UDP: with tls=, use transport=\"quic\" \
-                 (datagrams over QUIC) or \"tcp\"",
-            )),
-            _ => Ok(()),
-        }
+        self.config
+            .transport
+            .check_security(tls)
+            .map_err(|e| transport_error(&e))
     }
 }
 
@@ -570,30 +560,20 @@ impl PyLinkSettings {
         endpoint.watchdog = watchdog.map(|w| positive("watchdog", w)).transpose()?;
         endpoint.liveness = liveness.map(|l| positive("liveness", l)).transpose()?;
         endpoint.handshake_timeout = positive("handshake_timeout", handshake_timeout)?;
-        // "quic[:K[:R]]": the datagram transport, over QUIC.
-        let quic = transport.strip_prefix("quic");
-        let name = quic.map_or_else(|| transport.to_owned(), |rest| format!("datagram{rest}"));
-        endpoint.transport = name.parse::<Transport>().map_err(|e| {
-            PyValueError::new_err(format!(
-                "transport: {e} (\"tcp\", or \"udp\" / \"udp:K\" / \"udp:K:R\" for datagrams \
-                 of K samples sent R more times, \"quic\" / \"quic:K\" / \"quic:K:R\" for \
-                 the same over QUIC with tls=)"
-            ))
-        })?;
+        let transport = transport
+            .parse::<ndr_net::Transport>()
+            .map_err(|e| transport_error(&e))?;
+        endpoint.transport = transport.carriage();
         // The link draws its datagram session token when it starts.
         let mut checked = endpoint;
         checked.session = checked.session.max(1);
         checked
             .validate()
             .map_err(|e| PyValueError::new_err(format!("link configuration: {e}")))?;
-        let mut config = LinkConfig::new(endpoint);
+        let mut config = LinkConfig::new(endpoint).with_transport(transport);
         config.app_queue = app_queue;
         config.insecure = insecure;
-        Ok(PyLinkSettings {
-            config,
-            role,
-            quic: quic.is_some(),
-        })
+        Ok(PyLinkSettings { config, role })
     }
 }
 
@@ -760,7 +740,7 @@ pub fn listen(
     config.tls = tls.map(|t| t.get().inner.clone());
     settings.check_tls(config.tls.is_some())?;
     let listener = py
-        .detach(|| rt.block_on(Listener::bind(addr, config)))
+        .detach(|| rt.block_on(Listener::listen(addr, config)))
         .map_err(|e| net_error(py, e))?
         .with_role(role);
     let local = listener.local_addr().map_err(|e| net_error(py, e))?;

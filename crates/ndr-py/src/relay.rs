@@ -68,15 +68,12 @@ impl PyRelay {
         let handle = py.detach(|| {
             rt.block_on(async {
                 let relay = if insecure {
-                    Relay::bind_insecure(listen, upstream, model, seed).await?
+                    Relay::listen_insecure(listen, upstream, model, seed).await?
                 } else {
-                    Relay::bind(listen, upstream, model, seed).await?
+                    Relay::listen(listen, upstream, model, seed).await?
                 };
                 relay
-                    .with_config(RelayConfig {
-                        loss,
-                        ..RelayConfig::default()
-                    })
+                    .with_config(RelayConfig::default().with_loss(loss))
                     .spawn()
             })
         });

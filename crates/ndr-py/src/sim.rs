@@ -66,8 +66,11 @@ pub fn run<'py>(
     cfg.loss = loss
         .parse()
         .map_err(|e| PyValueError::new_err(format!("loss: {e}")))?;
+    // The link's names (QUIC as its datagrams: its handshake and
+    // encryption take no part in the samples' timing).
     cfg.transport = transport
-        .parse()
+        .parse::<ndr_net::Transport>()
+        .map(ndr_net::Transport::carriage)
         .map_err(|e| PyValueError::new_err(format!("transport: {e}")))?;
     let out = py.detach(|| ndr_sim::run(&cfg));
     log::flush(py);

@@ -46,17 +46,17 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     // since they hold a lower delay than the stream at every loss rate
     // (docs/benchmarks.md, "Real kernel loss").
     let link = &LinkArgs {
-        transport: Some(args.link.transport.unwrap_or(LinkTransport::DEMO)),
+        transport: Some(args.link.transport.unwrap_or(LinkTransport::UDP)),
         ..args.link.clone()
     };
     let config = link.config()?;
     check_loss(
-        link.transport().transport,
+        link.transport().carriage(),
         &args.loss,
         "leave --transport out (datagrams)",
     )?;
     // Over QUIC, each side gets a throwaway identity pinned by the other.
-    let (base_config, config) = if link.transport().quic {
+    let (base_config, config) = if link.transport().is_quic() {
         let (base, remote) = throwaway_pair()?;
         (config.clone().with_tls(base), config.with_tls(remote))
     } else {
@@ -78,13 +78,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let rt = runtime()?;
     let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
     let set_up = rt.block_on(async {
-        let listener = Listener::bind(loopback, config.clone()).await?;
-        let relay = Relay::bind(loopback, listener.local_addr()?, model, args.seed)
+        let listener = Listener::listen(loopback, config.clone()).await?;
+        let relay = Relay::listen(loopback, listener.local_addr()?, model, args.seed)
             .await?
-            .with_config(RelayConfig {
-                loss: args.loss,
-                ..RelayConfig::default()
-            })
+            .with_config(RelayConfig::default().with_loss(args.loss))
             .spawn()?;
         let (remote, base) = tokio::join!(
             listener.accept(),

@@ -4,7 +4,7 @@
 use std::io::IsTerminal;
 
 use ndr::core::endpoint::Event;
-use ndr::net::link::LinkEvent;
+use ndr::net::LinkEvent;
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::filter::LevelFilter;
 

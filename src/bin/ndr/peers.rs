@@ -50,7 +50,7 @@ pub struct RemoteArgs {
 pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
-    args.link.transport().check_security(tls.is_some())?;
+    crate::transport::check_security(args.link.transport(), tls.is_some())?;
     args.run.check_duration()?;
     crate::tracking::check_layout(args.run.controller, &args.link.state)?;
     let connect_to = resolve("--connect", &args.connect)?;
@@ -116,12 +116,12 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
-    args.link.transport().check_security(tls.is_some())?;
+    crate::transport::check_security(args.link.transport(), tls.is_some())?;
     let max_command = args.plant.max_command()?;
     let rt = runtime()?;
     config.tls = tls;
     let listener = rt
-        .block_on(Listener::bind(args.listen, config.clone()))
+        .block_on(Listener::listen(args.listen, config.clone()))
         .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?
         // One base at a time: the next one is told the robot is busy.
         .with_max_links(1);

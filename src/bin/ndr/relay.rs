@@ -62,16 +62,13 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
         }
     };
     let model_name = model.name();
-    let bind = if args.insecure {
-        BlockingRelay::bind_insecure
+    let start = if args.insecure {
+        BlockingRelay::listen_insecure
     } else {
-        BlockingRelay::bind
+        BlockingRelay::listen
     };
-    let config = RelayConfig {
-        loss: args.loss,
-        ..RelayConfig::default()
-    };
-    let relay = bind(listen, upstream, model, args.seed)
+    let config = RelayConfig::default().with_loss(args.loss);
+    let relay = start(listen, upstream, model, args.seed)
         .map_err(|e| e.to_string())?
         .with_config(config)
         .on_event(print_event);
@@ -88,10 +85,7 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
     );
     let started = StdInstant::now();
     let stats = relay
-        .serve(StopWhen {
-            ctrl_c: true,
-            after,
-        })
+        .serve(StopWhen::ctrl_c().or_after(after))
         .map_err(|e| e.to_string())?;
     let ran = started.elapsed().as_secs_f64();
 
@@ -136,6 +130,8 @@ fn print_event(event: &RelayEvent) {
             s.backward.frames_delivered,
             s.backward.held_back,
         ),
+        // Events added later are not the log's yet.
+        _ => {}
     }
 }
 

@@ -1,107 +1,38 @@
-//! `--transport`: how a link's samples cross — the endpoint's transport,
-//! and whether its datagrams go over QUIC.
-
-use std::fmt;
-use std::str::FromStr;
+//! `--transport`: how a link's samples cross. The names, their parsing
+//! and the rule that ties QUIC to TLS are the library's
+//! ([`ndr::net::Transport`]); this module words its refusals for the
+//! command line.
 
 use ndr::core::endpoint::Transport;
+use ndr::net::TransportError;
 use ndr::netem::LossModel;
 
 /// `tcp`, `udp[:K[:R]]` or `quic[:K[:R]]`: a datagram transport over
 /// plain UDP or over QUIC (mutual TLS 1.3, which then needs the TLS
 /// options).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct LinkTransport {
-    /// What the endpoint does with its samples.
-    pub transport: Transport,
-    /// The datagrams go over QUIC.
-    pub quic: bool,
-}
-
-impl FromStr for LinkTransport {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        if let Some(rest) = s.strip_prefix("quic") {
-            let name = format!("datagram{rest}");
-            let transport = name.parse::<Transport>().map_err(|_| {
-                format!(
-                    "unknown transport {s:?}: quic, quic:K (K samples per datagram, 1 to 8) \
-                     or quic:K:R (R repeats, 0 to 4)"
-                )
-            })?;
-            return Ok(LinkTransport {
-                transport,
-                quic: true,
-            });
-        }
-        let transport = s.parse::<Transport>().map_err(|e| {
-            format!("{e}; or quic[:K[:R]] (datagrams over QUIC, with the TLS options)")
-        })?;
-        Ok(LinkTransport {
-            transport,
-            quic: false,
-        })
-    }
-}
-
-impl fmt::Display for LinkTransport {
-    /// `tcp`, `udp:K:R` or `quic:K:R`: the names the reports show.
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.transport {
-            Transport::Datagram {
-                redundancy,
-                repeats,
-            } => {
-                let name = if self.quic { "quic" } else { "udp" };
-                write!(f, "{name}:{redundancy}:{repeats}")
-            }
-            _ => f.write_str("tcp"),
-        }
-    }
-}
+pub use ndr::net::Transport as LinkTransport;
 
 /// `--transport` of the simulator: as [`LinkTransport`], with QUIC
 /// modelled as its datagrams (never retransmitted, as plain UDP's); its
 /// handshake and encryption take no part in the samples' timing.
 pub fn simulated(s: &str) -> Result<Transport, String> {
-    s.parse::<LinkTransport>().map(|t| t.transport)
+    s.parse::<LinkTransport>()
+        .map(LinkTransport::carriage)
+        .map_err(|e| e.to_string())
 }
 
-/// The paper's stream: what base and remote run unless told otherwise.
-impl Default for LinkTransport {
-    fn default() -> LinkTransport {
-        LinkTransport {
-            transport: Transport::Stream,
-            quic: false,
-        }
-    }
-}
-
-impl LinkTransport {
-    /// `ndr demo`'s: plain UDP datagrams with the endpoint's default
-    /// copies and repeats.
-    pub const DEMO: LinkTransport = LinkTransport {
-        transport: Transport::DATAGRAM,
-        quic: false,
-    };
-
-    /// Whether the link's security fits the transport: QUIC needs TLS, and
-    /// plain UDP does not run beside it.
-    pub fn check_security(&self, tls: bool) -> Result<(), String> {
-        let datagrams = matches!(self.transport, Transport::Datagram { .. });
-        match (self.quic, datagrams && !self.quic, tls) {
-            (true, _, false) => Err(
-                "--transport quic runs mutual TLS 1.3: give --cert and --key, \
-                 and --peer-cert, --pin or --ca (`ndr keygen` makes a pair)"
-                    .into(),
-            ),
-            (false, true, true) => Err("--transport udp is plain UDP: with the TLS options, \
-                 use --transport quic (datagrams over QUIC) or tcp"
-                .into()),
-            _ => Ok(()),
-        }
-    }
+/// Whether the link's security fits the transport: QUIC needs TLS, and
+/// plain UDP does not run beside it.
+pub fn check_security(transport: LinkTransport, tls: bool) -> Result<(), String> {
+    transport.check_security(tls).map_err(|e| match e {
+        TransportError::QuicWithoutTls => "--transport quic runs mutual TLS 1.3: give --cert \
+             and --key, and --peer-cert, --pin or --ca (`ndr keygen` makes a pair)"
+            .to_string(),
+        TransportError::UdpWithTls => "--transport udp is plain UDP: with the TLS options, \
+             use --transport quic (datagrams over QUIC) or tcp"
+            .to_string(),
+        other => other.to_string(),
+    })
 }
 
 /// Refuses a loss model over the stream, which has no datagrams to lose;
@@ -121,20 +52,17 @@ mod tests {
     use super::*;
 
     #[test]
-    fn quic_names_read_back_and_need_tls() {
-        let q: LinkTransport = "quic:2:1".parse().unwrap();
-        assert!(q.quic);
-        assert_eq!(q.to_string(), "quic:2:1");
-        assert_eq!(
-            "quic".parse::<LinkTransport>().unwrap().to_string(),
-            "quic:4:3"
+    fn the_refusals_name_the_options() {
+        let quic: LinkTransport = "quic:2:1".parse().unwrap();
+        assert!(check_security(quic, false).unwrap_err().contains("--cert"));
+        assert!(check_security(quic, true).is_ok());
+        let udp = LinkTransport::UDP;
+        assert!(
+            check_security(udp, true)
+                .unwrap_err()
+                .contains("--transport quic")
         );
-        assert!(q.check_security(false).is_err());
-        assert!(q.check_security(true).is_ok());
-        let u: LinkTransport = "udp".parse().unwrap();
-        assert!(!u.quic);
-        assert!(u.check_security(true).is_err());
-        assert!("quic:9".parse::<LinkTransport>().is_err());
-        assert_eq!("tcp".parse::<LinkTransport>().unwrap().to_string(), "tcp");
+        assert_eq!(simulated("quic:2").unwrap(), "datagram:2".parse().unwrap());
+        assert_eq!(simulated("stream").unwrap(), Transport::Stream);
     }
 }

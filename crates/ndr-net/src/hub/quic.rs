@@ -251,7 +251,7 @@ impl Quic {
     /// where it is link `id`; `from` is this hub. `false` if it cannot
     /// (not a listener's connection): the link stays.
     pub(super) fn move_out(&mut self, e: &mut Entry, id: u64, to: &Hub, from: Hub) -> bool {
-        let Some(q) = e.quic.as_deref_mut() else {
+        let Some(q) = e.path.quic_mut() else {
             return false;
         };
         let Some(point) = self.points.get_mut(&q.key) else {
@@ -427,7 +427,7 @@ impl Quic {
                                 stray();
                                 continue;
                             };
-                            if let Some(q) = e.quic.as_deref_mut() {
+                            if let Some(q) = e.path.quic_mut() {
                                 q.conn.handle_event(event);
                             }
                             e.rx_lag
@@ -519,7 +519,7 @@ impl Quic {
     /// The connection's packets to `out`, its requests to its endpoint
     /// answered, and its next timer noted.
     pub(super) fn output(&mut self, e: &mut Entry, id: u64, now: StdInstant, out: &mut Outgoing) {
-        let Some(q) = e.quic.as_deref_mut() else {
+        let Some(q) = e.path.quic_mut() else {
             return;
         };
         if q.home.is_some() {
@@ -593,13 +593,13 @@ fn note_output(q: &mut QuicPath) {
 /// A packet (or an answer) a moved link's endpoint handed it; `e` is
 /// `None` if the link has left the hub.
 pub(super) fn forwarded(e: Option<&mut Entry>, f: Forwarded, origin: StdInstant) {
-    let Some(e) = e.filter(|e| e.quic.is_some()) else {
+    let Some(e) = e.filter(|e| e.path.quic().is_some()) else {
         if let Some((_, stray)) = f.arrived {
             stray.fetch_add(1, Ordering::Relaxed);
         }
         return;
     };
-    if let Some(q) = e.quic.as_deref_mut() {
+    if let Some(q) = e.path.quic_mut() {
         q.conn.handle_event(f.event);
         if let (Some(home), Some(_)) = (&q.home, &f.arrived) {
             home.backlog.fetch_sub(1, Ordering::Relaxed);
@@ -623,7 +623,7 @@ fn slice<'a>(buf: &'a [u8], t: &quinn_proto::Transmit) -> &'a [u8] {
 
 /// A timer of the connection passed: it runs what is due.
 pub(super) fn on_timeout(e: &mut Entry, now: StdInstant) {
-    if let Some(q) = e.quic.as_deref_mut()
+    if let Some(q) = e.path.quic_mut()
         && q.timer.is_some_and(|t| t <= now)
     {
         q.conn.handle_timeout(now);
@@ -632,8 +632,8 @@ pub(super) fn on_timeout(e: &mut Entry, now: StdInstant) {
 
 /// The connection's next timer on the hub's clock.
 pub(super) fn timer(e: &Entry, origin: StdInstant) -> Option<Instant> {
-    e.quic
-        .as_deref()
+    e.path
+        .quic()
         .and_then(|q| q.timer)
         .map(|t| Instant::from_std(origin, t))
 }
@@ -642,7 +642,7 @@ pub(super) fn timer(e: &Entry, origin: StdInstant) -> Option<Instant> {
 /// datagrams (arrived at `at`), its opening, its end.
 pub(super) fn input(e: &mut Entry, origin: StdInstant, at: StdInstant) {
     loop {
-        let Some(q) = e.quic.as_deref_mut() else {
+        let Some(q) = e.path.quic_mut() else {
             return;
         };
         let Some(event) = q.conn.poll() else {
@@ -734,7 +734,7 @@ fn ended_by(reason: &ConnectionError) -> LinkError {
 
 /// The stream's bytes to the deframer, each whole frame to the endpoint.
 fn read_stream(e: &mut Entry, origin: StdInstant, at: StdInstant) {
-    let Some(q) = e.quic.as_deref_mut() else {
+    let Some(q) = e.path.quic_mut() else {
         return;
     };
     let Some(id) = q.stream else {
@@ -782,14 +782,14 @@ fn read_stream(e: &mut Entry, origin: StdInstant, at: StdInstant) {
     if failed && !e.endpoint.is_closed() {
         e.endpoint.abort(LinkError::Disconnected);
     }
-    if let Some(q) = e.quic.as_deref_mut() {
+    if let Some(q) = e.path.quic_mut() {
         q.inbox = inbox;
     }
 }
 
 /// Writes what waits for the stream, as far as flow control lets it.
 fn write_pending(e: &mut Entry) {
-    let Some(q) = e.quic.as_deref_mut() else {
+    let Some(q) = e.path.quic_mut() else {
         return;
     };
     let Some(id) = q.stream else {
@@ -813,7 +813,7 @@ fn write_pending(e: &mut Entry) {
 /// One of the endpoint's frames: a Bundle as a datagram, the others on
 /// the stream (a Close kept for the CONNECTION_CLOSE as well).
 pub(super) fn send(e: &mut Entry, frame: &[u8]) {
-    let Some(q) = e.quic.as_deref_mut() else {
+    let Some(q) = e.path.quic_mut() else {
         return;
     };
     if ndr_core::wire::is_bundle(frame) {
@@ -842,7 +842,7 @@ pub(super) fn send(e: &mut Entry, frame: &[u8]) {
 /// The link is leaving the hub: the connection is closed with the
 /// endpoint's Close frame as its reason (unless it is over already).
 pub(super) fn close(e: &mut Entry, now: StdInstant) {
-    let Some(q) = e.quic.as_deref_mut() else {
+    let Some(q) = e.path.quic_mut() else {
         return;
     };
     if q.lost || q.conn.is_closed() {
@@ -855,5 +855,5 @@ pub(super) fn close(e: &mut Entry, now: StdInstant) {
 /// The peer's address as the connection sees it now (it follows a peer
 /// that moved).
 pub(super) fn peer(e: &Entry) -> Option<SocketAddr> {
-    e.quic.as_deref().map(|q| q.peer)
+    e.path.quic().map(|q| q.peer)
 }

@@ -57,12 +57,12 @@ pub(crate) fn read(e: &mut Entry, origin: StdInstant, drain: bool) {
         return;
     }
     loop {
-        let (Some(tls), Some(socket)) = (e.tls.as_deref_mut(), e.socket.as_ref()) else {
+        let Some((tls, stream)) = e.path.tls_mut() else {
             return;
         };
         let mut src = Stamped {
-            socket,
-            kernel: e.kernel_stamps,
+            socket: &stream.socket,
+            kernel: stream.kernel_stamps,
             at: None,
             short: false,
         };
@@ -80,7 +80,7 @@ pub(crate) fn read(e: &mut Entry, origin: StdInstant, drain: bool) {
         if let Err(err) = tls.conn.process_new_packets() {
             tracing::warn!("TLS link: {err}; closing it");
             // The alert rustls queued, best effort.
-            let _ = tls.conn.write_tls(&mut &*socket);
+            let _ = tls.conn.write_tls(&mut &stream.socket);
             e.endpoint.abort(ended_by(&err));
             return;
         }
@@ -101,7 +101,7 @@ pub(crate) fn read(e: &mut Entry, origin: StdInstant, drain: bool) {
 /// over (the peer's close, a corrupt stream).
 fn plaintext(e: &mut Entry, origin: StdInstant, at: StdInstant) -> bool {
     loop {
-        let Some(tls) = e.tls.as_deref_mut() else {
+        let Some((tls, _)) = e.path.tls_mut() else {
             return false;
         };
         let spare = e.deframer.spare();
@@ -134,7 +134,7 @@ fn plaintext(e: &mut Entry, origin: StdInstant, at: StdInstant) -> bool {
 /// Seals a frame and writes its records now, or queues them behind what is
 /// waiting; `true` if bytes are left waiting for the socket.
 pub(crate) fn send(e: &mut Entry, bytes: &[u8]) -> bool {
-    let (Some(tls), Some(socket)) = (e.tls.as_deref_mut(), e.socket.as_mut()) else {
+    let Some((tls, stream)) = e.path.tls_mut() else {
         return false;
     };
     if tls.conn.writer().write_all(bytes).is_err() {
@@ -142,7 +142,7 @@ pub(crate) fn send(e: &mut Entry, bytes: &[u8]) -> bool {
         return false;
     }
     seal(tls);
-    write_or_queue(socket, &mut e.pending, &tls.sealed)
+    write_or_queue(&mut stream.socket, &mut e.pending, &tls.sealed)
 }
 
 /// Moves every record rustls has ready into `sealed` (a `Vec` takes all).
@@ -157,13 +157,13 @@ fn seal(tls: &mut Session) {
 
 /// Tells the peer the stream ends here (best effort, the link is closing).
 pub(crate) fn close_notify(e: &mut Entry) {
-    let (Some(tls), Some(socket)) = (e.tls.as_deref_mut(), e.socket.as_mut()) else {
+    let Some((tls, stream)) = e.path.tls_mut() else {
         return;
     };
     tls.conn.send_close_notify();
     seal(tls);
     if e.pending.is_empty() {
-        let _ = socket.write(&tls.sealed);
+        let _ = stream.socket.write(&tls.sealed);
     }
 }
 

@@ -477,10 +477,10 @@ impl Udp {
                     let first = messages.first().map_or(0, |m| m.count.max(1));
                     for &i in order.get(at..at + first).unwrap_or_default() {
                         if let Some(e) = entries.get_mut(&self.out.queued[i].link) {
-                            if let Some(path) = e.datagram.as_mut() {
+                            if let Some(path) = e.path.datagram_mut() {
                                 path.unsent += 1;
                             }
-                            if let Some(q) = e.quic.as_deref_mut() {
+                            if let Some(q) = e.path.quic_mut() {
                                 q.dropped += 1;
                             }
                         }
@@ -668,7 +668,7 @@ fn deliver(
         sock.stray.fetch_add(1, Ordering::Relaxed);
         return;
     };
-    let Some(path) = e.datagram.as_mut() else {
+    let Some(path) = e.path.datagram_mut() else {
         return;
     };
     e.rx_lag
@@ -708,7 +708,7 @@ fn deliver(
 /// datagram from elsewhere, unless one given lately is still unused;
 /// whether the link has a Token frame to send.
 fn renew(sock: &mut Sock, id: u64, e: &mut Entry, now: StdInstant) -> bool {
-    let Some(path) = e.datagram.as_mut() else {
+    let Some(path) = e.path.datagram_mut() else {
         return false;
     };
     if path

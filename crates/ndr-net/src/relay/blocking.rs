@@ -12,12 +12,31 @@ use super::{Relay, RelayConfig, RelayEvent, RelayStats};
 /// When [`BlockingRelay::serve`] stops. With neither set it serves until the
 /// process ends.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct StopWhen {
     /// Stop on Ctrl-C (SIGINT). Once asked for, the process no longer ends
     /// on Ctrl-C by itself.
     pub ctrl_c: bool,
     /// Stop after this long.
     pub after: Option<StdDuration>,
+}
+
+impl StopWhen {
+    /// Stop on Ctrl-C.
+    #[must_use]
+    pub fn ctrl_c() -> Self {
+        StopWhen {
+            ctrl_c: true,
+            after: None,
+        }
+    }
+
+    /// The same, and also after `after` if given.
+    #[must_use]
+    pub fn or_after(mut self, after: Option<StdDuration>) -> Self {
+        self.after = after;
+        self
+    }
 }
 
 /// A [`Relay`] on its own multi-threaded tokio runtime, driven from
@@ -27,13 +46,13 @@ pub struct StopWhen {
 /// use ndr_netem::DelayModel;
 /// use ndr_net::relay::{BlockingRelay, StopWhen};
 ///
-/// let relay = BlockingRelay::bind(
+/// let relay = BlockingRelay::listen(
 ///     "127.0.0.1:7000".parse().unwrap(),
 ///     "127.0.0.1:7001".parse().unwrap(),
 ///     DelayModel::ParisNewYork,
 ///     1,
 /// )?;
-/// let stats = relay.serve(StopWhen { ctrl_c: true, after: None })?;
+/// let stats = relay.serve(StopWhen::ctrl_c())?;
 /// println!("{} connections", stats.connections);
 /// # Ok::<(), std::io::Error>(())
 /// ```
@@ -44,37 +63,37 @@ pub struct BlockingRelay {
 }
 
 impl BlockingRelay {
-    /// Starts a runtime and binds the relay on it (see [`Relay::bind`]); it
+    /// Starts a runtime and starts the relay on it (see [`Relay::listen`]); it
     /// serves from [`serve`](Self::serve) on.
     ///
     /// # Errors
     ///
     /// The runtime cannot start, or the listening socket cannot be bound.
-    pub fn bind(
+    pub fn listen(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Self> {
-        BlockingRelay::bind_with(listen, upstream, model, seed, false)
+        BlockingRelay::listen_with(listen, upstream, model, seed, false)
     }
 
-    /// [`bind`](Self::bind) on any address, loopback or not (see
-    /// [`Relay::bind_insecure`]).
+    /// [`listen`](Self::listen) on any address, loopback or not (see
+    /// [`Relay::listen_insecure`]).
     ///
     /// # Errors
     ///
     /// The runtime cannot start, or the listening socket cannot be bound.
-    pub fn bind_insecure(
+    pub fn listen_insecure(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Self> {
-        BlockingRelay::bind_with(listen, upstream, model, seed, true)
+        BlockingRelay::listen_with(listen, upstream, model, seed, true)
     }
 
-    fn bind_with(
+    fn listen_with(
         listen: SocketAddr,
         upstream: SocketAddr,
         model: DelayModel,
@@ -88,9 +107,9 @@ impl BlockingRelay {
             .map_err(|e| io::Error::new(e.kind(), format!("relay: cannot start tokio: {e}")))?;
         let relay = runtime.block_on(async {
             if insecure {
-                Relay::bind_insecure(listen, upstream, model, seed).await
+                Relay::listen_insecure(listen, upstream, model, seed).await
             } else {
-                Relay::bind(listen, upstream, model, seed).await
+                Relay::listen(listen, upstream, model, seed).await
             }
         })?;
         Ok(BlockingRelay { runtime, relay })

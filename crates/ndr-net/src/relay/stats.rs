@@ -9,6 +9,7 @@ use super::ConnectionEnd;
 /// Counters of one direction, for the whole relay or for one connection.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct DirectionStats {
     /// Whole frames read from the sending side.
     pub frames_received: u64,

@@ -75,12 +75,6 @@ pub fn default_regulations() -> Vec<Regulation> {
     Regulation::every().collect()
 }
 
-/// The regulation under comparison: the name the harness used before the
-/// crates shared one vocabulary.
-#[deprecated(note = "use ndr_core::Regulation (`Paper(mode)` is `PaperStatic` or \
-                     `PaperDynamic`, `Target(p)` is `Target(p)`)")]
-pub type Policy = Regulation;
-
 /// What to compare.
 #[derive(Clone, Debug)]
 pub struct CompareConfig {
@@ -468,10 +462,6 @@ pub struct RegulationResult {
     /// The plot's point: (mean delay, late rate) averaged over seeds.
     pub point: Point,
 }
-
-/// A regulation's results, under the name the harness used before.
-#[deprecated(note = "use RegulationResult (its `policy` is now `regulation`)")]
-pub type PolicyResult = RegulationResult;
 
 impl RegulationResult {
     fn of(regulation: String, runs: &[RunMetrics], failed: usize) -> Self {

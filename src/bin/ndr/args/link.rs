@@ -73,7 +73,6 @@ impl LinkArgs {
         let states = self.state.width(self.axes)?;
         let mut endpoint = Config::new(Role::Base).with_widths(self.axes, states);
         endpoint.layout = self.state.fingerprint(self.axes);
-        endpoint.transport = self.transport().transport;
         endpoint.period = period;
         let regulation = self.regulation();
         endpoint.mode = regulation.mode();
@@ -83,7 +82,7 @@ impl LinkArgs {
         let mut checked = endpoint;
         checked.session = checked.session.max(1);
         checked.validate().map_err(|e| e.to_string())?;
-        Ok(LinkConfig::new(endpoint))
+        Ok(LinkConfig::new(endpoint).with_transport(self.transport()))
     }
 
     /// `--regulation`, or the adaptive default.

@@ -1,10 +1,12 @@
 //! The soak's link: the paper's FIFO at a fast period, and the widths of
 //! its commands and states.
 
-use ndr::core::endpoint::{Config, Transport, Underflow};
+use ndr::core::endpoint::{Config, Underflow};
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::LinkConfig;
+
+use crate::transport::LinkTransport;
 
 /// The links' liveness time: a hung base is dropped after it.
 pub(super) const LIVENESS: Duration = Duration::from_secs(2);
@@ -16,11 +18,14 @@ pub(super) const COMMAND_WIDTH: u16 = 4;
 /// counters `samples_lost`, `samples_recovered`, `datagrams_stale`).
 pub(super) const STATE_WIDTH: u16 = 6;
 
-pub(super) fn link_config(period: Duration, transport: Transport) -> Result<LinkConfig, String> {
+pub(super) fn link_config(
+    period: Duration,
+    transport: LinkTransport,
+) -> Result<LinkConfig, String> {
     // The paper's FIFO: what docs/reliability.md's soak runs measured.
     let mut endpoint = Config::paper(Role::Base);
     endpoint = endpoint.with_widths(COMMAND_WIDTH, STATE_WIDTH);
-    endpoint.transport = transport;
+    endpoint.transport = transport.carriage();
     endpoint.period = period;
     // A delay spike then costs late samples (dropped and counted) instead of
     // a delay that grows by the spike's length each time.
@@ -32,5 +37,5 @@ pub(super) fn link_config(period: Duration, transport: Transport) -> Result<Link
     let mut checked = endpoint;
     checked.session = checked.session.max(1);
     checked.validate().map_err(|e| e.to_string())?;
-    Ok(LinkConfig::new(endpoint))
+    Ok(LinkConfig::new(endpoint).with_transport(transport))
 }

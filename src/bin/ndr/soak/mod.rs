@@ -69,13 +69,13 @@ pub fn run(args: &SoakArgs) -> Result<(), String> {
         return Err("--period-ms must be positive".into());
     }
     crate::transport::check_loss(
-        args.transport.transport,
+        args.transport.carriage(),
         &args.loss,
         "add --transport udp or --transport quic",
     )?;
-    let config = link_config(period, args.transport.transport)?;
+    let config = link_config(period, args.transport)?;
     if let Some(addr) = args.serve {
-        let config = if args.transport.quic {
+        let config = if args.transport.is_quic() {
             let (Some(cert), Some(key), Some(pin)) = (&args.cert, &args.key, args.pin) else {
                 return Err(
                     "ndr soak --serve over QUIC needs --cert, --key and --pin (the \

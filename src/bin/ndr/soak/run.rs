@@ -6,7 +6,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
-use ndr::core::endpoint::Transport;
 use ndr::net::{Hub, Link, LinkConfig, NetError, Relay, RelayConfig, RelayHandle};
 use ndr::sim::delay::DelayModel;
 
@@ -26,7 +25,7 @@ use crate::runtime::runtime;
 pub(super) fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, String> {
     // First made, last dropped: the identities' directory outlives the
     // remote, and goes however the soak ends.
-    let quic = if args.transport.quic {
+    let quic = if args.transport.is_quic() {
         Some(Quic::new(&config)?)
     } else {
         None
@@ -54,17 +53,14 @@ pub(super) fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, St
     let mut remote = Remote::start(remote_addr, args.period_ms, args.transport, remote_tls)?;
     let spike_every = args.fault_every_s * SPIKE_EVERY_FAULTS;
     let trace = Arc::new(spike_trace(args.duration_s, spike_every)?);
-    let relay_config = RelayConfig {
-        loss: args.loss,
-        ..RelayConfig::default()
-    };
+    let relay_config = RelayConfig::default().with_loss(args.loss);
     // Each relay started draws other losses (`seed`): the same delays, but
     // not the same datagrams lost after each restart.
     let start_relay = |rt: &tokio::runtime::Runtime, seed: u64| -> Result<RelayHandle, String> {
         let deadline = StdInstant::now() + StdDuration::from_secs(5);
         loop {
             let bound = rt.block_on(async {
-                Relay::bind(
+                Relay::listen(
                     relay_addr,
                     remote_addr,
                     DelayModel::Trace(Arc::clone(&trace)),
@@ -85,7 +81,7 @@ pub(super) fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, St
     };
     let mut relay = Some(start_relay(&rt, 1)?);
     let mut relay_started = StdInstant::now();
-    let datagrams = args.transport.transport != Transport::Stream;
+    let datagrams = args.transport.datagrams();
     // What the hung and stale-frame bases say in their Hello: a token on
     // datagrams (0 would be a stream, which the remote refuses).
     let session = if datagrams { FAKE_SESSION } else { 0 };
@@ -96,7 +92,7 @@ pub(super) fn soak(args: &SoakArgs, config: LinkConfig) -> Result<SoakReport, St
         // As `--transport` was given: tcp, udp, udp:K, udp:K:R, quic, …
         transport: args
             .transport
-            .transport
+            .carriage()
             .to_string()
             .replacen("stream", "tcp", 1)
             .replacen("datagram", if quic.is_some() { "quic" } else { "udp" }, 1),

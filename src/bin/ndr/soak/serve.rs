@@ -20,7 +20,7 @@ pub(super) fn serve(addr: SocketAddr, config: LinkConfig) -> Result<(), String> 
     let deadline = StdInstant::now() + StdDuration::from_secs(5);
     // The previous remote may have just died: its port frees up shortly.
     let listener = loop {
-        match rt.block_on(Listener::bind(addr, config.clone())) {
+        match rt.block_on(Listener::listen(addr, config.clone())) {
             Ok(l) => break l,
             Err(e) if StdInstant::now() < deadline => {
                 let _ = e;
