@@ -91,11 +91,16 @@ fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
         run
     });
     let remote = run.remote.expect("the remote's stats");
-    for (side, s) in [("base", &run.base), ("remote", &remote)] {
+    for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
         let e = &s.endpoint;
-        // Every sample went as a QUIC datagram, and quinn took them all.
+        // Every sample went as a QUIC datagram, and quinn took them all:
+        // none lost but those a hub the host held past its transmit queue
+        // dropped, and counted.
         assert!(e.datagrams_received > 250, "{side}: {s:?}");
-        assert_eq!(e.samples_lost, 0, "{side}: {s:?}");
+        assert!(
+            e.samples_lost <= peer.endpoint.tx_dropped,
+            "{side}: {s:?}; peer {peer:?}"
+        );
         assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
     }
     assert_eq!(
@@ -197,12 +202,16 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
         );
         assert!(bundles > 300, "{side}: {s:?}");
     }
-    // The copies made good what the loss took.
+    // The copies made good what the loss took: at most two lost, besides
+    // those a hub the host held past its transmit queue dropped, and
+    // counted. (How many copies make good which losses is judged in
+    // simulated time: crates/ndr-core/tests/endpoint_datagram.rs.)
     let e = &remote.endpoint;
     assert!(e.samples_recovered + e.datagrams_received > 250, "{e:?}");
-    assert!(e.samples_lost <= 2, "{e:?}");
-    let e = &run.base.endpoint;
-    assert!(e.samples_lost <= 2, "{e:?}");
+    for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
+        let (lost, dropped) = (s.endpoint.samples_lost, peer.endpoint.tx_dropped);
+        assert!(lost <= 2 + dropped, "{side}: {s:?}; peer {peer:?}");
+    }
 }
 
 /// A UDP path between a base and its listener whose address on the
