@@ -359,8 +359,20 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     let remote_stats = remote_stats.unwrap();
     assert_eq!(remote_stats.datagram_path_changes, 1, "{remote_stats:?}");
     assert_eq!(base_stats.datagram_path_changes, 0, "{base_stats:?}");
-    assert!(remote_stats.endpoint.samples_lost <= 2, "{remote_stats:?}");
-    assert!(base_stats.endpoint.samples_lost <= 2, "{base_stats:?}");
+    // At most two lost around the move, besides those a hub the host held
+    // past its transmit queue dropped, and counted.
+    let (base_dropped, remote_dropped) = (
+        base_stats.endpoint.tx_dropped,
+        remote_stats.endpoint.tx_dropped,
+    );
+    assert!(
+        remote_stats.endpoint.samples_lost <= 2 + base_dropped,
+        "{remote_stats:?}; base {base_stats:?}"
+    );
+    assert!(
+        base_stats.endpoint.samples_lost <= 2 + remote_dropped,
+        "{base_stats:?}; remote {remote_stats:?}"
+    );
 }
 
 /// A UDP path to `upstream` that passes a client's first packet (its

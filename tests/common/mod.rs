@@ -141,15 +141,24 @@ pub fn send_to_both_sides(
 }
 
 /// Each side released more than 250 fresh samples, each once and in
-/// order, with no gap.
-// Only the datagram transports' tests judge a run this strictly.
+/// order, with no gap but for the samples its peer's hub, held by the host
+/// past its transmit queue, dropped and counted (`tx_dropped`).
+// Only the datagram transports' tests judge a run this way.
 #[allow(dead_code)]
 pub fn assert_every_sample_once_in_order(run: &Run) {
-    for (name, seqs) in [("base", &run.base_seqs), ("remote", &run.remote_seqs)] {
+    let sent_by = [
+        run.remote.map(|s| s.endpoint.tx_dropped),
+        Some(run.base.endpoint.tx_dropped),
+    ];
+    for ((name, seqs), dropped) in [("base", &run.base_seqs), ("remote", &run.remote_seqs)]
+        .into_iter()
+        .zip(sent_by)
+    {
         assert!(seqs.len() > 250, "{name}: {}", seqs.len());
+        let missing: u64 = seqs.windows(2).map(|w| w[1].saturating_sub(w[0] + 1)).sum();
         assert!(
-            seqs.windows(2).all(|w| w[1] == w[0] + 1),
-            "{name}: {seqs:?}"
+            seqs.windows(2).all(|w| w[1] > w[0]) && missing <= dropped.unwrap_or(0),
+            "{name}: {missing} missing, {dropped:?} counted by its peer: {seqs:?}"
         );
     }
 }
