@@ -203,8 +203,8 @@ pub fn assert_every_sample_once_in_order(run: &Run) {
 /// at most a tenth of them, and two per tick a hub missed, in a briefer
 /// excursion or more than 2 ms from the median, the others within 1 ms std.
 /// A tick a hub missed (served a period late or more) may leave one more
-/// sample in the peer's queue, raising the level a period: the level may
-/// change once more per tick missed, and sit a period higher.
+/// sample in a queue, or a queue run dry: the level may change once more
+/// per tick missed, and sit a period off.
 /// That the regulation itself makes the round trip exactly constant is
 /// judged in simulated time (`crates/ndr-sim/tests/paper.rs`, the core's
 /// `Pair` tests, `python/tests/test_demo.py` for both transports).
@@ -285,7 +285,12 @@ fn assert_constant_grtt(r: &Run) {
         (2 * r.base.ns) as f64 * period
     };
     let from = regulated + f64::from(u8::from(r.answers_next_tick)) * period;
-    let to = from + (2 + raised) as f64 * period;
+    // Each underflow or tick missed may move the level a period (a queue
+    // that ran dry, or one more sample left in it).
+    let (from, to) = (
+        from - raised as f64 * period,
+        from + (2 + raised) as f64 * period,
+    );
     assert!(
         (from - 1e-3..=to + 1e-3).contains(&mean),
         "GRTT mean {mean}, expected {from} to {to} (ns {}, delays held {held} s, {raised} \
