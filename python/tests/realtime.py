@@ -116,6 +116,9 @@ def assert_constant(
         f"{strays}"
     )
     d = d[~off]
+    # Every one set aside is within what the hubs' missed ticks allow.
+    if d.size == 0:
+        return
     assert float(np.std(d)) <= 1e-3, f"{what} std {np.std(d)} s (host stalls: {int(stalls)})"
 
 
@@ -145,6 +148,19 @@ def regulated(
     result, stats = run()
     missed = sum(s["lateness"]["missed"] for s in stats if s)
     return result, Stalls(host_stalls(stats) + (missing(result) > 0), missed)
+
+
+def counted_gaps(receiver: Optional[Mapping[str, Any]], sender: Optional[Mapping[str, Any]]) -> int:
+    """The samples the counters account for, that the receiver's application
+    never saw fresh: the sender's ``tx_dropped`` (a hub held past its
+    transmit queue), and the receiver's ``samples_lost`` (datagrams),
+    ``app_dropped`` (its application's queue full), ``rejected``,
+    ``discarded`` and ``skipped``."""
+    n = 0 if sender is None else int(sender["tx_dropped"])
+    if receiver is not None:
+        n += sum(int(receiver[k]) for k in
+                 ("samples_lost", "app_dropped", "rejected", "discarded", "skipped"))
+    return n
 
 
 def no_gap(ticks: Sequence[Any], counted: int = 0) -> bool:

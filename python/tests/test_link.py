@@ -16,7 +16,14 @@ import numpy as np
 import pytest
 
 import ndr
-from realtime import assert_constant, echo, missing_but_counted, no_gap, regulated
+from realtime import (
+    assert_constant,
+    counted_gaps,
+    echo,
+    missing_but_counted,
+    no_gap,
+    regulated,
+)
 from ndr.demo import run as demo_run
 
 LOOPBACK = ("127.0.0.1", 0)
@@ -83,7 +90,7 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
         # where a side counted it (then the run is judged again).
         op = result.operator
         released = [i for i, h in enumerate(op.held) if not h]
-        counted = result.robot.stats["tx_dropped"] + op.stats["samples_lost"]
+        counted = counted_gaps(op.stats, result.robot.stats)
         return missing_but_counted(np.asarray(op.seq)[released], counted)
 
     result, stalls = regulated(run, missing)
@@ -143,7 +150,7 @@ def test_end_to_end_delay_is_constant_per_sample():
             stats = [p.base.stats, p.remote.stats]
             stop.set()
             t.join(2)
-        counted = stats[1]["tx_dropped"] + stats[0]["samples_lost"]
+        counted = counted_gaps(stats[0], stats[1])
         assert no_gap(ticks, counted), ([(t.seq, t.status) for t in ticks], stats)
         return (e2e, at, ticks), stats
 
