@@ -314,7 +314,8 @@ pub fn grtt_judged(r: &Run) -> (f64, f64) {
 /// test has them: on the schedule, at their level, less the strays a
 /// stalled host makes (asserted to be few).
 pub fn judge_grtts(grtts: &[(u64, f64)], sides: &[&LinkStats]) -> (f64, f64) {
-    assert!(grtts.len() > 100, "{} GRTTs", grtts.len());
+    // The callers judge how many there must be.
+    assert!(grtts.len() > 20, "{} GRTTs", grtts.len());
     let period_ns = sides[0].period.as_nanos();
     let grtts = on_schedule(grtts, period_ns);
     let mut sorted = grtts.clone();
