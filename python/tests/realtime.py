@@ -101,8 +101,16 @@ def assert_constant(
         brief = np.repeat(lengths < SETTLED, lengths)
         settled = level[starts][lengths >= SETTLED]
         steps = int(np.count_nonzero(np.diff(settled)))
-        assert steps <= 2 * underflows, (
-            f"the {what} changed level {steps} times, {underflows} underflows counted: "
+        missed = getattr(stalls, "missed", 0)
+        # Two sides' tick grids that meet within the host's jitter make a
+        # frame count for one tick or the next: two adjacent levels, in turn.
+        adjacent = settled.size == 0 or float(np.ptp(settled)) <= 1
+        if float(np.ptp(level)) <= 1:
+            # Only two adjacent levels in all: a flip, not an excursion.
+            brief = np.zeros(d.size, dtype=bool)
+        assert steps <= 2 * underflows + missed or adjacent, (
+            f"the {what} changed level {steps} times, {underflows} underflows and {missed} "
+            "ticks missed counted: "
             f"levels {list(zip(level[starts].tolist(), lengths.tolist()))}"
         )
         d = d - level * period

@@ -344,14 +344,22 @@ pub fn judge_grtts(grtts: &[(u64, f64)], sides: &[&LinkStats]) -> (f64, f64) {
     let steps = settled.windows(2).filter(|w| w[0] != w[1]).count() as u64;
     let underflows: u64 = sides.iter().map(|s| s.endpoint.underflows).sum();
     let missed: u64 = sides.iter().map(|s| s.lateness.missed).sum();
+    // Two sides' tick grids that meet within the host's jitter make a frame
+    // count for one tick or the next: two adjacent levels, in turn.
+    let adjacent = settled.iter().copied().fold(f64::NAN, f64::max)
+        - settled.iter().copied().fold(f64::NAN, f64::min)
+        <= 1.0;
     assert!(
-        steps <= 2 * underflows + missed,
+        steps <= 2 * underflows + missed || settled.is_empty() || adjacent,
         "the round trip changed level {steps} times, {underflows} underflows and {missed} \
          ticks missed counted; (level, GRTTs) {runs:?}"
     );
+    // Only two adjacent levels in all: a flip, not an excursion.
+    let levels = runs.iter().map(|r| r.0);
+    let flip = levels.clone().fold(f64::NAN, f64::max) - levels.fold(f64::NAN, f64::min) <= 1.0;
     let in_excursion = runs
         .iter()
-        .flat_map(|&(_, n)| std::iter::repeat_n(n < SETTLED, n));
+        .flat_map(|&(_, n)| std::iter::repeat_n(n < SETTLED && !flip, n));
     let (mut kept, mut strays) = (Vec::new(), Vec::new());
     for (&g, brief) in grtts.iter().zip(in_excursion) {
         let at_level = g - level(g) * period;
