@@ -79,7 +79,11 @@ fn assert_clean(r: &serde_json::Value) {
         .as_str()
         .is_some_and(|t| t.starts_with("quic"));
     assert!(n(r, "reconnections") >= if quic { 1 } else { 3 }, "{r}");
-    assert!(n(r, "samples_released") > 3000, "{r}");
+    // It ran: at 1 kHz for 9 s, each sample released or, where a host
+    // too busy for the rate held a hub past its queue, counted as dropped.
+    let released = n(r, "samples_released");
+    assert!(released > 1000, "{r}");
+    assert!(released + n(r, "dropped_with_counter") > 3000, "{r}");
 }
 
 /// The garbage fault's datagrams: all counted as strays by the remote's

@@ -54,7 +54,11 @@ fn loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
         let (base, remote) = pair(&rt);
         common::echo_run(base, remote)
     });
-    assert_eq!(run.base.ns, 2);
+    // The initialization pattern sizes the queue from the gaps it saw: 2
+    // on a quiet loopback, more when the host held a reception (the round
+    // trip was judged against the size chosen). The sizing itself is judged
+    // in simulated time (crates/ndr-sim/tests/paper.rs, crates/ndr-core sizing).
+    assert!(run.base.ns >= 2, "ns {}", run.base.ns);
     assert!(run.base.lateness.count > 250);
     // Nothing lost at the remote without a counter saying so.
     let remote = run.remote.expect("the remote's stats");

@@ -154,6 +154,32 @@ fn in_order_path_holds_back_overtaking_frames() {
 }
 
 #[test]
+fn a_constant_model_delays_each_frame_by_its_own_directions_delay() {
+    // What the relay computes for each frame it reads (its release time),
+    // for frames 10 ms apart as the relay's real-time test sends them.
+    let ms = Duration::from_millis;
+    let m = DelayModel::Constant {
+        fwd: ms(40),
+        bwd: ms(60),
+    };
+    let mut s = m.sampler(7);
+    let mut paths = [InOrderPath::new(), InOrderPath::new()];
+    for k in 0..30u64 {
+        let sent = Instant::from_millis(10 * k);
+        for (path, dir, delay) in paths
+            .iter_mut()
+            .zip([(Direction::Forward, ms(40)), (Direction::Backward, ms(60))])
+            .map(|(p, (dir, delay))| (p, dir, delay))
+        {
+            let d = s.delay(dir, sent);
+            assert_eq!(d, delay, "frame {k} {dir:?}");
+            assert_eq!(path.deliver(sent, d), sent + delay, "frame {k} {dir:?}");
+        }
+    }
+    assert_eq!(paths.map(|p| p.held_back()), [0, 0]);
+}
+
+#[test]
 fn every_profile_keeps_order_through_the_path() {
     for m in models() {
         let mut s = m.sampler(1);
