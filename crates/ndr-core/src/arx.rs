@@ -198,7 +198,7 @@ impl Tf2 {
     /// `u[k−2]`, `y[k−1]`, `y[k−2]`.
     #[must_use]
     #[inline]
-    pub fn output(&self, u: f64, u1: f64, u2: f64, y1: f64, y2: f64) -> f64 {
+    pub(crate) fn output(&self, u: f64, u1: f64, u2: f64, y1: f64, y2: f64) -> f64 {
         self.b[0] * u + self.b[1] * u1 + self.b[2] * u2 - self.a[0] * y1 - self.a[1] * y2
     }
 }
@@ -307,7 +307,7 @@ impl Arx2 {
     /// An identifier around a configured RLS (e.g. a custom trace bound or
     /// prior weights `[b0, b1, b2, a1, a2]`), with an empty history.
     #[must_use]
-    pub fn from_rls(rls: Rls<5>) -> Self {
+    pub(crate) fn from_rls(rls: Rls<5>) -> Self {
         Arx2 {
             rls,
             u1: 0.0,

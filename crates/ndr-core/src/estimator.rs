@@ -64,7 +64,7 @@ use crate::arx::{Arx2, ArxError, Tf2};
 
 /// Adaptations needed before an identified model is used: five, the number
 /// of parameters; fewer samples cannot determine the model.
-pub const MIN_IDENTIFICATION_UPDATES: u64 = 5;
+pub(crate) const MIN_IDENTIFICATION_UPDATES: u64 = 5;
 
 /// Why the estimator could not be built or stepped.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -138,7 +138,7 @@ pub struct Estimate {
     /// takes effect.
     pub x3p: f64,
     /// `true` if both come from the model; `false` during warm-up, when both
-    /// hold the last received state (see the [module docs](self)).
+    /// hold the last received state.
     pub from_model: bool,
 }
 
@@ -153,7 +153,6 @@ enum Model {
 /// Base-side estimator/predictor of one axis of the remote system, with a
 /// command history of capacity `H` (at least `Df + Db + 3`).
 ///
-/// See the [module docs](self) for the timing contract.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimator<const H: usize> {
     model: Model,
@@ -441,9 +440,10 @@ impl<const H: usize> Estimator<H> {
         self.last_received
     }
 
+    #[cfg(test)]
     /// The command history capacity `H`.
     #[must_use]
-    pub const fn capacity(&self) -> usize {
+    pub(crate) const fn capacity(&self) -> usize {
         H
     }
 }

@@ -205,9 +205,10 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
         }
     }
 
+    #[cfg(test)]
     /// Frames `from` sent that its peer has not read yet.
     #[must_use]
-    pub fn in_flight(&self, from: Role) -> usize {
+    pub(crate) fn in_flight(&self, from: Role) -> usize {
         self.wire[from as usize].len()
     }
 
@@ -250,7 +251,7 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
     }
 
     /// When the next frame is read or the next deadline served, if any.
-    pub fn next_event(&mut self) -> Option<Instant> {
+    pub(crate) fn next_event(&mut self) -> Option<Instant> {
         let reads = [Role::Base, Role::Remote].map(|from| self.next_read(from));
         let wakes = [Role::Base, Role::Remote].map(|side| self.wake(side));
         reads.into_iter().chain(wakes).flatten().min()

@@ -9,7 +9,7 @@
 //! they move the delay themselves.
 //!
 //! ```
-//! use ndr_core::regulation::Regulation;
+//! use ndr_core::Regulation;
 //! use ndr_core::{Mode, Playout};
 //!
 //! let r: Regulation = "paper-dynamic".parse().unwrap();
@@ -40,7 +40,7 @@ pub enum Mode {
 
 impl Mode {
     /// Every mode, for help texts.
-    pub const ALL: [Mode; 2] = [Mode::PaperStatic, Mode::PaperDynamic];
+    pub(crate) const ALL: [Mode; 2] = [Mode::PaperStatic, Mode::PaperDynamic];
 
     /// The name used on the command line and in reports.
     #[must_use]
@@ -82,9 +82,9 @@ impl fmt::Display for Mode {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct UnknownName {
     /// What kind of name was expected.
-    pub what: &'static str,
+    pub(crate) what: &'static str,
     /// The valid names.
-    pub valid: &'static str,
+    pub(crate) valid: &'static str,
 }
 
 impl fmt::Display for UnknownName {

@@ -200,7 +200,7 @@ impl<T, const N: usize> RegulatorIn<T, Deque<T, N>> {
 impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
     /// A regulator over the empty `queue` that keeps a stock of `ns`
     /// samples (`ns` below the queue's capacity).
-    pub fn with_queue(queue: Q, ns: usize) -> Result<Self, RegulatorError> {
+    pub(crate) fn with_queue(queue: Q, ns: usize) -> Result<Self, RegulatorError> {
         check_nominal(ns, queue.capacity())?;
         Ok(RegulatorIn {
             queue,
@@ -307,7 +307,7 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
 
     /// The queue's capacity.
     #[must_use]
-    pub fn capacity(&self) -> usize {
+    pub(crate) fn capacity(&self) -> usize {
         self.queue.capacity()
     }
 
@@ -331,7 +331,7 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
 
     /// The `index`-th oldest queued sample.
     #[must_use]
-    pub fn get(&self, index: usize) -> Option<&T> {
+    pub(crate) fn get(&self, index: usize) -> Option<&T> {
         self.queue.get(index)
     }
 

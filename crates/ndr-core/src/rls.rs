@@ -41,7 +41,7 @@ use nalgebra::{SMatrix, SVector};
 /// Default covariance-trace bound, as a multiple of the initial trace `P·δ`.
 ///
 /// See the [module docs](self) for why a million.
-pub const DEFAULT_TRACE_FACTOR: f64 = 1e6;
+pub(crate) const DEFAULT_TRACE_FACTOR: f64 = 1e6;
 
 /// Why an [`Rls`] could not be built or updated.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -119,7 +119,7 @@ pub struct Rls<const P: usize> {
 impl<const P: usize> Rls<P> {
     /// A filter with zero weights, covariance `delta·I` and forgetting factor
     /// `lambda`, with the default trace bound
-    /// [`DEFAULT_TRACE_FACTOR`]` · P · delta`.
+    /// `DEFAULT_TRACE_FACTOR · P · delta`.
     ///
     /// # Errors
     /// [`RlsError::InvalidForgettingFactor`] unless `0 < lambda ≤ 1`;
@@ -146,12 +146,13 @@ impl<const P: usize> Rls<P> {
         })
     }
 
+    #[cfg(test)]
     /// This filter with its covariance-trace bound set to `bound` (builder form
     /// of [`Rls::set_trace_bound`]).
     ///
     /// # Errors
     /// As [`Rls::set_trace_bound`].
-    pub fn with_trace_bound(mut self, bound: f64) -> Result<Self, RlsError> {
+    pub(crate) fn with_trace_bound(mut self, bound: f64) -> Result<Self, RlsError> {
         self.set_trace_bound(bound)?;
         Ok(self)
     }
@@ -255,12 +256,6 @@ impl<const P: usize> Rls<P> {
     #[must_use]
     pub fn weights(&self) -> &[f64; P] {
         &self.w.data.0[0]
-    }
-
-    /// The current weights as an `nalgebra` vector.
-    #[must_use]
-    pub fn weights_vector(&self) -> &SVector<f64, P> {
-        &self.w
     }
 
     /// Replaces the weights (e.g. with a prior model); the covariance is kept.

@@ -30,9 +30,9 @@ pub const INIT_EXCHANGES: usize = 10;
 /// The paper's security factor η.
 pub const DEFAULT_ETA: f64 = 1.3;
 /// The smallest nominal size the paper permits.
-pub const MIN_NOMINAL_SIZE: usize = 2;
+pub(crate) const MIN_NOMINAL_SIZE: usize = 2;
 /// The paper's lower bound on the period, `T_min`.
-pub const DEFAULT_MIN_PERIOD: Duration = Duration::from_millis(50);
+pub(crate) const DEFAULT_MIN_PERIOD: Duration = Duration::from_millis(50);
 
 /// Errors of sizing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -123,10 +123,11 @@ impl<const M: usize> InitPattern<M> {
         }
     }
 
+    #[cfg(test)]
     /// Records the round trip of a frame sent at `sent_at` whose echo came back
     /// at `received_at` (both on the local clock), less `peer_hold`, the time
     /// the peer held it before echoing.
-    pub fn record(
+    pub(crate) fn record(
         &mut self,
         sent_at: Instant,
         received_at: Instant,
@@ -155,30 +156,32 @@ impl<const M: usize> InitPattern<M> {
 
     /// Samples recorded so far.
     #[must_use]
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.len
     }
 
+    #[cfg(test)]
     /// Whether nothing is recorded.
     #[must_use]
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.len == 0
     }
 
+    #[cfg(test)]
     /// Whether all `M` exchanges are recorded.
     #[must_use]
-    pub fn is_complete(&self) -> bool {
+    pub(crate) fn is_complete(&self) -> bool {
         self.len == M
     }
 
     /// The NRTT samples recorded, in order.
     #[must_use]
-    pub fn samples(&self) -> &[Duration] {
+    pub(crate) fn samples(&self) -> &[Duration] {
         &self.nrtt[..self.len]
     }
 
     /// Forgets the samples, for a new pattern.
-    pub fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.len = 0;
     }
 
@@ -237,12 +240,6 @@ impl Sizing {
     #[must_use]
     pub fn eta(&self) -> f64 {
         self.eta
-    }
-
-    /// The lower period bound `T_min`.
-    #[must_use]
-    pub fn min_period(&self) -> Duration {
-        self.min_period
     }
 
     /// `ns = 2 + floor(η · mt / T)`, saturating; a zero period counts as 1 ns.

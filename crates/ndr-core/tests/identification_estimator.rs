@@ -4,8 +4,8 @@
 
 use std::f64::consts::PI;
 
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
-use ndr_core::estimator::{Estimate, Estimator};
+use ndr_core::{Arx2, Tf2, Tf2State};
+use ndr_core::{Estimate, Estimator};
 
 /// The operator's command: four incommensurate sines (rad/tick).
 fn command(n: usize) -> f64 {

@@ -3,8 +3,8 @@
 
 use std::f64::consts::PI;
 
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
-use ndr_core::rls::Rls;
+use ndr_core::Rls;
+use ndr_core::{Arx2, Tf2, Tf2State};
 
 /// xorshift64: a seeded pseudo-random source, enough for a PRBS.
 struct XorShift(u64);

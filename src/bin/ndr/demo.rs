@@ -9,9 +9,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::{Config, Event, Mode, Status, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::regulation::Regulation;
 use ndr::core::time::Duration;
 use ndr::core::wire::Role;
 use ndr::net::{Link, LinkConfig, LinkStats, Listener, NetError, Relay, RelayConfig, TlsConfig};

@@ -3,9 +3,9 @@
 
 use std::io::IsTerminal;
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::{Event, Mode};
 use ndr::core::playout::Playout;
-use ndr::core::regulation::Regulation;
 use ndr::net::link::LinkEvent;
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::filter::LevelFilter;

@@ -7,8 +7,8 @@ use std::sync::Arc;
 
 use ndr::core::endpoint::{Mode, Transport, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::regulation::{Regulation, RegulationNames};
 use ndr::core::time::Duration;
+use ndr::core::{Regulation, RegulationNames};
 use ndr::sim::delay::{DelayModel, DistTable, LossModel, Trace};
 use ndr::sim::signal::Signal;
 use ndr::sim::{self, Report, Row, SimConfig};

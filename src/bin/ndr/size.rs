@@ -1,7 +1,7 @@
 //! `ndr size`: a regulator's nominal size from an initialization pattern.
 
-use ndr::core::sizing::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
 use ndr::core::time::Duration;
+use ndr::core::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
 use serde::Serialize;
 
 #[derive(clap::Args)]

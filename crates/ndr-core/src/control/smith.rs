@@ -80,7 +80,7 @@ impl<const H: usize> SmithPredictor<H> {
     /// A predictor that identifies its model online with `arx` from the
     /// commands and the measured states (the model of `arx` so far, if
     /// trained, is used from the start). Until the identifier has adapted
-    /// [`MIN_IDENTIFICATION_UPDATES`] times, on states that answer a
+    /// 5 times, on states that answer a
     /// command (not the first round trip's, the plant at rest), the
     /// controller is given the measured state itself. On a long round trip
     /// a loop closed on that is unstable: drive the plant open loop until

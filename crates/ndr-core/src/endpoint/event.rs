@@ -138,7 +138,7 @@ pub enum Event<V> {
     /// Target-delay playout: the end-to-end delay of the released samples
     /// changed: by at least a tick for the fixed policies; by whole quanta
     /// for the adaptive one (periods up to 20 ms, `T/⌈T/20 ms⌉` beyond,
-    /// [`DELAY_QUANTUM`](crate::playout::DELAY_QUANTUM)), without a pause: a repeated
+    /// 20 ms), without a pause: a repeated
     /// sample when it rises, releases brought forward when it falls.
     DelayChanged {
         /// The new delay (release on this side's clock − send on the peer's,

@@ -44,8 +44,8 @@ mod stats;
 use heapless::Deque;
 
 pub use config::{
-    Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, DEFAULT_REPEATS,
-    MAX_REPEATS, MIN_PERIOD, Mode, REPEAT_HOLD, REPEAT_SPACING, Transport, Underflow, UnknownName,
+    Adaptation, Config, ConfigError, DEFAULT_LIVENESS, MIN_PERIOD, Mode, REPEAT_HOLD, Transport,
+    Underflow, UnknownName,
 };
 pub use datagram::{DatagramError, Origin, RenewError, Taken};
 pub use error::LinkError;
@@ -67,7 +67,7 @@ use release::Released;
 /// A pause or a re-run initialization pattern may take this many times
 /// what it needs (its probes at the period, plus the slowest round trip
 /// seen) before it times out, if that is longer than the handshake timeout.
-pub const PATTERN_SLACK: u64 = 3;
+pub(crate) const PATTERN_SLACK: u64 = 3;
 
 /// Where the endpoint is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -536,12 +536,6 @@ impl<S: Storage> Endpoint<S> {
     pub fn playout_delay(&self) -> Option<Duration> {
         self.last_tick()?;
         self.policy.delay()
-    }
-
-    /// The peer's Hello, once the handshake is done.
-    #[must_use]
-    pub fn peer(&self) -> Option<Hello> {
-        self.peer
     }
 
     // ----- internals ---------------------------------------------------------

@@ -14,7 +14,7 @@ pub struct Running {
 
 impl Running {
     /// Adds one value.
-    pub fn push(&mut self, x: f64) {
+    pub(crate) fn push(&mut self, x: f64) {
         self.count += 1;
         if self.count == 1 {
             self.min = x;
@@ -53,12 +53,6 @@ impl Running {
         } else {
             libm::sqrt(self.m2 / self.count as f64)
         }
-    }
-
-    /// The smallest (0 when empty).
-    #[must_use]
-    pub fn min(&self) -> f64 {
-        self.min
     }
 
     /// The largest (0 when empty).
@@ -140,12 +134,12 @@ pub struct Stats {
     /// from here as a gap in `seq` (its driver stalled).
     pub frames_missing: u64,
     /// Round trips whose start had left the send-time history.
-    pub grtt_unmeasured: u64,
+    pub(crate) grtt_unmeasured: u64,
     /// Datagram transport: datagrams of this session taken (each a Bundle
     /// of samples).
     pub datagrams_received: u64,
     /// Datagram transport: repeats sent (a sample's datagram sent again,
-    /// [`REPEAT_SPACING`](super::REPEAT_SPACING) apart); the peer drops
+    /// 1 ms apart); the peer drops
     /// those that find the sample taken, as stale.
     pub datagrams_repeated: u64,
     /// Datagram transport: samples taken from a later datagram's copy
@@ -189,7 +183,7 @@ pub struct Stats {
     /// the clock offset estimate; from the first echo on).
     pub one_way_rx: Running,
     /// One-way delays of our frames, from the peer's echoes, in seconds.
-    pub one_way_tx: Running,
+    pub(crate) one_way_tx: Running,
     /// The clock offset estimate `local − peer` at the latest frame, in
     /// seconds (0 until both directions have a floor). Serialized as
     /// `clock_offset`, the name the bindings show.

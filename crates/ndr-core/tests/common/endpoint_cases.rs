@@ -426,7 +426,7 @@ fn handshake_mismatches_end_the_link_with_their_error() {
     );
 
     // A robot that names its channels, an operator that names none.
-    let arm = ndr_core::layout::fingerprint(&["q1", "q2"], &["q1", "q2"]);
+    let arm = ndr_core::fingerprint(&["q1", "q2"], &["q1", "q2"]);
     let (b, r) = mismatch(|c| c.layout = arm);
     assert_eq!(
         r,
