@@ -160,13 +160,13 @@ impl Tf2 {
 
     /// The parameters in RLS order `[b0, b1, b2, a1, a2]`.
     #[must_use]
-    pub const fn params(&self) -> [f64; 5] {
+    pub(crate) const fn params(&self) -> [f64; 5] {
         [self.b[0], self.b[1], self.b[2], self.a[0], self.a[1]]
     }
 
     /// The transfer function from parameters in RLS order `[b0, b1, b2, a1, a2]`.
     #[must_use]
-    pub const fn from_params(theta: &[f64; 5]) -> Self {
+    pub(crate) const fn from_params(theta: &[f64; 5]) -> Self {
         Tf2 {
             b: [theta[0], theta[1], theta[2]],
             a: [theta[3], theta[4]],
@@ -373,9 +373,10 @@ impl Arx2 {
         &self.rls
     }
 
+    #[cfg(test)]
     /// The RLS engine, mutable: set prior weights, reset the covariance after
     /// a known change, tune the forgetting factor.
-    pub fn rls_mut(&mut self) -> &mut Rls<5> {
+    pub(crate) fn rls_mut(&mut self) -> &mut Rls<5> {
         &mut self.rls
     }
 

@@ -131,6 +131,7 @@ impl core::error::Error for EstimatorError {
 
 /// The estimator's output for one tick `n`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Estimate {
     /// Estimate of the remote's current state `y[n]`.
     pub x3e: f64,

@@ -208,6 +208,9 @@ mod sync;
 pub mod time;
 pub mod wire;
 
+#[cfg(all(test, feature = "std"))]
+mod tests;
+
 pub use arx::{Arx2, ArxError, Tf2, Tf2State};
 pub use endpoint::{Config, Endpoint, Event, LinkError, Mode, Underflow};
 pub use estimator::{Estimate, Estimator, EstimatorError};

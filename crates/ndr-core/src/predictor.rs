@@ -102,6 +102,7 @@ impl PredictorConfig {
 
 /// One step's output. Times in seconds.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Prediction {
     /// Measured mean NRTT (the low-passed samples).
     pub nrtt_mean: f64,

@@ -80,6 +80,7 @@ impl fmt::Display for Mode {
 /// A name that is not a known [`Mode`] or
 /// [`Underflow`](crate::endpoint::Underflow) policy.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct UnknownName {
     /// What kind of name was expected.
     pub(crate) what: &'static str,

@@ -29,9 +29,10 @@ use crate::storage::Queue;
 pub struct Full<T>(pub T);
 
 impl<T> Full<T> {
+    #[cfg(test)]
     /// The sample that did not fit.
     #[must_use]
-    pub fn into_inner(self) -> T {
+    pub(crate) fn into_inner(self) -> T {
         self.0
     }
 }
@@ -106,6 +107,7 @@ pub enum Tick<T> {
 ///
 /// Invariant: `arrived = released + len + rejected + discarded`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct Counters {
     /// Samples offered to [`RegulatorIn::push`].
     pub arrived: u64,
@@ -124,6 +126,7 @@ pub struct Counters {
 /// Queue occupancy seen at the running ticks, just before each release: the
 /// paper's `s(t)`, of which `GRTT = 2·max(s)·T + NRTT`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Occupancy {
     /// Smallest occupancy seen.
     pub min: usize,
@@ -231,7 +234,7 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
     ///
     /// Slot-based playout uses this: a sample whose slot is later than this
     /// tick must wait, and this tick's slot has nothing to give.
-    pub fn tick_if(&mut self, due: impl FnOnce(&T) -> bool) -> Tick<T> {
+    pub(crate) fn tick_if(&mut self, due: impl FnOnce(&T) -> bool) -> Tick<T> {
         if self.phase == Phase::Prefilling {
             if self.queue.len() <= self.nominal {
                 return Tick::Prefilling {

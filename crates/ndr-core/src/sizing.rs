@@ -86,6 +86,7 @@ impl core::error::Error for SizingError {}
 
 /// What the initialization pattern measured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct InitStats {
     /// Number of round trips measured.
     pub samples: usize,

@@ -211,6 +211,7 @@ impl fmt::Display for Underflow {
 /// the queue (`mt ≥ ns·T`: a lag that long uses up the whole stock) —
 /// whichever comes first.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Adaptation {
     /// Relative distance between forecast and current parameters that
     /// triggers a resize (0.25: 25 %).

@@ -28,6 +28,7 @@ impl Status {
 /// One sample released by the regulator at a tick, its values in `V`
 /// (the endpoint's [`Storage::Values`](crate::storage::Storage::Values)).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Release<V> {
     /// The sample's sequence number (the peer's Data frame count).
     pub seq: u64,

@@ -528,12 +528,13 @@ impl<S: Storage> Endpoint<S> {
         &self.sync
     }
 
+    #[cfg(test)]
     /// The end-to-end delay the playout policy holds now (the release time
     /// on the local clock minus the send time on the peer's, corrected by
     /// the offset estimate for a policy that maps the clocks); `None` for
     /// the FIFO, whose delay is its queue's, and before the policy has one.
     #[must_use]
-    pub fn playout_delay(&self) -> Option<Duration> {
+    pub(crate) fn playout_delay(&self) -> Option<Duration> {
         self.last_tick()?;
         self.policy.delay()
     }
@@ -706,6 +707,7 @@ impl<S: Storage> Endpoint<S> {
         self.policy.following_tick(t + self.period)
     }
 
+    #[cfg(test)]
     fn last_tick(&self) -> Option<Instant> {
         Some(self.next_tick? - self.period)
     }

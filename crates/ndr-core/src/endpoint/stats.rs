@@ -127,7 +127,7 @@ pub struct Stats {
     /// Watchdog alarms: times no fresh sample came for the watchdog time.
     pub link_lost: u64,
     /// Parameter changes clamped to what the regulator can hold.
-    pub clamped: u64,
+    pub(crate) clamped: u64,
     /// Frames given up because the driver did not drain `poll_transmit`.
     pub tx_dropped: u64,
     /// Data frames the peer numbered but never sent: its `tx_dropped`, seen
@@ -151,7 +151,7 @@ pub struct Stats {
     /// Datagram transport: times the peer's count of this side's samples
     /// it missed grew, each keeping this side's repeats going for
     /// [`REPEAT_HOLD`](super::REPEAT_HOLD).
-    pub loss_reports: u64,
+    pub(crate) loss_reports: u64,
     /// Datagram transport: samples never received, neither in their own
     /// datagram nor in a later one's copies, before a newer one came.
     pub samples_lost: u64,
@@ -197,7 +197,7 @@ pub struct Stats {
     #[cfg_attr(feature = "serde", serde(rename = "playout_delay"))]
     pub playout_delay_s: f64,
     /// The same in ticks (periods, rounded up).
-    pub playout_delay_ticks: u64,
+    pub(crate) playout_delay_ticks: u64,
     /// Changes of the playout delay (each one an [`Event::DelayChanged`]):
     /// of `playout_delay_ticks` for the fixed policies, of
     /// `playout_delay_s` at rest for the adaptive one.
@@ -206,12 +206,12 @@ pub struct Stats {
     pub delay_changes: u64,
     /// The round trip of this side's samples in ticks (`⌈GRTT / T⌉`), the
     /// last measured; 0 before the first.
-    pub round_trip_ticks: u64,
+    pub(crate) round_trip_ticks: u64,
     /// Changes of `round_trip_ticks`, the first measured one included
     /// (each one an [`Event::RoundTripChanged`]).
     ///
     /// [`Event::RoundTripChanged`]: super::Event::RoundTripChanged
-    pub round_trip_changes: u64,
+    pub(crate) round_trip_changes: u64,
     /// Adaptive playout: frames left out of the target's delay window
     /// because they ended a silence longer than the watchdog time, or came
     /// after such a frame still held longer than that, or in the burst held

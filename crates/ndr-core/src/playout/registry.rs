@@ -429,15 +429,17 @@ impl FromStr for Playout {
 
 /// A [`Playout`] given in Rust with a value out of its range.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct InvalidPlayout {
     playout: Playout,
     why: &'static str,
 }
 
 impl InvalidPlayout {
+    #[cfg(test)]
     /// The playout refused.
     #[must_use]
-    pub fn playout(&self) -> Playout {
+    pub(crate) fn playout(&self) -> Playout {
         self.playout
     }
 }

@@ -450,7 +450,7 @@ impl Message<'_> {
 /// than [`MAX_CHANNELS`] values, larger than [`MAX_FRAME_LEN`]: [`encode`]
 /// refuses it).
 #[must_use]
-pub const fn encoded_len(msg: &Message<'_>) -> usize {
+pub(crate) const fn encoded_len(msg: &Message<'_>) -> usize {
     let payload = match msg {
         Message::Data(values) => values.len().saturating_mul(8),
         Message::Bundle { newest, older, .. } => {

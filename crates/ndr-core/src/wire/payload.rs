@@ -85,7 +85,7 @@ impl<'a> Channels<'a> {
 
     /// Number of channels.
     #[must_use]
-    pub const fn len(&self) -> usize {
+    pub(crate) const fn len(&self) -> usize {
         self.bytes.len() / 8
     }
 
@@ -112,7 +112,7 @@ impl<'a> Channels<'a> {
     /// Copies the values to the front of `dst` and returns how many there are.
     ///
     /// # Errors
-    /// [`WireError::DestinationTooSmall`] if `dst` is shorter than [`len`](Self::len);
+    /// [`WireError::DestinationTooSmall`] if `dst` is shorter than the channel count;
     /// `dst` is then left untouched.
     pub fn copy_to(&self, dst: &mut [f64]) -> Result<usize, WireError> {
         let n = self.len();
@@ -297,7 +297,7 @@ pub mod close_reason {
     pub const SEQUENCE: u16 = 10;
     /// A Data frame whose send stamp does not advance as the sender's
     /// clock can: a step back, or a stamp from the future.
-    pub const STAMP: u16 = 11;
+    pub(crate) const STAMP: u16 = 11;
     /// The peers were built for different channel layouts.
     pub const LAYOUT_MISMATCH: u16 = 12;
     /// One peer runs over a stream, the other over datagrams.
