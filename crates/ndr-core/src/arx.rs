@@ -1,22 +1,5 @@
 //! The remote system's per-axis model: a second-order discrete transfer
 //! function, its simulator, and its online identification.
-//!
-//! The paper (§4.3) models every axis of the remote robot, once linearised by
-//! computed torque, as a continuous second-order low-pass system discretized
-//! by the bilinear transform:
-//!
-//! ```text
-//!          b0 + b1 z⁻¹ + b2 z⁻²
-//! H(z) = ────────────────────────      y[k] = b0 u[k] + b1 u[k−1] + b2 u[k−2]
-//!           1 + a1 z⁻¹ + a2 z⁻²                 − a1 y[k−1] − a2 y[k−2]
-//! ```
-//!
-//! - [`Tf2`] holds the coefficients ([`Tf2::low_pass`] builds them from
-//!   `ωn`, `ζ`, gain and period);
-//! - [`Tf2State`] simulates one (the simulator's plant, one per axis);
-//! - [`Arx2`] identifies one from the input/output stream with an [`Rls<5>`]
-//!   on the regressor `φ[k] = [u[k], u[k−1], u[k−2], −y[k−1], −y[k−2]]` and
-//!   the parameters `θ = [b0, b1, b2, a1, a2]`.
 
 use core::fmt;
 
@@ -272,6 +255,26 @@ impl Tf2State {
     }
 }
 
+/// The remote system's per-axis model: a second-order discrete transfer
+/// function, its simulator, and its online identification.
+///
+/// The paper (§4.3) models every axis of the remote robot, once linearised by
+/// computed torque, as a continuous second-order low-pass system discretized
+/// by the bilinear transform:
+///
+/// ```text
+///          b0 + b1 z⁻¹ + b2 z⁻²
+/// H(z) = ────────────────────────      y[k] = b0 u[k] + b1 u[k−1] + b2 u[k−2]
+///           1 + a1 z⁻¹ + a2 z⁻²                 − a1 y[k−1] − a2 y[k−2]
+/// ```
+///
+/// - [`Tf2`] holds the coefficients ([`Tf2::low_pass`] builds them from
+///   `ωn`, `ζ`, gain and period);
+/// - [`Tf2State`] simulates one (the simulator's plant, one per axis);
+/// - [`Arx2`] identifies one from the input/output stream with an [`Rls<5>`]
+///   on the regressor `φ[k] = [u[k], u[k−1], u[k−2], −y[k−1], −y[k−2]]` and
+///   the parameters `θ = [b0, b1, b2, a1, a2]`.
+///
 /// Online identification of a [`Tf2`] from the input/output stream of one
 /// axis, by recursive least squares on
 /// `φ[k] = [u[k], u[k−1], u[k−2], −y[k−1], −y[k−2]]`,

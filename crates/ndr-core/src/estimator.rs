@@ -1,62 +1,6 @@
 //! Estimation of the remote's current state and prediction of its state when
 //! the command sent now takes effect (the paper's §4.3 and Fig. 10, after
 //! Oboe & Fiorini 1998).
-//!
-//! The regulators make both one-way delays constant and whole numbers of
-//! ticks, so commands and states can be aligned exactly; the base then runs
-//! an identified model of the remote forward from the last received state.
-//!
-//! # Timing contract
-//!
-//! Both peers run the same period, so one tick index `n` serves both.
-//!
-//! - At tick `n` the base sends the command `u[n]`.
-//! - The remote's regulator releases it `Df` ticks later, where it becomes the
-//!   plant's input: `p[m] = u[m − Df]`.
-//! - The plant's output at tick `m` is `y[m]` (it may depend on `p[m]`
-//!   through `b0`). The remote sends `y[m]` at tick `m`; the base's regulator
-//!   releases it at tick `m + Db`.
-//!
-//! So at base tick `n` the base knows `u[..=n]` and `y[..=n − Db]`, and
-//! [`Estimator::step`] returns
-//!
-//! - `x3e[n]`, the estimate of `y[n]`: the remote's current state, `Db` ticks
-//!   before its feedback arrives;
-//! - `x3p[n]`, the estimate of `y[n + Df]`: the state when the command sent
-//!   now takes effect.
-//!
-//! ```text
-//! tick       n−Db−Df−2 … n−Db … n … n+Df
-//! u known    ─────────────────────────┤ n
-//! y known    ───────────────┤ n−Db                (anchor y[n−Db], y[n−Db−1])
-//! simulated                 ├──── x3e ┼──── x3p
-//! ```
-//!
-//! # Per tick
-//!
-//! [`Estimator::step`]`(u, y)` records `u[n]`; `y` is the sample released at
-//! this tick, `y[n − Db]`, or `None` if none was (queue underflow).
-//!
-//! - With a sample: identification (if enabled) adapts on the pair
-//!   `(p[n − Db], y[n − Db])`, once the command history reaches back to
-//!   `u[n − Db − Df]`; the sample becomes the anchor of the simulation.
-//! - Without: the model's own one-step output stands in for `y[n − Db]`, and
-//!   no adaptation uses a regressor that contains it (the next two samples
-//!   only refill the identification history, see
-//!   [`Arx2::record_substitute`]).
-//!
-//! Then the model is simulated from the anchor `(y[n − Db], y[n − Db − 1])`
-//! with the known inputs `p[m] = u[m − Df]` up to `m = n` (`x3e`) and on to
-//! `m = n + Df` (`x3p`): `Db + Df` steps of the difference equation.
-//!
-//! # Warm-up and fallback
-//!
-//! The model is used once (a) the command history reaches `u[n − Db − Df − 1]`
-//! (i.e. from tick `Db + Df + 1` on), (b) two consecutive samples anchor the
-//! simulation, and (c) when identifying, the RLS has adapted at least
-//! [`MIN_IDENTIFICATION_UPDATES`] times. Until then, and whenever the
-//! simulation would not be finite, both outputs hold the last received state
-//! (`0.0` before the first one) and [`Estimate::from_model`] is `false`.
 
 use core::fmt;
 
@@ -151,6 +95,66 @@ enum Model {
     Fixed(Tf2),
 }
 
+/// Estimation of the remote's current state and prediction of its state when
+/// the command sent now takes effect (the paper's §4.3 and Fig. 10, after
+/// Oboe & Fiorini 1998).
+///
+/// The regulators make both one-way delays constant and whole numbers of
+/// ticks, so commands and states can be aligned exactly; the base then runs
+/// an identified model of the remote forward from the last received state.
+///
+/// # Timing contract
+///
+/// Both peers run the same period, so one tick index `n` serves both.
+///
+/// - At tick `n` the base sends the command `u[n]`.
+/// - The remote's regulator releases it `Df` ticks later, where it becomes the
+///   plant's input: `p[m] = u[m − Df]`.
+/// - The plant's output at tick `m` is `y[m]` (it may depend on `p[m]`
+///   through `b0`). The remote sends `y[m]` at tick `m`; the base's regulator
+///   releases it at tick `m + Db`.
+///
+/// So at base tick `n` the base knows `u[..=n]` and `y[..=n − Db]`, and
+/// [`Estimator::step`] returns
+///
+/// - `x3e[n]`, the estimate of `y[n]`: the remote's current state, `Db` ticks
+///   before its feedback arrives;
+/// - `x3p[n]`, the estimate of `y[n + Df]`: the state when the command sent
+///   now takes effect.
+///
+/// ```text
+/// tick       n−Db−Df−2 … n−Db … n … n+Df
+/// u known    ─────────────────────────┤ n
+/// y known    ───────────────┤ n−Db                (anchor y[n−Db], y[n−Db−1])
+/// simulated                 ├──── x3e ┼──── x3p
+/// ```
+///
+/// # Per tick
+///
+/// [`Estimator::step`]`(u, y)` records `u[n]`; `y` is the sample released at
+/// this tick, `y[n − Db]`, or `None` if none was (queue underflow).
+///
+/// - With a sample: identification (if enabled) adapts on the pair
+///   `(p[n − Db], y[n − Db])`, once the command history reaches back to
+///   `u[n − Db − Df]`; the sample becomes the anchor of the simulation.
+/// - Without: the model's own one-step output stands in for `y[n − Db]`, and
+///   no adaptation uses a regressor that contains it (the next two samples
+///   only refill the identification history, see
+///   [`Arx2::record_substitute`]).
+///
+/// Then the model is simulated from the anchor `(y[n − Db], y[n − Db − 1])`
+/// with the known inputs `p[m] = u[m − Df]` up to `m = n` (`x3e`) and on to
+/// `m = n + Df` (`x3p`): `Db + Df` steps of the difference equation.
+///
+/// # Warm-up and fallback
+///
+/// The model is used once (a) the command history reaches `u[n − Db − Df − 1]`
+/// (i.e. from tick `Db + Df + 1` on), (b) two consecutive samples anchor the
+/// simulation, and (c) when identifying, the RLS has adapted at least
+/// 5 times. Until then, and whenever the
+/// simulation would not be finite, both outputs hold the last received state
+/// (`0.0` before the first one) and [`Estimate::from_model`] is `false`.
+///
 /// Base-side estimator/predictor of one axis of the remote system, with a
 /// command history of capacity `H` (at least `Df + Db + 3`).
 ///

@@ -1,38 +1,4 @@
 //! Recursive least squares (RLS) with exponential forgetting.
-//!
-//! [`Rls`] fits the linear model `d ≈ wᵀx` one sample at a time. It is the
-//! identification engine behind [`crate::arx::Arx2`]. Names map onto
-//! padasip's `FilterRLS`: [`Rls::update`]`(x, d)` is `adapt(d, x)`,
-//! [`Rls::predict`] is `predict(x)`, [`Rls::weights`] is `w`; the covariance
-//! is `P` as in filterpy.
-//!
-//! Per sample, with regressor `x`, desired value `d` and forgetting factor `λ`:
-//!
-//! ```text
-//! e = d − wᵀx                  a-priori error (returned)
-//! k = P x / (λ + xᵀ P x)       gain
-//! w ← w + k e
-//! P ← (P − k (P x)ᵀ) / λ       uses P = Pᵀ: k xᵀ P = k (P x)ᵀ
-//! ```
-//!
-//! `P` stays exactly symmetric: entry `(i, j)` is computed from
-//! `(Px)ᵢ·(Px)ⱼ`, which rounds the same as `(Px)ⱼ·(Px)ᵢ`, so no explicit
-//! symmetrization is needed.
-//!
-//! **Covariance wind-up.** With `λ < 1`, directions of `x` that stop being
-//! excited have their covariance divided by `λ` every sample, so `P` grows
-//! geometrically and the next informative sample moves `w` violently (and
-//! eventually `P` overflows). The filter bounds `tr P`: when it exceeds the
-//! bound, `P` is reset to `δ·I` and [`Rls::covariance_resets`] counts it. The
-//! default bound is [`DEFAULT_TRACE_FACTOR`]` · P · δ`, a million times the
-//! initial trace: while the input excites every direction, information only
-//! accumulates and `tr P` stays at or below its initial value `P·δ`, so a
-//! bound this far above it never fires during normal convergence; it fires
-//! only after a long stretch without excitation (about 680 samples from `δ·I`
-//! at `λ = 0.98`, longer from a converged `P`), and it keeps `P` five or more
-//! orders of magnitude away from `f64` overflow and from a condition number
-//! near `1/ε`. Rounding that makes `P` lose positive definiteness
-//! (`xᵀPx < 0` or a non-positive diagonal entry) resets it in the same way.
 
 use core::fmt;
 
@@ -99,6 +65,42 @@ impl fmt::Display for RlsError {
 
 impl core::error::Error for RlsError {}
 
+/// Recursive least squares (RLS) with exponential forgetting.
+///
+/// [`Rls`] fits the linear model `d ≈ wᵀx` one sample at a time. It is the
+/// identification engine behind [`crate::arx::Arx2`]. Names map onto
+/// padasip's `FilterRLS`: [`Rls::update`]`(x, d)` is `adapt(d, x)`,
+/// [`Rls::predict`] is `predict(x)`, [`Rls::weights`] is `w`; the covariance
+/// is `P` as in filterpy.
+///
+/// Per sample, with regressor `x`, desired value `d` and forgetting factor `λ`:
+///
+/// ```text
+/// e = d − wᵀx                  a-priori error (returned)
+/// k = P x / (λ + xᵀ P x)       gain
+/// w ← w + k e
+/// P ← (P − k (P x)ᵀ) / λ       uses P = Pᵀ: k xᵀ P = k (P x)ᵀ
+/// ```
+///
+/// `P` stays exactly symmetric: entry `(i, j)` is computed from
+/// `(Px)ᵢ·(Px)ⱼ`, which rounds the same as `(Px)ⱼ·(Px)ᵢ`, so no explicit
+/// symmetrization is needed.
+///
+/// **Covariance wind-up.** With `λ < 1`, directions of `x` that stop being
+/// excited have their covariance divided by `λ` every sample, so `P` grows
+/// geometrically and the next informative sample moves `w` violently (and
+/// eventually `P` overflows). The filter bounds `tr P`: when it exceeds the
+/// bound, `P` is reset to `δ·I` and [`Rls::covariance_resets`] counts it. The
+/// default bound is `DEFAULT_TRACE_FACTOR · P · δ`, a million times the
+/// initial trace: while the input excites every direction, information only
+/// accumulates and `tr P` stays at or below its initial value `P·δ`, so a
+/// bound this far above it never fires during normal convergence; it fires
+/// only after a long stretch without excitation (about 680 samples from `δ·I`
+/// at `λ = 0.98`, longer from a converged `P`), and it keeps `P` five or more
+/// orders of magnitude away from `f64` overflow and from a condition number
+/// near `1/ε`. Rounding that makes `P` lose positive definiteness
+/// (`xᵀPx < 0` or a non-positive diagonal entry) resets it in the same way.
+///
 /// Recursive least squares estimator of `P` weights with forgetting factor
 /// `λ` and initial covariance `δ·I`.
 ///

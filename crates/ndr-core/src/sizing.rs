@@ -1,25 +1,5 @@
 //! Queue sizing and the period law: the initialization pattern (paper §4.2.2)
 //! and the choice of new parameters (§4.2.4.3).
-//!
-//! At start-up, [`INIT_EXCHANGES`] frames are exchanged and their round-trip
-//! times (NRTT) recorded in an [`InitPattern`]. From them come `mt`, the largest
-//! time by which a reception can lag its schedule, and the nominal queue size
-//!
-//! ```text
-//! ns = 2 + floor(η · mt / T)        η = 1.3, never below 2
-//! ```
-//!
-//! `ns` is the stock a regulator keeps between releases. It drains by one per
-//! period while nothing arrives, so it survives a reception lagging by `mt`
-//! with 2 samples to spare. `mt` is the
-//! paper's "maximum time between two receptions (ie maximum difference between
-//! delays)": frames are sent on a fixed schedule, so a reception lags the
-//! schedule by its delay minus the smallest delay — `mt = max(NRTT) − min(NRTT)`.
-//! (The raw time between receptions includes the period itself; with it `ns`
-//! could never be 2, yet the paper reports `ns = 2` on its 23 ms LAN at 200 ms.)
-//!
-//! The period law, once the mean NRTT is known: `T = max(T_min, NRTT/3)`,
-//! `T_min = 50 ms`.
 
 use core::fmt;
 
@@ -208,6 +188,29 @@ impl<const M: usize> InitPattern<M> {
     }
 }
 
+/// Queue sizing and the period law: the initialization pattern (paper §4.2.2)
+/// and the choice of new parameters (§4.2.4.3).
+///
+/// At start-up, [`INIT_EXCHANGES`] frames are exchanged and their round-trip
+/// times (NRTT) recorded in an [`InitPattern`]. From them come `mt`, the largest
+/// time by which a reception can lag its schedule, and the nominal queue size
+///
+/// ```text
+/// ns = 2 + floor(η · mt / T)        η = 1.3, never below 2
+/// ```
+///
+/// `ns` is the stock a regulator keeps between releases. It drains by one per
+/// period while nothing arrives, so it survives a reception lagging by `mt`
+/// with 2 samples to spare. `mt` is the
+/// paper's "maximum time between two receptions (ie maximum difference between
+/// delays)": frames are sent on a fixed schedule, so a reception lags the
+/// schedule by its delay minus the smallest delay — `mt = max(NRTT) − min(NRTT)`.
+/// (The raw time between receptions includes the period itself; with it `ns`
+/// could never be 2, yet the paper reports `ns = 2` on its 23 ms LAN at 200 ms.)
+///
+/// The period law, once the mean NRTT is known: `T = max(T_min, NRTT/3)`,
+/// `T_min = 50 ms`.
+///
 /// The paper's laws with their constants: `ns` from `mt` and the period from NRTT.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sizing {

@@ -1,32 +1,4 @@
 //! The peers' clock offset and skew, from the timestamps the link exchanges.
-//!
-//! Each side reads its own clock: a frame's `sent_at` is on the peer's, its
-//! arrival on ours. Their difference, the *raw delay*, is the one-way delay
-//! plus `θ(t) = local − peer`, the offset, which drifts at the skew
-//! `s = dθ/dt` (crystals: up to ±100 ppm). [`ClockSync`] estimates both:
-//!
-//! - **Skew**, after Moon, Skelley and Towsley (1999): the raw delays of the
-//!   received frames lie above the line `d_min + θ(t)`. The skew is the
-//!   slope of the line under every point that minimizes the sum of the
-//!   distances to them: on the lower convex hull of the points, the edge
-//!   spanning their mean time. The points are the minima of
-//!   [`SYNC_BLOCK`]-long blocks (a hull vertex is the lowest point around
-//!   it), the last [`SYNC_BLOCKS`] of them (a window of about 11 minutes, so
-//!   a drifting skew is followed). A block minimum more than
-//!   [`SHIFT_MIN`] (or four mean residuals) off the line is a level shift
-//!   (a route change, not a clock): the window restarts there and keeps the
-//!   skew (switching). The slope is clamped to ±[`MAX_SKEW`].
-//! - **Offset**, as NTP does (`θ = ((t4 − t3) − (t2 − t1))/2` for a frame
-//!   that echoes ours: `t1` our send, `t2 = t3 − hold` its arrival on the
-//!   peer's clock, `t3` the peer's send, `t4` our arrival), with the
-//!   minimum-delay filter taken per direction: the same floor is kept for
-//!   our frames (`t2 − t1 = d_forth − θ`, from the echoes) and `θ` is half
-//!   the difference of the two floors. Its error is half the asymmetry of
-//!   the two paths' fastest frames, plus the floors' spread (the gap between
-//!   the true minimum and the lowest of a block's samples). The skew is half
-//!   the difference of the two floors' slopes.
-//!
-//! Everything is in integer nanoseconds on the local clock, in O(1) memory.
 
 use crate::time::{Duration, Instant};
 
@@ -225,6 +197,36 @@ impl Floor {
     }
 }
 
+/// The peers' clock offset and skew, from the timestamps the link exchanges.
+///
+/// Each side reads its own clock: a frame's `sent_at` is on the peer's, its
+/// arrival on ours. Their difference, the *raw delay*, is the one-way delay
+/// plus `θ(t) = local − peer`, the offset, which drifts at the skew
+/// `s = dθ/dt` (crystals: up to ±100 ppm). [`ClockSync`] estimates both:
+///
+/// - **Skew**, after Moon, Skelley and Towsley (1999): the raw delays of the
+///   received frames lie above the line `d_min + θ(t)`. The skew is the
+///   slope of the line under every point that minimizes the sum of the
+///   distances to them: on the lower convex hull of the points, the edge
+///   spanning their mean time. The points are the minima of
+///   5 s blocks (a hull vertex is the lowest point around
+///   it), the last 128 of them (a window of about 11 minutes, so
+///   a drifting skew is followed). A block minimum more than
+///   5 ms (or four mean residuals) off the line is a level shift
+///   (a route change, not a clock): the window restarts there and keeps the
+///   skew (switching). The slope is clamped to ±500 ppm.
+/// - **Offset**, as NTP does (`θ = ((t4 − t3) − (t2 − t1))/2` for a frame
+///   that echoes ours: `t1` our send, `t2 = t3 − hold` its arrival on the
+///   peer's clock, `t3` the peer's send, `t4` our arrival), with the
+///   minimum-delay filter taken per direction: the same floor is kept for
+///   our frames (`t2 − t1 = d_forth − θ`, from the echoes) and `θ` is half
+///   the difference of the two floors. Its error is half the asymmetry of
+///   the two paths' fastest frames, plus the floors' spread (the gap between
+///   the true minimum and the lowest of a block's samples). The skew is half
+///   the difference of the two floors' slopes.
+///
+/// Everything is in integer nanoseconds on the local clock, in O(1) memory.
+///
 /// Offset and skew of the peer's clock, estimated online (module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ClockSync {
