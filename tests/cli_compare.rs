@@ -325,25 +325,9 @@ fn matched_is_deterministic_and_only_when_asked() {
 }
 
 #[test]
-fn the_old_policy_flag_still_runs_and_names_its_replacement() {
-    let common = [
-        "compare",
-        "--json",
-        "--seeds",
-        "1",
-        "--family",
-        "lan-75km",
-        "--duration-s",
-        "20",
-    ];
-    let old = ndr(&[&common[..], &["--policy", "ramjee-1"]].concat());
-    let new = ndr(&[&common[..], &["--regulation", "ramjee-1"]].concat());
-    assert!(old.status.success() && new.status.success());
-    assert_eq!(old.stdout, new.stdout, "the same run under either spelling");
-    let err = String::from_utf8_lossy(&old.stderr);
-    assert!(
-        err.contains("--policy: deprecated") && err.contains("use --regulation"),
-        "{err}"
-    );
-    assert!(!String::from_utf8_lossy(&new.stderr).contains("deprecated"));
+fn the_old_policy_flag_is_refused() {
+    let o = ndr(&["compare", "--json", "--seeds", "1", "--policy", "ramjee-1"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("unexpected argument '--policy'"), "{err}");
 }

@@ -99,8 +99,7 @@ fn the_paper_modes_round_trip_barely_moves() {
     let _serial = serial();
     let csv = std::env::temp_dir().join(format!("ndr-demo-static-{}.csv", std::process::id()));
     for attempt in 1..=5 {
-        let r = demo(&["--mode", "paper-static"], &csv);
-        // The old `--mode` still runs, under its regulation's name.
+        let r = demo(&["--regulation", "paper-static"], &csv);
         assert_eq!(
             (&r["regulation"], &r["mode"], &r["playout"]),
             (
@@ -126,10 +125,13 @@ fn the_paper_modes_round_trip_barely_moves() {
 #[test]
 fn demo_runs_the_adaptive_playout() {
     let _serial = serial();
-    // `--mode adaptive`: the static handshake, the adaptive playout on both
-    // sides of a real link through the relay.
+    // The static handshake, the adaptive playout on both sides of a real
+    // link through the relay.
     let csv = std::env::temp_dir().join(format!("ndr-demo-adaptive-{}.csv", std::process::id()));
-    let r = demo(&["--mode", "adaptive", "--underflow", "drop-late"], &csv);
+    let r = demo(
+        &["--regulation", "adaptive", "--underflow", "drop-late"],
+        &csv,
+    );
     assert_eq!(r["mode"], "adaptive");
     assert_eq!(r["playout"], "adaptive");
     assert_eq!(r["pauses"], 0);

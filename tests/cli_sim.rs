@@ -209,42 +209,17 @@ fn a_playout_policy_and_a_skewed_clock() {
 }
 
 #[test]
-fn the_old_mode_and_playout_flags_still_run_and_name_the_regulation() {
-    let common = [
-        "sim",
-        "--profile",
-        "lan-75km",
-        "--duration-s",
-        "30",
-        "--json",
-    ];
-    let run = |extra: &[&str]| ndr(&[&common[..], extra].concat());
-    // Each old spelling gives the run of its regulation, and a warning that
-    // names it.
-    for (old, new) in [
-        (&["--mode", "paper-dynamic"][..], "paper-dynamic"),
-        (&["--playout", "neteq"][..], "neteq"),
-        (
-            &["--mode", "paper-static", "--playout", "fifo"][..],
-            "paper-static",
-        ),
-    ] {
-        let (o, n) = (run(old), run(&["--regulation", new]));
-        assert!(o.status.success() && n.status.success(), "{old:?}");
-        assert_eq!(o.stdout, n.stdout, "{old:?}");
+fn the_regulation_is_the_only_flag_for_it() {
+    // The old spellings are gone: refused before anything runs.
+    for old in [["--mode", "paper-dynamic"], ["--playout", "neteq"]] {
+        let o = ndr(&[&["sim", "--duration-s", "30"][..], &old[..]].concat());
+        assert!(!o.status.success(), "{old:?}");
         let err = String::from_utf8_lossy(&o.stderr);
-        assert!(err.contains("--mode and --playout: deprecated"), "{err}");
-        assert!(err.contains(&format!("use --regulation {new}")), "{err}");
+        assert!(
+            err.contains(&format!("unexpected argument '{}'", old[0])),
+            "{err}"
+        );
     }
-    // The pairing no regulation names still runs, and says so.
-    let o = run(&["--mode", "paper-dynamic", "--playout", "adaptive"]);
-    assert!(o.status.success());
-    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(json["regulation"], "paper-dynamic with adaptive");
-    // Both spellings at once is a mistake, said before anything runs.
-    let o = run(&["--regulation", "neteq", "--mode", "paper-static"]);
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("give --regulation alone"));
 }
 
 #[test]

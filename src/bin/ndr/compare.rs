@@ -11,7 +11,7 @@ use ndr::sim::compare::{
 };
 use ndr::sim::delay::Trace;
 
-use crate::size::millis;
+use crate::args::millis;
 
 /// `--duration-s`'s range: runs measure all but their last 10 s; an hour
 /// at most bounds a run's memory, as the simulator logs every command (at
@@ -80,9 +80,6 @@ pub struct CompareArgs {
         )
     )]
     pub regulations: Vec<String>,
-    /// Deprecated spelling of --regulation.
-    #[arg(long = "policy", value_name = "NAME", hide = true)]
-    pub policies: Vec<String>,
     /// Seeds per family (1..=N).
     #[arg(long, default_value_t = 10)]
     pub seeds: u64,
@@ -221,13 +218,10 @@ pub fn run(args: &CompareArgs) -> Result<(), String> {
         families = families.into_iter().map(|f| f.with_duration(d)).collect();
     }
     let mut cfg = CompareConfig::new(families);
-    if !args.policies.is_empty() {
-        crate::logging::deprecated("--policy", "--regulation (the same names)");
-    }
-    let asked: Vec<&String> = args.regulations.iter().chain(&args.policies).collect();
-    if !asked.is_empty() {
-        cfg.regulations = asked
-            .into_iter()
+    if !args.regulations.is_empty() {
+        cfg.regulations = args
+            .regulations
+            .iter()
             .map(|r| regulation(r))
             .collect::<Result<_, _>>()?;
     }

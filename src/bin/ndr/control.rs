@@ -10,8 +10,7 @@ use ndr::sim::control::{
 };
 use ndr::sim::delay::LossModel;
 
-use crate::sim::NetArgs;
-use crate::size::millis;
+use crate::args::{DelayArgs, millis};
 
 #[derive(clap::Args)]
 pub struct ControlArgs {
@@ -34,7 +33,7 @@ pub struct ControlArgs {
     #[arg(long, value_name = "NAME", conflicts_with_all = ["profile", "trace", "dist"])]
     pub family: Option<String>,
     #[command(flatten)]
-    pub net: NetArgs,
+    pub net: DelayArgs,
     /// Packets lost each way (as `ndr sim --loss`), with --profile etc.
     #[arg(long, default_value = "none", conflicts_with = "family")]
     pub loss: LossModel,

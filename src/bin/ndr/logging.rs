@@ -3,9 +3,7 @@
 
 use std::io::IsTerminal;
 
-use ndr::core::Regulation;
-use ndr::core::endpoint::{Event, Mode};
-use ndr::core::playout::Playout;
+use ndr::core::endpoint::Event;
 use ndr::net::link::LinkEvent;
 use tracing_subscriber::EnvFilter;
 use tracing_subscriber::filter::LevelFilter;
@@ -61,24 +59,4 @@ pub fn event(side: &str, event: &LinkEvent) {
         Event::Released(_) => {}
         other => tracing::debug!("{side}: {}", other.kind()),
     }
-}
-
-/// Warns that `old` (a flag or a value) is an old spelling that goes in the
-/// next release, and what replaces it.
-pub fn deprecated(old: &str, new: &str) {
-    tracing::warn!("{old}: deprecated, goes in the next release; use {new}");
-}
-
-/// Warns that `--mode` and `--playout` go, naming the `--regulation` that
-/// asks for the same `mode` and `playout`.
-pub fn deprecated_mode_playout(mode: Mode, playout: Playout) {
-    let instead = Regulation::of(mode, playout).map_or_else(
-        || {
-            "--regulation (the dynamic mode under a target playout has no name: the \
-             library's Config still takes it, field by field)"
-                .to_string()
-        },
-        |r| format!("--regulation {r}"),
-    );
-    deprecated("--mode and --playout", &instead);
 }

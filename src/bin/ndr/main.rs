@@ -1,5 +1,7 @@
-//! The `ndr` command line: one module per subcommand.
+//! The `ndr` command line: a module per subcommand, and the modules they
+//! share (argument groups, the base's report, the robot, the runtime).
 
+mod args;
 mod compare;
 mod control;
 mod demo;
@@ -7,16 +9,19 @@ mod demo;
 mod doc_commands;
 mod keygen;
 mod logging;
+mod operator;
 mod paper;
 mod pauses;
 mod peers;
 mod relay;
 mod report;
 mod robot;
+mod runtime;
 mod signals;
 mod sim;
 mod size;
 mod soak;
+mod throwaway;
 mod tracking;
 mod transport;
 

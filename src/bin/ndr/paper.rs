@@ -1,12 +1,10 @@
 //! `ndr sim --paper`: the paper's scenarios, our numbers beside its numbers.
 
-use ndr::core::endpoint::Mode;
+use ndr::core::endpoint::{Mode, Underflow};
 use ndr::core::time::Duration;
 use ndr::sim::delay::DelayModel;
 use ndr::sim::{self, Report, SimConfig};
 use serde::Serialize;
-
-use crate::sim::SimArgs;
 
 /// What the paper reports (or, for the dynamic rows, expects) for a scenario.
 #[derive(Clone, Copy, Serialize)]
@@ -107,14 +105,16 @@ struct Row<'a> {
     ours: Report,
 }
 
-pub fn run(args: &SimArgs) -> Result<(), String> {
+/// Runs the paper's scenarios at `seed`, each regulator under `underflow`;
+/// JSON if `json`, else the tables.
+pub fn run(seed: u64, underflow: Underflow, json: bool) -> Result<(), String> {
     let mut rows = Vec::new();
     for s in &SCENARIOS {
         let mut cfg = SimConfig::paper(DelayModel::profile(s.profile).map_err(|e| e.to_string())?);
         cfg.mode = s.mode;
-        cfg.underflow = args.underflow;
+        cfg.underflow = underflow;
         cfg.duration = Duration::from_secs(s.duration_s);
-        cfg.seed = args.seed;
+        cfg.seed = seed;
         let out = sim::run(&cfg).map_err(|e| format!("{}: {e}", s.name))?;
         rows.push(Row {
             scenario: s.name,
@@ -122,8 +122,8 @@ pub fn run(args: &SimArgs) -> Result<(), String> {
             ours: out.report,
         });
     }
-    if args.json {
-        let doc = serde_json::json!({ "seed": args.seed, "scenarios": rows });
+    if json {
+        let doc = serde_json::json!({ "seed": seed, "scenarios": rows });
         println!(
             "{}",
             serde_json::to_string(&doc).map_err(|e| e.to_string())?
@@ -132,7 +132,7 @@ pub fn run(args: &SimArgs) -> Result<(), String> {
     }
     println!(
         "The paper's scenarios at T = 200 ms, seed {} (paper: Lelevé, Fraisse, Dauchez, IROS 2001)\n",
-        args.seed
+        seed
     );
     println!(
         "{:<32} {:<7} {:<17} {:<22} {:<6} {:<14} {:<9}",

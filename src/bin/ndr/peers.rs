@@ -1,15 +1,16 @@
 //! `ndr base` and `ndr remote`: the two peers as separate processes or hosts.
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 
-use crate::demo::{LinkArgs, RunArgs, check_duration, operator, runtime, with_series_error};
-use crate::keygen::SecurityArgs;
-use crate::report::{End, Outcome, Series, finish};
-use crate::robot::{DriveSpec, PlantArgs, robot};
+use crate::args::{LinkArgs, PlantArgs, RunArgs, SecurityArgs, resolve};
+use crate::operator::operator;
+use crate::report::{End, Outcome, Series, finish, with_series_error};
+use crate::robot::{DriveSpec, robot};
+use crate::runtime::runtime;
 use crate::signals::{self, Stop, counters};
 
 #[derive(clap::Args)]
@@ -44,23 +45,13 @@ pub struct RemoteArgs {
     pub once: bool,
 }
 
-/// The first address `text` (HOST:PORT) resolves to; the error names `flag`.
-pub fn resolve(flag: &str, text: &str) -> Result<SocketAddr, String> {
-    let mut addrs = text
-        .to_socket_addrs()
-        .map_err(|e| format!("{flag} {text}: not an address (HOST:PORT): {e}"))?;
-    addrs
-        .next()
-        .ok_or_else(|| format!("{flag} {text}: resolves to no address"))
-}
-
 /// The operator's side: runs `--duration-s` over the link, then reports how
 /// it ended; fails (after the report) when no link came up or it failed.
 pub fn base(args: &BaseArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
     args.link.transport().check_security(tls.is_some())?;
-    check_duration(&args.run)?;
+    args.run.check_duration()?;
     crate::tracking::check_layout(args.run.controller, &args.link.state)?;
     let connect_to = resolve("--connect", &args.connect)?;
     // Refused as the link would refuse it, before the series is created.

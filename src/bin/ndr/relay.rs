@@ -9,7 +9,7 @@ use ndr::net::relay::{
 };
 use ndr::sim::delay::LossModel;
 
-use crate::sim::NetArgs;
+use crate::args::{DelayArgs, resolve};
 
 #[derive(clap::Args)]
 pub struct RelayArgs {
@@ -24,7 +24,7 @@ pub struct RelayArgs {
     pub upstream: String,
     /// Delays (default: the paper's relay, --profile paris-newyork).
     #[command(flatten)]
-    pub net: NetArgs,
+    pub net: DelayArgs,
     /// Datagrams lost each way, in each flow: none, PERCENT (each
     /// independently, e.g. 1) or ge:PERCENT:BURST (in bursts of BURST
     /// datagrams on average, e.g. ge:2:4). Applies to datagrams (UDP) only:
@@ -50,8 +50,8 @@ pub struct RelayArgs {
 
 pub fn run(args: &RelayArgs) -> Result<(), String> {
     let model = args.net.model("paris-newyork")?;
-    let listen = crate::peers::resolve("--listen", &args.listen)?;
-    let upstream = crate::peers::resolve("--upstream", &args.upstream)?;
+    let listen = resolve("--listen", &args.listen)?;
+    let upstream = resolve("--upstream", &args.upstream)?;
     let after = match args.duration_s {
         None => None,
         Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => Some(StdDuration::from_secs_f64(s)),

@@ -12,7 +12,7 @@ use ndr::net::clock::LatenessStats;
 use ndr::net::{LinkStats, NetError, RelayStats};
 use serde::Serialize;
 
-use crate::demo::{LinkArgs, RunArgs};
+use crate::args::{LinkArgs, RunArgs};
 use crate::pauses::PauseSummary;
 use crate::tracking::TrackingSummary;
 
@@ -393,6 +393,18 @@ struct DemoReport {
     host: Option<PauseSummary>,
 }
 
+/// A run that completed but whose series could not be written failed.
+pub fn with_series_error(mut outcome: Outcome<'_>, error: Option<String>) -> Outcome<'_> {
+    if let Some(e) = error {
+        if outcome.end.ok() {
+            outcome.end = End::AppFailure(e);
+        } else {
+            tracing::error!("{e}");
+        }
+    }
+    outcome
+}
+
 /// Prints the report (table or JSON), whatever the end; then the end as
 /// the error when the run failed, for a non-zero exit status.
 pub fn finish(link: &LinkArgs, run: &RunArgs, outcome: &Outcome<'_>) -> Result<(), String> {
@@ -430,7 +442,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         },
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
-        mode: link.legacy_mode_name(),
+        mode: link.mode_name(),
         playout: link.playout_name(),
         underflow: link.underflow.name(),
         // The link's (a dynamic mode may change it), else the one asked for.

@@ -3,84 +3,20 @@
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
-use ndr::core::endpoint::{Mode, Transport, Underflow};
-use ndr::core::playout::Playout;
-use ndr::core::time::Duration;
+use ndr::core::endpoint::{Transport, Underflow};
 use ndr::core::{Regulation, RegulationNames};
-use ndr::sim::delay::{DelayModel, DistTable, LossModel, Trace};
+use ndr::core::time::Duration;
+use ndr::sim::delay::LossModel;
 use ndr::sim::signal::Signal;
 use ndr::sim::{self, Report, Row, SimConfig};
 
-use crate::size::millis;
-
-/// Where the network's delays come from; shared by the commands that run a network.
-#[derive(clap::Args, Clone, Debug)]
-pub struct NetArgs {
-    /// A built-in delay profile: paris-newyork, lan-75km, paper-fig6, constant[:MS].
-    #[arg(long)]
-    pub profile: Option<String>,
-    /// Replay a delay trace: CSV with header `t_s,fwd_ms,bwd_ms`.
-    #[arg(long, value_name = "FILE")]
-    pub trace: Option<PathBuf>,
-    /// Draw delays from an iproute2 netem distribution table (`*.dist`),
-    /// with --mean-ms and --std-ms.
-    #[arg(long, value_name = "FILE", requires_all = ["mean_ms", "std_ms"])]
-    pub dist: Option<PathBuf>,
-    /// Mean one-way delay for --dist, in ms.
-    #[arg(long, requires = "dist")]
-    pub mean_ms: Option<f64>,
-    /// Standard deviation of the one-way delay for --dist, in ms.
-    #[arg(long, requires = "dist")]
-    pub std_ms: Option<f64>,
-}
-
-impl NetArgs {
-    /// The delay model these arguments describe; `default` when none is given.
-    pub fn model(&self, default: &str) -> Result<DelayModel, String> {
-        let given = [
-            self.profile.is_some(),
-            self.trace.is_some(),
-            self.dist.is_some(),
-        ];
-        if given.iter().filter(|&&g| g).count() > 1 {
-            return Err("give one of --profile, --trace and --dist, not several".into());
-        }
-        if let Some(path) = &self.trace {
-            let trace = Trace::from_path(path).map_err(|e| with_path(path, &e))?;
-            return Ok(DelayModel::Trace(Arc::new(trace)));
-        }
-        if let Some(path) = &self.dist {
-            let table = DistTable::from_path(path).map_err(|e| with_path(path, &e))?;
-            let mean = millis("--mean-ms", self.mean_ms.unwrap_or(0.0))?;
-            let std = millis("--std-ms", self.std_ms.unwrap_or(0.0))?;
-            return Ok(DelayModel::Dist {
-                table: Arc::new(table),
-                mean,
-                std,
-            });
-        }
-        let name = self.profile.as_deref().unwrap_or(default);
-        DelayModel::profile(name).map_err(|e| e.to_string())
-    }
-}
-
-/// An error about a file, naming the file once.
-fn with_path(path: &Path, e: &dyn std::fmt::Display) -> String {
-    let msg = e.to_string();
-    let name = path.display().to_string();
-    if msg.contains(&name) {
-        msg
-    } else {
-        format!("{name}: {msg}")
-    }
-}
+use crate::args::{DelayArgs, millis};
 
 #[derive(clap::Args)]
 pub struct SimArgs {
     #[command(flatten)]
-    pub net: NetArgs,
+    pub net: DelayArgs,
     #[arg(
         long,
         value_name = "NAME",
@@ -91,18 +27,12 @@ pub struct SimArgs {
         )
     )]
     pub regulation: Option<Regulation>,
-    /// Deprecated: --regulation (paper-static or paper-dynamic).
-    #[arg(long, hide = true)]
-    pub mode: Option<Mode>,
     /// What both regulators do at a tick whose sample has not arrived: hold
     /// (the default: repeat the last sample and keep every one) or drop-late
     /// (keep the delay constant: a sample that missed its tick is dropped
     /// and counted).
     #[arg(long, default_value = "hold")]
     pub underflow: Underflow,
-    /// Deprecated: --regulation (the same names; fifo is paper-static).
-    #[arg(long, hide = true)]
-    pub playout: Option<Playout>,
     /// The remote's clock runs this many ppm fast (negative: slow).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub remote_skew_ppm: f64,
@@ -161,20 +91,9 @@ impl SimArgs {
             ));
         }
         let mut cfg = SimConfig::paper(self.net.model("lan-75km")?);
-        (cfg.mode, cfg.playout) = match (self.regulation, self.mode, self.playout) {
-            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => {
-                return Err(
-                    "--regulation replaces --mode and --playout: give --regulation alone".into(),
-                );
-            }
-            (Some(r), None, None) => (r.mode(), r.playout()),
-            (None, None, None) => (Mode::PaperStatic, Playout::Fifo),
-            (None, mode, playout) => {
-                let (mode, playout) = (mode.unwrap_or_default(), playout.unwrap_or_default());
-                crate::logging::deprecated_mode_playout(mode, playout);
-                (mode, playout)
-            }
-        };
+        let regulation = self.regulation.unwrap_or(Regulation::PaperStatic);
+        cfg.mode = regulation.mode();
+        cfg.playout = regulation.playout();
         cfg.underflow = self.underflow;
         if !(self.remote_skew_ppm.is_finite() && self.remote_skew_ppm.abs() <= 1e5) {
             return Err(format!(
@@ -197,7 +116,7 @@ impl SimArgs {
 
 pub fn run(args: &SimArgs) -> Result<(), String> {
     if args.paper {
-        return crate::paper::run(args);
+        return crate::paper::run(args.seed, args.underflow, args.json);
     }
     let cfg = args.config()?;
     let out = sim::run(&cfg).map_err(|e| e.to_string())?;

@@ -1,8 +1,9 @@
 //! `ndr size`: a regulator's nominal size from an initialization pattern.
 
-use ndr::core::time::Duration;
 use ndr::core::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
 use serde::Serialize;
+
+use crate::args::millis;
 
 #[derive(clap::Args)]
 pub struct SizeArgs {
@@ -35,16 +36,6 @@ struct SizeReport {
     ns: usize,
     suggested_period_s: f64,
     suggested_ns: usize,
-}
-
-pub fn millis(name: &str, ms: f64) -> Result<Duration, String> {
-    if ms.is_finite() && ms >= 0.0 {
-        Ok(Duration::from_secs_f64(ms / 1e3))
-    } else {
-        Err(format!(
-            "{name} must be a finite, non-negative number of ms, got {ms}"
-        ))
-    }
 }
 
 pub fn run(args: &SizeArgs) -> Result<(), String> {

@@ -1,0 +1,17 @@
+//! Argument groups and flag readers shared by several subcommands.
+
+mod address;
+mod delay;
+mod link;
+mod plant;
+mod run;
+mod security;
+mod time;
+
+pub use address::resolve;
+pub use delay::DelayArgs;
+pub use link::LinkArgs;
+pub use plant::PlantArgs;
+pub use run::RunArgs;
+pub use security::SecurityArgs;
+pub use time::millis;
