@@ -130,9 +130,9 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-pub mod pid;
-pub mod smith;
-pub mod wave;
+mod pid;
+mod smith;
+mod wave;
 
 use core::fmt;
 
