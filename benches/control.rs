@@ -9,7 +9,7 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use ndr_core::arx::Tf2;
+use ndr_core::Tf2;
 use ndr_core::control::{SmithPredictor, WaveEnergy, WaveTransform};
 
 const TABLE: usize = 1024;

@@ -8,9 +8,9 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
-use ndr_core::estimator::Estimator;
-use ndr_core::rls::Rls;
+use ndr_core::Estimator;
+use ndr_core::Rls;
+use ndr_core::{Arx2, Tf2, Tf2State};
 
 const TABLE: usize = 1024;
 

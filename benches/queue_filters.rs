@@ -6,11 +6,11 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use ndr::core::kalman::Kalman3;
+use ndr::core::Kalman3;
 use ndr::core::playout::{Adaptive, TargetDelay};
-use ndr::core::predictor::{NetworkPredictor, PredictorConfig};
 use ndr::core::regulator::{Regulator, Tick};
 use ndr::core::time::{Duration, Instant};
+use ndr::core::{NetworkPredictor, PredictorConfig};
 
 const T: Duration = Duration::from_millis(200);
 

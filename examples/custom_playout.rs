@@ -16,9 +16,9 @@ use std::error::Error;
 use std::net::SocketAddr;
 use std::thread;
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::{Config, Status};
 use ndr::core::playout::{Custom, Factory, OnTicks, Playout, Policy, Setup, TargetDelay};
-use ndr::core::regulation::Regulation;
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::Role;
 use ndr::net::{Link, LinkConfig, Listener};

@@ -6,8 +6,8 @@ mod common;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration as StdDuration;
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::{Config, Status, Transport};
-use ndr::core::regulation::Regulation;
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::{self, Header, Message, Role};
 use ndr::net::{Link, LinkConfig, Listener};

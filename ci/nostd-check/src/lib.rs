@@ -3,11 +3,11 @@
 #![forbid(unsafe_code)]
 
 use ndr_core::endpoint::{Config, Endpoint, Event};
-use ndr_core::filters::{Envelope, LowPass};
-use ndr_core::kalman::Kalman3;
-use ndr_core::predictor::{NetworkPredictor, PredictorConfig};
+use ndr_core::{Envelope, LowPass};
+use ndr_core::Kalman3;
+use ndr_core::{NetworkPredictor, PredictorConfig};
 use ndr_core::regulator::{Regulator, Tick};
-use ndr_core::sizing::{InitPattern, Sizing};
+use ndr_core::{InitPattern, Sizing};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::storage::Inline;
 use ndr_core::wire::{self, Frame, Header, MAX_FRAME_LEN, Message, Payload, Role};

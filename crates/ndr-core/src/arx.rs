@@ -1,22 +1,5 @@
 //! The remote system's per-axis model: a second-order discrete transfer
 //! function, its simulator, and its online identification.
-//!
-//! The paper (§4.3) models every axis of the remote robot, once linearised by
-//! computed torque, as a continuous second-order low-pass system discretized
-//! by the bilinear transform:
-//!
-//! ```text
-//!          b0 + b1 z⁻¹ + b2 z⁻²
-//! H(z) = ────────────────────────      y[k] = b0 u[k] + b1 u[k−1] + b2 u[k−2]
-//!           1 + a1 z⁻¹ + a2 z⁻²                 − a1 y[k−1] − a2 y[k−2]
-//! ```
-//!
-//! - [`Tf2`] holds the coefficients ([`Tf2::low_pass`] builds them from
-//!   `ωn`, `ζ`, gain and period);
-//! - [`Tf2State`] simulates one (the simulator's plant, one per axis);
-//! - [`Arx2`] identifies one from the input/output stream with an [`Rls<5>`]
-//!   on the regressor `φ[k] = [u[k], u[k−1], u[k−2], −y[k−1], −y[k−2]]` and
-//!   the parameters `θ = [b0, b1, b2, a1, a2]`.
 
 use core::fmt;
 
@@ -160,13 +143,13 @@ impl Tf2 {
 
     /// The parameters in RLS order `[b0, b1, b2, a1, a2]`.
     #[must_use]
-    pub const fn params(&self) -> [f64; 5] {
+    pub(crate) const fn params(&self) -> [f64; 5] {
         [self.b[0], self.b[1], self.b[2], self.a[0], self.a[1]]
     }
 
     /// The transfer function from parameters in RLS order `[b0, b1, b2, a1, a2]`.
     #[must_use]
-    pub const fn from_params(theta: &[f64; 5]) -> Self {
+    pub(crate) const fn from_params(theta: &[f64; 5]) -> Self {
         Tf2 {
             b: [theta[0], theta[1], theta[2]],
             a: [theta[3], theta[4]],
@@ -198,7 +181,7 @@ impl Tf2 {
     /// `u[k−2]`, `y[k−1]`, `y[k−2]`.
     #[must_use]
     #[inline]
-    pub fn output(&self, u: f64, u1: f64, u2: f64, y1: f64, y2: f64) -> f64 {
+    pub(crate) fn output(&self, u: f64, u1: f64, u2: f64, y1: f64, y2: f64) -> f64 {
         self.b[0] * u + self.b[1] * u1 + self.b[2] * u2 - self.a[0] * y1 - self.a[1] * y2
     }
 }
@@ -272,6 +255,26 @@ impl Tf2State {
     }
 }
 
+/// The remote system's per-axis model: a second-order discrete transfer
+/// function, its simulator, and its online identification.
+///
+/// The paper (§4.3) models every axis of the remote robot, once linearised by
+/// computed torque, as a continuous second-order low-pass system discretized
+/// by the bilinear transform:
+///
+/// ```text
+///          b0 + b1 z⁻¹ + b2 z⁻²
+/// H(z) = ────────────────────────      y[k] = b0 u[k] + b1 u[k−1] + b2 u[k−2]
+///           1 + a1 z⁻¹ + a2 z⁻²                 − a1 y[k−1] − a2 y[k−2]
+/// ```
+///
+/// - [`Tf2`] holds the coefficients ([`Tf2::low_pass`] builds them from
+///   `ωn`, `ζ`, gain and period);
+/// - [`Tf2State`] simulates one (the simulator's plant, one per axis);
+/// - [`Arx2`] identifies one from the input/output stream with an [`Rls<5>`]
+///   on the regressor `φ[k] = [u[k], u[k−1], u[k−2], −y[k−1], −y[k−2]]` and
+///   the parameters `θ = [b0, b1, b2, a1, a2]`.
+///
 /// Online identification of a [`Tf2`] from the input/output stream of one
 /// axis, by recursive least squares on
 /// `φ[k] = [u[k], u[k−1], u[k−2], −y[k−1], −y[k−2]]`,
@@ -307,7 +310,7 @@ impl Arx2 {
     /// An identifier around a configured RLS (e.g. a custom trace bound or
     /// prior weights `[b0, b1, b2, a1, a2]`), with an empty history.
     #[must_use]
-    pub fn from_rls(rls: Rls<5>) -> Self {
+    pub(crate) fn from_rls(rls: Rls<5>) -> Self {
         Arx2 {
             rls,
             u1: 0.0,
@@ -373,9 +376,10 @@ impl Arx2 {
         &self.rls
     }
 
+    #[cfg(test)]
     /// The RLS engine, mutable: set prior weights, reset the covariance after
     /// a known change, tune the forgetting factor.
-    pub fn rls_mut(&mut self) -> &mut Rls<5> {
+    pub(crate) fn rls_mut(&mut self) -> &mut Rls<5> {
         &mut self.rls
     }
 

@@ -1,62 +1,6 @@
 //! Estimation of the remote's current state and prediction of its state when
 //! the command sent now takes effect (the paper's §4.3 and Fig. 10, after
 //! Oboe & Fiorini 1998).
-//!
-//! The regulators make both one-way delays constant and whole numbers of
-//! ticks, so commands and states can be aligned exactly; the base then runs
-//! an identified model of the remote forward from the last received state.
-//!
-//! # Timing contract
-//!
-//! Both peers run the same period, so one tick index `n` serves both.
-//!
-//! - At tick `n` the base sends the command `u[n]`.
-//! - The remote's regulator releases it `Df` ticks later, where it becomes the
-//!   plant's input: `p[m] = u[m − Df]`.
-//! - The plant's output at tick `m` is `y[m]` (it may depend on `p[m]`
-//!   through `b0`). The remote sends `y[m]` at tick `m`; the base's regulator
-//!   releases it at tick `m + Db`.
-//!
-//! So at base tick `n` the base knows `u[..=n]` and `y[..=n − Db]`, and
-//! [`Estimator::step`] returns
-//!
-//! - `x3e[n]`, the estimate of `y[n]`: the remote's current state, `Db` ticks
-//!   before its feedback arrives;
-//! - `x3p[n]`, the estimate of `y[n + Df]`: the state when the command sent
-//!   now takes effect.
-//!
-//! ```text
-//! tick       n−Db−Df−2 … n−Db … n … n+Df
-//! u known    ─────────────────────────┤ n
-//! y known    ───────────────┤ n−Db                (anchor y[n−Db], y[n−Db−1])
-//! simulated                 ├──── x3e ┼──── x3p
-//! ```
-//!
-//! # Per tick
-//!
-//! [`Estimator::step`]`(u, y)` records `u[n]`; `y` is the sample released at
-//! this tick, `y[n − Db]`, or `None` if none was (queue underflow).
-//!
-//! - With a sample: identification (if enabled) adapts on the pair
-//!   `(p[n − Db], y[n − Db])`, once the command history reaches back to
-//!   `u[n − Db − Df]`; the sample becomes the anchor of the simulation.
-//! - Without: the model's own one-step output stands in for `y[n − Db]`, and
-//!   no adaptation uses a regressor that contains it (the next two samples
-//!   only refill the identification history, see
-//!   [`Arx2::record_substitute`]).
-//!
-//! Then the model is simulated from the anchor `(y[n − Db], y[n − Db − 1])`
-//! with the known inputs `p[m] = u[m − Df]` up to `m = n` (`x3e`) and on to
-//! `m = n + Df` (`x3p`): `Db + Df` steps of the difference equation.
-//!
-//! # Warm-up and fallback
-//!
-//! The model is used once (a) the command history reaches `u[n − Db − Df − 1]`
-//! (i.e. from tick `Db + Df + 1` on), (b) two consecutive samples anchor the
-//! simulation, and (c) when identifying, the RLS has adapted at least
-//! [`MIN_IDENTIFICATION_UPDATES`] times. Until then, and whenever the
-//! simulation would not be finite, both outputs hold the last received state
-//! (`0.0` before the first one) and [`Estimate::from_model`] is `false`.
 
 use core::fmt;
 
@@ -64,7 +8,7 @@ use crate::arx::{Arx2, ArxError, Tf2};
 
 /// Adaptations needed before an identified model is used: five, the number
 /// of parameters; fewer samples cannot determine the model.
-pub const MIN_IDENTIFICATION_UPDATES: u64 = 5;
+pub(crate) const MIN_IDENTIFICATION_UPDATES: u64 = 5;
 
 /// Why the estimator could not be built or stepped.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -131,6 +75,7 @@ impl core::error::Error for EstimatorError {
 
 /// The estimator's output for one tick `n`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Estimate {
     /// Estimate of the remote's current state `y[n]`.
     pub x3e: f64,
@@ -138,7 +83,7 @@ pub struct Estimate {
     /// takes effect.
     pub x3p: f64,
     /// `true` if both come from the model; `false` during warm-up, when both
-    /// hold the last received state (see the [module docs](self)).
+    /// hold the last received state.
     pub from_model: bool,
 }
 
@@ -150,10 +95,69 @@ enum Model {
     Fixed(Tf2),
 }
 
+/// Estimation of the remote's current state and prediction of its state when
+/// the command sent now takes effect (the paper's §4.3 and Fig. 10, after
+/// Oboe & Fiorini 1998).
+///
+/// The regulators make both one-way delays constant and whole numbers of
+/// ticks, so commands and states can be aligned exactly; the base then runs
+/// an identified model of the remote forward from the last received state.
+///
+/// # Timing contract
+///
+/// Both peers run the same period, so one tick index `n` serves both.
+///
+/// - At tick `n` the base sends the command `u[n]`.
+/// - The remote's regulator releases it `Df` ticks later, where it becomes the
+///   plant's input: `p[m] = u[m − Df]`.
+/// - The plant's output at tick `m` is `y[m]` (it may depend on `p[m]`
+///   through `b0`). The remote sends `y[m]` at tick `m`; the base's regulator
+///   releases it at tick `m + Db`.
+///
+/// So at base tick `n` the base knows `u[..=n]` and `y[..=n − Db]`, and
+/// [`Estimator::step`] returns
+///
+/// - `x3e[n]`, the estimate of `y[n]`: the remote's current state, `Db` ticks
+///   before its feedback arrives;
+/// - `x3p[n]`, the estimate of `y[n + Df]`: the state when the command sent
+///   now takes effect.
+///
+/// ```text
+/// tick       n−Db−Df−2 … n−Db … n … n+Df
+/// u known    ─────────────────────────┤ n
+/// y known    ───────────────┤ n−Db                (anchor y[n−Db], y[n−Db−1])
+/// simulated                 ├──── x3e ┼──── x3p
+/// ```
+///
+/// # Per tick
+///
+/// [`Estimator::step`]`(u, y)` records `u[n]`; `y` is the sample released at
+/// this tick, `y[n − Db]`, or `None` if none was (queue underflow).
+///
+/// - With a sample: identification (if enabled) adapts on the pair
+///   `(p[n − Db], y[n − Db])`, once the command history reaches back to
+///   `u[n − Db − Df]`; the sample becomes the anchor of the simulation.
+/// - Without: the model's own one-step output stands in for `y[n − Db]`, and
+///   no adaptation uses a regressor that contains it (the next two samples
+///   only refill the identification history, see
+///   [`Arx2::record_substitute`]).
+///
+/// Then the model is simulated from the anchor `(y[n − Db], y[n − Db − 1])`
+/// with the known inputs `p[m] = u[m − Df]` up to `m = n` (`x3e`) and on to
+/// `m = n + Df` (`x3p`): `Db + Df` steps of the difference equation.
+///
+/// # Warm-up and fallback
+///
+/// The model is used once (a) the command history reaches `u[n − Db − Df − 1]`
+/// (i.e. from tick `Db + Df + 1` on), (b) two consecutive samples anchor the
+/// simulation, and (c) when identifying, the RLS has adapted at least
+/// 5 times. Until then, and whenever the
+/// simulation would not be finite, both outputs hold the last received state
+/// (`0.0` before the first one) and [`Estimate::from_model`] is `false`.
+///
 /// Base-side estimator/predictor of one axis of the remote system, with a
 /// command history of capacity `H` (at least `Df + Db + 3`).
 ///
-/// See the [module docs](self) for the timing contract.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimator<const H: usize> {
     model: Model,
@@ -441,9 +445,10 @@ impl<const H: usize> Estimator<H> {
         self.last_received
     }
 
+    #[cfg(test)]
     /// The command history capacity `H`.
     #[must_use]
-    pub const fn capacity(&self) -> usize {
+    pub(crate) const fn capacity(&self) -> usize {
         H
     }
 }

@@ -1,22 +1,4 @@
 //! The paper's discrete Kalman filter on a triple-integrator model (§4.2.4.1).
-//!
-//! State `x = [value, rate, acceleration]`, sampled every `T`:
-//!
-//! ```text
-//!     ┌ 1  T  T²/2 ┐                      ┌ 0 0 0  ┐
-//! A = │ 0  1  T    │   H = [1 0 0]   Q =  │ 0 0 0  │   R = σQ²   P0 = σQ²·I   B = 0
-//!     └ 0  0  1    ┘                      └ 0 0 σQ²┘
-//! ```
-//!
-//! `A^l` is `A` with `T` replaced by `l·T` (the model is exact for a parabola),
-//! so the `l`-step prediction costs one matrix–vector product.
-//!
-//! Q, R and P0 all scale with σQ², so the gains — and hence the estimates — do
-//! not depend on σQ; only the reported covariance does.
-//!
-//! `F` (`A`), `H`, `Q`, `R` and `P` can be set, as in filterpy, to tune the
-//! filter away from the paper's model; [`Kalman3::set_period`] goes back to
-//! the triple integrator's `A`.
 
 use core::fmt;
 
@@ -64,6 +46,26 @@ impl fmt::Display for KalmanError {
 
 impl core::error::Error for KalmanError {}
 
+/// The paper's discrete Kalman filter on a triple-integrator model (§4.2.4.1).
+///
+/// State `x = [value, rate, acceleration]`, sampled every `T`:
+///
+/// ```text
+///     ┌ 1  T  T²/2 ┐                      ┌ 0 0 0  ┐
+/// A = │ 0  1  T    │   H = [1 0 0]   Q =  │ 0 0 0  │   R = σQ²   P0 = σQ²·I   B = 0
+///     └ 0  0  1    ┘                      └ 0 0 σQ²┘
+/// ```
+///
+/// `A^l` is `A` with `T` replaced by `l·T` (the model is exact for a parabola),
+/// so the `l`-step prediction costs one matrix–vector product.
+///
+/// Q, R and P0 all scale with σQ², so the gains — and hence the estimates — do
+/// not depend on σQ; only the reported covariance does.
+///
+/// `F` (`A`), `H`, `Q`, `R` and `P` can be set, as in filterpy, to tune the
+/// filter away from the paper's model; [`Kalman3::set_period`] goes back to
+/// the triple integrator's `A`.
+///
 /// Triple-integrator Kalman filter with an `l`-step-ahead prediction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Kalman3 {

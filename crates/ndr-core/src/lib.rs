@@ -6,62 +6,6 @@
 //! without `std` and without an allocator, so the same code can run on the
 //! robot's control board, in a simulator, and behind a tokio driver.
 //!
-//! ## The pieces and how they fit
-//!
-//! A base (operator) and a remote (robot) exchange one frame per period `T`
-//! each way. At each input a **Network Delay Regulator** turns the network's
-//! jittery arrivals into releases at a constant period:
-//!
-//! ```text
-//!  frames from the peer ──► wire::Frame::new_checked ──► Regulator::push
-//!                                                          │ (FIFO, ns samples of stock)
-//!  release clock, every T ─────────────────────────► Regulator::tick ──► application
-//! ```
-//!
-//! - [`time`]: integer-nanosecond [`Instant`] and [`Duration`]; nothing here
-//!   reads a clock, time is always an argument.
-//! - [`regulator`]: the NDR queue, [`Regulator<T, N>`](Regulator): capacity
-//!   `N` fixed at compile time (or any [`storage::Queue`]), nominal size `ns`
-//!   at run time, pre-fill, release per tick, underflow and overflow counted,
-//!   never a silent drop.
-//! - [`regulation`]: how the delay is regulated, by the one name users give
-//!   ([`Regulation`]: `adaptive`, `paper-static`, `paper-dynamic`, …): the
-//!   [`Mode`] both peers agree on and this side's [`Playout`].
-//! - [`playout`]: when a regulator releases each sample, behind one
-//!   interface ([`playout::Policy`]): the paper's FIFO or a target delay
-//!   (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like quantile, a fixed
-//!   latency, a constant, and the adaptive timestamp-based policy), named by
-//!   [`Playout`]; a policy of the application's own plugs in through a
-//!   [`playout::Factory`].
-//! - [`sync`]: the peers' clock offset and skew from the timestamps the link
-//!   already exchanges (Moon et al.'s hull of the delay floors, NTP's formula
-//!   on them), which the adaptive playout and the one-way delays use.
-//! - [`sizing`]: the initialization pattern ([`InitPattern`], 10 round trips)
-//!   gives `mt`, and [`Sizing`] applies `ns = 2 + floor(η·mt/T)` and
-//!   `T = max(T_min, NRTT/3)`.
-//! - [`filters`], [`kalman`], [`predictor`]: the paper's dynamic adaptation.
-//!   [`NetworkPredictor`] low-passes the NRTT samples and the [`Envelope`] of
-//!   the reception gaps, tracks both with a triple-integrator [`Kalman3`],
-//!   forecasts them 50 periods ahead, and says which `(T, ns)` the laws
-//!   would choose.
-//! - [`rls`], [`arx`], [`estimator`]: the remote system's model. An
-//!   [`Arx2`] identifies each axis's second-order transfer function with
-//!   recursive least squares ([`Rls`]); because the regulated delays are
-//!   constant and known in samples, an [`Estimator`] can replay the commands
-//!   in flight through that model to give `x3e` (the remote's state now) and
-//!   `x3p` (its state when the command sent now takes effect).
-//! - [`control`]: classical teleoperation control closed across the link:
-//!   a [`SmithPredictor`](control::SmithPredictor), Niemeyer and Slotine's
-//!   wave variables with the channel's energy account, a PID with
-//!   anti-windup.
-//! - [`wire`]: the frame codec (spec and test vectors in `docs/wire.md`):
-//!   checked views over `&[u8]`, encoding into `&mut [u8]`; decoding is total.
-//!   A datagram's samples travel in a [`wire::Bundle`]: the newest and
-//!   copies of those before it ([`endpoint::Transport::Datagram`]).
-//! - [`layout`]: the fingerprint of the application's channel names, which
-//!   both peers' Hellos carry so that a robot refuses an operator built for
-//!   another layout.
-//!
 //! ## What each peer does
 //!
 //! Each peer runs the same loop, with `now` taken from its own clock:
@@ -165,6 +109,58 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
+//! ## The main types
+//!
+//! A base (operator) and a remote (robot) exchange one frame per period `T`
+//! each way. At each input a **Network Delay Regulator** turns the network's
+//! jittery arrivals into releases at a constant period.
+//!
+//! - The link: [`Endpoint`] and its [`Config`] (in [`endpoint`], with the
+//!   [`Event`]s it reports and its [`Stats`](endpoint::Stats)); [`drive`]
+//!   and [`pair::Pair`] move it; [`storage`] says where its buffers live
+//!   ([`storage::Inline`] arrays, or [`storage::Heap`] with `alloc`).
+//! - [`time`]: integer-nanosecond [`Instant`] and [`Duration`]; nothing here
+//!   reads a clock, time is always an argument.
+//! - [`Regulator`] (module [`regulator`]): the NDR queue, capacity `N` fixed
+//!   at compile time (or any [`storage::Queue`]), nominal size `ns` at run
+//!   time, pre-fill, release per tick, underflow and overflow counted, never
+//!   a silent drop.
+//! - [`Regulation`]: how the delay is regulated, by the one name users give
+//!   (`adaptive`, `paper-static`, `paper-dynamic`, …): the [`Mode`] both
+//!   peers agree on and this side's [`Playout`].
+//! - [`playout`]: when a regulator releases each sample, behind one
+//!   interface ([`playout::Policy`]): the paper's FIFO or a target delay
+//!   (Ramjee et al.'s algorithms 1 and 4, a NetEQ-like quantile, a fixed
+//!   latency, a constant, and the adaptive timestamp-based policy), named by
+//!   [`Playout`]; a policy of the application's own plugs in through a
+//!   [`playout::Factory`].
+//! - [`ClockSync`]: the peers' clock offset and skew from the timestamps the
+//!   link already exchanges (Moon et al.'s hull of the delay floors, NTP's
+//!   formula on them), which the adaptive playout and the one-way delays use.
+//! - [`InitPattern`] (10 round trips) gives `mt`, and [`Sizing`] applies
+//!   `ns = 2 + floor(η·mt/T)` and `T = max(T_min, NRTT/3)`.
+//! - The paper's dynamic adaptation: [`NetworkPredictor`] low-passes
+//!   ([`LowPass`]) the NRTT samples and the [`Envelope`] of the reception
+//!   gaps, tracks both with a triple-integrator [`Kalman3`], forecasts them
+//!   50 periods ahead, and says which `(T, ns)` the laws would choose.
+//! - The remote system's model: an [`Arx2`] identifies each axis's
+//!   second-order transfer function ([`Tf2`]) with recursive least squares
+//!   ([`Rls`]); because the regulated delays are constant and known in
+//!   samples, an [`Estimator`] can replay the commands in flight through that
+//!   model to give `x3e` (the remote's state now) and `x3p` (its state when
+//!   the command sent now takes effect).
+//! - [`control`]: classical teleoperation control closed across the link:
+//!   a [`SmithPredictor`](control::SmithPredictor), Niemeyer and Slotine's
+//!   wave variables with the channel's energy account, a PID with
+//!   anti-windup.
+//! - [`wire`]: the frame codec (spec and test vectors in `docs/wire.md`):
+//!   checked views over `&[u8]`, encoding into `&mut [u8]`; decoding is total.
+//!   A datagram's samples travel in a [`wire::Bundle`]: the newest and
+//!   copies of those before it ([`endpoint::Transport::Datagram`]).
+//! - [`fingerprint`]: the fingerprint of the application's channel names,
+//!   which both peers' Hellos carry so that a robot refuses an operator built
+//!   for another layout.
+//!
 //! The simulator and the delay models it shares with `ndr-net`'s relay
 //! (`ndr-netem`) are crates of their own, built on this one: nothing here
 //! draws a random number or needs an allocator.
@@ -183,6 +179,7 @@
 //!   min and max. No `std` needed.
 #![no_std]
 #![forbid(unsafe_code)]
+#![warn(unreachable_pub, unnameable_types)]
 
 #[cfg(any(feature = "std", test))]
 extern crate std;
@@ -190,36 +187,41 @@ extern crate std;
 #[cfg(feature = "alloc")]
 extern crate alloc;
 
-pub mod arx;
+mod arx;
 pub mod control;
 pub mod drive;
 pub mod endpoint;
-pub mod estimator;
-pub mod filters;
-pub mod kalman;
-pub mod layout;
+mod estimator;
+mod filters;
+mod kalman;
+mod layout;
 #[cfg(feature = "alloc")]
 pub mod pair;
 pub mod playout;
-pub mod predictor;
-pub mod regulation;
+mod predictor;
+mod regulation;
 pub mod regulator;
-pub mod rls;
-pub mod sizing;
+mod rls;
+mod sizing;
 pub mod storage;
-pub mod sync;
+mod sync;
 pub mod time;
 pub mod wire;
 
-pub use arx::{Arx2, Tf2};
+#[cfg(all(test, feature = "std"))]
+mod tests;
+
+pub use arx::{Arx2, ArxError, Tf2, Tf2State};
 pub use endpoint::{Config, Endpoint, Event, LinkError, Mode, Underflow};
-pub use estimator::{Estimate, Estimator};
-pub use filters::{Envelope, LowPass};
-pub use kalman::Kalman3;
+pub use estimator::{Estimate, Estimator, EstimatorError};
+pub use filters::{DEFAULT_DECAY, Envelope, FilterError, LowPass};
+pub use kalman::{DEFAULT_HORIZON, Kalman3, KalmanError};
+pub use layout::fingerprint;
 pub use playout::Playout;
-pub use predictor::{NetworkPredictor, Prediction, PredictorConfig};
-pub use regulation::Regulation;
+pub use predictor::{NetworkPredictor, Prediction, PredictorConfig, PredictorError};
+pub use regulation::{PairingName, Regulation, RegulationNames, UnknownRegulation};
 pub use regulator::{Regulator, Tick};
-pub use rls::Rls;
-pub use sizing::{InitPattern, InitStats, Sizing};
+pub use rls::{Rls, RlsError};
+pub use sizing::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, InitStats, Sizing, SizingError};
+pub use sync::ClockSync;
 pub use time::{Duration, Instant};

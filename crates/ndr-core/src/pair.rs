@@ -175,7 +175,7 @@ pub struct Pair<S: Storage, W> {
 
 impl<S: Storage, W: World<S>> Pair<S, W> {
     /// Two endpoints made at world time zero, nothing in flight. The first
-    /// [`step`](Pair::step) starts with a turn of each side, base first,
+    /// step starts with a turn of each side, base first,
     /// which sends what they have before any event.
     pub fn new(base: Endpoint<S>, remote: Endpoint<S>, world: W) -> Self {
         Pair {
@@ -205,15 +205,17 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
         }
     }
 
+    #[cfg(test)]
     /// Frames `from` sent that its peer has not read yet.
     #[must_use]
-    pub fn in_flight(&self, from: Role) -> usize {
+    pub(crate) fn in_flight(&self, from: Role) -> usize {
         self.wire[from as usize].len()
     }
 
+    #[cfg(test)]
     /// Loses every frame `from` sent that its peer has not read yet (a
     /// process that died with its socket); returns how many.
-    pub fn drop_in_flight(&mut self, from: Role) -> usize {
+    pub(crate) fn drop_in_flight(&mut self, from: Role) -> usize {
         let lost = core::mem::take(&mut self.wire[from as usize]);
         let n = lost.len();
         self.spare.extend(lost.into_iter().map(|(_, bytes)| bytes));
@@ -250,7 +252,7 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
     }
 
     /// When the next frame is read or the next deadline served, if any.
-    pub fn next_event(&mut self) -> Option<Instant> {
+    pub(crate) fn next_event(&mut self) -> Option<Instant> {
         let reads = [Role::Base, Role::Remote].map(|from| self.next_read(from));
         let wakes = [Role::Base, Role::Remote].map(|side| self.wake(side));
         reads.into_iter().chain(wakes).flatten().min()
@@ -258,7 +260,7 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
 
     /// Handles the next instant at which something happens, if it is no
     /// later than `until`; `false` if nothing did.
-    pub fn step(&mut self, until: Instant) -> Result<bool, W::Error> {
+    pub(crate) fn step(&mut self, until: Instant) -> Result<bool, W::Error> {
         if !self.started {
             self.started = true;
             self.drain(Role::Base)?;

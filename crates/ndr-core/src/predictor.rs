@@ -1,23 +1,6 @@
 //! The paper's network predictor (§4.2.4.1): it forecasts, `l` periods ahead,
 //! the mean NRTT and `mt`, and from them the period and queue size the paper's
 //! laws would choose.
-//!
-//! ```text
-//! NRTT samples ──► LowPass τ=250·T ──► Kalman3 ──► A^l·x ──► LowPass τ=50·T ──► nrtt_ahead ─┐
-//! reception gaps ─► Envelope vd ─► LowPass τ=25·T ─► Kalman3 ─► A^l·x ─► LowPass τ=50·T ─► mt_ahead ─┤
-//!                                                         T = max(T_min, nrtt_ahead/3)  ◄────┤
-//!                                                         ns = 2 + floor(η·mt_ahead/T)  ◄────┘
-//! ```
-//!
-//! Measurements come in whenever they happen ([`observe_nrtt`], [`observe_gap`]);
-//! [`step`] runs once per period. A "gap" is the time by which a reception
-//! lags its schedule relative to the previous one: the time between two
-//! successive receptions minus the time between their sendings (see
-//! [`crate::sizing`] for why the paper's `mt` must be measured that way).
-//!
-//! [`observe_nrtt`]: NetworkPredictor::observe_nrtt
-//! [`observe_gap`]: NetworkPredictor::observe_gap
-//! [`step`]: NetworkPredictor::step
 
 use core::fmt;
 
@@ -102,6 +85,7 @@ impl PredictorConfig {
 
 /// One step's output. Times in seconds.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Prediction {
     /// Measured mean NRTT (the low-passed samples).
     pub nrtt_mean: f64,
@@ -158,6 +142,27 @@ impl Channel {
     }
 }
 
+/// The paper's network predictor (§4.2.4.1): it forecasts, `l` periods ahead,
+/// the mean NRTT and `mt`, and from them the period and queue size the paper's
+/// laws would choose.
+///
+/// ```text
+/// NRTT samples ──► LowPass τ=250·T ──► Kalman3 ──► A^l·x ──► LowPass τ=50·T ──► nrtt_ahead ─┐
+/// reception gaps ─► Envelope vd ─► LowPass τ=25·T ─► Kalman3 ─► A^l·x ─► LowPass τ=50·T ─► mt_ahead ─┤
+///                                                         T = max(T_min, nrtt_ahead/3)  ◄────┤
+///                                                         ns = 2 + floor(η·mt_ahead/T)  ◄────┘
+/// ```
+///
+/// Measurements come in whenever they happen ([`observe_nrtt`], [`observe_gap`]);
+/// [`step`] runs once per period. A "gap" is the time by which a reception
+/// lags its schedule relative to the previous one: the time between two
+/// successive receptions minus the time between their sendings (see
+/// [`Sizing`](crate::Sizing) for why the paper's `mt` must be measured that way).
+///
+/// [`observe_nrtt`]: NetworkPredictor::observe_nrtt
+/// [`observe_gap`]: NetworkPredictor::observe_gap
+/// [`step`]: NetworkPredictor::step
+///
 /// The paper's two-channel network predictor. No allocation; one
 /// [`step`](Self::step) per period.
 #[derive(Clone, Debug, PartialEq)]

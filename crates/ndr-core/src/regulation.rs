@@ -1,22 +1,6 @@
 //! How the delay is regulated: the one name a user gives, the same in Rust,
 //! on the command line (`--regulation`), in Python (`regulation=`) and in
 //! JSON reports (`"regulation"`).
-//!
-//! A [`Regulation`] sets the two parts of a [`Config`](crate::Config) that
-//! decide the delay: the [`Mode`] both peers agree on at the handshake, and
-//! this side's [`Playout`]. Every regulation but the paper's dynamic one runs
-//! the static handshake; the target-delay playouts do not resize the queues,
-//! they move the delay themselves.
-//!
-//! ```
-//! use ndr_core::regulation::Regulation;
-//! use ndr_core::{Mode, Playout};
-//!
-//! let r: Regulation = "paper-dynamic".parse().unwrap();
-//! assert_eq!((r.mode(), r.playout()), (Mode::PaperDynamic, Playout::Fifo));
-//! assert_eq!("adaptive".parse::<Regulation>().unwrap(), Regulation::ADAPTIVE);
-//! assert_eq!(Regulation::ADAPTIVE.to_string(), "adaptive");
-//! ```
 
 use core::fmt;
 use core::str::FromStr;
@@ -40,7 +24,7 @@ pub enum Mode {
 
 impl Mode {
     /// Every mode, for help texts.
-    pub const ALL: [Mode; 2] = [Mode::PaperStatic, Mode::PaperDynamic];
+    pub(crate) const ALL: [Mode; 2] = [Mode::PaperStatic, Mode::PaperDynamic];
 
     /// The name used on the command line and in reports.
     #[must_use]
@@ -80,11 +64,12 @@ impl fmt::Display for Mode {
 /// A name that is not a known [`Mode`] or
 /// [`Underflow`](crate::endpoint::Underflow) policy.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct UnknownName {
     /// What kind of name was expected.
-    pub what: &'static str,
+    pub(crate) what: &'static str,
     /// The valid names.
-    pub valid: &'static str,
+    pub(crate) valid: &'static str,
 }
 
 impl fmt::Display for UnknownName {
@@ -108,6 +93,26 @@ impl FromStr for Mode {
     }
 }
 
+/// How the delay is regulated: the one name a user gives, the same in Rust,
+/// on the command line (`--regulation`), in Python (`regulation=`) and in
+/// JSON reports (`"regulation"`).
+///
+/// A [`Regulation`] sets the two parts of a [`Config`](crate::Config) that
+/// decide the delay: the [`Mode`] both peers agree on at the handshake, and
+/// this side's [`Playout`]. Every regulation but the paper's dynamic one runs
+/// the static handshake; the target-delay playouts do not resize the queues,
+/// they move the delay themselves.
+///
+/// ```
+/// use ndr_core::Regulation;
+/// use ndr_core::{Mode, Playout};
+///
+/// let r: Regulation = "paper-dynamic".parse().unwrap();
+/// assert_eq!((r.mode(), r.playout()), (Mode::PaperDynamic, Playout::Fifo));
+/// assert_eq!("adaptive".parse::<Regulation>().unwrap(), Regulation::ADAPTIVE);
+/// assert_eq!(Regulation::ADAPTIVE.to_string(), "adaptive");
+/// ```
+///
 /// How a side regulates the delay, by the name users give it.
 ///
 /// Its names: `adaptive[:PERCENT[:QUANTUM_MS]]` (ndr's default),

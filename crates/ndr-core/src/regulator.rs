@@ -29,9 +29,10 @@ use crate::storage::Queue;
 pub struct Full<T>(pub T);
 
 impl<T> Full<T> {
+    #[cfg(test)]
     /// The sample that did not fit.
     #[must_use]
-    pub fn into_inner(self) -> T {
+    pub(crate) fn into_inner(self) -> T {
         self.0
     }
 }
@@ -106,6 +107,7 @@ pub enum Tick<T> {
 ///
 /// Invariant: `arrived = released + len + rejected + discarded`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct Counters {
     /// Samples offered to [`RegulatorIn::push`].
     pub arrived: u64,
@@ -124,6 +126,7 @@ pub struct Counters {
 /// Queue occupancy seen at the running ticks, just before each release: the
 /// paper's `s(t)`, of which `GRTT = 2·max(s)·T + NRTT`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Occupancy {
     /// Smallest occupancy seen.
     pub min: usize,
@@ -200,7 +203,7 @@ impl<T, const N: usize> RegulatorIn<T, Deque<T, N>> {
 impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
     /// A regulator over the empty `queue` that keeps a stock of `ns`
     /// samples (`ns` below the queue's capacity).
-    pub fn with_queue(queue: Q, ns: usize) -> Result<Self, RegulatorError> {
+    pub(crate) fn with_queue(queue: Q, ns: usize) -> Result<Self, RegulatorError> {
         check_nominal(ns, queue.capacity())?;
         Ok(RegulatorIn {
             queue,
@@ -231,7 +234,7 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
     ///
     /// Slot-based playout uses this: a sample whose slot is later than this
     /// tick must wait, and this tick's slot has nothing to give.
-    pub fn tick_if(&mut self, due: impl FnOnce(&T) -> bool) -> Tick<T> {
+    pub(crate) fn tick_if(&mut self, due: impl FnOnce(&T) -> bool) -> Tick<T> {
         if self.phase == Phase::Prefilling {
             if self.queue.len() <= self.nominal {
                 return Tick::Prefilling {
@@ -307,7 +310,7 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
 
     /// The queue's capacity.
     #[must_use]
-    pub fn capacity(&self) -> usize {
+    pub(crate) fn capacity(&self) -> usize {
         self.queue.capacity()
     }
 
@@ -331,7 +334,7 @@ impl<T, Q: Queue<T>> RegulatorIn<T, Q> {
 
     /// The `index`-th oldest queued sample.
     #[must_use]
-    pub fn get(&self, index: usize) -> Option<&T> {
+    pub(crate) fn get(&self, index: usize) -> Option<&T> {
         self.queue.get(index)
     }
 

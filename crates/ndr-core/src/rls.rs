@@ -1,38 +1,4 @@
 //! Recursive least squares (RLS) with exponential forgetting.
-//!
-//! [`Rls`] fits the linear model `d ≈ wᵀx` one sample at a time. It is the
-//! identification engine behind [`crate::arx::Arx2`]. Names map onto
-//! padasip's `FilterRLS`: [`Rls::update`]`(x, d)` is `adapt(d, x)`,
-//! [`Rls::predict`] is `predict(x)`, [`Rls::weights`] is `w`; the covariance
-//! is `P` as in filterpy.
-//!
-//! Per sample, with regressor `x`, desired value `d` and forgetting factor `λ`:
-//!
-//! ```text
-//! e = d − wᵀx                  a-priori error (returned)
-//! k = P x / (λ + xᵀ P x)       gain
-//! w ← w + k e
-//! P ← (P − k (P x)ᵀ) / λ       uses P = Pᵀ: k xᵀ P = k (P x)ᵀ
-//! ```
-//!
-//! `P` stays exactly symmetric: entry `(i, j)` is computed from
-//! `(Px)ᵢ·(Px)ⱼ`, which rounds the same as `(Px)ⱼ·(Px)ᵢ`, so no explicit
-//! symmetrization is needed.
-//!
-//! **Covariance wind-up.** With `λ < 1`, directions of `x` that stop being
-//! excited have their covariance divided by `λ` every sample, so `P` grows
-//! geometrically and the next informative sample moves `w` violently (and
-//! eventually `P` overflows). The filter bounds `tr P`: when it exceeds the
-//! bound, `P` is reset to `δ·I` and [`Rls::covariance_resets`] counts it. The
-//! default bound is [`DEFAULT_TRACE_FACTOR`]` · P · δ`, a million times the
-//! initial trace: while the input excites every direction, information only
-//! accumulates and `tr P` stays at or below its initial value `P·δ`, so a
-//! bound this far above it never fires during normal convergence; it fires
-//! only after a long stretch without excitation (about 680 samples from `δ·I`
-//! at `λ = 0.98`, longer from a converged `P`), and it keeps `P` five or more
-//! orders of magnitude away from `f64` overflow and from a condition number
-//! near `1/ε`. Rounding that makes `P` lose positive definiteness
-//! (`xᵀPx < 0` or a non-positive diagonal entry) resets it in the same way.
 
 use core::fmt;
 
@@ -41,7 +7,7 @@ use nalgebra::{SMatrix, SVector};
 /// Default covariance-trace bound, as a multiple of the initial trace `P·δ`.
 ///
 /// See the [module docs](self) for why a million.
-pub const DEFAULT_TRACE_FACTOR: f64 = 1e6;
+pub(crate) const DEFAULT_TRACE_FACTOR: f64 = 1e6;
 
 /// Why an [`Rls`] could not be built or updated.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -99,6 +65,42 @@ impl fmt::Display for RlsError {
 
 impl core::error::Error for RlsError {}
 
+/// Recursive least squares (RLS) with exponential forgetting.
+///
+/// [`Rls`] fits the linear model `d ≈ wᵀx` one sample at a time. It is the
+/// identification engine behind [`crate::arx::Arx2`]. Names map onto
+/// padasip's `FilterRLS`: [`Rls::update`]`(x, d)` is `adapt(d, x)`,
+/// [`Rls::predict`] is `predict(x)`, [`Rls::weights`] is `w`; the covariance
+/// is `P` as in filterpy.
+///
+/// Per sample, with regressor `x`, desired value `d` and forgetting factor `λ`:
+///
+/// ```text
+/// e = d − wᵀx                  a-priori error (returned)
+/// k = P x / (λ + xᵀ P x)       gain
+/// w ← w + k e
+/// P ← (P − k (P x)ᵀ) / λ       uses P = Pᵀ: k xᵀ P = k (P x)ᵀ
+/// ```
+///
+/// `P` stays exactly symmetric: entry `(i, j)` is computed from
+/// `(Px)ᵢ·(Px)ⱼ`, which rounds the same as `(Px)ⱼ·(Px)ᵢ`, so no explicit
+/// symmetrization is needed.
+///
+/// **Covariance wind-up.** With `λ < 1`, directions of `x` that stop being
+/// excited have their covariance divided by `λ` every sample, so `P` grows
+/// geometrically and the next informative sample moves `w` violently (and
+/// eventually `P` overflows). The filter bounds `tr P`: when it exceeds the
+/// bound, `P` is reset to `δ·I` and [`Rls::covariance_resets`] counts it. The
+/// default bound is `DEFAULT_TRACE_FACTOR · P · δ`, a million times the
+/// initial trace: while the input excites every direction, information only
+/// accumulates and `tr P` stays at or below its initial value `P·δ`, so a
+/// bound this far above it never fires during normal convergence; it fires
+/// only after a long stretch without excitation (about 680 samples from `δ·I`
+/// at `λ = 0.98`, longer from a converged `P`), and it keeps `P` five or more
+/// orders of magnitude away from `f64` overflow and from a condition number
+/// near `1/ε`. Rounding that makes `P` lose positive definiteness
+/// (`xᵀPx < 0` or a non-positive diagonal entry) resets it in the same way.
+///
 /// Recursive least squares estimator of `P` weights with forgetting factor
 /// `λ` and initial covariance `δ·I`.
 ///
@@ -119,7 +121,7 @@ pub struct Rls<const P: usize> {
 impl<const P: usize> Rls<P> {
     /// A filter with zero weights, covariance `delta·I` and forgetting factor
     /// `lambda`, with the default trace bound
-    /// [`DEFAULT_TRACE_FACTOR`]` · P · delta`.
+    /// `DEFAULT_TRACE_FACTOR · P · delta`.
     ///
     /// # Errors
     /// [`RlsError::InvalidForgettingFactor`] unless `0 < lambda ≤ 1`;
@@ -146,12 +148,13 @@ impl<const P: usize> Rls<P> {
         })
     }
 
+    #[cfg(test)]
     /// This filter with its covariance-trace bound set to `bound` (builder form
     /// of [`Rls::set_trace_bound`]).
     ///
     /// # Errors
     /// As [`Rls::set_trace_bound`].
-    pub fn with_trace_bound(mut self, bound: f64) -> Result<Self, RlsError> {
+    pub(crate) fn with_trace_bound(mut self, bound: f64) -> Result<Self, RlsError> {
         self.set_trace_bound(bound)?;
         Ok(self)
     }
@@ -255,12 +258,6 @@ impl<const P: usize> Rls<P> {
     #[must_use]
     pub fn weights(&self) -> &[f64; P] {
         &self.w.data.0[0]
-    }
-
-    /// The current weights as an `nalgebra` vector.
-    #[must_use]
-    pub fn weights_vector(&self) -> &SVector<f64, P> {
-        &self.w
     }
 
     /// Replaces the weights (e.g. with a prior model); the covariance is kept.

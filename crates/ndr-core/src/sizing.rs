@@ -1,25 +1,5 @@
 //! Queue sizing and the period law: the initialization pattern (paper §4.2.2)
 //! and the choice of new parameters (§4.2.4.3).
-//!
-//! At start-up, [`INIT_EXCHANGES`] frames are exchanged and their round-trip
-//! times (NRTT) recorded in an [`InitPattern`]. From them come `mt`, the largest
-//! time by which a reception can lag its schedule, and the nominal queue size
-//!
-//! ```text
-//! ns = 2 + floor(η · mt / T)        η = 1.3, never below 2
-//! ```
-//!
-//! `ns` is the stock a regulator keeps between releases. It drains by one per
-//! period while nothing arrives, so it survives a reception lagging by `mt`
-//! with 2 samples to spare. `mt` is the
-//! paper's "maximum time between two receptions (ie maximum difference between
-//! delays)": frames are sent on a fixed schedule, so a reception lags the
-//! schedule by its delay minus the smallest delay — `mt = max(NRTT) − min(NRTT)`.
-//! (The raw time between receptions includes the period itself; with it `ns`
-//! could never be 2, yet the paper reports `ns = 2` on its 23 ms LAN at 200 ms.)
-//!
-//! The period law, once the mean NRTT is known: `T = max(T_min, NRTT/3)`,
-//! `T_min = 50 ms`.
 
 use core::fmt;
 
@@ -30,9 +10,9 @@ pub const INIT_EXCHANGES: usize = 10;
 /// The paper's security factor η.
 pub const DEFAULT_ETA: f64 = 1.3;
 /// The smallest nominal size the paper permits.
-pub const MIN_NOMINAL_SIZE: usize = 2;
+pub(crate) const MIN_NOMINAL_SIZE: usize = 2;
 /// The paper's lower bound on the period, `T_min`.
-pub const DEFAULT_MIN_PERIOD: Duration = Duration::from_millis(50);
+pub(crate) const DEFAULT_MIN_PERIOD: Duration = Duration::from_millis(50);
 
 /// Errors of sizing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -86,6 +66,7 @@ impl core::error::Error for SizingError {}
 
 /// What the initialization pattern measured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct InitStats {
     /// Number of round trips measured.
     pub samples: usize,
@@ -123,10 +104,11 @@ impl<const M: usize> InitPattern<M> {
         }
     }
 
+    #[cfg(test)]
     /// Records the round trip of a frame sent at `sent_at` whose echo came back
     /// at `received_at` (both on the local clock), less `peer_hold`, the time
     /// the peer held it before echoing.
-    pub fn record(
+    pub(crate) fn record(
         &mut self,
         sent_at: Instant,
         received_at: Instant,
@@ -155,30 +137,32 @@ impl<const M: usize> InitPattern<M> {
 
     /// Samples recorded so far.
     #[must_use]
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.len
     }
 
+    #[cfg(test)]
     /// Whether nothing is recorded.
     #[must_use]
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.len == 0
     }
 
+    #[cfg(test)]
     /// Whether all `M` exchanges are recorded.
     #[must_use]
-    pub fn is_complete(&self) -> bool {
+    pub(crate) fn is_complete(&self) -> bool {
         self.len == M
     }
 
     /// The NRTT samples recorded, in order.
     #[must_use]
-    pub fn samples(&self) -> &[Duration] {
+    pub(crate) fn samples(&self) -> &[Duration] {
         &self.nrtt[..self.len]
     }
 
     /// Forgets the samples, for a new pattern.
-    pub fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.len = 0;
     }
 
@@ -204,6 +188,29 @@ impl<const M: usize> InitPattern<M> {
     }
 }
 
+/// Queue sizing and the period law: the initialization pattern (paper §4.2.2)
+/// and the choice of new parameters (§4.2.4.3).
+///
+/// At start-up, [`INIT_EXCHANGES`] frames are exchanged and their round-trip
+/// times (NRTT) recorded in an [`InitPattern`]. From them come `mt`, the largest
+/// time by which a reception can lag its schedule, and the nominal queue size
+///
+/// ```text
+/// ns = 2 + floor(η · mt / T)        η = 1.3, never below 2
+/// ```
+///
+/// `ns` is the stock a regulator keeps between releases. It drains by one per
+/// period while nothing arrives, so it survives a reception lagging by `mt`
+/// with 2 samples to spare. `mt` is the
+/// paper's "maximum time between two receptions (ie maximum difference between
+/// delays)": frames are sent on a fixed schedule, so a reception lags the
+/// schedule by its delay minus the smallest delay — `mt = max(NRTT) − min(NRTT)`.
+/// (The raw time between receptions includes the period itself; with it `ns`
+/// could never be 2, yet the paper reports `ns = 2` on its 23 ms LAN at 200 ms.)
+///
+/// The period law, once the mean NRTT is known: `T = max(T_min, NRTT/3)`,
+/// `T_min = 50 ms`.
+///
 /// The paper's laws with their constants: `ns` from `mt` and the period from NRTT.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sizing {
@@ -237,12 +244,6 @@ impl Sizing {
     #[must_use]
     pub fn eta(&self) -> f64 {
         self.eta
-    }
-
-    /// The lower period bound `T_min`.
-    #[must_use]
-    pub fn min_period(&self) -> Duration {
-        self.min_period
     }
 
     /// `ns = 2 + floor(η · mt / T)`, saturating; a zero period counts as 1 ns.

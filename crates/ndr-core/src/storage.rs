@@ -206,7 +206,7 @@ mod heap {
     impl<T> HeapQueue<T> {
         /// An empty queue with room for `capacity` items.
         #[must_use]
-        pub fn with_capacity(capacity: usize) -> Self {
+        pub(crate) fn with_capacity(capacity: usize) -> Self {
             HeapQueue {
                 items: VecDeque::with_capacity(capacity),
                 capacity,

@@ -1,45 +1,17 @@
 //! The peers' clock offset and skew, from the timestamps the link exchanges.
-//!
-//! Each side reads its own clock: a frame's `sent_at` is on the peer's, its
-//! arrival on ours. Their difference, the *raw delay*, is the one-way delay
-//! plus `θ(t) = local − peer`, the offset, which drifts at the skew
-//! `s = dθ/dt` (crystals: up to ±100 ppm). [`ClockSync`] estimates both:
-//!
-//! - **Skew**, after Moon, Skelley and Towsley (1999): the raw delays of the
-//!   received frames lie above the line `d_min + θ(t)`. The skew is the
-//!   slope of the line under every point that minimizes the sum of the
-//!   distances to them: on the lower convex hull of the points, the edge
-//!   spanning their mean time. The points are the minima of
-//!   [`SYNC_BLOCK`]-long blocks (a hull vertex is the lowest point around
-//!   it), the last [`SYNC_BLOCKS`] of them (a window of about 11 minutes, so
-//!   a drifting skew is followed). A block minimum more than
-//!   [`SHIFT_MIN`] (or four mean residuals) off the line is a level shift
-//!   (a route change, not a clock): the window restarts there and keeps the
-//!   skew (switching). The slope is clamped to ±[`MAX_SKEW`].
-//! - **Offset**, as NTP does (`θ = ((t4 − t3) − (t2 − t1))/2` for a frame
-//!   that echoes ours: `t1` our send, `t2 = t3 − hold` its arrival on the
-//!   peer's clock, `t3` the peer's send, `t4` our arrival), with the
-//!   minimum-delay filter taken per direction: the same floor is kept for
-//!   our frames (`t2 − t1 = d_forth − θ`, from the echoes) and `θ` is half
-//!   the difference of the two floors. Its error is half the asymmetry of
-//!   the two paths' fastest frames, plus the floors' spread (the gap between
-//!   the true minimum and the lowest of a block's samples). The skew is half
-//!   the difference of the two floors' slopes.
-//!
-//! Everything is in integer nanoseconds on the local clock, in O(1) memory.
 
 use crate::time::{Duration, Instant};
 
 /// Length of a block of samples.
-pub const SYNC_BLOCK: Duration = Duration::from_secs(5);
+pub(crate) const SYNC_BLOCK: Duration = Duration::from_secs(5);
 /// Block minima kept for the hull: 128 blocks of 5 s, 640 s.
-pub const SYNC_BLOCKS: usize = 128;
+pub(crate) const SYNC_BLOCKS: usize = 128;
 /// The skew is estimated once the window spans this; before, it is 0.
-pub const MIN_SKEW_SPAN: Duration = Duration::from_secs(60);
+pub(crate) const MIN_SKEW_SPAN: Duration = Duration::from_secs(60);
 /// The largest skew believed, ±500 ppm.
-pub const MAX_SKEW: f64 = 500e-6;
+pub(crate) const MAX_SKEW: f64 = 500e-6;
 /// The smallest jump of a block minimum taken as a level shift.
-pub const SHIFT_MIN: Duration = Duration::from_millis(5);
+pub(crate) const SHIFT_MIN: Duration = Duration::from_millis(5);
 
 /// A point: local time and raw delay, in nanoseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -69,7 +41,7 @@ fn ns(t: Instant) -> i64 {
 /// The floor of one direction's raw delays: the window of block minima,
 /// its level shifts and the line under them.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Floor {
+pub(crate) struct Floor {
     minima: [Point; SYNC_BLOCKS],
     head: usize,
     len: usize,
@@ -89,7 +61,7 @@ impl Default for Floor {
 impl Floor {
     /// Nothing seen yet.
     #[must_use]
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Floor {
             minima: [Point { t: 0, v: 0 }; SYNC_BLOCKS],
             head: 0,
@@ -118,13 +90,13 @@ impl Floor {
 
     /// The line's slope (the skew of this direction's raw delays).
     #[must_use]
-    pub fn slope(&self) -> f64 {
+    pub(crate) fn slope(&self) -> f64 {
         self.slope
     }
 
     /// Level shifts seen (the window restarted).
     #[must_use]
-    pub fn shifts(&self) -> u64 {
+    pub(crate) fn shifts(&self) -> u64 {
         self.shifts
     }
 
@@ -225,6 +197,36 @@ impl Floor {
     }
 }
 
+/// The peers' clock offset and skew, from the timestamps the link exchanges.
+///
+/// Each side reads its own clock: a frame's `sent_at` is on the peer's, its
+/// arrival on ours. Their difference, the *raw delay*, is the one-way delay
+/// plus `θ(t) = local − peer`, the offset, which drifts at the skew
+/// `s = dθ/dt` (crystals: up to ±100 ppm). [`ClockSync`] estimates both:
+///
+/// - **Skew**, after Moon, Skelley and Towsley (1999): the raw delays of the
+///   received frames lie above the line `d_min + θ(t)`. The skew is the
+///   slope of the line under every point that minimizes the sum of the
+///   distances to them: on the lower convex hull of the points, the edge
+///   spanning their mean time. The points are the minima of
+///   5 s blocks (a hull vertex is the lowest point around
+///   it), the last 128 of them (a window of about 11 minutes, so
+///   a drifting skew is followed). A block minimum more than
+///   5 ms (or four mean residuals) off the line is a level shift
+///   (a route change, not a clock): the window restarts there and keeps the
+///   skew (switching). The slope is clamped to ±500 ppm.
+/// - **Offset**, as NTP does (`θ = ((t4 − t3) − (t2 − t1))/2` for a frame
+///   that echoes ours: `t1` our send, `t2 = t3 − hold` its arrival on the
+///   peer's clock, `t3` the peer's send, `t4` our arrival), with the
+///   minimum-delay filter taken per direction: the same floor is kept for
+///   our frames (`t2 − t1 = d_forth − θ`, from the echoes) and `θ` is half
+///   the difference of the two floors. Its error is half the asymmetry of
+///   the two paths' fastest frames, plus the floors' spread (the gap between
+///   the true minimum and the lowest of a block's samples). The skew is half
+///   the difference of the two floors' slopes.
+///
+/// Everything is in integer nanoseconds on the local clock, in O(1) memory.
+///
 /// Offset and skew of the peer's clock, estimated online (module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ClockSync {
@@ -237,7 +239,7 @@ pub struct ClockSync {
 impl ClockSync {
     /// Nothing seen yet.
     #[must_use]
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         ClockSync {
             rx: Floor::new(),
             tx: Floor::new(),
@@ -245,7 +247,7 @@ impl ClockSync {
     }
 
     /// A frame stamped `sent_at` (peer clock) arrived at `arrived` (local).
-    pub fn observe_arrival(&mut self, sent_at: Instant, arrived: Instant) {
+    pub(crate) fn observe_arrival(&mut self, sent_at: Instant, arrived: Instant) {
         let t = ns(arrived);
         self.rx.observe(t, t.saturating_sub(ns(sent_at)));
     }
@@ -253,7 +255,7 @@ impl ClockSync {
     /// A frame that echoes ours: `t1` our send (local), `hold` the peer's
     /// hold time, `t3` the peer's send (peer clock). Only the first echo
     /// of each of our frames should be given (later ones held longer).
-    pub fn observe_echo(&mut self, t1: Instant, hold: Duration, t3: Instant) {
+    pub(crate) fn observe_echo(&mut self, t1: Instant, hold: Duration, t3: Instant) {
         let hold = i64::try_from(hold.as_nanos()).unwrap_or(i64::MAX);
         let t2 = ns(t3).saturating_sub(hold);
         self.tx.observe(ns(t1), t2.saturating_sub(ns(t1)));
@@ -267,15 +269,16 @@ impl ClockSync {
         (self.rx.slope() - self.tx.slope()) / 2.0
     }
 
+    #[cfg(test)]
     /// Level shifts seen in either direction.
     #[must_use]
-    pub fn shifts(&self) -> u64 {
+    pub(crate) fn shifts(&self) -> u64 {
         self.rx.shifts() + self.tx.shifts()
     }
 
     /// The received frames' floor.
     #[must_use]
-    pub fn rx(&self) -> &Floor {
+    pub(crate) fn rx(&self) -> &Floor {
         &self.rx
     }
 
@@ -291,20 +294,20 @@ impl ClockSync {
     /// The floor of the received frames' raw delays (`d_min + θ(t)`) at
     /// local time `t`, in seconds; `None` before any frame.
     #[must_use]
-    pub fn floor_at(&self, t: Instant) -> Option<f64> {
+    pub(crate) fn floor_at(&self, t: Instant) -> Option<f64> {
         self.rx.at(ns(t)).map(|v| v * 1e-9)
     }
 
     /// A received frame's one-way delay (raw delay − offset), in seconds.
     #[must_use]
-    pub fn one_way_rx(&self, sent_at: Instant, arrived: Instant) -> Option<f64> {
+    pub(crate) fn one_way_rx(&self, sent_at: Instant, arrived: Instant) -> Option<f64> {
         let raw = ns(arrived).saturating_sub(ns(sent_at)) as f64 * 1e-9;
         self.offset_at(arrived).map(|o| raw - o)
     }
 
     /// Our frame's one-way delay from its echo (`t2 − t1 + offset`), in seconds.
     #[must_use]
-    pub fn one_way_tx(&self, t1: Instant, hold: Duration, t3: Instant) -> Option<f64> {
+    pub(crate) fn one_way_tx(&self, t1: Instant, hold: Duration, t3: Instant) -> Option<f64> {
         let hold = i64::try_from(hold.as_nanos()).unwrap_or(i64::MAX);
         let raw = ns(t3).saturating_sub(hold).saturating_sub(ns(t1)) as f64 * 1e-9;
         self.offset_at(t1).map(|o| raw + o)

@@ -76,7 +76,7 @@ impl Instant {
 
     /// The time from `earlier` to `self`, zero if `earlier` is later.
     #[must_use]
-    pub const fn saturating_duration_since(self, earlier: Instant) -> Duration {
+    pub(crate) const fn saturating_duration_since(self, earlier: Instant) -> Duration {
         Duration {
             nanos: self.nanos.saturating_sub(earlier.nanos),
         }
@@ -220,7 +220,7 @@ impl Duration {
 
     /// `self · k`, saturating.
     #[must_use]
-    pub const fn saturating_mul(self, k: u64) -> Duration {
+    pub(crate) const fn saturating_mul(self, k: u64) -> Duration {
         Duration {
             nanos: self.nanos.saturating_mul(k),
         }

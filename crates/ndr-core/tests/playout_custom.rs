@@ -6,13 +6,13 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use ndr_core::Regulation;
 use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Underflow};
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::{
     Admit, Announcement, Arrival, Builtin, Custom, Due, Factory, NoAdaptive, NoRoom, Observed,
     OnTicks, Outcome, Playout, Policy, Room, Setup, Stamps, TargetDelay, View,
 };
-use ndr_core::regulation::Regulation;
 use ndr_core::storage::{Heap, Inline};
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::Role;

@@ -2,8 +2,8 @@
 //! `ndr.Estimator`. Transfer functions go out in scipy.signal's convention,
 //! `(num, den, dt)` with `num = [b0, b1, b2]`, `den = [1, a1, a2]`.
 
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
-use ndr_core::estimator::{Estimate, Estimator, EstimatorError};
+use ndr_core::{Arx2, Tf2, Tf2State};
+use ndr_core::{Estimate, Estimator, EstimatorError};
 use numpy::PyArray1;
 use pyo3::exceptions::{PyRuntimeWarning, PyValueError};
 use pyo3::prelude::*;

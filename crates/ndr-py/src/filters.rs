@@ -1,6 +1,6 @@
 //! `ndr.LowPass`, `ndr.Envelope` and the batch `ndr.lowpass`, `ndr.envelope`.
 
-use ndr_core::filters::{DEFAULT_DECAY, Envelope, FilterError, LowPass};
+use ndr_core::{DEFAULT_DECAY, Envelope, FilterError, LowPass};
 use numpy::PyArray1;
 use pyo3::prelude::*;
 

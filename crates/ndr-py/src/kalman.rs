@@ -1,9 +1,9 @@
 //! `ndr.Kalman3`, `ndr.NetworkPredictor` and the batch `ndr.kalman3_filter`.
 
-use ndr_core::filters::DEFAULT_DECAY;
-use ndr_core::kalman::{DEFAULT_HORIZON, Kalman3};
-use ndr_core::predictor::{NetworkPredictor, Prediction, PredictorConfig};
-use ndr_core::sizing::{DEFAULT_ETA, Sizing};
+use ndr_core::DEFAULT_DECAY;
+use ndr_core::{DEFAULT_ETA, Sizing};
+use ndr_core::{DEFAULT_HORIZON, Kalman3};
+use ndr_core::{NetworkPredictor, Prediction, PredictorConfig};
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 

@@ -17,8 +17,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
 
+use ndr_core::Regulation;
 use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
-use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
 use ndr_core::wire::Role;

@@ -1,7 +1,7 @@
 //! `regulation=`: one reading for every function that takes it, and the
 //! names it takes, from the playout registry.
 
-use ndr_core::regulation::Regulation;
+use ndr_core::Regulation;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 

@@ -1,7 +1,7 @@
 //! `ndr.Rls` (padasip's names) over the core's const-generic `Rls<P>`, sizes
 //! 1 to 8, and the batch `ndr.rls_filter`.
 
-use ndr_core::rls::{Rls, RlsError};
+use ndr_core::{Rls, RlsError};
 use numpy::{PyArray1, PyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;

@@ -5,8 +5,8 @@
 //! the Python side parses it into a dict), and the per-tick series as float64
 //! arrays, one per column of `ndr sim --out`.
 
+use ndr_core::Regulation;
 use ndr_core::endpoint::Underflow;
-use ndr_core::regulation::Regulation;
 use ndr_sim::signal::Signal;
 use ndr_sim::{MAX_SIM_AXES, Report, Row, SimConfig};
 use numpy::PyArray1;

@@ -5,16 +5,16 @@ use std::boxed::Box;
 use std::fmt;
 use std::vec::Vec;
 
-use ndr_core::arx::{ArxError, Tf2, Tf2State};
+use ndr_core::Regulation;
 use ndr_core::endpoint::{
     Config, ConfigError, Endpoint, Event, LinkError, Mode, Release, Status, Transport, Underflow,
 };
 use ndr_core::pair::{Pair, World};
 use ndr_core::playout::Playout;
-use ndr_core::regulation::Regulation;
 use ndr_core::storage::Heap;
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{Frame, Kind, Payload, Role};
+use ndr_core::{ArxError, Tf2, Tf2State};
 
 use super::delay::{
     DelayModel, DelaySampler, Direction, InOrderPath, LossModel, LossSampler, Recovery, TcpPath,

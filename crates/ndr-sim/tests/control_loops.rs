@@ -1,8 +1,8 @@
 //! Closed loops across the link: the Smith predictor's exactness over the
 //! paper's static FIFO, and the wave channel's passivity.
 
+use ndr_core::Regulation;
 use ndr_core::endpoint::Underflow;
-use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use ndr_sim::SimConfig;
 use ndr_sim::compare::{Family, builtin, sim_config};

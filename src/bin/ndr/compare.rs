@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::time::Instant as WallClock;
 
 use ndr::core::endpoint::Underflow;
-use ndr::core::regulation::{Regulation, RegulationNames};
 use ndr::core::time::Duration;
+use ndr::core::{Regulation, RegulationNames};
 use ndr::sim::compare::{
     self, CompareConfig, CompareReport, Family, Matched, RegulationResult, Stat, TC_DIRS,
 };

@@ -7,10 +7,10 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration as StdDuration;
 
-use ndr::core::arx::{Tf2, Tf2State};
 use ndr::core::endpoint::{Event, LinkError};
 use ndr::core::time::Duration;
 use ndr::core::wire::close_reason;
+use ndr::core::{Tf2, Tf2State};
 use ndr::net::{Link, LinkStats, NetError};
 use ndr::sim::PlantConfig;
 
@@ -133,7 +133,7 @@ impl StateLayout {
             .collect();
         let commands: Vec<&str> = commands.iter().map(String::as_str).collect();
         let states: Vec<&str> = states.iter().map(String::as_str).collect();
-        ndr::core::layout::fingerprint(&commands, &states)
+        ndr::core::fingerprint(&commands, &states)
     }
 }
 

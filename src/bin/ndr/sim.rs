@@ -5,8 +5,8 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use ndr::core::endpoint::{Transport, Underflow};
-use ndr::core::regulation::{Regulation, RegulationNames};
 use ndr::core::time::Duration;
+use ndr::core::{Regulation, RegulationNames};
 use ndr::sim::delay::LossModel;
 use ndr::sim::signal::Signal;
 use ndr::sim::{self, Report, Row, SimConfig};

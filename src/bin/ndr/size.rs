@@ -1,6 +1,6 @@
 //! `ndr size`: a regulator's nominal size from an initialization pattern.
 
-use ndr::core::sizing::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
+use ndr::core::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
 use serde::Serialize;
 
 use crate::args::millis;

@@ -13,7 +13,7 @@
 
 use std::str::FromStr;
 
-use ndr::core::arx::Tf2State;
+use ndr::core::Tf2State;
 use ndr::core::control::{ControlError, Pid, PidConfig, SmithPredictor, round_trip_ticks};
 use ndr::core::time::Duration;
 use ndr::sim::control::{Reference, TrackingGains};

@@ -47,7 +47,7 @@
 //! delay-free loop's state.
 //!
 //! ```
-//! use ndr_core::arx::{Tf2, Tf2State};
+//! use ndr_core::{Tf2, Tf2State};
 //! use ndr_core::control::{Pid, PidConfig, SmithPredictor, round_trip_ticks};
 //! use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Status};
 //! use ndr_core::pair::{Pair, World};
@@ -130,9 +130,9 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-pub mod pid;
-pub mod smith;
-pub mod wave;
+mod pid;
+mod smith;
+mod wave;
 
 use core::fmt;
 

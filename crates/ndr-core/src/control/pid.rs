@@ -1,11 +1,4 @@
 //! A discrete PID with output limits and anti-windup.
-//!
-//! `u = kp·e + ki·∫e + kd·d(−y)/dt` with `e = r − y`: the derivative acts on
-//! the measurement, so a step of the reference does not kick the output,
-//! and is low-passed with time constant `derivative_filter_s` (0: none).
-//! The integral is clamped (conditional integration): while the output is
-//! saturated, the error that would push it further is not integrated, so
-//! the loop leaves a limit as soon as the error turns.
 
 use super::{ControlError, finite};
 
@@ -60,7 +53,14 @@ impl PidConfig {
     }
 }
 
-/// A discrete PID (see the [module docs](self)).
+/// A discrete PID with output limits and anti-windup.
+///
+/// `u = kp·e + ki·∫e + kd·d(−y)/dt` with `e = r − y`: the derivative acts on
+/// the measurement, so a step of the reference does not kick the output,
+/// and is low-passed with time constant `derivative_filter_s` (0: none).
+/// The integral is clamped (conditional integration): while the output is
+/// saturated, the error that would push it further is not integrated, so
+/// the loop leaves a limit as soon as the error turns.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pid {
     cfg: PidConfig,

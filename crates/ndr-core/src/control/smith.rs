@@ -1,33 +1,4 @@
 //! A Smith predictor for a loop closed across the link.
-//!
-//! # Timing
-//!
-//! Ticks are the base's. At tick `k` the base releases the measured state
-//! `y_m[k]`, the controller computes the command `u[k]`, and the link
-//! carries it to the remote; the state the plant reaches on `u[j]` is
-//! released back at tick `j + D`, `D` the round trip in ticks (`Df + Db` in
-//! the [`Estimator`](crate::Estimator)'s terms). A local model of the plant
-//! runs undelayed on the same commands: `ŷ[j]` is its output on `u[j]`.
-//!
-//! At tick `k` the controller is given
-//!
-//! ```text
-//! ŷ[k−1] + (y_m[k] − ŷ[k−D])
-//! ```
-//!
-//! the model's newest output, corrected by how far the plant was from the
-//! model one round trip ago. With the true model the correction is zero
-//! and the controller sees `ŷ[k−1]`, exactly what it sees in the delay-free
-//! loop (`D = 1`); the plant's state then is the delay-free loop's, delayed
-//! by `D − 1` ticks, to the last bit.
-//!
-//! The model's outputs are kept by tick, so a change of `D` (the link
-//! announced a new delay) only moves where the correction reads: nothing
-//! jumps but what the plant itself did differently. A tick without a fresh
-//! measurement (an underflow's repeat) keeps the last correction.
-//!
-//! Before the first command the plant and the model are at rest: a model
-//! output before tick 0 is zero.
 
 use crate::arx::{Arx2, Tf2, Tf2State};
 use crate::estimator::MIN_IDENTIFICATION_UPDATES;
@@ -42,8 +13,39 @@ enum Model {
     Identify(Arx2),
 }
 
+/// A Smith predictor for a loop closed across the link.
+///
+/// # Timing
+///
+/// Ticks are the base's. At tick `k` the base releases the measured state
+/// `y_m[k]`, the controller computes the command `u[k]`, and the link
+/// carries it to the remote; the state the plant reaches on `u[j]` is
+/// released back at tick `j + D`, `D` the round trip in ticks (`Df + Db` in
+/// the [`Estimator`](crate::Estimator)'s terms). A local model of the plant
+/// runs undelayed on the same commands: `ŷ[j]` is its output on `u[j]`.
+///
+/// At tick `k` the controller is given
+///
+/// ```text
+/// ŷ[k−1] + (y_m[k] − ŷ[k−D])
+/// ```
+///
+/// the model's newest output, corrected by how far the plant was from the
+/// model one round trip ago. With the true model the correction is zero
+/// and the controller sees `ŷ[k−1]`, exactly what it sees in the delay-free
+/// loop (`D = 1`); the plant's state then is the delay-free loop's, delayed
+/// by `D − 1` ticks, to the last bit.
+///
+/// The model's outputs are kept by tick, so a change of `D` (the link
+/// announced a new delay) only moves where the correction reads: nothing
+/// jumps but what the plant itself did differently. A tick without a fresh
+/// measurement (an underflow's repeat) keeps the last correction.
+///
+/// Before the first command the plant and the model are at rest: a model
+/// output before tick 0 is zero.
+///
 /// A Smith predictor with `H` ticks of history (the round trip can be
-/// `1..=H` ticks). See the [module docs](self).
+/// `1..=H` ticks).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SmithPredictor<const H: usize> {
     model: Model,
@@ -80,7 +82,7 @@ impl<const H: usize> SmithPredictor<H> {
     /// A predictor that identifies its model online with `arx` from the
     /// commands and the measured states (the model of `arx` so far, if
     /// trained, is used from the start). Until the identifier has adapted
-    /// [`MIN_IDENTIFICATION_UPDATES`] times, on states that answer a
+    /// 5 times, on states that answer a
     /// command (not the first round trip's, the plant at rest), the
     /// controller is given the measured state itself. On a long round trip
     /// a loop closed on that is unstable: drive the plant open loop until

@@ -1,22 +1,5 @@
 //! Wave variables (Niemeyer and Slotine, ICRA 1997) for a bilateral,
 //! force-reflecting loop, and the energy bookkeeping of their channel.
-//!
-//! A port with velocity `ẋ` and force `F` is encoded, for a wave impedance
-//! `b > 0`, as the forward and backward waves
-//!
-//! ```text
-//! u = (b·ẋ + F)/√(2b)        v = (b·ẋ − F)/√(2b)        ẋ·F = ½(u² − v²)
-//! ```
-//!
-//! The master sends `u` and receives `v`; the slave receives `u` and sends
-//! `v`. The channel stores what entered it (`½u²` per second at the master,
-//! `½v²` at the slave) less what left it (`½v²` at the master, `½u²` at the
-//! slave): with each wave delivered once, at any constant delay, what left
-//! never exceeds what entered — the channel is passive. A wave delivered
-//! twice (a repeat) or stretched over a longer time than it was sent for is
-//! energy the channel creates: [`WaveEnergy`] keeps the account, tick by
-//! tick, and its [`generated`](WaveEnergy::generated) is the most the
-//! channel ever gave beyond what it received.
 
 use super::{ControlError, finite};
 
@@ -39,7 +22,27 @@ pub struct SlavePort {
     pub wave: f64,
 }
 
-/// The wave transform at impedance `b` (see the [module docs](self)).
+/// Wave variables (Niemeyer and Slotine, ICRA 1997) for a bilateral,
+/// force-reflecting loop, and the energy bookkeeping of their channel.
+///
+/// A port with velocity `ẋ` and force `F` is encoded, for a wave impedance
+/// `b > 0`, as the forward and backward waves
+///
+/// ```text
+/// u = (b·ẋ + F)/√(2b)        v = (b·ẋ − F)/√(2b)        ẋ·F = ½(u² − v²)
+/// ```
+///
+/// The master sends `u` and receives `v`; the slave receives `u` and sends
+/// `v`. The channel stores what entered it (`½u²` per second at the master,
+/// `½v²` at the slave) less what left it (`½v²` at the master, `½u²` at the
+/// slave): with each wave delivered once, at any constant delay, what left
+/// never exceeds what entered — the channel is passive. A wave delivered
+/// twice (a repeat) or stretched over a longer time than it was sent for is
+/// energy the channel creates: [`WaveEnergy`] keeps the account, tick by
+/// tick, and its [`generated`](WaveEnergy::generated) is the most the
+/// channel ever gave beyond what it received.
+///
+/// The wave transform at impedance `b`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WaveTransform {
     b: f64,

@@ -28,10 +28,10 @@ pub enum Transport {
     /// [`Endpoint::handle_datagram`](super::Endpoint::handle_datagram).
     Datagram {
         /// Samples per datagram, 1 to [`MAX_BUNDLE`](crate::wire::MAX_BUNDLE)
-        /// (fewer when they would not fit [`DATAGRAM_BUDGET`] bytes).
+        /// (fewer when they would not fit 1200 bytes).
         redundancy: u8,
-        /// Times each sample's datagram is sent again, [`REPEAT_SPACING`]
-        /// apart, 0 to [`MAX_REPEATS`], while the path loses datagrams: a
+        /// Times each sample's datagram is sent again, 1 ms
+        /// apart, 0 to 4, while the path loses datagrams: a
         /// lost datagram is then made good within a millisecond or two
         /// rather than by the next period's copies (which a slow link waits
         /// a whole period for). Only as many as fit in the period before the
@@ -47,9 +47,9 @@ pub enum Transport {
 /// lost (5 % on each of two hops), four sends of a sample are all lost
 /// once in 10 000, a tenth of the adaptive playout's default late rate (with
 /// three, once in 1 000: the playout then waits a period for the copies).
-pub const DEFAULT_REPEATS: u8 = 3;
+pub(crate) const DEFAULT_REPEATS: u8 = 3;
 /// Most [`Transport::Datagram::repeats`].
-pub const MAX_REPEATS: u8 = 4;
+pub(crate) const MAX_REPEATS: u8 = 4;
 /// How long the repeats go on after the first sample, and after each time
 /// the peer reports a sample missed: losses come in spells (a busy queue,
 /// a radio's fade or hand-over), and repeating through a quiet spell costs
@@ -59,11 +59,11 @@ pub const REPEAT_HOLD: Duration = Duration::from_secs(10);
 /// Between a sample's datagram and its repeats: long enough apart not to
 /// share one burst of a queue overflowing, short enough that the delay a
 /// repeat adds stays a small part of the round trip.
-pub const REPEAT_SPACING: Duration = Duration::from_millis(1);
+pub(crate) const REPEAT_SPACING: Duration = Duration::from_millis(1);
 
 impl Transport {
     /// Datagrams, each with the newest sample and the three before it,
-    /// sent [`DEFAULT_REPEATS`] more times: with 10 % of datagrams lost
+    /// sent 3 more times: with 10 % of datagrams lost
     /// (5 % on each of two hops), a sample and its three copies are all
     /// lost once in 10 000, under the adaptive playout's default late rate
     /// (two copies: once in 1 000, over it).
@@ -74,7 +74,7 @@ impl Transport {
 
     /// Its name: `stream` or `datagram`.
     #[must_use]
-    pub const fn name(self) -> &'static str {
+    pub(crate) const fn name(self) -> &'static str {
         match self {
             Transport::Stream => "stream",
             Transport::Datagram { .. } => "datagram",
@@ -148,7 +148,7 @@ impl fmt::Display for Transport {
 
 /// The size a datagram's samples are kept within (fewer older samples
 /// when they would not fit): what a QUIC datagram holds on any path.
-pub const DATAGRAM_BUDGET: usize = 1200;
+pub(crate) const DATAGRAM_BUDGET: usize = 1200;
 
 /// What a regulator does at a tick whose sample has not arrived.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -176,7 +176,7 @@ impl Underflow {
 
     /// The code in a Hello frame.
     #[must_use]
-    pub const fn code(self) -> u8 {
+    pub(crate) const fn code(self) -> u8 {
         match self {
             Underflow::Hold => wire::underflow::HOLD,
             Underflow::DropLate => wire::underflow::DROP_LATE,
@@ -211,13 +211,14 @@ impl fmt::Display for Underflow {
 /// the queue (`mt ≥ ns·T`: a lag that long uses up the whole stock) —
 /// whichever comes first.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Adaptation {
     /// Relative distance between forecast and current parameters that
     /// triggers a resize (0.25: 25 %).
-    pub band: f64,
+    pub(crate) band: f64,
     /// Periods the predictor runs after a start before it may trigger a
     /// resize (its filters need to settle on the new regime).
-    pub settle_periods: u32,
+    pub(crate) settle_periods: u32,
 }
 
 impl Default for Adaptation {
@@ -271,7 +272,7 @@ pub struct Config {
     /// fields apart only for a pairing no [`Regulation`] names.
     pub playout: Playout,
     /// The sizing laws (η, `T_min`).
-    pub sizing: Sizing,
+    pub(crate) sizing: Sizing,
     /// Ticks fall on `tick_origin + k·T`. Peers whose clocks agree (a
     /// simulation, or hosts synchronized by PTP or GPS) share one grid, the
     /// paper's "clock common to the whole structure".
@@ -279,7 +280,7 @@ pub struct Config {
     /// How long the handshake and each initialization pattern may take, at
     /// least: a pattern (and a pause of the dynamic mode) gets three times
     /// what it needs when that is longer — its probes at the period plus
-    /// the slowest round trip seen ([`PATTERN_SLACK`](super::PATTERN_SLACK)).
+    /// the slowest round trip seen (3 periods).
     pub handshake_timeout: Duration,
     /// While running, raise [`Event::LinkLost`](super::Event::LinkLost) when no
     /// fresh sample has been released for this long; `None` disables it.
@@ -292,10 +293,10 @@ pub struct Config {
     /// [`Event::LinkLost`](super::Event::LinkLost) first.
     pub liveness: Option<Duration>,
     /// Dynamic mode's decision rule.
-    pub adaptation: Adaptation,
+    pub(crate) adaptation: Adaptation,
     /// The network predictor's time constants, in periods, and horizon
     /// (`period` and `sizing` in it are replaced by this config's).
-    pub predictor: PredictorConfig,
+    pub(crate) predictor: PredictorConfig,
 }
 
 impl Config {
@@ -344,13 +345,6 @@ impl Config {
         self.mode = regulation.mode();
         self.playout = regulation.playout();
         self
-    }
-
-    /// How this side regulates the delay, `None` for the pairing no
-    /// regulation names ([`Regulation::of`]).
-    #[must_use]
-    pub fn regulation(&self) -> Option<Regulation> {
-        Regulation::of(self.mode, self.playout)
     }
 
     /// This configuration with `command_width` values in each command and

@@ -544,9 +544,10 @@ impl<S: Storage> Endpoint<S> {
         }
     }
 
+    #[cfg(test)]
     /// The token given to the peer and not yet seen in a datagram.
     #[must_use]
-    pub fn pending_session(&self) -> Option<u64> {
+    pub(crate) fn pending_session(&self) -> Option<u64> {
         self.dgram.as_ref()?.fresh
     }
 

@@ -28,6 +28,7 @@ impl Status {
 /// One sample released by the regulator at a tick, its values in `V`
 /// (the endpoint's [`Storage::Values`](crate::storage::Storage::Values)).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Release<V> {
     /// The sample's sequence number (the peer's Data frame count).
     pub seq: u64,
@@ -138,7 +139,7 @@ pub enum Event<V> {
     /// Target-delay playout: the end-to-end delay of the released samples
     /// changed: by at least a tick for the fixed policies; by whole quanta
     /// for the adaptive one (periods up to 20 ms, `T/⌈T/20 ms⌉` beyond,
-    /// [`DELAY_QUANTUM`](crate::playout::DELAY_QUANTUM)), without a pause: a repeated
+    /// 20 ms), without a pause: a repeated
     /// sample when it rises, releases brought forward when it falls.
     DelayChanged {
         /// The new delay (release on this side's clock − send on the peer's,

@@ -44,8 +44,8 @@ mod stats;
 use heapless::Deque;
 
 pub use config::{
-    Adaptation, Config, ConfigError, DATAGRAM_BUDGET, DEFAULT_LIVENESS, DEFAULT_REPEATS,
-    MAX_REPEATS, MIN_PERIOD, Mode, REPEAT_HOLD, REPEAT_SPACING, Transport, Underflow, UnknownName,
+    Adaptation, Config, ConfigError, DEFAULT_LIVENESS, MIN_PERIOD, Mode, REPEAT_HOLD, Transport,
+    Underflow, UnknownName,
 };
 pub use datagram::{DatagramError, Origin, RenewError, Taken};
 pub use error::LinkError;
@@ -67,7 +67,7 @@ use release::Released;
 /// A pause or a re-run initialization pattern may take this many times
 /// what it needs (its probes at the period, plus the slowest round trip
 /// seen) before it times out, if that is longer than the handshake timeout.
-pub const PATTERN_SLACK: u64 = 3;
+pub(crate) const PATTERN_SLACK: u64 = 3;
 
 /// Where the endpoint is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -528,20 +528,15 @@ impl<S: Storage> Endpoint<S> {
         &self.sync
     }
 
+    #[cfg(test)]
     /// The end-to-end delay the playout policy holds now (the release time
     /// on the local clock minus the send time on the peer's, corrected by
     /// the offset estimate for a policy that maps the clocks); `None` for
     /// the FIFO, whose delay is its queue's, and before the policy has one.
     #[must_use]
-    pub fn playout_delay(&self) -> Option<Duration> {
+    pub(crate) fn playout_delay(&self) -> Option<Duration> {
         self.last_tick()?;
         self.policy.delay()
-    }
-
-    /// The peer's Hello, once the handshake is done.
-    #[must_use]
-    pub fn peer(&self) -> Option<Hello> {
-        self.peer
     }
 
     // ----- internals ---------------------------------------------------------
@@ -712,6 +707,7 @@ impl<S: Storage> Endpoint<S> {
         self.policy.following_tick(t + self.period)
     }
 
+    #[cfg(test)]
     fn last_tick(&self) -> Option<Instant> {
         Some(self.next_tick? - self.period)
     }

@@ -14,7 +14,7 @@ pub struct Running {
 
 impl Running {
     /// Adds one value.
-    pub fn push(&mut self, x: f64) {
+    pub(crate) fn push(&mut self, x: f64) {
         self.count += 1;
         if self.count == 1 {
             self.min = x;
@@ -133,19 +133,19 @@ pub struct Stats {
     /// Watchdog alarms: times no fresh sample came for the watchdog time.
     pub link_lost: u64,
     /// Parameter changes clamped to what the regulator can hold.
-    pub clamped: u64,
+    pub(crate) clamped: u64,
     /// Frames given up because the driver did not drain `poll_transmit`.
     pub tx_dropped: u64,
     /// Data frames the peer numbered but never sent: its `tx_dropped`, seen
     /// from here as a gap in `seq` (its driver stalled).
     pub frames_missing: u64,
     /// Round trips whose start had left the send-time history.
-    pub grtt_unmeasured: u64,
+    pub(crate) grtt_unmeasured: u64,
     /// Datagram transport: datagrams of this session taken (each a Bundle
     /// of samples).
     pub datagrams_received: u64,
     /// Datagram transport: repeats sent (a sample's datagram sent again,
-    /// [`REPEAT_SPACING`](super::REPEAT_SPACING) apart); the peer drops
+    /// 1 ms apart); the peer drops
     /// those that find the sample taken, as stale.
     pub datagrams_repeated: u64,
     /// Datagram transport: samples taken from a later datagram's copy
@@ -157,7 +157,7 @@ pub struct Stats {
     /// Datagram transport: times the peer's count of this side's samples
     /// it missed grew, each keeping this side's repeats going for
     /// [`REPEAT_HOLD`](super::REPEAT_HOLD).
-    pub loss_reports: u64,
+    pub(crate) loss_reports: u64,
     /// Datagram transport: samples never received, neither in their own
     /// datagram nor in a later one's copies, before a newer one came.
     pub samples_lost: u64,
@@ -189,7 +189,7 @@ pub struct Stats {
     /// the clock offset estimate; from the first echo on).
     pub one_way_rx: Running,
     /// One-way delays of our frames, from the peer's echoes, in seconds.
-    pub one_way_tx: Running,
+    pub(crate) one_way_tx: Running,
     /// The clock offset estimate `local − peer` at the latest frame, in
     /// seconds (0 until both directions have a floor). Serialized as
     /// `clock_offset`, the name the bindings show.
@@ -203,7 +203,7 @@ pub struct Stats {
     #[cfg_attr(feature = "serde", serde(rename = "playout_delay"))]
     pub playout_delay_s: f64,
     /// The same in ticks (periods, rounded up).
-    pub playout_delay_ticks: u64,
+    pub(crate) playout_delay_ticks: u64,
     /// Changes of the playout delay (each one an [`Event::DelayChanged`]):
     /// of `playout_delay_ticks` for the fixed policies, of
     /// `playout_delay_s` at rest for the adaptive one.
@@ -212,12 +212,12 @@ pub struct Stats {
     pub delay_changes: u64,
     /// The round trip of this side's samples in ticks (`⌈GRTT / T⌉`), the
     /// last measured; 0 before the first.
-    pub round_trip_ticks: u64,
+    pub(crate) round_trip_ticks: u64,
     /// Changes of `round_trip_ticks`, the first measured one included
     /// (each one an [`Event::RoundTripChanged`]).
     ///
     /// [`Event::RoundTripChanged`]: super::Event::RoundTripChanged
-    pub round_trip_changes: u64,
+    pub(crate) round_trip_changes: u64,
     /// Adaptive playout: frames left out of the target's delay window
     /// because they ended a silence longer than the watchdog time, or came
     /// after such a frame still held longer than that, or in the burst held

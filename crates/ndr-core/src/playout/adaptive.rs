@@ -15,15 +15,15 @@ pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + Send + 'static {
     /// `quantum`; `None` if this slot holds none.
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self>;
     /// The floor the delays are measured above moved by `by` (up if
-    /// `rose`): see [`Adaptive::rebase`].
+    /// `rose`): see `Adaptive::rebase`.
     fn rebase(&mut self, by: Duration, rose: bool);
-    /// A sample was lost: see [`Adaptive::note_late`].
+    /// A sample was lost: see `Adaptive::note_late`.
     fn note_late(&mut self);
-    /// See [`Adaptive::budget_used`].
+    /// See `Adaptive::budget_used`.
     fn budget_used(&self, more: u64) -> f64;
-    /// See [`Adaptive::sample_cost`].
+    /// See `Adaptive::sample_cost`.
     fn sample_cost(&self) -> Duration;
-    /// See [`Adaptive::margin`].
+    /// See `Adaptive::margin`.
     fn margin(&self) -> Duration;
 }
 
@@ -140,32 +140,32 @@ impl AdaptiveSlot for NoAdaptive {
 /// delays above the floor up to 13.1 s, the last bucket holding any
 /// longer one (a path that slow is an outage to report, not a delay to
 /// hold; 1 024 buckets, up to 105 s, were 1.5 KiB more per endpoint).
-pub const ADAPTIVE_BUCKETS: usize = 832;
+pub(super) const ADAPTIVE_BUCKETS: usize = 832;
 /// The histogram's unit: 50 µs.
 const UNIT_NS: u64 = 50_000;
 /// Linear buckets below 128 units; then 64 per octave (1.6 % wide).
 const LINEAR: u64 = 128;
 const PER_OCTAVE: u64 = 64;
-/// The histogram's window: [`ADAPTIVE_BLOCKS`] blocks of this (90–120 s),
+/// The histogram's window: `ADAPTIVE_BLOCKS` blocks of this (90–120 s),
 /// or longer at long periods (see [`ADAPTIVE_BLOCK_MAX`]).
-pub const ADAPTIVE_BLOCK: Duration = Duration::from_secs(30);
+pub(super) const ADAPTIVE_BLOCK: Duration = Duration::from_secs(30);
 /// The longest block. At a long period the blocks grow so that the
 /// window's full blocks hold [`ADAPTIVE_WINDOW_DELAYS`] delays, up to this
 /// (a window of 15–20 minutes).
-pub const ADAPTIVE_BLOCK_MAX: Duration = Duration::from_secs(300);
+pub(super) const ADAPTIVE_BLOCK_MAX: Duration = Duration::from_secs(300);
 /// The delays the window's full blocks hold at least (below `1/ε` of them
 /// the target keeps a warm-up margin of up to a period, which at the
 /// paper's 200 ms would cost a whole tick of delay for good): `1/ε` at the
 /// default ε = 0.1 %. 30 s blocks hold them at periods up to 90 ms.
-pub const ADAPTIVE_WINDOW_DELAYS: u64 = 1000;
+pub(super) const ADAPTIVE_WINDOW_DELAYS: u64 = 1000;
 /// Blocks in the window.
-pub const ADAPTIVE_BLOCKS: usize = 4;
+pub(super) const ADAPTIVE_BLOCKS: usize = 4;
 /// The target may fall by this fraction of a period per sample (a skipped
 /// sample at most every 10 ticks).
-pub const SLEW_DOWN: f64 = 0.1;
+pub(super) const SLEW_DOWN: f64 = 0.1;
 /// The target may rise by this fraction of a period per sample (a repeated
 /// tick at most every tick: a late sample costs more than a repeat).
-pub const SLEW_UP: f64 = 1.0;
+pub(super) const SLEW_UP: f64 = 1.0;
 
 /// The bucket of a relative delay.
 pub(super) fn bucket_of(d: Duration) -> usize {
@@ -197,12 +197,12 @@ pub(super) fn bucket_upper(b: usize) -> Duration {
 
 /// The timestamp-based target of [`Playout::Adaptive`](super::Playout::Adaptive): the `1 − ε`
 /// quantile of the delays above the floor (given by the endpoint, which
-/// knows the clocks), over a sliding window of [`ADAPTIVE_BLOCKS`] ×
-/// [`ADAPTIVE_BLOCK`], in a log-linear histogram (50 µs linear up to 6.4 ms,
+/// knows the clocks), over a sliding window of `ADAPTIVE_BLOCKS` ×
+/// `ADAPTIVE_BLOCK`, in a log-linear histogram (50 µs linear up to 6.4 ms,
 /// then 64 buckets per octave, up to 13 s), in bounded memory. The target
 /// is the upper edge of the smallest bucket with at most `⌊ε·n⌋` of the `n`
 /// delays above it (with fewer than 1/ε delays, the largest), and moves
-/// towards it by at most [`SLEW_UP`] or [`SLEW_DOWN`] periods per sample.
+/// towards it by at most `SLEW_UP` or `SLEW_DOWN` periods per sample.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Adaptive {
     period: f64,
@@ -228,7 +228,7 @@ pub struct Adaptive {
     sum: f64,
     current: usize,
     block_start: Option<Instant>,
-    /// How long a block lasts ([`ADAPTIVE_BLOCK`] to [`ADAPTIVE_BLOCK_MAX`]).
+    /// How long a block lasts (`ADAPTIVE_BLOCK` to [`ADAPTIVE_BLOCK_MAX`]).
     block: Duration,
     goal: Option<Duration>,
     applied: Option<f64>,
@@ -248,7 +248,7 @@ impl Adaptive {
     /// [`Adaptive::new`] for a delay held in steps of `quantum` (the
     /// warm-up's least margin).
     #[must_use]
-    pub fn with_quantum(period: Duration, epsilon: f64, quantum: Duration) -> Self {
+    pub(crate) fn with_quantum(period: Duration, epsilon: f64, quantum: Duration) -> Self {
         let epsilon = if epsilon.is_finite() { epsilon } else { 1e-3 };
         let epsilon = epsilon.clamp(1e-6, 0.5);
         // The full blocks: all but the current one.
@@ -274,34 +274,31 @@ impl Adaptive {
         }
     }
 
-    /// The target late rate.
-    #[must_use]
-    pub fn epsilon(&self) -> f64 {
-        self.epsilon
-    }
-
+    #[cfg(test)]
     /// The quantile the target moves towards.
     #[must_use]
-    pub fn goal(&self) -> Option<Duration> {
+    pub(crate) fn goal(&self) -> Option<Duration> {
         self.goal
     }
 
+    #[cfg(test)]
     /// Delays in the window.
     #[must_use]
-    pub fn count(&self) -> u64 {
+    pub(crate) fn count(&self) -> u64 {
         self.count
     }
 
     /// A sample was lost: it came after its slot, or a fall of the delay
     /// skipped it. Counted in the current block, and leaves the window
     /// with it.
-    pub fn note_late(&mut self) {
+    pub(crate) fn note_late(&mut self) {
         if let Some(l) = self.block_late.get_mut(self.current) {
             *l += 1;
             self.late += 1;
         }
     }
 
+    #[cfg(test)]
     /// Whether `more` lost samples would take the window's past `ε` of its
     /// delays: the late rate is spent, and the endpoint holds its delay
     /// ahead of a silence instead of letting more go (see
@@ -311,7 +308,7 @@ impl Adaptive {
     /// delay high while it falls back (about 10 s for paris-newyork's
     /// 0.9 s).
     #[must_use]
-    pub fn over_budget(&self, more: u64) -> bool {
+    pub(crate) fn over_budget(&self, more: u64) -> bool {
         self.budget_used(more) > 1.0
     }
 
@@ -319,7 +316,7 @@ impl Adaptive {
     /// the window to: 1 is `ε` of its delays (see
     /// [`Adaptive::over_budget`]).
     #[must_use]
-    pub fn budget_used(&self, more: u64) -> f64 {
+    pub(crate) fn budget_used(&self, more: u64) -> f64 {
         let block = self.block.as_secs_f64() / self.period;
         (self.late + more) as f64 / (self.epsilon * (self.count as f64).max(block))
     }
@@ -398,7 +395,7 @@ impl Adaptive {
     /// way, so that the delays seen since the shift, measured above the old
     /// floor, are not counted above the new one too. Those from before the
     /// shift that fall under the new floor count as no delay above it.
-    pub fn rebase(&mut self, by: Duration, rose: bool) {
+    pub(crate) fn rebase(&mut self, by: Duration, rose: bool) {
         let by_s = by.as_secs_f64();
         let moved = |d: f64| if rose { (d - by_s).max(0.0) } else { d + by_s };
         for (block, (n, sum)) in self
@@ -475,7 +472,7 @@ impl Adaptive {
     /// passes it: a margin that shrinks as the window fills must not make
     /// the delay rise by itself (each rise repeats a sample).
     #[must_use]
-    pub fn margin(&self) -> Duration {
+    pub(crate) fn margin(&self) -> Duration {
         self.quantile()
             .map_or(Duration::ZERO, |q| self.warmup_margin(q))
     }
@@ -487,7 +484,7 @@ impl Adaptive {
     /// endpoint holds a silence while holding it costs less per sample (see
     /// [`Playout::Adaptive`](super::Playout::Adaptive)); zero while the window is empty.
     #[must_use]
-    pub fn sample_cost(&self) -> Duration {
+    pub(crate) fn sample_cost(&self) -> Duration {
         let half = self.epsilon / 2.0;
         let (Some(q), Some(q2)) = (self.quantile_at(self.epsilon), self.quantile_at(half)) else {
             return Duration::ZERO;

@@ -17,13 +17,13 @@ use crate::time::{Duration, Instant};
 
 /// The finest quantum [`Playout::Adaptive`](super::Playout::Adaptive) takes:
 /// below it the delay would follow every wobble of its quantile.
-pub const MIN_QUANTUM: Duration = Duration::from_millis(1);
+pub(super) const MIN_QUANTUM: Duration = Duration::from_millis(1);
 /// The coarsest quantum the command line takes (any beyond the period is
 /// the period).
-pub const MAX_QUANTUM: Duration = Duration::from_secs(10);
+pub(super) const MAX_QUANTUM: Duration = Duration::from_secs(10);
 
 /// The adaptive policy's default late rate, 0.1 % in parts per million.
-pub const DEFAULT_EPSILON_PPM: u32 = 1000;
+pub(super) const DEFAULT_EPSILON_PPM: u32 = 1000;
 
 fn ns_i64(t: Instant) -> i64 {
     i64::try_from(t.as_nanos()).unwrap_or(i64::MAX)
@@ -35,7 +35,7 @@ fn ns_i64(t: Instant) -> i64 {
 /// `A` ([`Adaptive`], or [`NoAdaptive`](super::NoAdaptive), which cannot be
 /// made).
 #[derive(Clone, Debug)]
-pub struct AdaptivePlayout<A = Adaptive> {
+pub(crate) struct AdaptivePlayout<A = Adaptive> {
     quantile: A,
     schedule: Schedule,
     underflow: Underflow,
@@ -50,16 +50,11 @@ pub struct AdaptivePlayout<A = Adaptive> {
 }
 
 impl<A: AdaptiveSlot> AdaptivePlayout<A> {
+    #[cfg(test)]
     /// The quantile policy.
     #[must_use]
-    pub fn quantile(&self) -> &A {
+    pub(crate) fn quantile(&self) -> &A {
         &self.quantile
-    }
-
-    /// The release schedule.
-    #[must_use]
-    pub fn schedule(&self) -> &Schedule {
-        &self.schedule
     }
 
     /// Splits the schedule from what it decides on.

@@ -14,7 +14,7 @@ fn mean_plus_4dev(d: f64, v: f64) -> Duration {
 }
 
 /// Ramjee et al. (1994) algorithm 1's weight.
-pub const RAMJEE_ALPHA: f64 = 0.998002;
+pub(super) const RAMJEE_ALPHA: f64 = 0.998002;
 
 /// Ramjee et al. (1994), algorithm 1:
 /// `d̂ ← α·d̂ + (1−α)·n`, `v̂ ← α·v̂ + (1−α)·|d̂ − n|`, `D = d̂ + 4·v̂`.
@@ -23,7 +23,7 @@ pub const RAMJEE_ALPHA: f64 = 0.998002;
 /// `i`-th sample (the running mean), so that the first samples do not start
 /// the averages from zero.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Ramjee1 {
+pub(crate) struct Ramjee1 {
     d: f64,
     v: f64,
     seen: u64,
@@ -32,7 +32,7 @@ pub struct Ramjee1 {
 impl Ramjee1 {
     /// No sample seen yet.
     #[must_use]
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Ramjee1 {
             d: 0.0,
             v: 0.0,
@@ -40,9 +40,10 @@ impl Ramjee1 {
         }
     }
 
+    #[cfg(test)]
     /// `(d̂, v̂)` in seconds.
     #[must_use]
-    pub fn estimates(&self) -> (f64, f64) {
+    pub(crate) fn estimates(&self) -> (f64, f64) {
         (self.d, self.v)
     }
 }
@@ -63,9 +64,9 @@ impl TargetDelay for Ramjee1 {
 
 /// Algorithm 4's spike threshold, `2·|v̂| + 800` in the paper's 8 kHz
 /// timestamp units: 800 units = 100 ms.
-pub const SPIKE_ENTER: f64 = 0.100;
+pub(super) const SPIKE_ENTER: f64 = 0.100;
 /// Algorithm 4 leaves a spike when `var ≤ 63` units (7.875 ms at 8 kHz).
-pub const SPIKE_EXIT: f64 = 63.0 / 8000.0;
+pub(super) const SPIKE_EXIT: f64 = 63.0 / 8000.0;
 
 /// Ramjee et al. (1994), algorithm 4: fast averages (weight 1/8) and a
 /// spike mode in which `d̂` follows the delays one for one.
@@ -77,7 +78,7 @@ pub const SPIKE_EXIT: f64 = 63.0 / 8000.0;
 /// ```
 /// with `n₁`, `n₂` the two previous delays; `D = d̂ + 4·v̂`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Ramjee4 {
+pub(crate) struct Ramjee4 {
     d: f64,
     v: f64,
     var: f64,
@@ -90,7 +91,7 @@ pub struct Ramjee4 {
 impl Ramjee4 {
     /// No sample seen yet.
     #[must_use]
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Ramjee4 {
             d: 0.0,
             v: 0.0,
@@ -102,15 +103,17 @@ impl Ramjee4 {
         }
     }
 
+    #[cfg(test)]
     /// Whether the policy is in spike mode.
     #[must_use]
-    pub fn in_spike(&self) -> bool {
+    pub(crate) fn in_spike(&self) -> bool {
         self.spike
     }
 
+    #[cfg(test)]
     /// `(d̂, v̂)` in seconds.
     #[must_use]
-    pub fn estimates(&self) -> (f64, f64) {
+    pub(crate) fn estimates(&self) -> (f64, f64) {
         (self.d, self.v)
     }
 }
@@ -161,14 +164,14 @@ impl TargetDelay for Ramjee4 {
 
 /// Buckets of the NetEQ-like histogram; relative delays beyond the last
 /// bucket count in it.
-pub const NETEQ_BUCKETS: usize = 256;
+pub(super) const NETEQ_BUCKETS: usize = 256;
 /// The histogram's forget factor (WebRTC NetEQ's 0.983).
-pub const NETEQ_FORGET: f64 = 0.983;
+pub(super) const NETEQ_FORGET: f64 = 0.983;
 /// The quantile of relative delays the target covers.
-pub const NETEQ_QUANTILE: f64 = 0.95;
+pub(super) const NETEQ_QUANTILE: f64 = 0.95;
 /// The smallest delay is taken over the current and the previous block of
 /// this length (a window of 2 to 4 s, NetEQ's 2 s history).
-pub const NETEQ_MIN_BLOCK: Duration = Duration::from_secs(2);
+pub(super) const NETEQ_MIN_BLOCK: Duration = Duration::from_secs(2);
 
 /// A NetEQ-like target: relative delay = delay − smallest delay of the last
 /// 2–4 s; a histogram of relative delays with bucket width `T`, where each
@@ -176,7 +179,7 @@ pub const NETEQ_MIN_BLOCK: Duration = Duration::from_secs(2);
 /// target is that smallest delay plus the upper edge of the bucket holding
 /// the 0.95 quantile.
 #[derive(Clone, Debug, PartialEq)]
-pub struct NetEq {
+pub(crate) struct NetEq {
     width: Duration,
     buckets: [f64; NETEQ_BUCKETS],
     mass: f64,
@@ -189,7 +192,7 @@ pub struct NetEq {
 impl NetEq {
     /// An empty histogram with buckets `width` wide (the period).
     #[must_use]
-    pub fn new(width: Duration) -> Self {
+    pub(crate) fn new(width: Duration) -> Self {
         NetEq {
             width: Duration::from_nanos(width.as_nanos().max(1)),
             buckets: [0.0; NETEQ_BUCKETS],
@@ -203,7 +206,7 @@ impl NetEq {
 
     /// The smallest delay of the window, `None` before any sample.
     #[must_use]
-    pub fn base(&self) -> Option<Duration> {
+    pub(crate) fn base(&self) -> Option<Duration> {
         self.block_start?;
         Some(
             self.prev_min
@@ -211,9 +214,10 @@ impl NetEq {
         )
     }
 
+    #[cfg(test)]
     /// The bucket holding the 0.95 quantile.
     #[must_use]
-    pub fn quantile_bucket(&self) -> usize {
+    pub(crate) fn quantile_bucket(&self) -> usize {
         self.quantile_bucket
     }
 }
@@ -266,7 +270,7 @@ impl TargetDelay for NetEq {
 
 /// A fixed latency above the smallest one-way delay seen so far.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct FixedAboveMin {
+pub(crate) struct FixedAboveMin {
     latency: Duration,
     min: Option<Duration>,
 }
@@ -274,7 +278,7 @@ pub struct FixedAboveMin {
 impl FixedAboveMin {
     /// `latency` above the smallest delay to come.
     #[must_use]
-    pub const fn new(latency: Duration) -> Self {
+    pub(crate) const fn new(latency: Duration) -> Self {
         FixedAboveMin { latency, min: None }
     }
 }
@@ -291,7 +295,7 @@ impl TargetDelay for FixedAboveMin {
 
 /// A constant target delay.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Constant(pub Duration);
+pub(crate) struct Constant(pub Duration);
 
 impl TargetDelay for Constant {
     fn observe(&mut self, _sent_at: Instant, _delay: Duration) {}
@@ -302,7 +306,7 @@ impl TargetDelay for Constant {
 }
 
 /// GStreamer rtpjitterbuffer's default latency.
-pub const DEFAULT_FIXED_LATENCY: Duration = Duration::from_millis(200);
+pub(super) const DEFAULT_FIXED_LATENCY: Duration = Duration::from_millis(200);
 
 const MILLIS: &str = "fixed:MS and constant:MS take milliseconds, finite and not negative";
 

@@ -13,7 +13,7 @@ use crate::time::{Duration, Instant};
 /// [`Underflow::DropLate`] a sample whose slot a tick has passed (the tick
 /// found it missing) is late.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Fifo {
+pub(crate) struct Fifo {
     underflow: Underflow,
     /// The sequence number of the next slot, from the regime's first release.
     due: Option<u64>,
@@ -22,7 +22,7 @@ pub struct Fifo {
 impl Fifo {
     /// A FIFO that treats a missing sample as `underflow` says.
     #[must_use]
-    pub const fn new(underflow: Underflow) -> Self {
+    pub(crate) const fn new(underflow: Underflow) -> Self {
         Fifo {
             underflow,
             due: None,

@@ -9,16 +9,16 @@
 //!
 //! The built-in ones, each named once in the [registry](Playout):
 //!
-//! - [`Fifo`], the paper's NDR: a FIFO pre-filled to `ns` samples and
+//! - `Fifo`, the paper's NDR: a FIFO pre-filled to `ns` samples and
 //!   released one per tick (its size set by the [`Mode`](crate::Mode)).
 //! - Target delays released at the ticks ([`OnTicks`] over a
 //!   [`TargetDelay`]): a sample sent at `sent_at` is released at the first
 //!   tick at or after `sent_at + D`, `D` the policy's current target (Ramjee
 //!   et al.'s algorithms 1 and 4, a NetEQ-like quantile, a fixed latency
 //!   above the smallest delay, a constant). They assume synchronized clocks.
-//! - [`AdaptivePlayout`]: the `1 − ε` quantile of the delays above the
+//! - `AdaptivePlayout`: the `1 − ε` quantile of the delays above the
 //!   floor of the clock estimate ([`Adaptive`]), each sample released at its
-//!   own slot on a [`Schedule`].
+//!   own slot on a `Schedule`.
 //!
 //! Under [`Underflow::DropLate`](crate::Underflow::DropLate) a sample that
 //! arrives after its slot is late (counted, discarded, the tick repeats the
@@ -35,16 +35,7 @@ mod registry;
 mod schedule;
 mod target;
 
-pub use adaptive::{
-    ADAPTIVE_BLOCK, ADAPTIVE_BLOCK_MAX, ADAPTIVE_BLOCKS, ADAPTIVE_BUCKETS, ADAPTIVE_WINDOW_DELAYS,
-    Adaptive, AdaptiveSlot, NoAdaptive, SLEW_DOWN, SLEW_UP,
-};
-pub use adaptive_playout::{AdaptivePlayout, DEFAULT_EPSILON_PPM, MAX_QUANTUM, MIN_QUANTUM};
-pub use classic::{
-    Constant, DEFAULT_FIXED_LATENCY, FixedAboveMin, NETEQ_BUCKETS, NETEQ_FORGET, NETEQ_MIN_BLOCK,
-    NETEQ_QUANTILE, NetEq, RAMJEE_ALPHA, Ramjee1, Ramjee4, SPIKE_ENTER, SPIKE_EXIT,
-};
-pub use fifo::Fifo;
+pub use adaptive::{Adaptive, AdaptiveSlot, NoAdaptive};
 pub use policy::{
     Admit, Announcement, Arrival, Due, Lost, NoRoom, Observed, Outcome, Policy, PolicyClone,
     Queued, Room, Setup, Stamps, View,
@@ -52,7 +43,7 @@ pub use policy::{
 #[cfg(feature = "alloc")]
 pub use policy::{Custom, Factory, HeapRoom};
 pub use registry::{Builtin, InvalidPlayout, Playout, PlayoutName, Syntax, UnknownPlayout};
-pub use schedule::{DELAY_QUANTUM, Schedule, delay_quantum, delay_quantum_for};
+pub use schedule::{delay_quantum, delay_quantum_for};
 pub use target::{OnTicks, TargetDelay};
 
 #[cfg(test)]

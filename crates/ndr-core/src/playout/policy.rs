@@ -39,12 +39,12 @@ pub trait Policy: fmt::Debug + Send + PolicyClone {
     fn stop(&mut self) {}
 
     /// A Data frame arrived, or a copy of a sample came in a later
-    /// datagram ([`Arrival::copy`]). Says whether its delay was taken.
+    /// datagram (`Arrival::copy`). Says whether its delay was taken.
     fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed;
 
     /// The floor of the received frames' raw delays moved at a level shift
     /// of the path (a route change), from `from` to `to` seconds
-    /// ([`ClockSync::floor_at`]).
+    /// (`ClockSync::floor_at`).
     fn floor_moved(&mut self, from: f64, to: f64) {
         let _ = (from, to);
     }
@@ -122,19 +122,19 @@ pub trait Policy: fmt::Debug + Send + PolicyClone {
 #[non_exhaustive]
 pub struct Setup {
     /// This side's role.
-    pub role: Role,
+    pub(crate) role: Role,
     /// The period `T` the link starts at.
-    pub period: Duration,
+    pub(crate) period: Duration,
     /// What a tick does when its sample is missing.
-    pub underflow: Underflow,
+    pub(crate) underflow: Underflow,
     /// How long without a fresh sample is an outage, not a delay.
-    pub watchdog: Option<Duration>,
+    pub(crate) watchdog: Option<Duration>,
 }
 
 impl Setup {
     /// A setup for `role` at `period`.
     #[must_use]
-    pub const fn new(
+    pub(crate) const fn new(
         role: Role,
         period: Duration,
         underflow: Underflow,
@@ -154,11 +154,11 @@ impl Setup {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Stamps {
     /// The sequence number: one per tick of the peer.
-    pub seq: u64,
+    pub(crate) seq: u64,
     /// When the peer's tick that sent it was scheduled, on its clock.
-    pub sent_at: Instant,
+    pub(crate) sent_at: Instant,
     /// When it arrived, on the local clock.
-    pub arrived_at: Instant,
+    pub(crate) arrived_at: Instant,
 }
 
 /// The samples waiting in the queue, oldest first.
@@ -181,21 +181,21 @@ pub trait Queued {
 #[non_exhaustive]
 pub struct View<'a> {
     /// The estimate of the peer's clock (offset, skew, the delays' floor).
-    pub sync: &'a ClockSync,
+    pub(crate) sync: &'a ClockSync,
     /// The queued samples.
-    pub queue: &'a dyn Queued,
+    pub(crate) queue: &'a dyn Queued,
     /// The newest Data frame received: its send stamp and its arrival.
-    pub newest: Option<(Instant, Instant)>,
+    pub(crate) newest: Option<(Instant, Instant)>,
     /// The newest sample released.
-    pub released: Option<u64>,
+    pub(crate) released: Option<u64>,
     /// The network predictor, if the endpoint runs one.
-    pub predictor: Option<&'a NetworkPredictor>,
+    pub(crate) predictor: Option<&'a NetworkPredictor>,
 }
 
 impl<'a> View<'a> {
     /// A view (for the endpoint, and for tests of a policy).
     #[must_use]
-    pub fn new(sync: &'a ClockSync, queue: &'a dyn Queued) -> Self {
+    pub(crate) fn new(sync: &'a ClockSync, queue: &'a dyn Queued) -> Self {
         View {
             sync,
             queue,
@@ -208,7 +208,7 @@ impl<'a> View<'a> {
     /// This view with the newest frame, the newest release and the
     /// network predictor.
     #[must_use]
-    pub fn with(
+    pub(crate) fn with(
         mut self,
         newest: Option<(Instant, Instant)>,
         released: Option<u64>,
@@ -222,7 +222,7 @@ impl<'a> View<'a> {
 
     /// The network predictor's latest forecast.
     #[must_use]
-    pub fn forecast(&self) -> Option<Prediction> {
+    pub(crate) fn forecast(&self) -> Option<Prediction> {
         self.predictor?.last()
     }
 }
@@ -242,24 +242,24 @@ impl fmt::Debug for View<'_> {
 #[non_exhaustive]
 pub struct Arrival {
     /// Its send stamp (the peer's clock).
-    pub sent_at: Instant,
+    pub(crate) sent_at: Instant,
     /// Its arrival (the local clock).
-    pub arrived: Instant,
+    pub(crate) arrived: Instant,
     /// The Data frame received before it (send stamp, arrival); `None` for
     /// the first, and for a copy.
-    pub prev: Option<(Instant, Instant)>,
+    pub(crate) prev: Option<(Instant, Instant)>,
     /// The driver handed it over a watchdog's time after a deadline it
     /// missed: its arrival time is the driver's stall, not the network's.
-    pub stalled: bool,
+    pub(crate) stalled: bool,
     /// A copy from a later datagram's bundle: it came late by design, and
     /// its delay is the one the sample really had.
-    pub copy: bool,
+    pub(crate) copy: bool,
 }
 
 impl Arrival {
     /// A Data frame's own arrival.
     #[must_use]
-    pub const fn frame(
+    pub(crate) const fn frame(
         sent_at: Instant,
         arrived: Instant,
         prev: Option<(Instant, Instant)>,
@@ -276,7 +276,7 @@ impl Arrival {
 
     /// A copy of a sample recovered from a later datagram.
     #[must_use]
-    pub const fn copy(sent_at: Instant, arrived: Instant) -> Self {
+    pub(crate) const fn copy(sent_at: Instant, arrived: Instant) -> Self {
         Arrival {
             sent_at,
             arrived,
@@ -335,7 +335,7 @@ pub enum Due {
 
 impl Due {
     /// Release the oldest queued sample, passing over none.
-    pub const FRONT: Due = Due::Release {
+    pub(crate) const FRONT: Due = Due::Release {
         passed: 0,
         lost_as: Lost::Late,
         release: true,
@@ -469,12 +469,6 @@ mod boxed {
         #[must_use]
         pub const fn new(factory: &'static dyn Factory) -> Self {
             Custom(factory)
-        }
-
-        /// Its factory.
-        #[must_use]
-        pub fn factory(&self) -> &'static dyn Factory {
-            self.0
         }
 
         fn addr(&self) -> *const () {

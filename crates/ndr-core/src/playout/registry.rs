@@ -47,11 +47,11 @@ pub(crate) trait Entry: Sized {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Syntax {
     /// Its name (`fixed`).
-    pub name: &'static str,
+    pub(crate) name: &'static str,
     /// How it is written (`fixed[:MS]`).
-    pub syntax: &'static str,
+    pub(crate) syntax: &'static str,
     /// What its values are, or empty.
-    pub values: &'static str,
+    pub(crate) values: &'static str,
 }
 
 macro_rules! registry {
@@ -82,9 +82,13 @@ macro_rules! registry {
         /// it.
         // No heap in the core: an endpoint holds one, so the size of the
         // others does not matter.
+        #[derive(Clone, Debug)]
+        pub struct Builtin<A: AdaptiveSlot = Adaptive>(pub(crate) Policies<A>);
+
+        /// The built-in policies, one variant each.
         #[allow(clippy::large_enum_variant)]
         #[derive(Clone, Debug)]
-        pub enum Builtin<A: AdaptiveSlot = Adaptive> {
+        pub(crate) enum Policies<A: AdaptiveSlot> {
             $( $(#[$doc])* $variant($policy), )*
         }
 
@@ -93,35 +97,35 @@ macro_rules! registry {
         impl<A: AdaptiveSlot> Policy for Builtin<A> {
             #[inline]
             fn start(&mut self, ns: usize) -> usize {
-                match self { $( Builtin::$variant(p) => p.start(ns), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.start(ns), )* }
             }
             #[inline]
             fn set_period(&mut self, period: Duration) {
-                match self { $( Builtin::$variant(p) => p.set_period(period), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.set_period(period), )* }
             }
             #[inline]
             fn stop(&mut self) {
-                match self { $( Builtin::$variant(p) => p.stop(), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.stop(), )* }
             }
             #[inline]
             fn arrival(&mut self, arrival: &Arrival, view: &View<'_>) -> Observed {
-                match self { $( Builtin::$variant(p) => p.arrival(arrival, view), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.arrival(arrival, view), )* }
             }
             #[inline]
             fn floor_moved(&mut self, from: f64, to: f64) {
-                match self { $( Builtin::$variant(p) => p.floor_moved(from, to), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.floor_moved(from, to), )* }
             }
             #[inline]
             fn admit(&self, sample: &Stamps, now: Instant, view: &View<'_>) -> Admit {
-                match self { $( Builtin::$variant(p) => p.admit(sample, now, view), )* }
+                match &self.0 { $( Policies::$variant(p) => p.admit(sample, now, view), )* }
             }
             #[inline]
             fn queued(&mut self, view: &View<'_>) {
-                match self { $( Builtin::$variant(p) => p.queued(view), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.queued(view), )* }
             }
             #[inline]
             fn lost(&mut self) {
-                match self { $( Builtin::$variant(p) => p.lost(), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.lost(), )* }
             }
             #[inline]
             fn tick(
@@ -131,35 +135,35 @@ macro_rules! registry {
                 next_tick: Option<Instant>,
                 view: &View<'_>,
             ) -> Option<Due> {
-                match self { $( Builtin::$variant(p) => p.tick(at, t, next_tick, view), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.tick(at, t, next_tick, view), )* }
             }
             #[inline]
             fn due(&mut self, at: Instant, t: Instant, view: &View<'_>) -> Due {
-                match self { $( Builtin::$variant(p) => p.due(at, t, view), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.due(at, t, view), )* }
             }
             #[inline]
             fn released(&mut self, at: Instant, t: Instant, outcome: Outcome, view: &View<'_>) {
-                match self { $( Builtin::$variant(p) => p.released(at, t, outcome, view), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.released(at, t, outcome, view), )* }
             }
             #[inline]
             fn next_release(&self) -> Option<Instant> {
-                match self { $( Builtin::$variant(p) => p.next_release(), )* }
+                match &self.0 { $( Policies::$variant(p) => p.next_release(), )* }
             }
             #[inline]
             fn delay(&self) -> Option<Duration> {
-                match self { $( Builtin::$variant(p) => p.delay(), )* }
+                match &self.0 { $( Policies::$variant(p) => p.delay(), )* }
             }
             #[inline]
             fn poll_announcement(&mut self) -> Option<Announcement> {
-                match self { $( Builtin::$variant(p) => p.poll_announcement(), )* }
+                match &mut self.0 { $( Policies::$variant(p) => p.poll_announcement(), )* }
             }
             #[inline]
             fn following_tick(&self, plain: Instant) -> Instant {
-                match self { $( Builtin::$variant(p) => p.following_tick(plain), )* }
+                match &self.0 { $( Policies::$variant(p) => p.following_tick(plain), )* }
             }
             #[inline]
             fn grid_settled(&self, at: Instant) -> bool {
-                match self { $( Builtin::$variant(p) => p.grid_settled(at), )* }
+                match &self.0 { $( Policies::$variant(p) => p.grid_settled(at), )* }
             }
         }
 
@@ -170,16 +174,16 @@ macro_rules! registry {
             where
                 A: 'static,
             {
-                match self {
-                    $( Builtin::$variant(p) => alloc::boxed::Box::new(p), )*
+                match self.0 {
+                    $( Policies::$variant(p) => alloc::boxed::Box::new(p), )*
                 }
             }
 
             fn build(playout: Playout, setup: &Setup) -> Result<Self, NoRoom> {
                 match playout {
-                    $( Playout::$variant $({ $($field),* })? => Ok(Builtin::$variant(
+                    $( Playout::$variant $({ $($field),* })? => Ok(Builtin(Policies::$variant(
                         <$policy as Entry>::build(($($($field,)*)?), setup)?,
-                    )), )*
+                    ))), )*
                     #[cfg(feature = "alloc")]
                     Playout::Custom(_) => Err(NoRoom::Custom),
                 }
@@ -262,14 +266,14 @@ registry! {
     /// the delays above the floor over the last 90–120 s; the target slews
     /// at a bounded rate. A silence past a slot (a stall, whose frames come
     /// in a burst) holds the delay ahead of it while the rise costs less
-    /// per sample kept than the quantile would ([`Adaptive::sample_cost`])
+    /// per sample kept than the quantile would (`Adaptive::sample_cost`)
     /// once half the late budget is used, and whatever it costs once the
     /// window's lost samples reach `ε` of its delays.
     Adaptive {
         /// The target late rate ε, in parts per million (1000 = 0.1 %).
         epsilon_ppm: u32,
         /// The step of the delay asked for, `None` for the default
-        /// [`DELAY_QUANTUM`](super::DELAY_QUANTUM) (see
+        /// quantum (20 ms) (see
         /// [`delay_quantum_for`](super::delay_quantum_for)): a finer one
         /// holds a lower delay that changes more often.
         quantum: Option<Duration>,
@@ -289,7 +293,7 @@ impl Default for Playout {
 impl Playout {
     /// The adaptive policy at its default late rate and quantum.
     pub const ADAPTIVE: Playout = Playout::Adaptive {
-        epsilon_ppm: super::DEFAULT_EPSILON_PPM,
+        epsilon_ppm: super::adaptive_playout::DEFAULT_EPSILON_PPM,
         quantum: None,
     };
 
@@ -297,14 +301,14 @@ impl Playout {
     /// and [`Playout::FixedAboveMin`] carry their value: `constant:120`,
     /// `fixed:200` (milliseconds).
     #[must_use]
-    pub fn name(self) -> PlayoutName {
+    pub(crate) fn name(self) -> PlayoutName {
         PlayoutName(self)
     }
 
     /// The built-in policies' names, syntax and values, in the registry's
     /// order (for help texts).
     #[must_use]
-    pub fn registered() -> &'static [Syntax] {
+    pub(crate) fn registered() -> &'static [Syntax] {
         Names::SYNTAX
     }
 
@@ -324,10 +328,11 @@ impl Playout {
         Names::check(self).map_err(|why| InvalidPlayout { playout: self, why })
     }
 
+    #[cfg(test)]
     /// The quantum the adaptive delay is held in at `period`, `None` for the
     /// other policies.
     #[must_use]
-    pub fn quantum(self, period: Duration) -> Option<Duration> {
+    pub(crate) fn quantum(self, period: Duration) -> Option<Duration> {
         match self {
             Playout::Adaptive { quantum, .. } => Some(super::delay_quantum_for(period, quantum)),
             _ => None,
@@ -394,7 +399,7 @@ impl UnknownPlayout {
 
     /// The name itself is unknown (not a value out of a known policy's range).
     #[must_use]
-    pub fn is_unknown_name(self) -> bool {
+    pub(crate) fn is_unknown_name(self) -> bool {
         self.0 == Why::Name
     }
 }
@@ -424,15 +429,17 @@ impl FromStr for Playout {
 
 /// A [`Playout`] given in Rust with a value out of its range.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct InvalidPlayout {
     playout: Playout,
     why: &'static str,
 }
 
 impl InvalidPlayout {
+    #[cfg(test)]
     /// The playout refused.
     #[must_use]
-    pub fn playout(&self) -> Playout {
+    pub(crate) fn playout(&self) -> Playout {
         self.playout
     }
 }

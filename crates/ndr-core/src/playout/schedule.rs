@@ -9,7 +9,7 @@ use crate::time::{Duration, Instant};
 use crate::wire::Role;
 
 /// The adaptive delay starts to fall only when its need is this many
-/// quanta ([`DELAY_QUANTUM`]) below the quantum under it: a quantile that
+/// quanta (`DELAY_QUANTUM`) below the quantum under it: a quantile that
 /// wobbles must not move the delay back and forth (each rise repeats a
 /// sample).
 pub(crate) const HYSTERESIS: f64 = 0.5;
@@ -36,10 +36,10 @@ pub(crate) const MAPPING_SLEW: u64 = 20;
 /// quantum only when the need is 1.5 quanta under it, so that a quantile
 /// that wobbles by a few milliseconds leaves it constant. At long periods
 /// whole ticks would waste up to a period each way.
-pub const DELAY_QUANTUM: Duration = Duration::from_millis(20);
+pub(super) const DELAY_QUANTUM: Duration = Duration::from_millis(20);
 
 /// The quantum of the adaptive delay at period `T`: `T/⌈T/20 ms⌉` (see
-/// [`DELAY_QUANTUM`]); `T` itself up to 20 ms.
+/// `DELAY_QUANTUM`); `T` itself up to 20 ms.
 #[must_use]
 pub fn delay_quantum(period: Duration) -> Duration {
     delay_quantum_for(period, None)
@@ -47,7 +47,7 @@ pub fn delay_quantum(period: Duration) -> Duration {
 
 /// The quantum of the adaptive delay at period `T` when `asked` is asked
 /// for ([`Playout::Adaptive`](super::Playout::Adaptive)'s `quantum`, `None`
-/// for [`DELAY_QUANTUM`]): `T/⌈T/asked⌉`, the period cut in the fewest
+/// for `DELAY_QUANTUM`): `T/⌈T/asked⌉`, the period cut in the fewest
 /// equal parts no longer than `asked` (the period itself when `asked` is
 /// longer), so that the releases keep to a lattice of the ticks.
 #[must_use]
@@ -89,11 +89,11 @@ pub(crate) fn mapping_ns(sync: &ClockSync, t: Instant) -> Option<i64> {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(crate) struct Queued {
     /// The oldest one's send stamp (peer clock).
-    pub front: Option<Instant>,
+    pub(crate) front: Option<Instant>,
     /// The second oldest one's.
-    pub second: Option<Instant>,
+    pub(crate) second: Option<Instant>,
     /// How many wait.
-    pub len: usize,
+    pub(crate) len: usize,
 }
 
 /// What the schedule decides on, as its owner knows it at one instant.
@@ -101,19 +101,19 @@ pub(crate) struct Queued {
 pub(crate) struct Context<'a, A> {
     /// The quantile policy: the delay above the floor it asks for, its late
     /// budget, its warm-up margin.
-    pub policy: &'a A,
+    pub(crate) policy: &'a A,
     /// The estimate of the peer's clock.
-    pub sync: &'a ClockSync,
+    pub(crate) sync: &'a ClockSync,
     /// The samples queued.
-    pub queued: Queued,
+    pub(crate) queued: Queued,
     /// The newest Data frame received: its send stamp (peer clock) and its
     /// arrival.
-    pub newest: Option<(Instant, Instant)>,
+    pub(crate) newest: Option<(Instant, Instant)>,
     /// The frames now arriving drain an outage's backlog.
-    pub outage: bool,
+    pub(crate) outage: bool,
     /// How far ahead of the measured need the network's forecast steers
     /// the delay (s): half the rise of the mean round trip it forecasts.
-    pub lead: f64,
+    pub(crate) lead: f64,
 }
 
 /// What [`Schedule::before_release`] decided.
@@ -177,7 +177,7 @@ const CHANGES: usize = 2;
 /// - **Outage**: a silence past the watchdog is not a delay to cover; the
 ///   delay goes back at once to where it was before it.
 #[derive(Clone, Debug)]
-pub struct Schedule {
+pub(crate) struct Schedule {
     role: Role,
     period: Duration,
     quantum: Duration,
@@ -206,7 +206,7 @@ impl Schedule {
     /// The schedule of one side (`role`) at `period`, the delay in quanta of
     /// `quantum`, outages from `watchdog` of silence.
     #[must_use]
-    pub fn new(
+    pub(crate) fn new(
         role: Role,
         period: Duration,
         quantum: Duration,
@@ -229,14 +229,14 @@ impl Schedule {
     }
 
     /// The period changed (a pause resizes the link); so did the quantum.
-    pub fn set_period(&mut self, period: Duration, quantum: Duration) {
+    pub(crate) fn set_period(&mut self, period: Duration, quantum: Duration) {
         self.period = period;
         self.quantum = quantum;
     }
 
     /// A new regime starts: the schedule of the last one is dropped, the
     /// delay kept.
-    pub fn restart(&mut self) {
+    pub(crate) fn restart(&mut self) {
         self.falling_to = None;
         self.next_release = None;
         self.last_slot = None;
@@ -244,38 +244,26 @@ impl Schedule {
     }
 
     /// The link ended: nothing more is released.
-    pub fn stop(&mut self) {
+    pub(crate) fn stop(&mut self) {
         self.next_release = None;
     }
 
     /// The end-to-end delay now; `None` until the policy has a target.
     #[must_use]
-    pub fn delay(&self) -> Option<Duration> {
+    pub(crate) fn delay(&self) -> Option<Duration> {
         self.delay
-    }
-
-    /// The delay in ticks (rounded up).
-    #[must_use]
-    pub fn delay_ticks(&self) -> Option<u64> {
-        self.delay.map(|d| self.ticks(d))
     }
 
     /// When the next release is due.
     #[must_use]
-    pub fn next_release(&self) -> Option<Instant> {
+    pub(crate) fn next_release(&self) -> Option<Instant> {
         self.next_release
-    }
-
-    /// The quantum of the delay.
-    #[must_use]
-    pub fn quantum(&self) -> Duration {
-        self.quantum
     }
 
     /// The next delay settled on (at rest, not a step of a fall), and its
     /// ticks, in order.
     #[must_use]
-    pub fn poll_delay_changed(&mut self) -> Option<(Duration, u64)> {
+    pub(crate) fn poll_delay_changed(&mut self) -> Option<(Duration, u64)> {
         self.changes.pop_front().map(|d| (d, self.ticks(d)))
     }
 
@@ -306,7 +294,7 @@ impl Schedule {
     /// next release is about a period after it: a remote's grid has moved
     /// to its releases.
     #[must_use]
-    pub fn on_release_grid(&self, at: Instant) -> bool {
+    pub(crate) fn on_release_grid(&self, at: Instant) -> bool {
         let close = |a: Instant, b: Instant| {
             a.signed_nanos_since(b).unsigned_abs() <= (self.quantum / 4).as_nanos()
         };
@@ -323,7 +311,7 @@ impl Schedule {
     /// delay, so that the state answering a command leaves as the command
     /// is released, and the two grids do not slide under skew.
     #[must_use]
-    pub fn following_tick(&self, plain: Instant) -> Instant {
+    pub(crate) fn following_tick(&self, plain: Instant) -> Instant {
         let (Role::Remote, Some(release)) = (self.role, self.next_release) else {
             return plain;
         };
@@ -354,7 +342,7 @@ impl Schedule {
     /// The slot of the sample sent at `stamp` (peer clock), the mapping
     /// taken at `at` until the schedule has its own.
     #[must_use]
-    pub fn slot_at(&self, stamp: Instant, at: Instant, sync: &ClockSync) -> Option<Instant> {
+    pub(crate) fn slot_at(&self, stamp: Instant, at: Instant, sync: &ClockSync) -> Option<Instant> {
         let d = self.delay?;
         let map = self.mapping.or_else(|| mapping_ns(sync, at))?;
         let slot = ns_i64(stamp).saturating_add(map).saturating_add(dur_i64(d));
@@ -369,7 +357,7 @@ impl Schedule {
     /// still on their way to slots after it. Until the delay and the
     /// mapping are known, `t − target`.
     #[must_use]
-    pub fn release_cutoff(&self, t: Instant, target: Duration, sync: &ClockSync) -> Instant {
+    pub(crate) fn release_cutoff(&self, t: Instant, target: Duration, sync: &ClockSync) -> Instant {
         match (self.mapping.or_else(|| mapping_ns(sync, t)), self.delay) {
             (Some(map), Some(d)) => {
                 let d = dur_i64(d) - dur_i64(self.quantum / 2);
@@ -387,7 +375,7 @@ impl Schedule {
     /// takes the oldest, so that each later release has one due. Were it to
     /// take none, the same samples would be due again at the next release,
     /// and the delay would rise without end. Returns whether it rose.
-    pub fn rise_past(&mut self, cutoff: Instant, second: Instant) -> bool {
+    pub(crate) fn rise_past(&mut self, cutoff: Instant, second: Instant) -> bool {
         let Some(cur) = self.delay else {
             return false;
         };

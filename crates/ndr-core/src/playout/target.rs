@@ -53,12 +53,6 @@ impl<T: TargetDelay> OnTicks<T> {
             pending: None,
         }
     }
-
-    /// The target-delay policy.
-    #[must_use]
-    pub fn target(&self) -> &T {
-        &self.target
-    }
 }
 
 impl<T: TargetDelay + Clone + core::fmt::Debug + Send + 'static> Policy for OnTicks<T> {

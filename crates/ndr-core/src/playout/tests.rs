@@ -1,6 +1,8 @@
 //! The policies' own tests, driven by hand-made delays.
 
+use super::adaptive::ADAPTIVE_BUCKETS;
 use super::adaptive::{bucket_of, bucket_upper};
+use super::classic::{DEFAULT_FIXED_LATENCY, FixedAboveMin, NetEq, RAMJEE_ALPHA, Ramjee1, Ramjee4};
 use super::*;
 use crate::time::{Duration, Instant};
 
@@ -448,7 +450,8 @@ fn the_quantum_asked_for_divides_the_period() {
         crate::Underflow::Hold,
         None,
     );
-    let Ok(Builtin::Adaptive(p)) = Builtin::<Adaptive>::make(adaptive(1000, Some(ms(5))), &setup)
+    let Ok(Builtin(registry::Policies::Adaptive(p))) =
+        Builtin::<Adaptive>::make(adaptive(1000, Some(ms(5))), &setup)
     else {
         panic!("not adaptive");
     };

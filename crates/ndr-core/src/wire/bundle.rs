@@ -20,11 +20,11 @@ pub const MAX_DATAGRAM_LEN: usize = 65_507;
 /// Size of a Bundle's fixed part (session, count, repeat, width, missed), in bytes.
 pub const BUNDLE_FIXED_LEN: usize = 16;
 /// Size of an older sample's own fields (seq, sent_at, released), in bytes.
-pub const OLDER_FIELDS_LEN: usize = 24;
+pub(crate) const OLDER_FIELDS_LEN: usize = 24;
 
 /// Bytes of a Bundle's payload for `count` samples of `width` values.
 #[must_use]
-pub const fn bundle_payload_len(count: usize, width: usize) -> usize {
+pub(crate) const fn bundle_payload_len(count: usize, width: usize) -> usize {
     let values = width.saturating_mul(8);
     BUNDLE_FIXED_LEN.saturating_add(values).saturating_add(
         count

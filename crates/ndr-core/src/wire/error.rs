@@ -115,7 +115,7 @@ impl WireError {
     /// The [`close_reason`] a peer should send before hanging up on a frame
     /// that failed with this error.
     #[must_use]
-    pub const fn close_reason(&self) -> u16 {
+    pub(crate) const fn close_reason(&self) -> u16 {
         match self {
             WireError::UnsupportedVersion(_) => close_reason::VERSION_MISMATCH,
             _ => close_reason::PROTOCOL_ERROR,

@@ -11,7 +11,7 @@
 //! - On a stream (TCP), [`frame_len`] bounds the 4-byte length prefix before
 //!   anything is buffered.
 //! - After a rejected frame the stream cannot be trusted: send a [`Close`]
-//!   with [`WireError::close_reason`] and hang up.
+//!   with the error's close reason and hang up.
 //!
 //! ```
 //! use ndr_core::time::Instant;
@@ -40,10 +40,8 @@ mod tests;
 
 use core::fmt;
 
-pub use bundle::{
-    BUNDLE_FIXED_LEN, Bundle, MAX_BUNDLE, MAX_DATAGRAM_LEN, OLDER_FIELDS_LEN, Older, OlderSample,
-    bundle_payload_len,
-};
+pub use bundle::{BUNDLE_FIXED_LEN, Bundle, MAX_BUNDLE, MAX_DATAGRAM_LEN, Older, OlderSample};
+pub(crate) use bundle::{OLDER_FIELDS_LEN, bundle_payload_len};
 pub use error::WireError;
 pub use payload::{
     Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Token, close_reason, control_op,
@@ -80,15 +78,15 @@ impl fmt::Debug for Secret {
 
 /// Header field offsets (widths follow from the types read there).
 mod field {
-    pub const LENGTH: usize = 0;
-    pub const VERSION: usize = 4;
-    pub const KIND: usize = 5;
-    pub const FLAGS: usize = 6;
-    pub const SEQ: usize = 8;
-    pub const SENT_AT: usize = 16;
-    pub const ECHO: usize = 24;
-    pub const ECHO_HOLD: usize = 32;
-    pub const RELEASED: usize = 40;
+    pub(super) const LENGTH: usize = 0;
+    pub(super) const VERSION: usize = 4;
+    pub(super) const KIND: usize = 5;
+    pub(super) const FLAGS: usize = 6;
+    pub(super) const SEQ: usize = 8;
+    pub(super) const SENT_AT: usize = 16;
+    pub(super) const ECHO: usize = 24;
+    pub(super) const ECHO_HOLD: usize = 32;
+    pub(super) const RELEASED: usize = 40;
 }
 
 /// `N` bytes at `at`, `None` past the end. With constant offsets into a
@@ -135,7 +133,7 @@ impl Kind {
     /// The exact payload size of this kind, `None` for Data and Bundle
     /// (they follow their values).
     #[must_use]
-    pub const fn fixed_payload_len(self) -> Option<usize> {
+    pub(crate) const fn fixed_payload_len(self) -> Option<usize> {
         match self {
             Kind::Data | Kind::Bundle => None,
             Kind::Hello => Some(Hello::LEN),
@@ -307,9 +305,10 @@ impl<T: AsRef<[u8]>> Frame<T> {
         Ok(Frame { buffer, kind })
     }
 
+    #[cfg(test)]
     /// Gives the buffer back.
     #[must_use]
-    pub fn into_inner(self) -> T {
+    pub(crate) fn into_inner(self) -> T {
         self.buffer
     }
 
@@ -451,7 +450,7 @@ impl Message<'_> {
 /// than [`MAX_CHANNELS`] values, larger than [`MAX_FRAME_LEN`]: [`encode`]
 /// refuses it).
 #[must_use]
-pub const fn encoded_len(msg: &Message<'_>) -> usize {
+pub(crate) const fn encoded_len(msg: &Message<'_>) -> usize {
     let payload = match msg {
         Message::Data(values) => values.len().saturating_mul(8),
         Message::Bundle { newest, older, .. } => {

@@ -26,9 +26,10 @@ pub enum Payload<'a> {
 }
 
 impl Payload<'_> {
+    #[cfg(test)]
     /// The frame kind carrying this payload.
     #[must_use]
-    pub const fn kind(&self) -> Kind {
+    pub(crate) const fn kind(&self) -> Kind {
         match self {
             Payload::Data(_) => Kind::Data,
             Payload::Bundle(_) => Kind::Bundle,
@@ -84,7 +85,7 @@ impl<'a> Channels<'a> {
 
     /// Number of channels.
     #[must_use]
-    pub const fn len(&self) -> usize {
+    pub(crate) const fn len(&self) -> usize {
         self.bytes.len() / 8
     }
 
@@ -111,7 +112,7 @@ impl<'a> Channels<'a> {
     /// Copies the values to the front of `dst` and returns how many there are.
     ///
     /// # Errors
-    /// [`WireError::DestinationTooSmall`] if `dst` is shorter than [`len`](Self::len);
+    /// [`WireError::DestinationTooSmall`] if `dst` is shorter than the channel count;
     /// `dst` is then left untouched.
     pub fn copy_to(&self, dst: &mut [f64]) -> Result<usize, WireError> {
         let n = self.len();
@@ -125,9 +126,10 @@ impl<'a> Channels<'a> {
         Ok(n)
     }
 
+    #[cfg(test)]
     /// The raw little-endian bytes of the values.
     #[must_use]
-    pub const fn as_bytes(&self) -> &'a [u8] {
+    pub(crate) const fn as_bytes(&self) -> &'a [u8] {
         self.bytes
     }
 }
@@ -260,9 +262,9 @@ pub mod underflow {
 /// Known [`Control::op`] codes.
 pub mod control_op {
     /// Ask the peer to pause teleoperation (to re-size the link).
-    pub const PAUSE_REQUEST: u8 = 1;
+    pub(crate) const PAUSE_REQUEST: u8 = 1;
     /// Agree to a pause request.
-    pub const PAUSE_ACK: u8 = 2;
+    pub(crate) const PAUSE_ACK: u8 = 2;
     /// Resume with the [`Control`](super::Control)'s `ns` and `period`.
     pub const RESUME: u8 = 3;
 }
@@ -295,7 +297,7 @@ pub mod close_reason {
     pub const SEQUENCE: u16 = 10;
     /// A Data frame whose send stamp does not advance as the sender's
     /// clock can: a step back, or a stamp from the future.
-    pub const STAMP: u16 = 11;
+    pub(crate) const STAMP: u16 = 11;
     /// The peers were built for different channel layouts.
     pub const LAYOUT_MISMATCH: u16 = 12;
     /// One peer runs over a stream, the other over datagrams.
@@ -351,7 +353,7 @@ pub struct Hello {
     /// Sampling period `T`; must be positive.
     pub period: Duration,
     /// The fingerprint of the application's channel layout (its channel
-    /// names, see [`layout`](crate::layout)); `0` when none is given.
+    /// names, see [`fingerprint`](crate::fingerprint)); `0` when none is given.
     pub layout: u64,
     /// What the peer puts in every datagram it sends to this sender, so
     /// that this sender can tell them from strays and spoofs; `0` on a
@@ -417,16 +419,6 @@ impl Hello {
         super::put(&mut b, 16, self.layout.to_le_bytes());
         super::put(&mut b, 24, self.session.to_le_bytes());
         Ok(b)
-    }
-
-    /// The width of what `role` sends: commands from the base, states from
-    /// the remote.
-    #[must_use]
-    pub const fn width_from(&self, role: Role) -> u16 {
-        match role {
-            Role::Base => self.command_width,
-            Role::Remote => self.state_width,
-        }
     }
 }
 
@@ -499,7 +491,7 @@ pub struct Close {
 
 impl Close {
     /// Payload size in bytes.
-    pub const LEN: usize = 8;
+    pub(crate) const LEN: usize = 8;
 
     pub(super) fn parse(bytes: &[u8]) -> Result<Close, WireError> {
         let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
@@ -540,7 +532,7 @@ pub struct Token {
 
 impl Token {
     /// Payload size in bytes.
-    pub const LEN: usize = 8;
+    pub(crate) const LEN: usize = 8;
 
     pub(super) fn parse(bytes: &[u8]) -> Result<Token, WireError> {
         let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {

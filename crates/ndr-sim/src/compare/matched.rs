@@ -27,8 +27,8 @@ use std::collections::BTreeMap;
 use std::string::String;
 use std::vec::Vec;
 
+use ndr_core::Regulation;
 use ndr_core::playout::Playout;
-use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use serde::Serialize;
 

@@ -35,9 +35,9 @@ mod matched;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
+use ndr_core::Regulation;
 use ndr_core::endpoint::{Mode, Underflow};
 use ndr_core::playout::{delay_quantum, delay_quantum_for};
-use ndr_core::regulation::Regulation;
 use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
 

@@ -11,10 +11,10 @@
 use std::boxed::Box;
 use std::vec::Vec;
 
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
 use ndr_core::control::{ControlError, Pid, PidConfig, SmithPredictor, WaveEnergy, WaveTransform};
 use ndr_core::time::Duration;
 use ndr_core::wire::Role;
+use ndr_core::{Arx2, Tf2, Tf2State};
 
 use super::{BilateralGains, Reference, TrackingGains};
 use crate::PlantConfig;

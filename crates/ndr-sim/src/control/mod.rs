@@ -58,8 +58,8 @@ mod links;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
+use ndr_core::Regulation;
 use ndr_core::control::ControlError;
-use ndr_core::regulation::Regulation;
 use ndr_core::time::Duration;
 use serde::Serialize;
 

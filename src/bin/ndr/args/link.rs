@@ -1,8 +1,8 @@
 //! The link's settings on the command line.
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::{Config, Mode, Underflow};
 use ndr::core::playout::Playout;
-use ndr::core::regulation::Regulation;
 use ndr::core::wire::Role;
 use ndr::net::LinkConfig;
 

@@ -1,20 +1,27 @@
 //! The endpoint's cases on inline storage (arrays, no heap), and what only
 //! inline storage does.
 
-use ndr_core::endpoint::Endpoint;
-use ndr_core::storage::Inline;
-use ndr_core::time::Instant;
-use ndr_core::wire::Role;
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
+use crate::endpoint::Endpoint;
+use crate::storage::Inline;
+use crate::time::Instant;
+use crate::wire::Role;
 
 type Store = Inline<4, 256>;
 
+// Each storage runs its own copy of the cases, `super::Store` apart.
+#[allow(clippy::duplicate_mod)]
 #[path = "common/endpoint_cases.rs"]
 mod cases;
 
 #[test]
 fn an_endpoint_without_adaptive_room_is_smaller_and_refuses_only_the_adaptive_playout() {
-    use ndr_core::endpoint::ConfigError;
-    use ndr_core::playout::{Builtin, NoAdaptive, NoRoom, Playout};
+    use crate::endpoint::ConfigError;
+    use crate::playout::{Builtin, NoAdaptive, NoRoom, Playout};
     type Lean = Endpoint<Inline<4, 16, Builtin<NoAdaptive>>>;
     let mut c = cases::config(Role::Remote);
     c.playout = Playout::ADAPTIVE;

@@ -4,11 +4,16 @@
 //! (a first probe at its clock's start that echoes nothing, a probe stamped
 //! before its Hello), the remote serves it, at the delay of the wire.
 
-use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Status};
-use ndr_core::playout::Playout;
-use ndr_core::storage::Heap;
-use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
+use crate::endpoint::{Config, Endpoint, Event, LinkError, Status};
+use crate::playout::Playout;
+use crate::storage::Heap;
+use crate::time::{Duration, Instant};
+use crate::wire::{
     self, Control, Echo, Frame, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, control_op,
 };
 

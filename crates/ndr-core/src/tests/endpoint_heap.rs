@@ -2,15 +2,22 @@
 //! made), and what only heap storage does: links wider than any inline
 //! width, capacities chosen at run time, and the same releases as inline.
 
-use ndr_core::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Status};
-use ndr_core::pair::{Pair, World};
-use ndr_core::playout::Playout;
-use ndr_core::storage::{Heap, Inline, MAX_CAPACITY, Storage};
-use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{MAX_CHANNELS, Role};
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
+use crate::endpoint::{Config, ConfigError, Endpoint, Event, LinkError, Status};
+use crate::pair::{Pair, World};
+use crate::playout::Playout;
+use crate::storage::{Heap, Inline, MAX_CAPACITY, Storage};
+use crate::time::{Duration, Instant};
+use crate::wire::{MAX_CHANNELS, Role};
 
 type Store = Heap;
 
+// Each storage runs its own copy of the cases, `super::Store` apart.
+#[allow(clippy::duplicate_mod)]
 #[path = "common/endpoint_cases.rs"]
 mod cases;
 

@@ -2,10 +2,15 @@
 //! once the remote is identified, `x3e[n]` equals the remote's state `y[n]`
 //! and `x3p[n]` equals `y[n + Df]`.
 
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
 use std::f64::consts::PI;
 
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
-use ndr_core::estimator::{Estimate, Estimator};
+use crate::{Arx2, Tf2, Tf2State};
+use crate::{Estimate, Estimator};
 
 /// The operator's command: four incommensurate sines (rad/tick).
 fn command(n: usize) -> f64 {

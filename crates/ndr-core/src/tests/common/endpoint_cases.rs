@@ -7,15 +7,20 @@
 // clones for both.
 #![allow(clippy::clone_on_copy)]
 
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
 use std::collections::BTreeMap;
 use std::convert::Infallible;
 use std::ops::{Deref, DerefMut};
 
-use ndr_core::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Status, Underflow};
-use ndr_core::pair::{self, World};
-use ndr_core::storage::Storage;
-use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{self, MAX_FRAME_LEN, Role, close_reason};
+use crate::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Status, Underflow};
+use crate::pair::{self, World};
+use crate::storage::Storage;
+use crate::time::{Duration, Instant};
+use crate::wire::{self, MAX_FRAME_LEN, Role, close_reason};
 
 type Ep = Endpoint<super::Store>;
 type Values = <super::Store as Storage>::Values;
@@ -223,7 +228,7 @@ impl Pair {
         let Ok(()) = self.0.run_until(end);
     }
 
-    fn releases(events: &[Event<Values>]) -> Vec<ndr_core::endpoint::Release<Values>> {
+    fn releases(events: &[Event<Values>]) -> Vec<crate::endpoint::Release<Values>> {
         events
             .iter()
             .filter_map(|e| match e {
@@ -426,7 +431,7 @@ fn handshake_mismatches_end_the_link_with_their_error() {
     );
 
     // A robot that names its channels, an operator that names none.
-    let arm = ndr_core::layout::fingerprint(&["q1", "q2"], &["q1", "q2"]);
+    let arm = crate::fingerprint(&["q1", "q2"], &["q1", "q2"]);
     let (b, r) = mismatch(|c| c.layout = arm);
     assert_eq!(
         r,
@@ -686,8 +691,8 @@ fn abort_reports_the_drivers_error_and_sends_no_close_for_a_lost_connection() {
 
 #[test]
 fn an_adaptive_quantum_out_of_range_is_refused_with_the_range() {
-    use ndr_core::endpoint::ConfigError;
-    use ndr_core::playout::Playout;
+    use crate::endpoint::ConfigError;
+    use crate::playout::Playout;
     let with = |quantum| {
         let mut c = config(Role::Base);
         c.playout = Playout::Adaptive {
@@ -725,8 +730,8 @@ fn an_adaptive_quantum_out_of_range_is_refused_with_the_range() {
 /// The remote's stats after 300 s of an adaptive link, 10 ms each way on a
 /// 200 ms period, with `side`'s driver serving one deadline in three
 /// `lag_ms` late.
-fn adaptive_with_a_late_driver(side: Role, lag_ms: u64) -> ndr_core::endpoint::Stats {
-    use ndr_core::playout::Playout;
+fn adaptive_with_a_late_driver(side: Role, lag_ms: u64) -> crate::endpoint::Stats {
+    use crate::playout::Playout;
     let d = Duration::from_millis(10);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
     base.playout = Playout::ADAPTIVE;
@@ -791,7 +796,7 @@ fn an_adaptive_link_holds_a_stall_once_its_late_rate_is_spent_but_not_an_outage(
     // rest of the stall is held, and released in order. The outage is let
     // go: the delay is back where it was once the watchdog fires, and the
     // ticks repeat the last sample once a period through it.
-    use ndr_core::playout::Playout;
+    use crate::playout::Playout;
     let t = Duration::from_millis(20);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
     for c in [&mut base, &mut remote] {
@@ -872,7 +877,7 @@ fn an_adaptive_link_starts_without_a_repeat_whatever_the_grids_phase() {
     // the warm-up margin puts the need a hair under a quantum boundary that
     // the first clock estimates cross, or the remote's first states would
     // go out on its grid before it moves to its releases.
-    use ndr_core::playout::Playout;
+    use crate::playout::Playout;
     let t = Duration::from_millis(10);
     for phase_us in (0..10_000).step_by(500) {
         for spread_us in [1, 100, 200] {
@@ -929,7 +934,7 @@ fn every_change_of_the_round_trip_in_ticks_is_announced_before_its_release() {
     // between delay changes. Each move, and only a move, comes as a
     // `RoundTripChanged` just before the release that shows it; the FIFO
     // whose stock a step of the delay (after 10 s) runs out says so too.
-    use ndr_core::playout::Playout;
+    use crate::playout::Playout;
     let t = Duration::from_millis(10);
     for (playout, step_us) in [(Playout::ADAPTIVE, 0), (Playout::Fifo, 25_000)] {
         let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
@@ -1164,7 +1169,7 @@ type Stopped = (Vec<f64>, Vec<f64>, (f64, f64), (f64, f64));
 /// base's GRTTs before the stop and from 34 s, and both sides' delays
 /// before and at 60 s.
 fn stopped_remote(kernel_stamps: bool) -> Stopped {
-    use ndr_core::playout::Playout;
+    use crate::playout::Playout;
     let t = Duration::from_millis(50);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
     for c in [&mut base, &mut remote] {
@@ -1238,7 +1243,7 @@ fn span(xs: &[f64]) -> (f64, f64) {
 /// up to `lag_us` (a loaded host): the base's fresh releases in 10 s, the
 /// instant of its first, and the NRTTs it measured.
 fn with_a_driver_late_past_the_wire(side: Role, lag_us: u64) -> (usize, Instant, u64) {
-    use ndr_core::playout::Playout;
+    use crate::playout::Playout;
     let t = Duration::from_millis(20);
     let (mut base, mut remote) = (config(Role::Base), config(Role::Remote));
     for c in [&mut base, &mut remote] {

@@ -1,10 +1,15 @@
 //! Identification of the paper's second-order axis model by RLS (`Arx2`):
 //! exact recovery from noise-free data, and tracking a plant that changes.
 
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
 use std::f64::consts::PI;
 
-use ndr_core::arx::{Arx2, Tf2, Tf2State};
-use ndr_core::rls::Rls;
+use crate::Rls;
+use crate::{Arx2, Tf2, Tf2State};
 
 /// xorshift64: a seeded pseudo-random source, enough for a PRBS.
 struct XorShift(u64);

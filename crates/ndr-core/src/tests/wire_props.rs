@@ -1,8 +1,13 @@
 //! Property tests of the frame codec: round trips, and totality of decoding
 //! on arbitrary and corrupted input.
 
-use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
+use crate::time::{Duration, Instant};
+use crate::wire::{
     Close, Control, Echo, Frame, HEADER_LEN, Header, Hello, Kind, MAX_BUNDLE, MAX_CHANNELS,
     MAX_DATAGRAM_LEN, MAX_FRAME_LEN, Message, OlderSample, Payload, Role, Token, VERSION,
     WireError, encode, encoded_len, frame_len,

@@ -1,6 +1,11 @@
 //! Property tests of the NDR queue: FIFO order, and nothing lost without a counter.
 
-use ndr_core::regulator::{Regulator, Tick};
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
+use crate::regulator::{Regulator, Tick};
 use proptest::prelude::*;
 
 #[derive(Clone, Debug)]

@@ -1,15 +1,20 @@
 //! The datagram transport: samples in bundles over a wire that loses,
 //! reorders and repeats, the handshake and control on a reliable path.
 
-use ndr_core::endpoint::{
+#[allow(unused_imports)]
+use std::{borrow::ToOwned, boxed::Box, string::String, string::ToString, vec::Vec};
+#[allow(unused_imports)]
+use std::{eprintln, format, println, vec};
+
+use crate::endpoint::{
     Config, ConfigError, DatagramError, Endpoint, Event, LinkError, Origin, RenewError, Status,
     Taken, Transport, Underflow,
 };
-use ndr_core::pair::{Pair, World};
-use ndr_core::playout::Playout;
-use ndr_core::storage::Heap;
-use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{Kind, Role, close_reason};
+use crate::pair::{Pair, World};
+use crate::playout::Playout;
+use crate::storage::Heap;
+use crate::time::{Duration, Instant};
+use crate::wire::{Kind, Role, close_reason};
 
 const T: Duration = Duration::from_millis(10);
 const SESSIONS: [u64; 2] = [0x1111_2222_3333_4444, 0x5555_6666_7777_8888];
@@ -205,7 +210,7 @@ fn stray_spoofed_garbage_and_replayed_datagrams_are_counted_and_harm_nothing() {
     let mut p = run(COPIES_ONLY, |_| false, |_| T / 2, 5);
     // The last bundle the base sent, as the network would repeat it.
     let mut bundle = None;
-    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let mut buf = vec![0; crate::wire::MAX_DATAGRAM_LEN];
     let now = p.now();
     p.base.set_sample(&[1.0, 2.0]).unwrap();
     let ep = &mut p.base;
@@ -507,7 +512,7 @@ fn a_datagram_numbered_the_wires_none_is_refused_and_the_link_runs_on() {
     // be written any more (and the next `seq` due overflowed).
     let mut p = run(COPIES_ONLY, |_| false, |_| T / 2, 5);
     let mut bundle = None;
-    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let mut buf = vec![0; crate::wire::MAX_DATAGRAM_LEN];
     let now = p.now();
     let ep = &mut p.base;
     ep.handle_timeout(now + T);
@@ -547,7 +552,7 @@ fn running_and_a_sniffed_bundle() -> (Pair<Heap, Plain>, Vec<u8>) {
     let mut p = Pair::new(ep(Role::Base), ep(Role::Remote), world);
     p.run_until(Instant::from_millis(5_000)).unwrap();
     let mut bundle = None;
-    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let mut buf = vec![0; crate::wire::MAX_DATAGRAM_LEN];
     let now = p.now();
     let ep = &mut p.base;
     ep.handle_timeout(now + T);
@@ -610,7 +615,7 @@ fn bundle_seq(bundle: &[u8]) -> u64 {
 #[test]
 fn a_copy_stamped_after_its_newest_sample_is_refused() {
     let (mut p, bundle) = running_and_a_sniffed_bundle();
-    let frame = ndr_core::wire::Frame::new_checked(&bundle[..]).unwrap();
+    let frame = crate::wire::Frame::new_checked(&bundle[..]).unwrap();
     assert!(frame_copies(&bundle) > 0, "a bundle with copies");
     let newest = frame.sent_at().as_nanos();
     // The first copy's stamp, at 64 + 8 · width + 8.
@@ -669,7 +674,7 @@ fn a_datagrams_seq_may_run_ahead_by_the_ticks_its_stamp_leaves_room_for() {
 /// Runs `p` until the remote's next bundle for the base carries `token`,
 /// and returns it.
 fn base_bundle_with(p: &mut Pair<Heap, Plain>, token: u64) -> Vec<u8> {
-    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let mut buf = vec![0; crate::wire::MAX_DATAGRAM_LEN];
     for _ in 0..100 {
         let now = p.now() + T;
         p.base.handle_timeout(now);
@@ -757,7 +762,7 @@ fn a_sample_that_goes_out_after_the_close_arms_no_repeat() {
     assert!(sent > 100, "{:?}", p.base.stats());
     p.base.handle_timeout(tick);
     p.base.close();
-    let mut buf = vec![0; ndr_core::wire::MAX_DATAGRAM_LEN];
+    let mut buf = vec![0; crate::wire::MAX_DATAGRAM_LEN];
     let mut kinds = Vec::new();
     while let Some(n) = p.base.poll_transmit(tick, &mut buf).unwrap() {
         kinds.push(buf[..n][5]);
