@@ -96,9 +96,11 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
     result, stalls = regulated(run, missing)
     r = result.report
     if not stalls:
+        # Every tick measured a round trip. A host that held a hub leaves
+        # ticks without one; assert_constant still wants over a hundred.
         assert r["underflows"] == 0 and r["late_samples"] == 0
+        assert r["grtt_count"] > 250
     # Constant delay: the round trip the controller sees does not move.
-    assert r["grtt_count"] > 250
     op = result.operator
     measured = [i for i, g in enumerate(op.grtt) if not np.isnan(g)]
     assert_constant(
@@ -116,14 +118,14 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
         # Every sample came by datagram, through the relay, none lost (on a
         # run the host did not stall).
         assert r["samples_lost"] == 0 or stalls
-        assert op.stats["datagrams_received"] > 300
+        assert op.stats["datagrams_received"] > 300 or stalls
         # The base sent to the relay's port all along.
         assert op.stats["datagram_path_changes"] == 0
     if transport == "quic":
         # Every sample came by QUIC datagram, through the relay, none lost,
         # and QUIC took every one.
         assert r["samples_lost"] == 0 or stalls
-        assert op.stats["datagrams_received"] > 300
+        assert op.stats["datagrams_received"] > 300 or stalls
         assert op.stats["datagrams_unsent"] == 0
 
 
