@@ -1001,6 +1001,12 @@ impl DgramLink {
             if ep.poll_timeout().is_some_and(|t| t <= now) {
                 ep.handle_timeout(now);
                 self.drain(side);
+                // A long catch-up stops at a full event queue: the events
+                // drained, it goes on.
+                while self.eps[side as usize].catching_up(now) {
+                    self.eps[side as usize].handle_timeout(now);
+                    self.drain(side);
+                }
                 // Else a driver would spin on it.
                 assert!(
                     self.eps[side as usize]

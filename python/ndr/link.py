@@ -393,8 +393,8 @@ class LinkStats(TypedDict):
     spin_margin: float
     """How long before a deadline the hub spins, learned from its timer."""
     endpoint_events_dropped: int
-    """Events the endpoint itself dropped, releases among them, when its
-    hub was held for more ticks than it queues events for."""
+    """Events the endpoint itself dropped (none from the hub, which takes
+    the events of a long catch-up as the endpoint's queue fills)."""
     datagram_peer: Optional[str]
     """Datagram transport: where this side sends its datagrams (``"host:port"``,
     the peer's newest address); ``None`` on TCP, and on a listener's side

@@ -33,7 +33,9 @@
 //!    (an error ends the link and queues a Close for the peer);
 //! 2. once [`poll_timeout`](endpoint::Endpoint::poll_timeout) is due:
 //!    [`handle_timeout`](endpoint::Endpoint::handle_timeout) runs every tick
-//!    and release due by `now`;
+//!    and release due by `now` (after a stall, until the event queue is
+//!    full: then [`catching_up`](endpoint::Endpoint::catching_up) says so,
+//!    and step 3 comes before calling it again);
 //! 3. [`poll_event`](endpoint::Endpoint::poll_event) until `None`: the
 //!    application takes its releases and sets the next sample with
 //!    [`set_sample`](endpoint::Endpoint::set_sample);

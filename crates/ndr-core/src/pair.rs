@@ -310,7 +310,13 @@ impl<S: Storage, W: World<S>> Pair<S, W> {
             let endpoint = self.endpoint(side);
             let steps = endpoint.predictor().steps();
             endpoint.handle_timeout(at);
-            let ticked = endpoint.predictor().steps() != steps;
+            // A long catch-up stops at a full event queue: the application
+            // takes the events, and the catch-up goes on.
+            while self.endpoint(side).catching_up(at) {
+                self.drain(side)?;
+                self.endpoint(side).handle_timeout(at);
+            }
+            let ticked = self.endpoint(side).predictor().steps() != steps;
             self.drain(side)?;
             if ticked {
                 self.world.ticked(side, now, &self.base, &self.remote);

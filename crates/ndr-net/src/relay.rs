@@ -74,8 +74,9 @@
 //! TCP. The convention: a link's datagrams go to the same port number as
 //! its TCP listener, over UDP, and each side learns its peer's datagram
 //! address from the source address of the peer's valid datagrams. So the
-//! relay also binds a UDP socket at its listening address (the port TCP got
-//! when given port 0), and a base that connected to the relay over TCP
+//! relay also binds a UDP socket at its listening address (given port 0,
+//! one number free over both, drawn again if another program takes it
+//! meanwhile), and a base that connected to the relay over TCP
 //! sends its datagrams there; the relay sends them on to the upstream's
 //! address over UDP, and the remote answers to the address it saw them
 //! come from: the relay's.
@@ -155,6 +156,7 @@
 mod blocking;
 mod conn;
 mod datagram;
+mod ports;
 mod stats;
 
 use core::fmt;
@@ -193,9 +195,6 @@ const FAR_FUTURE: StdDuration = StdDuration::from_secs(365 * 24 * 3600);
 /// Pause after a failed `accept` (e.g. out of file descriptors), so that a
 /// persistent failure does not spin.
 const ACCEPT_BACKOFF: StdDuration = StdDuration::from_millis(100);
-
-/// Ports tried when given port 0 and UDP is taken where TCP is free.
-const BIND_ATTEMPTS: u32 = 8;
 
 /// Limits of a [`Relay`], and the loss of its datagrams.
 ///
@@ -499,7 +498,7 @@ impl Relay {
         model: DelayModel,
         seed: u64,
     ) -> io::Result<Relay> {
-        let (listener, datagrams, local_addr) = bind_both(listen).await?;
+        let (listener, datagrams, local_addr) = bind_both(listen)?;
         Ok(Relay {
             listener,
             datagrams,
@@ -651,33 +650,26 @@ async fn stopped(stop: &mut watch::Receiver<bool>) {
     let _ = stop.wait_for(|&stop| stop).await;
 }
 
-/// Binds the TCP listener, then UDP at the same address and port.
-async fn bind_both(listen: SocketAddr) -> io::Result<(TcpListener, UdpSocket, SocketAddr)> {
-    // With port 0, another program may hold the port TCP picked over UDP:
-    // pick again a few times.
-    let attempts = if listen.port() == 0 { BIND_ATTEMPTS } else { 1 };
-    let mut attempt = 1;
-    loop {
-        let listener = TcpListener::bind(listen).await.map_err(|e| {
-            io::Error::new(e.kind(), format!("relay: cannot listen on {listen}: {e}"))
-        })?;
-        let local_addr = listener.local_addr()?;
-        match UdpSocket::bind(local_addr).await {
-            Ok(datagrams) => return Ok((listener, datagrams, local_addr)),
-            Err(e) if e.kind() == io::ErrorKind::AddrInUse && attempt < attempts => {
-                attempt += 1;
-            }
-            Err(e) => {
-                return Err(io::Error::new(
-                    e.kind(),
-                    format!(
-                        "relay: cannot bind UDP {local_addr} for the datagrams (the relay \
-                         listens on one port number over TCP and UDP): {e}"
-                    ),
-                ));
-            }
-        }
-    }
+/// Binds UDP at `listen`, then TCP at the same address and port
+/// ([`ports::bind_pair`]).
+fn bind_both(listen: SocketAddr) -> io::Result<(TcpListener, UdpSocket, SocketAddr)> {
+    let (datagrams, listener, local_addr) = ports::bind_pair(
+        listen,
+        ports::BIND_ATTEMPTS,
+        |at| {
+            let socket = std::net::UdpSocket::bind(at)?;
+            let local = socket.local_addr()?;
+            Ok((socket, local))
+        },
+        std::net::TcpListener::bind,
+    )?;
+    datagrams.set_nonblocking(true)?;
+    listener.set_nonblocking(true)?;
+    Ok((
+        TcpListener::from_std(listener)?,
+        UdpSocket::from_std(datagrams)?,
+        local_addr,
+    ))
 }
 
 /// Serves both paths until the relay is told to stop.

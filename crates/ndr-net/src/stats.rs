@@ -44,10 +44,11 @@ pub struct LinkStats {
     /// Events dropped, the oldest first, because more than
     /// [`EVENT_BACKLOG`](crate::EVENT_BACKLOG) waited for [`Link::drain_events`](crate::Link::drain_events).
     pub events_dropped: u64,
-    /// Events the endpoint itself dropped, releases among them: a driver
-    /// held for more ticks than the endpoint queues events for runs the
-    /// missed ticks at once, and the releases past its queue are lost
-    /// ([`Endpoint::events_dropped`](ndr_core::endpoint::Endpoint::events_dropped)).
+    /// Events the endpoint itself dropped
+    /// ([`Endpoint::events_dropped`](ndr_core::endpoint::Endpoint::events_dropped)):
+    /// none from the hub, which takes the events of a long catch-up as
+    /// the endpoint's queue fills
+    /// ([`Endpoint::catching_up`](ndr_core::endpoint::Endpoint::catching_up)).
     pub endpoint_events_dropped: u64,
     /// Receive path, in seconds: from a frame's arrival (the kernel's stamp
     /// where there is one) to the hub handing it to the endpoint.

@@ -133,6 +133,10 @@ const GRID_SETTLE_TICKS: u64 = 50;
 const TX_QUEUE: usize = 8;
 /// Events that may wait for the application.
 const EVENT_QUEUE: usize = 32;
+/// Events one tick or release raises at most (the release, its round trip,
+/// the watchdog's, the policy's announcements, a regime's change, the
+/// end): a catch-up stops with fewer free.
+const STEP_EVENTS: usize = 8;
 
 /// One side of a regulated link, its buffers in the storage `S`:
 /// [`Inline<C, N>`](crate::storage::Inline) (no heap: samples of up to `C`
@@ -286,11 +290,23 @@ impl<S: Storage> Endpoint<S> {
     /// A deadline from [`poll_timeout`](Self::poll_timeout) passed: runs every
     /// tick due by `now`, in order, and checks the handshake timeout. Releases
     /// and sends are stamped `now`, the time they really happen.
+    ///
+    /// A driver held for many periods has many ticks to run at once. When
+    /// the event queue it found with room fills up, the catch-up stops
+    /// there rather than drop releases: [`catching_up`](Self::catching_up)
+    /// then says so, and the driver takes the events and calls again at
+    /// once. Called with its queue already full, it runs every tick due,
+    /// and the events past the queue are dropped and counted in
+    /// [`events_dropped`](Self::events_dropped).
     pub fn handle_timeout(&mut self, now: Instant) {
         if self.phase == Phase::Closed {
             return;
         }
+        let room = self.events.len() + STEP_EVENTS <= EVENT_QUEUE;
         loop {
+            if room && self.events.len() + STEP_EVENTS > EVENT_QUEUE {
+                return;
+            }
             let tick = self.next_tick.filter(|&t| t <= now);
             // A sample is stamped with its tick's scheduled time, and which
             // sample is due is the schedule's to say: a late driver shows in
@@ -317,6 +333,16 @@ impl<S: Storage> Endpoint<S> {
         } else if let Some(silent_for) = self.silent_past_liveness(now) {
             self.fail(LinkError::PeerSilent { silent_for });
         }
+    }
+
+    /// Whether ticks or releases due by `now` are still to run:
+    /// [`handle_timeout`](Self::handle_timeout) stopped its catch-up at a
+    /// full event queue. Take the events, then call it again.
+    #[must_use]
+    pub fn catching_up(&self, now: Instant) -> bool {
+        self.phase != Phase::Closed
+            && (self.next_tick.is_some_and(|t| t <= now)
+                || self.policy.next_release().is_some_and(|r| r <= now))
     }
 
     /// The next time [`handle_timeout`](Self::handle_timeout) must be called.
