@@ -210,11 +210,11 @@ pub fn endpoint(data: &[u8]) {
                         role.peer()
                     },
                     mode: if input.byte() % 4 == 0 {
-                        input.byte()
+                        input.byte().into()
                     } else {
-                        cfg.mode.code()
+                        cfg.mode.into()
                     },
-                    underflow: input.byte() % 3,
+                    underflow: (input.byte() % 3).into(),
                     command_width: if input.byte() % 4 == 0 {
                         u16::from(input.byte())
                     } else {
@@ -253,7 +253,7 @@ pub fn endpoint(data: &[u8]) {
             }
             4 => {
                 let control = Control {
-                    op: input.byte() % 5,
+                    op: (input.byte() % 5).into(),
                     ns: input.u16() % 300,
                     period: Duration::from_micros(u64::from(input.u16()) * 10),
                 };
@@ -268,7 +268,7 @@ pub fn endpoint(data: &[u8]) {
             }
             5 => {
                 let close = Close {
-                    reason: input.u16() % 10,
+                    reason: (input.u16() % 10).into(),
                 };
                 send(
                     &mut ep,

@@ -223,7 +223,7 @@ fn a_base_whose_peer_never_answers_says_so_and_fails() {
 
 /// A remote that answers the base's Hello with a Close `reason` (a
 /// listener's refusal), then waits for the base to hang up.
-fn refusing_remote(reason: u16) -> (String, std::thread::JoinHandle<()>) {
+fn refusing_remote(reason: ndr::core::wire::CloseReason) -> (String, std::thread::JoinHandle<()>) {
     use ndr::core::time::Instant as CoreInstant;
     use ndr::core::wire::{self, Close, Header, Message};
     use std::io::Write;
@@ -245,19 +245,23 @@ fn refusing_remote(reason: u16) -> (String, std::thread::JoinHandle<()>) {
 
 #[test]
 fn a_base_refused_by_the_remote_says_why_in_its_error_and_its_report() {
-    use ndr::core::wire::close_reason as why;
+    use ndr::core::wire::CloseReason;
     let _serial = serial();
     let csv = csv_path("refused-why");
     for (reason, refused, says) in [
-        (why::BUSY, "busy", "busy serving another peer"),
+        (CloseReason::Busy, "busy", "busy serving another peer"),
         (
-            why::EVICTED_SOURCE,
+            CloseReason::EvictedSource,
             "per_source",
             "too many handshakes pending from this side's address",
         ),
-        (why::EVICTED, "evicted", "every handshake slot was taken"),
         (
-            why::VERSION_MISMATCH,
+            CloseReason::Evicted,
+            "evicted",
+            "every handshake slot was taken",
+        ),
+        (
+            CloseReason::VersionMismatch,
             "version",
             "refused this side's wire version",
         ),

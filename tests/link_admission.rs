@@ -24,7 +24,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::{Config, Transport};
 use ndr::core::time::{Duration, Instant};
-use ndr::core::wire::{self, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, close_reason};
+use ndr::core::wire::{self, CloseReason, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role};
 use ndr::net::{Link, LinkConfig, Listener, NetError, Relay, RelayHandle};
 use ndr::sim::delay::DelayModel;
 use tokio::io::AsyncReadExt;
@@ -331,8 +331,8 @@ fn one_datagram_senders_do_not_keep_a_udp_base_from_its_samples_through_the_rela
 fn partial_hello() -> Vec<u8> {
     let hello = Hello {
         role: Role::Base,
-        mode: 0,
-        underflow: 0,
+        mode: wire::ModeCode::PaperStatic,
+        underflow: wire::UnderflowCode::Hold,
         command_width: 1,
         state_width: 1,
         period: Duration::from_millis(10),
@@ -363,7 +363,7 @@ fn plain_from(source: Ipv4Addr, to: SocketAddr) -> std::net::TcpStream {
 }
 
 /// The Close reason `s` got before its end of stream (a reset is an error).
-fn told(mut s: std::net::TcpStream) -> Result<Option<u16>, std::io::Error> {
+fn told(mut s: std::net::TcpStream) -> Result<Option<CloseReason>, std::io::Error> {
     s.set_read_timeout(Some(StdDuration::from_secs(3)))?;
     let mut got = Vec::new();
     s.read_to_end(&mut got)?;
@@ -392,7 +392,7 @@ fn a_handshake_cut_short_for_its_source_is_told_so_not_reset() {
     let mut rest: Vec<_> = (1..cap).map(|_| plain_from(source, to)).collect();
     std::thread::sleep(StdDuration::from_millis(300));
     rest.push(plain_from(source, to));
-    assert_eq!(told(first).unwrap(), Some(close_reason::EVICTED_SOURCE));
+    assert_eq!(told(first).unwrap(), Some(CloseReason::EvictedSource));
     let stats = robot.listener.stats();
     assert_eq!(stats.refused_per_source, 1, "{stats:?}");
     assert_eq!(stats.evicted, 0, "{stats:?}");
@@ -411,7 +411,7 @@ fn a_handshake_cut_short_for_want_of_any_slot_is_told_so() {
         .collect();
     std::thread::sleep(StdDuration::from_millis(200));
     rest.push(plain_from(Ipv4Addr::new(127, 0, 3, 1), to));
-    assert_eq!(told(first).unwrap(), Some(close_reason::EVICTED));
+    assert_eq!(told(first).unwrap(), Some(CloseReason::Evicted));
     let stats = robot.listener.stats();
     assert_eq!(stats.evicted, 1, "{stats:?}");
 }
@@ -419,7 +419,7 @@ fn a_handshake_cut_short_for_want_of_any_slot_is_told_so() {
 /// A remote that answers the first Hello with a Close `reason`, as a
 /// listener does to a base whose handshake it cut short (or that it
 /// refuses as busy), then waits for the base to hang up.
-fn refusing_remote(reason: u16) -> (SocketAddr, std::thread::JoinHandle<()>) {
+fn refusing_remote(reason: CloseReason) -> (SocketAddr, std::thread::JoinHandle<()>) {
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
     let serving = std::thread::spawn(move || {
@@ -440,11 +440,11 @@ fn refusing_remote(reason: u16) -> (SocketAddr, std::thread::JoinHandle<()>) {
 fn a_base_whose_handshake_was_cut_short_says_why() {
     for (reason, says) in [
         (
-            close_reason::EVICTED_SOURCE,
+            CloseReason::EvictedSource,
             "too many handshakes pending from this side's address",
         ),
-        (close_reason::EVICTED, "every handshake slot was taken"),
-        (close_reason::BUSY, "busy"),
+        (CloseReason::Evicted, "every handshake slot was taken"),
+        (CloseReason::Busy, "busy"),
     ] {
         let (addr, remote) = refusing_remote(reason);
         let mut base = Link::connect_blocking(addr, config(false)).unwrap();

@@ -19,7 +19,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::{Config, LinkError, Status};
 use ndr::core::time::{Duration, Instant};
-use ndr::core::wire::{self, Header, Hello, MAX_FRAME_LEN, Message, Role, close_reason};
+use ndr::core::wire::{self, CloseReason, Header, Hello, MAX_FRAME_LEN, Message, Role};
 use ndr::keygen::{self, KeyPair};
 use ndr::net::{Link, LinkConfig, LinkStats, Listener, ListenerStats, NetError, TlsConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -635,7 +635,7 @@ fn a_second_base_is_told_at_once_that_the_robot_is_busy() {
         .recv_timeout(StdDuration::from_secs(3))
         .expect_err("the second base must be refused");
     let waited = asked.elapsed();
-    let busy = close_reason::BUSY;
+    let busy = CloseReason::Busy;
     assert!(
         matches!(err, NetError::Link(LinkError::PeerClosed { reason }) if reason == busy),
         "{err:?}"
@@ -673,8 +673,8 @@ fn base_hello() -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
         role: Role::Base,
-        mode: 0,
-        underflow: 0,
+        mode: wire::ModeCode::PaperStatic,
+        underflow: wire::UnderflowCode::Hold,
         command_width: 2,
         state_width: 2,
         period: Duration::from_millis(PERIOD_MS),

@@ -7,7 +7,7 @@ use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Config, LinkError};
 use ndr::core::time::{Duration, Instant};
-use ndr::core::wire::{self, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, close_reason};
+use ndr::core::wire::{self, CloseReason, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role};
 use std::sync::Arc;
 
 use ndr::net::{Link, LinkConfig, Listener, ListenerStats, NetError};
@@ -76,8 +76,8 @@ fn hello_from(version: u8, role: Role, axes: u16) -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
         role,
-        mode: 0,
-        underflow: 0,
+        mode: wire::ModeCode::PaperStatic,
+        underflow: wire::UnderflowCode::Hold,
         command_width: axes,
         state_width: axes,
         period: Duration::from_millis(10),
@@ -103,7 +103,7 @@ fn poke(addr: SocketAddr, bytes: &[u8]) -> Vec<u8> {
 
 /// The kinds of the frames in `bytes`, in order, and the reason of the
 /// Close among them.
-fn replies(mut bytes: &[u8]) -> (Vec<wire::Kind>, Option<u16>) {
+fn replies(mut bytes: &[u8]) -> (Vec<wire::Kind>, Option<CloseReason>) {
     let (mut kinds, mut reason) = (Vec::new(), None);
     while let Ok(Some(len)) = wire::frame_len(bytes) {
         let Some(frame) = bytes
@@ -121,7 +121,7 @@ fn replies(mut bytes: &[u8]) -> (Vec<wire::Kind>, Option<u16>) {
     (kinds, reason)
 }
 
-fn close_reason_of(bytes: &[u8]) -> Option<u16> {
+fn close_reason_of(bytes: &[u8]) -> Option<CloseReason> {
     replies(bytes).1
 }
 
@@ -136,22 +136,22 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
 
     // Garbage: not even a plausible length prefix.
     let back = poke(addr, b"GET / HTTP/1.1\r\nHost: robot\r\n\r\n");
-    assert_eq!(close_reason_of(&back), Some(close_reason::PROTOCOL_ERROR));
+    assert_eq!(close_reason_of(&back), Some(CloseReason::ProtocolError));
     counted(&listener, |s| s.refused_protocol, 1);
 
     // An absurd length: refused before anything is buffered.
     let back = poke(addr, &u32::MAX.to_le_bytes());
-    assert_eq!(close_reason_of(&back), Some(close_reason::PROTOCOL_ERROR));
+    assert_eq!(close_reason_of(&back), Some(CloseReason::ProtocolError));
     counted(&listener, |s| s.refused_protocol, 2);
 
     // A Hello from a newer version of the protocol.
     let back = poke(addr, &hello_bytes(wire::VERSION + 1));
-    assert_eq!(close_reason_of(&back), Some(close_reason::VERSION_MISMATCH));
+    assert_eq!(close_reason_of(&back), Some(CloseReason::VersionMismatch));
     counted(&listener, |s| s.refused_wire_version, 1);
 
     // A peer that claims the remote's role, and one with other axes.
     let back = poke(addr, &hello_from(wire::VERSION, Role::Remote, 1));
-    assert_eq!(close_reason_of(&back), Some(close_reason::ROLE_MISMATCH));
+    assert_eq!(close_reason_of(&back), Some(CloseReason::RoleMismatch));
     counted(&listener, |s| s.refused_role, 1);
     let back = poke(addr, &hello_from(wire::VERSION, Role::Base, 3));
     // Its own Hello first, so that the base can name both widths.
@@ -159,7 +159,7 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
         replies(&back),
         (
             vec![wire::Kind::Hello, wire::Kind::Close],
-            Some(close_reason::WIDTH_MISMATCH)
+            Some(CloseReason::WidthMismatch)
         )
     );
     counted(&listener, |s| s.refused_layout, 1);
@@ -177,7 +177,12 @@ fn garbage_wrong_version_and_absurd_length_are_cut_off_and_the_listener_survives
     drop(base);
     let e = errors.recv_timeout(StdDuration::from_secs(3)).unwrap();
     assert!(
-        matches!(e, NetError::Link(LinkError::PeerClosed { reason: 0 })),
+        matches!(
+            e,
+            NetError::Link(LinkError::PeerClosed {
+                reason: ndr::core::wire::CloseReason::Normal
+            })
+        ),
         "{e:?}"
     );
 }
@@ -293,7 +298,7 @@ fn a_data_frame_with_more_channels_than_the_link_carries_ends_it_with_that_error
             }
             last = &last[len..];
         }
-        assert_eq!(close_reason_of(last), Some(close_reason::PROTOCOL_ERROR));
+        assert_eq!(close_reason_of(last), Some(CloseReason::ProtocolError));
     }
     assert_eq!(listener.stats().accepted, 2);
 }
@@ -331,7 +336,7 @@ fn a_closed_link_is_a_normal_end_for_the_peer() {
         matches!(
             e,
             NetError::Link(LinkError::PeerClosed {
-                reason: close_reason::NORMAL
+                reason: CloseReason::Normal
             })
         ),
         "{e:?}"
@@ -344,7 +349,7 @@ fn an_aborted_link_or_one_dropped_in_a_panic_is_an_application_failure_for_the_p
         matches!(
             e,
             NetError::Link(LinkError::PeerClosed {
-                reason: close_reason::APPLICATION
+                reason: CloseReason::Application
             })
         )
     };

@@ -12,7 +12,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::core::endpoint::{Config, Status};
 use ndr::core::time::{Duration, Instant};
 use ndr::core::wire::{
-    self, Control, Echo, Frame, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, control_op,
+    self, Control, ControlOp, Echo, Frame, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role,
 };
 use ndr::net::{LinkConfig, Listener, NetError};
 
@@ -70,8 +70,8 @@ fn hand_written_base(addr: std::net::SocketAddr) {
     std::thread::spawn(move || reader(read_half, origin, tx));
     let hello = Hello {
         role: Role::Base,
-        mode: wire::mode::PAPER_STATIC,
-        underflow: wire::underflow::HOLD,
+        mode: wire::ModeCode::PaperStatic,
+        underflow: wire::UnderflowCode::Hold,
         command_width: 1,
         state_width: 1,
         period: PERIOD,
@@ -129,7 +129,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
                     handshaken = true;
                 }
                 Payload::Data(values) if !values.is_empty() => newest_state = Some(frame.seq()),
-                Payload::Close(c) => panic!("the remote closed the link: reason {}", c.reason),
+                Payload::Close(c) => panic!("the remote closed the link: {c}"),
                 _ => {}
             }
             if !running && nrtts.len() == 10 {
@@ -144,7 +144,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
                     released: None,
                 };
                 let resume = Control {
-                    op: control_op::RESUME,
+                    op: ControlOp::Resume,
                     ns,
                     period: PERIOD,
                 };
@@ -173,7 +173,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
         }
     }
     let close = wire::Close {
-        reason: wire::close_reason::NORMAL,
+        reason: wire::CloseReason::Normal,
     };
     let _ = stream.write_all(&encode(&Header::new(seq, now()), &Message::Close(close)));
 }
@@ -221,7 +221,9 @@ fn a_base_whose_first_probe_is_stamped_0_is_served() {
     assert!(
         matches!(
             end,
-            NetError::Link(ndr::core::endpoint::LinkError::PeerClosed { reason: 0 })
+            NetError::Link(ndr::core::endpoint::LinkError::PeerClosed {
+                reason: ndr::core::wire::CloseReason::Normal
+            })
         ),
         "{end:?}"
     );

@@ -9,7 +9,7 @@ use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Config, LinkError, Status};
 use ndr::core::time::Duration;
-use ndr::core::wire::{Role, close_reason};
+use ndr::core::wire::{CloseReason, Role};
 use ndr::net::{Link, LinkConfig, Listener, NetError};
 
 fn config() -> LinkConfig {
@@ -90,7 +90,12 @@ fn a_closed_peer_is_reported_and_recv_stops_waiting() {
         start.elapsed()
     );
     assert!(
-        matches!(err, NetError::Link(LinkError::PeerClosed { reason: 0 })),
+        matches!(
+            err,
+            NetError::Link(LinkError::PeerClosed {
+                reason: ndr::core::wire::CloseReason::Normal
+            })
+        ),
         "{err:?}"
     );
     // The closed link's last stats count the release clock up to its end,
@@ -192,7 +197,7 @@ fn a_panicking_release_handler_ends_its_own_link_and_the_hub_drives_the_others()
         matches!(
             peer,
             NetError::Link(LinkError::PeerClosed {
-                reason: ndr::core::wire::close_reason::APPLICATION
+                reason: ndr::core::wire::CloseReason::Application
             })
         ),
         "{peer:?}"
@@ -249,7 +254,7 @@ fn a_blocking_listener_serves_bases_one_after_another_without_a_runtime() {
             matches!(
                 end,
                 NetError::Link(LinkError::PeerClosed {
-                    reason: close_reason::NORMAL
+                    reason: CloseReason::Normal
                 })
             ),
             "{end}"

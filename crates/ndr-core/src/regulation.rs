@@ -34,23 +34,26 @@ impl Mode {
             Mode::PaperDynamic => "paper-dynamic",
         }
     }
+}
 
-    /// The code in a Hello frame.
-    #[must_use]
-    pub const fn code(self) -> u8 {
-        match self {
-            Mode::PaperStatic => wire::mode::PAPER_STATIC,
-            Mode::PaperDynamic => wire::mode::PAPER_DYNAMIC,
+impl From<Mode> for wire::ModeCode {
+    fn from(mode: Mode) -> wire::ModeCode {
+        match mode {
+            Mode::PaperStatic => wire::ModeCode::PaperStatic,
+            Mode::PaperDynamic => wire::ModeCode::PaperDynamic,
         }
     }
+}
 
-    /// The mode of a Hello code, `None` for a code this build does not know.
-    #[must_use]
-    pub const fn from_code(code: u8) -> Option<Mode> {
+/// The mode of a Hello's code; a code this build does not know is given
+/// back as the error.
+impl TryFrom<wire::ModeCode> for Mode {
+    type Error = wire::ModeCode;
+    fn try_from(code: wire::ModeCode) -> Result<Mode, wire::ModeCode> {
         match code {
-            wire::mode::PAPER_STATIC => Some(Mode::PaperStatic),
-            wire::mode::PAPER_DYNAMIC => Some(Mode::PaperDynamic),
-            _ => None,
+            wire::ModeCode::PaperStatic => Ok(Mode::PaperStatic),
+            wire::ModeCode::PaperDynamic => Ok(Mode::PaperDynamic),
+            other => Err(other),
         }
     }
 }

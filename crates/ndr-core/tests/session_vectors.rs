@@ -6,7 +6,9 @@ use ndr_core::endpoint::{Config, Endpoint, Mode};
 use ndr_core::playout::Playout;
 use ndr_core::storage::Inline;
 use ndr_core::time::{Duration, Instant};
-use ndr_core::wire::{Echo, Header, Hello, MAX_FRAME_LEN, Message, Role, encode, mode, underflow};
+use ndr_core::wire::{
+    Echo, Header, Hello, MAX_FRAME_LEN, Message, ModeCode, Role, UnderflowCode, encode,
+};
 
 const DOC: &str = include_str!("../docs/wire.md");
 const T: Duration = Duration::from_millis(200);
@@ -76,8 +78,8 @@ fn remote() -> Endpoint<Inline<1, 8>> {
 fn hand(ep: &mut Endpoint<Inline<1, 8>>, line: &Line, first: bool) -> String {
     let hello = Hello {
         role: Role::Base,
-        mode: mode::PAPER_STATIC,
-        underflow: underflow::HOLD,
+        mode: ModeCode::PaperStatic,
+        underflow: UnderflowCode::Hold,
         command_width: 1,
         state_width: 1,
         period: T,

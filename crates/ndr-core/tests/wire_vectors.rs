@@ -3,8 +3,9 @@
 
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
-    Close, Control, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN, Message, OlderSample, Payload,
-    Role, Token, WireError, close_reason, control_op, encode, frame_len, mode, underflow,
+    Close, CloseReason, Control, ControlOp, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN,
+    Message, ModeCode, OlderSample, Payload, Role, Token, UnderflowCode, WireError, encode,
+    frame_len,
 };
 
 const DOC: &str = include_str!("../docs/wire.md");
@@ -98,8 +99,8 @@ fn valid() -> Vec<(Header, Message<'static>)> {
             header(0, 1_000, NONE, None),
             Message::Hello(Hello {
                 role: Role::Base,
-                mode: mode::PAPER_DYNAMIC,
-                underflow: underflow::HOLD,
+                mode: ModeCode::PaperDynamic,
+                underflow: UnderflowCode::Hold,
                 command_width: 3,
                 state_width: 6,
                 period: Duration::from_millis(200),
@@ -111,8 +112,8 @@ fn valid() -> Vec<(Header, Message<'static>)> {
             header(0, 5_000_000, echo(1_000, 150_000), None),
             Message::Hello(Hello {
                 role: Role::Remote,
-                mode: mode::PAPER_DYNAMIC,
-                underflow: underflow::HOLD,
+                mode: ModeCode::PaperDynamic,
+                underflow: UnderflowCode::Hold,
                 command_width: 3,
                 state_width: 6,
                 period: Duration::from_millis(200),
@@ -128,7 +129,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 Some(1195),
             ),
             Message::Control(Control {
-                op: control_op::RESUME,
+                op: ControlOp::Resume,
                 ns: 4,
                 period: Duration::from_millis(50),
             }),
@@ -136,7 +137,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
         (
             header(1, 2_000_000, echo(5_000_000, 500_000), None),
             Message::Close(Close {
-                reason: close_reason::PERIOD_MISMATCH,
+                reason: CloseReason::PeriodMismatch,
             }),
         ),
         (
@@ -255,7 +256,7 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
                 &enc(
                     &header(2, 0, NONE, None),
                     &Message::Close(Close {
-                        reason: close_reason::NORMAL,
+                        reason: CloseReason::Normal,
                     }),
                 ),
                 8,

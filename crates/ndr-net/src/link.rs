@@ -495,7 +495,7 @@ impl Link {
 
     /// Ends the link as a failure of this side's application: the peer gets
     /// Close code 8, "application failure" (its receive reports
-    /// `PeerClosed { reason: 8 }`, not a normal end), so a robot can tell an
+    /// `PeerClosed { reason: Application }`, not a normal end), so a robot can tell an
     /// operator who stopped from one whose program failed. Dropping a link
     /// while its thread panics does this; Python's `Link` does it when an
     /// exception leaves its `with` block or the link is dropped unclosed.

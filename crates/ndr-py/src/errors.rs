@@ -21,7 +21,7 @@
 use std::io;
 
 use ndr_core::endpoint::LinkError as CoreError;
-use ndr_core::wire::close_reason;
+use ndr_core::wire::CloseReason;
 use ndr_net::tls::HandshakeError as TlsHandshakeError;
 use ndr_net::{NetError, TransportError};
 use pyo3::create_exception;
@@ -108,16 +108,16 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
     }
 }
 
-fn peer_closed(py: Python<'_>, msg: String, reason: u16) -> PyErr {
+fn peer_closed(py: Python<'_>, msg: String, reason: CloseReason) -> PyErr {
     // A peer that refused our handshake closes with the mismatch's code.
     let err = match reason {
-        close_reason::VERSION_MISMATCH
-        | close_reason::ROLE_MISMATCH
-        | close_reason::WIDTH_MISMATCH
-        | close_reason::LAYOUT_MISMATCH
-        | close_reason::PERIOD_MISMATCH
-        | close_reason::MODE_MISMATCH
-        | close_reason::TRANSPORT_MISMATCH => HandshakeError::new_err(msg),
+        CloseReason::VersionMismatch
+        | CloseReason::RoleMismatch
+        | CloseReason::WidthMismatch
+        | CloseReason::LayoutMismatch
+        | CloseReason::PeriodMismatch
+        | CloseReason::ModeMismatch
+        | CloseReason::TransportMismatch => HandshakeError::new_err(msg),
         // Refused for now (busy, or its slot taken for a newer
         // connection): `reason` says which; trying again may succeed.
         _ => PeerClosedError::new_err(msg),
@@ -125,8 +125,8 @@ fn peer_closed(py: Python<'_>, msg: String, reason: u16) -> PyErr {
     let value = err.value(py);
     // Setting attributes on a fresh exception object cannot fail in practice;
     // if it did, the exception would still carry its message.
-    let _ = value.setattr("reason", reason);
-    let _ = value.setattr("reason_name", close_reason::name(reason));
+    let _ = value.setattr("reason", u16::from(reason));
+    let _ = value.setattr("reason_name", reason.name());
     err
 }
 

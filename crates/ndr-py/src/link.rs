@@ -457,7 +457,7 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
             fields.set_item("state_width", peer.state_width)?;
             fields.set_item("layout", peer.layout)?;
             fields.set_item("period", peer.period.as_secs_f64())?;
-            fields.set_item("mode", Mode::from_code(peer.mode).map(Mode::name))?;
+            fields.set_item("mode", Mode::try_from(peer.mode).ok().map(Mode::name))?;
         }
         Event::Started { period, ns } | Event::Paused { period, ns } => {
             fields.set_item("period", period.as_secs_f64())?;
@@ -477,7 +477,11 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
         Event::Closed { error } => {
             let normal = matches!(
                 error,
-                None | Some(CoreError::PeerClosed { reason: 0 } | CoreError::Closed)
+                None | Some(
+                    CoreError::PeerClosed {
+                        reason: ndr_core::wire::CloseReason::Normal
+                    } | CoreError::Closed
+                )
             );
             fields.set_item("error", error.map(|e| e.to_string()))?;
             fields.set_item("normal", normal)?;

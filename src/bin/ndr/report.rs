@@ -46,7 +46,7 @@ impl End {
 /// `mode`, `transport` (the peers' settings differ); `None` for any other
 /// end.
 pub fn refusal(e: &NetError) -> Option<&'static str> {
-    use ndr::core::wire::close_reason as why;
+    use ndr::core::wire::CloseReason;
     let NetError::Link(e) = e else {
         return None;
     };
@@ -62,16 +62,16 @@ pub fn refusal(e: &NetError) -> Option<&'static str> {
         _ => return None,
     };
     Some(match reason {
-        why::BUSY => "busy",
-        why::EVICTED_SOURCE => "per_source",
-        why::EVICTED => "evicted",
-        why::VERSION_MISMATCH => "version",
-        why::ROLE_MISMATCH => "role",
-        why::WIDTH_MISMATCH => "width",
-        why::LAYOUT_MISMATCH => "layout",
-        why::PERIOD_MISMATCH => "period",
-        why::MODE_MISMATCH => "mode",
-        why::TRANSPORT_MISMATCH => "transport",
+        CloseReason::Busy => "busy",
+        CloseReason::EvictedSource => "per_source",
+        CloseReason::Evicted => "evicted",
+        CloseReason::VersionMismatch => "version",
+        CloseReason::RoleMismatch => "role",
+        CloseReason::WidthMismatch => "width",
+        CloseReason::LayoutMismatch => "layout",
+        CloseReason::PeriodMismatch => "period",
+        CloseReason::ModeMismatch => "mode",
+        CloseReason::TransportMismatch => "transport",
         _ => return None,
     })
 }

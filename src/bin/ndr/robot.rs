@@ -9,7 +9,7 @@ use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Event, LinkError};
 use ndr::core::time::Duration;
-use ndr::core::wire::close_reason;
+use ndr::core::wire::CloseReason;
 use ndr::core::{Tf2, Tf2State};
 use ndr::net::{Link, LinkStats, NetError};
 use ndr::sim::PlantConfig;
@@ -36,7 +36,7 @@ impl SessionEnd {
             self,
             SessionEnd::Stopped
                 | SessionEnd::Ended(LinkError::PeerClosed {
-                    reason: close_reason::NORMAL
+                    reason: CloseReason::Normal
                 })
         )
     }
@@ -47,11 +47,11 @@ impl fmt::Display for SessionEnd {
         match self {
             SessionEnd::Stopped => f.write_str("stopped by this side, link closed in order"),
             SessionEnd::Ended(LinkError::PeerClosed {
-                reason: close_reason::NORMAL,
+                reason: CloseReason::Normal,
             }) => f.write_str("closed in order by the base"),
             SessionEnd::Ended(
                 e @ LinkError::PeerClosed {
-                    reason: close_reason::APPLICATION,
+                    reason: CloseReason::Application,
                 },
             ) => write!(f, "the base's application failed ({e})"),
             SessionEnd::Ended(e @ LinkError::PeerClosed { .. }) => {

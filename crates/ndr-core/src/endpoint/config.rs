@@ -173,13 +173,13 @@ impl Underflow {
             Underflow::DropLate => "drop-late",
         }
     }
+}
 
-    /// The code in a Hello frame.
-    #[must_use]
-    pub(crate) const fn code(self) -> u8 {
-        match self {
-            Underflow::Hold => wire::underflow::HOLD,
-            Underflow::DropLate => wire::underflow::DROP_LATE,
+impl From<Underflow> for wire::UnderflowCode {
+    fn from(underflow: Underflow) -> wire::UnderflowCode {
+        match underflow {
+            Underflow::Hold => wire::UnderflowCode::Hold,
+            Underflow::DropLate => wire::UnderflowCode::DropLate,
         }
     }
 }

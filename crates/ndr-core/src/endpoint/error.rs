@@ -3,7 +3,7 @@
 use core::fmt;
 
 use crate::time::{Duration, Instant};
-use crate::wire::{self, Kind, Role, WireError, close_reason};
+use crate::wire::{self, CloseReason, Kind, ModeCode, Role, WireError};
 
 use super::config::Mode;
 
@@ -59,8 +59,8 @@ pub enum LinkError {
     ModeMismatch {
         /// Ours.
         ours: Mode,
-        /// The peer's mode code (it may be one this build does not know).
-        theirs: u8,
+        /// The peer's mode (it may be one this build does not know).
+        theirs: ModeCode,
     },
     /// A frame that is valid but makes no sense now (ends the link).
     Unexpected {
@@ -99,7 +99,7 @@ pub enum LinkError {
     /// for a newer connection: from the same source, which had as many
     /// handshakes pending as one may have (`per_source`), or when every
     /// handshake slot was taken (ends the link; the peer gets Close
-    /// [`close_reason::EVICTED_SOURCE`] or [`close_reason::EVICTED`]).
+    /// [`CloseReason::EvictedSource`] or [`CloseReason::Evicted`]).
     Evicted {
         /// The source's cap, rather than the listener's, was reached.
         per_source: bool,
@@ -136,8 +136,8 @@ pub enum LinkError {
     },
     /// The peer closed the link, with its reason code.
     PeerClosed {
-        /// The [`close_reason`] code.
-        reason: u16,
+        /// Why.
+        reason: CloseReason,
     },
     /// The connection to the peer ended without a Close frame (reported by
     /// the driver through [`Endpoint::abort`](super::Endpoint::abort)).
@@ -150,7 +150,7 @@ pub enum LinkError {
     HandlerPanicked,
     /// This side's application ended the link without closing it: it was
     /// dropped during a panic, or abandoned (an exception, a handle dropped
-    /// unclosed). The peer gets Close code [`close_reason::APPLICATION`],
+    /// unclosed). The peer gets Close code [`CloseReason::Application`],
     /// not a normal end.
     Abandoned,
     /// The peer's TLS refused this side's certificate (an alert after the
@@ -182,28 +182,28 @@ pub enum LinkError {
 impl LinkError {
     /// The reason code to send in a Close frame for this error.
     #[must_use]
-    pub const fn close_reason(&self) -> u16 {
+    pub const fn close_reason(&self) -> CloseReason {
         match self {
             LinkError::Wire(e) => e.close_reason(),
-            LinkError::VersionMismatch { .. } => close_reason::VERSION_MISMATCH,
-            LinkError::RoleMismatch { .. } => close_reason::ROLE_MISMATCH,
-            LinkError::WidthMismatch { .. } => close_reason::WIDTH_MISMATCH,
-            LinkError::LayoutMismatch { .. } => close_reason::LAYOUT_MISMATCH,
-            LinkError::TransportMismatch { .. } => close_reason::TRANSPORT_MISMATCH,
-            LinkError::PeriodMismatch { .. } => close_reason::PERIOD_MISMATCH,
-            LinkError::ModeMismatch { .. } => close_reason::MODE_MISMATCH,
-            LinkError::Timeout | LinkError::PeerSilent { .. } => close_reason::TIMEOUT,
-            LinkError::Busy => close_reason::BUSY,
-            LinkError::Evicted { per_source: true } => close_reason::EVICTED_SOURCE,
-            LinkError::Evicted { per_source: false } => close_reason::EVICTED,
-            LinkError::OutOfSequence { .. } => close_reason::SEQUENCE,
+            LinkError::VersionMismatch { .. } => CloseReason::VersionMismatch,
+            LinkError::RoleMismatch { .. } => CloseReason::RoleMismatch,
+            LinkError::WidthMismatch { .. } => CloseReason::WidthMismatch,
+            LinkError::LayoutMismatch { .. } => CloseReason::LayoutMismatch,
+            LinkError::TransportMismatch { .. } => CloseReason::TransportMismatch,
+            LinkError::PeriodMismatch { .. } => CloseReason::PeriodMismatch,
+            LinkError::ModeMismatch { .. } => CloseReason::ModeMismatch,
+            LinkError::Timeout | LinkError::PeerSilent { .. } => CloseReason::Timeout,
+            LinkError::Busy => CloseReason::Busy,
+            LinkError::Evicted { per_source: true } => CloseReason::EvictedSource,
+            LinkError::Evicted { per_source: false } => CloseReason::Evicted,
+            LinkError::OutOfSequence { .. } => CloseReason::Sequence,
             LinkError::StampBehind { .. }
             | LinkError::StampAhead { .. }
-            | LinkError::StampOutOfRange { .. } => close_reason::STAMP,
+            | LinkError::StampOutOfRange { .. } => CloseReason::Stamp,
             LinkError::PeerClosed { reason } => *reason,
-            LinkError::Closed => close_reason::NORMAL,
-            LinkError::HandlerPanicked | LinkError::Abandoned => close_reason::APPLICATION,
-            _ => close_reason::PROTOCOL_ERROR,
+            LinkError::Closed => CloseReason::Normal,
+            LinkError::HandlerPanicked | LinkError::Abandoned => CloseReason::Application,
+            _ => CloseReason::ProtocolError,
         }
     }
 
@@ -292,10 +292,11 @@ impl fmt::Display for LinkError {
                 "period mismatch: this side runs at {ours}, the peer at {theirs}; configure both with the same period"
             ),
             LinkError::ModeMismatch { ours, theirs } => {
-                let theirs_name = Mode::from_code(theirs).map_or("an unknown mode", Mode::name);
+                let theirs_name = Mode::try_from(theirs).map_or("an unknown mode", Mode::name);
                 write!(
                     f,
-                    "mode mismatch: this side runs {ours}, the peer {theirs_name} (code {theirs}); configure both alike"
+                    "mode mismatch: this side runs {ours}, the peer {theirs_name} (code {}); configure both alike",
+                    u8::from(theirs)
                 )
             }
             LinkError::Unexpected { kind, phase } => {
@@ -354,44 +355,51 @@ impl fmt::Display for LinkError {
                 "protocol error: a frame stamped {got}, 2^63 ns (292 years) or more from its \
                  sender's origin, which no clock reads; nothing of it was used"
             ),
-            LinkError::PeerClosed { reason } if reason == close_reason::BUSY => f.write_str(
+            LinkError::PeerClosed {
+                reason: CloseReason::Busy,
+            } => f.write_str(
                 "the peer is busy serving another peer (a robot serves one base at a time): \
                  try again once it is done",
             ),
-            LinkError::PeerClosed { reason } if reason == close_reason::EVICTED_SOURCE => {
+            LinkError::PeerClosed { reason: reason @ CloseReason::EvictedSource } => {
                 write!(
                     f,
                     "the peer refused this connection: too many handshakes pending from this \
                      side's address (code {reason}): something else at the same address (behind \
                      the same NAT or relay) opens connections that do not complete their \
                      handshake; try again (a peer that completes its handshake promptly gets \
-                     in), and find what else connects from this address"
+                     in), and find what else connects from this address",
+                    reason = u16::from(reason)
                 )
             }
-            LinkError::PeerClosed { reason } if reason == close_reason::EVICTED => write!(
+            LinkError::PeerClosed { reason: reason @ CloseReason::Evicted } => write!(
                 f,
                 "the peer refused this connection: every handshake slot was taken (code \
                  {reason}), a flood of connections that do not complete their handshake; try \
-                 again (a peer that completes its handshake promptly gets in)"
+                 again (a peer that completes its handshake promptly gets in)",
+                reason = u16::from(reason)
             ),
-            LinkError::PeerClosed { reason } if reason == close_reason::VERSION_MISMATCH => write!(
+            LinkError::PeerClosed { reason: reason @ CloseReason::VersionMismatch } => write!(
                 f,
                 "the peer refused this side's wire version (code {reason}): it speaks another \
                  version of ndr's wire format than ndr wire version {}; upgrade the older side",
-                wire::VERSION
+                wire::VERSION,
+                reason = u16::from(reason)
             ),
-            LinkError::PeerClosed { reason } if reason == close_reason::TRANSPORT_MISMATCH => {
+            LinkError::PeerClosed { reason: reason @ CloseReason::TransportMismatch } => {
                 write!(
                     f,
                     "transport mismatch: the peer carries samples over another transport than \
                      this side (code {reason}: one over a stream, the other over datagrams); \
-                     give both the same transport"
+                     give both the same transport",
+                    reason = u16::from(reason)
                 )
             }
             LinkError::PeerClosed { reason } => write!(
                 f,
-                "the peer closed the link: {} (code {reason})",
-                close_reason::name(reason)
+                "the peer closed the link: {} (code {})",
+                reason.name(),
+                u16::from(reason)
             ),
             LinkError::Disconnected => f.write_str(
                 "the connection to the peer was lost (no Close frame): the peer or a relay on the path died",

@@ -114,11 +114,23 @@ struct Slot<V> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Tx {
     Hello,
-    Probe { seq: u64 },
-    Sample { seq: u64 },
-    Control { op: u8, ns: u16, period: Duration },
-    Close { reason: u16 },
-    Token { session: u64 },
+    Probe {
+        seq: u64,
+    },
+    Sample {
+        seq: u64,
+    },
+    Control {
+        op: wire::ControlOp,
+        ns: u16,
+        period: Duration,
+    },
+    Close {
+        reason: wire::CloseReason,
+    },
+    Token {
+        session: u64,
+    },
 }
 
 /// The regulator of an endpoint of storage `S`.
@@ -456,7 +468,7 @@ impl<S: Storage> Endpoint<S> {
     pub fn close(&mut self) {
         if self.phase != Phase::Closed {
             self.queue_tx(Tx::Close {
-                reason: wire::close_reason::NORMAL,
+                reason: wire::CloseReason::Normal,
             });
             self.enter_closed(None);
         }
@@ -570,8 +582,8 @@ impl<S: Storage> Endpoint<S> {
     fn hello(&self) -> Hello {
         Hello {
             role: self.config.role,
-            mode: self.config.mode.code(),
-            underflow: self.config.underflow.code(),
+            mode: self.config.mode.into(),
+            underflow: self.config.underflow.into(),
             command_width: self.config.command_width,
             state_width: self.config.state_width,
             period: self.config.period,

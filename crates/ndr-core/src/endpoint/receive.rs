@@ -7,7 +7,9 @@ use crate::playout::{Admit, Arrival, Observed, Policy};
 use crate::sizing::INIT_EXCHANGES;
 use crate::storage::Storage;
 use crate::time::{Duration, Instant};
-use crate::wire::{Channels, Control, Echo, Frame, Hello, Kind, Payload, Role, control_op};
+use crate::wire::{
+    Channels, Control, ControlOp, Echo, Frame, Hello, Kind, ModeCode, Payload, Role,
+};
 
 impl<S: Storage> Endpoint<S> {
     pub(super) fn receive(&mut self, now: Instant, frame: &Frame<&[u8]>) -> Result<(), LinkError> {
@@ -280,7 +282,7 @@ impl<S: Storage> Endpoint<S> {
                 theirs: hello.period,
             });
         }
-        if hello.mode != ours.mode.code() {
+        if hello.mode != ModeCode::from(ours.mode) {
             return Err(LinkError::ModeMismatch {
                 ours: ours.mode,
                 theirs: hello.mode,
@@ -335,10 +337,10 @@ impl<S: Storage> Endpoint<S> {
     ) -> Result<(), LinkError> {
         let role = self.config.role;
         match (role, control.op, self.phase) {
-            (Role::Remote, control_op::PAUSE_REQUEST, Phase::Running) => {
+            (Role::Remote, ControlOp::PauseRequest, Phase::Running) => {
                 let ns = self.checked_ns(control.ns, control.period)?;
                 self.queue_tx(Tx::Control {
-                    op: control_op::PAUSE_ACK,
+                    op: ControlOp::PauseAck,
                     ns: control.ns,
                     period: control.period,
                 });
@@ -351,13 +353,13 @@ impl<S: Storage> Endpoint<S> {
                 self.enter_init(now);
                 Ok(())
             }
-            (Role::Base, control_op::PAUSE_ACK, Phase::Pausing) => {
+            (Role::Base, ControlOp::PauseAck, Phase::Pausing) => {
                 let (period, _) = self.regime.pending.ok_or(self.unexpected(Kind::Control))?;
                 self.change_period(period)?;
                 self.enter_init(now);
                 Ok(())
             }
-            (Role::Remote, control_op::RESUME, Phase::Init) => {
+            (Role::Remote, ControlOp::Resume, Phase::Init) => {
                 let ns = self.checked_ns(control.ns, control.period)?;
                 if control.period != self.period {
                     return Err(LinkError::BadParameters {

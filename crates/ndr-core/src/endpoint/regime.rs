@@ -6,7 +6,7 @@ use crate::predictor::Prediction;
 use crate::sizing::{INIT_EXCHANGES, InitPattern};
 use crate::storage::Storage;
 use crate::time::{Duration, Instant};
-use crate::wire::{Role, control_op};
+use crate::wire::{ControlOp, Role};
 
 impl<S: Storage> Endpoint<S> {
     pub(super) fn checked_ns(&self, ns: u16, period: Duration) -> Result<usize, LinkError> {
@@ -72,7 +72,7 @@ impl<S: Storage> Endpoint<S> {
         };
         let ns = self.clamp_ns(ns);
         self.queue_tx(Tx::Control {
-            op: control_op::RESUME,
+            op: ControlOp::Resume,
             ns: u16::try_from(ns).unwrap_or(u16::MAX),
             period: self.period,
         });
@@ -146,7 +146,7 @@ impl<S: Storage> Endpoint<S> {
         self.deadline = Some(self.pattern_deadline(t));
         self.stats.pauses += 1;
         self.queue_tx(Tx::Control {
-            op: control_op::PAUSE_REQUEST,
+            op: ControlOp::PauseRequest,
             ns: u16::try_from(ns).unwrap_or(u16::MAX),
             period,
         });

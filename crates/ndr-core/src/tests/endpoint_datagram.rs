@@ -14,7 +14,7 @@ use crate::pair::{Pair, World};
 use crate::playout::Playout;
 use crate::storage::Heap;
 use crate::time::{Duration, Instant};
-use crate::wire::{Kind, Role, close_reason};
+use crate::wire::{CloseReason, Kind, Role};
 
 const T: Duration = Duration::from_millis(10);
 const SESSIONS: [u64; 2] = [0x1111_2222_3333_4444, 0x5555_6666_7777_8888];
@@ -302,7 +302,7 @@ fn a_stream_peer_and_a_datagram_peer_refuse_each_other() {
     );
     assert_eq!(
         p.world.errors[1].close_reason(),
-        close_reason::TRANSPORT_MISMATCH
+        CloseReason::TransportMismatch
     );
 }
 

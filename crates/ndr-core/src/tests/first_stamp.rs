@@ -14,7 +14,7 @@ use crate::playout::Playout;
 use crate::storage::Heap;
 use crate::time::{Duration, Instant};
 use crate::wire::{
-    self, Control, Echo, Frame, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role, control_op,
+    self, Control, ControlOp, Echo, Frame, Header, Hello, MAX_FRAME_LEN, Message, Payload, Role,
 };
 
 /// One way on the wire.
@@ -95,8 +95,8 @@ impl HandBase {
         let stamp = self.zero() + self.start.hello;
         let hello = Hello {
             role: Role::Base,
-            mode: wire::mode::PAPER_STATIC,
-            underflow: wire::underflow::HOLD,
+            mode: wire::ModeCode::PaperStatic,
+            underflow: wire::UnderflowCode::Hold,
             command_width: 1,
             state_width: 1,
             period: T,
@@ -154,7 +154,7 @@ impl HandBase {
             Payload::Data(values) if !values.is_empty() => {
                 self.newest_state = Some(frame_in.seq());
             }
-            Payload::Close(c) => panic!("the remote closed the link: reason {}", c.reason),
+            Payload::Close(c) => panic!("the remote closed the link: {c}"),
             _ => {}
         }
         if self.running || self.nrtts.len() < 10 {
@@ -171,7 +171,7 @@ impl HandBase {
             released: None,
         };
         let resume = Control {
-            op: control_op::RESUME,
+            op: ControlOp::Resume,
             ns,
             period: T,
         };

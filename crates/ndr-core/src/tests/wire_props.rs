@@ -93,8 +93,8 @@ fn message() -> impl Strategy<Value = Owned> {
                 |((remote, mode, underflow), (command_width, state_width), (period, layout, session))| {
                     Owned::Hello(Hello {
                         role: if remote { Role::Remote } else { Role::Base },
-                        mode,
-                        underflow,
+                        mode: mode.into(),
+                        underflow: underflow.into(),
                         command_width,
                         state_width,
                         period: Duration::from_nanos(period),
@@ -105,12 +105,12 @@ fn message() -> impl Strategy<Value = Owned> {
             ),
         1 => (1..=u8::MAX, any::<u16>(), any::<u64>()).prop_map(|(op, ns, period)| {
             Owned::Control(Control {
-                op,
+                op: op.into(),
                 ns,
                 period: Duration::from_nanos(period),
             })
         }),
-        1 => any::<u16>().prop_map(|reason| Owned::Close(Close { reason })),
+        1 => any::<u16>().prop_map(|reason| Owned::Close(Close { reason: reason.into() })),
         1 => (1..=u64::MAX).prop_map(|session| Owned::Token(Token { session })),
     ]
 }
@@ -138,7 +138,7 @@ fn touch_everything(frame: &Frame<&[u8]>) {
             }
         }
         Payload::Hello(h) => assert!(!h.period.is_zero()),
-        Payload::Control(c) => assert_ne!(c.op, 0),
+        Payload::Control(c) => assert_ne!(u8::from(c.op), 0),
         Payload::Close(_) => {}
         Payload::Token(t) => assert_ne!(t.session, 0),
         Payload::Bundle(b) => {
@@ -280,10 +280,10 @@ proptest! {
             h.echo = Some(Echo { sent_at: Instant::from_nanos(u64::MAX), hold: Duration::ZERO });
         }
         let hello = Hello {
-            role: Role::Base, mode: 0, underflow: 0, command_width: 1, state_width: 1,
+            role: Role::Base, mode: 0.into(), underflow: 0.into(), command_width: 1, state_width: 1,
             period: Duration::from_nanos(period), layout: 0, session: 0,
         };
-        let control = Control { op, ns: 1, period: Duration::from_nanos(period) };
+        let control = Control { op: op.into(), ns: 1, period: Duration::from_nanos(period) };
         let mut buf = vec![0u8; buf_len];
         for msg in [Message::Data(&values), Message::Hello(hello), Message::Control(control)] {
             if let Ok(n) = encode(&h, &msg, &mut buf) {

@@ -2,7 +2,7 @@
 
 use core::fmt;
 
-use super::{HEADER_LEN, Kind, MAX_CHANNELS, MAX_FRAME_LEN, VERSION, close_reason, field};
+use super::{CloseReason, HEADER_LEN, Kind, MAX_CHANNELS, MAX_FRAME_LEN, VERSION, field};
 
 /// Why a byte string is not a valid frame, or why a frame cannot be encoded.
 ///
@@ -112,13 +112,13 @@ pub enum WireError {
 }
 
 impl WireError {
-    /// The [`close_reason`] a peer should send before hanging up on a frame
+    /// The [`CloseReason`] a peer should send before hanging up on a frame
     /// that failed with this error.
     #[must_use]
-    pub(crate) const fn close_reason(&self) -> u16 {
+    pub(crate) const fn close_reason(&self) -> CloseReason {
         match self {
-            WireError::UnsupportedVersion(_) => close_reason::VERSION_MISMATCH,
-            _ => close_reason::PROTOCOL_ERROR,
+            WireError::UnsupportedVersion(_) => CloseReason::VersionMismatch,
+            _ => CloseReason::ProtocolError,
         }
     }
 }

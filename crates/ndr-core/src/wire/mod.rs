@@ -33,6 +33,7 @@
 //! ```
 
 mod bundle;
+mod codes;
 mod error;
 mod payload;
 #[cfg(test)]
@@ -42,11 +43,9 @@ use core::fmt;
 
 pub use bundle::{BUNDLE_FIXED_LEN, Bundle, MAX_BUNDLE, MAX_DATAGRAM_LEN, Older, OlderSample};
 pub(crate) use bundle::{OLDER_FIELDS_LEN, bundle_payload_len};
+pub use codes::{CloseReason, ControlOp, ModeCode, UnderflowCode};
 pub use error::WireError;
-pub use payload::{
-    Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Token, close_reason, control_op,
-    mode, underflow,
-};
+pub use payload::{Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Token};
 
 use crate::time::{Duration, Instant};
 
@@ -377,7 +376,7 @@ impl<T: AsRef<[u8]>> Frame<T> {
         // Re-parsing cannot fail on a checked buffer, unless an odd `AsRef`
         // hands out different bytes now: that is a protocol error, not a panic.
         let broken = Payload::Close(Close {
-            reason: close_reason::PROTOCOL_ERROR,
+            reason: CloseReason::ProtocolError,
         });
         match self.kind {
             Kind::Data => Payload::Data(Channels::from_checked(bytes)),

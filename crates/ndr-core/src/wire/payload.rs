@@ -5,7 +5,10 @@ use core::fmt;
 use core::iter::FusedIterator;
 use core::slice::ChunksExact;
 
-use super::{HEADER_LEN, Kind, MAX_CHANNELS, WireError, bytes_at};
+use super::{
+    CloseReason, ControlOp, HEADER_LEN, Kind, MAX_CHANNELS, ModeCode, UnderflowCode, WireError,
+    bytes_at,
+};
 use crate::time::Duration;
 
 /// The decoded payload of a valid [`Frame`](super::Frame).
@@ -243,108 +246,16 @@ impl From<Role> for u8 {
     }
 }
 
-/// Known [`Hello::mode`] codes (the endpoint gives them meaning; later versions add codes).
-pub mod mode {
-    /// The paper's static regulator: `T` and `ns` fixed after the handshake.
-    pub const PAPER_STATIC: u8 = 0;
-    /// The paper's dynamic regulator: `T` and `ns` re-sized from predicted delays.
-    pub const PAPER_DYNAMIC: u8 = 1;
-}
-
-/// Known [`Hello::underflow`] codes: what the regulator releases on an empty queue.
-pub mod underflow {
-    /// Release the last sample again.
-    pub const HOLD: u8 = 0;
-    /// Release nothing, and drop samples that arrive after their deadline.
-    pub const DROP_LATE: u8 = 1;
-}
-
-/// Known [`Control::op`] codes.
-pub mod control_op {
-    /// Ask the peer to pause teleoperation (to re-size the link).
-    pub(crate) const PAUSE_REQUEST: u8 = 1;
-    /// Agree to a pause request.
-    pub(crate) const PAUSE_ACK: u8 = 2;
-    /// Resume with the [`Control`](super::Control)'s `ns` and `period`.
-    pub const RESUME: u8 = 3;
-}
-
-/// Known [`Close::reason`] codes. Unknown codes are valid on the wire.
-pub mod close_reason {
-    /// Orderly end of the session.
-    pub const NORMAL: u16 = 0;
-    /// The peers speak different wire versions.
-    pub const VERSION_MISMATCH: u16 = 1;
-    /// Both peers claim the same role.
-    pub const ROLE_MISMATCH: u16 = 2;
-    /// The peers disagree on a sample's width (command or state values).
-    pub const WIDTH_MISMATCH: u16 = 3;
-    /// The peers disagree on the period.
-    pub const PERIOD_MISMATCH: u16 = 4;
-    /// The peers disagree on the regulator mode.
-    pub const MODE_MISMATCH: u16 = 5;
-    /// The peer sent an invalid or unexpected frame.
-    pub const PROTOCOL_ERROR: u16 = 6;
-    /// The peer went silent for too long.
-    pub const TIMEOUT: u16 = 7;
-    /// The sender's application failed (its code on the link's driver
-    /// thread panicked).
-    pub const APPLICATION: u16 = 8;
-    /// The listener serves as many peers as it may: try again later.
-    pub const BUSY: u16 = 9;
-    /// A Data frame that is not the next one in sequence (a repeat, a gap
-    /// or a replay).
-    pub const SEQUENCE: u16 = 10;
-    /// A Data frame whose send stamp does not advance as the sender's
-    /// clock can: a step back, or a stamp from the future.
-    pub(crate) const STAMP: u16 = 11;
-    /// The peers were built for different channel layouts.
-    pub const LAYOUT_MISMATCH: u16 = 12;
-    /// One peer runs over a stream, the other over datagrams.
-    pub const TRANSPORT_MISMATCH: u16 = 13;
-    /// The listener cut the handshake short to make room for a newer
-    /// connection from the same address: that address had as many
-    /// handshakes pending as one source may have.
-    pub const EVICTED_SOURCE: u16 = 14;
-    /// The listener cut the handshake short to make room for a newer
-    /// connection: every handshake slot was taken.
-    pub const EVICTED: u16 = 15;
-
-    /// A short name for `code`, `"unknown"` for codes this build does not know.
-    #[must_use]
-    pub const fn name(code: u16) -> &'static str {
-        match code {
-            NORMAL => "normal",
-            VERSION_MISMATCH => "version mismatch",
-            ROLE_MISMATCH => "role mismatch",
-            WIDTH_MISMATCH => "width mismatch",
-            PERIOD_MISMATCH => "period mismatch",
-            MODE_MISMATCH => "mode mismatch",
-            PROTOCOL_ERROR => "protocol error",
-            TIMEOUT => "timeout",
-            APPLICATION => "application failure",
-            BUSY => "busy: serving another peer",
-            SEQUENCE => "frame out of sequence",
-            STAMP => "send stamp out of time",
-            LAYOUT_MISMATCH => "layout mismatch",
-            TRANSPORT_MISMATCH => "transport mismatch",
-            EVICTED_SOURCE => "evicted: too many handshakes pending from this address",
-            EVICTED => "evicted: too many handshakes pending",
-            _ => "unknown",
-        }
-    }
-}
-
 /// Handshake: what the sender is and how it wants the link run. Its
 /// `Debug` form leaves the session token out.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Hello {
     /// The sender's role.
     pub role: Role,
-    /// Regulator mode code (see [`mode`]).
-    pub mode: u8,
-    /// Underflow policy code (see [`underflow`]).
-    pub underflow: u8,
+    /// Regulator mode.
+    pub mode: ModeCode,
+    /// Underflow policy.
+    pub underflow: UnderflowCode,
     /// Values in each command sample (base → remote), 1 to
     /// [`MAX_CHANNELS`].
     pub command_width: u16,
@@ -389,8 +300,8 @@ impl Hello {
         }
         Ok(Hello {
             role,
-            mode,
-            underflow,
+            mode: ModeCode::from(mode),
+            underflow: UnderflowCode::from(underflow),
             command_width,
             state_width,
             period: Duration::from_nanos(period),
@@ -412,7 +323,11 @@ impl Hello {
             }
         }
         let mut b = [0u8; Self::LEN];
-        super::put(&mut b, 0, [self.role as u8, self.mode, self.underflow]);
+        super::put(
+            &mut b,
+            0,
+            [self.role as u8, self.mode.into(), self.underflow.into()],
+        );
         super::put(&mut b, 4, self.command_width.to_le_bytes());
         super::put(&mut b, 6, self.state_width.to_le_bytes());
         super::put(&mut b, 8, self.period.as_nanos().to_le_bytes());
@@ -440,8 +355,8 @@ impl fmt::Debug for Hello {
 /// Pause / resume negotiation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Control {
-    /// Operation code (see [`control_op`]); never 0.
-    pub op: u8,
+    /// Operation; never `Unknown(0)`.
+    pub op: ControlOp,
     /// Nominal queue size to use after resume; 0 when irrelevant.
     pub ns: u16,
     /// Period to use after resume; zero when irrelevant.
@@ -464,29 +379,28 @@ impl Control {
         reserved_zero(&[r0], HEADER_LEN + 1)?;
         reserved_zero(&[r1, r2, r3, r4], HEADER_LEN + 4)?;
         Ok(Control {
-            op,
+            op: ControlOp::from(op),
             ns: u16::from_le_bytes([n0, n1]),
             period: Duration::from_nanos(u64::from_le_bytes(period)),
         })
     }
 
     pub(super) fn to_bytes(self) -> Result<[u8; Self::LEN], WireError> {
-        if self.op == 0 {
+        let op = u8::from(self.op);
+        if op == 0 {
             return Err(WireError::ZeroControlOp);
         }
         let [n0, n1] = self.ns.to_le_bytes();
         let [p0, p1, p2, p3, p4, p5, p6, p7] = self.period.as_nanos().to_le_bytes();
-        Ok([
-            self.op, 0, n0, n1, 0, 0, 0, 0, p0, p1, p2, p3, p4, p5, p6, p7,
-        ])
+        Ok([op, 0, n0, n1, 0, 0, 0, 0, p0, p1, p2, p3, p4, p5, p6, p7])
     }
 }
 
 /// Goodbye, with a reason.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Close {
-    /// Reason code (see [`close_reason`]); any value is valid.
-    pub reason: u16,
+    /// Why; any code is valid.
+    pub reason: CloseReason,
 }
 
 impl Close {
@@ -501,19 +415,19 @@ impl Close {
         let [c0, c1, reserved @ ..] = *b;
         reserved_zero(&reserved, HEADER_LEN + 2)?;
         Ok(Close {
-            reason: u16::from_le_bytes([c0, c1]),
+            reason: CloseReason::from(u16::from_le_bytes([c0, c1])),
         })
     }
 
     pub(super) fn to_bytes(self) -> [u8; Self::LEN] {
-        let [c0, c1] = self.reason.to_le_bytes();
+        let [c0, c1] = u16::from(self.reason).to_le_bytes();
         [c0, c1, 0, 0, 0, 0, 0, 0]
     }
 }
 
 impl fmt::Display for Close {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{} ({})", close_reason::name(self.reason), self.reason)
+        write!(f, "{} ({})", self.reason.name(), u16::from(self.reason))
     }
 }
 

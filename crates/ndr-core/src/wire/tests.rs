@@ -19,8 +19,8 @@ fn header() -> Header {
 fn hello() -> Hello {
     Hello {
         role: Role::Remote,
-        mode: mode::PAPER_STATIC,
-        underflow: underflow::DROP_LATE,
+        mode: ModeCode::PaperStatic,
+        underflow: UnderflowCode::DropLate,
         command_width: 2,
         state_width: 5,
         period: Duration::from_millis(200),
@@ -31,7 +31,7 @@ fn hello() -> Hello {
 
 fn control() -> Control {
     Control {
-        op: control_op::PAUSE_REQUEST,
+        op: ControlOp::PauseRequest,
         ns: 0,
         period: Duration::ZERO,
     }
@@ -61,7 +61,7 @@ fn with(mut bytes: Vec<u8>, at: usize, value: u8) -> Vec<u8> {
 fn round_trip_every_kind() {
     let values = [1.0, -0.0, f64::MIN_POSITIVE / 4.0, f64::MAX];
     let close = Close {
-        reason: close_reason::TIMEOUT,
+        reason: CloseReason::Timeout,
     };
     for msg in [
         Message::Data(&values),
@@ -174,7 +174,7 @@ fn error_unsupported_version() {
     let bytes = with(frame_bytes(&Message::Hello(hello())), 4, 1);
     let err = decode(&bytes).unwrap_err();
     assert_eq!(err, WireError::UnsupportedVersion(1));
-    assert_eq!(err.close_reason(), close_reason::VERSION_MISMATCH);
+    assert_eq!(err.close_reason(), CloseReason::VersionMismatch);
     assert_eq!(
         err.to_string(),
         "peer speaks ndr wire version 1, this build speaks 3; upgrade the older side \
@@ -256,7 +256,9 @@ fn error_bad_payload_length() {
     for msg in [
         Message::Hello(hello()),
         Message::Control(control()),
-        Message::Close(Close { reason: 0 }),
+        Message::Close(Close {
+            reason: CloseReason::Normal,
+        }),
     ] {
         let good = frame_bytes(&msg);
         let payload = good.len() - HEADER_LEN;
@@ -349,7 +351,10 @@ fn error_zero_control_op() {
     let bytes = with(frame_bytes(&Message::Control(control())), 48, 0);
     assert_eq!(decode(&bytes), Err(WireError::ZeroControlOp));
     let mut buf = [0u8; MAX_FRAME_LEN];
-    let c = Control { op: 0, ..control() };
+    let c = Control {
+        op: ControlOp::Unknown(0),
+        ..control()
+    };
     assert_eq!(
         encode(&header(), &Message::Control(c), &mut buf),
         Err(WireError::ZeroControlOp)
@@ -357,6 +362,11 @@ fn error_zero_control_op() {
     // Unknown non-zero ops are the endpoint's business.
     let bytes = with(frame_bytes(&Message::Control(control())), 48, 200);
     assert_eq!(decode(&bytes), Ok(Kind::Control));
+    let frame = Frame::new_checked(&bytes[..]).unwrap();
+    let Payload::Control(c) = frame.payload() else {
+        panic!("a Control frame: {frame:?}")
+    };
+    assert_eq!(c.op, ControlOp::Unknown(200));
 }
 
 #[test]
@@ -394,7 +404,9 @@ fn error_reserved_not_zero_at_every_reserved_byte() {
             &[49, 52, 53, 54, 55][..],
         ),
         (
-            frame_bytes(&Message::Close(Close { reason: 1 })),
+            frame_bytes(&Message::Close(Close {
+                reason: CloseReason::VersionMismatch,
+            })),
             &[50, 51, 52, 53, 54, 55][..],
         ),
     ];
@@ -502,15 +514,56 @@ fn channels_view() {
     assert!(Channels::default().is_empty());
 }
 
+/// Every code converts to its enum and back unchanged, and a known one
+/// never to `Unknown`: the enums do not alter a byte of the wire.
+#[test]
+fn codes_round_trip_and_know_their_variants() {
+    for code in 0..=u16::MAX {
+        let reason = CloseReason::from(code);
+        assert_eq!(u16::from(reason), code);
+        assert_eq!(
+            matches!(reason, CloseReason::Unknown(_)),
+            code > 15,
+            "{code}"
+        );
+        assert_eq!(reason.name() == "unknown", code > 15, "{code}");
+    }
+    for code in 0..=u8::MAX {
+        let (op, mode, underflow) = (
+            ControlOp::from(code),
+            ModeCode::from(code),
+            UnderflowCode::from(code),
+        );
+        assert_eq!(
+            [u8::from(op), u8::from(mode), u8::from(underflow)],
+            [code; 3]
+        );
+        assert_eq!(
+            matches!(op, ControlOp::Unknown(_)),
+            !(1..=3).contains(&code)
+        );
+        assert_eq!(matches!(mode, ModeCode::Unknown(_)), code > 1);
+        assert_eq!(matches!(underflow, UnderflowCode::Unknown(_)), code > 1);
+    }
+    assert_eq!(CloseReason::from(9), CloseReason::Busy);
+    assert_eq!(ControlOp::from(3), ControlOp::Resume);
+    assert_eq!(ModeCode::from(1), ModeCode::PaperDynamic);
+    assert_eq!(UnderflowCode::from(1), UnderflowCode::DropLate);
+}
+
 #[test]
 fn unknown_close_reasons_are_valid() {
-    let bytes = frame_bytes(&Message::Close(Close { reason: 0xbeef }));
+    let unknown = Close {
+        reason: CloseReason::Unknown(0xbeef),
+    };
+    let bytes = frame_bytes(&Message::Close(unknown));
+    assert_eq!(bytes[48..50], [0xef, 0xbe]);
     let frame = Frame::new_checked(&bytes[..]).unwrap();
-    assert_eq!(frame.payload(), Payload::Close(Close { reason: 0xbeef }));
-    assert_eq!(close_reason::name(0xbeef), "unknown");
+    assert_eq!(frame.payload(), Payload::Close(unknown));
+    assert_eq!(unknown.to_string(), "unknown (48879)");
     assert_eq!(
         Close {
-            reason: close_reason::WIDTH_MISMATCH
+            reason: CloseReason::WidthMismatch
         }
         .to_string(),
         "width mismatch (3)"
@@ -570,7 +623,7 @@ fn every_error_has_a_message() {
         assert!(!msg.is_empty());
         let _: &dyn core::error::Error = &e;
         if e != WireError::UnsupportedVersion(3) {
-            assert_eq!(e.close_reason(), close_reason::PROTOCOL_ERROR);
+            assert_eq!(e.close_reason(), CloseReason::ProtocolError);
         }
     }
     assert_eq!(

@@ -143,8 +143,8 @@ pub(super) mod tests {
         let header = Header::new(0, Instant::ZERO);
         let hello = Hello {
             role: Role::Base,
-            mode: 0,
-            underflow: 0,
+            mode: wire::ModeCode::PaperStatic,
+            underflow: wire::UnderflowCode::Hold,
             command_width: 1,
             state_width: 1,
             period: Duration::from_millis(10),

@@ -10,7 +10,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr_core::endpoint::LinkError;
 use ndr_core::time::Instant;
-use ndr_core::wire::{self, Close, Header, Message, Role};
+use ndr_core::wire::{self, Close, CloseReason, Header, Message, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
 use tokio::sync::mpsc;
@@ -155,7 +155,7 @@ impl Drop for Unheard<'_> {
 /// Writes a Close with `reason` on `stream` without waiting, having read
 /// what the peer sent (closing with unread bytes would reset the
 /// connection, and the peer could lose the Close with it).
-pub(super) fn tell(stream: TcpStream, reason: u16) {
+pub(super) fn tell(stream: TcpStream, reason: CloseReason) {
     use std::io::{Read, Write};
     // Plain non-blocking calls: tokio's `try_` calls answer from readiness
     // it may not have seen yet.

@@ -61,28 +61,28 @@ impl Refusal {
 
     /// A ndr handshake that failed, by reason.
     pub(crate) fn of_link(e: &NetError) -> Refusal {
-        use ndr_core::wire::close_reason as why;
+        use ndr_core::wire::CloseReason;
         match e {
             NetError::Link(LinkError::RoleMismatch { .. })
             | NetError::Link(LinkError::PeerClosed {
-                reason: why::ROLE_MISMATCH,
+                reason: CloseReason::RoleMismatch,
             }) => Refusal::Role,
             NetError::Link(LinkError::WidthMismatch { .. } | LinkError::LayoutMismatch { .. })
             | NetError::Link(LinkError::PeerClosed {
-                reason: why::WIDTH_MISMATCH | why::LAYOUT_MISMATCH,
+                reason: CloseReason::WidthMismatch | CloseReason::LayoutMismatch,
             }) => Refusal::Layout,
             NetError::Link(
                 LinkError::PeriodMismatch { .. }
                 | LinkError::ModeMismatch { .. }
                 | LinkError::BadParameters { .. }
                 | LinkError::PeerClosed {
-                    reason: why::PERIOD_MISMATCH | why::MODE_MISMATCH,
+                    reason: CloseReason::PeriodMismatch | CloseReason::ModeMismatch,
                 },
             ) => Refusal::Settings,
             NetError::Link(
                 LinkError::VersionMismatch { .. }
                 | LinkError::PeerClosed {
-                    reason: why::VERSION_MISMATCH,
+                    reason: CloseReason::VersionMismatch,
                 },
             ) => Refusal::WireVersion,
             NetError::Link(
@@ -91,7 +91,7 @@ impl Refusal {
             NetError::Link(
                 LinkError::TransportMismatch { .. }
                 | LinkError::PeerClosed {
-                    reason: why::TRANSPORT_MISMATCH,
+                    reason: CloseReason::TransportMismatch,
                 },
             ) => Refusal::Transport,
             NetError::Link(LinkError::Timeout) | NetError::Timeout => Refusal::Timeout,
@@ -252,7 +252,7 @@ mod tests {
             theirs: "datagram",
         });
         let theirs = NetError::Link(LinkError::PeerClosed {
-            reason: ndr_core::wire::close_reason::TRANSPORT_MISMATCH,
+            reason: ndr_core::wire::CloseReason::TransportMismatch,
         });
         assert_eq!(Refusal::of_link(&ours), Refusal::Transport);
         assert_eq!(Refusal::of_link(&theirs), Refusal::Transport);

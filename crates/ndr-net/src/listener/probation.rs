@@ -16,7 +16,7 @@ use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::time::Duration as StdDuration;
 
-use ndr_core::wire::close_reason;
+use ndr_core::wire::CloseReason;
 use tokio::net::TcpStream;
 use tokio::task::{AbortHandle, Id, JoinError, JoinSet};
 
@@ -144,7 +144,7 @@ async fn wait(stream: TcpStream, peer: SocketAddr, tls: bool) -> Ended {
 /// handshake, with a reset (this side keeps no TIME_WAIT for it).
 pub(super) fn refuse(stream: TcpStream, plain: bool) {
     if plain {
-        tell(stream, close_reason::EVICTED_SOURCE);
+        tell(stream, CloseReason::EvictedSource);
     } else {
         let _ = stream.set_zero_linger();
     }
@@ -168,7 +168,7 @@ mod tests {
     }
 
     /// The Close reason `client` read before its end of stream.
-    async fn told(mut client: TcpStream) -> Option<u16> {
+    async fn told(mut client: TcpStream) -> Option<CloseReason> {
         let mut got = Vec::new();
         let read = tokio::time::timeout(StdDuration::from_secs(2), client.read_to_end(&mut got));
         read.await.ok()?.ok()?;
@@ -191,7 +191,7 @@ mod tests {
         // A third: the one waiting longest gives way, and is told why.
         let (silent, accepted, silent_peer) = pair(&listener).await;
         assert_eq!(probation.admit(accepted, silent_peer), Some(first_peer));
-        assert_eq!(told(first).await, Some(close_reason::EVICTED_SOURCE));
+        assert_eq!(told(first).await, Some(CloseReason::EvictedSource));
         // The second speaks at once: back to the gate with its stream.
         speaker.write_all(&hello()).await.expect("write");
         match probation.next().await {
@@ -203,7 +203,7 @@ mod tests {
             Some(Ended::Silent(peer)) => assert_eq!(peer, silent_peer),
             _ => panic!("the silent one is turned away"),
         }
-        assert_eq!(told(silent).await, Some(close_reason::EVICTED_SOURCE));
+        assert_eq!(told(silent).await, Some(CloseReason::EvictedSource));
         assert!(probation.is_empty());
     }
 }

@@ -6,7 +6,7 @@ use std::net::{SocketAddr, TcpStream as StdStream, UdpSocket};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::time::{Duration, Instant};
-use ndr::core::wire::{self, Header, Hello, Message, Role, close_reason};
+use ndr::core::wire::{self, CloseReason, Header, Hello, Message, Role};
 use ndr::net::Deframer;
 
 use super::link::{COMMAND_WIDTH, STATE_WIDTH};
@@ -182,8 +182,8 @@ fn base_hello(period: Duration, session: u64) -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
         role: Role::Base,
-        mode: wire::mode::PAPER_STATIC,
-        underflow: wire::underflow::DROP_LATE,
+        mode: wire::ModeCode::PaperStatic,
+        underflow: wire::UnderflowCode::DropLate,
         command_width: COMMAND_WIDTH,
         state_width: STATE_WIDTH,
         period,
@@ -226,7 +226,7 @@ fn await_close(
     s: &mut StdStream,
     deframer: &mut Deframer,
     deadline: StdInstant,
-) -> Option<Option<u16>> {
+) -> Option<Option<CloseReason>> {
     let mut buf = [0u8; 512];
     let mut reason = None;
     while StdInstant::now() < deadline {
@@ -291,5 +291,5 @@ pub(super) fn stale_frame(addr: SocketAddr, period: Duration, session: u64) -> b
         return false;
     }
     let deadline = StdInstant::now() + StdDuration::from_secs(1);
-    await_close(&mut s, &mut deframer, deadline) == Some(Some(close_reason::SEQUENCE))
+    await_close(&mut s, &mut deframer, deadline) == Some(Some(CloseReason::Sequence))
 }

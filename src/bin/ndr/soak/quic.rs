@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::core::endpoint::LinkError;
-use ndr::core::wire::close_reason;
+use ndr::core::wire::CloseReason;
 use ndr::net::{HandshakeError, Hub, Link, LinkConfig, NetError};
 
 use super::check::{Conn, check, finish_conn};
@@ -201,7 +201,7 @@ pub(super) fn quic_hung_base(
                 return matches!(
                     e,
                     NetError::Link(LinkError::PeerClosed {
-                        reason: close_reason::TIMEOUT
+                        reason: CloseReason::Timeout
                     })
                 );
             }

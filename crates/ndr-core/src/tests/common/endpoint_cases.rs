@@ -20,7 +20,7 @@ use crate::endpoint::{Config, Endpoint, Event, LinkError, Mode, Phase, Status, U
 use crate::pair::{self, World};
 use crate::storage::Storage;
 use crate::time::{Duration, Instant};
-use crate::wire::{self, MAX_FRAME_LEN, Role, close_reason};
+use crate::wire::{self, CloseReason, MAX_FRAME_LEN, Role};
 
 type Ep = Endpoint<super::Store>;
 type Values = <super::Store as Storage>::Values;
@@ -468,21 +468,21 @@ fn handshake_mismatches_end_the_link_with_their_error() {
             && msg.contains("configure both with the same period"),
         "{msg}"
     );
-    assert_eq!(b[0].close_reason(), close_reason::PERIOD_MISMATCH);
+    assert_eq!(b[0].close_reason(), CloseReason::PeriodMismatch);
 
     let (b, r) = mismatch(|c| c.mode = Mode::PaperDynamic);
     assert!(matches!(
         r[0],
         LinkError::ModeMismatch {
             ours: Mode::PaperDynamic,
-            theirs: 0
+            theirs: wire::ModeCode::PaperStatic
         }
     ));
     assert_eq!(
         b,
         vec![LinkError::ModeMismatch {
             ours: Mode::PaperStatic,
-            theirs: Mode::PaperDynamic.code()
+            theirs: Mode::PaperDynamic.into()
         }]
     );
 
@@ -505,7 +505,7 @@ fn garbage_and_wrong_version_end_the_link_with_a_close() {
     let n = remote.poll_transmit(now, &mut buf).unwrap().unwrap();
     let close = wire::Frame::new_checked(&buf[..n]).unwrap();
     assert!(
-        matches!(close.payload(), wire::Payload::Close(c) if c.reason == close_reason::PROTOCOL_ERROR)
+        matches!(close.payload(), wire::Payload::Close(c) if c.reason == CloseReason::ProtocolError)
     );
     assert_eq!(remote.handle_frame(now, &buf[..n]), Err(LinkError::Closed));
 
@@ -534,7 +534,7 @@ fn garbage_and_wrong_version_end_the_link_with_a_close() {
         let n = remote.poll_transmit(now, &mut buf).unwrap().unwrap();
         let close = wire::Frame::new_checked(&buf[..n]).unwrap();
         assert!(
-            matches!(close.payload(), wire::Payload::Close(c) if c.reason == close_reason::VERSION_MISMATCH)
+            matches!(close.payload(), wire::Payload::Close(c) if c.reason == CloseReason::VersionMismatch)
         );
     }
 }
@@ -1007,7 +1007,7 @@ type ForgeCase = (
     &'static str,
     Box<dyn Fn(&mut wire::Header)>,
     fn(&LinkError) -> bool,
-    u16,
+    CloseReason,
 );
 
 #[test]
@@ -1021,7 +1021,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
             "the same frame again",
             Box::new(|_| {}),
             |e| matches!(e, LinkError::OutOfSequence { .. }),
-            close_reason::SEQUENCE,
+            CloseReason::Sequence,
         ),
         (
             "five back",
@@ -1030,7 +1030,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
                 h.sent_at -= T * 5;
             }),
             |e| matches!(e, LinkError::OutOfSequence { .. }),
-            close_reason::SEQUENCE,
+            CloseReason::Sequence,
         ),
         (
             "2^63 ahead",
@@ -1039,7 +1039,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
                 h.seq += 1 << 63;
             }),
             |e| matches!(e, LinkError::OutOfSequence { .. }),
-            close_reason::SEQUENCE,
+            CloseReason::Sequence,
         ),
         (
             "stamped 2^63 ns",
@@ -1048,7 +1048,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
                 h.sent_at = Instant::from_nanos(1 << 63);
             }),
             |e| matches!(e, LinkError::StampAhead { .. }),
-            close_reason::STAMP,
+            CloseReason::Stamp,
         ),
         (
             "stamped a minute ahead",
@@ -1057,7 +1057,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
                 h.sent_at += Duration::from_secs(60);
             }),
             |e| matches!(e, LinkError::StampAhead { .. }),
-            close_reason::STAMP,
+            CloseReason::Stamp,
         ),
         (
             "the next one stamped in the past",
@@ -1066,7 +1066,7 @@ fn repeated_stale_and_forged_frames_end_the_link_and_are_never_released() {
                 h.sent_at -= T * 3;
             }),
             |e| matches!(e, LinkError::StampBehind { .. }),
-            close_reason::STAMP,
+            CloseReason::Stamp,
         ),
     ];
     for (what, edit, is_it, reason) in cases {
@@ -1157,7 +1157,7 @@ fn a_peer_that_goes_silent_is_dropped_after_the_liveness_time() {
             reasons.push(c.reason);
         }
     }
-    assert_eq!(reasons, [close_reason::TIMEOUT]);
+    assert_eq!(reasons, [CloseReason::Timeout]);
 }
 
 /// GRTTs before and after, both sides' delays before and after (s).
