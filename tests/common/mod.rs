@@ -314,9 +314,22 @@ pub fn grtt_judged(r: &Run) -> (f64, f64) {
 /// test has them: on the schedule, at their level, less the strays a
 /// stalled host makes (asserted to be few).
 pub fn judge_grtts(grtts: &[(u64, f64)], sides: &[&LinkStats]) -> (f64, f64) {
+    let underflows: u64 = sides.iter().map(|s| s.endpoint.underflows).sum();
+    let missed: u64 = sides.iter().map(|s| s.lateness.missed).sum();
+    judge_grtts_counted(grtts, sides[0].period.as_nanos(), underflows, missed)
+}
+
+/// [`judge_grtts`] for a run whose counters come from elsewhere (a
+/// report): the link's period (ns), and the underflows and ticks missed
+/// both sides counted.
+pub fn judge_grtts_counted(
+    grtts: &[(u64, f64)],
+    period_ns: u64,
+    underflows: u64,
+    missed: u64,
+) -> (f64, f64) {
     // The callers judge how many there must be.
     assert!(grtts.len() > 20, "{} GRTTs", grtts.len());
-    let period_ns = sides[0].period.as_nanos();
     let grtts = on_schedule(grtts, period_ns);
     let mut sorted = grtts.clone();
     sorted.sort_by(f64::total_cmp);
@@ -342,8 +355,6 @@ pub fn judge_grtts(grtts: &[(u64, f64)], sides: &[&LinkStats]) -> (f64, f64) {
         .map(|&(l, _)| l)
         .collect();
     let steps = settled.windows(2).filter(|w| w[0] != w[1]).count() as u64;
-    let underflows: u64 = sides.iter().map(|s| s.endpoint.underflows).sum();
-    let missed: u64 = sides.iter().map(|s| s.lateness.missed).sum();
     // Two sides' tick grids that meet within the host's jitter make a frame
     // count for one tick or the next: two adjacent levels, in turn.
     let adjacent = settled.iter().copied().fold(f64::NAN, f64::max)
