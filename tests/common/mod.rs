@@ -241,24 +241,6 @@ pub fn assert_regulated(run: impl FnOnce() -> Run) -> Run {
     r
 }
 
-/// Signs that the host, not the link, stalled: a hub that served a
-/// deadline or a release 1 ms late or more (a period, if shorter), or a
-/// frame that took that long across loopback. On an idle host each is tens
-/// of microseconds. For a test that reports them.
-#[allow(dead_code)]
-pub fn host_stalls(s: &LinkStats) -> u64 {
-    let bound = s.period.as_secs_f64().min(1e-3);
-    [
-        s.lateness.max.as_secs_f64(),
-        s.release_lateness.max.as_secs_f64(),
-        s.endpoint.nrtt.max(),
-        s.endpoint.one_way_rx.max(),
-    ]
-    .iter()
-    .filter(|&&d| d >= bound)
-    .count() as u64
-}
-
 fn assert_constant_grtt(r: &Run) {
     let (mean, std) = grtt_judged(r);
     let sides = || std::iter::once(&r.base).chain(&r.remote);
