@@ -198,8 +198,11 @@ fn base_run(addr: SocketAddr, tls: Option<&TlsConfig>, ticks: u32) -> BaseRun {
     }
 }
 
-/// Every fresh sample once and in order, none missing but those the robot's
-/// hub, held by the host past its transmit queue, dropped and counted.
+/// Every fresh sample once and in order, none missing but those counted:
+/// the robot's hub, held by the host past its transmit queue, dropped them
+/// (its `tx_dropped`, the base's `frames_missing`), or the base's hub, held
+/// while they came, found its regulator full (`rejected`) or passed over
+/// them (`discarded`, `skipped`).
 fn in_order(run: &BaseRun, robot: Option<&LinkStats>, ticks: u32) -> Result<(), String> {
     let n = run.seqs.len();
     let missing: u64 = run
@@ -207,7 +210,13 @@ fn in_order(run: &BaseRun, robot: Option<&LinkStats>, ticks: u32) -> Result<(), 
         .windows(2)
         .map(|w| w[1].saturating_sub(w[0] + 1))
         .sum();
-    let dropped = robot.map_or(0, |s| s.endpoint.tx_dropped);
+    let base = &run.stats.endpoint;
+    let dropped = robot
+        .map_or(0, |s| s.endpoint.tx_dropped)
+        .max(base.frames_missing)
+        + base.rejected
+        + base.discarded
+        + base.skipped;
     let missed: u64 = std::iter::once(&run.stats)
         .chain(robot)
         .map(|s| s.lateness.missed)
@@ -215,7 +224,9 @@ fn in_order(run: &BaseRun, robot: Option<&LinkStats>, ticks: u32) -> Result<(), 
     let floor = (ticks * 8 / 10).saturating_sub(2 * missed as u32);
     if (n as u32) < floor || run.seqs.windows(2).any(|w| w[1] <= w[0]) || missing > dropped {
         return Err(format!(
-            "{n} fresh releases, with a repeat or {missing} missing ({dropped} counted)"
+            "{n} fresh releases, with a repeat or {missing} missing ({dropped} counted); \
+             base {:?}; robot {robot:?}",
+            run.stats
         ));
     }
     Ok(())
