@@ -504,9 +504,12 @@ fn a_remote_saturates_its_commands_and_never_streams_a_broken_state() {
     let (remote, addr) = remote(&["--once", "--max-command", "1.7e308"]);
     let (status, r, stderr) = base(&addr, "10", &csv, &["--signal", "constant:1.7e308"]);
     assert!(!status.success(), "{r}");
+    // "link failed: …" once a sample was released, "never connected: …"
+    // when a host held the base's hub past the plant's divergence.
     let end = r["end"].as_str().unwrap();
     assert!(
-        end.starts_with("link failed: ") && end.contains("application failure"),
+        (end.starts_with("link failed: ") || end.starts_with("never connected: "))
+            && end.contains("application failure"),
         "{end}\n{stderr}"
     );
     let (status, _, stderr) = remote.wait(Duration::from_secs(20));
@@ -672,8 +675,15 @@ fn a_hung_base_is_dropped_and_the_next_one_served() {
     );
     let csv = csv_path("after-hung");
     let (status, report, stderr) = base(&addr, "2", &csv, &[]);
-    assert!(status.success(), "{report}\n{stderr}");
-    assert_eq!(report["end"], "completed");
+    // Served: its run completed; or, where the host held its hub (ticks
+    // missed) past a short run's first release, the remote took it.
+    let completed = status.success() && report["end"] == "completed";
+    let held = report["ticks_missed"].as_u64().unwrap() > 0;
+    assert!(
+        completed || (held && remote.count("connected") >= 2),
+        "{report}\n{stderr}\nremote:\n{}",
+        remote.stderr()
+    );
     let _ = std::fs::remove_file(&csv);
     let _ = std::fs::remove_file(csv_path("hung"));
     hung.signal("CONT");
