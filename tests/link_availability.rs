@@ -215,7 +215,9 @@ fn in_order(run: &BaseRun, robot: Option<&LinkStats>, ticks: u32) -> Result<(), 
     let floor = (ticks * 8 / 10).saturating_sub(2 * missed as u32);
     if (n as u32) < floor || run.seqs.windows(2).any(|w| w[1] <= w[0]) || missing > dropped {
         return Err(format!(
-            "{n} fresh releases, with a repeat or {missing} missing ({dropped} counted)"
+            "{n} fresh releases, with a repeat or {missing} missing ({dropped} counted); \
+             base {:?}; robot {robot:?}",
+            run.stats
         ));
     }
     Ok(())

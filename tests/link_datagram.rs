@@ -46,11 +46,18 @@ fn datagrams_on_loopback_deliver_every_sample_once_in_order_with_a_constant_grtt
         common::echo_run(base, remote)
     });
     let remote = run.remote.expect("the remote's stats");
-    for (side, s) in [("base", &run.base), ("remote", &remote)] {
+    // Loopback loses nothing but what the host made lost: a hub held past
+    // a sample's slot or past its transmit queue (the peer's `tx_dropped`),
+    // two for each tick a hub missed.
+    let held = run.base.lateness.missed + remote.lateness.missed;
+    for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
         let e = &s.endpoint;
-        assert!(e.datagrams_received > 250, "{side}: {s:?}");
-        // Loopback loses nothing: no sample needed a copy, none was lost.
-        assert_eq!(e.samples_lost, 0, "{side}: {s:?}");
+        let floor = 250u64.saturating_sub(2 * held);
+        assert!(e.datagrams_received > floor, "{side}: {s:?}");
+        assert!(
+            e.samples_lost <= peer.endpoint.tx_dropped + 2 * held,
+            "{side}: {s:?}"
+        );
         assert_eq!(s.datagrams_stray, 0, "{side}: {s:?}");
     }
     // The remote has no address for the base until its first datagram:

@@ -292,10 +292,21 @@ fn blocking_calls_on_a_runtime_or_an_async_listener_say_what_to_await() {
 /// on its hub's thread (a release handler) answers in the frame of the
 /// tick that released the command, as the simulator's plant does, so a
 /// loopback link and the simulator with the same grids' phase and a
-/// loopback's delay see the same GRTT. A phase within 1.5 ms of the grids
-/// meeting would leave the tick a frame reaches to the loopback's jitter:
-/// such a run is redone, as is one that fails while the host stalled the
-/// hubs (ten runs at most).
+/// loopback's delay see the same GRTT.
+///
+/// One run, judged with margins a host's pauses cannot break: answers in
+/// their tick's frame but for a few, and two per tick a hub missed; the
+/// link's GRTT at its level, less each release's lateness (as
+/// `common::judge_grtts` judges the loopback's), within 1 ms of the
+/// simulator's taken to the link's queue size by the FIFO's relation
+/// (2·ns·T: a host that held a hub through the initialization pattern
+/// sizes the queue larger), or whole periods from it, one per underflow or
+/// tick missed counted (the FIFO's delay steps a period when a held hub
+/// runs its queue dry, by design) and one either way when the grids' phase
+/// is within 1.5 ms of their meeting (a frame then counts for one tick or
+/// the next by the loopback's jitter). That the FIFO makes the round trip
+/// exactly constant is judged in simulated time (the simulator's own std
+/// below, crates/ndr-sim/tests/paper.rs).
 #[test]
 fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() {
     use ndr::sim::delay::DelayModel;
@@ -304,89 +315,89 @@ fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() 
     let _serial = common::serial();
     let rt = common::runtime();
     let period = 0.010;
-    for attempt in 1..=10 {
-        // Half a period apart, the two hubs' grids are clear of each other.
-        let (mut base, mut remote) = pair_apart(&rt, StdDuration::from_millis(5));
-        // The remote answers each command with the sequence number of the
-        // frame that brought it, and notes when it released it.
-        let released = std::sync::Arc::new(std::sync::Mutex::new(BTreeMap::new()));
-        let (tx, log) = (remote.sender(), std::sync::Arc::clone(&released));
-        remote
-            .on_release(move |s| {
-                if s.status == Status::Fresh {
-                    log.lock().unwrap().insert(s.seq, s.released_at);
-                    tx.send(&[s.seq as f64, 0.0]).unwrap();
-                }
-            })
-            .unwrap();
-        let (mut grtts, mut answers) = (Vec::new(), Vec::new());
-        for k in 1..=300u32 {
-            base.send(&[f64::from(k), 0.0]).unwrap();
-            let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+    // Half a period apart, the two hubs' grids are clear of each other.
+    let (mut base, mut remote) = pair_apart(&rt, StdDuration::from_millis(5));
+    // The remote answers each command with the sequence number of the
+    // frame that brought it, and notes when it released it.
+    let released = std::sync::Arc::new(std::sync::Mutex::new(BTreeMap::new()));
+    let (tx, log) = (remote.sender(), std::sync::Arc::clone(&released));
+    remote
+        .on_release(move |s| {
             if s.status == Status::Fresh {
-                grtts.extend(s.grtt.map(|g| g.as_secs_f64()));
-                // The answer's frame left at its tick (`sent_at`, the
-                // remote's clock) after the command's release.
-                answers.push((s.values()[0] as u64, s.sent_at));
+                log.lock().unwrap().insert(s.seq, s.released_at);
+                tx.send(&[s.seq as f64, 0.0]).unwrap();
             }
+        })
+        .unwrap();
+    let (mut grtts, mut answers) = (Vec::new(), Vec::new());
+    for k in 1..=300u32 {
+        base.send(&[f64::from(k), 0.0]).unwrap();
+        let s = base.recv_timeout(StdDuration::from_secs(5)).unwrap();
+        if s.status == Status::Fresh {
+            grtts.extend(s.grtt.map(|g| (s.released_at.as_nanos(), g.as_secs_f64())));
+            // The answer's frame left at its tick (`sent_at`, the remote's
+            // clock) after the command's release.
+            answers.push((s.values()[0] as u64, s.sent_at));
         }
-        let stats = base.close().unwrap();
-        let remote_stats = remote.stats().expect("the remote's stats");
-        let released = released.lock().unwrap();
-        let lags: Vec<f64> = answers
-            .iter()
-            .filter_map(|&(seq, sent)| {
-                let at = released.get(&seq)?;
-                Some(sent.signed_nanos_since(*at) as f64 * 1e-9 / period)
-            })
-            .collect();
-        // The remote's ticks, at k·T on its own clock, fall θ = local − peer
-        // after the base's on the base's clock.
-        let phase = stats.endpoint.clock_offset_s.rem_euclid(period);
-        let clear = (1.5e-3..=period - 1.5e-3).contains(&phase);
-        if !clear {
-            eprintln!("run {attempt}: phase {phase} s: run again");
-            continue;
-        }
-        let stalled = common::host_stalls(&stats) + common::host_stalls(&remote_stats) > 0;
-        // Each answer left in the frame of the tick that released its
-        // command (its stamp that tick's, the release a little after it),
-        // but where the host held the hub half a period (2 % at most).
-        let late = lags.iter().filter(|&&l| l.abs() >= 0.5).count();
-        let answers_ok = lags.len() > 250 && late <= lags.len() / 50;
-        let mut real = grtts;
-        real.sort_by(f64::total_cmp);
-        let real = real[real.len() / 2];
-        let one_way = Duration::from_secs_f64(stats.endpoint.nrtt.mean() / 2.0);
-        let mut cfg = SimConfig::paper(DelayModel::Constant {
-            fwd: one_way,
-            bwd: one_way,
-        });
-        cfg.period = Duration::from_secs_f64(period);
-        cfg.remote_phase = Duration::from_secs_f64(phase);
-        cfg.axes = 2;
-        cfg.duration = Duration::from_secs(10);
-        let sim = run(&cfg).unwrap().report;
-        let grtt_ok = (sim.grtt_mean_s - real).abs() < 1e-3 && sim.grtt_std_s < 1e-6;
-        if answers_ok && grtt_ok {
-            return;
-        }
-        // A host that held the hubs a period moves the FIFO's delay: redone.
-        if stalled && attempt < 10 {
-            eprintln!("run {attempt}: the host stalled the hubs: run again ({stats:?})");
-            continue;
-        }
-        assert!(
-            answers_ok,
-            "{} answers, {late} left half a period or more after their command's release: \
-             {lags:?}",
-            lags.len()
-        );
-        assert!(
-            grtt_ok,
-            "the simulator's GRTT {} s (std {}), the link's {real} s, at phase {phase} s",
-            sim.grtt_mean_s, sim.grtt_std_s
-        );
     }
-    panic!("10 runs with the grids' phase within 1.5 ms of their meeting");
+    let stats = base.close().unwrap();
+    let remote_stats = remote.stats().expect("the remote's stats");
+    let released = released.lock().unwrap();
+    let lags: Vec<f64> = answers
+        .iter()
+        .filter_map(|&(seq, sent)| {
+            let at = released.get(&seq)?;
+            Some(sent.signed_nanos_since(*at) as f64 * 1e-9 / period)
+        })
+        .collect();
+    let missed = (stats.lateness.missed + remote_stats.lateness.missed) as usize;
+    // Each answer left in the frame of the tick that released its command
+    // (its stamp that tick's, the release a little after it), but where
+    // the host held the hub half a period: 2 %, and two per tick missed.
+    let late = lags.iter().filter(|&&l| l.abs() >= 0.5).count();
+    assert!(
+        lags.len() > 250usize.saturating_sub(2 * missed),
+        "{} answers ({missed} ticks missed)",
+        lags.len()
+    );
+    assert!(
+        late <= lags.len() / 50 + 2 * missed,
+        "{} answers, {late} left half a period or more after their command's release \
+         ({missed} ticks missed): {lags:?}",
+        lags.len()
+    );
+    let (real, _) = common::judge_grtts(&grtts, &[&stats, &remote_stats]);
+    // The remote's ticks, at k·T on its own clock, fall θ = local − peer
+    // after the base's on the base's clock.
+    let phase = stats.endpoint.clock_offset_s.rem_euclid(period);
+    let clear = (1.5e-3..=period - 1.5e-3).contains(&phase);
+    // The loopback's own delay: its least round trip (a host's stall only
+    // lengthens one).
+    let one_way = Duration::from_secs_f64(stats.endpoint.nrtt.min() / 2.0);
+    let mut cfg = SimConfig::paper(DelayModel::Constant {
+        fwd: one_way,
+        bwd: one_way,
+    });
+    cfg.period = Duration::from_secs_f64(period);
+    cfg.remote_phase = Duration::from_secs_f64(phase);
+    cfg.axes = 2;
+    cfg.duration = Duration::from_secs(10);
+    let sim = run(&cfg).unwrap().report;
+    assert!(
+        sim.grtt_std_s < 1e-6,
+        "the simulator's GRTT std {}",
+        sim.grtt_std_s
+    );
+    let at_ns = sim.grtt_mean_s + 2.0 * (stats.ns as f64 - sim.ns as f64) * period;
+    let underflows = stats.endpoint.underflows + remote_stats.endpoint.underflows;
+    let steps = (underflows as usize + missed + usize::from(!clear)) as f64;
+    let k = ((real - at_ns) / period).round();
+    assert!(
+        k.abs() <= steps && (real - at_ns - k * period).abs() < 1e-3,
+        "the simulator's GRTT {} s (ns {}), {at_ns} s at the link's ns {}; the link's {real} s, \
+         at phase {phase} s; {underflows} underflows, {missed} ticks missed",
+        sim.grtt_mean_s,
+        sim.ns,
+        stats.ns
+    );
 }

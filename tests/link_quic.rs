@@ -727,8 +727,15 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
     let run = common::echo_run(base, remote);
     common::assert_every_sample_once_in_order(&run);
     let remote = run.remote.expect("the remote's stats");
-    for s in [&run.base, &remote] {
-        assert_eq!(s.endpoint.samples_lost, 0, "{s:?}");
+    // The strays cost no sample: none lost but what the host made lost (a
+    // hub held past a sample's slot or its transmit queue), two for each
+    // tick a hub missed.
+    let held = run.base.lateness.missed + remote.lateness.missed;
+    for (s, peer) in [(&run.base, &remote), (&remote, &run.base)] {
+        assert!(
+            s.endpoint.samples_lost <= peer.endpoint.tx_dropped + 2 * held,
+            "{s:?}"
+        );
         assert_ne!(s.datagram_peer, Some(stranger.local_addr().unwrap()));
     }
 }

@@ -241,24 +241,6 @@ pub fn assert_regulated(run: impl FnOnce() -> Run) -> Run {
     r
 }
 
-/// Signs that the host, not the link, stalled: a hub that served a
-/// deadline or a release 1 ms late or more (a period, if shorter), or a
-/// frame that took that long across loopback. On an idle host each is tens
-/// of microseconds. For a test that reports them.
-#[allow(dead_code)]
-pub fn host_stalls(s: &LinkStats) -> u64 {
-    let bound = s.period.as_secs_f64().min(1e-3);
-    [
-        s.lateness.max.as_secs_f64(),
-        s.release_lateness.max.as_secs_f64(),
-        s.endpoint.nrtt.max(),
-        s.endpoint.one_way_rx.max(),
-    ]
-    .iter()
-    .filter(|&&d| d >= bound)
-    .count() as u64
-}
-
 fn assert_constant_grtt(r: &Run) {
     let (mean, std) = grtt_judged(r);
     let sides = || std::iter::once(&r.base).chain(&r.remote);
@@ -314,9 +296,22 @@ pub fn grtt_judged(r: &Run) -> (f64, f64) {
 /// test has them: on the schedule, at their level, less the strays a
 /// stalled host makes (asserted to be few).
 pub fn judge_grtts(grtts: &[(u64, f64)], sides: &[&LinkStats]) -> (f64, f64) {
+    let underflows: u64 = sides.iter().map(|s| s.endpoint.underflows).sum();
+    let missed: u64 = sides.iter().map(|s| s.lateness.missed).sum();
+    judge_grtts_counted(grtts, sides[0].period.as_nanos(), underflows, missed)
+}
+
+/// [`judge_grtts`] for a run whose counters come from elsewhere (a
+/// report): the link's period (ns), and the underflows and ticks missed
+/// both sides counted.
+pub fn judge_grtts_counted(
+    grtts: &[(u64, f64)],
+    period_ns: u64,
+    underflows: u64,
+    missed: u64,
+) -> (f64, f64) {
     // The callers judge how many there must be.
     assert!(grtts.len() > 20, "{} GRTTs", grtts.len());
-    let period_ns = sides[0].period.as_nanos();
     let grtts = on_schedule(grtts, period_ns);
     let mut sorted = grtts.clone();
     sorted.sort_by(f64::total_cmp);
@@ -342,8 +337,6 @@ pub fn judge_grtts(grtts: &[(u64, f64)], sides: &[&LinkStats]) -> (f64, f64) {
         .map(|&(l, _)| l)
         .collect();
     let steps = settled.windows(2).filter(|w| w[0] != w[1]).count() as u64;
-    let underflows: u64 = sides.iter().map(|s| s.endpoint.underflows).sum();
-    let missed: u64 = sides.iter().map(|s| s.lateness.missed).sum();
     // Two sides' tick grids that meet within the host's jitter make a frame
     // count for one tick or the next: two adjacent levels, in turn.
     let adjacent = settled.iter().copied().fold(f64::NAN, f64::max)

@@ -364,6 +364,10 @@ struct DemoReport {
     /// shows here first.
     clock_base_max_s: f64,
     clock_remote_max_s: f64,
+    /// Ticks the hubs served a whole period late or more, both sides: the
+    /// host's doing (a hub held), each of which may cost a sample or move
+    /// the FIFO's delay a period.
+    ticks_missed: u64,
     /// How long before a deadline each side's hub spins, as learned from
     /// its timer at the end.
     spin_margin_base_s: f64,
@@ -497,6 +501,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         clock_remote_p99_s: clock(remote, |l| l.p99),
         clock_base_max_s: clock(b, |l| l.max),
         clock_remote_max_s: clock(remote, |l| l.max),
+        ticks_missed: b.map_or(0, |s| s.lateness.missed) + remote.map_or(0, |s| s.lateness.missed),
         spin_margin_base_s: b.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
