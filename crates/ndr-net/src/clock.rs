@@ -115,7 +115,7 @@ pub fn current_thread_policy() -> io::Result<SchedPolicy> {
 
 /// Fields 40 (`rt_priority`) and 41 (`policy`) of a `stat` line; the command
 /// name (field 2) may hold spaces and parentheses, so count after its last `)`.
-fn parse_policy(stat: &str) -> Option<SchedPolicy> {
+pub(crate) fn parse_policy(stat: &str) -> Option<SchedPolicy> {
     let (_, rest) = stat.rsplit_once(')')?;
     let mut fields = rest.split_whitespace().skip(40 - 3);
     let priority: u32 = fields.next()?.parse().ok()?;
