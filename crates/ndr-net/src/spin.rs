@@ -13,7 +13,8 @@
 //! [`SpinMargin`] therefore keeps the margin at the longest overshoot of
 //! the last [`WINDOW`] blocks of [`BLOCK`] sleeps, with a cushion, between
 //! [`MIN_SPIN_MARGIN`] and the margin configured (the longest it may be;
-//! until the first block is in, the margin). Load makes it wider at once,
+//! until a whole window is in, the margin: a few blocks miss the rarer long
+//! wake-ups). Load makes it wider at once,
 //! and a narrow margin must be earned again: a sleep that overshoots the
 //! margin in use (its deadline served late) sets the margin configured and
 //! holds it for a block; each such overshoot that comes before a narrow
@@ -51,11 +52,11 @@ const CUSHION: Duration = Duration::from_micros(10);
 ///
 /// ```
 /// use ndr_core::time::Duration;
-/// use ndr_net::spin::{SpinMargin, BLOCK};
+/// use ndr_net::spin::{SpinMargin, BLOCK, WINDOW};
 ///
 /// let mut margin = SpinMargin::adaptive(Duration::from_micros(200));
 /// assert_eq!(margin.current(), Duration::from_micros(200));
-/// for _ in 0..BLOCK {
+/// for _ in 0..BLOCK * WINDOW as u32 {
 ///     margin.record(Duration::from_micros(30));
 /// }
 /// // 30 µs of overshoot, a quarter more and at least 10 µs of cushion.
@@ -70,7 +71,7 @@ pub struct SpinMargin {
     adaptive: bool,
     current: Duration,
     /// The longest overshoot of each of the last full blocks (zero for
-    /// those not seen yet), the slot of the next, and whether one is in.
+    /// those not seen yet), the slot of the next, and whether all are in.
     window: [Duration; WINDOW],
     next: usize,
     learned: bool,
@@ -107,7 +108,7 @@ impl SpinMargin {
 
     /// Learned from the overshoots, between [`MIN_SPIN_MARGIN`] and `max`
     /// (a `max` at or under [`MIN_SPIN_MARGIN`] stays fixed); `max` until
-    /// the first block of sleeps is in.
+    /// [`WINDOW`] blocks of sleeps are in.
     #[must_use]
     pub fn adaptive(max: Duration) -> Self {
         SpinMargin {
@@ -163,7 +164,7 @@ impl SpinMargin {
         if self.seen >= BLOCK {
             self.window[self.next] = self.longest;
             self.next = (self.next + 1) % WINDOW;
-            self.learned = true;
+            self.learned |= self.next == 0;
             self.longest = Duration::ZERO;
             self.seen = 0;
         }
@@ -237,9 +238,9 @@ mod tests {
     }
 
     #[test]
-    fn the_margin_is_the_configured_one_until_a_block_is_in() {
+    fn the_margin_is_the_configured_one_until_a_window_is_in() {
         let mut m = SpinMargin::adaptive(us(200));
-        feed(&mut m, BLOCK - 1, |_| us(30));
+        feed(&mut m, WINDOW as u32 * BLOCK - 1, |_| us(30));
         assert_eq!(m.current(), us(200));
         m.record(us(30));
         assert_eq!(m.current(), us(40));
@@ -248,6 +249,7 @@ mod tests {
     #[test]
     fn the_margin_covers_the_longest_overshoot_of_a_block_with_a_cushion() {
         let mut m = SpinMargin::adaptive(us(200));
+        feed(&mut m, (WINDOW as u32 - 1) * BLOCK, |_| Duration::ZERO);
         feed(&mut m, BLOCK, |i| {
             Duration::from_nanos(500 * u64::from(i + 1))
         });
@@ -258,7 +260,7 @@ mod tests {
     #[test]
     fn an_overshoot_past_the_margin_widens_it_at_once_and_holds_it() {
         let mut m = SpinMargin::adaptive(us(200));
-        feed(&mut m, BLOCK, |_| us(30));
+        feed(&mut m, WINDOW as u32 * BLOCK, |_| us(30));
         assert_eq!(m.current(), us(40));
         m.record(us(100));
         assert_eq!(m.current(), us(200));
@@ -275,7 +277,7 @@ mod tests {
     #[test]
     fn holds_grow_while_narrow_margins_fail_and_shrink_while_they_last() {
         let mut m = SpinMargin::adaptive(us(200));
-        feed(&mut m, BLOCK, |_| us(30));
+        feed(&mut m, WINDOW as u32 * BLOCK, |_| us(30));
         // Each failure comes right after the hold before it: it doubles.
         for (held_blocks, overshoot, then) in [(2, 100, 125), (4, 150, 187), (8, 190, 200)] {
             m.record(us(overshoot));
@@ -360,7 +362,7 @@ mod tests {
     #[test]
     fn a_quiet_timer_keeps_the_floor() {
         let mut m = SpinMargin::adaptive(us(200));
-        feed(&mut m, 3 * BLOCK, |_| Duration::ZERO);
+        feed(&mut m, (WINDOW as u32 + 1) * BLOCK, |_| Duration::ZERO);
         assert_eq!(m.current(), MIN_SPIN_MARGIN);
     }
 
