@@ -24,11 +24,10 @@
 //! needed), which lets the spin margin stay short. On a loaded machine the
 //! tail of the lateness is set by the scheduler, not by the clock: a thread of
 //! the default policy waits behind other runnable threads, spinning or not.
-//! Only a real-time policy (`SCHED_FIFO`) removes that tail. Setting it needs a
-//! system call that std does not wrap and this workspace forbids `unsafe`
-//! code, so the hub does not try; a thread inherits its creator's policy, so
-//! running the process under `chrt -f 50` gives the hub `SCHED_FIFO`
-//! ([`current_thread_policy`] says which policy a thread has). Under
+//! Only a real-time policy (`SCHED_FIFO`) removes that tail: each hub thread
+//! asks for it as it starts, as [`LinkConfig::realtime`](crate::LinkConfig::realtime)
+//! says ([`crate::realtime`]; by default where the host grants it), and
+//! [`current_thread_policy`] says which policy a thread has. Under
 //! `SCHED_FIFO` keep the spin margin well below the period: a thread that
 //! never sleeps is throttled by the kernel (by default it may use 95 % of
 //! each second), which costs tens of milliseconds at once.
