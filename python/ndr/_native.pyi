@@ -920,6 +920,9 @@ class _LinkSettings:
         app_queue: int,
         insecure: bool,
         transport: str,
+        realtime: str,
+        rt_priority: int,
+        rt_cpu: Optional[int],
     ) -> "_LinkSettings": ...
 
 @final

@@ -24,11 +24,10 @@
 //! needed), which lets the spin margin stay short. On a loaded machine the
 //! tail of the lateness is set by the scheduler, not by the clock: a thread of
 //! the default policy waits behind other runnable threads, spinning or not.
-//! Only a real-time policy (`SCHED_FIFO`) removes that tail. Setting it needs a
-//! system call that std does not wrap and this workspace forbids `unsafe`
-//! code, so the hub does not try; a thread inherits its creator's policy, so
-//! running the process under `chrt -f 50` gives the hub `SCHED_FIFO`
-//! ([`current_thread_policy`] says which policy a thread has). Under
+//! Only a real-time policy (`SCHED_FIFO`) removes that tail: each hub thread
+//! asks for it as it starts, as [`LinkConfig::realtime`](crate::LinkConfig::realtime)
+//! says ([`crate::realtime`]; by default where the host grants it), and
+//! [`current_thread_policy`] says which policy a thread has. Under
 //! `SCHED_FIFO` keep the spin margin well below the period: a thread that
 //! never sleeps is throttled by the kernel (by default it may use 95 % of
 //! each second), which costs tens of milliseconds at once.
@@ -115,7 +114,7 @@ pub fn current_thread_policy() -> io::Result<SchedPolicy> {
 
 /// Fields 40 (`rt_priority`) and 41 (`policy`) of a `stat` line; the command
 /// name (field 2) may hold spaces and parentheses, so count after its last `)`.
-fn parse_policy(stat: &str) -> Option<SchedPolicy> {
+pub(crate) fn parse_policy(stat: &str) -> Option<SchedPolicy> {
     let (_, rest) = stat.rsplit_once(')')?;
     let mut fields = rest.split_whitespace().skip(40 - 3);
     let priority: u32 = fields.next()?.parse().ok()?;

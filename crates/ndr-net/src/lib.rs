@@ -55,6 +55,7 @@ mod link;
 mod listener;
 mod pool;
 pub mod quic;
+pub mod realtime;
 #[cfg(feature = "relay")]
 pub mod relay;
 mod runtime;
@@ -73,6 +74,7 @@ pub use hub::Hub;
 pub use link::{EVENT_BACKLOG, Link, LinkSender};
 pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
+pub use realtime::{Realtime, RealtimeError, RealtimeMode};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use stats::LinkStats;

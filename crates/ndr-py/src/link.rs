@@ -516,7 +516,7 @@ impl PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport))]
+    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport, realtime, rt_priority, rt_cpu))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         role: &str,
@@ -532,6 +532,9 @@ impl PyLinkSettings {
         app_queue: &Bound<'_, PyAny>,
         insecure: bool,
         transport: &str,
+        realtime: &str,
+        rt_priority: &Bound<'_, PyAny>,
+        rt_cpu: &Bound<'_, PyAny>,
     ) -> PyResult<Self> {
         let role = match role {
             "base" => Role::Base,
@@ -577,8 +580,33 @@ impl PyLinkSettings {
         let mut config = LinkConfig::new(endpoint).with_transport(transport);
         config.app_queue = app_queue;
         config.insecure = insecure;
+        config.realtime = realtime_settings(realtime, rt_priority, rt_cpu)?;
         Ok(PyLinkSettings { config, role })
     }
+}
+
+/// `realtime=`, `rt_priority=`, `rt_cpu=` as the hub's [`Realtime`](ndr_net::Realtime).
+fn realtime_settings(
+    mode: &str,
+    priority: &Bound<'_, PyAny>,
+    cpu: &Bound<'_, PyAny>,
+) -> PyResult<ndr_net::Realtime> {
+    let mode = mode
+        .parse::<ndr_net::RealtimeMode>()
+        .map_err(|e| PyValueError::new_err(format!("realtime: {e}")))?;
+    let priority = int_in::<u8>("rt_priority", priority, 1, 99)?;
+    // As many CPUs as a Linux CPU set holds.
+    let cpu = (!cpu.is_none())
+        .then(|| int_in::<usize>("rt_cpu", cpu, 0, 1023))
+        .transpose()?;
+    let rt = ndr_net::Realtime::default()
+        .with_mode(mode)
+        .with_priority(priority)
+        .map_err(|e| PyValueError::new_err(format!("rt_priority: {e}")))?;
+    Ok(match cpu {
+        Some(cpu) => rt.on_cpu(cpu),
+        None => rt,
+    })
 }
 
 /// Connects to a peer (over mutual TLS with `tls`) and waits for the
