@@ -3,6 +3,7 @@
 mod address;
 mod delay;
 mod link;
+mod metrics;
 mod plant;
 mod run;
 mod security;
@@ -11,6 +12,7 @@ mod time;
 pub use address::resolve;
 pub use delay::DelayArgs;
 pub use link::LinkArgs;
+pub use metrics::MetricsArgs;
 pub use plant::PlantArgs;
 pub use run::RunArgs;
 pub use security::SecurityArgs;
