@@ -41,6 +41,9 @@ use prometheus_client::registry::Registry;
 use crate::clock::LATENESS_BOUNDS_MICROS;
 use crate::{LinkSender, LinkStats, Listener, ListenerStats, Transport};
 
+/// The crate the metrics are encoded with, at the version they need.
+pub use prometheus_client;
+
 /// The `Content-Type` of [`Metrics::encode`]'s text (Prometheus text 0.0.4).
 pub const CONTENT_TYPE: &str = prometheus_client::encoding::prometheus_text::CONTENT_TYPE;
 
@@ -92,6 +95,32 @@ struct Watched {
     next: u64,
     links: Vec<(WatchId, LinkLabels, LinkSender)>,
     listeners: Vec<(WatchId, LinkLabels, Weak<Listener>)>,
+    #[cfg(feature = "relay")]
+    relays: Vec<(WatchId, RelayLabels, crate::relay::RelayStatsReader)>,
+}
+
+/// The labels of a relay's series: `listen` (where clients connect) and
+/// `upstream` (where it relays them).
+#[cfg(feature = "relay")]
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct RelayLabels {
+    /// The address clients connect to.
+    pub listen: String,
+    /// The address each client is relayed to.
+    pub upstream: String,
+}
+
+#[cfg(feature = "relay")]
+impl RelayLabels {
+    /// The labels of a relay from `listen` to `upstream`.
+    #[must_use]
+    pub fn new(listen: impl Into<String>, upstream: impl Into<String>) -> Self {
+        RelayLabels {
+            listen: listen.into(),
+            upstream: upstream.into(),
+        }
+    }
 }
 
 impl fmt::Debug for Metrics {
@@ -137,11 +166,27 @@ impl Metrics {
         id
     }
 
-    /// Stops showing a link or listener (its series end).
+    /// Shows a relay's counters (`ndr_relay_*`) under `labels`.
+    #[cfg(feature = "relay")]
+    pub fn watch_relay(
+        &self,
+        labels: RelayLabels,
+        relay: &crate::relay::RelayStatsReader,
+    ) -> WatchId {
+        let mut w = self.lock();
+        let id = WatchId(w.next);
+        w.next += 1;
+        w.relays.push((id, labels, relay.clone()));
+        id
+    }
+
+    /// Stops showing a link, listener or relay (its series end).
     pub fn unwatch(&self, id: WatchId) {
         let mut w = self.lock();
         w.links.retain(|(i, ..)| *i != id);
         w.listeners.retain(|(i, ..)| *i != id);
+        #[cfg(feature = "relay")]
+        w.relays.retain(|(i, ..)| *i != id);
     }
 
     /// Registers these metrics into an application's registry: each scrape
@@ -166,6 +211,14 @@ impl Metrics {
     /// The snapshots to encode: taken once per scrape, outside the lock of
     /// the set (a link's stats lock is held only for its copy).
     fn snapshot(&self) -> Snapshot {
+        #[cfg(feature = "relay")]
+        let relays = {
+            let w = self.lock();
+            w.relays
+                .iter()
+                .map(|(_, l, r)| (l.clone(), r.stats()))
+                .collect()
+        };
         let (links, listeners) = {
             let w = self.lock();
             (
@@ -188,6 +241,8 @@ impl Metrics {
                 .into_iter()
                 .filter_map(|(l, s)| Some((l, s.upgrade()?.stats())))
                 .collect(),
+            #[cfg(feature = "relay")]
+            relays,
         }
     }
 }
@@ -195,6 +250,8 @@ impl Metrics {
 struct Snapshot {
     links: Vec<(LinkLabels, LinkStats)>,
     listeners: Vec<(LinkLabels, ListenerStats)>,
+    #[cfg(feature = "relay")]
+    relays: Vec<(RelayLabels, crate::relay::RelayStats)>,
 }
 
 fn role_name(role: Role) -> &'static str {
@@ -526,6 +583,147 @@ impl Collector for Metrics {
             "ndr_links_accepted",
             "Links a listener handed to the application (peer: the address it listens on).",
             &accepted,
+        )?;
+        #[cfg(feature = "relay")]
+        relay::encode(&mut enc, &snap.relays)?;
+        Ok(())
+    }
+}
+
+/// The relay's counters (`ndr_relay_*`), per relay and direction.
+#[cfg(feature = "relay")]
+mod relay {
+    use super::{RelayLabels, counter, gauge};
+    use crate::relay::RelayStats;
+    use core::fmt;
+    use prometheus_client::encoding::DescriptorEncoder;
+
+    type Rows<'a, T> = Vec<(Vec<(&'static str, &'a str)>, T)>;
+
+    fn labels<'a>(
+        l: &'a RelayLabels,
+        extra: &[(&'static str, &'static str)],
+    ) -> Vec<(&'static str, &'a str)> {
+        let mut v = vec![
+            ("listen", l.listen.as_str()),
+            ("upstream", l.upstream.as_str()),
+        ];
+        v.extend_from_slice(extra);
+        v
+    }
+
+    /// One row per relay, direction and value of `f`'s reasons.
+    fn rows<'a>(
+        relays: &'a [(RelayLabels, RelayStats)],
+        f: impl Fn(&RelayStats, &mut dyn FnMut(&[(&'static str, &'static str)], u64)),
+    ) -> Rows<'a, u64> {
+        let mut out = Vec::new();
+        for (l, s) in relays {
+            f(s, &mut |extra, v| out.push((labels(l, extra), v)));
+        }
+        out
+    }
+
+    pub(super) fn encode(
+        enc: &mut DescriptorEncoder,
+        relays: &[(RelayLabels, RelayStats)],
+    ) -> fmt::Result {
+        counter(
+            enc,
+            "ndr_relay_connections",
+            "Client connections the relay accepted.",
+            &rows(relays, |s, row| row(&[], s.connections)),
+        )?;
+        counter(
+            enc,
+            "ndr_relay_connections_ended",
+            "Connections that ended, by how: finished, upstream_failure, framing_error, queue_overflow, io_error, shutdown.",
+            &rows(relays, |s, row| {
+                for (how, n) in [
+                    ("finished", s.finished),
+                    ("upstream_failure", s.upstream_failures),
+                    ("framing_error", s.framing_errors),
+                    ("queue_overflow", s.queue_overflows),
+                    ("io_error", s.io_errors),
+                    ("shutdown", s.closed_by_shutdown),
+                ] {
+                    row(&[("how", how)], n);
+                }
+            }),
+        )?;
+        let by_direction = |f: fn(&crate::relay::DirectionStats) -> u64| {
+            rows(relays, move |s, row| {
+                row(&[("direction", "forward")], f(&s.forward));
+                row(&[("direction", "backward")], f(&s.backward));
+            })
+        };
+        counter(
+            enc,
+            "ndr_relay_frames_received",
+            "TCP frames read from the sending side (forward: client to upstream).",
+            &by_direction(|d| d.frames_received),
+        )?;
+        counter(
+            enc,
+            "ndr_relay_frames_delivered",
+            "TCP frames written to the receiving side after their delay.",
+            &by_direction(|d| d.frames_delivered),
+        )?;
+        let by_datagram_direction = |f: fn(&crate::relay::DatagramDirectionStats) -> u64| {
+            rows(relays, move |s, row| {
+                row(&[("direction", "forward")], f(&s.datagrams.forward));
+                row(&[("direction", "backward")], f(&s.datagrams.backward));
+            })
+        };
+        counter(
+            enc,
+            "ndr_relay_datagrams_received",
+            "Datagrams read from the sending side into a flow.",
+            &by_datagram_direction(|d| d.received),
+        )?;
+        counter(
+            enc,
+            "ndr_relay_datagrams_delivered",
+            "Datagrams sent on after their delay.",
+            &by_datagram_direction(|d| d.delivered),
+        )?;
+        counter(
+            enc,
+            "ndr_relay_datagrams_dropped",
+            "Datagrams dropped, by reason: lost (the loss model), queue_full, send_failed, evicted (their flow's).",
+            &rows(relays, |s, row| {
+                for (dir, d) in [
+                    ("forward", &s.datagrams.forward),
+                    ("backward", &s.datagrams.backward),
+                ] {
+                    for (reason, n) in [
+                        ("lost", d.lost),
+                        ("queue_full", d.queue_full),
+                        ("send_failed", d.send_failed),
+                        ("evicted", d.evicted),
+                    ] {
+                        row(&[("direction", dir), ("reason", reason)], n);
+                    }
+                }
+            }),
+        )?;
+        let active = |f: fn(&RelayStats) -> u64| -> Rows<'_, f64> {
+            relays
+                .iter()
+                .map(|(l, s)| (labels(l, &[]), f(s) as f64))
+                .collect()
+        };
+        gauge(
+            enc,
+            "ndr_relay_connections_active",
+            "Connections open now.",
+            &active(|s| s.active),
+        )?;
+        gauge(
+            enc,
+            "ndr_relay_flows_active",
+            "Datagram flows open now.",
+            &active(|s| s.datagrams.flows_active),
         )
     }
 }

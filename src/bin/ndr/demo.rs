@@ -11,6 +11,7 @@ use ndr::net::{Link, LinkStats, Listener, NetError, Relay, RelayConfig, TlsConfi
 use ndr::netem::LossModel;
 
 use ndr::core::wire::Role;
+use ndr::net::metrics::RelayLabels;
 
 use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RunArgs};
 use crate::metrics::Served;
@@ -93,9 +94,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             listener.accept(),
             Link::connect(relay.local_addr(), base_config.clone())
         );
-        Ok::<_, NetError>((base?, remote?, relay))
+        let upstream = listener.local_addr()?;
+        Ok::<_, NetError>((base?, remote?, relay, upstream))
     });
-    let (base, remote, relay) = match set_up {
+    let (base, remote, relay, upstream) = match set_up {
         Ok(parts) => parts,
         Err(e) => {
             let (series, error) = series.close();
@@ -120,6 +122,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         &remote.sender(),
     );
     served.watch_link(base.peer_addr(), Role::Base, transport, &base.sender());
+    if let Some(m) = served.metrics() {
+        let labels = RelayLabels::new(relay.local_addr().to_string(), upstream.to_string());
+        m.watch_relay(labels, &relay.stats_reader());
+    }
     // The run starts with the link: the set-up waited for its handshake.
     let until = StdInstant::now() + StdDuration::from_secs_f64(args.run.duration_s);
 
