@@ -127,7 +127,7 @@ def test_ndr_remote_serves_metrics_during_a_run_and_its_count_matches_the_report
         assert base.returncode == 0, base_err
         assert json.loads(out)["ok"] is True
         # Scraped while the link ran, the count never going back.
-        assert running >= 10, (running, released)
+        assert running >= 3, (running, released)
         assert released == sorted(released) and released[-1] > 0
 
         ended = err.wait_for(rf"base {re.escape(peer)}: .* after (\d+) samples released", 20)
