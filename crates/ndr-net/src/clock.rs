@@ -335,12 +335,18 @@ impl LatenessHistogram {
     }
 
     /// Records under each of [`LATENESS_BOUNDS_MICROS`], in one pass over
-    /// the linear range. Past it, as [`count_under_micros`](Self::count_under_micros).
+    /// the linear range that ends at its last record (on the hub's thread,
+    /// with the percentiles, as they do). Past it, as
+    /// [`count_under_micros`](Self::count_under_micros).
     fn below_bounds(&self) -> [u64; LATENESS_BOUNDS_MICROS.len()] {
         let mut below = [0; LATENESS_BOUNDS_MICROS.len()];
+        let in_range = self.count - self.overflow;
         let mut seen = 0u64;
         let mut next = 0;
         for (micros, &n) in (0u64..).zip(self.buckets.iter()) {
+            if seen == in_range {
+                break;
+            }
             while next < below.len() && LATENESS_BOUNDS_MICROS[next] <= micros {
                 below[next] = seen;
                 next += 1;
@@ -348,7 +354,11 @@ impl LatenessHistogram {
             seen += n;
         }
         for (slot, &bound) in below.iter_mut().zip(&LATENESS_BOUNDS_MICROS).skip(next) {
-            *slot = self.count_under_micros(bound);
+            *slot = if bound <= Self::RANGE_MICROS {
+                seen
+            } else {
+                self.count_under_micros(bound)
+            };
         }
         below
     }
@@ -442,6 +452,24 @@ mod tests {
         // Under 10 ms: all but the 20 ms tick.
         assert_eq!(s.below[LATENESS_BOUNDS_MICROS.len() - 1], 5);
         assert!(s.below.windows(2).all(|w| w[0] <= w[1]));
+        // On the bounds themselves, at the ends of the range, and empty.
+        let cases: [&[u64]; 4] = [
+            &[],
+            &[0],
+            &[9_999_999, 10_000_000, 10_000_999, 10_001_000],
+            &[1_000, 2_000, 2_999, 3_000, 150_000, 150_001, 999_999],
+        ];
+        for case in cases {
+            let mut h = LatenessHistogram::new(Duration::from_millis(1));
+            for &nanos in case {
+                h.record(Duration::from_nanos(nanos));
+            }
+            let want: Vec<u64> = LATENESS_BOUNDS_MICROS
+                .iter()
+                .map(|&b| h.count_under_micros(b))
+                .collect();
+            assert_eq!(h.stats().below.to_vec(), want, "{case:?}");
+        }
     }
 
     #[test]
