@@ -99,4 +99,6 @@ mod docs {
     struct Control;
     #[doc = include_str!("../docs/guide/realtime.md")]
     struct Realtime;
+    #[doc = include_str!("../docs/guide/metrics.md")]
+    struct Metrics;
 }

@@ -772,6 +772,17 @@ class Link:
         link's): its keys are the Rust fields' serde names."""
         return self._native.stats()
 
+    def metrics(self) -> str:
+        """The link's figures as Prometheus text (version 0.0.4): the page
+        ``ndr remote --metrics`` serves, for this link alone, labelled with
+        ``peer``, ``role`` and ``transport``. The same numbers as
+        :attr:`stats` (read from the same snapshot of the hub), under the
+        names listed in ``docs/guide/metrics.md``. An application with a
+        ``prometheus_client`` registry registers :class:`ndr.metrics.LinkCollector`
+        instead; one that exports otherwise parses this text (e.g.
+        ``prometheus_client.parser.text_string_to_metric_families``)."""
+        return self._native.metrics()
+
     def now(self) -> float:
         """Now, in seconds on this side's link clock (the clock of
         ``Tick.released_at`` and ``Tick.arrived_at``)."""

@@ -53,6 +53,8 @@ mod keepalive;
 pub mod keygen;
 mod link;
 mod listener;
+#[cfg(feature = "metrics")]
+pub mod metrics;
 mod pool;
 pub mod quic;
 pub mod realtime;

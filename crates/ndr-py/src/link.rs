@@ -22,8 +22,9 @@ use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow}
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
 use ndr_core::wire::Role;
+use ndr_net::metrics::{LinkLabels, Metrics};
 use ndr_net::{EVENT_BACKLOG, LinkEvent};
-use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
+use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample, Transport};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -198,6 +199,8 @@ pub struct PyLink {
     /// Events in `kept` not yet seen, readable without its lock.
     unseen: AtomicUsize,
     role: Role,
+    /// The link's transport (the `transport` label of its metrics).
+    transport: Transport,
     period: f64,
     peer: SocketAddr,
     /// Values in each command and in each state.
@@ -209,7 +212,7 @@ fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
 }
 
 impl PyLink {
-    fn new(link: Link, role: Role, period: Duration) -> Self {
+    fn new(link: Link, role: Role, transport: Transport, period: Duration) -> Self {
         let (sent, received) = link.widths();
         PyLink {
             widths: match role {
@@ -226,6 +229,7 @@ impl PyLink {
             kept: Mutex::new(Kept::default()),
             unseen: AtomicUsize::new(0),
             role,
+            transport,
             period: period.as_secs_f64(),
         }
     }
@@ -378,6 +382,16 @@ impl PyLink {
         };
         s.events_dropped += self.kept().dropped;
         serialized(py, &s).map(Some)
+    }
+
+    /// The link's figures as Prometheus text (version 0.0.4), the page
+    /// `ndr remote --metrics` serves, for this link alone: labelled with
+    /// its peer, role and transport.
+    fn metrics(&self) -> String {
+        let labels = LinkLabels::new(self.peer.to_string(), self.role, self.transport);
+        let metrics = Metrics::new();
+        metrics.watch_link(labels, &self.sender);
+        metrics.encode()
     }
 
     /// Now on this side's link clock (s): `released_at` and `arrived_at` are on it.
@@ -621,7 +635,7 @@ pub fn connect(
     tls: Option<&Bound<'_, PyTlsConfig>>,
 ) -> PyResult<PyLink> {
     let (mut config, role) = (settings.config.clone(), settings.role);
-    let period = config.endpoint.period;
+    let (period, transport) = (config.endpoint.period, config.transport);
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
     let tls = tls.map(|t| t.get().inner.clone());
@@ -696,7 +710,7 @@ pub fn connect(
             return Err(interrupted);
         }
     };
-    Ok(PyLink::new(link, role, period))
+    Ok(PyLink::new(link, role, transport, period))
 }
 
 /// Where a connection attempt stopped.
@@ -731,6 +745,7 @@ pub struct PyListener {
     local: SocketAddr,
     period: Duration,
     role: Role,
+    transport: Transport,
 }
 
 impl Drop for PyListener {
@@ -782,6 +797,7 @@ pub fn listen(
         local,
         period,
         role,
+        transport: settings.config.transport,
     })
 }
 
@@ -845,7 +861,7 @@ impl PyListener {
             done => done,
         };
         match got? {
-            Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.period))),
+            Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.transport, self.period))),
             Err(e) => Err(net_error(py, e)),
         }
     }

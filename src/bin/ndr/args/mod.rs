@@ -3,6 +3,7 @@
 mod address;
 mod delay;
 mod link;
+mod metrics;
 mod plant;
 mod realtime;
 mod run;
@@ -12,6 +13,7 @@ mod time;
 pub use address::resolve;
 pub use delay::DelayArgs;
 pub use link::LinkArgs;
+pub use metrics::MetricsArgs;
 pub use plant::PlantArgs;
 pub use realtime::RealtimeArgs;
 pub use run::RunArgs;
