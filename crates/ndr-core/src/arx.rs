@@ -383,9 +383,9 @@ impl Arx2 {
         &mut self.rls
     }
 
-    /// Number of adapting updates so far.
+    /// Number of adapting updates so far (the [`rls`](Self::rls)'s count).
     #[must_use]
-    pub fn updates(&self) -> u64 {
+    pub(crate) fn updates(&self) -> u64 {
         self.rls.updates()
     }
 

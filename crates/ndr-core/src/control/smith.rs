@@ -133,15 +133,6 @@ impl<const H: usize> SmithPredictor<H> {
         Ok(())
     }
 
-    /// The same from the one-way delays in ticks, as the
-    /// [`Estimator`](crate::Estimator) counts them: `Df + Db`.
-    ///
-    /// # Errors
-    /// As [`SmithPredictor::set_round_trip`].
-    pub fn set_delays(&mut self, delay_fwd: usize, delay_bwd: usize) -> Result<(), ControlError> {
-        self.set_round_trip(delay_fwd.saturating_add(delay_bwd))
-    }
-
     /// The local model in use.
     #[must_use]
     pub fn model(&self) -> Tf2 {
@@ -306,7 +297,9 @@ mod tests {
     }
 
     fn pid() -> Pid {
-        Pid::new(PidConfig::new(4.0, 2.0, 0.3, 0.02).with_limits(-20.0, 20.0)).unwrap()
+        let mut cfg = PidConfig::new(4.0, 2.0, 0.3, 0.02);
+        (cfg.out_min, cfg.out_max) = (-20.0, 20.0);
+        Pid::new(cfg).unwrap()
     }
 
     /// The delay-free loop: the controller sees the plant's output on the

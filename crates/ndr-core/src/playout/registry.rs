@@ -274,7 +274,7 @@ registry! {
         epsilon_ppm: u32,
         /// The step of the delay asked for, `None` for the default
         /// quantum (20 ms) (see
-        /// [`delay_quantum_for`](super::delay_quantum_for)): a finer one
+        /// [`delay_quantum`](super::delay_quantum)): a finer one
         /// holds a lower delay that changes more often.
         quantum: Option<Duration>,
     } => AdaptivePlayout<A>,
@@ -334,7 +334,7 @@ impl Playout {
     #[must_use]
     pub(crate) fn quantum(self, period: Duration) -> Option<Duration> {
         match self {
-            Playout::Adaptive { quantum, .. } => Some(super::delay_quantum_for(period, quantum)),
+            Playout::Adaptive { quantum, .. } => Some(super::delay_quantum(period, quantum)),
             _ => None,
         }
     }
