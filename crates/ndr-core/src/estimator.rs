@@ -525,7 +525,14 @@ mod tests {
         assert_eq!(est.delays(), (4, 0));
         assert!(Estimator::<0>::with_model(0, 0, plant()).is_err());
         assert_eq!(
-            Estimator::<3>::with_model(0, 0, Tf2::new([f64::NAN, 0.0, 0.0], [0.0; 2])),
+            Estimator::<3>::with_model(
+                0,
+                0,
+                Tf2 {
+                    b: [f64::NAN, 0.0, 0.0],
+                    a: [0.0; 2]
+                }
+            ),
             Err(EstimatorError::InvalidModel)
         );
         let msg = std::string::ToString::to_string(&EstimatorError::HistoryTooShort {

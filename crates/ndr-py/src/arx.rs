@@ -79,10 +79,10 @@ impl PyTf2 {
                 "den[0] must be non-zero (den = [1, a1, a2] in scipy.signal's convention)",
             ));
         }
-        let tf = Tf2::new(
-            [b[0] / a[0], b[1] / a[0], b[2] / a[0]],
-            [a[1] / a[0], a[2] / a[0]],
-        );
+        let tf = Tf2 {
+            b: [b[0] / a[0], b[1] / a[0], b[2] / a[0]],
+            a: [a[1] / a[0], a[2] / a[0]],
+        };
         if !tf.is_finite() {
             return Err(PyValueError::new_err(
                 "num / den[0] and den / den[0] must be finite",

@@ -383,7 +383,10 @@ mod tests {
         // The loop that would be exact above, without the predictor's
         // correction (the model given zero gain): large error.
         let d = 17;
-        let zero = Tf2::new([0.0; 3], [0.0; 2]);
+        let zero = Tf2 {
+            b: [0.0; 3],
+            a: [0.0; 2],
+        };
         let mut plain = SmithPredictor::<64>::with_model(zero, d).unwrap();
         let ideal = delay_free(600);
         let measured = across(600, &mut plain, |_| 10, 7, |_, _| {});
@@ -459,7 +462,10 @@ mod tests {
         );
         assert_eq!(s.command(f64::INFINITY), Err(ControlError::NonFiniteInput));
         assert_eq!(s, before);
-        let nan = Tf2::new([f64::NAN, 0.0, 0.0], [0.0; 2]);
+        let nan = Tf2 {
+            b: [f64::NAN, 0.0, 0.0],
+            a: [0.0; 2],
+        };
         assert_eq!(
             SmithPredictor::<8>::with_model(nan, 1),
             Err(ControlError::InvalidModel)

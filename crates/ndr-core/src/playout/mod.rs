@@ -42,7 +42,7 @@ pub use policy::{
 };
 #[cfg(feature = "alloc")]
 pub use policy::{Custom, Factory, HeapRoom};
-pub use registry::{Builtin, InvalidPlayout, Playout, PlayoutName, Syntax, UnknownPlayout};
+pub use registry::{Builtin, InvalidPlayout, Playout, UnknownPlayout};
 pub use schedule::delay_quantum;
 pub use target::{OnTicks, TargetDelay};
 
