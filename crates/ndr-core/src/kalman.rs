@@ -196,12 +196,6 @@ impl Kalman3 {
         (self.model.h * self.a_ahead * self.x)[0]
     }
 
-    /// The whole state predicted `horizon` periods ahead, `A^l·x`.
-    #[must_use]
-    pub fn predict_ahead_state(&self) -> Vector3<f64> {
-        self.a_ahead * self.x
-    }
-
     /// The state estimate `[value, rate, acceleration]`.
     #[must_use]
     pub fn x(&self) -> &Vector3<f64> {
@@ -249,7 +243,8 @@ impl Kalman3 {
         Ok(())
     }
 
-    /// `A^l`, the horizon transition.
+    /// `A^l`, the horizon transition: `a_ahead() * x()` is the whole state
+    /// predicted `horizon` periods ahead.
     #[must_use]
     pub fn a_ahead(&self) -> &Matrix3<f64> {
         &self.a_ahead

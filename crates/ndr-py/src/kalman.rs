@@ -129,7 +129,8 @@ impl PyKalman3 {
 
     /// The whole state predicted `horizon` periods ahead, `F^l·x`.
     fn predict_ahead_state<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, self.inner.predict_ahead_state().as_slice())
+        let ahead = self.inner.a_ahead() * self.inner.x();
+        PyArray1::from_slice(py, ahead.as_slice())
     }
 
     /// Back to state zero and `P = sigma_q²·I`.
