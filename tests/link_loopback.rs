@@ -347,7 +347,7 @@ fn the_simulator_and_a_loopback_link_with_a_release_handler_agree_on_the_grtt() 
         .iter()
         .filter_map(|&(seq, sent)| {
             let at = released.get(&seq)?;
-            Some((sent.as_nanos() as f64 - at.as_nanos() as f64) * 1e-9 / period)
+            Some(sent.signed_nanos_since(*at) as f64 * 1e-9 / period)
         })
         .collect();
     let missed = (stats.lateness.missed + remote_stats.lateness.missed) as usize;

@@ -79,7 +79,7 @@ impl Instant {
     /// `self − other` in signed nanoseconds (saturating at the `i64` range);
     /// what clock-offset arithmetic between two hosts needs.
     #[must_use]
-    pub(crate) const fn signed_nanos_since(self, other: Instant) -> i64 {
+    pub const fn signed_nanos_since(self, other: Instant) -> i64 {
         let diff = self.nanos as i128 - other.nanos as i128;
         if diff > i64::MAX as i128 {
             i64::MAX
