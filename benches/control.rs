@@ -45,7 +45,7 @@ fn smith_step(c: &mut Criterion) {
 
 fn wave_step(c: &mut Criterion) {
     let w = WaveTransform::new(2.0).unwrap();
-    let mut energy = WaveEnergy::new();
+    let mut energy = WaveEnergy::default();
     let (xs, fs) = (table(0x1234_5678_9abc_def1), table(0x0fed_cba9_8765_4321));
     let mut i = 0;
     c.bench_function("wave transform step (master + slave + energy)", |b| {

@@ -74,7 +74,9 @@ fn predictor(c: &mut Criterion) {
             i += 1;
             let nrtt = Duration::from_micros(600_000 + (i * 7919) % 50_000);
             let gap = Duration::from_micros((i * 104_729) % 30_000);
-            black_box(p.update(black_box(Some(nrtt)), black_box(Some(gap))))
+            p.observe_nrtt(black_box(nrtt));
+            p.observe_gap(black_box(gap));
+            black_box(p.step())
         })
     });
 }

@@ -27,16 +27,18 @@ pub extern "C" fn ndr_nostd_exercise(x: f64) -> f64 {
     let mut pattern: InitPattern = InitPattern::new();
     let _ = pattern.record_nrtt(Duration::from_secs_f64(x.abs()));
     if let Some(s) = pattern.stats() {
-        acc += Sizing::default().nominal_size_for(&s, t) as f64;
+        acc += Sizing::default().nominal_size(s.mt, t) as f64;
     }
-    if let (Ok(mut lp), Ok(mut env)) = (LowPass::with_periods(25.0, t), Envelope::new(1.00005)) {
+    if let (Ok(mut lp), Ok(mut env)) = (LowPass::new(t * 25, t), Envelope::new(1.00005)) {
         acc += lp.update(x).unwrap_or(0.0) + env.update(x).unwrap_or(0.0);
     }
     if let Ok(mut k) = Kalman3::new(1.0, t, 50) {
         acc += k.step(x).unwrap_or(0.0) + k.predict_ahead();
     }
     if let Ok(mut p) = NetworkPredictor::new(PredictorConfig::paper(t)) {
-        if let Some(pred) = p.update(Some(t), Some(t)) {
+        p.observe_nrtt(t);
+        p.observe_gap(t);
+        if let Some(pred) = p.step() {
             acc += pred.nrtt_ahead;
         }
     }

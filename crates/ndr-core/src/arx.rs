@@ -85,12 +85,6 @@ pub struct Tf2 {
 }
 
 impl Tf2 {
-    /// The transfer function with numerator `b` and denominator `[1, a1, a2]`.
-    #[must_use]
-    pub const fn new(b: [f64; 3], a: [f64; 2]) -> Self {
-        Tf2 { b, a }
-    }
-
     /// The continuous low-pass `gain·ωn² / (s² + 2ζωn s + ωn²)` discretized
     /// with period `period_s` by the bilinear (Tustin) transform
     /// `s = c (1 − z⁻¹)/(1 + z⁻¹)`, `c = 2/T`, without pre-warping (as in the
@@ -383,9 +377,9 @@ impl Arx2 {
         &mut self.rls
     }
 
-    /// Number of adapting updates so far.
+    /// Number of adapting updates so far (the [`rls`](Self::rls)'s count).
     #[must_use]
-    pub fn updates(&self) -> u64 {
+    pub(crate) fn updates(&self) -> u64 {
         self.rls.updates()
     }
 
@@ -430,7 +424,10 @@ mod tests {
 
     #[test]
     fn a_constant_input_leaves_the_model_unexcited() {
-        let plant = Tf2::new([0.1, 0.05, 0.0], [-0.9, 0.2]);
+        let plant = Tf2 {
+            b: [0.1, 0.05, 0.0],
+            a: [-0.9, 0.2],
+        };
         let run = |input: &dyn Fn(u32) -> f64| {
             let mut arx = Arx2::new(1.0, 1e6).unwrap();
             let mut state = Tf2State::new(plant);
@@ -537,21 +534,60 @@ mod tests {
 
     #[test]
     fn jury_conditions() {
-        assert!(Tf2::new([1.0, 0.0, 0.0], [0.0, 0.0]).is_stable());
+        assert!(
+            Tf2 {
+                b: [1.0, 0.0, 0.0],
+                a: [0.0, 0.0]
+            }
+            .is_stable()
+        );
         // Poles 0.5 ± 0.5j: a1 = −1, a2 = 0.5.
-        assert!(Tf2::new([1.0; 3], [-1.0, 0.5]).is_stable());
+        assert!(
+            Tf2 {
+                b: [1.0; 3],
+                a: [-1.0, 0.5]
+            }
+            .is_stable()
+        );
         // Double pole at 1: a1 = −2, a2 = 1 (marginal).
-        assert!(!Tf2::new([1.0; 3], [-2.0, 1.0]).is_stable());
+        assert!(
+            !Tf2 {
+                b: [1.0; 3],
+                a: [-2.0, 1.0]
+            }
+            .is_stable()
+        );
         // Real poles 1.1 and 0.5: a1 = −1.6, a2 = 0.55.
-        assert!(!Tf2::new([1.0; 3], [-1.6, 0.55]).is_stable());
+        assert!(
+            !Tf2 {
+                b: [1.0; 3],
+                a: [-1.6, 0.55]
+            }
+            .is_stable()
+        );
         // Poles −0.95 and 0.9: a1 = 0.05, a2 = −0.855.
-        assert!(Tf2::new([1.0; 3], [0.05, -0.855]).is_stable());
-        assert!(!Tf2::new([1.0; 3], [f64::NAN, 0.0]).is_stable());
+        assert!(
+            Tf2 {
+                b: [1.0; 3],
+                a: [0.05, -0.855]
+            }
+            .is_stable()
+        );
+        assert!(
+            !Tf2 {
+                b: [1.0; 3],
+                a: [f64::NAN, 0.0]
+            }
+            .is_stable()
+        );
     }
 
     #[test]
     fn state_follows_difference_equation() {
-        let tf = Tf2::new([0.5, 0.25, 0.125], [-0.5, 0.25]);
+        let tf = Tf2 {
+            b: [0.5, 0.25, 0.125],
+            a: [-0.5, 0.25],
+        };
         let mut s = Tf2State::with_initial(tf, [1.0, 2.0], [3.0, 4.0]);
         // y = 0.5·2 + 0.25·1 + 0.125·2 + 0.5·3 − 0.25·4 = 2.0
         assert_eq!(s.step(2.0), 2.0);

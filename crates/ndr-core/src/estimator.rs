@@ -369,19 +369,14 @@ impl<const H: usize> Estimator<H> {
         }
     }
 
-    /// The identifier, or `None` with a fixed model.
+    /// The identifier, or `None` with a fixed model (the model is
+    /// identified online when there is one).
     #[must_use]
     pub fn arx(&self) -> Option<&Arx2> {
         match &self.model {
             Model::Identify(arx) => Some(arx),
             Model::Fixed(_) => None,
         }
-    }
-
-    /// Whether the model is identified online.
-    #[must_use]
-    pub fn is_identifying(&self) -> bool {
-        matches!(self.model, Model::Identify(_))
     }
 
     /// The delays `(Df, Db)` in ticks.
@@ -530,7 +525,14 @@ mod tests {
         assert_eq!(est.delays(), (4, 0));
         assert!(Estimator::<0>::with_model(0, 0, plant()).is_err());
         assert_eq!(
-            Estimator::<3>::with_model(0, 0, Tf2::new([f64::NAN, 0.0, 0.0], [0.0; 2])),
+            Estimator::<3>::with_model(
+                0,
+                0,
+                Tf2 {
+                    b: [f64::NAN, 0.0, 0.0],
+                    a: [0.0; 2]
+                }
+            ),
             Err(EstimatorError::InvalidModel)
         );
         let msg = std::string::ToString::to_string(&EstimatorError::HistoryTooShort {
@@ -547,7 +549,7 @@ mod tests {
         let (df, db) = (2, 1);
         let y = truth(df, 200);
         let mut est = Estimator::<8>::with_model(df, db, plant()).unwrap();
-        assert!(!est.is_identifying() && est.arx().is_none());
+        assert!(est.arx().is_none());
         for n in 0..190_usize {
             let sample = n.checked_sub(db).map(|m| y[m]);
             let e = est.step(command(n), sample).unwrap();

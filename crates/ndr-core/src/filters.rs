@@ -6,7 +6,7 @@ use core::fmt;
 use crate::time::Duration;
 
 /// The paper's envelope decay `vd`.
-pub const DEFAULT_DECAY: f64 = 1.00005;
+pub(crate) const DEFAULT_DECAY: f64 = 1.00005;
 
 /// Errors of the filters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -68,7 +68,7 @@ impl LowPass {
 
     /// A filter of time constant `periods · T`, the way the paper states them
     /// (`τ = 250·T` and so on).
-    pub fn with_periods(periods: f64, period: Duration) -> Result<Self, FilterError> {
+    pub(crate) fn with_periods(periods: f64, period: Duration) -> Result<Self, FilterError> {
         if !periods.is_finite() {
             return Err(FilterError::NonFinite(periods));
         }

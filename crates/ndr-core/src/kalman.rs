@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, RowVector3, Vector3};
 use crate::time::Duration;
 
 /// The paper's prediction horizon in periods: 50 (10 s at 200 ms).
-pub const DEFAULT_HORIZON: u32 = 50;
+pub(crate) const DEFAULT_HORIZON: u32 = 50;
 
 /// Errors of [`Kalman3`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,23 +62,35 @@ impl core::error::Error for KalmanError {}
 /// Q, R and P0 all scale with σQ², so the gains — and hence the estimates — do
 /// not depend on σQ; only the reported covariance does.
 ///
-/// `F` (`A`), `H`, `Q`, `R` and `P` can be set, as in filterpy, to tune the
-/// filter away from the paper's model; [`Kalman3::set_period`] goes back to
-/// the triple integrator's `A`.
+/// The model ([`KalmanModel`]) and the state can be set, as in filterpy, to
+/// tune the filter away from the paper's; [`Kalman3::set_period`] goes back
+/// to the triple integrator's `A`.
 ///
 /// Triple-integrator Kalman filter with an `l`-step-ahead prediction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Kalman3 {
     x: Vector3<f64>,
     p: Matrix3<f64>,
-    a: Matrix3<f64>,
+    model: KalmanModel,
     a_ahead: Matrix3<f64>,
-    h: RowVector3<f64>,
-    q: Matrix3<f64>,
-    r: f64,
     sigma_q2: f64,
     period: Duration,
     horizon: u32,
+}
+
+/// What a [`Kalman3`] filters with (filterpy's `F`, `H`, `Q`, `R`): the
+/// paper's triple integrator unless set with [`Kalman3::set_model`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct KalmanModel {
+    /// The transition matrix `A` (filterpy's `F`).
+    pub a: Matrix3<f64>,
+    /// The measurement matrix `H`, `[1 0 0]` in the paper's model.
+    pub h: RowVector3<f64>,
+    /// The process noise `Q`, `diag(0, 0, σQ²)` in the paper's model.
+    pub q: Matrix3<f64>,
+    /// The measurement noise `R` (finite and positive), `σQ²` in the paper's model.
+    pub r: f64,
 }
 
 /// `A` for a step of `dt` seconds.
@@ -122,11 +134,13 @@ impl Kalman3 {
         Ok(Kalman3 {
             x: Vector3::zeros(),
             p: Matrix3::identity() * sigma_q2,
-            a: transition(dt),
+            model: KalmanModel {
+                a: transition(dt),
+                h: RowVector3::new(1.0, 0.0, 0.0),
+                q: Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, sigma_q2)),
+                r: sigma_q2,
+            },
             a_ahead: transition(dt * f64::from(horizon)),
-            h: RowVector3::new(1.0, 0.0, 0.0),
-            q: Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, sigma_q2)),
-            r: sigma_q2,
             sigma_q2,
             period,
             horizon,
@@ -135,8 +149,9 @@ impl Kalman3 {
 
     /// Time update: `x ← A·x`, `P ← A·P·Aᵀ + Q`.
     pub fn predict(&mut self) {
-        self.x = self.a * self.x;
-        self.p = self.a * self.p * self.a.transpose() + self.q;
+        let m = &self.model;
+        self.x = m.a * self.x;
+        self.p = m.a * self.p * m.a.transpose() + m.q;
     }
 
     /// Measurement update with `z`; returns the innovation `z − H·x`.
@@ -146,9 +161,10 @@ impl Kalman3 {
         }
         // One measurement: S is a scalar (with the paper's H, P·Hᵀ is the
         // first column of P).
-        let innovation = z - (self.h * self.x)[0];
-        let ph: Vector3<f64> = self.p * self.h.transpose();
-        let s = (self.h * ph)[0] + self.r;
+        let (h, r) = (self.model.h, self.model.r);
+        let innovation = z - (h * self.x)[0];
+        let ph: Vector3<f64> = self.p * h.transpose();
+        let s = (h * ph)[0] + r;
         if !(s.is_finite() && s > 0.0) {
             return Err(KalmanError::NotPositive(s));
         }
@@ -177,13 +193,7 @@ impl Kalman3 {
     /// The value predicted `horizon` periods ahead, `H·A^l·x`.
     #[must_use]
     pub fn predict_ahead(&self) -> f64 {
-        (self.h * self.a_ahead * self.x)[0]
-    }
-
-    /// The whole state predicted `horizon` periods ahead, `A^l·x`.
-    #[must_use]
-    pub fn predict_ahead_state(&self) -> Vector3<f64> {
-        self.a_ahead * self.x
+        (self.model.h * self.a_ahead * self.x)[0]
     }
 
     /// The state estimate `[value, rate, acceleration]`.
@@ -195,52 +205,15 @@ impl Kalman3 {
     /// The filtered value, `H·x`.
     #[must_use]
     pub fn value(&self) -> f64 {
-        (self.h * self.x)[0]
+        (self.model.h * self.x)[0]
     }
 
-    /// Sets the state, e.g. `[first measurement, 0, 0]` to start without a transient.
-    pub fn set_x(&mut self, x: Vector3<f64>) -> Result<(), KalmanError> {
-        all_finite(x.iter())?;
-        self.x = x;
-        Ok(())
-    }
-
-    /// Sets the state covariance `P` (finite; a covariance, or the next
-    /// update refuses).
-    pub fn set_p(&mut self, p: Matrix3<f64>) -> Result<(), KalmanError> {
-        all_finite(p.iter())?;
-        self.p = p;
-        Ok(())
-    }
-
-    /// Sets the transition matrix `A` (filterpy's `F`); `A^l` follows.
-    pub fn set_a(&mut self, a: Matrix3<f64>) -> Result<(), KalmanError> {
-        all_finite(a.iter())?;
-        self.a = a;
-        self.a_ahead = power(&a, self.horizon);
-        Ok(())
-    }
-
-    /// Sets the measurement matrix `H`.
-    pub fn set_h(&mut self, h: RowVector3<f64>) -> Result<(), KalmanError> {
-        all_finite(h.iter())?;
-        self.h = h;
-        Ok(())
-    }
-
-    /// Sets the process noise `Q`.
-    pub fn set_q(&mut self, q: Matrix3<f64>) -> Result<(), KalmanError> {
-        all_finite(q.iter())?;
-        self.q = q;
-        Ok(())
-    }
-
-    /// Sets the measurement noise `R` (finite and positive).
-    pub fn set_r(&mut self, r: f64) -> Result<(), KalmanError> {
-        if !(r.is_finite() && r > 0.0) {
-            return Err(KalmanError::BadR(r));
-        }
-        self.r = r;
+    /// Sets the state `x` and its covariance `P`, e.g. `[first measurement,
+    /// 0, 0]` to start without a transient. Both must be finite, or nothing
+    /// changes; a `P` that is no covariance is refused by the next update.
+    pub fn set_state(&mut self, x: Vector3<f64>, p: Matrix3<f64>) -> Result<(), KalmanError> {
+        all_finite(x.iter().chain(p.iter()))?;
+        (self.x, self.p) = (x, p);
         Ok(())
     }
 
@@ -250,34 +223,31 @@ impl Kalman3 {
         &self.p
     }
 
-    /// The transition matrix `A` (filterpy's `F`).
+    /// The model in use: the triple integrator's unless set.
     #[must_use]
-    pub fn a(&self) -> &Matrix3<f64> {
-        &self.a
+    pub fn model(&self) -> &KalmanModel {
+        &self.model
     }
 
-    /// `A^l`, the horizon transition.
+    /// Replaces the model, e.g. to tune the filter away from the paper's
+    /// (as filterpy's `F`, `H`, `Q`, `R` are set); `A^l` follows. Every
+    /// entry must be finite and `R` positive, or nothing changes.
+    pub fn set_model(&mut self, model: KalmanModel) -> Result<(), KalmanError> {
+        let KalmanModel { a, h, q, r } = model;
+        all_finite(a.iter().chain(h.iter()).chain(q.iter()))?;
+        if !(r.is_finite() && r > 0.0) {
+            return Err(KalmanError::BadR(r));
+        }
+        self.a_ahead = power(&a, self.horizon);
+        self.model = model;
+        Ok(())
+    }
+
+    /// `A^l`, the horizon transition: `a_ahead() * x()` is the whole state
+    /// predicted `horizon` periods ahead.
     #[must_use]
     pub fn a_ahead(&self) -> &Matrix3<f64> {
         &self.a_ahead
-    }
-
-    /// The measurement matrix `H`, `[1 0 0]` unless set.
-    #[must_use]
-    pub fn h(&self) -> RowVector3<f64> {
-        self.h
-    }
-
-    /// The process noise `Q`, `diag(0, 0, σQ²)` unless set.
-    #[must_use]
-    pub fn q(&self) -> Matrix3<f64> {
-        self.q
-    }
-
-    /// The measurement noise `R`, `σQ²` unless set.
-    #[must_use]
-    pub fn r(&self) -> f64 {
-        self.r
     }
 
     /// The noise level σQ given to [`new`](Self::new) (`P0 = σQ²·I`).
@@ -300,14 +270,14 @@ impl Kalman3 {
 
     /// Changes `T` (the horizon stays `l` periods) keeping the estimate: the
     /// state is in units per second, so it stays valid. `A` is the triple
-    /// integrator's again (an `A` set by [`set_a`](Self::set_a) is replaced).
+    /// integrator's again (an `A` set by [`set_model`](Self::set_model) is replaced).
     pub fn set_period(&mut self, period: Duration) -> Result<(), KalmanError> {
         if period.is_zero() {
             return Err(KalmanError::ZeroPeriod);
         }
         let dt = period.as_secs_f64();
         self.period = period;
-        self.a = transition(dt);
+        self.model.a = transition(dt);
         self.a_ahead = transition(dt * f64::from(self.horizon));
         Ok(())
     }
@@ -372,7 +342,7 @@ mod tests {
         let k = Kalman3::new(1.0, T, 50).unwrap();
         let mut pow = Matrix3::identity();
         for _ in 0..50 {
-            pow *= k.a();
+            pow *= k.model().a;
         }
         assert!((pow - k.a_ahead()).abs().max() < 1e-9);
     }
@@ -403,7 +373,10 @@ mod tests {
         let before = k.clone();
         assert!(k.step(f64::NAN).is_err());
         assert!(k.update(f64::INFINITY).is_err());
-        assert!(k.set_x(Vector3::new(0.0, f64::NAN, 0.0)).is_err());
+        assert!(
+            k.set_state(Vector3::new(0.0, f64::NAN, 0.0), *k.p())
+                .is_err()
+        );
         assert_eq!(k, before);
     }
 
@@ -412,12 +385,15 @@ mod tests {
         let mut k = Kalman3::new(1.0, T, 4).unwrap();
         // A constant-velocity model on the first two states, H reading the rate.
         let f = Matrix3::new(1.0, 0.2, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0);
-        k.set_a(f).unwrap();
+        let tuned = KalmanModel {
+            a: f,
+            h: RowVector3::new(0.0, 1.0, 0.0),
+            q: Matrix3::identity() * 1e-3,
+            r: 0.5,
+        };
+        k.set_model(tuned).unwrap();
         assert!((k.a_ahead() - f * f * f * f).abs().max() < 1e-12);
-        k.set_h(RowVector3::new(0.0, 1.0, 0.0)).unwrap();
-        k.set_q(Matrix3::identity() * 1e-3).unwrap();
-        k.set_r(0.5).unwrap();
-        k.set_x(Vector3::new(1.0, 2.0, 0.0)).unwrap();
+        k.set_state(Vector3::new(1.0, 2.0, 0.0), *k.p()).unwrap();
         assert_eq!(k.value(), 2.0);
         assert!((k.predict_ahead() - 2.0).abs() < 1e-12);
         // By hand: P = F·I·Fᵀ + Q, S = P[1,1] + R, K = P[:,1] / S.
@@ -428,16 +404,24 @@ mod tests {
         assert!((e - 1.0).abs() < 1e-12);
         assert!((k.x()[1] - (2.0 + p[(1, 1)] / s)).abs() < 1e-12);
         assert!((k.x()[0] - (1.4 + p[(0, 1)] / s)).abs() < 1e-12);
-        assert_eq!(k.set_r(0.0), Err(KalmanError::BadR(0.0)));
-        assert!(k.set_q(Matrix3::from_element(f64::NAN)).is_err());
+        assert_eq!(
+            k.set_model(KalmanModel { r: 0.0, ..tuned }),
+            Err(KalmanError::BadR(0.0))
+        );
+        let nan_q = KalmanModel {
+            q: Matrix3::from_element(f64::NAN),
+            ..tuned
+        };
+        assert!(k.set_model(nan_q).is_err());
+        assert_eq!(*k.model(), tuned);
         // A P that is no covariance is refused at the update, unchanged.
-        k.set_p(-Matrix3::identity()).unwrap();
+        k.set_state(*k.x(), -Matrix3::identity()).unwrap();
         let before = k.clone();
         assert!(matches!(k.step(1.0), Err(KalmanError::NotPositive(_))));
         assert_eq!(k, before);
         // set_period goes back to the paper's A.
         k.set_period(T).unwrap();
-        assert_eq!(*k.a(), transition(0.2));
+        assert_eq!(k.model().a, transition(0.2));
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! Each peer runs the same loop, with `now` taken from its own clock:
 //!
 //! 1. on bytes from the network: deframe, [`wire::Frame::new_checked`], push
-//!    the samples into the [`Regulator`], feed NRTT (from the echo) and the
+//!    the samples into the [`Regulator`](regulator::Regulator), feed NRTT (from the echo) and the
 //!    reception gap to the [`NetworkPredictor`];
 //! 2. on each tick `t0 + k·T`: [`Regulator::tick`](regulator::RegulatorIn::tick) releases one sample to the
 //!    application (or reports pre-fill or underflow), the predictor steps, the
@@ -121,9 +121,10 @@
 //!   [`Event`]s it reports and its [`Stats`](endpoint::Stats)); [`drive`]
 //!   and [`pair::Pair`] move it; [`storage`] says where its buffers live
 //!   ([`storage::Inline`] arrays, or [`storage::Heap`] with `alloc`).
-//! - [`time`]: integer-nanosecond [`Instant`] and [`Duration`]; nothing here
+//! - [`time`]: integer-nanosecond [`Instant`](time::Instant) and
+//!   [`Duration`](time::Duration); nothing here
 //!   reads a clock, time is always an argument.
-//! - [`Regulator`] (module [`regulator`]): the NDR queue, capacity `N` fixed
+//! - [`regulator::Regulator`]: the NDR queue, capacity `N` fixed
 //!   at compile time (or any [`storage::Queue`]), nominal size `ns` at run
 //!   time, pre-fill, release per tick, underflow and overflow counted, never
 //!   a silent drop.
@@ -169,14 +170,14 @@
 //!
 //! ## Features
 //!
-//! - `std` (default): conversions between [`Instant`]/[`Duration`] and
+//! - `std` (default): conversions between [`time::Instant`]/[`time::Duration`] and
 //!   `std::time`; implies `alloc`.
 //! - `alloc`: [`storage::Heap`], endpoints whose buffers are sized when they
 //!   are made. Without `std` and `alloc` the crate is `#![no_std]` and uses no
 //!   allocator: endpoints keep their buffers in [`storage::Inline`] arrays.
 //! - `serde`: `serde::Serialize` for the endpoint's [`Stats`](endpoint::Stats)
 //!   and what they hold, with the names and units the bindings show: a
-//!   [`Duration`] is seconds (`f64`), a [`Phase`](endpoint::Phase) its
+//!   [`Duration`](time::Duration) is seconds (`f64`), a [`Phase`](endpoint::Phase) its
 //!   lowercase name, a [`Running`](endpoint::Running) its count, mean, std,
 //!   min and max. No `std` needed.
 #![no_std]
@@ -216,14 +217,12 @@ mod tests;
 pub use arx::{Arx2, ArxError, Tf2, Tf2State};
 pub use endpoint::{Config, Endpoint, Event, LinkError, Mode, Underflow};
 pub use estimator::{Estimate, Estimator, EstimatorError};
-pub use filters::{DEFAULT_DECAY, Envelope, FilterError, LowPass};
-pub use kalman::{DEFAULT_HORIZON, Kalman3, KalmanError};
+pub use filters::{Envelope, FilterError, LowPass};
+pub use kalman::{Kalman3, KalmanError, KalmanModel};
 pub use layout::fingerprint;
 pub use playout::Playout;
 pub use predictor::{NetworkPredictor, Prediction, PredictorConfig, PredictorError};
-pub use regulation::{PairingName, Regulation, RegulationNames, UnknownRegulation};
-pub use regulator::{Regulator, Tick};
+pub use regulation::{Regulation, UnknownRegulation};
 pub use rls::{Rls, RlsError};
-pub use sizing::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, InitStats, Sizing, SizingError};
+pub use sizing::{INIT_EXCHANGES, InitPattern, InitStats, Sizing, SizingError};
 pub use sync::ClockSync;
-pub use time::{Duration, Instant};

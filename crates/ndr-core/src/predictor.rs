@@ -127,7 +127,8 @@ impl Channel {
             self.kalman.step(z).ok()?;
         } else {
             // Start at the first measurement rather than climbing from zero.
-            self.kalman.set_x(Vector3::new(z, 0.0, 0.0)).ok()?;
+            let p = *self.kalman.p();
+            self.kalman.set_state(Vector3::new(z, 0.0, 0.0), p).ok()?;
             self.started = true;
         }
         let ahead = self.ahead.update(self.kalman.predict_ahead()).ok()?;
@@ -223,18 +224,6 @@ impl NetworkPredictor {
         Some(p)
     }
 
-    /// Observes then steps, for a driver that has one of each per period.
-    #[must_use = "the prediction is the point of stepping"]
-    pub fn update(&mut self, nrtt: Option<Duration>, gap: Option<Duration>) -> Option<Prediction> {
-        if let Some(n) = nrtt {
-            self.observe_nrtt(n);
-        }
-        if let Some(g) = gap {
-            self.observe_gap(g);
-        }
-        self.step()
-    }
-
     /// The latest prediction.
     #[must_use]
     pub fn last(&self) -> Option<Prediction> {
@@ -281,6 +270,13 @@ mod tests {
 
     const T: Duration = Duration::from_millis(200);
 
+    /// Observes then steps: a driver with one of each per period.
+    fn update(p: &mut NetworkPredictor, nrtt: Duration, gap: Duration) -> Option<Prediction> {
+        p.observe_nrtt(nrtt);
+        p.observe_gap(gap);
+        p.step()
+    }
+
     #[test]
     fn nothing_before_both_measurements() {
         let mut p = NetworkPredictor::new(PredictorConfig::paper(T)).unwrap();
@@ -299,7 +295,7 @@ mod tests {
         let mut last = None;
         for k in 0..2000u64 {
             let gap = Duration::from_millis(if k % 10 == 0 { 12 } else { 1 });
-            last = p.update(Some(Duration::from_millis(23)), Some(gap));
+            last = update(&mut p, Duration::from_millis(23), gap);
         }
         let last = last.unwrap();
         assert!((last.nrtt_mean - 0.023).abs() < 1e-9);
@@ -321,7 +317,7 @@ mod tests {
         // NRTT rising 1 ms per second.
         for k in 0..3000u64 {
             let nrtt = Duration::from_micros(600_000 + k * 200);
-            last = p.update(Some(nrtt), Some(Duration::from_millis(300)));
+            last = update(&mut p, nrtt, Duration::from_millis(300));
         }
         let last = last.unwrap();
         assert!(last.nrtt_ahead > last.nrtt_mean, "{last:?}");

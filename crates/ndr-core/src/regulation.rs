@@ -165,7 +165,7 @@ impl Regulation {
     /// How reports name `mode` with `playout`: the regulation's name, or
     /// `MODE with PLAYOUT` for the pairing no regulation names.
     #[must_use]
-    pub const fn name_of(mode: Mode, playout: Playout) -> PairingName {
+    pub fn name_of(mode: Mode, playout: Playout) -> impl fmt::Display {
         PairingName { mode, playout }
     }
 
@@ -193,14 +193,19 @@ impl Regulation {
         matches!(self.playout(), Playout::Fifo)
     }
 
-    /// The names it takes ([`RegulationNames`]), for help texts.
+    /// The names it takes, for messages and help texts, from the playout
+    /// registry: `default` first, marked as the default, then the paper's
+    /// two (its FIFO sized once or resized) and the other policies in the
+    /// registry's order (`adaptive[:PERCENT[:QUANTUM_MS]] (the default),
+    /// paper-static, paper-dynamic, ramjee-1, …`); with no default, all in
+    /// the registry's order, none marked.
     #[must_use]
-    pub const fn names() -> RegulationNames {
-        RegulationNames::with_default(Regulation::ADAPTIVE)
+    pub fn names(default: Option<Regulation>) -> impl fmt::Display {
+        RegulationNames { default }
     }
 
     /// Every regulation the registry names by a bare name, in the order of
-    /// [`Regulation::names`]'s list after the default: the paper's two, then
+    /// [`Regulation::names`]'s list: the paper's two, then
     /// each target policy at its defaults (one that needs a value, such as
     /// `constant:MS`, is left out). What `ndr compare` runs by default.
     pub fn every() -> impl Iterator<Item = Regulation> {
@@ -226,7 +231,7 @@ impl fmt::Display for Regulation {
 /// Displays a mode and playout as reports name them
 /// ([`Regulation::name_of`]).
 #[derive(Clone, Copy, Debug)]
-pub struct PairingName {
+struct PairingName {
     mode: Mode,
     playout: Playout,
 }
@@ -254,31 +259,13 @@ pub enum UnknownRegulation {
     Value(UnknownPlayout),
 }
 
-/// The names [`Regulation`] takes, for messages and help texts, from the
-/// playout registry: the default first, then the paper's two (its FIFO
-/// sized once or resized) and the other policies in the registry's order
-/// (`adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static,
-/// paper-dynamic, ramjee-1, …`).
+/// The names [`Regulation`] takes ([`Regulation::names`]).
 #[derive(Clone, Copy, Debug)]
-pub struct RegulationNames {
+struct RegulationNames {
     default: Option<Regulation>,
 }
 
 impl RegulationNames {
-    /// The same names with `default` first, marked as the default.
-    #[must_use]
-    pub const fn with_default(default: Regulation) -> Self {
-        RegulationNames {
-            default: Some(default),
-        }
-    }
-
-    /// The same names in the registry's order, none marked.
-    #[must_use]
-    pub const fn plain(self) -> Self {
-        RegulationNames { default: None }
-    }
-
     /// Each name's syntax and whether it names the default, in the
     /// registry's order (the FIFO's entry is the paper's two).
     fn each(self) -> impl Iterator<Item = (&'static str, bool)> {
@@ -328,7 +315,11 @@ impl fmt::Display for UnknownRegulation {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             UnknownRegulation::Name => {
-                write!(f, "unknown regulation; valid: {}", Regulation::names())
+                write!(
+                    f,
+                    "unknown regulation; valid: {}",
+                    Regulation::names(Some(Regulation::ADAPTIVE))
+                )
             }
             UnknownRegulation::Fifo => f.write_str(
                 "`fifo` is the paper's queue: say how it is sized, paper-static (once, \
@@ -419,17 +410,17 @@ mod tests {
     #[test]
     fn the_names_come_from_the_registry() {
         assert_eq!(
-            Regulation::names().to_string(),
+            Regulation::names(Some(Regulation::ADAPTIVE)).to_string(),
             "adaptive[:PERCENT[:QUANTUM_MS]] (the default), paper-static, paper-dynamic, \
              ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS"
         );
         assert_eq!(
-            RegulationNames::with_default(Regulation::PaperStatic).to_string(),
+            Regulation::names(Some(Regulation::PaperStatic)).to_string(),
             "paper-static (the default), paper-dynamic, ramjee-1, ramjee-4, neteq, \
              fixed[:MS], constant:MS, adaptive[:PERCENT[:QUANTUM_MS]]"
         );
         assert_eq!(
-            Regulation::names().plain().to_string(),
+            Regulation::names(None).to_string(),
             "paper-static, paper-dynamic, ramjee-1, ramjee-4, neteq, fixed[:MS], constant:MS, \
              adaptive[:PERCENT[:QUANTUM_MS]]"
         );

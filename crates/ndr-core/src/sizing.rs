@@ -8,7 +8,7 @@ use crate::time::{Duration, Instant};
 /// Frames exchanged by the initialization pattern (paper: 10).
 pub const INIT_EXCHANGES: usize = 10;
 /// The paper's security factor η.
-pub const DEFAULT_ETA: f64 = 1.3;
+pub(crate) const DEFAULT_ETA: f64 = 1.3;
 /// The smallest nominal size the paper permits.
 pub(crate) const MIN_NOMINAL_SIZE: usize = 2;
 /// The paper's lower bound on the period, `T_min`.
@@ -262,7 +262,7 @@ impl Sizing {
 
     /// `ns` for an initialization pattern's statistics at period `period`.
     #[must_use]
-    pub fn nominal_size_for(&self, stats: &InitStats, period: Duration) -> usize {
+    pub(crate) fn nominal_size_for(&self, stats: &InitStats, period: Duration) -> usize {
         self.nominal_size(stats.mt, period)
     }
 }

@@ -34,12 +34,6 @@ impl Instant {
         Instant { nanos }
     }
 
-    /// The instant `micros` microseconds after the origin (saturating).
-    #[must_use]
-    pub const fn from_micros(micros: u64) -> Self {
-        Instant::from_nanos(micros.saturating_mul(1_000))
-    }
-
     /// The instant `millis` milliseconds after the origin (saturating).
     #[must_use]
     pub const fn from_millis(millis: u64) -> Self {
@@ -440,7 +434,7 @@ mod tests {
         let origin = std::time::Instant::now();
         let later = origin + std::time::Duration::from_micros(1234);
         let t = Instant::from_std(origin, later);
-        assert_eq!(t, Instant::from_micros(1234));
+        assert_eq!(t, Instant::from_nanos(1_234_000));
         assert_eq!(t.to_std(origin), Some(later));
         assert_eq!(Instant::from_std(later, origin), Instant::ZERO);
         let d: std::time::Duration = Duration::from_millis(7).into();

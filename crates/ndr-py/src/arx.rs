@@ -33,7 +33,7 @@ fn check_dt(dt: f64) -> PyResult<f64> {
 /// system's, and nothing else would say so.
 fn warn_unexcited(py: Python<'_>, arx: &Arx2) -> PyResult<()> {
     let n = arx.unexcited();
-    if arx.updates() == 0 || n == 0 {
+    if arx.rls().updates() == 0 || n == 0 {
         return Ok(());
     }
     let message = format!(
@@ -79,10 +79,10 @@ impl PyTf2 {
                 "den[0] must be non-zero (den = [1, a1, a2] in scipy.signal's convention)",
             ));
         }
-        let tf = Tf2::new(
-            [b[0] / a[0], b[1] / a[0], b[2] / a[0]],
-            [a[1] / a[0], a[2] / a[0]],
-        );
+        let tf = Tf2 {
+            b: [b[0] / a[0], b[1] / a[0], b[2] / a[0]],
+            a: [a[1] / a[0], a[2] / a[0]],
+        };
         if !tf.is_finite() {
             return Err(PyValueError::new_err(
                 "num / den[0] and den / den[0] must be finite",
@@ -347,7 +347,7 @@ impl PyArx2 {
     /// Adaptations so far.
     #[getter]
     fn updates(&self) -> u64 {
-        self.arx.updates()
+        self.arx.rls().updates()
     }
 
     /// Back to a zero model and no history.
@@ -360,7 +360,7 @@ impl PyArx2 {
         format!(
             "Arx2(dt={}, updates={}, num=[{}, {}, {}], den=[1.0, {}, {}])",
             self.dt,
-            self.arx.updates(),
+            self.arx.rls().updates(),
             tf.b[0],
             tf.b[1],
             tf.b[2],
@@ -533,7 +533,7 @@ impl PyEstimator {
     /// Whether the model is being identified (no fixed model was given).
     #[getter]
     fn is_identifying(&self) -> bool {
-        self.inner.is_identifying()
+        self.inner.arx().is_some()
     }
 
     /// `(delay_fwd, delay_bwd)` in ticks; assigning new delays restarts the anchoring.
@@ -582,7 +582,7 @@ impl PyEstimator {
         format!(
             "Estimator(delay_fwd={df}, delay_bwd={db}, dt={}, identifying={}, ticks={})",
             self.dt,
-            self.inner.is_identifying(),
+            self.inner.arx().is_some(),
             self.inner.ticks()
         )
     }

@@ -140,7 +140,7 @@ impl PySmithPredictor {
                 df + db
             )));
         }
-        self.inner.set_delays(df, db).map_err(control_error)
+        self.inner.set_round_trip(df + db).map_err(control_error)
     }
 
     /// The round trip in ticks.
@@ -229,9 +229,9 @@ impl PyPid {
         out_max: f64,
         derivative_filter: f64,
     ) -> PyResult<Self> {
-        let cfg = PidConfig::new(kp, ki, kd, dt)
-            .with_limits(out_min, out_max)
-            .with_derivative_filter(derivative_filter);
+        let mut cfg = PidConfig::new(kp, ki, kd, dt);
+        (cfg.out_min, cfg.out_max) = (out_min, out_max);
+        cfg.derivative_filter_s = derivative_filter;
         Ok(PyPid {
             inner: Pid::new(cfg).map_err(control_error)?,
         })
@@ -489,7 +489,7 @@ impl PyWaveEnergy {
     /// Entered less left (negative once the channel generated energy).
     #[getter]
     fn stored(&self) -> f64 {
-        self.inner.stored()
+        self.inner.entered() - self.inner.left()
     }
 
     /// The most the channel ever gave beyond what it received: zero when passive.

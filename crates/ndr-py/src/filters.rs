@@ -1,6 +1,6 @@
 //! `ndr.LowPass`, `ndr.Envelope` and the batch `ndr.lowpass`, `ndr.envelope`.
 
-use ndr_core::{DEFAULT_DECAY, Envelope, FilterError, LowPass};
+use ndr_core::{Envelope, FilterError, LowPass};
 use numpy::PyArray1;
 use pyo3::prelude::*;
 
@@ -91,7 +91,7 @@ pub struct PyEnvelope {
 #[pymethods]
 impl PyEnvelope {
     #[new]
-    #[pyo3(signature = (decay = DEFAULT_DECAY), text_signature = "(decay=1.00005)")]
+    #[pyo3(signature = (decay = Envelope::default().decay()), text_signature = "(decay=1.00005)")]
     fn new(decay: f64) -> PyResult<Self> {
         Ok(PyEnvelope {
             inner: Envelope::new(decay).map_err(value_error)?,
@@ -166,7 +166,10 @@ pub fn lowpass<'py>(
 
 /// The envelope of the series `x` (shape `(n,)`) with decay `decay`.
 #[pyfunction]
-#[pyo3(signature = (x, *, decay = DEFAULT_DECAY), text_signature = "(x, *, decay=1.00005)")]
+#[pyo3(
+    signature = (x, *, decay = Envelope::default().decay()),
+    text_signature = "(x, *, decay=1.00005)"
+)]
 pub fn envelope<'py>(
     py: Python<'py>,
     x: &Bound<'py, PyAny>,

@@ -1,8 +1,7 @@
 //! `ndr.Kalman3`, `ndr.NetworkPredictor` and the batch `ndr.kalman3_filter`.
 
-use ndr_core::DEFAULT_DECAY;
-use ndr_core::{DEFAULT_ETA, Sizing};
-use ndr_core::{DEFAULT_HORIZON, Kalman3};
+use ndr_core::{Envelope, Sizing};
+use ndr_core::{Kalman3, KalmanModel};
 use ndr_core::{NetworkPredictor, Prediction, PredictorConfig};
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
@@ -15,11 +14,12 @@ use crate::convert::{
 /// The largest horizon accepted, in periods.
 const MAX_HORIZON: usize = 1_000_000;
 
-fn horizon_arg(horizon: Option<&Bound<'_, PyAny>>) -> PyResult<u32> {
+/// The horizon given, or `paper`'s (50 periods).
+fn horizon_arg(horizon: Option<&Bound<'_, PyAny>>, paper: &PredictorConfig) -> PyResult<u32> {
     match horizon {
         // MAX_HORIZON fits a u32.
         Some(h) => Ok(u32::try_from(count("horizon", h, 0, MAX_HORIZON)?).unwrap_or(u32::MAX)),
-        None => Ok(DEFAULT_HORIZON),
+        None => Ok(paper.horizon),
     }
 }
 
@@ -44,6 +44,14 @@ pub struct PyKalman3 {
 }
 
 impl PyKalman3 {
+    /// Changes one part of the model; the filter refuses a model with a
+    /// value that is not finite, or `R` not positive, and keeps its own.
+    fn set_model(&mut self, change: impl FnOnce(&mut KalmanModel) -> PyResult<()>) -> PyResult<()> {
+        let mut model = *self.inner.model();
+        change(&mut model)?;
+        self.inner.set_model(model).map_err(value_error)
+    }
+
     fn run_values(&mut self, z: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let mut xs = Vec::with_capacity(z.len() * 3);
         let mut ahead = Vec::with_capacity(z.len());
@@ -69,7 +77,8 @@ impl PyKalman3 {
     )]
     fn new(period: f64, sigma_q: f64, horizon: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
         let period = crate::convert::period("period", period)?;
-        let inner = Kalman3::new(sigma_q, period, horizon_arg(horizon)?).map_err(value_error)?;
+        let horizon = horizon_arg(horizon, &PredictorConfig::paper(period))?;
+        let inner = Kalman3::new(sigma_q, period, horizon).map_err(value_error)?;
         Ok(PyKalman3 { inner, y: 0.0 })
     }
 
@@ -120,7 +129,8 @@ impl PyKalman3 {
 
     /// The whole state predicted `horizon` periods ahead, `F^l·x`.
     fn predict_ahead_state<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, self.inner.predict_ahead_state().as_slice())
+        let ahead = self.inner.a_ahead() * self.inner.x();
+        PyArray1::from_slice(py, ahead.as_slice())
     }
 
     /// Back to state zero and `P = sigma_q²·I`.
@@ -143,7 +153,9 @@ impl PyKalman3 {
         for (s, v) in state.iter_mut().zip(v) {
             *s = v;
         }
-        self.inner.set_x(state).map_err(value_error)
+        self.inner
+            .set_state(state, *self.inner.p())
+            .map_err(value_error)
     }
 
     /// The filtered value `x[0]`.
@@ -167,20 +179,24 @@ impl PyKalman3 {
     #[setter(P)]
     fn set_p(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = set_mat3("P", value, *self.inner.p())?;
-        self.inner.set_p(p).map_err(value_error)
+        self.inner
+            .set_state(*self.inner.x(), p)
+            .map_err(value_error)
     }
 
     /// The transition matrix, `[[1, T, T²/2], [0, 1, T], [0, 0, 1]]` unless
     /// assigned, shape `(3, 3)` (read-only copy; assignable).
     #[getter(F)]
     fn f<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        read_only(mat3(py, self.inner.a())?)
+        read_only(mat3(py, &self.inner.model().a)?)
     }
 
     #[setter(F)]
     fn set_f(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
-        let a = set_mat3("F", value, *self.inner.a())?;
-        self.inner.set_a(a).map_err(value_error)
+        self.set_model(|m| {
+            m.a = set_mat3("F", value, m.a)?;
+            Ok(())
+        })
     }
 
     /// The paper's name for `F`.
@@ -191,8 +207,10 @@ impl PyKalman3 {
 
     #[setter(A)]
     fn set_a(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
-        let a = set_mat3("A", value, *self.inner.a())?;
-        self.inner.set_a(a).map_err(value_error)
+        self.set_model(|m| {
+            m.a = set_mat3("A", value, m.a)?;
+            Ok(())
+        })
     }
 
     /// `F` to the power `horizon`, shape `(3, 3)` (read-only).
@@ -205,43 +223,48 @@ impl PyKalman3 {
     /// (read-only copy; assignable as `(1, 3)` or `(3,)`).
     #[getter(H)]
     fn h<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        read_only(array2(py, self.inner.h().as_slice().to_vec(), 1, 3)?)
+        read_only(array2(py, self.inner.model().h.as_slice().to_vec(), 1, 3)?)
     }
 
     #[setter(H)]
     fn set_h(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
         let v = row("H", value, 3)?;
-        let mut h = self.inner.h();
-        for (slot, v) in h.iter_mut().zip(v) {
-            *slot = v;
-        }
-        self.inner.set_h(h).map_err(value_error)
+        self.set_model(|m| {
+            for (slot, v) in m.h.iter_mut().zip(v) {
+                *slot = v;
+            }
+            Ok(())
+        })
     }
 
     /// The process noise, `diag(0, 0, sigma_q²)` unless assigned, shape
     /// `(3, 3)` (read-only copy; assignable).
     #[getter(Q)]
     fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        read_only(mat3(py, &self.inner.q())?)
+        read_only(mat3(py, &self.inner.model().q)?)
     }
 
     #[setter(Q)]
     fn set_q(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
-        let q = set_mat3("Q", value, self.inner.q())?;
-        self.inner.set_q(q).map_err(value_error)
+        self.set_model(|m| {
+            m.q = set_mat3("Q", value, m.q)?;
+            Ok(())
+        })
     }
 
     /// The measurement noise, `[[sigma_q²]]` unless assigned, shape `(1, 1)`
     /// (read-only copy; assignable as a number or `(1, 1)`).
     #[getter(R)]
     fn r<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        read_only(array2(py, vec![self.inner.r()], 1, 1)?)
+        read_only(array2(py, vec![self.inner.model().r], 1, 1)?)
     }
 
     #[setter(R)]
     fn set_r(&mut self, value: &Bound<'_, PyAny>) -> PyResult<()> {
-        let r = single("R", value)?;
-        self.inner.set_r(r).map_err(value_error)
+        self.set_model(|m| {
+            m.r = single("R", value)?;
+            Ok(())
+        })
     }
 
     /// The noise level σQ given at construction (`P0 = sigma_q²·I`).
@@ -380,7 +403,8 @@ impl PyNetworkPredictor {
     #[pyo3(
         signature = (
             period, *, horizon = None, nrtt_tau = 250.0, mt_tau = 25.0, ahead_tau = 50.0,
-            decay = DEFAULT_DECAY, sigma_q = 1.0, eta = DEFAULT_ETA, min_period = 0.05
+            decay = Envelope::default().decay(), sigma_q = 1.0, eta = Sizing::default().eta(),
+            min_period = 0.05
         ),
         text_signature = "(period, *, horizon=50, nrtt_tau=250.0, mt_tau=25.0, \
                           ahead_tau=50.0, decay=1.00005, sigma_q=1.0, eta=1.3, min_period=0.05)"
@@ -398,7 +422,7 @@ impl PyNetworkPredictor {
         min_period: f64,
     ) -> PyResult<Self> {
         let mut cfg = PredictorConfig::paper(crate::convert::period("period", period)?);
-        cfg.horizon = horizon_arg(horizon)?;
+        cfg.horizon = horizon_arg(horizon, &cfg)?;
         for (name, tau) in [
             ("nrtt_tau", nrtt_tau),
             ("mt_tau", mt_tau),
@@ -441,9 +465,16 @@ impl PyNetworkPredictor {
     /// Observes what is given, then steps.
     #[pyo3(signature = (nrtt = None, gap = None))]
     fn update(&mut self, nrtt: Option<f64>, gap: Option<f64>) -> PyResult<Option<PyPrediction>> {
+        // Both checked before either is observed: an error changes nothing.
         let nrtt = nrtt.map(|v| seconds("nrtt", v)).transpose()?;
         let gap = gap.map(|v| seconds("gap", v)).transpose()?;
-        Ok(self.inner.update(nrtt, gap).map(Into::into))
+        if let Some(n) = nrtt {
+            self.inner.observe_nrtt(n);
+        }
+        if let Some(g) = gap {
+            self.inner.observe_gap(g);
+        }
+        Ok(self.step())
     }
 
     /// The latest prediction, or None.

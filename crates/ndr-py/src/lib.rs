@@ -44,7 +44,7 @@ pub mod rls;
 pub mod sim;
 pub mod tls;
 
-use ndr_core::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
+use ndr_core::{INIT_EXCHANGES, InitPattern, Sizing};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyList;
@@ -58,7 +58,10 @@ fn sizing_law(eta: f64, min_period: f64) -> PyResult<Sizing> {
 
 /// Nominal NDR queue size `ns = 2 + floor(eta * mt / period)` (never below 2).
 #[pyfunction]
-#[pyo3(signature = (mt, period, *, eta = DEFAULT_ETA), text_signature = "(mt, period, *, eta=1.3)")]
+#[pyo3(
+    signature = (mt, period, *, eta = Sizing::default().eta()),
+    text_signature = "(mt, period, *, eta=1.3)"
+)]
 fn nominal_size(mt: f64, period: f64, eta: f64) -> PyResult<usize> {
     let period = convert::period("period", period)?;
     Ok(sizing_law(eta, 0.05)?.nominal_size(seconds("mt", mt)?, period))
@@ -68,7 +71,7 @@ fn nominal_size(mt: f64, period: f64, eta: f64) -> PyResult<usize> {
 #[pyfunction]
 #[pyo3(signature = (nrtt, *, min_period = 0.05))]
 fn period_law(nrtt: f64, min_period: f64) -> PyResult<f64> {
-    let law = sizing_law(DEFAULT_ETA, min_period)?;
+    let law = sizing_law(Sizing::default().eta(), min_period)?;
     Ok(law.period(seconds("nrtt", nrtt)?).as_secs_f64())
 }
 
@@ -148,7 +151,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     )?;
     m.add(
         "REGULATION_NAMES",
-        ndr_core::Regulation::names().to_string(),
+        ndr_core::Regulation::names(Some(ndr_core::Regulation::ADAPTIVE)).to_string(),
     )?;
     m.add_class::<sim::PySignal>()?;
     m.add_function(wrap_pyfunction!(log::set_log_level, m)?)?;

@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 use std::time::Instant as WallClock;
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::Underflow;
 use ndr::core::time::Duration;
-use ndr::core::{Regulation, RegulationNames};
 use ndr::sim::compare::{
     self, CompareConfig, CompareReport, Family, Matched, RegulationResult, Stat, TC_DIRS,
 };
@@ -76,7 +76,7 @@ pub struct CompareArgs {
         value_name = "NAME",
         help = format!(
             "Regulations to run (repeatable; default each one named without a value): {}",
-            RegulationNames::with_default(Regulation::PaperStatic).plain()
+            Regulation::names(None)
         )
     )]
     pub regulations: Vec<String>,

@@ -4,9 +4,9 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use ndr::core::Regulation;
 use ndr::core::endpoint::{Transport, Underflow};
 use ndr::core::time::Duration;
-use ndr::core::{Regulation, RegulationNames};
 use ndr::sim::delay::LossModel;
 use ndr::sim::signal::Signal;
 use ndr::sim::{self, Report, Row, SimConfig};
@@ -23,7 +23,7 @@ pub struct SimArgs {
         help = format!(
             "How both sides regulate the delay: {} (paper-static: the paper's FIFO sized once; \
              paper-dynamic: resized as the network changes; see `ndr compare`)",
-            RegulationNames::with_default(Regulation::PaperStatic)
+            Regulation::names(Some(Regulation::PaperStatic))
         )
     )]
     pub regulation: Option<Regulation>,

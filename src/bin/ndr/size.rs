@@ -1,6 +1,6 @@
 //! `ndr size`: a regulator's nominal size from an initialization pattern.
 
-use ndr::core::{DEFAULT_ETA, INIT_EXCHANGES, InitPattern, Sizing};
+use ndr::core::{INIT_EXCHANGES, InitPattern, Sizing};
 use serde::Serialize;
 
 use crate::args::millis;
@@ -14,7 +14,7 @@ pub struct SizeArgs {
     #[arg(long, default_value_t = 200.0)]
     period_ms: f64,
     /// Security factor eta.
-    #[arg(long, default_value_t = DEFAULT_ETA)]
+    #[arg(long, default_value_t = Sizing::default().eta())]
     eta: f64,
     /// Lower bound of the period law, in ms.
     #[arg(long, default_value_t = 50.0)]
@@ -63,9 +63,9 @@ pub fn run(args: &SizeArgs) -> Result<(), String> {
         mt_s: stats.mt.as_secs_f64(),
         period_s: period.as_secs_f64(),
         eta: law.eta(),
-        ns: law.nominal_size_for(&stats, period),
+        ns: law.nominal_size(stats.mt, period),
         suggested_period_s: suggested.as_secs_f64(),
-        suggested_ns: law.nominal_size_for(&stats, suggested),
+        suggested_ns: law.nominal_size(stats.mt, suggested),
     };
     if args.json {
         println!(

@@ -115,7 +115,9 @@ pub struct Tracker {
 }
 
 fn pid(g: &TrackingGains, period_s: f64) -> Result<Pid, ControlError> {
-    Pid::new(PidConfig::new(g.kp, g.ki, g.kd, period_s).with_limits(-g.u_max, g.u_max))
+    let mut cfg = PidConfig::new(g.kp, g.ki, g.kd, period_s);
+    (cfg.out_min, cfg.out_max) = (-g.u_max, g.u_max);
+    Pid::new(cfg)
 }
 
 /// The round trip in base ticks that a release's GRTT is, at `period`,

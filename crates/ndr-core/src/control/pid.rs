@@ -23,7 +23,8 @@ pub struct PidConfig {
 }
 
 impl PidConfig {
-    /// A PID without limits and without a derivative filter.
+    /// A PID without limits and without a derivative filter; set the
+    /// fields for those.
     #[must_use]
     pub const fn new(kp: f64, ki: f64, kd: f64, period_s: f64) -> Self {
         PidConfig {
@@ -35,21 +36,6 @@ impl PidConfig {
             out_max: f64::INFINITY,
             period_s,
         }
-    }
-
-    /// The same with the output held in `[min, max]`.
-    #[must_use]
-    pub const fn with_limits(mut self, min: f64, max: f64) -> Self {
-        self.out_min = min;
-        self.out_max = max;
-        self
-    }
-
-    /// The same with the derivative low-passed with time constant `tau_s`.
-    #[must_use]
-    pub const fn with_derivative_filter(mut self, tau_s: f64) -> Self {
-        self.derivative_filter_s = tau_s;
-        self
     }
 }
 
@@ -186,7 +172,8 @@ mod tests {
 
     #[test]
     fn the_output_stays_in_its_limits_and_the_integral_does_not_wind_up() {
-        let cfg = PidConfig::new(1.0, 5.0, 0.0, 0.01).with_limits(-1.0, 1.0);
+        let mut cfg = PidConfig::new(1.0, 5.0, 0.0, 0.01);
+        (cfg.out_min, cfg.out_max) = (-1.0, 1.0);
         let mut pi = Pid::new(cfg).unwrap();
         // A long saturation: the error is large, the output pinned.
         for _ in 0..1000 {
@@ -209,7 +196,11 @@ mod tests {
         assert!(Pid::new(PidConfig::new(f64::NAN, 0.0, 0.0, 0.1)).is_err());
         assert!(Pid::new(PidConfig::new(1.0, 0.0, 0.0, 0.0)).is_err());
         assert_eq!(
-            Pid::new(PidConfig::new(1.0, 0.0, 0.0, 0.1).with_limits(1.0, -1.0)),
+            Pid::new(PidConfig {
+                out_min: 1.0,
+                out_max: -1.0,
+                ..PidConfig::new(1.0, 0.0, 0.0, 0.1)
+            }),
             Err(ControlError::InvalidLimits {
                 min: 1.0,
                 max: -1.0

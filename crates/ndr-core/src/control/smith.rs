@@ -133,15 +133,6 @@ impl<const H: usize> SmithPredictor<H> {
         Ok(())
     }
 
-    /// The same from the one-way delays in ticks, as the
-    /// [`Estimator`](crate::Estimator) counts them: `Df + Db`.
-    ///
-    /// # Errors
-    /// As [`SmithPredictor::set_round_trip`].
-    pub fn set_delays(&mut self, delay_fwd: usize, delay_bwd: usize) -> Result<(), ControlError> {
-        self.set_round_trip(delay_fwd.saturating_add(delay_bwd))
-    }
-
     /// The local model in use.
     #[must_use]
     pub fn model(&self) -> Tf2 {
@@ -306,7 +297,9 @@ mod tests {
     }
 
     fn pid() -> Pid {
-        Pid::new(PidConfig::new(4.0, 2.0, 0.3, 0.02).with_limits(-20.0, 20.0)).unwrap()
+        let mut cfg = PidConfig::new(4.0, 2.0, 0.3, 0.02);
+        (cfg.out_min, cfg.out_max) = (-20.0, 20.0);
+        Pid::new(cfg).unwrap()
     }
 
     /// The delay-free loop: the controller sees the plant's output on the
@@ -390,7 +383,10 @@ mod tests {
         // The loop that would be exact above, without the predictor's
         // correction (the model given zero gain): large error.
         let d = 17;
-        let zero = Tf2::new([0.0; 3], [0.0; 2]);
+        let zero = Tf2 {
+            b: [0.0; 3],
+            a: [0.0; 2],
+        };
         let mut plain = SmithPredictor::<64>::with_model(zero, d).unwrap();
         let ideal = delay_free(600);
         let measured = across(600, &mut plain, |_| 10, 7, |_, _| {});
@@ -466,7 +462,10 @@ mod tests {
         );
         assert_eq!(s.command(f64::INFINITY), Err(ControlError::NonFiniteInput));
         assert_eq!(s, before);
-        let nan = Tf2::new([f64::NAN, 0.0, 0.0], [0.0; 2]);
+        let nan = Tf2 {
+            b: [f64::NAN, 0.0, 0.0],
+            a: [0.0; 2],
+        };
         assert_eq!(
             SmithPredictor::<8>::with_model(nan, 1),
             Err(ControlError::InvalidModel)

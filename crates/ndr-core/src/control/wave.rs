@@ -117,7 +117,8 @@ impl WaveTransform {
 }
 
 /// The energy account of a wave channel (both directions): what entered,
-/// what left, and the most it ever gave beyond what it received.
+/// what left, and the most it ever gave beyond what it received. An empty
+/// channel's is the default.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct WaveEnergy {
     entered: f64,
@@ -126,16 +127,6 @@ pub struct WaveEnergy {
 }
 
 impl WaveEnergy {
-    /// An empty channel.
-    #[must_use]
-    pub const fn new() -> Self {
-        WaveEnergy {
-            entered: 0.0,
-            left: 0.0,
-            generated: 0.0,
-        }
-    }
-
     /// A wave entered the channel for `dt` seconds (sent by either side).
     #[inline]
     pub fn sent(&mut self, wave: f64, dt: f64) {
@@ -162,13 +153,6 @@ impl WaveEnergy {
     #[must_use]
     pub fn left(&self) -> f64 {
         self.left
-    }
-
-    /// Energy in transit: entered less left (negative once the channel
-    /// has generated energy).
-    #[must_use]
-    pub fn stored(&self) -> f64 {
-        self.entered - self.left
     }
 
     /// The most the channel has given beyond what it received, at any
@@ -203,7 +187,7 @@ mod tests {
     /// Waves through a delay line of `delay` ticks, each delivered once or,
     /// with `repeat`, the last one again when the line has none due.
     fn channel(delay: &dyn Fn(usize) -> usize, repeat: bool) -> WaveEnergy {
-        let mut e = WaveEnergy::new();
+        let mut e = WaveEnergy::default();
         let dt = 0.01;
         let mut line: VecDeque<(usize, f64)> = VecDeque::new();
         let mut last = 0.0;
@@ -223,7 +207,7 @@ mod tests {
                 (None, true) => e.delivered(last, dt),
                 (None, false) => {}
             }
-            assert!(e.stored() >= -1e-12 || repeat);
+            assert!(e.entered() - e.left() >= -1e-12 || repeat);
         }
         e
     }
@@ -232,7 +216,7 @@ mod tests {
     fn a_delay_line_is_passive_and_repeats_are_not() {
         let constant = channel(&|_| 7, false);
         assert_eq!(constant.generated(), 0.0);
-        assert!(constant.stored() > 0.0);
+        assert!(constant.entered() - constant.left() > 0.0);
         // A delay that falls and rises: waves bunch up, then a gap. Each
         // once: passive. The gap filled with repeats: energy from nowhere.
         let varying = |k: usize| if (k / 100).is_multiple_of(2) { 30 } else { 2 };

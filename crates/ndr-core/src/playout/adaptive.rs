@@ -242,7 +242,11 @@ impl Adaptive {
     /// 10⁻⁶..0.5), for the default quantum of the delay.
     #[must_use]
     pub fn new(period: Duration, epsilon: f64) -> Self {
-        Self::with_quantum(period, epsilon, super::schedule::delay_quantum(period))
+        Self::with_quantum(
+            period,
+            epsilon,
+            super::schedule::delay_quantum(period, None),
+        )
     }
 
     /// [`Adaptive::new`] for a delay held in steps of `quantum` (the

@@ -10,7 +10,7 @@ use super::policy::{
     Admit, Announcement, Arrival, Due, NoRoom, Observed, Outcome, Policy, Setup, Stamps, View,
 };
 use super::registry::{Entry, UnknownPlayout, millis, write_decimal, write_millis};
-use super::schedule::{self, Context, Pending, Plan, Queued, Schedule, delay_quantum_for};
+use super::schedule::{self, Context, Pending, Plan, Queued, Schedule, delay_quantum};
 use super::target::Slots;
 use crate::endpoint::Underflow;
 use crate::time::{Duration, Instant};
@@ -88,7 +88,7 @@ impl<A: AdaptiveSlot> Policy for AdaptivePlayout<A> {
 
     fn set_period(&mut self, period: Duration) {
         self.schedule
-            .set_period(period, delay_quantum_for(period, self.asked));
+            .set_period(period, delay_quantum(period, self.asked));
     }
 
     fn stop(&mut self) {
@@ -310,7 +310,7 @@ impl<A: AdaptiveSlot> Entry for AdaptivePlayout<A> {
     }
 
     fn build((epsilon_ppm, asked): Self::Fields, setup: &Setup) -> Result<Self, NoRoom> {
-        let quantum = delay_quantum_for(setup.period, asked);
+        let quantum = delay_quantum(setup.period, asked);
         let quantile = A::build(setup.period, f64::from(epsilon_ppm) * 1e-6, quantum)
             .ok_or(NoRoom::Adaptive)?;
         Ok(AdaptivePlayout {

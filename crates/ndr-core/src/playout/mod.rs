@@ -42,8 +42,8 @@ pub use policy::{
 };
 #[cfg(feature = "alloc")]
 pub use policy::{Custom, Factory, HeapRoom};
-pub use registry::{Builtin, InvalidPlayout, Playout, PlayoutName, Syntax, UnknownPlayout};
-pub use schedule::{delay_quantum, delay_quantum_for};
+pub use registry::{Builtin, InvalidPlayout, Playout, UnknownPlayout};
+pub use schedule::delay_quantum;
 pub use target::{OnTicks, TargetDelay};
 
 #[cfg(test)]

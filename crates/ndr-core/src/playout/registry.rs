@@ -45,7 +45,7 @@ pub(crate) trait Entry: Sized {
 
 /// A registered policy's name, syntax and values, for help texts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Syntax {
+pub(crate) struct Syntax {
     /// Its name (`fixed`).
     pub(crate) name: &'static str,
     /// How it is written (`fixed[:MS]`).
@@ -274,7 +274,7 @@ registry! {
         epsilon_ppm: u32,
         /// The step of the delay asked for, `None` for the default
         /// quantum (20 ms) (see
-        /// [`delay_quantum_for`](super::delay_quantum_for)): a finer one
+        /// [`delay_quantum`](super::delay_quantum)): a finer one
         /// holds a lower delay that changes more often.
         quantum: Option<Duration>,
     } => AdaptivePlayout<A>,
@@ -297,14 +297,6 @@ impl Playout {
         quantum: None,
     };
 
-    /// The name used on the command line and in reports. [`Playout::Constant`]
-    /// and [`Playout::FixedAboveMin`] carry their value: `constant:120`,
-    /// `fixed:200` (milliseconds).
-    #[must_use]
-    pub(crate) fn name(self) -> PlayoutName {
-        PlayoutName(self)
-    }
-
     /// The built-in policies' names, syntax and values, in the registry's
     /// order (for help texts).
     #[must_use]
@@ -314,7 +306,7 @@ impl Playout {
 
     /// Its entry in the registry, `None` for a custom policy.
     #[must_use]
-    pub fn syntax(self) -> Option<&'static Syntax> {
+    pub(crate) fn syntax(self) -> Option<&'static Syntax> {
         let name = Names::name_of(self)?;
         Names::SYNTAX.iter().find(|s| s.name == name)
     }
@@ -334,7 +326,7 @@ impl Playout {
     #[must_use]
     pub(crate) fn quantum(self, period: Duration) -> Option<Duration> {
         match self {
-            Playout::Adaptive { quantum, .. } => Some(super::delay_quantum_for(period, quantum)),
+            Playout::Adaptive { quantum, .. } => Some(super::delay_quantum(period, quantum)),
             _ => None,
         }
     }
@@ -360,19 +352,12 @@ impl fmt::Display for PlayoutNames {
     }
 }
 
-/// Displays a [`Playout`] by its command-line name.
-#[derive(Clone, Copy, Debug)]
-pub struct PlayoutName(Playout);
-
-impl fmt::Display for PlayoutName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        Names::write(self.0, f)
-    }
-}
-
+/// The name used on the command line and in reports. [`Playout::Constant`]
+/// and [`Playout::FixedAboveMin`] carry their value: `constant:120`,
+/// `fixed:200` (milliseconds).
 impl fmt::Display for Playout {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        self.name().fmt(f)
+        Names::write(*self, f)
     }
 }
 

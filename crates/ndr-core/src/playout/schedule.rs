@@ -38,20 +38,14 @@ pub(crate) const MAPPING_SLEW: u64 = 20;
 /// whole ticks would waste up to a period each way.
 pub(super) const DELAY_QUANTUM: Duration = Duration::from_millis(20);
 
-/// The quantum of the adaptive delay at period `T`: `T/⌈T/20 ms⌉` (see
-/// `DELAY_QUANTUM`); `T` itself up to 20 ms.
-#[must_use]
-pub fn delay_quantum(period: Duration) -> Duration {
-    delay_quantum_for(period, None)
-}
-
 /// The quantum of the adaptive delay at period `T` when `asked` is asked
-/// for ([`Playout::Adaptive`](super::Playout::Adaptive)'s `quantum`, `None`
-/// for `DELAY_QUANTUM`): `T/⌈T/asked⌉`, the period cut in the fewest
-/// equal parts no longer than `asked` (the period itself when `asked` is
-/// longer), so that the releases keep to a lattice of the ticks.
+/// for ([`Playout::Adaptive`](super::Playout::Adaptive)'s `quantum`):
+/// `T/⌈T/asked⌉`, the period cut in the fewest equal parts no longer than
+/// `asked` (the period itself when `asked` is longer), so that the
+/// releases keep to a lattice of the ticks. `None` asks for the default,
+/// 20 ms (`T/⌈T/20 ms⌉`, `T` itself up to 20 ms).
 #[must_use]
-pub fn delay_quantum_for(period: Duration, asked: Option<Duration>) -> Duration {
+pub fn delay_quantum(period: Duration, asked: Option<Duration>) -> Duration {
     let asked = asked.unwrap_or(DELAY_QUANTUM);
     let per = period.as_nanos().max(1);
     let parts = per.div_ceil(asked.as_nanos().max(1)).max(1);
@@ -143,7 +137,7 @@ const CHANGES: usize = 2;
 /// The adaptive playout's release schedule.
 ///
 /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) keeps the end-to-end
-/// delay constant at a whole number of quanta ([`delay_quantum_for`]) over
+/// delay constant at a whole number of quanta ([`delay_quantum`]) over
 /// the delay its quantile policy ([`Adaptive`](crate::playout::Adaptive)) asks for.
 /// A sample sent at stamp `s` (peer clock) has its **slot** at
 /// `s + θ + D` on the local clock (`θ` the clock mapping, `D` the delay),

@@ -425,7 +425,7 @@ fn adaptive(epsilon_ppm: u32, quantum: Option<Duration>) -> Playout {
 
 #[test]
 fn the_quantum_asked_for_divides_the_period() {
-    use super::schedule::delay_quantum_for;
+    use super::schedule::delay_quantum;
     // Defaults: the period up to 20 ms, then T/⌈T/20 ms⌉.
     assert_eq!(Playout::ADAPTIVE.quantum(ms(20)), Some(ms(20)));
     assert_eq!(Playout::ADAPTIVE.quantum(ms(10)), Some(ms(10)));
@@ -438,9 +438,9 @@ fn the_quantum_asked_for_divides_the_period() {
         Some(Duration::from_nanos(6_666_666))
     );
     assert_eq!(adaptive(1000, Some(ms(50))).quantum(ms(20)), Some(ms(20)));
-    assert_eq!(delay_quantum_for(ms(50), Some(ms(10))), ms(10));
+    assert_eq!(delay_quantum(ms(50), Some(ms(10))), ms(10));
     assert_eq!(
-        delay_quantum_for(ms(50), None),
+        delay_quantum(ms(50), None),
         Duration::from_nanos(16_666_666)
     );
     // The target's warm-up floor is a quantum, the one asked for.

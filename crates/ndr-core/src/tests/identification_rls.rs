@@ -95,7 +95,10 @@ fn recovers_low_pass_coefficients_noise_free() {
 #[test]
 fn recovers_a_generic_arx_model_with_plain_rls() {
     // The RLS alone on a hand-built regressor, a non-low-pass numerator.
-    let truth = Tf2::new([0.4, -0.3, 0.15], [-1.2, 0.5]);
+    let truth = Tf2 {
+        b: [0.4, -0.3, 0.15],
+        a: [-1.2, 0.5],
+    };
     assert!(truth.is_stable());
     let mut plant = Tf2State::new(truth);
     let mut rls = Rls::<5>::new(1.0, 1e8).unwrap();

@@ -37,7 +37,7 @@ use std::vec::Vec;
 
 use ndr_core::Regulation;
 use ndr_core::endpoint::{Mode, Underflow};
-use ndr_core::playout::{delay_quantum, delay_quantum_for};
+use ndr_core::playout::delay_quantum;
 use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
 
@@ -306,7 +306,7 @@ pub fn measure(
         .collect();
     // On the grid of the adaptive delay's quantum: the period up to 20 ms,
     // finer beyond, where the adaptive playout releases between ticks.
-    let oracle = Oracle::new(&arrivals, Instant::ZERO, delay_quantum(period));
+    let oracle = Oracle::new(&arrivals, Instant::ZERO, delay_quantum(period, None));
     m.oracle_ratio = ratio(m.mean_delay_s, oracle.constant(m.late_rate).mean_delay_s);
     m.piecewise_ratio = ratio(
         m.mean_delay_s,
@@ -663,7 +663,7 @@ pub fn compare(cfg: &CompareConfig) -> CompareReport {
         notes.push(std::format!(
             "--matched: the adaptive policy searched is the first one asked for, its delay in \
              steps of {:.3} ms",
-            delay_quantum_for(cfg.period, Some(q)).as_secs_f64() * 1e3
+            delay_quantum(cfg.period, Some(q)).as_secs_f64() * 1e3
         ));
     }
     let families = cfg

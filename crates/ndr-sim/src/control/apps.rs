@@ -170,10 +170,9 @@ impl Tracking {
                 }
             }
         };
-        let pid = Pid::new(
-            PidConfig::new(gains.kp, gains.ki, gains.kd, period_s)
-                .with_limits(-gains.u_max, gains.u_max),
-        )?;
+        let mut pid_cfg = PidConfig::new(gains.kp, gains.ki, gains.kd, period_s);
+        (pid_cfg.out_min, pid_cfg.out_max) = (-gains.u_max, gains.u_max);
+        let pid = Pid::new(pid_cfg)?;
         Ok(Tracking {
             feedback,
             pid,
@@ -331,7 +330,7 @@ impl Bilateral {
         Ok(Bilateral {
             g: *g,
             wave: WaveTransform::new(g.b)?,
-            energy: WaveEnergy::new(),
+            energy: WaveEnergy::default(),
             reference,
             dt: period_s,
             dt_remote: period_s,

@@ -20,7 +20,7 @@ pub struct LinkArgs {
             "How the delay is regulated: {} (adaptive: a target delay above each sample's \
              send time, the lowest with a late rate of PERCENT, 0.1 by default; paper-static \
              or paper-dynamic: the paper's FIFO, sized once or resized as the network changes)",
-            Regulation::names()
+            Regulation::names(Some(Regulation::ADAPTIVE))
         )
     )]
     pub regulation: Option<Regulation>,

@@ -95,7 +95,7 @@ fn context<'a>(
 
 impl Bench {
     fn new(target: Duration, budget_used: f64, watchdog: Duration) -> Self {
-        Self::with_quantum(target, budget_used, watchdog, delay_quantum(T))
+        Self::with_quantum(target, budget_used, watchdog, delay_quantum(T, None))
     }
 
     fn with_quantum(
