@@ -223,6 +223,7 @@ mod tests {
 
     fn data_frame(seq: u64, values: &[f64]) -> Vec<u8> {
         let header = Header {
+            term: 0,
             seq,
             sent_at: Instant::from_millis(seq),
             echo: None,
