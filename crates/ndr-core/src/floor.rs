@@ -31,7 +31,7 @@
 //! floor.started(1);
 //! assert_eq!(floor.poll_action(), Some(Action::Term { term: 1 }));
 //! // Base 2 waits for control: it observes, and base 1 is told.
-//! assert_eq!(floor.offer(), (Seat::Observe, 2));
+//! assert_eq!(floor.offer(), (Seat::Observe, 1));
 //! assert_eq!(floor.admit(2, Seat::WaitForControl, Seat::Observe, true)?, Admission::Observe { waiting: true });
 //! floor.started(2);
 //! assert_eq!(floor.poll_action(), Some(Action::Request { link: 1 }));
@@ -202,13 +202,18 @@ impl Floor {
     }
 
     /// What a new link's endpoint offers a base that asks for control
-    /// ([`Endpoint::offer`](crate::endpoint::Endpoint::offer)), and the
-    /// term it would get: control while it is free and nobody waits for it.
+    /// ([`Endpoint::offer`](crate::endpoint::Endpoint::offer)): control
+    /// while it is free and nobody waits for it, with the term it would
+    /// get; else observation, with the robot's term now (0 before the
+    /// first), which its frames announce.
     #[must_use]
     pub fn offer(&self) -> (Seat, u16) {
         let free = self.controller.is_none() && !self.observers.iter().any(|o| o.waiting);
-        let seat = if free { Seat::Control } else { Seat::Observe };
-        (seat, self.next_term())
+        if free {
+            (Seat::Control, self.next_term())
+        } else {
+            (Seat::Observe, self.term)
+        }
     }
 
     /// A link's handshake is done: its base asked for `asked` and its

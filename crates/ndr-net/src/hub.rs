@@ -79,6 +79,8 @@ pub(crate) struct Entry {
     deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
     handler: Option<Handler>,
+    /// What its listener's floor hears of it (a shared robot's link).
+    pub(crate) notes: Option<crate::sharing::Notes>,
 }
 
 /// A link's TCP stream, as the hub reads and writes it.
@@ -196,6 +198,7 @@ impl Entry {
             rx_lag: Running::default(),
             deadline: None,
             handler: None,
+            notes: None,
         }
     }
 
@@ -247,6 +250,9 @@ pub(crate) enum Msg {
     /// A request of a moved link's connection to the endpoint under this
     /// key.
     QuicRequest(u64, Box<quic::Request>),
+    /// Something of control's hand-over for the link's endpoint to do
+    /// (its listener's floor asks, or its base's application).
+    Seat(u64, Box<crate::sharing::SeatOp>),
 }
 
 struct Inner {
@@ -796,6 +802,12 @@ impl Driver {
                     }
                     self.flush(id);
                 }
+                Ok(Msg::Seat(id, op)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        op.apply(&mut e.endpoint);
+                    }
+                    self.flush(id);
+                }
                 Ok(Msg::Handler(id, handler)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
                         e.handler = Some(handler);
@@ -1197,6 +1209,9 @@ fn deliver(e: &mut Entry, ticked: bool, hub: HubFigures) -> bool {
     let mut published = ticked;
     let mut panicked = false;
     while let Some(event) = e.endpoint.poll_event() {
+        if let Some(notes) = &e.notes {
+            notes.note(&event, &e.endpoint);
+        }
         let d = match event {
             Event::Released(s) => {
                 if let Some(handler) = e.handler.as_mut() {

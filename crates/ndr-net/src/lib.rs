@@ -59,6 +59,7 @@ pub mod quic;
 pub mod relay;
 mod runtime;
 mod seats;
+mod sharing;
 pub mod spin;
 mod stats;
 pub mod tls;
@@ -75,6 +76,7 @@ pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
+pub use sharing::SharingStats;
 pub use stats::LinkStats;
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};
 pub use transport::{Transport, TransportError};

@@ -44,24 +44,13 @@ impl Seating {
 }
 
 impl<S: Storage> Endpoint<S> {
-    /// The seat the remote gives a base that asks for `asked`, offering
-    /// `offer`; `None` refuses it ([`LinkError::Busy`]).
-    pub(super) fn seat_for(asked: Seat, offer: Seat) -> Option<Seat> {
-        match (asked, offer) {
-            (Seat::Observe, _) => Some(Seat::Observe),
-            (Seat::Control | Seat::WaitForControl, Seat::Control) => Some(Seat::Control),
-            (Seat::WaitForControl, _) => Some(Seat::Observe),
-            (Seat::Control, _) => None,
-        }
-    }
-
     /// The seats of a base's Hello as this side sees them: a remote takes
     /// the ask and decides; a base checks the answer fits its ask.
     pub(super) fn seat_hello(&mut self, asked_or_given: Seat) -> Result<(), LinkError> {
         match self.config.role {
             Role::Remote => {
                 self.seating.asked = asked_or_given;
-                let given = Self::seat_for(asked_or_given, self.config.seat);
+                let given = asked_or_given.given(self.config.seat);
                 self.seating.given = Some(given.unwrap_or(Seat::Observe));
                 given.map(drop).ok_or(LinkError::Busy)
             }
@@ -145,11 +134,19 @@ impl<S: Storage> Endpoint<S> {
     }
 
     /// Remote, before the handshake: the seat offered to a base that asks
-    /// for control ([`Config::seat`](super::Config::seat)), and the term it
-    /// will be granted in if it gets control. The driver calls it when it
-    /// learns who holds control before the base's Hello is handled.
+    /// for control ([`Config::seat`](super::Config::seat)), and the term:
+    /// offering control, the one the base will hold (not 0); offering
+    /// observation, the robot's now. The driver calls it when it learns
+    /// who holds control before the base's Hello is handled.
+    ///
+    /// # Errors
+    /// [`LinkError::NotController`] on a base, after the handshake, or
+    /// offering control in term 0.
     pub fn offer(&mut self, seat: Seat, term: u16) -> Result<(), LinkError> {
-        if self.config.role != Role::Remote || self.phase != Phase::Handshake || term == 0 {
+        if self.config.role != Role::Remote
+            || self.phase != Phase::Handshake
+            || (seat == Seat::Control && term == 0)
+        {
             return Err(LinkError::NotController);
         }
         self.config.seat = seat;

@@ -278,6 +278,19 @@ impl Seat {
             Seat::WaitForControl => "wait_for_control",
         }
     }
+
+    /// The seat a remote gives a base that asks for this one, offering
+    /// `offer` (control while it is free, observe while another base holds
+    /// it); `None`: refused, control being held.
+    #[must_use]
+    pub const fn given(self, offer: Seat) -> Option<Seat> {
+        match (self, offer) {
+            (Seat::Observe, _) => Some(Seat::Observe),
+            (Seat::Control | Seat::WaitForControl, Seat::Control) => Some(Seat::Control),
+            (Seat::WaitForControl, _) => Some(Seat::Observe),
+            (Seat::Control, _) => None,
+        }
+    }
 }
 
 impl TryFrom<u8> for Seat {
