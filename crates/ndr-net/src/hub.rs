@@ -56,6 +56,9 @@ pub(crate) struct Shared {
     pub sample: Mutex<(Vec<f64>, bool)>,
     pub stats: Mutex<Option<LinkStats>>,
     pub notify: Notify,
+    /// The certificate chain the peer presented (TLS, QUIC), once known:
+    /// a shared robot's listener asks whether it may hold control.
+    pub peer_chain: Mutex<Option<Vec<rustls::pki_types::CertificateDer<'static>>>>,
 }
 
 /// The application's code run at each release on the hub's thread
@@ -1450,6 +1453,7 @@ mod tests {
             sample: Mutex::new((vec![0.0; 1], false)),
             stats: Mutex::new(None),
             notify: Notify::new(),
+            peer_chain: Mutex::new(None),
         });
         let (socket, _peer) = loopback();
         let path = Path::Tcp(Stream::new(socket, false));

@@ -225,6 +225,7 @@ impl Link {
             sample: Mutex::new((vec![0.0; widths.0], false)),
             stats: Mutex::new(None),
             notify: Notify::new(),
+            peer_chain: Mutex::new(None),
         });
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());

@@ -217,3 +217,93 @@ fn control_passes_to_the_waiting_base_over_quic() {
     });
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Over QUIC with mutual TLS, the robot trusts a controller's identity and
+/// an observer's: the observer's may watch, not take control.
+#[cfg(feature = "keygen")]
+#[test]
+fn an_observers_identity_cannot_take_control() {
+    use ndr_core::endpoint::LinkError;
+    use ndr_core::wire::CloseReason;
+    use ndr_net::{NetError, Trust};
+
+    let dir = std::env::temp_dir().join(format!("ndr-sharing-id-{}", std::process::id()));
+    let pair = |name| ndr_net::keygen::write(&dir, name).expect("a certificate");
+    let (controller, watcher, remote) = (pair("controller"), pair("watcher"), pair("remote"));
+    let tls = |own: &ndr_net::keygen::KeyPair, peer: &ndr_net::keygen::KeyPair| {
+        TlsConfig::from_files(&own.cert, &own.key, &peer.cert).expect("TLS")
+    };
+    let robot_tls = tls(&remote, &controller)
+        .with_observers(Trust::Pinned(vec![watcher.fingerprint]))
+        .expect("observers' trust");
+    let at = |tls| At {
+        transport: Transport::QUIC,
+        tls: Some((robot_tls.clone(), tls)),
+    };
+    let remote_config = config(
+        Role::Remote,
+        Seat::Control,
+        Transport::QUIC,
+        Some(&robot_tls),
+    );
+    let listener =
+        Listener::listen_blocking("127.0.0.1:0".parse().unwrap(), remote_config).unwrap();
+    let addr = listener.local_addr().unwrap();
+    let listener = Arc::new(listener);
+    let stop = Arc::new(AtomicBool::new(false));
+    let applied = robot(&listener, &stop);
+
+    // The watcher asks for control: refused, and told why.
+    let watcher_at = at(tls(&watcher, &remote));
+    let asks = config(
+        Role::Base,
+        Seat::Control,
+        Transport::QUIC,
+        watcher_at.tls.as_ref().map(|t| &t.1),
+    );
+    let mut link = Link::connect_blocking(addr, asks).expect("its handshake");
+    let until = StdInstant::now() + StdDuration::from_secs(5);
+    let refused = loop {
+        match link.recv_timeout(StdDuration::from_millis(500)) {
+            Ok(_) | Err(NetError::Timeout) => {
+                assert!(
+                    StdInstant::now() < until,
+                    "the watcher was not refused control"
+                );
+            }
+            Err(e) => break e,
+        }
+    };
+    assert!(
+        matches!(
+            refused,
+            NetError::Link(LinkError::PeerClosed {
+                reason: CloseReason::ObserverOnly
+            })
+        ),
+        "{refused}"
+    );
+    assert!(
+        refused.to_string().contains("observers' allow-list"),
+        "{refused}"
+    );
+    // The same identity observes; the controller's controls.
+    let o = thread::spawn(move || {
+        base(
+            addr,
+            Seat::Observe,
+            &watcher_at,
+            9.0,
+            StdDuration::from_secs(2),
+        )
+    });
+    let c_at = at(tls(&controller, &remote));
+    let c = base(addr, Seat::Control, &c_at, 1.0, StdDuration::from_secs(2));
+    let o = o.join().unwrap();
+    stop.store(true, Ordering::Relaxed);
+    assert_eq!(c.granted.first().map(|g| g.0), Some(1));
+    assert!(o.granted.is_empty() && !o.states.is_empty());
+    assert!(applied.lock().unwrap().iter().all(|&(v, _)| v < 2000.0));
+    assert_eq!(listener.stats().refused_observer_only, 1);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -284,6 +284,10 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
             Some(Ok((stream, conn))) => (stream, Some(conn)),
         },
     };
+    let chain: Option<Vec<_>> = conn
+        .as_ref()
+        .and_then(|c| c.peer_certificates())
+        .map(|c| c.iter().map(|c| c.clone().into_owned()).collect());
     let link = Link::start(
         stream,
         role,
@@ -297,6 +301,11 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
         },
     )
     .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
+    *link
+        .shared()
+        .peer_chain
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = chain;
     progress.advance(stage::ON_HUB, 0);
     hello(link, deadline, late, &progress.cut).await
 }
@@ -386,9 +395,25 @@ async fn hello(
 /// and the queue has room, else ended as busy.
 fn enqueue(common: &Common, mut link: Link, peer: SocketAddr, ready: &mpsc::Sender<Link>) {
     let asked = link.peer_seat();
-    // Every identity the listener trusts may hold control.
+    let may_control = match &common.tls {
+        Some(tls) => {
+            let chain = link
+                .shared()
+                .peer_chain
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .clone();
+            chain.map_or(!tls.has_observers(), |c| tls.may_control(&c))
+        }
+        None => true,
+    };
     if let (Some(s), Some(asked), Some(sharing)) = (link.sharing(), asked, &common.sharing) {
-        match sharing.admit(s.key, Arc::clone(&s.address), (asked, s.offered), true) {
+        match sharing.admit(
+            s.key,
+            Arc::clone(&s.address),
+            (asked, s.offered),
+            may_control,
+        ) {
             Ok(observer) => s.observer = observer,
             Err(e) => {
                 let why = Refusal::of_link(&crate::NetError::Link(e));
