@@ -348,7 +348,6 @@ fn forged(sniffed: &[u8], seq: u64, values: &[f64]) -> Vec<u8> {
         panic!("a bundle")
     };
     let header = Header {
-        term: 0,
         seq,
         ..frame.header()
     };

@@ -431,3 +431,66 @@ impl Floor {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_observer_only_identity_is_refused_control_and_may_observe() {
+        let mut floor = Floor::new(1).unwrap();
+        for asked in [Seat::Control, Seat::WaitForControl] {
+            let given = asked.given(Seat::Control).unwrap();
+            assert_eq!(
+                floor.admit(1, asked, given, false),
+                Err(LinkError::ObserverOnly)
+            );
+        }
+        assert_eq!(
+            floor.admit(1, Seat::Observe, Seat::Observe, false),
+            Ok(Admission::Observe { waiting: false })
+        );
+        assert_eq!(floor.stats().refused_observer_only, 2);
+        // The one observer's seat is taken.
+        assert_eq!(
+            floor.admit(2, Seat::Observe, Seat::Observe, true),
+            Err(LinkError::ObserversFull)
+        );
+        assert_eq!(floor.stats().refused_full, 1);
+        assert_eq!(floor.controller(), None);
+    }
+
+    #[test]
+    fn control_given_twice_in_a_race_goes_to_the_first_and_a_waiter_needs_a_ready_link() {
+        let mut floor = Floor::new(2).unwrap();
+        // Both were offered control before either was admitted.
+        assert_eq!(floor.offer(), (Seat::Control, 1));
+        assert!(floor.admit(1, Seat::Control, Seat::Control, true).is_ok());
+        assert_eq!(
+            floor.admit(2, Seat::WaitForControl, Seat::Control, true),
+            Err(LinkError::Busy)
+        );
+        floor.started(1);
+        assert_eq!(floor.controller(), Some((1, 1)));
+        assert!(floor.may_apply(1, 1) && !floor.may_apply(1, 2) && !floor.may_apply(3, 1));
+        // A waiter whose link has not passed its pattern is not promoted
+        // when control frees; it is once it has.
+        assert!(
+            floor
+                .admit(3, Seat::WaitForControl, Seat::Observe, true)
+                .is_ok()
+        );
+        floor.left(1, Instant::from_millis(10));
+        assert_eq!(floor.controller(), None);
+        assert_eq!(floor.vacant_since(), Some(Instant::from_millis(10)));
+        while floor.poll_action().is_some() {}
+        floor.started(3);
+        assert_eq!(
+            floor.poll_action(),
+            Some(Action::Grant { link: 3, term: 2 })
+        );
+        assert_eq!(floor.controller(), Some((3, 2)));
+        assert_eq!(floor.vacant_since(), None);
+        assert_eq!((floor.observers(), floor.waiting()), (0, 0));
+    }
+}
