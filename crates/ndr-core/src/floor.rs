@@ -29,6 +29,7 @@
 //! assert_eq!(floor.offer(), (Seat::Control, 1));
 //! assert_eq!(floor.admit(1, Seat::Control, Seat::Control, true)?, Admission::Control { term: 1 });
 //! floor.started(1);
+//! assert_eq!(floor.poll_action(), Some(Action::Grant { link: 1, term: 1 }));
 //! assert_eq!(floor.poll_action(), Some(Action::Term { term: 1 }));
 //! // Base 2 waits for control: it observes, and base 1 is told.
 //! assert_eq!(floor.offer(), (Seat::Observe, 1));
@@ -65,7 +66,7 @@ const ACTION_QUEUE: usize = 16;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Admission {
     /// It holds control in `term` once its link passes the initialization
-    /// pattern (its endpoint grants it then).
+    /// pattern (the floor's [`Action::Grant`] then).
     Control {
         /// The term.
         term: u16,
@@ -273,12 +274,13 @@ impl Floor {
 
     /// `link` passed its initialization pattern (its endpoint's
     /// [`Event::Started`](crate::endpoint::Event::Started)): a controller's
-    /// term starts (its endpoint granted it), a waiter may be promoted.
+    /// term starts ([`Action::Grant`]), a waiter may be promoted.
     pub fn started(&mut self, link: LinkId) {
         match &mut self.controller {
             Some(c) if c.link == link => {
                 if let Holding::Pending { term } = c.holding {
                     c.holding = Holding::Term(term);
+                    self.act(Action::Grant { link, term });
                     self.begin_term(term);
                 }
             }

@@ -26,6 +26,9 @@ pub(super) struct Seating {
     /// The term this side's frames carry: a base's, the one it holds (0
     /// when none); a remote's, the robot's current term.
     pub(super) announced: u16,
+    /// A remote whose Hello gave control grants it at its first start; one
+    /// whose driver made an offer waits for the driver's grant.
+    pub(super) auto_grant: bool,
 }
 
 impl Seating {
@@ -39,6 +42,7 @@ impl Seating {
                 Role::Base => 0,
                 Role::Remote => 1,
             },
+            auto_grant: true,
         }
     }
 }
@@ -85,6 +89,7 @@ impl<S: Storage> Endpoint<S> {
     /// now, in the term announced.
     pub(super) fn grant_at_start(&mut self) {
         if self.config.role == Role::Remote
+            && self.seating.auto_grant
             && self.seating.given == Some(Seat::Control)
             && self.seating.held.is_none()
         {
@@ -137,7 +142,11 @@ impl<S: Storage> Endpoint<S> {
     /// for control ([`Config::seat`](super::Config::seat)), and the term:
     /// offering control, the one the base will hold (not 0); offering
     /// observation, the robot's now. The driver calls it when it learns
-    /// who holds control before the base's Hello is handled.
+    /// who holds control before the base's Hello is handled; it then
+    /// grants control itself ([`grant`](Self::grant)) once its floor has
+    /// admitted the base and the link has passed its initialization
+    /// pattern — until then the base's commands are refused
+    /// ([`Stats::commands_before_grant`](super::Stats)).
     ///
     /// # Errors
     /// [`LinkError::NotController`] on a base, after the handshake, or
@@ -151,6 +160,7 @@ impl<S: Storage> Endpoint<S> {
         }
         self.config.seat = seat;
         self.seating.announced = term;
+        self.seating.auto_grant = false;
         Ok(())
     }
 
@@ -345,6 +355,14 @@ impl<S: Storage> Endpoint<S> {
             Some(held) if held == term => true,
             _ if term == 0 => {
                 self.stats.commands_refused_observer += 1;
+                false
+            }
+            // Given control in the Hello, its grant still on its way.
+            None if !self.seating.auto_grant
+                && self.seating.given == Some(Seat::Control)
+                && term == self.seating.announced =>
+            {
+                self.stats.commands_before_grant += 1;
                 false
             }
             _ => {

@@ -233,6 +233,10 @@ pub struct Stats {
     /// Remote: commands from a base that holds no control (an observer, or
     /// a base still waiting for its grant), refused on arrival.
     pub commands_refused_observer: u64,
+    /// Remote: commands of a base given control in its Hello that came
+    /// before the driver granted it ([`Endpoint::offer`](super::Endpoint::offer)),
+    /// refused.
+    pub commands_before_grant: u64,
     /// Terms of control granted on this link.
     pub grants: u64,
     /// Remote: applied commands sent to this link's observer.
