@@ -241,6 +241,11 @@ impl Sharing {
         let mut state = self.lock();
         let admission = state.floor.admit(link, asked, given, may_control)?;
         let observer = matches!(admission, Admission::Observe { .. });
+        // Its offer named the term of its connection's start, which may
+        // have passed since.
+        if observer {
+            send(&address, SeatOp::Term(state.floor.term()));
+        }
         state.links.insert(link, Seated { address, observer });
         if let Some(i) = state.started.iter().position(|&l| l == link) {
             state.started.swap_remove(i);
