@@ -97,4 +97,8 @@ mod docs {
     struct Troubleshooting;
     #[doc = include_str!("../docs/guide/control.md")]
     struct Control;
+    #[doc = include_str!("../docs/guide/realtime.md")]
+    struct Realtime;
+    #[doc = include_str!("../docs/guide/metrics.md")]
+    struct Metrics;
 }

@@ -874,6 +874,7 @@ class _Link:
     def events_dropped(self) -> int:
         """``stats()["events_dropped"]``, also before the first tick."""
     def stats(self) -> Optional[LinkStats]: ...
+    def metrics(self) -> str: ...
     def now(self) -> float: ...
     def close(self) -> None: ...
     @property
@@ -920,6 +921,9 @@ class _LinkSettings:
         app_queue: int,
         insecure: bool,
         transport: str,
+        realtime: str,
+        rt_priority: int,
+        rt_cpu: Optional[int],
     ) -> "_LinkSettings": ...
 
 @final

@@ -147,6 +147,9 @@ _SETTINGS = {
     "queue": "app_queue",
     "insecure": "insecure",
     "transport": "transport",
+    "realtime": "realtime",
+    "rt_priority": "rt_priority",
+    "rt_cpu": "rt_cpu",
 }
 
 
@@ -470,6 +473,9 @@ class Link:
         tls: Optional[TlsConfig] = None,
         insecure: bool = False,
         transport: str = "tcp",
+        realtime: str = "try",
+        rt_priority: int = 49,
+        rt_cpu: Optional[int] = None,
         on_event: Optional[Callable[[Event], Any]] = None,
     ) -> "Link":
         """Connects to a peer and returns the link once the handshake is done.
@@ -548,6 +554,19 @@ class Link:
                 datagrams as QUIC DATAGRAM frames, the handshake on a QUIC
                 stream, all under mutual TLS 1.3 (``tls`` is then required
                 on both sides; one UDP port, no TCP). Both sides must agree.
+            realtime: real-time scheduling of the link's hub thread (the
+                thread that keeps the release clock): ``"try"`` (the
+                default: ``SCHED_FIFO`` at ``rt_priority`` and locked memory
+                where the host grants them, which takes a loaded machine's
+                scheduler out of the release times; else one warning, logged
+                through ``logging``, saying what to grant, and the default
+                policy), ``"enforce"`` (refuse to run without them:
+                ``PermissionError``) or ``"off"``. Granted to root, or by
+                ``setcap cap_sys_nice,cap_ipc_lock+ep`` on the Python
+                binary, or by rtprio and memlock limits
+                (docs/guide/realtime.md).
+            rt_priority: the hub thread's ``SCHED_FIFO`` priority, 1 to 99.
+            rt_cpu: pin the hub thread to this CPU (``None``: any).
             on_event: called with each :class:`Event`, on the thread that
                 receives.
 
@@ -557,6 +576,8 @@ class Link:
             TimeoutError: no connection within ``connect_timeout``.
             ValueError: a setting is invalid (the message says which), or a
                 plain link off loopback without ``insecure=True``.
+            PermissionError: ``realtime="enforce"`` and the host refused
+                real-time scheduling (the message says what to grant).
         """
         native = _native.connect(
             address, _settings(locals()), connect_timeout=connect_timeout, tls=tls
@@ -582,6 +603,9 @@ class Link:
         tls: Optional[TlsConfig] = None,
         insecure: bool = False,
         transport: str = "tcp",
+        realtime: str = "try",
+        rt_priority: int = 49,
+        rt_cpu: Optional[int] = None,
         on_event: Optional[Callable[[Event], Any]] = None,
     ) -> "Listener":
         """Listens at ``address`` (port 0 picks a free one) and returns a
@@ -747,6 +771,17 @@ class Link:
         ``LinkStats`` serialized (the endpoint's counters beside the
         link's): its keys are the Rust fields' serde names."""
         return self._native.stats()
+
+    def metrics(self) -> str:
+        """The link's figures as Prometheus text (version 0.0.4): the page
+        ``ndr remote --metrics`` serves, for this link alone, labelled with
+        ``peer``, ``role`` and ``transport``. The same numbers as
+        :attr:`stats` (read from the same snapshot of the hub), under the
+        names listed in ``docs/guide/metrics.md``. An application with a
+        ``prometheus_client`` registry registers :class:`ndr.metrics.LinkCollector`
+        instead; one that exports otherwise parses this text (e.g.
+        ``prometheus_client.parser.text_string_to_metric_families``)."""
+        return self._native.metrics()
 
     def now(self) -> float:
         """Now, in seconds on this side's link clock (the clock of

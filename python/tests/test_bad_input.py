@@ -148,6 +148,10 @@ CASES = [
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="fifo"), ValueError, "paper-dynamic"),
     (lambda: ndr.Link.connect(("127.0.0.1", 9), regulation="neteq", mode="paper-static"),
      TypeError, "mode"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), realtime="fifo"), ValueError, "enforce, try or off"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), rt_priority=0), ValueError, "rt_priority"),
+    (lambda: ndr.Link.connect(("127.0.0.1", 9), rt_priority=100), ValueError, "rt_priority"),
+    (lambda: ndr.Link.listen(("127.0.0.1", 0), rt_cpu=-1), ValueError, "rt_cpu"),
 ]
 
 

@@ -165,6 +165,15 @@ def test_end_to_end_delay_is_constant_per_sample():
                     underflows=held)
 
 
+def test_realtime_enforce_refused_is_a_permission_error_saying_what_to_grant():
+    # No such CPU: refused on any host, privileged or not.
+    with pytest.raises(PermissionError, match="pinning to CPU 1023"):
+        ndr.Link.listen(LOOPBACK, realtime="enforce", rt_cpu=1023)
+    # Under try the same refusal is a warning, and the listener serves.
+    ndr.Link.listen(LOOPBACK, realtime="try", rt_cpu=1023).close()
+    ndr.Link.listen(LOOPBACK, realtime="off").close()
+
+
 def test_a_refused_connection_is_a_connection_error():
     # Bind then close a listener: nothing listens on that port any more.
     lst = ndr.Link.listen(LOOPBACK)

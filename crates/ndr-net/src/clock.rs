@@ -24,11 +24,10 @@
 //! needed), which lets the spin margin stay short. On a loaded machine the
 //! tail of the lateness is set by the scheduler, not by the clock: a thread of
 //! the default policy waits behind other runnable threads, spinning or not.
-//! Only a real-time policy (`SCHED_FIFO`) removes that tail. Setting it needs a
-//! system call that std does not wrap and this workspace forbids `unsafe`
-//! code, so the hub does not try; a thread inherits its creator's policy, so
-//! running the process under `chrt -f 50` gives the hub `SCHED_FIFO`
-//! ([`current_thread_policy`] says which policy a thread has). Under
+//! Only a real-time policy (`SCHED_FIFO`) removes that tail: each hub thread
+//! asks for it as it starts, as [`LinkConfig::realtime`](crate::LinkConfig::realtime)
+//! says ([`crate::realtime`]; by default where the host grants it), and
+//! [`current_thread_policy`] says which policy a thread has. Under
 //! `SCHED_FIFO` keep the spin margin well below the period: a thread that
 //! never sleeps is throttled by the kernel (by default it may use 95 % of
 //! each second), which costs tens of milliseconds at once.
@@ -115,7 +114,7 @@ pub fn current_thread_policy() -> io::Result<SchedPolicy> {
 
 /// Fields 40 (`rt_priority`) and 41 (`policy`) of a `stat` line; the command
 /// name (field 2) may hold spaces and parentheses, so count after its last `)`.
-fn parse_policy(stat: &str) -> Option<SchedPolicy> {
+pub(crate) fn parse_policy(stat: &str) -> Option<SchedPolicy> {
     let (_, rest) = stat.rsplit_once(')')?;
     let mut fields = rest.split_whitespace().skip(40 - 3);
     let priority: u32 = fields.next()?.parse().ok()?;
@@ -334,12 +333,43 @@ impl LatenessHistogram {
         Some(self.max)
     }
 
+    /// Records under each of [`LATENESS_BOUNDS_MICROS`], in one pass over
+    /// the linear range that ends at its last record (on the hub's thread,
+    /// with the percentiles, as they do). Past it, as
+    /// [`count_under_micros`](Self::count_under_micros).
+    fn below_bounds(&self) -> [u64; LATENESS_BOUNDS_MICROS.len()] {
+        let mut below = [0; LATENESS_BOUNDS_MICROS.len()];
+        let in_range = self.count - self.overflow;
+        let mut seen = 0u64;
+        let mut next = 0;
+        for (micros, &n) in (0u64..).zip(self.buckets.iter()) {
+            if seen == in_range {
+                break;
+            }
+            while next < below.len() && LATENESS_BOUNDS_MICROS[next] <= micros {
+                below[next] = seen;
+                next += 1;
+            }
+            seen += n;
+        }
+        for (slot, &bound) in below.iter_mut().zip(&LATENESS_BOUNDS_MICROS).skip(next) {
+            *slot = if bound <= Self::RANGE_MICROS {
+                seen
+            } else {
+                self.count_under_micros(bound)
+            };
+        }
+        below
+    }
+
     /// The summary: count, missed, min, p50, p99, p99.9, max and mean (all
-    /// zero with no record).
+    /// zero with no record), the sum and the counts under fixed bounds.
     #[must_use]
     pub fn stats(&self) -> LatenessStats {
         let q = |p| self.percentile(p).unwrap_or(Duration::ZERO);
         LatenessStats {
+            sum: Duration::from_nanos(u64::try_from(self.sum_nanos).unwrap_or(u64::MAX)),
+            below: self.below_bounds(),
             count: self.count,
             missed: self.missed,
             min: self.min().unwrap_or(Duration::ZERO),
@@ -351,6 +381,13 @@ impl LatenessHistogram {
         }
     }
 }
+
+/// The bounds, in microseconds, under which [`LatenessStats::below`] counts
+/// ticks: the buckets of a Prometheus histogram of the lateness.
+pub const LATENESS_BOUNDS_MICROS: [u64; 21] = [
+    1, 2, 3, 5, 7, 10, 15, 20, 30, 50, 75, 100, 150, 200, 300, 500, 750, 1_000, 2_000, 5_000,
+    10_000,
+];
 
 /// A summary of tick lateness (see [`LatenessHistogram::stats`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -373,6 +410,13 @@ pub struct LatenessStats {
     pub max: Duration,
     /// The mean lateness.
     pub mean: Duration,
+    /// The lateness of every tick added up (a histogram's sum).
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub sum: Duration,
+    /// Ticks served under each bound of [`LATENESS_BOUNDS_MICROS`]
+    /// (cumulative, to the histogram's 1 µs resolution).
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub below: [u64; LATENESS_BOUNDS_MICROS.len()],
 }
 
 impl fmt::Display for LatenessStats {
@@ -389,6 +433,43 @@ impl fmt::Display for LatenessStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn counts_under_the_bounds_and_the_sum_match_the_records() {
+        let mut h = LatenessHistogram::new(Duration::from_millis(1));
+        // 0.5 µs, 1 µs, 7 µs, 700 µs, 3 ms, 20 ms (past the linear range).
+        for nanos in [500, 1_000, 7_000, 700_000, 3_000_000, 20_000_000] {
+            h.record(Duration::from_nanos(nanos));
+        }
+        let s = h.stats();
+        assert_eq!(s.sum, Duration::from_nanos(23_708_500));
+        let expect = |bound: u64| h.count_under_micros(bound);
+        let want: Vec<u64> = LATENESS_BOUNDS_MICROS.iter().map(|&b| expect(b)).collect();
+        assert_eq!(s.below.to_vec(), want);
+        // Under 1, 2, 3, 5, 7 and 10 µs.
+        assert_eq!(&s.below[..6], &[1, 2, 2, 2, 2, 3]);
+        // Under 10 ms: all but the 20 ms tick.
+        assert_eq!(s.below[LATENESS_BOUNDS_MICROS.len() - 1], 5);
+        assert!(s.below.windows(2).all(|w| w[0] <= w[1]));
+        // On the bounds themselves, at the ends of the range, and empty.
+        let cases: [&[u64]; 4] = [
+            &[],
+            &[0],
+            &[9_999_999, 10_000_000, 10_000_999, 10_001_000],
+            &[1_000, 2_000, 2_999, 3_000, 150_000, 150_001, 999_999],
+        ];
+        for case in cases {
+            let mut h = LatenessHistogram::new(Duration::from_millis(1));
+            for &nanos in case {
+                h.record(Duration::from_nanos(nanos));
+            }
+            let want: Vec<u64> = LATENESS_BOUNDS_MICROS
+                .iter()
+                .map(|&b| h.count_under_micros(b))
+                .collect();
+            assert_eq!(h.stats().below.to_vec(), want, "{case:?}");
+        }
+    }
 
     #[test]
     fn policy_fields_are_counted_after_the_command_name() {

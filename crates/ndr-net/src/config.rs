@@ -6,6 +6,7 @@ use ndr_core::time::Duration;
 
 use crate::hub::Hub;
 use crate::pool::{HubChoice, HubPool};
+use crate::realtime::Realtime;
 use crate::tls::TlsConfig;
 use crate::transport::{Transport, TransportError};
 
@@ -70,6 +71,12 @@ pub struct LinkConfig {
     /// that peers who never will cannot starve one who does (unused by
     /// [`Link::connect`](crate::Link::connect)).
     pub admission: Admission,
+    /// The real-time scheduling the link's hub thread asks for as it starts
+    /// (`SCHED_FIFO`, memory locked, a CPU): by default it tries and warns
+    /// once if refused ([`crate::realtime`]). A hub given with
+    /// [`on_hub`](Self::on_hub) or [`on_pool`](Self::on_pool) keeps what it
+    /// was started with.
+    pub realtime: Realtime,
 }
 
 impl LinkConfig {
@@ -87,6 +94,7 @@ impl LinkConfig {
             hub: HubChoice::Own,
             insecure: false,
             admission: Admission::default(),
+            realtime: Realtime::default(),
         }
     }
 

@@ -30,7 +30,7 @@ impl Link {
     /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
     /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
-        let hub = config.hub.pick(config.spin_margin)?;
+        let hub = config.hub.pick(config.spin_margin, config.realtime)?;
         dial(&hub, addr, config).await
     }
 
@@ -40,7 +40,7 @@ impl Link {
     pub fn connect_blocking(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
         not_in_a_runtime("Link::connect_blocking", "Link::connect(..).await")?;
         let rt = own_runtime()?;
-        let hub = config.hub.pick(config.spin_margin)?;
+        let hub = config.hub.pick(config.spin_margin, config.realtime)?;
         // Only the connection and the handshakes need the runtime: its hub
         // drives the link, and its thread ends here.
         rt.block_on(dial(&hub, addr, config))

@@ -6,6 +6,7 @@ use std::net::SocketAddr;
 
 use ndr_core::endpoint::{ConfigError, LinkError};
 
+use crate::realtime::RealtimeError;
 use crate::tls::HandshakeError;
 use crate::transport::TransportError;
 
@@ -29,6 +30,10 @@ pub enum NetError {
     /// The transport does not fit the link's security (QUIC without TLS,
     /// plain UDP with it) or its endpoint's configuration.
     Transport(TransportError),
+    /// The hub's thread was refused real-time scheduling under
+    /// [`RealtimeMode::Enforce`](crate::RealtimeMode::Enforce) (the message
+    /// says what to grant), or the setting cannot be asked for.
+    Realtime(RealtimeError),
 }
 
 impl fmt::Display for NetError {
@@ -45,6 +50,7 @@ impl fmt::Display for NetError {
             ),
             NetError::Handshake(e) => write!(f, "{e}"),
             NetError::Transport(e) => write!(f, "{e}"),
+            NetError::Realtime(e) => write!(f, "real-time scheduling: {e}"),
         }
     }
 }
@@ -57,14 +63,26 @@ impl std::error::Error for NetError {
             NetError::Link(e) => Some(e),
             NetError::Handshake(e) => Some(e),
             NetError::Transport(e) => Some(e),
+            NetError::Realtime(e) => Some(e),
             NetError::Timeout | NetError::Insecure(_) => None,
         }
     }
 }
 
 impl From<io::Error> for NetError {
+    /// [`NetError::Io`], or [`NetError::Realtime`] for the error a hub's
+    /// start returns when refused real-time scheduling.
     fn from(e: io::Error) -> Self {
-        NetError::Io(e)
+        match e.get_ref().and_then(|i| i.downcast_ref::<RealtimeError>()) {
+            Some(rt) => NetError::Realtime(rt.clone()),
+            None => NetError::Io(e),
+        }
+    }
+}
+
+impl From<RealtimeError> for NetError {
+    fn from(e: RealtimeError) -> Self {
+        NetError::Realtime(e)
     }
 }
 

@@ -40,6 +40,7 @@ use crate::clock::{DEFAULT_SPIN_MARGIN, DEFAULT_TIMER_SLACK, LatenessHistogram, 
 use crate::delivery::Sample;
 use crate::delivery::{Delivery, Outbox, Refused};
 use crate::framing::{Deframer, FramingError};
+use crate::realtime::Realtime;
 use crate::spin::SpinMargin;
 use crate::stats::LinkStats;
 
@@ -302,13 +303,37 @@ impl Hub {
     /// `spin_margin` before each deadline: given as a [`Duration`], it learns
     /// a shorter margin from how late its timer wakes ([`crate::spin`]);
     /// [`SpinMargin::fixed`] spins the whole of it.
+    ///
+    /// The thread asks for real-time scheduling as [`Realtime::default`]
+    /// says (`SCHED_FIFO` if the host grants it, a warning if not): see
+    /// [`with_realtime`](Self::with_realtime).
     pub fn new(spin_margin: impl Into<SpinMargin>) -> io::Result<Hub> {
-        Hub::with_origin(spin_margin.into(), StdInstant::now())
+        Hub::with_realtime(spin_margin, Realtime::default())
+    }
+
+    /// [`new`](Self::new), its thread asking for `realtime` as it starts
+    /// ([`crate::realtime`]).
+    ///
+    /// # Errors
+    ///
+    /// The thread cannot start, or under [`RealtimeMode::Enforce`](crate::realtime::RealtimeMode::Enforce)
+    /// the host refuses: an [`io::Error`] holding the
+    /// [`RealtimeError`](crate::realtime::RealtimeError) (a
+    /// [`NetError`](crate::NetError) made from it is `NetError::Realtime`).
+    pub fn with_realtime(
+        spin_margin: impl Into<SpinMargin>,
+        realtime: Realtime,
+    ) -> io::Result<Hub> {
+        Hub::with_origin(spin_margin.into(), StdInstant::now(), realtime)
     }
 
     /// A hub whose tick grid starts at `origin` (hubs of one pool share it,
     /// so their links tick at the same instants, in parallel).
-    pub(crate) fn with_origin(spin: SpinMargin, origin: StdInstant) -> io::Result<Hub> {
+    pub(crate) fn with_origin(
+        spin: SpinMargin,
+        origin: StdInstant,
+        realtime: Realtime,
+    ) -> io::Result<Hub> {
         let (tx, rx) = mpsc::channel();
         let poll = Poll::new()?;
         let waker = Arc::new(Waker::new(poll.registry(), WAKER)?);
@@ -345,10 +370,7 @@ impl Hub {
             links: Arc::clone(&links),
             _waker: Arc::clone(&waker),
         };
-        std::thread::Builder::new()
-            .name("ndr-hub".into())
-            .stack_size(8 << 20)
-            .spawn(move || driver.run())?;
+        crate::realtime::spawn("ndr-hub", 8 << 20, realtime, move || driver.run())?;
         Ok(Hub {
             inner: Arc::new(Inner {
                 tx: Some(tx),

@@ -53,8 +53,11 @@ mod keepalive;
 pub mod keygen;
 mod link;
 mod listener;
+#[cfg(feature = "metrics")]
+pub mod metrics;
 mod pool;
 pub mod quic;
+pub mod realtime;
 #[cfg(feature = "relay")]
 pub mod relay;
 mod runtime;
@@ -74,6 +77,7 @@ pub use hub::Hub;
 pub use link::{EVENT_BACKLOG, Link, LinkSender};
 pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
+pub use realtime::{Realtime, RealtimeError, RealtimeMode};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use sharing::SharingStats;

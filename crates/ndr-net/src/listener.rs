@@ -384,7 +384,7 @@ impl Listener {
         let transport = config.checked_transport(tls.is_some())?;
         let datagrams = transport.datagrams();
         let hubs = match &config.hub {
-            HubChoice::Own => Hubs::One(Hub::new(config.spin_margin)?),
+            HubChoice::Own => Hubs::One(Hub::with_realtime(config.spin_margin, config.realtime)?),
             HubChoice::Shared(hub) => Hubs::One(hub.clone()),
             HubChoice::Pool(pool) => Hubs::Pool(pool.clone()),
         };
@@ -442,7 +442,11 @@ impl Listener {
         };
         // On the links' clock, so that a link keeps its tick grid when it
         // moves; its deadlines (handshake timers) need no spin.
-        let hub = Hub::with_origin(SpinMargin::fixed(ndr_core::time::Duration::ZERO), origin)?;
+        let hub = Hub::with_origin(
+            SpinMargin::fixed(ndr_core::time::Duration::ZERO),
+            origin,
+            config.realtime,
+        )?;
         let key = hub.next_id();
         let stray = Arc::new(AtomicU64::new(0));
         let retried = Arc::new(AtomicU64::new(0));

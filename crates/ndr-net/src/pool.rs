@@ -13,6 +13,7 @@ use std::time::Instant as StdInstant;
 
 use crate::clock::DEFAULT_SPIN_MARGIN;
 use crate::hub::Hub;
+use crate::realtime::Realtime;
 use crate::spin::SpinMargin;
 
 /// Which hub drives a link, or the links a listener accepts
@@ -31,9 +32,13 @@ pub enum HubChoice {
 
 impl HubChoice {
     /// The hub for a link starting now; [`HubChoice::Own`] starts one.
-    pub(crate) fn pick(&self, spin_margin: impl Into<SpinMargin>) -> io::Result<Hub> {
+    pub(crate) fn pick(
+        &self,
+        spin_margin: impl Into<SpinMargin>,
+        realtime: Realtime,
+    ) -> io::Result<Hub> {
         match self {
-            HubChoice::Own => Hub::new(spin_margin),
+            HubChoice::Own => Hub::with_realtime(spin_margin, realtime),
             HubChoice::Shared(hub) => Ok(hub.clone()),
             HubChoice::Pool(pool) => Ok(pool.least_loaded().clone()),
         }
@@ -54,12 +59,23 @@ impl HubPool {
     /// `hubs` hubs (at least one), spinning at most the last `spin_margin`
     /// before each deadline (see [`Hub::new`]).
     pub fn new(hubs: usize, spin_margin: impl Into<SpinMargin>) -> io::Result<HubPool> {
+        HubPool::with_realtime(hubs, spin_margin, Realtime::default())
+    }
+
+    /// [`new`](Self::new), each hub's thread asking for `realtime` as it
+    /// starts (see [`Hub::with_realtime`]); pinned, the `i`-th hub goes to
+    /// the `i`-th CPU from [`Realtime::cpu`].
+    pub fn with_realtime(
+        hubs: usize,
+        spin_margin: impl Into<SpinMargin>,
+        realtime: Realtime,
+    ) -> io::Result<HubPool> {
         let spin_margin = spin_margin.into();
         let origin = StdInstant::now();
-        let first = Hub::with_origin(spin_margin, origin)?;
+        let first = Hub::with_origin(spin_margin, origin, realtime)?;
         let mut all = vec![first.clone()];
-        for _ in 1..hubs {
-            all.push(Hub::with_origin(spin_margin, origin)?);
+        for i in 1..hubs {
+            all.push(Hub::with_origin(spin_margin, origin, realtime.shifted(i))?);
         }
         Ok(HubPool {
             hubs: all.into(),

@@ -592,6 +592,26 @@ impl Relay {
     }
 }
 
+/// Reads a relay's counters from anywhere ([`RelayHandle::stats_reader`]).
+#[derive(Clone)]
+pub struct RelayStatsReader(Arc<Ctx>);
+
+impl fmt::Debug for RelayStatsReader {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_tuple("RelayStatsReader")
+            .field(&self.0.upstream)
+            .finish()
+    }
+}
+
+impl RelayStatsReader {
+    /// The counters so far (the final ones once the relay stopped).
+    #[must_use]
+    pub fn stats(&self) -> RelayStats {
+        self.0.counters.snapshot()
+    }
+}
+
 /// A running relay: its counters, and the way to stop it.
 #[must_use = "dropping the handle stops the relay"]
 pub struct RelayHandle {
@@ -622,6 +642,13 @@ impl RelayHandle {
     #[must_use]
     pub fn stats(&self) -> RelayStats {
         self.ctx.counters.snapshot()
+    }
+
+    /// A reader of the counters that outlives nothing: it keeps them
+    /// readable, not the relay running (a metrics exporter holds one).
+    #[must_use]
+    pub fn stats_reader(&self) -> RelayStatsReader {
+        RelayStatsReader(Arc::clone(&self.ctx))
     }
 
     /// Time since the relay started serving: the `t` its delay models see.

@@ -26,7 +26,7 @@ use ndr_net::tls::HandshakeError as TlsHandshakeError;
 use ndr_net::{NetError, TransportError};
 use pyo3::create_exception;
 use pyo3::exceptions::{
-    PyConnectionError, PyOSError, PyRuntimeError, PyTimeoutError, PyValueError,
+    PyConnectionError, PyOSError, PyPermissionError, PyRuntimeError, PyTimeoutError, PyValueError,
 };
 use pyo3::prelude::*;
 
@@ -146,7 +146,23 @@ pub fn net_error(py: Python<'_>, e: NetError) -> PyErr {
              (anyone on the path can read and forge the samples)"
         )),
         NetError::Transport(t) => transport_error(&t),
+        NetError::Realtime(rt) => realtime_error(&rt),
         other => PyRuntimeError::new_err(other.to_string()),
+    }
+}
+
+/// Real-time scheduling refused under `realtime="enforce"` (a
+/// `PermissionError` naming what to grant), or a setting that cannot be
+/// asked for (`ValueError`).
+pub fn realtime_error(e: &ndr_net::RealtimeError) -> PyErr {
+    match e {
+        ndr_net::RealtimeError::BadMode(_) | ndr_net::RealtimeError::BadPriority(_) => {
+            PyValueError::new_err(format!("realtime: {e}"))
+        }
+        _ => PyPermissionError::new_err(format!(
+            "real-time scheduling refused under realtime=\"enforce\": {e}; \
+             realtime=\"try\" runs without it (with a warning)"
+        )),
     }
 }
 

@@ -22,8 +22,9 @@ use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow}
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
 use ndr_core::wire::Role;
+use ndr_net::metrics::{LinkLabels, Metrics};
 use ndr_net::{EVENT_BACKLOG, LinkEvent};
-use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample};
+use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample, Transport};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -198,6 +199,8 @@ pub struct PyLink {
     /// Events in `kept` not yet seen, readable without its lock.
     unseen: AtomicUsize,
     role: Role,
+    /// The link's transport (the `transport` label of its metrics).
+    transport: Transport,
     period: f64,
     peer: SocketAddr,
     /// Values in each command and in each state.
@@ -209,7 +212,7 @@ fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
 }
 
 impl PyLink {
-    fn new(link: Link, role: Role, period: Duration) -> Self {
+    fn new(link: Link, role: Role, transport: Transport, period: Duration) -> Self {
         let (sent, received) = link.widths();
         PyLink {
             widths: match role {
@@ -226,6 +229,7 @@ impl PyLink {
             kept: Mutex::new(Kept::default()),
             unseen: AtomicUsize::new(0),
             role,
+            transport,
             period: period.as_secs_f64(),
         }
     }
@@ -380,6 +384,16 @@ impl PyLink {
         serialized(py, &s).map(Some)
     }
 
+    /// The link's figures as Prometheus text (version 0.0.4), the page
+    /// `ndr remote --metrics` serves, for this link alone: labelled with
+    /// its peer, role and transport.
+    fn metrics(&self) -> String {
+        let labels = LinkLabels::new(self.peer.to_string(), self.role, self.transport);
+        let metrics = Metrics::new();
+        metrics.watch_link(labels, &self.sender);
+        metrics.encode()
+    }
+
     /// Now on this side's link clock (s): `released_at` and `arrived_at` are on it.
     fn now(&self) -> f64 {
         self.sender.now().as_secs_f64()
@@ -516,7 +530,7 @@ impl PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport))]
+    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport, realtime, rt_priority, rt_cpu))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         role: &str,
@@ -532,6 +546,9 @@ impl PyLinkSettings {
         app_queue: &Bound<'_, PyAny>,
         insecure: bool,
         transport: &str,
+        realtime: &str,
+        rt_priority: &Bound<'_, PyAny>,
+        rt_cpu: &Bound<'_, PyAny>,
     ) -> PyResult<Self> {
         let role = match role {
             "base" => Role::Base,
@@ -577,8 +594,33 @@ impl PyLinkSettings {
         let mut config = LinkConfig::new(endpoint).with_transport(transport);
         config.app_queue = app_queue;
         config.insecure = insecure;
+        config.realtime = realtime_settings(realtime, rt_priority, rt_cpu)?;
         Ok(PyLinkSettings { config, role })
     }
+}
+
+/// `realtime=`, `rt_priority=`, `rt_cpu=` as the hub's [`Realtime`](ndr_net::Realtime).
+fn realtime_settings(
+    mode: &str,
+    priority: &Bound<'_, PyAny>,
+    cpu: &Bound<'_, PyAny>,
+) -> PyResult<ndr_net::Realtime> {
+    let mode = mode
+        .parse::<ndr_net::RealtimeMode>()
+        .map_err(|e| PyValueError::new_err(format!("realtime: {e}")))?;
+    let priority = int_in::<u8>("rt_priority", priority, 1, 99)?;
+    // As many CPUs as a Linux CPU set holds.
+    let cpu = (!cpu.is_none())
+        .then(|| int_in::<usize>("rt_cpu", cpu, 0, 1023))
+        .transpose()?;
+    let rt = ndr_net::Realtime::default()
+        .with_mode(mode)
+        .with_priority(priority)
+        .map_err(|e| PyValueError::new_err(format!("rt_priority: {e}")))?;
+    Ok(match cpu {
+        Some(cpu) => rt.on_cpu(cpu),
+        None => rt,
+    })
 }
 
 /// Connects to a peer (over mutual TLS with `tls`) and waits for the
@@ -593,7 +635,7 @@ pub fn connect(
     tls: Option<&Bound<'_, PyTlsConfig>>,
 ) -> PyResult<PyLink> {
     let (mut config, role) = (settings.config.clone(), settings.role);
-    let period = config.endpoint.period;
+    let (period, transport) = (config.endpoint.period, config.transport);
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
     let tls = tls.map(|t| t.get().inner.clone());
@@ -668,7 +710,7 @@ pub fn connect(
             return Err(interrupted);
         }
     };
-    Ok(PyLink::new(link, role, period))
+    Ok(PyLink::new(link, role, transport, period))
 }
 
 /// Where a connection attempt stopped.
@@ -703,6 +745,7 @@ pub struct PyListener {
     local: SocketAddr,
     period: Duration,
     role: Role,
+    transport: Transport,
 }
 
 impl Drop for PyListener {
@@ -754,6 +797,7 @@ pub fn listen(
         local,
         period,
         role,
+        transport: settings.config.transport,
     })
 }
 
@@ -817,7 +861,7 @@ impl PyListener {
             done => done,
         };
         match got? {
-            Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.period))),
+            Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.transport, self.period))),
             Err(e) => Err(net_error(py, e)),
         }
     }

@@ -10,7 +10,11 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::net::{Link, LinkStats, Listener, NetError, Relay, RelayConfig, TlsConfig};
 use ndr::netem::LossModel;
 
-use crate::args::{DelayArgs, LinkArgs, PlantArgs, RunArgs};
+use ndr::core::wire::Role;
+use ndr::net::metrics::RelayLabels;
+
+use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RunArgs};
+use crate::metrics::Served;
 use crate::operator::operator;
 use crate::pauses;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
@@ -39,6 +43,8 @@ pub struct DemoArgs {
     /// Seed of the relay's delays and losses.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    #[command(flatten)]
+    pub metrics: MetricsArgs,
 }
 
 pub fn run(args: &DemoArgs) -> Result<(), String> {
@@ -75,6 +81,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             args.run.out.display()
         );
     }
+    let served = Served::start(&args.metrics, "demo")?;
     let rt = runtime()?;
     let loopback: SocketAddr = ([127, 0, 0, 1], 0).into();
     let set_up = rt.block_on(async {
@@ -87,9 +94,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             listener.accept(),
             Link::connect(relay.local_addr(), base_config.clone())
         );
-        Ok::<_, NetError>((base?, remote?, relay))
+        let upstream = listener.local_addr()?;
+        Ok::<_, NetError>((base?, remote?, relay, upstream))
     });
-    let (base, remote, relay) = match set_up {
+    let (base, remote, relay, upstream) = match set_up {
         Ok(parts) => parts,
         Err(e) => {
             let (series, error) = series.close();
@@ -106,6 +114,18 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             return finish(link, &args.run, &with_series_error(outcome, error));
         }
     };
+    let transport = link.transport();
+    served.watch_link(
+        remote.peer_addr(),
+        Role::Remote,
+        transport,
+        &remote.sender(),
+    );
+    served.watch_link(base.peer_addr(), Role::Base, transport, &base.sender());
+    if let Some(m) = served.metrics() {
+        let labels = RelayLabels::new(relay.local_addr().to_string(), upstream.to_string());
+        m.watch_relay(labels, &relay.stats_reader());
+    }
     // The run starts with the link: the set-up waited for its handshake.
     let until = StdInstant::now() + StdDuration::from_secs_f64(args.run.duration_s);
 

@@ -9,6 +9,7 @@ mod demo;
 mod doc_commands;
 mod keygen;
 mod logging;
+mod metrics;
 mod operator;
 mod paper;
 mod pauses;

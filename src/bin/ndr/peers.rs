@@ -4,9 +4,13 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
+use ndr::net::metrics::LinkLabels;
 use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 
-use crate::args::{LinkArgs, PlantArgs, RunArgs, SecurityArgs, resolve};
+use ndr::core::wire::Role;
+
+use crate::args::{LinkArgs, MetricsArgs, PlantArgs, RunArgs, SecurityArgs, resolve};
+use crate::metrics::Served;
 use crate::operator::operator;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
 use crate::robot::{DriveSpec, robot};
@@ -25,6 +29,8 @@ pub struct BaseArgs {
     pub security: SecurityArgs,
     #[command(flatten)]
     pub run: RunArgs,
+    #[command(flatten)]
+    pub metrics: MetricsArgs,
 }
 
 #[derive(clap::Args)]
@@ -43,6 +49,8 @@ pub struct RemoteArgs {
     /// SIGTERM, and exits 0 then; SIGUSR1 prints the listener's counters).
     #[arg(long)]
     pub once: bool,
+    #[command(flatten)]
+    pub metrics: MetricsArgs,
 }
 
 /// The operator's side: runs `--duration-s` over the link, then reports how
@@ -59,6 +67,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         return Err(NetError::Insecure(connect_to).to_string());
     }
     let mut series = Series::create(&args.run.out)?;
+    let served = Served::start(&args.metrics, "base")?;
     let rt = runtime()?;
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
     let until = StdInstant::now() + run_for;
@@ -68,15 +77,23 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
     let (stats, end, tracking) = match connected {
-        Ok(Ok(link)) => operator(
-            link,
-            &args.run,
-            args.link.axes,
-            until,
-            None,
-            &mut series,
-            None,
-        ),
+        Ok(Ok(link)) => {
+            served.watch_link(
+                connect_to,
+                Role::Base,
+                args.link.transport(),
+                &link.sender(),
+            );
+            operator(
+                link,
+                &args.run,
+                args.link.axes,
+                until,
+                None,
+                &mut series,
+                None,
+            )
+        }
         Ok(Err(e)) => (
             None,
             match crate::report::refusal(&e) {
@@ -127,6 +144,11 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
         .with_max_links(1);
     let listener = Arc::new(listener);
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
+    let served = Served::start(&args.metrics, "remote")?;
+    if let Some(m) = served.metrics() {
+        let labels = LinkLabels::new(addr.to_string(), Role::Remote, args.link.transport());
+        m.watch_listener(labels, &listener);
+    }
     let stop = Arc::new(Stop::default());
     signals::watch(&rt, Arc::clone(&listener), Arc::clone(&stop))?;
     eprintln!(
@@ -135,6 +157,7 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     );
     let failure = serve(
         args,
+        &served,
         &rt,
         &listener,
         &stop,
@@ -149,12 +172,15 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
 /// that makes the exit status non-zero, if any.
 fn serve(
     args: &RemoteArgs,
+    served: &Served,
     rt: &tokio::runtime::Runtime,
     listener: &Listener,
     stop: &Stop,
     period: ndr::core::time::Duration,
     max_command: f64,
 ) -> Option<String> {
+    // The last base's figures stay on the page until the next one comes.
+    let mut watched = None;
     loop {
         let accepted = rt.block_on(async {
             tokio::select! {
@@ -172,6 +198,8 @@ fn serve(
         };
         let peer = link.peer_addr();
         eprintln!("ndr remote: base {peer} connected");
+        served.unwatch(watched.take());
+        watched = served.watch_link(peer, Role::Remote, args.link.transport(), &link.sender());
         let stats = Mutex::new(None::<LinkStats>);
         let spec = DriveSpec {
             axes: usize::from(args.link.axes),

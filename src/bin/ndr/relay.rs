@@ -9,7 +9,10 @@ use ndr::net::relay::{
 };
 use ndr::sim::delay::LossModel;
 
-use crate::args::{DelayArgs, resolve};
+use ndr::net::metrics::RelayLabels;
+
+use crate::args::{DelayArgs, MetricsArgs, resolve};
+use crate::metrics::Served;
 
 #[derive(clap::Args)]
 pub struct RelayArgs {
@@ -46,6 +49,8 @@ pub struct RelayArgs {
     /// listens on loopback to the network.
     #[arg(long)]
     pub insecure: bool,
+    #[command(flatten)]
+    pub metrics: MetricsArgs,
 }
 
 pub fn run(args: &RelayArgs) -> Result<(), String> {
@@ -73,6 +78,7 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
         .with_config(config)
         .on_event(print_event);
     let local = relay.local_addr();
+    let served = Served::start(&args.metrics, "relay")?;
     eprintln!(
         "ndr relay: {local} -> {upstream} (TCP and UDP), delays {model_name}, datagram loss {}, \
          seed {}; {}",
@@ -85,7 +91,12 @@ pub fn run(args: &RelayArgs) -> Result<(), String> {
     );
     let started = StdInstant::now();
     let stats = relay
-        .serve(StopWhen::ctrl_c().or_after(after))
+        .serve_with(StopWhen::ctrl_c().or_after(after), |handle| {
+            if let Some(m) = served.metrics() {
+                let labels = RelayLabels::new(local.to_string(), upstream.to_string());
+                m.watch_relay(labels, &handle.stats_reader());
+            }
+        })
         .map_err(|e| e.to_string())?;
     let ran = started.elapsed().as_secs_f64();
 

@@ -142,9 +142,24 @@ impl BlockingRelay {
     ///
     /// The Ctrl-C handler cannot be installed (the relay is shut down first).
     pub fn serve(self, stop: StopWhen) -> io::Result<RelayStats> {
+        self.serve_with(stop, |_| {})
+    }
+
+    /// [`serve`](Self::serve), telling `started` the running relay first
+    /// (to take a [`RelayHandle::stats_reader`](super::RelayHandle::stats_reader), say).
+    ///
+    /// # Errors
+    ///
+    /// As [`serve`](Self::serve).
+    pub fn serve_with(
+        self,
+        stop: StopWhen,
+        started: impl FnOnce(&super::RelayHandle),
+    ) -> io::Result<RelayStats> {
         let BlockingRelay { runtime, relay } = self;
         runtime.block_on(async move {
             let handle = relay.spawn()?;
+            started(&handle);
             let waited = wait(stop).await;
             let stats = handle.shutdown().await;
             waited.map(|()| stats)

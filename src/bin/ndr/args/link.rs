@@ -57,6 +57,8 @@ pub struct LinkArgs {
     /// or --insecure, and not with TLS.
     #[arg(long)]
     pub transport: Option<LinkTransport>,
+    #[command(flatten)]
+    pub realtime: super::RealtimeArgs,
 }
 
 impl LinkArgs {
@@ -82,7 +84,9 @@ impl LinkArgs {
         let mut checked = endpoint;
         checked.session = checked.session.max(1);
         checked.validate().map_err(|e| e.to_string())?;
-        Ok(LinkConfig::new(endpoint).with_transport(self.transport()))
+        let mut config = LinkConfig::new(endpoint).with_transport(self.transport());
+        self.realtime.apply(&mut config)?;
+        Ok(config)
     }
 
     /// `--regulation`, or the adaptive default.
