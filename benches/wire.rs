@@ -13,6 +13,7 @@ use ndr::core::wire::{
 
 fn encode_decode(c: &mut Criterion) {
     let header = Header {
+        term: 0,
         seq: 1_000,
         sent_at: Instant::from_millis(200_000),
         echo: Some(Echo {
@@ -46,6 +47,7 @@ fn encode_decode(c: &mut Criterion) {
 
 fn wide(c: &mut Criterion) {
     let header = Header {
+        term: 0,
         seq: 1_000,
         sent_at: Instant::from_millis(200_000),
         echo: Some(Echo {

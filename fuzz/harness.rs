@@ -126,6 +126,15 @@ fn round_trip<T: AsRef<[u8]>>(frame: &Frame<T>) {
         Payload::Control(c) => Message::Control(c),
         Payload::Close(c) => Message::Close(c),
         Payload::Token(t) => Message::Token(t),
+        Payload::Applied(a) => {
+            flat.extend(a.values.iter());
+            Message::Applied {
+                seq: a.seq,
+                sent_at: a.sent_at,
+                applied_at: a.applied_at,
+                values: &flat,
+            }
+        }
     };
     // As long as the frame: a re-encoding that needs more is not the same.
     let mut buf = vec![0u8; frame.as_bytes().len()];
@@ -204,6 +213,7 @@ pub fn endpoint(data: &[u8]) {
             }
             1 => {
                 let hello = Hello {
+                    seat: ndr_core::wire::Seat::Control,
                     role: if input.byte() % 4 == 0 {
                         role
                     } else {
@@ -1289,6 +1299,7 @@ fn send(
         peer.sent = Some(sent_at);
     }
     let header = Header {
+        term: 0,
         seq,
         sent_at,
         echo: match input.byte() % 3 {

@@ -330,6 +330,7 @@ fn one_datagram_senders_do_not_keep_a_udp_base_from_its_samples_through_the_rela
 
 fn partial_hello() -> Vec<u8> {
     let hello = Hello {
+        seat: ndr_core::wire::Seat::Control,
         role: Role::Base,
         mode: wire::ModeCode::PaperStatic,
         underflow: wire::UnderflowCode::Hold,

@@ -674,6 +674,7 @@ fn a_second_base_is_told_at_once_that_the_robot_is_busy() {
 fn base_hello() -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
+        seat: ndr_core::wire::Seat::Control,
         role: Role::Base,
         mode: wire::ModeCode::PaperStatic,
         underflow: wire::UnderflowCode::Hold,

@@ -75,6 +75,7 @@ fn hello_bytes(version: u8) -> Vec<u8> {
 fn hello_from(version: u8, role: Role, axes: u16) -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
+        seat: ndr_core::wire::Seat::Control,
         role,
         mode: wire::ModeCode::PaperStatic,
         underflow: wire::UnderflowCode::Hold,

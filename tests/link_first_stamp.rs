@@ -69,6 +69,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
     let read_half = stream.try_clone().expect("a second handle");
     std::thread::spawn(move || reader(read_half, origin, tx));
     let hello = Hello {
+        seat: ndr_core::wire::Seat::Control,
         role: Role::Base,
         mode: wire::ModeCode::PaperStatic,
         underflow: wire::UnderflowCode::Hold,
@@ -94,6 +95,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
             })
     };
     let (mut handshaken, mut nrtts, mut running) = (false, Vec::new(), false);
+    let mut term = 0;
     let (mut seq, mut sent, mut newest_state) = (0u64, 0u64, None);
     for k in 0.. {
         let tick = Instant::ZERO + PERIOD * k;
@@ -127,6 +129,8 @@ fn hand_written_base(addr: std::net::SocketAddr) {
                 Payload::Hello(h) => {
                     assert_eq!(h.role, Role::Remote);
                     handshaken = true;
+                    // The term its commands are applied in.
+                    term = frame.term();
                 }
                 Payload::Data(values) if !values.is_empty() => newest_state = Some(frame.seq()),
                 Payload::Close(c) => panic!("the remote closed the link: {c}"),
@@ -138,6 +142,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
                 let ns = 2 + (1.3 * (hi - lo) / PERIOD.as_secs_f64()) as u16;
                 let stamp = now();
                 let header = Header {
+                    term: 0,
                     seq,
                     sent_at: stamp,
                     echo: echo_at(&heard, stamp),
@@ -155,6 +160,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
             }
         }
         let header = Header {
+            term,
             seq,
             sent_at: tick,
             echo: echo_at(&heard, tick),

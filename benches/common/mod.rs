@@ -8,6 +8,7 @@ use ndr::net::TlsConfig;
 /// baselines carry the same.
 pub fn frame() -> Vec<u8> {
     let header = Header {
+        term: 0,
         seq: 1,
         sent_at: Instant::from_millis(1),
         echo: None,
@@ -24,6 +25,7 @@ pub fn frame() -> Vec<u8> {
 #[allow(dead_code)]
 pub fn bundle() -> Vec<u8> {
     let header = Header {
+        term: 0,
         seq: 3,
         sent_at: Instant::from_millis(3),
         echo: None,

@@ -54,6 +54,7 @@ pub extern "C" fn ndr_nostd_exercise(x: f64) -> f64 {
         }
     }
     let header = Header {
+        term: 0,
         seq: 1,
         sent_at: Instant::from_nanos(7),
         echo: None,

@@ -196,6 +196,7 @@ pub mod drive;
 pub mod endpoint;
 mod estimator;
 mod filters;
+pub mod floor;
 mod kalman;
 mod layout;
 #[cfg(feature = "alloc")]

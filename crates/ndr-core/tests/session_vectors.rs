@@ -52,6 +52,7 @@ fn sessions() -> Vec<Vec<Line>> {
             block.push(Line {
                 at,
                 header: Header {
+                    term: 0,
                     seq,
                     sent_at,
                     echo,
@@ -77,6 +78,7 @@ fn remote() -> Endpoint<Inline<1, 8>> {
 /// Hello), then lets it send what it answers, stamped at the arrival.
 fn hand(ep: &mut Endpoint<Inline<1, 8>>, line: &Line, first: bool) -> String {
     let hello = Hello {
+        seat: ndr_core::wire::Seat::Control,
         role: Role::Base,
         mode: ModeCode::PaperStatic,
         underflow: UnderflowCode::Hold,

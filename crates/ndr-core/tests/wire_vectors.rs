@@ -4,7 +4,7 @@
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
     Close, CloseReason, Control, ControlOp, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN,
-    Message, ModeCode, OlderSample, Payload, Role, Token, UnderflowCode, WireError, encode,
+    Message, ModeCode, OlderSample, Payload, Role, Seat, Token, UnderflowCode, WireError, encode,
     frame_len,
 };
 
@@ -76,6 +76,7 @@ fn echo(sent_at: u64, hold: u64) -> Option<Echo> {
 
 fn header(seq: u64, sent_at: u64, echo: Option<Echo>, released: Option<u64>) -> Header {
     Header {
+        term: 0,
         seq,
         sent_at: Instant::from_nanos(sent_at),
         echo,
@@ -98,6 +99,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
         (
             header(0, 1_000, NONE, None),
             Message::Hello(Hello {
+                seat: Seat::Control,
                 role: Role::Base,
                 mode: ModeCode::PaperDynamic,
                 underflow: UnderflowCode::Hold,
@@ -111,6 +113,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
         (
             header(0, 5_000_000, echo(1_000, 150_000), None),
             Message::Hello(Hello {
+                seat: Seat::Control,
                 role: Role::Remote,
                 mode: ModeCode::PaperDynamic,
                 underflow: UnderflowCode::Hold,
@@ -160,6 +163,60 @@ fn valid() -> Vec<(Header, Message<'static>)> {
             Message::Token(Token {
                 session: 0x0123_4567_89ab_cdef,
             }),
+        ),
+        (
+            header(0, 1_000, NONE, None),
+            Message::Hello(Hello {
+                seat: Seat::WaitForControl,
+                role: Role::Base,
+                mode: ModeCode::PaperDynamic,
+                underflow: UnderflowCode::Hold,
+                command_width: 3,
+                state_width: 6,
+                period: Duration::from_millis(200),
+                layout: LAYOUT,
+                session: 0,
+            }),
+        ),
+        (
+            Header {
+                term: 3,
+                ..header(
+                    100,
+                    20_000_000_000,
+                    echo(19_990_000_000, 1_000_000),
+                    Some(98),
+                )
+            },
+            Message::Data(&[0.5, -0.5, 2.0]),
+        ),
+        (
+            Header {
+                term: 3,
+                ..header(95, 19_000_000_000, echo(18_995_000_000, 500_000), Some(94))
+            },
+            Message::Control(Control {
+                op: ControlOp::Grant,
+                ns: 0,
+                period: Duration::ZERO,
+            }),
+        ),
+        (
+            Header {
+                term: 3,
+                ..header(
+                    2010,
+                    20_040_000_000,
+                    echo(20_030_000_000, 4_000_000),
+                    Some(1998),
+                )
+            },
+            Message::Applied {
+                seq: 100,
+                sent_at: Instant::from_nanos(20_003_000_000),
+                applied_at: Instant::from_nanos(20_040_000_000),
+                values: &[0.5, -0.5, 2.0],
+            },
         ),
     ]
 }
@@ -215,8 +272,8 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
             WireError::LengthOutOfRange(47),
         ),
         (
-            2097u32.to_le_bytes().to_vec(),
-            WireError::LengthOutOfRange(2097),
+            2121u32.to_le_bytes().to_vec(),
+            WireError::LengthOutOfRange(2121),
         ),
         (
             v[1][..56].to_vec(),
@@ -233,8 +290,8 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
             },
         ),
         (patch(&v[3], 4, &[1]), WireError::UnsupportedVersion(1)),
-        (patch(&bare, 5, &[7]), WireError::UnknownKind(7)),
-        (patch(&v[2], 6, &[1]), WireError::UnsupportedFlags(1)),
+        (patch(&bare, 5, &[8]), WireError::UnknownKind(8)),
+        (patch(&v[3], 51, &[3]), WireError::BadSeat(3)),
         (patch(&v[1], 32, &[0x10]), WireError::HoldWithoutEcho),
         (
             padded(&enc(&header(3, 0, NONE, None), &Message::Data(&[1.0])), 4),
@@ -246,8 +303,8 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
         (patch(&v[0], 56, &nan), WireError::NonFinite { index: 1 }),
         (patch(&v[3], 48, &[2]), WireError::BadRole(2)),
         (
-            patch(&v[3], 51, &[1]),
-            WireError::ReservedNotZero { offset: 51 },
+            patch(&v[5], 49, &[1]),
+            WireError::ReservedNotZero { offset: 49 },
         ),
         (patch(&v[3], 56, &[0; 8]), WireError::ZeroPeriod),
         (patch(&v[5], 48, &[0]), WireError::ZeroControlOp),
@@ -299,6 +356,21 @@ fn assert_payload_matches(payload: Payload<'_>, msg: &Message<'_>) {
         (Payload::Control(c), Message::Control(m)) => assert_eq!(c, *m),
         (Payload::Close(c), Message::Close(m)) => assert_eq!(c, *m),
         (Payload::Token(t), Message::Token(m)) => assert_eq!(t, *m),
+        (
+            Payload::Applied(a),
+            Message::Applied {
+                seq,
+                sent_at,
+                applied_at,
+                values,
+            },
+        ) => {
+            assert_eq!(
+                (a.seq, a.sent_at, a.applied_at),
+                (*seq, *sent_at, *applied_at)
+            );
+            assert!(a.values.iter().eq(values.iter().copied()));
+        }
         (
             Payload::Bundle(b),
             Message::Bundle {
@@ -401,6 +473,6 @@ fn invalid_length_prefixes_are_caught_by_frame_len() {
     );
     assert_eq!(
         frame_len(&docs[1].bytes),
-        Err(WireError::LengthOutOfRange(2097))
+        Err(WireError::LengthOutOfRange(2121))
     );
 }

@@ -188,6 +188,19 @@ pub struct Admission {
     /// peer told the listener is busy) and counted in
     /// [`ListenerStats::unclaimed`](crate::ListenerStats::unclaimed). Default 16 (at least 1).
     pub accept_queue: usize,
+    /// A remote's listener that shares one robot: `Some(n)` serves one
+    /// controlling base and up to `n` observers (at most
+    /// [`MAX_OBSERVERS`](ndr_core::floor::MAX_OBSERVERS); bases waiting for
+    /// control count among them), control changing hands by the core's
+    /// [`Floor`](ndr_core::floor::Floor): a base that asks for control
+    /// while another holds it is refused (Close `busy`) or, asking to wait,
+    /// observes until it is granted control; one that asks to observe past
+    /// `n` is refused (Close `observers full`). Observers take none of
+    /// [`Listener::with_max_links`](crate::Listener::with_max_links)'s
+    /// links. `None` (the default): every link is the application's own,
+    /// each base commanding on its link (a server of many robots).
+    /// [`DEFAULT_OBSERVERS`](ndr_core::floor::DEFAULT_OBSERVERS) is 4.
+    pub observers: Option<usize>,
 }
 
 impl Default for Admission {
@@ -197,6 +210,7 @@ impl Default for Admission {
             max_pending_per_source: 8,
             backlog: 1024,
             accept_queue: 16,
+            observers: None,
         }
     }
 }

@@ -60,7 +60,7 @@ async fn dial(hub: &Hub, addr: SocketAddr, config: LinkConfig) -> Result<Link, N
             Handle::current(),
             hub,
             None,
-            None,
+            crate::link::Listened::default(),
         );
     };
     if let Transport::Quic { .. } = transport {
@@ -75,7 +75,7 @@ async fn dial(hub: &Hub, addr: SocketAddr, config: LinkConfig) -> Result<Link, N
         Handle::current(),
         hub,
         Some(conn),
-        None,
+        crate::link::Listened::default(),
     )
 }
 
@@ -117,7 +117,7 @@ async fn quic(
         )));
     }
     let path = QuicPath::new(key, handle, conn);
-    let started = Link::start_quic(&config, Role::Base, hub, path);
+    let started = Link::start_quic(&config, Role::Base, hub, path, None);
     let (id, entry, mut link) = match started {
         Ok(started) => started,
         Err(e) => {

@@ -223,6 +223,7 @@ mod tests {
 
     fn data_frame(seq: u64, values: &[f64]) -> Vec<u8> {
         let header = Header {
+            term: 0,
             seq,
             sent_at: Instant::from_millis(seq),
             echo: None,
@@ -268,7 +269,7 @@ mod tests {
     #[test]
     fn a_full_size_frame_fits_after_a_partial_one() {
         let big = data_frame(1, &vec![1.0; wire::MAX_CHANNELS]);
-        assert_eq!(big.len(), MAX_FRAME_LEN);
+        assert_eq!(big.len(), HEADER_LEN + 8 * wire::MAX_CHANNELS);
         let small = data_frame(0, &[0.0]);
         let mut d = Deframer::new();
         d.extend(&small);

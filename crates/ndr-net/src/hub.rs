@@ -57,6 +57,9 @@ pub(crate) struct Shared {
     pub sample: Mutex<(Vec<f64>, bool)>,
     pub stats: Mutex<Option<LinkStats>>,
     pub notify: Notify,
+    /// The certificate chain the peer presented (TLS, QUIC), once known:
+    /// a shared robot's listener asks whether it may hold control.
+    pub peer_chain: Mutex<Option<Vec<rustls::pki_types::CertificateDer<'static>>>>,
 }
 
 /// The application's code run at each release on the hub's thread
@@ -80,6 +83,8 @@ pub(crate) struct Entry {
     deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
     handler: Option<Handler>,
+    /// What its listener's floor hears of it (a shared robot's link).
+    pub(crate) notes: Option<crate::sharing::Notes>,
 }
 
 /// A link's TCP stream, as the hub reads and writes it.
@@ -197,6 +202,7 @@ impl Entry {
             rx_lag: Running::default(),
             deadline: None,
             handler: None,
+            notes: None,
         }
     }
 
@@ -248,6 +254,9 @@ pub(crate) enum Msg {
     /// A request of a moved link's connection to the endpoint under this
     /// key.
     QuicRequest(u64, Box<quic::Request>),
+    /// Something of control's hand-over for the link's endpoint to do
+    /// (its listener's floor asks, or its base's application).
+    Seat(u64, Box<crate::sharing::SeatOp>),
 }
 
 struct Inner {
@@ -818,6 +827,12 @@ impl Driver {
                     }
                     self.flush(id);
                 }
+                Ok(Msg::Seat(id, op)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        op.apply(&mut e.endpoint);
+                    }
+                    self.flush(id);
+                }
                 Ok(Msg::Handler(id, handler)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
                         e.handler = Some(handler);
@@ -1219,6 +1234,9 @@ fn deliver(e: &mut Entry, ticked: bool, hub: HubFigures) -> bool {
     let mut published = ticked;
     let mut panicked = false;
     while let Some(event) = e.endpoint.poll_event() {
+        if let Some(notes) = &e.notes {
+            notes.note(&event, &e.endpoint);
+        }
         let d = match event {
             Event::Released(s) => {
                 if let Some(handler) = e.handler.as_mut() {
@@ -1457,6 +1475,7 @@ mod tests {
             sample: Mutex::new((vec![0.0; 1], false)),
             stats: Mutex::new(None),
             notify: Notify::new(),
+            peer_chain: Mutex::new(None),
         });
         let (socket, _peer) = loopback();
         let path = Path::Tcp(Stream::new(socket, false));

@@ -62,6 +62,7 @@ pub mod realtime;
 pub mod relay;
 mod runtime;
 mod seats;
+mod sharing;
 pub mod spin;
 mod stats;
 pub mod tls;
@@ -79,6 +80,7 @@ pub use pool::{HubChoice, HubPool};
 pub use realtime::{Realtime, RealtimeError, RealtimeMode};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
+pub use sharing::SharingStats;
 pub use stats::LinkStats;
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};
 pub use transport::{Transport, TransportError};

@@ -66,6 +66,26 @@ pub struct Link {
     /// Its place among the links its listener serves at once, given back
     /// when the link is dropped (after it is closed).
     seat: Option<Seat>,
+    /// A shared robot's link: its key, the seat its endpoint offered, and
+    /// where its listener's floor reaches it.
+    sharing: Option<Sharing>,
+}
+
+/// What a listener gives the links it starts: its datagram socket (over
+/// `udp`), and its robot's floor if it shares one.
+#[derive(Default)]
+pub(crate) struct Listened<'a> {
+    pub(crate) udp: Option<u64>,
+    pub(crate) sharing: Option<&'a Arc<crate::sharing::Sharing>>,
+}
+
+/// A listener's link to a shared robot, as its floor knows it.
+pub(crate) struct Sharing {
+    pub(crate) key: ndr_core::floor::LinkId,
+    pub(crate) offered: ndr_core::wire::Seat,
+    pub(crate) address: crate::sharing::Address,
+    /// Whether the floor admitted it as an observer.
+    pub(crate) observer: bool,
 }
 
 impl fmt::Debug for Link {
@@ -91,7 +111,15 @@ impl Link {
         config: LinkConfig,
         hub: &Hub,
     ) -> Result<Link, NetError> {
-        Link::start(stream, role, config, Handle::current(), hub, None, None)
+        Link::start(
+            stream,
+            role,
+            config,
+            Handle::current(),
+            hub,
+            None,
+            Listened::default(),
+        )
     }
 
     /// Drives `stream` on `hub`; on the datagram transport, over the UDP
@@ -104,8 +132,9 @@ impl Link {
         rt: Handle,
         hub: &Hub,
         tls: Option<rustls::Connection>,
-        udp: Option<u64>,
+        listened: Listened<'_>,
     ) -> Result<Link, NetError> {
+        let Listened { udp, sharing } = listened;
         let transport = config.checked_transport(tls.is_some())?;
         let mut cfg = config.endpoint;
         cfg.role = role;
@@ -145,7 +174,7 @@ impl Link {
             (None, Some(datagram)) => Path::Udp(socket, datagram),
             (None, None) => Path::Tcp(socket),
         };
-        let (id, mut entry, link) = Link::assemble(cfg, &config, hub, path, peer)?;
+        let (id, mut entry, link) = Link::assemble(cfg, &config, hub, path, peer, sharing)?;
         if role == Role::Base {
             entry.say_hello(hub.origin());
         }
@@ -164,6 +193,7 @@ impl Link {
         role: Role,
         hub: &Hub,
         path: QuicPath,
+        sharing: Option<&Arc<crate::sharing::Sharing>>,
     ) -> Result<(u64, Entry, Link), NetError> {
         let mut cfg = config.endpoint;
         cfg.role = role;
@@ -173,7 +203,7 @@ impl Link {
         cfg.session = session_token()?;
         cfg.validate().map_err(NetError::Config)?;
         let peer = path.conn.remote_address();
-        Link::assemble(cfg, config, hub, Path::Quic(Box::new(path)), peer)
+        Link::assemble(cfg, config, hub, Path::Quic(Box::new(path)), peer, sharing)
     }
 
     /// The endpoint, the entry its hub drives and the application's handle.
@@ -183,6 +213,7 @@ impl Link {
         hub: &Hub,
         path: Path,
         peer: SocketAddr,
+        sharing: Option<&Arc<crate::sharing::Sharing>>,
     ) -> Result<(u64, Entry, Link), NetError> {
         let widths = (
             usize::from(cfg.sent_width()),
@@ -194,14 +225,34 @@ impl Link {
             sample: Mutex::new((vec![0.0; widths.0], false)),
             stats: Mutex::new(None),
             notify: Notify::new(),
+            peer_chain: Mutex::new(None),
         });
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());
-        let endpoint = Endpoint::<Heap>::with_capacity(cfg, now, config.queue_capacity)
+        let mut endpoint = Endpoint::<Heap>::with_capacity(cfg, now, config.queue_capacity)
             .map_err(NetError::Config)?;
-        // Memory per link follows the width the peer's samples carry.
-        let max_frame = HEADER_LEN + 8 * widths.1;
-        let entry = Entry::new(endpoint, Arc::clone(&shared), del_tx, path, max_frame);
+        // A shared robot's link offers what its floor says now.
+        let notes = sharing.map(|s| {
+            let (seat, term) = s.offer();
+            // A remote's endpoint before its handshake takes any offer.
+            let _ = endpoint.offer(seat, term);
+            (seat, s.notes())
+        });
+        // Memory per link follows the width the peer's samples carry (and
+        // what an observer is told of the commands).
+        let applied = ndr_core::wire::Applied::FIXED_LEN + 8 * usize::from(cfg.command_width);
+        let max_frame = HEADER_LEN + (8 * widths.1).max(applied);
+        let mut entry = Entry::new(endpoint, Arc::clone(&shared), del_tx, path, max_frame);
+        let sharing = notes.map(|(offered, notes)| {
+            let key = notes.link();
+            entry.notes = Some(notes);
+            Sharing {
+                key,
+                offered,
+                address: Arc::new(Mutex::new((hub.clone(), id))),
+                observer: false,
+            }
+        });
         let link = Link {
             id,
             deliveries: del_rx,
@@ -214,6 +265,7 @@ impl Link {
             peer,
             hub: hub.clone(),
             seat: None,
+            sharing,
         };
         Ok((id, entry, link))
     }
@@ -246,9 +298,56 @@ impl Link {
             Ok(Some(id)) => {
                 self.id = id;
                 self.hub = to.clone();
+                if let Some(s) = &self.sharing {
+                    *s.address.lock().unwrap_or_else(PoisonError::into_inner) = (to.clone(), id);
+                }
                 true
             }
             _ => false,
+        }
+    }
+
+    /// A shared robot's link, as its floor knows it.
+    pub(crate) fn sharing(&mut self) -> Option<&mut Sharing> {
+        self.sharing.as_mut()
+    }
+
+    /// The seat the peer's Hello named, once the handshake is done: at the
+    /// remote, the one its base asked for; at the base, the one the remote
+    /// gave ([`Seat::Observe`](ndr_core::wire::Seat::Observe) to a base
+    /// waiting for control). Control's later changes come as events
+    /// ([`Event::ControlGranted`], [`Event::ControlLost`]).
+    #[must_use]
+    pub fn peer_seat(&self) -> Option<ndr_core::wire::Seat> {
+        self.events.iter().find_map(|e| match e {
+            Event::Connected { peer } => Some(peer.seat),
+            _ => None,
+        })
+    }
+
+    /// Whether this link is an observer's, at a listener that shares its
+    /// robot: its peer gets the states and the applied commands, and sends
+    /// no command.
+    #[must_use]
+    pub fn is_observer(&self) -> bool {
+        self.sharing.as_ref().is_some_and(|s| s.observer)
+    }
+
+    /// Base: gives control up (the link goes on as an observer's; the
+    /// remote hands control to a base waiting for it). An
+    /// [`Event::ControlLost`] follows; a base that holds no control gets
+    /// none, and nothing changes.
+    pub fn yield_control(&self) -> Result<(), NetError> {
+        if let Some(e) = self.closed {
+            return Err(NetError::Link(e));
+        }
+        if self
+            .hub
+            .send(Msg::Seat(self.id, Box::new(crate::sharing::SeatOp::Yield)))
+        {
+            Ok(())
+        } else {
+            Err(NetError::Link(LinkError::Closed))
         }
     }
 

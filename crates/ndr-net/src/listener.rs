@@ -61,6 +61,7 @@ use crate::runtime::{not_in_a_runtime, own_runtime, plain_allowed};
 use crate::tls::TlsConfig;
 
 use crate::seats::Seats;
+use crate::sharing::{Sharing, SharingStats};
 use crate::spin::SpinMargin;
 use ledger::{Ledger, Refusal};
 
@@ -142,6 +143,14 @@ pub struct ListenerStats {
     /// were taken. A source that does not get what is sent to it (a
     /// spoofed one) never answers and takes no slot.
     pub retried: u64,
+    /// Bases that asked for control with an identity the listener lets only
+    /// observe ([`TlsConfig`]'s observers' allow-list): each got a Close
+    /// with reason `OBSERVER_ONLY`.
+    pub refused_observer_only: u64,
+    /// Bases that asked to observe when as many observers as
+    /// [`Admission::observers`](crate::Admission::observers) were served:
+    /// each got a Close with reason `OBSERVERS_FULL`.
+    pub refused_observers_full: u64,
 }
 
 /// Where a listener puts the links it accepts.
@@ -173,6 +182,8 @@ pub(crate) struct Common {
     tls: Option<TlsConfig>,
     setup: Mutex<Setup>,
     seats: Arc<Seats>,
+    /// The robot's floor, if it is shared: one controller, the observers.
+    sharing: Option<Arc<Sharing>>,
     ledger: Mutex<Ledger>,
     /// Why the accept loop stopped, once it has.
     stopped: Mutex<Option<String>>,
@@ -185,8 +196,12 @@ impl Common {
         udp: Option<DatagramSocket>,
         tls: Option<TlsConfig>,
         hubs: Hubs,
-    ) -> Arc<Common> {
-        Arc::new(Common {
+    ) -> Result<Arc<Common>, NetError> {
+        let sharing = match config.admission.observers {
+            Some(n) => Some(Sharing::start(n)?),
+            None => None,
+        };
+        Ok(Arc::new(Common {
             config,
             udp,
             tls,
@@ -195,9 +210,16 @@ impl Common {
                 hubs,
             }),
             seats: Arc::new(Seats::default()),
+            sharing,
             ledger: Mutex::new(Ledger::default()),
             stopped: Mutex::new(None),
-        })
+        }))
+    }
+
+    /// The floor a link in `role` is seated by: a remote's links share
+    /// their robot.
+    fn sharing_for(&self, role: Role) -> Option<&Arc<Sharing>> {
+        self.sharing.as_ref().filter(|_| role == Role::Remote)
     }
 
     /// The hub that will drive a QUIC link whose handshakes are done.
@@ -383,7 +405,7 @@ impl Listener {
             .map_or(crate::tls::DEFAULT_MAX_PENDING_HANDSHAKES, |t| {
                 t.max_pending_handshakes
             });
-        let common = Common::new(config, udp, tls, hubs);
+        let common = Common::new(config, udp, tls, hubs)?;
         let (tx, rx) = mpsc::channel(accept_queue);
         let gate = gate::Gate::new(socket, &common, tx, slots);
         let gate = Handle::current().spawn(gate.run()).abort_handle();
@@ -439,7 +461,7 @@ impl Listener {
             tls.max_pending_handshakes,
             config.admission.max_pending_per_source,
         );
-        let common = Common::new(config, Some(udp), Some(tls.clone()), hubs);
+        let common = Common::new(config, Some(udp), Some(tls.clone()), hubs)?;
         let (tx, rx) = mpsc::channel(accept_queue);
         // Room for every slot twice: an evicted handshake's link may wait
         // here for its task beside the one that took its slot.
@@ -483,13 +505,15 @@ impl Listener {
                 }
                 let (role, _) = common.setup();
                 let path = QuicPath::new(key, handle, conn);
-                let (id, entry, link) = match Link::start_quic(&common.config, role, &hub, path) {
-                    Ok(started) => started,
-                    Err(e) => {
-                        common.refuse(Refusal::of_link(&e), peer, &e);
-                        return None;
-                    }
-                };
+                let sharing = common.sharing_for(role);
+                let (id, entry, link) =
+                    match Link::start_quic(&common.config, role, &hub, path, sharing) {
+                        Ok(started) => started,
+                        Err(e) => {
+                            common.refuse(Refusal::of_link(&e), peer, &e);
+                            return None;
+                        }
+                    };
                 match started_tx.try_send((link, admitted.slot)) {
                     Ok(()) => Some((id, entry)),
                     Err(
@@ -599,6 +623,14 @@ impl Listener {
             stats.retried = udp.retried.load(Ordering::Relaxed);
         }
         stats
+    }
+
+    /// How its robot was shared: hand-overs of control, the most observers
+    /// at once, what the floor refused; `None` unless it shares one
+    /// ([`Admission::observers`](crate::Admission::observers)).
+    #[must_use]
+    pub fn sharing(&self) -> Option<SharingStats> {
+        self.common.sharing.as_ref().map(|s| s.stats())
     }
 
     /// Takes `role` in the links it accepts instead of the remote's (a base

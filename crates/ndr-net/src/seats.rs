@@ -83,6 +83,7 @@ mod tests {
             sample: Mutex::new((Vec::new(), false)),
             stats: Mutex::new(None),
             notify: Notify::new(),
+            peer_chain: Mutex::new(None),
         })
     }
 

@@ -188,6 +188,14 @@ pub struct TlsConfig {
     server_name: ServerName<'static>,
     server_verifier: Arc<dyn ServerCertVerifier>,
     fingerprint: Fingerprint,
+    /// Whom a listener lets hold control (every peer it trusts, unless
+    /// `observers` is set).
+    controllers: Arc<dyn ClientCertVerifier>,
+    /// A listener sharing a robot: whom it lets only observe.
+    observers: Option<Arc<dyn ClientCertVerifier>>,
+    /// This side's chain and key, to rebuild the server's configuration
+    /// with another client verifier.
+    identity: Arc<(Vec<CertificateDer<'static>>, PrivateKeyDer<'static>)>,
     /// Longest a handshake may take before the connection is dropped; a
     /// listener also waits at most this long for the peer's ClientHello,
     /// and its pre-authentication budget
@@ -283,44 +291,7 @@ impl TlsConfig {
             .map_err(|e| TlsError::Rustls(format!("server name {server_name:?}: {e}")))?;
         let provider = Arc::new(rustls::crypto::ring::default_provider());
         let versions = &[&rustls::version::TLS13];
-        let (server_verifier, client_verifier): (
-            Arc<dyn ServerCertVerifier>,
-            Arc<dyn ClientCertVerifier>,
-        ) = match trust {
-            Trust::Pinned(pins) => {
-                if pins.is_empty() {
-                    return Err(TlsError::NoTrust);
-                }
-                let pinned = Arc::new(Pinned {
-                    pins,
-                    algorithms: provider.signature_verification_algorithms,
-                });
-                (pinned.clone(), pinned)
-            }
-            Trust::Ca(roots) => {
-                if roots.is_empty() {
-                    return Err(TlsError::NoTrust);
-                }
-                let mut store = rustls::RootCertStore::empty();
-                for root in roots {
-                    store.add(root).map_err(rustls_err)?;
-                }
-                let store = Arc::new(store);
-                let server = rustls::client::WebPkiServerVerifier::builder_with_provider(
-                    Arc::clone(&store),
-                    Arc::clone(&provider),
-                )
-                .build()
-                .map_err(|e| TlsError::Rustls(e.to_string()))?;
-                let client = rustls::server::WebPkiClientVerifier::builder_with_provider(
-                    store,
-                    Arc::clone(&provider),
-                )
-                .build()
-                .map_err(|e| TlsError::Rustls(e.to_string()))?;
-                (server, client)
-            }
-        };
+        let (server_verifier, client_verifier) = verifiers(trust, &provider)?;
         let client = ClientConfig::builder_with_provider(Arc::clone(&provider))
             .with_protocol_versions(versions)
             .map_err(rustls_err)?
@@ -328,26 +299,132 @@ impl TlsConfig {
             .with_custom_certificate_verifier(Arc::clone(&server_verifier))
             .with_client_auth_cert(cert_chain.clone(), key.clone_key())
             .map_err(rustls_err)?;
-        let mut server = ServerConfig::builder_with_provider(provider)
-            .with_protocol_versions(versions)
-            .map_err(rustls_err)?
-            .with_client_cert_verifier(client_verifier)
-            .with_single_cert(cert_chain, key)
-            .map_err(rustls_err)?;
-        // No resumption: a link is one long connection, and a ticket would
-        // be bytes after the handshake for nothing.
-        server.send_tls13_tickets = 0;
+        let server = server_config(&cert_chain, &key, Arc::clone(&client_verifier))?;
         Ok(TlsConfig {
             client: Arc::new(client),
             server: Arc::new(server),
             server_name,
             server_verifier,
             fingerprint: own,
+            controllers: client_verifier,
+            observers: None,
+            identity: Arc::new((cert_chain, key)),
             handshake_timeout: DEFAULT_HANDSHAKE_TIMEOUT,
             max_pending_handshakes: DEFAULT_MAX_PENDING_HANDSHAKES,
         })
     }
 
+    /// A listener that shares its robot
+    /// ([`Admission::observers`](crate::Admission::observers)): also
+    /// trusts the peers `observers` names, who may only observe. A base
+    /// with such an identity that asks for control is refused (Close
+    /// `observer only`, counted in
+    /// [`ListenerStats::refused_observer_only`](crate::ListenerStats::refused_observer_only));
+    /// an identity on both lists may control.
+    pub fn with_observers(mut self, observers: Trust) -> Result<TlsConfig, TlsError> {
+        let provider = Arc::new(rustls::crypto::ring::default_provider());
+        let (_, observers) = verifiers(observers, &provider)?;
+        let either = Arc::new(Either {
+            controllers: Arc::clone(&self.controllers),
+            observers: Arc::clone(&observers),
+        });
+        let (chain, key) = &*self.identity;
+        self.server = Arc::new(server_config(chain, key, either)?);
+        self.observers = Some(observers);
+        Ok(self)
+    }
+
+    /// Whether the peer that presented `chain` (its own certificate first)
+    /// may hold control: any peer this side trusts, unless
+    /// [`with_observers`](Self::with_observers) named some who may only
+    /// observe — then only a peer the controllers' trust accepts.
+    #[must_use]
+    pub fn may_control(&self, chain: &[CertificateDer<'_>]) -> bool {
+        if self.observers.is_none() {
+            return true;
+        }
+        let Some((end_entity, intermediates)) = chain.split_first() else {
+            return false;
+        };
+        self.controllers
+            .verify_client_cert(end_entity, intermediates, UnixTime::now())
+            .is_ok()
+    }
+
+    /// Whether some peers it trusts may only observe.
+    #[must_use]
+    pub fn has_observers(&self) -> bool {
+        self.observers.is_some()
+    }
+}
+
+/// A listener's TLS configuration, its clients checked by `client_verifier`.
+fn server_config(
+    chain: &[CertificateDer<'static>],
+    key: &PrivateKeyDer<'static>,
+    client_verifier: Arc<dyn ClientCertVerifier>,
+) -> Result<ServerConfig, TlsError> {
+    let rustls_err = |e: rustls::Error| TlsError::Rustls(e.to_string());
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let mut server = ServerConfig::builder_with_provider(provider)
+        .with_protocol_versions(&[&rustls::version::TLS13])
+        .map_err(rustls_err)?
+        .with_client_cert_verifier(client_verifier)
+        .with_single_cert(chain.to_vec(), key.clone_key())
+        .map_err(rustls_err)?;
+    // No resumption: a link is one long connection, and a ticket would
+    // be bytes after the handshake for nothing.
+    server.send_tls13_tickets = 0;
+    Ok(server)
+}
+
+/// A server's certificate's verifier and a client's.
+type Verifiers = (Arc<dyn ServerCertVerifier>, Arc<dyn ClientCertVerifier>);
+
+/// The verifiers of `trust`: of a server's certificate, of a client's.
+fn verifiers(
+    trust: Trust,
+    provider: &Arc<rustls::crypto::CryptoProvider>,
+) -> Result<Verifiers, TlsError> {
+    let rustls_err = |e: rustls::Error| TlsError::Rustls(e.to_string());
+    Ok(match trust {
+        Trust::Pinned(pins) => {
+            if pins.is_empty() {
+                return Err(TlsError::NoTrust);
+            }
+            let pinned = Arc::new(Pinned {
+                pins,
+                algorithms: provider.signature_verification_algorithms,
+            });
+            (pinned.clone(), pinned)
+        }
+        Trust::Ca(roots) => {
+            if roots.is_empty() {
+                return Err(TlsError::NoTrust);
+            }
+            let mut store = rustls::RootCertStore::empty();
+            for root in roots {
+                store.add(root).map_err(rustls_err)?;
+            }
+            let store = Arc::new(store);
+            let server = rustls::client::WebPkiServerVerifier::builder_with_provider(
+                Arc::clone(&store),
+                Arc::clone(provider),
+            )
+            .build()
+            .map_err(|e| TlsError::Rustls(e.to_string()))?;
+            let client = rustls::server::WebPkiClientVerifier::builder_with_provider(
+                store,
+                Arc::clone(provider),
+            )
+            .build()
+            .map_err(|e| TlsError::Rustls(e.to_string()))?;
+            (server, client)
+        }
+    })
+}
+
+impl TlsConfig {
     /// The fingerprint of this side's own certificate (what the peer pins).
     #[must_use]
     pub fn fingerprint(&self) -> Fingerprint {
@@ -626,6 +703,59 @@ impl ClientCertVerifier for Pinned {
     }
 
     signatures!();
+}
+
+/// A shared robot's clients: those either list trusts (whether one may
+/// hold control is asked after the handshake,
+/// [`TlsConfig::may_control`]).
+#[derive(Debug)]
+struct Either {
+    controllers: Arc<dyn ClientCertVerifier>,
+    observers: Arc<dyn ClientCertVerifier>,
+}
+
+impl ClientCertVerifier for Either {
+    fn root_hint_subjects(&self) -> &[DistinguishedName] {
+        // A client picks its certificate by these: both lists' would be
+        // the union, which rustls cannot borrow; none lets it offer any.
+        &[]
+    }
+
+    fn verify_client_cert(
+        &self,
+        end_entity: &CertificateDer<'_>,
+        intermediates: &[CertificateDer<'_>],
+        now: UnixTime,
+    ) -> Result<ClientCertVerified, rustls::Error> {
+        self.controllers
+            .verify_client_cert(end_entity, intermediates, now)
+            .or_else(|_| {
+                self.observers
+                    .verify_client_cert(end_entity, intermediates, now)
+            })
+    }
+
+    fn verify_tls12_signature(
+        &self,
+        message: &[u8],
+        cert: &CertificateDer<'_>,
+        dss: &DigitallySignedStruct,
+    ) -> Result<HandshakeSignatureValid, rustls::Error> {
+        self.controllers.verify_tls12_signature(message, cert, dss)
+    }
+
+    fn verify_tls13_signature(
+        &self,
+        message: &[u8],
+        cert: &CertificateDer<'_>,
+        dss: &DigitallySignedStruct,
+    ) -> Result<HandshakeSignatureValid, rustls::Error> {
+        self.controllers.verify_tls13_signature(message, cert, dss)
+    }
+
+    fn supported_verify_schemes(&self) -> Vec<SignatureScheme> {
+        self.controllers.supported_verify_schemes()
+    }
 }
 
 /// Whether a link to or from `addr` may run without TLS: only on loopback

@@ -26,6 +26,7 @@ fn ms(n: u64) -> StdDuration {
 /// A Data frame whose channels make its bytes depend on `seq`.
 fn data_frame(seq: u64) -> Vec<u8> {
     let header = Header {
+        term: 0,
         seq,
         sent_at: Instant::from_millis(seq),
         echo: None,

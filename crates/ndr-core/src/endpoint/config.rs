@@ -9,7 +9,7 @@ use crate::regulation::Regulation;
 pub use crate::regulation::{Mode, UnknownName};
 use crate::sizing::Sizing;
 use crate::time::{Duration, Instant};
-use crate::wire::{self, MAX_CHANNELS, Role};
+use crate::wire::{self, MAX_CHANNELS, Role, Seat};
 
 /// How the link carries its samples; both peers must agree.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -257,6 +257,14 @@ pub struct Config {
     pub session: u64,
     /// The sampling period `T`; both peers must agree at the handshake.
     pub period: Duration,
+    /// A base: the seat it asks for ([`Seat::Control`] by default). A
+    /// remote: the seat it offers a base that asks for control —
+    /// [`Seat::Control`] while control is free, [`Seat::Observe`] while
+    /// another base holds it (a base asking for control is then refused
+    /// with [`LinkError::Busy`](super::LinkError::Busy), one willing to
+    /// wait observes). Its driver, which serves every base of the robot,
+    /// sets it for each link ([`Floor`](crate::floor::Floor) decides).
+    pub seat: Seat,
     /// Static or dynamic sizing of the queues; both peers must agree. With
     /// `playout`, one of the two parts a [`Regulation`] sets
     /// ([`Config::with_regulation`]).
@@ -325,6 +333,7 @@ impl Config {
             transport: Transport::Stream,
             session: 0,
             period,
+            seat: Seat::Control,
             mode: Mode::PaperStatic,
             underflow: Underflow::Hold,
             playout: Playout::Fifo,

@@ -126,6 +126,12 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Datagrams<V> {
         })
     }
 
+    /// Forgets the samples sent: none of them is copied into a later
+    /// datagram (they belong to a control term that ended).
+    pub(super) fn forget_sent(&mut self) {
+        self.filled = 0;
+    }
+
     /// A sample just sent: the newest copy, the oldest given up.
     fn remember(&mut self, header: &Header, values: &[f64]) {
         self.newest = Some(*header);
@@ -589,7 +595,7 @@ impl<S: Storage> Endpoint<S> {
                 sent_at: o.sent_at,
                 arrived_at: now,
             };
-            self.receive_data(head, o.released, o.values, None)?;
+            self.receive_data(head, (o.released, frame.term()), o.values, None)?;
         }
         let seq = frame.seq();
         self.stats.samples_lost += lost(next, seq);
@@ -601,7 +607,12 @@ impl<S: Storage> Endpoint<S> {
             sent_at: frame.sent_at(),
             arrived_at: now,
         };
-        self.receive_data(head, frame.released(), bundle.newest(), Some(stalled))
+        self.receive_data(
+            head,
+            (frame.released(), frame.term()),
+            bundle.newest(),
+            Some(stalled),
+        )
     }
 
     /// A sample's datagram just went out at `now`: while repeating, its

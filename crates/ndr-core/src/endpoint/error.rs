@@ -95,6 +95,16 @@ pub enum LinkError {
     /// This side serves as many peers as it may: the peer was refused
     /// after its handshake (sent by a listener; ends the link).
     Busy,
+    /// The peer asked for control, but its identity may only observe
+    /// (sent by a listener; ends the link).
+    ObserverOnly,
+    /// The peer asked to observe, and this side serves as many observers
+    /// as it may (sent by a listener; ends the link).
+    ObserversFull,
+    /// A call that needs this side to hold control (base) or the link to
+    /// serve a controller (remote), or a grant before the link passed its
+    /// initialization pattern (the call is refused).
+    NotController,
     /// This side (a listener) cut the peer's handshake short to make room
     /// for a newer connection: from the same source, which had as many
     /// handshakes pending as one may have (`per_source`), or when every
@@ -194,6 +204,8 @@ impl LinkError {
             LinkError::ModeMismatch { .. } => CloseReason::ModeMismatch,
             LinkError::Timeout | LinkError::PeerSilent { .. } => CloseReason::Timeout,
             LinkError::Busy => CloseReason::Busy,
+            LinkError::ObserverOnly => CloseReason::ObserverOnly,
+            LinkError::ObserversFull => CloseReason::ObserversFull,
             LinkError::Evicted { per_source: true } => CloseReason::EvictedSource,
             LinkError::Evicted { per_source: false } => CloseReason::Evicted,
             LinkError::OutOfSequence { .. } => CloseReason::Sequence,
@@ -215,6 +227,7 @@ impl LinkError {
             LinkError::SampleShape { .. }
                 | LinkError::NonFinite { .. }
                 | LinkError::BufferTooSmall { .. }
+                | LinkError::NotController
         )
     }
 
@@ -327,6 +340,19 @@ impl fmt::Display for LinkError {
                 "the listener serves as many peers as it may (a robot serves one base at a \
                  time): try again once the other peer is done",
             ),
+            LinkError::ObserverOnly => f.write_str(
+                "this peer's identity may only observe (it is on the observers' allow-list, not \
+                 the controllers'): connect as an observer, or with a controller's certificate",
+            ),
+            LinkError::ObserversFull => f.write_str(
+                "the listener serves as many observers as it may: try again later, or raise its \
+                 observers limit",
+            ),
+            LinkError::NotController => f.write_str(
+                "control is not held on this link: a base sends commands only once granted \
+                 control, and a remote grants it only to a base that asked for it, once its \
+                 link passed the initialization pattern",
+            ),
             LinkError::Evicted { per_source: true } => f.write_str(
                 "the peer's handshake was cut short to make room for a newer connection from \
                  its address, which had as many handshakes pending as one address may have",
@@ -354,6 +380,18 @@ impl fmt::Display for LinkError {
                 f,
                 "protocol error: a frame stamped {got}, 2^63 ns (292 years) or more from its \
                  sender's origin, which no clock reads; nothing of it was used"
+            ),
+            LinkError::PeerClosed {
+                reason: CloseReason::ObserverOnly,
+            } => f.write_str(
+                "the peer refused control: this side's identity is on its observers' \
+                 allow-list only; connect as an observer (--observe), or with a controller's \
+                 certificate",
+            ),
+            LinkError::PeerClosed {
+                reason: CloseReason::ObserversFull,
+            } => f.write_str(
+                "the peer serves as many observers as it may: try again later",
             ),
             LinkError::PeerClosed {
                 reason: CloseReason::Busy,

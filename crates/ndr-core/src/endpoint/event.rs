@@ -40,6 +40,10 @@ pub struct Release<V> {
     pub released_at: Instant,
     /// Fresh, or a repeat because the due sample was missing.
     pub status: Status,
+    /// The control term its frame carried: on a remote, the term of the
+    /// command (always the one its link holds: others are refused); on a
+    /// base, the robot's term when the state was sent.
+    pub term: u16,
     /// The round trip as the application sees it, measured at this release:
     /// from this side's sample that the peer had just released when it sent
     /// this one, to now. `None` if this release closes no new round trip.
@@ -51,6 +55,7 @@ pub struct Release<V> {
 impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Release<V> {
     pub(crate) fn fresh(
         head: Head,
+        term: u16,
         values: V,
         len: u16,
         released_at: Instant,
@@ -62,6 +67,7 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Release<V> {
             arrived_at: head.arrived_at,
             released_at,
             status: Status::Fresh,
+            term,
             grtt,
             len,
             values,
@@ -88,6 +94,7 @@ impl<V: AsRef<[f64]> + AsMut<[f64]> + Clone> Release<V> {
         self.arrived_at = other.arrived_at;
         self.released_at = other.released_at;
         self.status = other.status;
+        self.term = other.term;
         self.grtt = other.grtt;
         self.len = other.len;
     }
@@ -167,6 +174,32 @@ pub enum Event<V> {
     },
     /// Fresh samples flow again after a [`Event::LinkLost`].
     LinkRestored,
+    /// This link holds control from now, in `term`: a base's commands
+    /// apply from the first one of this term (on the remote, the link's
+    /// base was granted it). Not raised on a link of an observer.
+    ControlGranted {
+        /// The control term.
+        term: u16,
+    },
+    /// A base lost control (taken for another base, or yielded): it
+    /// observes from now, its commands are no longer sent.
+    ControlLost {
+        /// The term it held.
+        term: u16,
+    },
+    /// A base that holds control: another base waits for it
+    /// ([`Endpoint::yield_control`](super::Endpoint::yield_control) gives
+    /// it up).
+    ControlRequested,
+    /// A remote: the link's base gave control up; nothing of its term
+    /// applies any longer.
+    ControlYielded {
+        /// The term it held.
+        term: u16,
+    },
+    /// An observer: the robot applied this command (sent on the reliable
+    /// path as soon as it was, not held by the playout: its times say when).
+    Applied(super::AppliedCommand<V>),
     /// The link ended.
     Closed {
         /// Why; `None` after a local [`close`](super::Endpoint::close).
@@ -177,7 +210,9 @@ pub enum Event<V> {
 impl<V> Event<V> {
     /// The event's name, the same in every binding and report:
     /// `connected`, `started`, `released`, `paused`, `link_lost`,
-    /// `delay_changed`, `round_trip_changed`, `link_restored`, `closed`.
+    /// `delay_changed`, `round_trip_changed`, `link_restored`,
+    /// `control_granted`, `control_lost`, `control_requested`,
+    /// `control_yielded`, `applied`, `closed`.
     #[must_use]
     pub const fn kind(&self) -> &'static str {
         match self {
@@ -189,6 +224,11 @@ impl<V> Event<V> {
             Event::DelayChanged { .. } => "delay_changed",
             Event::RoundTripChanged { .. } => "round_trip_changed",
             Event::LinkRestored => "link_restored",
+            Event::ControlGranted { .. } => "control_granted",
+            Event::ControlLost { .. } => "control_lost",
+            Event::ControlRequested => "control_requested",
+            Event::ControlYielded { .. } => "control_yielded",
+            Event::Applied(_) => "applied",
             Event::Closed { .. } => "closed",
         }
     }

@@ -31,6 +31,7 @@
 //! Sequence numbers count Data frames (probes included), one per tick, so a
 //! sample's release slot follows from its sequence number.
 
+mod applied;
 mod config;
 mod datagram;
 mod error;
@@ -39,10 +40,12 @@ mod receive;
 mod regime;
 mod release;
 mod rx_check;
+mod seat;
 mod stats;
 
 use heapless::Deque;
 
+pub use applied::AppliedCommand;
 pub use config::{
     Adaptation, Config, ConfigError, DEFAULT_LIVENESS, MIN_PERIOD, Mode, REPEAT_HOLD, Transport,
     Underflow, UnknownName,
@@ -58,7 +61,7 @@ use crate::regulator::{Occupancy, RegulatorIn};
 use crate::storage::Storage;
 use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
-use crate::wire::{self, Frame, Header, Hello, Role};
+use crate::wire::{self, Frame, Header, Hello, Role, Seat};
 use event::Head;
 use receive::Heard;
 use regime::Regime;
@@ -106,6 +109,8 @@ impl Phase {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Slot<V> {
     head: Head,
+    /// The control term its frame carried.
+    term: u16,
     peer_released: Option<u64>,
     len: u16,
     values: V,
@@ -177,6 +182,10 @@ pub struct Endpoint<S: Storage> {
     /// What was released to the application.
     rel: Released<S::Values>,
     peer: Option<Hello>,
+    /// Who on this link may command the robot, in which term.
+    seating: seat::Seating,
+    /// Applied commands waiting to go to an observer.
+    applied: applied::AppliedOut<S::Values>,
     /// The datagram transport's state (`None` on a stream).
     dgram: Option<datagram::Datagrams<S::Values>>,
     events: Deque<Event<S::Values>, EVENT_QUEUE>,
@@ -268,6 +277,8 @@ impl<S: Storage> Endpoint<S> {
             heard: Heard::new(config.period),
             rel: Released::new(now),
             peer: None,
+            seating: seat::Seating::new(config.role, config.seat),
+            applied: applied::AppliedOut::new(),
             dgram,
             events: Deque::new(),
             events_dropped: 0,
@@ -381,6 +392,14 @@ impl<S: Storage> Endpoint<S> {
         buf: &mut [u8],
     ) -> Result<Option<usize>, LinkError> {
         let Some(&item) = self.out.tx.front() else {
+            match self.poll_applied(now, buf) {
+                Ok(None) => {}
+                Ok(Some(n)) => return Ok(Some(n)),
+                Err(wire::WireError::BufferTooSmall { needed, got }) => {
+                    return Err(LinkError::BufferTooSmall { needed, got });
+                }
+                Err(e) => return Err(LinkError::Wire(e)),
+            }
             return self.poll_repeat(now, buf);
         };
         let (seq, sent_at) = match item {
@@ -399,6 +418,7 @@ impl<S: Storage> Endpoint<S> {
                 Tx::Sample { .. } => self.out.answers,
                 _ => self.rel.released_seq,
             },
+            term: self.seating.announced,
         };
         let n = match self.write_item(&header, item, buf) {
             Ok(n) => n,
@@ -588,6 +608,10 @@ impl<S: Storage> Endpoint<S> {
             state_width: self.config.state_width,
             period: self.config.period,
             layout: self.config.layout,
+            seat: match self.config.role {
+                Role::Base => self.config.seat,
+                Role::Remote => self.seating.given.unwrap_or(Seat::Observe),
+            },
             session: match self.config.transport {
                 Transport::Stream => 0,
                 Transport::Datagram { .. } => self.config.session,
@@ -633,6 +657,7 @@ impl<S: Storage> Endpoint<S> {
         self.policy.stop();
         self.deadline = None;
         self.drop_repeats();
+        self.applied.clear();
         self.emit(Event::Closed { error });
     }
 
@@ -678,7 +703,7 @@ impl<S: Storage> Endpoint<S> {
                 {
                     self.regime.grid_settled = true;
                 }
-                if self.regime.grid_settled {
+                if self.regime.grid_settled && self.sends_samples() {
                     self.queue_tx(Tx::Sample { seq });
                 } else {
                     self.queue_tx(Tx::Probe { seq });

@@ -29,7 +29,7 @@ impl<S: Storage> Endpoint<S> {
         self.hear(now, sent_at, frame.echo())?;
         match frame.payload() {
             Payload::Hello(hello) => {
-                self.receive_hello(now, hello)?;
+                self.receive_hello(now, hello, frame.term())?;
                 self.anchor_datagrams(frame.seq(), sent_at);
                 Ok(())
             }
@@ -39,14 +39,21 @@ impl<S: Storage> Endpoint<S> {
                     sent_at,
                     arrived_at: now,
                 };
-                self.receive_data(head, frame.released(), channels, Some(stalled))
+                let at = (frame.released(), frame.term());
+                self.receive_data(head, at, channels, Some(stalled))
             }
-            Payload::Control(control) => self.receive_control(now, control),
+            Payload::Control(control) => {
+                if self.receive_seat_control(control, frame.term())? {
+                    return Ok(());
+                }
+                self.receive_control(now, control)
+            }
             Payload::Close(close) => Err(LinkError::PeerClosed {
                 reason: close.reason,
             }),
             Payload::Bundle(_) => Err(self.unexpected(Kind::Bundle)),
             Payload::Token(token) => self.receive_token(token),
+            Payload::Applied(applied) => self.receive_applied(now, frame.term(), applied),
         }
     }
 
@@ -114,7 +121,7 @@ impl<S: Storage> Endpoint<S> {
     pub(super) fn receive_data(
         &mut self,
         head: Head,
-        released: Option<u64>,
+        (released, term): (Option<u64>, u16),
         channels: Channels<'_>,
         stalled: Option<bool>,
     ) -> Result<(), LinkError> {
@@ -160,8 +167,12 @@ impl<S: Storage> Endpoint<S> {
         if channels.copy_to(values.as_mut()).is_err() {
             return Err(mismatch);
         }
+        if !self.admit_command(term) {
+            return Ok(());
+        }
         let slot = Slot {
             head,
+            term,
             peer_released: released,
             len: width,
             values,
@@ -214,7 +225,12 @@ impl<S: Storage> Endpoint<S> {
         Ok(())
     }
 
-    pub(super) fn receive_hello(&mut self, now: Instant, hello: Hello) -> Result<(), LinkError> {
+    pub(super) fn receive_hello(
+        &mut self,
+        now: Instant,
+        hello: Hello,
+        term: u16,
+    ) -> Result<(), LinkError> {
         if self.phase != Phase::Handshake {
             return Err(self.unexpected(Kind::Hello));
         }
@@ -223,6 +239,12 @@ impl<S: Storage> Endpoint<S> {
             // Hello before the Close: the base finds the same mismatch in it
             // and reports both sides' values, not only the Close code.
             if self.config.role == Role::Remote && !matches!(e, LinkError::RoleMismatch { .. }) {
+                self.queue_tx(Tx::Hello);
+            }
+            return Err(e);
+        }
+        if let Err(e) = self.seat_hello(hello.seat) {
+            if self.config.role == Role::Remote {
                 self.queue_tx(Tx::Hello);
             }
             return Err(e);
@@ -236,6 +258,7 @@ impl<S: Storage> Endpoint<S> {
             self.queue_tx(Tx::Hello);
         }
         self.emit(Event::Connected { peer: hello });
+        self.seated(term)?;
         self.enter_init(now);
         Ok(())
     }

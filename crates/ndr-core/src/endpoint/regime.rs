@@ -111,11 +111,15 @@ impl<S: Storage> Endpoint<S> {
         if self.regime.started_once {
             self.stats.resizes += 1;
         }
+        let first = !self.regime.started_once;
         self.regime.started_once = true;
         self.emit(Event::Started {
             period: self.period,
             ns,
         });
+        if first {
+            self.grant_at_start();
+        }
     }
 
     /// Dynamic mode, base side: pause and resize when the forecast says so.

@@ -90,6 +90,9 @@ impl<S: Storage> Endpoint<S> {
     pub(super) fn deliver(&mut self, t: Instant, outcome: Tick<Slot<S::Values>>) -> Outcome {
         match outcome {
             Tick::Released(slot) => {
+                if !self.apply_command(slot.term) {
+                    return Outcome::Released(slot.head);
+                }
                 self.stats.released_fresh += 1;
                 self.rel.last_fresh = t;
                 self.rel.released_seq = Some(slot.head.seq);
@@ -99,7 +102,7 @@ impl<S: Storage> Endpoint<S> {
                 if let Some(g) = grtt {
                     self.round_trip_event(g);
                 }
-                let release = Release::fresh(slot.head, slot.values, slot.len, t, grtt);
+                let release = Release::fresh(slot.head, slot.term, slot.values, slot.len, t, grtt);
                 match &mut self.rel.last {
                     Some(last) => last.copy_from(&release),
                     None => self.rel.last = Some(release.clone()),

@@ -226,4 +226,24 @@ pub struct Stats {
     ///
     /// [`Event::LinkLost`]: super::Event::LinkLost
     pub outage_delays: u64,
+    /// Remote: commands released from a frame of a control term this link
+    /// no longer holds (a controller's queue after a hand-over, or a base
+    /// that sends on after losing control), never handed to the application.
+    pub commands_refused_stale_term: u64,
+    /// Remote: commands from a base that holds no control (an observer, or
+    /// a base still waiting for its grant), refused on arrival.
+    pub commands_refused_observer: u64,
+    /// Remote: commands of a base given control in its Hello that came
+    /// before the driver granted it ([`Endpoint::offer`](super::Endpoint::offer)),
+    /// refused.
+    pub commands_before_grant: u64,
+    /// Terms of control granted on this link.
+    pub grants: u64,
+    /// Remote: applied commands sent to this link's observer.
+    pub applied_sent: u64,
+    /// Remote: applied commands this link's observer was too slow for,
+    /// dropped (the oldest first).
+    pub applied_dropped: u64,
+    /// Base (an observer): applied commands received.
+    pub applied_received: u64,
 }

@@ -50,6 +50,8 @@ struct HandBase {
     running: bool,
     newest_state: Option<u64>,
     sent: u64,
+    /// The term the remote's Hello announced.
+    term: u16,
 }
 
 impl HandBase {
@@ -63,6 +65,7 @@ impl HandBase {
             running: false,
             newest_state: None,
             sent: 0,
+            term: 0,
         }
     }
 
@@ -94,6 +97,7 @@ impl HandBase {
     fn hello(&self) -> (Instant, Vec<u8>) {
         let stamp = self.zero() + self.start.hello;
         let hello = Hello {
+            seat: crate::wire::Seat::Control,
             role: Role::Base,
             mode: wire::ModeCode::PaperStatic,
             underflow: wire::UnderflowCode::Hold,
@@ -120,6 +124,8 @@ impl HandBase {
     fn tick(&mut self) -> Vec<u8> {
         let stamp = self.tick_at(self.next_tick);
         let header = Header {
+            // The term the remote's Hello announced: its commands apply.
+            term: self.term,
             seq: self.next_tick,
             sent_at: stamp,
             echo: self.echo_at(stamp),
@@ -150,6 +156,7 @@ impl HandBase {
             Payload::Hello(h) => {
                 assert_eq!(h.role, Role::Remote);
                 self.handshaken = Some(now);
+                self.term = frame_in.term();
             }
             Payload::Data(values) if !values.is_empty() => {
                 self.newest_state = Some(frame_in.seq());
@@ -165,6 +172,7 @@ impl HandBase {
         let hi = self.nrtts.iter().max()?.as_secs_f64();
         let ns = 2 + (1.3 * (hi - lo) / T.as_secs_f64()) as u16;
         let header = Header {
+            term: 0,
             seq: self.next_tick,
             sent_at: now,
             echo: self.echo_at(now),

@@ -8,6 +8,7 @@ mod endpoint_datagram;
 mod endpoint_heap;
 mod endpoint_inline;
 mod first_stamp;
+mod floor_sim;
 mod identification_estimator;
 mod identification_rls;
 mod regulator_props;

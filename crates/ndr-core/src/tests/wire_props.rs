@@ -49,6 +49,7 @@ fn header() -> impl Strategy<Value = Header> {
         prop::option::of(not_none()),
     )
         .prop_map(|(seq, sent_at, echo, released)| Header {
+            term: 0,
             seq,
             sent_at: Instant::from_nanos(sent_at),
             echo: echo.map(|(sent_at, hold)| Echo {
@@ -92,6 +93,7 @@ fn message() -> impl Strategy<Value = Owned> {
             .prop_map(
                 |((remote, mode, underflow), (command_width, state_width), (period, layout, session))| {
                     Owned::Hello(Hello {
+                        seat: crate::wire::Seat::Control,
                         role: if remote { Role::Remote } else { Role::Base },
                         mode: mode.into(),
                         underflow: underflow.into(),
@@ -141,6 +143,10 @@ fn touch_everything(frame: &Frame<&[u8]>) {
         Payload::Control(c) => assert_ne!(u8::from(c.op), 0),
         Payload::Close(_) => {}
         Payload::Token(t) => assert_ne!(t.session, 0),
+        Payload::Applied(a) => {
+            assert!(a.values.len() <= MAX_CHANNELS);
+            assert!(a.values.iter().all(f64::is_finite));
+        }
         Payload::Bundle(b) => {
             assert!((1..=MAX_BUNDLE).contains(&b.count()));
             assert_eq!(b.newest().len(), b.width());
@@ -280,6 +286,7 @@ proptest! {
             h.echo = Some(Echo { sent_at: Instant::from_nanos(u64::MAX), hold: Duration::ZERO });
         }
         let hello = Hello {
+            seat: crate::wire::Seat::Control,
             role: Role::Base, mode: 0.into(), underflow: 0.into(), command_width: 1, state_width: 1,
             period: Duration::from_nanos(period), layout: 0, session: 0,
         };

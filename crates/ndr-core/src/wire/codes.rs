@@ -77,6 +77,16 @@ codes! {
         PauseAck = 2,
         /// Resume with the [`Control`](super::Control)'s `ns` and `period`.
         Resume = 3,
+        /// Remote to base: the base holds control from now, in the term the
+        /// frame's header carries.
+        Grant = 4,
+        /// Remote to base: the base no longer holds control (the header's
+        /// term is the one it lost); it observes from now.
+        Revoke = 5,
+        /// Base to remote: the controller gives control up.
+        Yield = 6,
+        /// Remote to the controller: another base waits for control.
+        Request = 7,
     }
 }
 
@@ -122,6 +132,11 @@ codes! {
         /// The listener cut the handshake short to make room for a newer
         /// connection: every handshake slot was taken.
         Evicted = 15,
+        /// The base asked for control, but its identity may only observe.
+        ObserverOnly = 16,
+        /// The base asked to observe, and the remote serves as many
+        /// observers as it may.
+        ObserversFull = 17,
     }
 }
 
@@ -147,6 +162,10 @@ impl CloseReason {
             CloseReason::TransportMismatch => "transport mismatch",
             CloseReason::EvictedSource => "evicted: too many handshakes pending from this address",
             CloseReason::Evicted => "evicted: too many handshakes pending",
+            CloseReason::ObserverOnly => {
+                "refused control: this identity is allowed to observe only"
+            }
+            CloseReason::ObserversFull => "busy: serving as many observers as allowed",
             CloseReason::Unknown(_) => "unknown",
         }
     }

@@ -32,8 +32,9 @@ pub enum WireError {
     UnsupportedVersion(u8),
     /// The kind byte names no known frame kind.
     UnknownKind(u8),
-    /// Header flags are set; version 3 defines none.
-    UnsupportedFlags(u16),
+    /// The seat byte of a Hello is not 0 (control), 1 (observe) or 2
+    /// (control, waiting as an observer while another base holds it).
+    BadSeat(u8),
     /// A reserved byte (at `offset` in the frame) is not zero.
     ReservedNotZero {
         /// Offset of the first non-zero reserved byte.
@@ -148,15 +149,15 @@ impl fmt::Display for WireError {
             ),
             WireError::UnsupportedVersion(v) => write!(
                 f,
-                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 3 came with the datagram path's Token frame)"
+                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 4 came with observers and control terms)"
             ),
             WireError::UnknownKind(k) => write!(
                 f,
-                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close, 5 Bundle, 6 Token)"
+                "unknown frame kind {k} (known: 1 Data, 2 Hello, 3 Control, 4 Close, 5 Bundle, 6 Token, 7 Applied)"
             ),
-            WireError::UnsupportedFlags(flags) => write!(
+            WireError::BadSeat(seat) => write!(
                 f,
-                "header flags {flags:#06x} set; wire version {VERSION} defines none, they must be 0"
+                "Hello seat {seat} is not 0 (control), 1 (observe) or 2 (wait for control)"
             ),
             WireError::ReservedNotZero { offset } => {
                 write!(f, "reserved byte at offset {offset} is not zero")
@@ -165,6 +166,11 @@ impl fmt::Display for WireError {
                 Kind::Data => write!(
                     f,
                     "Data payload is {len} bytes, not a multiple of 8 (one f64 per channel)"
+                ),
+                Kind::Applied => write!(
+                    f,
+                    "Applied payload is {len} bytes; it must be 24 (seq, sent_at, applied_at) \
+                     and a multiple of 8 (one f64 per channel)"
                 ),
                 _ => write!(
                     f,

@@ -1,4 +1,4 @@
-//! The frame codec: ndr wire format version 3.
+//! The frame codec: ndr wire format version 4.
 //!
 //! A frame is a fixed 48-byte little-endian header followed by a payload whose
 //! layout depends on its [`Kind`]. The byte-exact specification, with test
@@ -17,7 +17,7 @@
 //! use ndr_core::time::Instant;
 //! use ndr_core::wire::{self, Frame, Header, MAX_FRAME_LEN, Message, Payload};
 //!
-//! let header = Header { seq: 7, sent_at: Instant::from_millis(1400), echo: None, released: None };
+//! let header = Header { seq: 7, sent_at: Instant::from_millis(1400), echo: None, released: None, term: 0 };
 //! let mut buf = [0u8; MAX_FRAME_LEN];
 //! let n = wire::encode(&header, &Message::Data(&[0.5, -1.0]), &mut buf)?;
 //!
@@ -45,19 +45,21 @@ pub use bundle::{BUNDLE_FIXED_LEN, Bundle, MAX_BUNDLE, MAX_DATAGRAM_LEN, Older, 
 pub(crate) use bundle::{OLDER_FIELDS_LEN, bundle_payload_len};
 pub use codes::{CloseReason, ControlOp, ModeCode, UnderflowCode};
 pub use error::WireError;
-pub use payload::{Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Token};
+pub use payload::{
+    Applied, Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Seat, Token,
+};
 
 use crate::time::{Duration, Instant};
 
 /// The wire version this build speaks.
-pub const VERSION: u8 = 3;
+pub const VERSION: u8 = 4;
 /// Size of the fixed header, in bytes.
 pub const HEADER_LEN: usize = 48;
 /// Most channels a Data frame carries.
 pub const MAX_CHANNELS: usize = 256;
-/// Largest valid frame, in bytes (a Data frame with [`MAX_CHANNELS`] values);
-/// a buffer this size can hold any frame.
-pub const MAX_FRAME_LEN: usize = HEADER_LEN + 8 * MAX_CHANNELS;
+/// Largest valid frame, in bytes (an Applied frame with [`MAX_CHANNELS`]
+/// values); a buffer this size can hold any frame.
+pub const MAX_FRAME_LEN: usize = HEADER_LEN + Applied::FIXED_LEN + 8 * MAX_CHANNELS;
 /// Size of the length prefix a stream reader needs before calling [`frame_len`].
 pub const PREFIX_LEN: usize = 4;
 
@@ -80,7 +82,7 @@ mod field {
     pub(super) const LENGTH: usize = 0;
     pub(super) const VERSION: usize = 4;
     pub(super) const KIND: usize = 5;
-    pub(super) const FLAGS: usize = 6;
+    pub(super) const TERM: usize = 6;
     pub(super) const SEQ: usize = 8;
     pub(super) const SENT_AT: usize = 16;
     pub(super) const ECHO: usize = 24;
@@ -126,6 +128,8 @@ pub enum Kind {
     Bundle = 5,
     /// A new session token for the datagrams to the sender (reliable path).
     Token = 6,
+    /// A command the robot applied, to an observer.
+    Applied = 7,
 }
 
 impl Kind {
@@ -134,7 +138,7 @@ impl Kind {
     #[must_use]
     pub(crate) const fn fixed_payload_len(self) -> Option<usize> {
         match self {
-            Kind::Data | Kind::Bundle => None,
+            Kind::Data | Kind::Bundle | Kind::Applied => None,
             Kind::Hello => Some(Hello::LEN),
             Kind::Control => Some(Control::LEN),
             Kind::Close => Some(Close::LEN),
@@ -153,6 +157,7 @@ impl TryFrom<u8> for Kind {
             4 => Ok(Kind::Close),
             5 => Ok(Kind::Bundle),
             6 => Ok(Kind::Token),
+            7 => Ok(Kind::Applied),
             _ => Err(WireError::UnknownKind(code)),
         }
     }
@@ -187,6 +192,10 @@ pub struct Header {
     /// `seq` of the newest peer Data frame the sender's regulator released to
     /// its application, `None` before the first; must not be `u64::MAX`.
     pub released: Option<u64>,
+    /// The control term the sender is in: on a controller's Data frames,
+    /// the term its commands belong to; on the remote's frames, the term the
+    /// robot is in now; `0` before any term (see `docs/wire.md` §3.8).
+    pub term: u16,
 }
 
 impl Header {
@@ -199,6 +208,7 @@ impl Header {
             sent_at,
             echo: None,
             released: None,
+            term: 0,
         }
     }
 }
@@ -260,15 +270,11 @@ fn check(buf: &[u8]) -> Result<Kind, WireError> {
         .split_first_chunk::<HEADER_LEN>()
         .filter(|_| got == len)
         .ok_or(WireError::Truncated { needed: len, got })?;
-    let [_, _, _, _, version, kind, f0, f1, ..] = *head;
+    let [_, _, _, _, version, kind, ..] = *head;
     if version != VERSION {
         return Err(WireError::UnsupportedVersion(version));
     }
     let kind = Kind::try_from(kind)?;
-    let flags = u16::from_le_bytes([f0, f1]);
-    if flags != 0 {
-        return Err(WireError::UnsupportedFlags(flags));
-    }
     if u64_at(head, field::ECHO) == NONE && u64_at(head, field::ECHO_HOLD) != 0 {
         return Err(WireError::HoldWithoutEcho);
     }
@@ -279,6 +285,7 @@ fn check(buf: &[u8]) -> Result<Kind, WireError> {
         Kind::Control => Control::parse(payload).map(drop),
         Kind::Close => Close::parse(payload).map(drop),
         Kind::Token => Token::parse(payload).map(drop),
+        Kind::Applied => Applied::check(payload).map(drop),
     }?;
     Ok(kind)
 }
@@ -358,6 +365,12 @@ impl<T: AsRef<[u8]>> Frame<T> {
         }
     }
 
+    /// The control term the sender is in (`0` before any).
+    #[must_use]
+    pub fn term(&self) -> u16 {
+        bytes_at(self.as_bytes(), field::TERM).map_or(0, u16::from_le_bytes)
+    }
+
     /// All header fields.
     #[must_use]
     pub fn header(&self) -> Header {
@@ -366,6 +379,7 @@ impl<T: AsRef<[u8]>> Frame<T> {
             sent_at: self.sent_at(),
             echo: self.echo(),
             released: self.released(),
+            term: self.term(),
         }
     }
 
@@ -385,6 +399,7 @@ impl<T: AsRef<[u8]>> Frame<T> {
             Kind::Control => Control::parse(bytes).map_or(broken, Payload::Control),
             Kind::Close => Close::parse(bytes).map_or(broken, Payload::Close),
             Kind::Token => Token::parse(bytes).map_or(broken, Payload::Token),
+            Kind::Applied => Applied::check(bytes).map_or(broken, Payload::Applied),
         }
     }
 }
@@ -428,6 +443,20 @@ pub enum Message<'a> {
     Close(Close),
     /// A new session token for the datagrams to the sender.
     Token(Token),
+    /// A command the robot applied, to an observer: the command's `seq`
+    /// on its controller's link, its send time and the time it was applied
+    /// (both on the remote's clock), its values (at most [`MAX_CHANNELS`],
+    /// finite).
+    Applied {
+        /// The command's `seq`.
+        seq: u64,
+        /// When its controller sent it, on the remote's clock.
+        sent_at: Instant,
+        /// When the robot applied it, on the remote's clock.
+        applied_at: Instant,
+        /// The command.
+        values: &'a [f64],
+    },
 }
 
 impl Message<'_> {
@@ -441,6 +470,7 @@ impl Message<'_> {
             Message::Control(_) => Kind::Control,
             Message::Close(_) => Kind::Close,
             Message::Token(_) => Kind::Token,
+            Message::Applied { .. } => Kind::Applied,
         }
     }
 }
@@ -459,6 +489,9 @@ pub(crate) const fn encoded_len(msg: &Message<'_>) -> usize {
         Message::Control(_) => Control::LEN,
         Message::Close(_) => Close::LEN,
         Message::Token(_) => Token::LEN,
+        Message::Applied { values, .. } => {
+            Applied::FIXED_LEN.saturating_add(values.len().saturating_mul(8))
+        }
     };
     HEADER_LEN.saturating_add(payload)
 }
@@ -476,7 +509,7 @@ pub(crate) const fn encoded_len(msg: &Message<'_>) -> usize {
 /// [`ZeroToken`](WireError::ZeroToken). On error the contents of
 /// `buf` are unspecified.
 pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usize, WireError> {
-    if let Message::Data(values) = msg
+    if let Message::Data(values) | Message::Applied { values, .. } = msg
         && values.len() > MAX_CHANNELS
     {
         return Err(WireError::TooManyChannels(values.len()));
@@ -536,12 +569,29 @@ pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usiz
         Message::Control(control) => put(payload, 0, control.to_bytes()?),
         Message::Close(close) => put(payload, 0, close.to_bytes()),
         Message::Token(token) => put(payload, 0, token.to_bytes()?),
+        Message::Applied {
+            seq,
+            sent_at,
+            applied_at,
+            values,
+        } => {
+            if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+                return Err(WireError::NonFinite { index });
+            }
+            put(payload, 0, seq.to_le_bytes());
+            put(payload, 8, sent_at.as_nanos().to_le_bytes());
+            put(payload, 16, applied_at.as_nanos().to_le_bytes());
+            let rest = payload.get_mut(Applied::FIXED_LEN..).unwrap_or_default();
+            for (dst, v) in rest.chunks_exact_mut(8).zip(values) {
+                put(dst, 0, v.to_le_bytes());
+            }
+        }
     }
     // len <= MAX_DATAGRAM_LEN here, so the cast is lossless.
     put(head, field::LENGTH, (len as u32).to_le_bytes());
     put(head, field::VERSION, [VERSION]);
     put(head, field::KIND, [msg.kind() as u8]);
-    put(head, field::FLAGS, 0u16.to_le_bytes());
+    put(head, field::TERM, header.term.to_le_bytes());
     put(head, field::SEQ, header.seq.to_le_bytes());
     put(
         head,

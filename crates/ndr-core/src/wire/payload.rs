@@ -26,6 +26,8 @@ pub enum Payload<'a> {
     Close(Close),
     /// A new session token for the datagrams to the sender.
     Token(Token),
+    /// A command the robot applied, to an observer.
+    Applied(Applied<'a>),
 }
 
 impl Payload<'_> {
@@ -40,6 +42,7 @@ impl Payload<'_> {
             Payload::Control(_) => Kind::Control,
             Payload::Close(_) => Kind::Close,
             Payload::Token(_) => Kind::Token,
+            Payload::Applied(_) => Kind::Applied,
         }
     }
 }
@@ -246,6 +249,62 @@ impl From<Role> for u8 {
     }
 }
 
+/// What a base asks for in its Hello, and what the remote's Hello gives it:
+/// the seat it holds on the link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[repr(u8)]
+pub enum Seat {
+    /// The base sends commands (asked: refused with Close `busy` while
+    /// another base holds control). The remote's Hello says so when it
+    /// grants control at once.
+    #[default]
+    Control = 0,
+    /// The base watches: it receives states and the applied commands, and
+    /// sends no command. The remote's Hello says so to every observer,
+    /// a base waiting for control included.
+    Observe = 1,
+    /// Asked only by a base: control if free, else observe until control
+    /// frees and is granted (Control op `grant`).
+    WaitForControl = 2,
+}
+
+impl Seat {
+    /// `"control"`, `"observe"` or `"wait_for_control"`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Seat::Control => "control",
+            Seat::Observe => "observe",
+            Seat::WaitForControl => "wait_for_control",
+        }
+    }
+
+    /// The seat a remote gives a base that asks for this one, offering
+    /// `offer` (control while it is free, observe while another base holds
+    /// it); `None`: refused, control being held.
+    #[must_use]
+    pub const fn given(self, offer: Seat) -> Option<Seat> {
+        match (self, offer) {
+            (Seat::Observe, _) => Some(Seat::Observe),
+            (Seat::Control | Seat::WaitForControl, Seat::Control) => Some(Seat::Control),
+            (Seat::WaitForControl, _) => Some(Seat::Observe),
+            (Seat::Control, _) => None,
+        }
+    }
+}
+
+impl TryFrom<u8> for Seat {
+    type Error = WireError;
+    fn try_from(code: u8) -> Result<Seat, WireError> {
+        match code {
+            0 => Ok(Seat::Control),
+            1 => Ok(Seat::Observe),
+            2 => Ok(Seat::WaitForControl),
+            _ => Err(WireError::BadSeat(code)),
+        }
+    }
+}
+
 /// Handshake: what the sender is and how it wants the link run. Its
 /// `Debug` form leaves the session token out.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
@@ -270,6 +329,8 @@ pub struct Hello {
     /// that this sender can tell them from strays and spoofs; `0` on a
     /// stream (TCP, TLS), which needs none.
     pub session: u64,
+    /// The seat a base asks for, or the seat the remote gives it.
+    pub seat: Seat,
 }
 
 impl Hello {
@@ -281,9 +342,9 @@ impl Hello {
             kind: Kind::Hello,
             len: bytes.len(),
         })?;
-        let [role, mode, underflow, r0, c0, c1, s0, s1, rest @ ..] = *b;
+        let [role, mode, underflow, seat, c0, c1, s0, s1, rest @ ..] = *b;
         let role = Role::try_from(role)?;
-        reserved_zero(&[r0], HEADER_LEN + 3)?;
+        let seat = Seat::try_from(seat)?;
         let [command_width, state_width] = [[c0, c1], [s0, s1]].map(u16::from_le_bytes);
         for (width, offset) in [(command_width, 4), (state_width, 6)] {
             if width == 0 || usize::from(width) > MAX_CHANNELS {
@@ -307,6 +368,7 @@ impl Hello {
             period: Duration::from_nanos(period),
             layout,
             session,
+            seat,
         })
     }
 
@@ -326,7 +388,12 @@ impl Hello {
         super::put(
             &mut b,
             0,
-            [self.role as u8, self.mode.into(), self.underflow.into()],
+            [
+                self.role as u8,
+                self.mode.into(),
+                self.underflow.into(),
+                self.seat as u8,
+            ],
         );
         super::put(&mut b, 4, self.command_width.to_le_bytes());
         super::put(&mut b, 6, self.state_width.to_le_bytes());
@@ -348,6 +415,7 @@ impl fmt::Debug for Hello {
             .field("period", &self.period)
             .field("layout", &self.layout)
             .field("session", &super::Secret(self.session))
+            .field("seat", &self.seat)
             .finish()
     }
 }
@@ -472,5 +540,43 @@ impl fmt::Debug for Token {
         f.debug_struct("Token")
             .field("session", &super::Secret(self.session))
             .finish()
+    }
+}
+
+/// A command the robot applied, as an observer receives it (zero-copy
+/// over its values).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Applied<'a> {
+    /// The command's `seq` on its controller's link.
+    pub seq: u64,
+    /// When its controller sent it, on the remote's clock.
+    pub sent_at: crate::time::Instant,
+    /// When the robot applied it, on the remote's clock.
+    pub applied_at: crate::time::Instant,
+    /// The command.
+    pub values: Channels<'a>,
+}
+
+impl<'a> Applied<'a> {
+    /// Bytes before the values.
+    pub const FIXED_LEN: usize = 24;
+
+    pub(super) fn check(bytes: &'a [u8]) -> Result<Self, WireError> {
+        let bad = WireError::BadPayloadLength {
+            kind: Kind::Applied,
+            len: bytes.len(),
+        };
+        let (fixed, rest) = bytes.split_first_chunk::<24>().ok_or(bad)?;
+        if !rest.len().is_multiple_of(8) {
+            return Err(bad);
+        }
+        let values = Channels::check(rest)?;
+        let at = |i: usize| bytes_at::<8>(fixed, i).map_or(0, u64::from_le_bytes);
+        Ok(Applied {
+            seq: at(0),
+            sent_at: crate::time::Instant::from_nanos(at(8)),
+            applied_at: crate::time::Instant::from_nanos(at(16)),
+            values,
+        })
     }
 }

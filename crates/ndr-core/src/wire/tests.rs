@@ -6,6 +6,7 @@ use super::*;
 
 fn header() -> Header {
     Header {
+        term: 0x1234,
         seq: 9,
         sent_at: Instant::from_millis(3),
         echo: Some(Echo {
@@ -18,6 +19,7 @@ fn header() -> Header {
 
 fn hello() -> Hello {
     Hello {
+        seat: Seat::WaitForControl,
         role: Role::Remote,
         mode: ModeCode::PaperStatic,
         underflow: UnderflowCode::DropLate,
@@ -95,6 +97,7 @@ fn round_trip_every_kind() {
 #[test]
 fn none_fields_use_the_sentinel() {
     let h = Header {
+        term: 0,
         seq: 0,
         sent_at: Instant::ZERO,
         echo: None,
@@ -116,14 +119,14 @@ fn frame_len_reads_and_bounds_the_prefix() {
     assert_eq!(frame_len(&[]), Ok(None));
     assert_eq!(frame_len(&[48, 0, 0]), Ok(None));
     assert_eq!(frame_len(&[48, 0, 0, 0]), Ok(Some(48)));
-    assert_eq!(frame_len(&[0x30, 0x08, 0, 0, 9]), Ok(Some(MAX_FRAME_LEN)));
+    assert_eq!(frame_len(&[0x48, 0x08, 0, 0, 9]), Ok(Some(MAX_FRAME_LEN)));
     assert_eq!(
         frame_len(&[47, 0, 0, 0]),
         Err(WireError::LengthOutOfRange(47))
     );
     assert_eq!(
-        frame_len(&[0x31, 0x08, 0, 0]),
-        Err(WireError::LengthOutOfRange(2097))
+        frame_len(&[0x49, 0x08, 0, 0]),
+        Err(WireError::LengthOutOfRange(2121))
     );
     assert_eq!(
         frame_len(&[0xff; 4]),
@@ -177,8 +180,8 @@ fn error_unsupported_version() {
     assert_eq!(err.close_reason(), CloseReason::VersionMismatch);
     assert_eq!(
         err.to_string(),
-        "peer speaks ndr wire version 1, this build speaks 3; upgrade the older side \
-         (version 3 came with the datagram path's Token frame)"
+        "peer speaks ndr wire version 1, this build speaks 4; upgrade the older side \
+         (version 4 came with observers and control terms)"
     );
 }
 
@@ -206,7 +209,7 @@ fn error_width_out_of_range_names_the_direction() {
 
 #[test]
 fn error_unknown_kind() {
-    for kind in [0, 7, 255] {
+    for kind in [0, 8, 255] {
         let bytes = with(data(&[]), 5, kind);
         assert_eq!(decode(&bytes), Err(WireError::UnknownKind(kind)));
     }
@@ -218,15 +221,96 @@ fn error_unknown_kind() {
         Kind::Close,
         Kind::Bundle,
         Kind::Token,
+        Kind::Applied,
     ] {
         assert_eq!(Kind::try_from(u8::from(kind)), Ok(kind));
     }
 }
 
 #[test]
-fn error_unsupported_flags() {
+fn applied_round_trips_and_is_checked() {
+    let msg = Message::Applied {
+        seq: 7,
+        sent_at: Instant::from_millis(5),
+        applied_at: Instant::from_millis(9),
+        values: &[1.0, -2.5],
+    };
+    let bytes = frame_bytes(&msg);
+    assert_eq!(bytes.len(), HEADER_LEN + 24 + 16);
+    let frame = Frame::new_checked(&bytes[..]).unwrap();
+    let Payload::Applied(a) = frame.payload() else {
+        panic!("an Applied frame");
+    };
+    assert_eq!(
+        (a.seq, a.sent_at, a.applied_at),
+        (7, Instant::from_millis(5), Instant::from_millis(9))
+    );
+    assert!(a.values.iter().eq([1.0, -2.5]));
+    // Too short for its fixed fields, a value cut in half, a NaN.
+    let mut short = bytes[..HEADER_LEN + 20].to_vec();
+    short[0] = (HEADER_LEN + 20) as u8;
+    assert_eq!(
+        decode(&short),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Applied,
+            len: 20
+        })
+    );
+    let mut cut = bytes[..bytes.len() - 4].to_vec();
+    cut[0] = cut.len() as u8;
+    assert_eq!(
+        decode(&cut),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Applied,
+            len: 36
+        })
+    );
+    let mut nan = bytes.clone();
+    nan[HEADER_LEN + 32..].copy_from_slice(&f64::NAN.to_le_bytes());
+    assert_eq!(decode(&nan), Err(WireError::NonFinite { index: 1 }));
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let applied = |values| Message::Applied {
+        seq: 7,
+        sent_at: Instant::from_millis(5),
+        applied_at: Instant::from_millis(9),
+        values,
+    };
+    let bad = applied(&[f64::INFINITY]);
+    assert_eq!(
+        encode(&header(), &bad, &mut buf),
+        Err(WireError::NonFinite { index: 0 })
+    );
+    // The largest Applied frame is the largest frame.
+    let wide = [0.0; MAX_CHANNELS];
+    let n = encode(&header(), &applied(&wide), &mut buf).unwrap();
+    assert_eq!(n, MAX_FRAME_LEN);
+}
+
+#[test]
+fn term_is_any_value_at_offset_6() {
     let bytes = with(data(&[]), 7, 0x80);
-    assert_eq!(decode(&bytes), Err(WireError::UnsupportedFlags(0x8000)));
+    let frame = Frame::new_checked(&bytes[..]).unwrap();
+    assert_eq!(frame.term(), 0x8034);
+    assert_eq!(frame.header().term, 0x8034);
+}
+
+#[test]
+fn error_bad_seat() {
+    let bytes = frame_bytes(&Message::Hello(hello()));
+    for (code, seat) in [
+        (0, Seat::Control),
+        (1, Seat::Observe),
+        (2, Seat::WaitForControl),
+    ] {
+        let Payload::Hello(h) = Frame::new_checked(with(bytes.clone(), 51, code))
+            .unwrap()
+            .payload()
+        else {
+            panic!("a Hello");
+        };
+        assert_eq!(h.seat, seat);
+    }
+    assert_eq!(decode(&with(bytes, 51, 3)), Err(WireError::BadSeat(3)));
 }
 
 #[test]
@@ -290,7 +374,7 @@ fn error_too_many_channels() {
     );
     assert_eq!(
         encode(&header(), &Message::Data(&values[..MAX_CHANNELS]), &mut buf),
-        Ok(MAX_FRAME_LEN)
+        Ok(HEADER_LEN + 8 * MAX_CHANNELS)
     );
     // A payload view that is too long (never reachable through a frame).
     assert_eq!(
@@ -398,7 +482,6 @@ fn error_zero_token() {
 #[test]
 fn error_reserved_not_zero_at_every_reserved_byte() {
     let cases = [
-        (frame_bytes(&Message::Hello(hello())), &[51][..]),
         (
             frame_bytes(&Message::Control(control())),
             &[49, 52, 53, 54, 55][..],
@@ -523,10 +606,10 @@ fn codes_round_trip_and_know_their_variants() {
         assert_eq!(u16::from(reason), code);
         assert_eq!(
             matches!(reason, CloseReason::Unknown(_)),
-            code > 15,
+            code > 17,
             "{code}"
         );
-        assert_eq!(reason.name() == "unknown", code > 15, "{code}");
+        assert_eq!(reason.name() == "unknown", code > 17, "{code}");
     }
     for code in 0..=u8::MAX {
         let (op, mode, underflow) = (
@@ -540,7 +623,7 @@ fn codes_round_trip_and_know_their_variants() {
         );
         assert_eq!(
             matches!(op, ControlOp::Unknown(_)),
-            !(1..=3).contains(&code)
+            !(1..=7).contains(&code)
         );
         assert_eq!(matches!(mode, ModeCode::Unknown(_)), code > 1);
         assert_eq!(matches!(underflow, UnderflowCode::Unknown(_)), code > 1);
@@ -597,7 +680,7 @@ fn every_error_has_a_message() {
         },
         WireError::UnsupportedVersion(3),
         WireError::UnknownKind(9),
-        WireError::UnsupportedFlags(2),
+        WireError::BadSeat(3),
         WireError::ReservedNotZero { offset: 51 },
         WireError::BadPayloadLength {
             kind: Kind::Data,
@@ -675,6 +758,7 @@ fn debug_forms_never_show_a_session_token() {
     }
     // A stream's Hello says it has none.
     let stream = Hello {
+        seat: crate::wire::Seat::Control,
         session: 0,
         ..hello()
     };

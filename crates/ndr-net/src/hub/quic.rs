@@ -24,6 +24,7 @@
 //! packets ([`Forwarded`]) and takes its requests ([`Request`]); the link
 //! sends from the same port itself.
 
+use rustls::pki_types::CertificateDer;
 use std::collections::HashMap;
 use std::io;
 use std::net::{SocketAddr, UdpSocket};
@@ -652,6 +653,17 @@ pub(super) fn input(e: &mut Entry, origin: StdInstant, at: StdInstant) {
             quinn_proto::Event::Connected => {
                 if q.conn.side().is_client() && q.stream.is_none() {
                     q.stream = q.conn.streams().open(Dir::Bi);
+                }
+                let chain = q
+                    .conn
+                    .crypto_session()
+                    .peer_identity()
+                    .and_then(|id| id.downcast::<Vec<CertificateDer<'static>>>().ok());
+                if let Some(chain) = chain {
+                    *e.shared
+                        .peer_chain
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(*chain);
                 }
                 write_pending(e);
             }

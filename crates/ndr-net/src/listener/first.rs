@@ -142,6 +142,7 @@ pub(super) mod tests {
     pub(in crate::listener) fn hello() -> Vec<u8> {
         let header = Header::new(0, Instant::ZERO);
         let hello = Hello {
+            seat: ndr_core::wire::Seat::Control,
             role: Role::Base,
             mode: wire::ModeCode::PaperStatic,
             underflow: wire::UnderflowCode::Hold,

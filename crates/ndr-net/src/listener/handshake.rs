@@ -284,6 +284,10 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
             Some(Ok((stream, conn))) => (stream, Some(conn)),
         },
     };
+    let chain: Option<Vec<_>> = conn
+        .as_ref()
+        .and_then(|c| c.peer_certificates())
+        .map(|c| c.iter().map(|c| c.clone().into_owned()).collect());
     let link = Link::start(
         stream,
         role,
@@ -291,9 +295,17 @@ async fn preauth(common: &Common, stream: TcpStream, progress: &Progress) -> Res
         Handle::current(),
         &hub,
         conn,
-        common.udp.as_ref().map(|u| u.key),
+        crate::link::Listened {
+            udp: common.udp.as_ref().map(|u| u.key),
+            sharing: common.sharing_for(role),
+        },
     )
     .map_err(|e| (Refusal::of_link(&e), e.to_string()))?;
+    *link
+        .shared()
+        .peer_chain
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = chain;
     progress.advance(stage::ON_HUB, 0);
     hello(link, deadline, late, &progress.cut).await
 }
@@ -382,6 +394,40 @@ async fn hello(
 /// A link whose handshake is done: to the accept queue if a seat is free
 /// and the queue has room, else ended as busy.
 fn enqueue(common: &Common, mut link: Link, peer: SocketAddr, ready: &mpsc::Sender<Link>) {
+    let asked = link.peer_seat();
+    let may_control = match &common.tls {
+        Some(tls) => {
+            let chain = link
+                .shared()
+                .peer_chain
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .clone();
+            chain.map_or(!tls.has_observers(), |c| tls.may_control(&c))
+        }
+        None => true,
+    };
+    if let (Some(s), Some(asked), Some(sharing)) = (link.sharing(), asked, &common.sharing) {
+        match sharing.admit(
+            s.key,
+            Arc::clone(&s.address),
+            (asked, s.offered),
+            may_control,
+        ) {
+            Ok(observer) => s.observer = observer,
+            Err(e) => {
+                let why = Refusal::of_link(&crate::NetError::Link(e));
+                link.dismiss(e);
+                common.refuse(why, peer, &e);
+                return;
+            }
+        }
+    }
+    // Observers take none of the links `with_max_links` counts.
+    if link.is_observer() {
+        queue(common, link, peer, ready);
+        return;
+    }
     let Some(seat) = common.seats.take(link.shared()) else {
         link.dismiss(LinkError::Busy);
         common.refuse(
@@ -393,6 +439,11 @@ fn enqueue(common: &Common, mut link: Link, peer: SocketAddr, ready: &mpsc::Send
         return;
     };
     link.hold(seat);
+    queue(common, link, peer, ready);
+}
+
+/// To the accept queue if it has room, else ended as busy.
+fn queue(common: &Common, link: Link, peer: SocketAddr, ready: &mpsc::Sender<Link>) {
     match ready.try_send(link) {
         Ok(()) => {}
         Err(mpsc::error::TrySendError::Full(link)) => {

@@ -35,11 +35,13 @@ pub(crate) enum Refusal {
     Busy,
     Unclaimed,
     AcceptError,
+    ObserverOnly,
+    ObserversFull,
 }
 
 impl Refusal {
     /// Every reason, in the order of their counters.
-    const ALL: [Refusal; 16] = [
+    const ALL: [Refusal; 18] = [
         Refusal::Certificate,
         Refusal::NoCertificate,
         Refusal::TlsVersion,
@@ -56,6 +58,8 @@ impl Refusal {
         Refusal::Busy,
         Refusal::Unclaimed,
         Refusal::AcceptError,
+        Refusal::ObserverOnly,
+        Refusal::ObserversFull,
     ];
     const COUNT: usize = Refusal::ALL.len();
 
@@ -96,6 +100,9 @@ impl Refusal {
             ) => Refusal::Transport,
             NetError::Link(LinkError::Timeout) | NetError::Timeout => Refusal::Timeout,
             NetError::Link(LinkError::CertificateRefused) => Refusal::Certificate,
+            NetError::Link(LinkError::Busy) => Refusal::Busy,
+            NetError::Link(LinkError::ObserverOnly) => Refusal::ObserverOnly,
+            NetError::Link(LinkError::ObserversFull) => Refusal::ObserversFull,
             NetError::Handshake(e) => Refusal::of_tls(e),
             _ => Refusal::Other,
         }
@@ -131,6 +138,8 @@ impl Refusal {
             Refusal::Busy => "refused_busy",
             Refusal::Unclaimed => "unclaimed",
             Refusal::AcceptError => "accept_errors",
+            Refusal::ObserverOnly => "refused_observer_only",
+            Refusal::ObserversFull => "refused_observers_full",
         }
     }
 
@@ -152,6 +161,8 @@ impl Refusal {
             Refusal::Busy => &mut s.refused_busy,
             Refusal::Unclaimed => &mut s.unclaimed,
             Refusal::AcceptError => &mut s.accept_errors,
+            Refusal::ObserverOnly => &mut s.refused_observer_only,
+            Refusal::ObserversFull => &mut s.refused_observers_full,
         }
     }
 }

@@ -181,6 +181,7 @@ pub(super) fn idle_crowd(
 fn base_hello(period: Duration, session: u64) -> Vec<u8> {
     let header = Header::new(0, Instant::ZERO);
     let hello = Hello {
+        seat: ndr_core::wire::Seat::Control,
         role: Role::Base,
         mode: wire::ModeCode::PaperStatic,
         underflow: wire::UnderflowCode::DropLate,

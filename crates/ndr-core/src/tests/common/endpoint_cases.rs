@@ -986,6 +986,7 @@ fn forged(p: &Pair, edit: impl FnOnce(&mut wire::Header)) -> Vec<u8> {
     let bytes = &p.world.last_data[Role::Remote as usize];
     let f = wire::Frame::new_checked(&bytes[..]).expect("a sample was delivered");
     let mut header = wire::Header {
+        term: 0,
         seq: f.seq(),
         sent_at: f.sent_at(),
         echo: f.echo(),
