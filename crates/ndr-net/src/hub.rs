@@ -62,6 +62,10 @@ pub(crate) struct Shared {
 /// ([`Link::on_release`](crate::Link::on_release)).
 pub(crate) type Handler = Box<dyn FnMut(&Sample) + Send>;
 
+/// What sees every event of a link on the hub's thread before the
+/// application does (a recorder's): it must only copy and hand off.
+pub(crate) type Tap = Box<dyn FnMut(&crate::delivery::LinkEvent) + Send>;
+
 /// One link as the hub drives it.
 pub(crate) struct Entry {
     endpoint: Endpoint<Heap>,
@@ -79,6 +83,8 @@ pub(crate) struct Entry {
     deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
     handler: Option<Handler>,
+    /// Sees every event first, if set.
+    tap: Option<Tap>,
 }
 
 /// A link's TCP stream, as the hub reads and writes it.
@@ -196,6 +202,7 @@ impl Entry {
             rx_lag: Running::default(),
             deadline: None,
             handler: None,
+            tap: None,
         }
     }
 
@@ -232,6 +239,7 @@ pub(crate) enum Msg {
     /// refusal, [`LinkError::Busy`]).
     Fail(u64, LinkError),
     Handler(u64, Handler),
+    Tap(u64, Tap),
     /// A UDP socket for datagram links, polled under this key.
     Socket(u64, Box<NewSocket>),
     /// The socket's owner (a listener) is gone: it closes with its last link.
@@ -801,6 +809,11 @@ impl Driver {
                         e.handler = Some(handler);
                     }
                 }
+                Ok(Msg::Tap(id, tap)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        e.tap = Some(tap);
+                    }
+                }
                 Err(mpsc::TryRecvError::Empty) => {
                     self.udp.send_all(&mut self.entries);
                     return true;
@@ -1197,6 +1210,9 @@ fn deliver(e: &mut Entry, ticked: bool, hub: HubFigures) -> bool {
     let mut published = ticked;
     let mut panicked = false;
     while let Some(event) = e.endpoint.poll_event() {
+        if let Some(tap) = e.tap.as_mut() {
+            tap(&event);
+        }
         let d = match event {
             Event::Released(s) => {
                 if let Some(handler) = e.handler.as_mut() {

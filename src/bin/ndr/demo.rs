@@ -10,7 +10,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::net::{Link, LinkStats, Listener, NetError, Relay, RelayConfig, TlsConfig};
 use ndr::netem::LossModel;
 
-use crate::args::{DelayArgs, LinkArgs, PlantArgs, RunArgs};
+use crate::args::{DelayArgs, LinkArgs, PlantArgs, RecordArgs, RunArgs, record};
 use crate::operator::operator;
 use crate::pauses;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
@@ -30,6 +30,8 @@ pub struct DemoArgs {
     pub run: RunArgs,
     #[command(flatten)]
     pub plant: PlantArgs,
+    #[command(flatten)]
+    pub record: RecordArgs,
     /// Datagrams the relay loses each way: none, PERCENT (each
     /// independently, e.g. 1) or ge:PERCENT:BURST (in bursts of BURST
     /// datagrams on average, e.g. ge:2:4). Datagrams (udp, the default,
@@ -68,6 +70,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let model = args.net.model("lan-75km")?;
     let profile = model.name();
     let mut series = Series::create(&args.run.out)?;
+    let recorder = args.record.start(link.axes, &link.state)?;
     if !args.run.json {
         // Said up front: the file lands in the current directory by default.
         eprintln!(
@@ -89,7 +92,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         );
         Ok::<_, NetError>((base?, remote?, relay))
     });
-    let (base, remote, relay) = match set_up {
+    let (mut base, mut remote, relay) = match set_up {
         Ok(parts) => parts,
         Err(e) => {
             let (series, error) = series.close();
@@ -102,10 +105,15 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
                 tracking: None,
                 host: None,
+                recording: record::finish(recorder),
             };
             return finish(link, &args.run, &with_series_error(outcome, error));
         }
     };
+    // Both sides into one file: the base's releases are the states, the
+    // remote's the commands.
+    record::attach(recorder.as_ref(), &mut base);
+    record::attach(recorder.as_ref(), &mut remote);
     // The run starts with the link: the set-up waited for its handshake.
     let until = StdInstant::now() + StdDuration::from_secs_f64(args.run.duration_s);
 
@@ -167,6 +175,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         end,
         tracking,
         host,
+        recording: record::finish(recorder),
     };
     finish(link, &args.run, &with_series_error(outcome, error))
 }

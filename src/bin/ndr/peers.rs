@@ -6,7 +6,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 
-use crate::args::{LinkArgs, PlantArgs, RunArgs, SecurityArgs, resolve};
+use crate::args::{LinkArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs, record, resolve};
 use crate::operator::operator;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
 use crate::robot::{DriveSpec, robot};
@@ -25,6 +25,8 @@ pub struct BaseArgs {
     pub security: SecurityArgs,
     #[command(flatten)]
     pub run: RunArgs,
+    #[command(flatten)]
+    pub record: RecordArgs,
 }
 
 #[derive(clap::Args)]
@@ -38,6 +40,8 @@ pub struct RemoteArgs {
     pub security: SecurityArgs,
     #[command(flatten)]
     pub plant: PlantArgs,
+    #[command(flatten)]
+    pub record: RecordArgs,
     /// Serve one base, then exit: with status 0 if the base closed the link
     /// in order (by default it serves one after another, until SIGINT or
     /// SIGTERM, and exits 0 then; SIGUSR1 prints the listener's counters).
@@ -59,6 +63,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         return Err(NetError::Insecure(connect_to).to_string());
     }
     let mut series = Series::create(&args.run.out)?;
+    let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
     let until = StdInstant::now() + run_for;
@@ -68,15 +73,18 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
     let (stats, end, tracking) = match connected {
-        Ok(Ok(link)) => operator(
-            link,
-            &args.run,
-            args.link.axes,
-            until,
-            None,
-            &mut series,
-            None,
-        ),
+        Ok(Ok(mut link)) => {
+            record::attach(recorder.as_ref(), &mut link);
+            operator(
+                link,
+                &args.run,
+                args.link.axes,
+                until,
+                None,
+                &mut series,
+                None,
+            )
+        }
         Ok(Err(e)) => (
             None,
             match crate::report::refusal(&e) {
@@ -107,6 +115,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         end,
         tracking,
         host: None,
+        recording: record::finish(recorder),
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
@@ -118,6 +127,7 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let tls = args.security.apply(&mut config)?;
     crate::transport::check_security(args.link.transport(), tls.is_some())?;
     let max_command = args.plant.max_command()?;
+    let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     config.tls = tls;
     let listener = rt
@@ -140,8 +150,18 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
         &stop,
         config.endpoint.period,
         max_command,
+        recorder.as_ref(),
     );
     eprintln!("ndr remote: {}", counters(&listener.stats()));
+    if let Some(r) = record::finish(recorder) {
+        match r.error {
+            Some(e) => eprintln!("ndr remote: {e}"),
+            None => eprintln!(
+                "ndr remote: recorded {} messages to {} ({} dropped)",
+                r.messages, r.path, r.dropped
+            ),
+        }
+    }
     failure.map_or(Ok(()), Err)
 }
 
@@ -154,6 +174,7 @@ fn serve(
     stop: &Stop,
     period: ndr::core::time::Duration,
     max_command: f64,
+    recorder: Option<&ndr::net::Recorder>,
 ) -> Option<String> {
     loop {
         let accepted = rt.block_on(async {
@@ -165,7 +186,10 @@ fn serve(
         });
         let link = match accepted {
             None => return None,
-            Some(Ok(link)) => link,
+            Some(Ok(mut link)) => {
+                record::attach(recorder, &mut link);
+                link
+            }
             // Refused peers are logged and counted by the listener, which
             // fails only when its socket does.
             Some(Err(e)) => return Some(format!("the listener stopped: {e}")),

@@ -888,7 +888,7 @@ mod tests {
         assert_eq!(datagrams(&bytes, None).count(), 1);
         assert_eq!(datagrams(&bytes, Some(0)).count(), 1);
         let empty: Vec<&[u8]> = datagrams(&[], None).collect();
-        assert_eq!(empty, [&[][..]]);
+        assert_eq!(empty, [&[0u8; 0][..]]);
     }
 
     #[test]
