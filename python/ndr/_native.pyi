@@ -874,6 +874,7 @@ class _Link:
     def events_dropped(self) -> int:
         """``stats()["events_dropped"]``, also before the first tick."""
     def stats(self) -> Optional[LinkStats]: ...
+    def recording(self) -> Optional[Dict[str, int]]: ...
     def now(self) -> float: ...
     def close(self) -> None: ...
     @property
@@ -956,9 +957,14 @@ def connect(
     *,
     connect_timeout: Optional[float],
     tls: Optional[TlsConfig] = None,
+    record: Optional[str] = None,
 ) -> _Link: ...
 def listen(
-    address: _Address, settings: _LinkSettings, *, tls: Optional[TlsConfig] = None
+    address: _Address,
+    settings: _LinkSettings,
+    *,
+    tls: Optional[TlsConfig] = None,
+    record: Optional[str] = None,
 ) -> _Listener: ...
 
 @final

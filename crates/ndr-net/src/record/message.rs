@@ -26,6 +26,8 @@ pub(super) struct ReleaseMsg<'a> {
     /// The send time, on this side's clock, of this side's sample the
     /// round trip started from: `released_ns` − `grtt_s`.
     pub answers_sent_ns: Option<u64>,
+    /// The network round trip this side measured last.
+    pub nrtt_s: Option<f64>,
     pub values: &'a Map<String, Value>,
 }
 

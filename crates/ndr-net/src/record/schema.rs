@@ -34,6 +34,7 @@ fn release(what: &str) -> String {
 "added_delay_s":{{"type":["number","null"],"description":"release - arrival, s"}},
 "grtt_s":{{"type":["number","null"],"description":"the round trip this release closed, s"}},
 "answers_sent_ns":{{"type":["integer","null"],"description":"send time on this side's clock of this side's sample the round trip started from"}},
+"nrtt_s":{{"type":["number","null"],"description":"the network round trip this side measured last, s"}},
 "values":{{"type":"object","additionalProperties":{{"type":"number"}},"description":"the values by channel name"}}
 }},"required":["link","seq","status","sent_ns","released_ns","values"]}}"#
     )

@@ -70,10 +70,15 @@ impl LinkState {
         u64::try_from(t.max(0)).unwrap_or(u64::MAX)
     }
 
-    fn offset_s(&self) -> f64 {
-        self.sender
-            .stats()
-            .map_or(0.0, |s| s.endpoint.clock_offset_s)
+    /// The clock offset estimate (this side − peer) and the NRTT last
+    /// measured, as the link's latest stats give them.
+    fn clock(&self) -> (f64, Option<f64>) {
+        self.sender.stats().map_or((0.0, None), |s| {
+            (
+                s.endpoint.clock_offset_s,
+                s.last_nrtt.map(|d| d.as_secs_f64()),
+            )
+        })
     }
 }
 
@@ -228,7 +233,7 @@ impl Writer {
         if l.names.len() != r.values().len() {
             l.names = names(&self.config, l.role, r.values().len());
         }
-        let offset_s = l.offset_s();
+        let (offset_s, nrtt_s) = l.clock();
         let (sent, arrived, released) = (
             r.sent_at.as_nanos(),
             r.arrived_at.as_nanos(),
@@ -282,6 +287,7 @@ impl Writer {
                 added_delay_s: None,
                 grtt_s: None,
                 answers_sent_ns: None,
+                nrtt_s,
                 values: &empty,
             };
             self.write(topic, log, publish, &msg)?;
@@ -311,6 +317,7 @@ impl Writer {
             added_delay_s: Some(r.added_delay().as_secs_f64()),
             grtt_s: r.grtt.map(|g| g.as_secs_f64()),
             answers_sent_ns: grtt.map(|g| released.saturating_sub(g)),
+            nrtt_s,
             values: &values,
         };
         let written = self.write(topic, log, publish, &msg);
