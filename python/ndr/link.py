@@ -775,6 +775,7 @@ class Link:
         ``Tick.released_at`` and ``Tick.arrived_at``)."""
         return self._native.now()
 
+    @property
     def recording(self) -> Optional[Dict[str, int]]:
         """The recording's counts (``record=``): ``links`` attached,
         events ``queued`` for its writer and ``dropped`` (its queue was

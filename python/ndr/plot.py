@@ -218,8 +218,8 @@ def series_from_recording(recording: Any) -> Dict[str, np.ndarray]:
         "t_s": (t - t[0])[keep],
         "seq": states["seq"][keep],
         "status": (states["status"] == "repeated").astype(float)[keep],
-        "grtt_s": states["grtt_s"][keep],
-        "nrtt_s": states["nrtt_s"][keep],
+        "grtt_s": states.get("grtt_s", np.full(len(t), np.nan))[keep],
+        "nrtt_s": states.get("nrtt_s", np.full(len(t), np.nan))[keep],
         "command": command[keep],
         "state": first[keep],
     }

@@ -83,7 +83,7 @@ def _messages(path: str, rec: Recording) -> Iterator[Tuple[str, Any]]:
             elif isinstance(r, Channel):
                 topics[r.id] = r.topic
                 rec.schemas[r.topic] = schemas.get(r.schema_id, "")
-                rec.setdefault(r.topic, {})
+                rec.setdefault(r.topic, {"log_time": np.zeros(0), "publish_time": np.zeros(0)})
             elif isinstance(r, Message):
                 topic = topics.get(r.channel_id)
                 if topic is not None:
