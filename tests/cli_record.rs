@@ -254,3 +254,54 @@ fn a_recording_base_killed_mid_run_leaves_all_but_its_last_second() {
     let _ = std::fs::remove_file(&rec);
     let _ = std::fs::remove_file(&csv);
 }
+
+#[test]
+fn a_recording_replays_in_the_simulator_with_its_measured_delays() {
+    let _serial = serial();
+    let (rec, csv) = (temp("replay.mcap"), temp("replay.csv"));
+    let report = cli_common::json(&[
+        "demo",
+        "--duration-s",
+        "6",
+        "--record",
+        rec.to_str().unwrap(),
+        "--out",
+        csv.to_str().unwrap(),
+        "--json",
+    ]);
+    let sim = cli_common::json(&[
+        "sim",
+        "--trace",
+        rec.to_str().unwrap(),
+        "--regulation",
+        "adaptive",
+        "--period-ms",
+        "50",
+        "--transport",
+        "datagram",
+        "--json",
+    ]);
+    assert_eq!(sim["profile"], "trace");
+    // As long as the recording, and the delays it measured each way.
+    let d = sim["duration_s"].as_f64().unwrap();
+    assert!((5.0..8.0).contains(&d), "replayed for {d} s");
+    for (real, replayed) in [
+        ("one_way_fwd_mean_s", "one_way_fwd_mean_s"),
+        ("one_way_bwd_mean_s", "one_way_bwd_mean_s"),
+    ] {
+        let (r, s) = (
+            report[real].as_f64().unwrap(),
+            sim[replayed].as_f64().unwrap(),
+        );
+        assert!(
+            (s - r).abs() < 0.1 * r,
+            "{real}: {r} s recorded, {s} s replayed"
+        );
+    }
+    // A file that is no recording is refused by name.
+    let out = cli_common::ndr(&["sim", "--trace", csv.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("header"));
+    let _ = std::fs::remove_file(&rec);
+    let _ = std::fs::remove_file(&csv);
+}

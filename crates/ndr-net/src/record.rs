@@ -28,6 +28,7 @@
 //! clock by the link's clock offset estimate.
 
 mod message;
+mod replay;
 mod schema;
 mod writer;
 
@@ -49,6 +50,7 @@ use crate::delivery::{LinkEvent, Sample};
 use crate::error::NetError;
 use crate::link::{Link, LinkSender};
 
+pub use replay::{Crossing, MAX_RECORDING_BYTES, RecordedNetwork, read_network};
 pub use schema::TOPICS;
 
 /// Messages the queue to the writer holds by default: seconds of a 1 kHz
@@ -136,6 +138,13 @@ pub enum RecordError {
     },
     /// The writer thread could not start, or stopped abnormally.
     Writer(String),
+    /// A recording could not be read back ([`read_network`]).
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
 }
 
 impl fmt::Display for RecordError {
@@ -152,6 +161,9 @@ impl fmt::Display for RecordError {
                 path.display()
             ),
             RecordError::Writer(why) => write!(f, "the recording's writer failed: {why}"),
+            RecordError::Read { path, message } => {
+                write!(f, "cannot replay {}: {message}", path.display())
+            }
         }
     }
 }

@@ -1,7 +1,7 @@
 //! Argument groups and flag readers shared by several subcommands.
 
 mod address;
-mod delay;
+pub mod delay;
 mod link;
 mod plant;
 pub mod record;
