@@ -97,4 +97,6 @@ mod docs {
     struct Troubleshooting;
     #[doc = include_str!("../docs/guide/control.md")]
     struct Control;
+    #[doc = include_str!("../docs/guide/recording.md")]
+    struct Recording;
 }

@@ -359,3 +359,4 @@ impl Link {
         recorder.attach(self)
     }
 }
+
