@@ -232,6 +232,7 @@ def demo(series: Union[str, Mapping[str, np.ndarray]], ax: Any = None) -> Any:
     command against the robot's state as the base saw it. ``series`` is a
     CSV path, an MCAP recording's path (:func:`series_from_recording`) or
     :func:`read_series`'s dict; ``ax``, two axes to draw on."""
+    s: Mapping[str, np.ndarray]
     if isinstance(series, str):
         s = series_from_recording(series) if _is_mcap(series) else read_series(series)
     else:
