@@ -359,4 +359,3 @@ impl Link {
         recorder.attach(self)
     }
 }
-
