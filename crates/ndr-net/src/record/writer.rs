@@ -49,6 +49,8 @@ struct LinkState {
     /// Names of the released values, made at the first release.
     names: Vec<String>,
     closed: bool,
+    /// The clock offset estimate and the last NRTT ([`Self::read_clock`]).
+    clock: (f64, Option<f64>),
 }
 
 impl LinkState {
@@ -70,15 +72,16 @@ impl LinkState {
         u64::try_from(t.max(0)).unwrap_or(u64::MAX)
     }
 
-    /// The clock offset estimate (this side − peer) and the NRTT last
-    /// measured, as the link's latest stats give them.
-    fn clock(&self) -> (f64, Option<f64>) {
-        self.sender.stats().map_or((0.0, None), |s| {
+    /// Reads the clock offset estimate (this side − peer) and the NRTT
+    /// last measured from the link's latest stats: once a poll, not once
+    /// a message, since the hub takes the same lock at every tick.
+    fn read_clock(&mut self) {
+        self.clock = self.sender.stats().map_or((0.0, None), |s| {
             (
                 s.endpoint.clock_offset_s,
                 s.last_nrtt.map(|d| d.as_secs_f64()),
             )
-        })
+        });
     }
 }
 
@@ -152,6 +155,9 @@ impl Writer {
         let mut next_chunk = StdInstant::now() + every;
         loop {
             let stop = self.counters.stop.load(Ordering::Relaxed);
+            for l in self.links.values_mut() {
+                l.read_clock();
+            }
             // Empty or disconnected: the stop flag ends the recording.
             while let Ok(item) = rx.try_recv() {
                 self.item(item)?;
@@ -199,6 +205,7 @@ impl Writer {
                     period_ns: None,
                     names: Vec::new(),
                     closed: false,
+                    clock: (0.0, None),
                 };
                 let at = state.sender.now().as_nanos();
                 let stats = state.sender.stats();
@@ -214,6 +221,7 @@ impl Writer {
                 let t = state.unix(at);
                 let mut state = state;
                 state.period_ns = stats.map(|s| s.period.as_nanos());
+                state.read_clock();
                 self.links.insert(link, state);
                 self.write(Topic::Event, t, t, &msg)
             }
@@ -233,7 +241,7 @@ impl Writer {
         if l.names.len() != r.values().len() {
             l.names = names(&self.config, l.role, r.values().len());
         }
-        let (offset_s, nrtt_s) = l.clock();
+        let (offset_s, nrtt_s) = l.clock;
         let (sent, arrived, released) = (
             r.sent_at.as_nanos(),
             r.arrived_at.as_nanos(),
