@@ -262,11 +262,84 @@ fn a_recording_base_killed_mid_run_leaves_all_but_its_last_second() {
     let _ = std::fs::remove_file(&csv);
 }
 
+/// An MCAP file with the channels of a recording and, on `/ndr/network`,
+/// a sample every 50 ms each way for `seconds`, forward delays `fwd_ms`
+/// and backward `bwd_ms`.
+fn synthetic(path: &Path, seconds: u64, fwd_ms: f64, bwd_ms: f64) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .compression(None)
+        .create(file)
+        .unwrap();
+    let schema = w
+        .add_schema("ndr.Arrival", "jsonschema", br#"{"type":"object"}"#)
+        .unwrap();
+    let network = w
+        .add_channel(schema, "/ndr/network", "json", &BTreeMap::new())
+        .unwrap();
+    let origin = 1_700_000_000_000_000_000u64;
+    let mut seq = 0;
+    for k in 0..seconds * 20 {
+        for (direction, ms) in [("fwd", fwd_ms), ("bwd", bwd_ms)] {
+            let sent = origin + k * 50_000_000;
+            let body = serde_json::json!({
+                "link": 0, "direction": direction, "seq": k, "sent_ns": sent,
+                "arrived_ns": sent + (ms * 1e6) as u64, "raw_s": ms * 1e-3,
+                "one_way_s": ms * 1e-3, "clock_offset_s": 0.0, "missing": false,
+            });
+            let header = mcap::records::MessageHeader {
+                channel_id: network,
+                sequence: seq,
+                log_time: sent + (ms * 1e6) as u64,
+                publish_time: sent,
+            };
+            seq += 1;
+            w.write_to_known_channel(&header, body.to_string().as_bytes())
+                .unwrap();
+        }
+    }
+    w.finish().unwrap();
+}
+
 #[test]
-fn a_recording_replays_in_the_simulator_with_its_measured_delays() {
+fn a_recordings_measured_delays_are_the_simulated_networks() {
+    let rec = temp("synthetic.mcap");
+    synthetic(&rec, 30, 30.0, 70.0);
+    let sim = cli_common::json(&[
+        "sim",
+        "--trace",
+        rec.to_str().unwrap(),
+        "--period-ms",
+        "50",
+        "--json",
+    ]);
+    assert_eq!(sim["profile"], "trace");
+    // As long as the recording, and its delays: a round trip of their sum
+    // (how it splits between the directions no clock estimate can tell;
+    // the trace's own tests check each direction).
+    let d = sim["duration_s"].as_f64().unwrap();
+    assert!((29.0..31.0).contains(&d), "replayed for {d} s");
+    let nrtt = sim["nrtt_mean_s"].as_f64().unwrap();
+    assert!((nrtt - 0.100).abs() < 1e-6, "NRTT {nrtt} s");
+    assert!(sim["nrtt_std_s"].as_f64().unwrap() < 1e-6);
+    // A recording without arrivals, and a file that is neither a recording
+    // nor a trace, are refused, each saying why.
+    synthetic(&rec, 0, 0.0, 0.0);
+    let out = cli_common::ndr(&["sim", "--trace", rec.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no arrival on /ndr/network"));
+    std::fs::write(&rec, "t_s,seq\n").unwrap();
+    let out = cli_common::ndr(&["sim", "--trace", rec.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("header"));
+    let _ = std::fs::remove_file(&rec);
+}
+
+#[test]
+fn a_recorded_demo_replays_in_the_simulator() {
     let _serial = serial();
     let (rec, csv) = (temp("replay.mcap"), temp("replay.csv"));
-    let report = cli_common::json(&[
+    cli_common::json(&[
         "demo",
         "--duration-s",
         "6",
@@ -288,27 +361,11 @@ fn a_recording_replays_in_the_simulator_with_its_measured_delays() {
         "datagram",
         "--json",
     ]);
-    assert_eq!(sim["profile"], "trace");
-    // As long as the recording, and the delays it measured each way.
+    // The replay runs for about the recording's length (its accuracy is
+    // judged on a recording made for it, above, not on a real run).
     let d = sim["duration_s"].as_f64().unwrap();
-    assert!((5.0..8.0).contains(&d), "replayed for {d} s");
-    for (real, replayed) in [
-        ("one_way_fwd_mean_s", "one_way_fwd_mean_s"),
-        ("one_way_bwd_mean_s", "one_way_bwd_mean_s"),
-    ] {
-        let (r, s) = (
-            report[real].as_f64().unwrap(),
-            sim[replayed].as_f64().unwrap(),
-        );
-        assert!(
-            (s - r).abs() < 0.1 * r,
-            "{real}: {r} s recorded, {s} s replayed"
-        );
-    }
-    // A file that is no recording is refused by name.
-    let out = cli_common::ndr(&["sim", "--trace", csv.to_str().unwrap()]);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("header"));
+    assert!((4.0..10.0).contains(&d), "replayed for {d} s");
+    assert!(sim["samples_released"].as_u64().unwrap() > 0);
     let _ = std::fs::remove_file(&rec);
     let _ = std::fs::remove_file(&csv);
 }

@@ -68,7 +68,8 @@ def record_pair(path, seconds=1.5):
             base.send([np.sin(tick.released_at)])
             if tick.released_at > end:
                 break
-        got["base"] = base.stats
+    # The counters once closed: the link releases until then.
+    got["base"] = base.stats
     assert base.recording is None, "a closed link lets its recording go"
     t.join(5)
     assert "remote" in got, "the remote's link did not end"

@@ -79,11 +79,15 @@ pub fn trace(path: &Path) -> Result<Trace, String> {
             path.display()
         );
     }
-    // The replay starts where the recording did, after the handshake: the
-    // simulated link's own handshake and initialization pattern then run
-    // over the delays the recorded ones met, and its samples start about
-    // when the recorded ones did.
-    let origin = net
+    // The replay starts a round trip before the recording did (just
+    // after the recorded handshake), so that the simulated handshake ends
+    // about when the recorded one did and its initialization pattern and
+    // first samples meet the delays the recorded ones met. The round trip
+    // is the first measured delays' sum.
+    let first = |w: &[ndr::net::record::Crossing]| w.iter().find_map(|c| c.one_way_s);
+    let handshake = first(&net.forward).or(first(&net.backward)).unwrap_or(0.0)
+        + first(&net.backward).or(first(&net.forward)).unwrap_or(0.0);
+    let start = net
         .forward
         .iter()
         .chain(&net.backward)
@@ -91,6 +95,7 @@ pub fn trace(path: &Path) -> Result<Trace, String> {
         .chain(net.attached_unix_ns)
         .min()
         .unwrap_or(0);
+    let origin = start.saturating_sub((handshake.max(0.0) * 1e9) as u64);
     let way = |crossings: &[ndr::net::record::Crossing]| -> Vec<OneWay> {
         crossings
             .iter()
