@@ -102,6 +102,7 @@ from .link import (
     RelayStats,
     RunningStats,
 )
+from .recording import Recording, read_recording
 
 __all__ = [
     "ESTIMATOR_HISTORY",
@@ -130,6 +131,7 @@ __all__ = [
     "Pid",
     "Prediction",
     "ProtocolError",
+    "Recording",
     "Regulator",
     "RegulatorFull",
     "Relay",
@@ -156,6 +158,7 @@ __all__ = [
     "lowpass",
     "nominal_size",
     "period_law",
+    "read_recording",
     "rls_filter",
     "round_trip_ticks",
     "set_log_level",

@@ -11,8 +11,9 @@ commands:
   demo    the whole link in one process: remote with the simulated plant,
           a delaying relay, and a base whose operator follows a signal
           (python -m ndr demo --help for its options)
-  plot    draw a run's CSV (ndr demo's ndr-demo.csv) as the paper's figure:
-          NRTT against GRTT, command against state (needs matplotlib;
+  plot    draw a run's CSV (ndr demo's ndr-demo.csv) or MCAP recording
+          (--record) as the paper's figure: NRTT against GRTT, command
+          against state (needs matplotlib, and mcap for a recording;
           python -m ndr plot --help)
 """
 
@@ -44,13 +45,14 @@ def _plot(argv: Sequence[str]) -> int:
 
     parser = argparse.ArgumentParser(
         prog="python -m ndr plot",
-        description="Draw a run's CSV series (ndr demo --out, ndr base --out) as the "
-        "paper's figure: NRTT against GRTT, and command against state.",
+        description="Draw a run's CSV series (ndr demo --out, ndr base --out) or its "
+        "MCAP recording (--record) as the paper's figure: NRTT against GRTT, and "
+        "command against state.",
     )
-    parser.add_argument("csv", help="the series, e.g. ndr-demo.csv")
+    parser.add_argument("csv", help="the series, e.g. ndr-demo.csv, or a recording, x.mcap")
     parser.add_argument(
         "-o", "--out", help="the image to write (its suffix picks the format; "
-        "default: the CSV's name with .png)"
+        "default: the input's name with .png)"
     )
     args = parser.parse_args(argv)
     out = args.out or os.path.splitext(args.csv)[0] + ".png"

@@ -875,6 +875,7 @@ class _Link:
         """``stats()["events_dropped"]``, also before the first tick."""
     def stats(self) -> Optional[LinkStats]: ...
     def metrics(self) -> str: ...
+    def recording(self) -> Optional[Dict[str, int]]: ...
     def now(self) -> float: ...
     def close(self) -> None: ...
     @property
@@ -960,9 +961,14 @@ def connect(
     *,
     connect_timeout: Optional[float],
     tls: Optional[TlsConfig] = None,
+    record: Optional[str] = None,
 ) -> _Link: ...
 def listen(
-    address: _Address, settings: _LinkSettings, *, tls: Optional[TlsConfig] = None
+    address: _Address,
+    settings: _LinkSettings,
+    *,
+    tls: Optional[TlsConfig] = None,
+    record: Optional[str] = None,
 ) -> _Listener: ...
 
 @final

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -477,6 +478,7 @@ class Link:
         rt_priority: int = 49,
         rt_cpu: Optional[int] = None,
         on_event: Optional[Callable[[Event], Any]] = None,
+        record: Optional[Union[str, "os.PathLike[str]"]] = None,
     ) -> "Link":
         """Connects to a peer and returns the link once the handshake is done.
 
@@ -569,6 +571,14 @@ class Link:
             rt_cpu: pin the hub thread to this CPU (``None``: any).
             on_event: called with each :class:`Event`, on the thread that
                 receives.
+            record: an MCAP file to record the link to (created, or
+                replaced): every release with its send and release times,
+                the link's events, its counters once a second and each
+                arrival's one-way delay, written by a thread of its own;
+                finished when the link closes. Read it with
+                :func:`ndr.read_recording`, plot it with ``python -m ndr
+                plot``, open it in Foxglove, replay it with ``ndr sim
+                --trace``.
 
         Raises:
             ConnectionRefusedError: nothing listens at ``address``.
@@ -580,7 +590,11 @@ class Link:
                 real-time scheduling (the message says what to grant).
         """
         native = _native.connect(
-            address, _settings(locals()), connect_timeout=connect_timeout, tls=tls
+            address,
+            _settings(locals()),
+            connect_timeout=connect_timeout,
+            tls=tls,
+            record=None if record is None else os.fspath(record),
         )
         return cls(native, on_event=on_event)
 
@@ -607,12 +621,20 @@ class Link:
         rt_priority: int = 49,
         rt_cpu: Optional[int] = None,
         on_event: Optional[Callable[[Event], Any]] = None,
+        record: Optional[Union[str, "os.PathLike[str]"]] = None,
     ) -> "Listener":
         """Listens at ``address`` (port 0 picks a free one) and returns a
         :class:`Listener` whose :meth:`~Listener.accept` gives one link per
         peer. The keyword arguments are those of :meth:`connect`; ``role``
-        defaults to ``"remote"``."""
-        native = _native.listen(address, _settings(locals()), tls=tls)
+        defaults to ``"remote"``; with ``record``, every link it accepts is
+        recorded into that one file, finished when the listener and its
+        links are closed."""
+        native = _native.listen(
+            address,
+            _settings(locals()),
+            tls=tls,
+            record=None if record is None else os.fspath(record),
+        )
         return Listener(native, on_event=on_event)
 
     # -- samples ----------------------------------------------------------
@@ -787,6 +809,15 @@ class Link:
         """Now, in seconds on this side's link clock (the clock of
         ``Tick.released_at`` and ``Tick.arrived_at``)."""
         return self._native.now()
+
+    @property
+    def recording(self) -> Optional[Dict[str, int]]:
+        """The recording's counts (``record=``): ``links`` attached,
+        events ``queued`` for its writer and ``dropped`` (its queue was
+        full: the writer fell behind), MCAP messages ``written`` and
+        ``chunks`` written out; ``None`` without a recording or once the
+        link is closed."""
+        return self._native.recording()
 
     @property
     def axes(self) -> int:

@@ -16,9 +16,11 @@
 - :func:`compare`: delay against late rate, one point per playout policy,
   from ``ndr compare --json``;
 - :func:`demo`: a real run's series (the CSV ``ndr demo``, ``ndr base`` and
-  ``python -m ndr demo`` write): NRTT against GRTT, and the operator's
-  command against the robot's state as the base saw it. From a shell:
-  ``python -m ndr plot ndr-demo.csv`` (writes ``ndr-demo.png``).
+  ``python -m ndr demo`` write, or an MCAP recording: ``--record``,
+  ``record=``): NRTT against GRTT, and the operator's command against the
+  robot's state as the base saw it. From a shell:
+  ``python -m ndr plot ndr-demo.csv`` (writes ``ndr-demo.png``), or
+  ``python -m ndr plot x.mcap -o x.png``.
 
 Each function takes a :class:`~ndr.sim.SimResult` (or its ``series`` dict),
 draws on ``ax`` when given (else on a new figure) and returns the figure.
@@ -32,7 +34,15 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
-__all__ = ["compare", "demo", "predictions", "queues", "read_series", "round_trips"]
+__all__ = [
+    "compare",
+    "demo",
+    "predictions",
+    "queues",
+    "read_series",
+    "round_trips",
+    "series_from_recording",
+]
 
 
 def _pyplot() -> Any:
@@ -173,13 +183,60 @@ def read_series(path: str) -> Dict[str, np.ndarray]:
     return {name: np.asarray(values, dtype=float) for name, values in columns.items()}
 
 
+def _is_mcap(path: str) -> bool:
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89MCAP0\r\n"
+
+
+def series_from_recording(recording: Any) -> Dict[str, np.ndarray]:
+    """The series of :func:`read_series` from a recording (a path, or
+    :func:`ndr.read_recording`'s result): one row per state released to the
+    base (``/ndr/state``), ``t_s`` from the first, ``command`` the command
+    the remote had released last at that time (NaN without ``/ndr/command``),
+    ``state`` the state's first value."""
+    if isinstance(recording, str):
+        from .recording import read_recording
+
+        recording = read_recording(recording)
+    states = recording.get("/ndr/state")
+    if not states or len(states["log_time"]) == 0:
+        raise ValueError("the recording has no state released to a base (/ndr/state)")
+    t = states["log_time"]
+    keep = states["status"] != "late"
+    values = states.get("values", {})
+    first = next(iter(values.values()), np.full(len(t), np.nan))
+    commands = recording.get("/ndr/command")
+    command = np.full(len(t), np.nan)
+    if commands and len(commands["log_time"]) and commands.get("values"):
+        ct = commands["log_time"]
+        cv = next(iter(commands["values"].values()))
+        ok = commands["status"] != "late"
+        ct, cv = ct[ok], cv[ok]
+        i = np.searchsorted(ct, t, side="right") - 1
+        command = np.where(i >= 0, cv[np.clip(i, 0, None)], np.nan)
+    return {
+        "t_s": (t - t[0])[keep],
+        "seq": states["seq"][keep],
+        "status": (states["status"] == "repeated").astype(float)[keep],
+        "grtt_s": states.get("grtt_s", np.full(len(t), np.nan))[keep],
+        "nrtt_s": states.get("nrtt_s", np.full(len(t), np.nan))[keep],
+        "command": command[keep],
+        "state": first[keep],
+    }
+
+
 def demo(series: Union[str, Mapping[str, np.ndarray]], ax: Any = None) -> Any:
     """A real run, as the paper draws it (Figs. 4 and 5): above, the
     network's round trip (NRTT, jittery) against the round trip the
     controller sees (GRTT, constant), in milliseconds; below, the operator's
     command against the robot's state as the base saw it. ``series`` is a
-    CSV path or :func:`read_series`'s dict; ``ax``, two axes to draw on."""
-    s = read_series(series) if isinstance(series, str) else series
+    CSV path, an MCAP recording's path (:func:`series_from_recording`) or
+    :func:`read_series`'s dict; ``ax``, two axes to draw on."""
+    s: Mapping[str, np.ndarray]
+    if isinstance(series, str):
+        s = series_from_recording(series) if _is_mcap(series) else read_series(series)
+    else:
+        s = series
     if len(s["t_s"]) == 0:
         raise ValueError("the series has no rows: the run released no sample")
     fig, (top, bottom) = _axes(ax, rows=2)

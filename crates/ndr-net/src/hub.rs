@@ -66,6 +66,10 @@ pub(crate) struct Shared {
 /// ([`Link::on_release`](crate::Link::on_release)).
 pub(crate) type Handler = Box<dyn FnMut(&Sample) + Send>;
 
+/// What sees every event of a link on the hub's thread before the
+/// application does (a recorder's): it must only copy and hand off.
+pub(crate) type Tap = Box<dyn FnMut(&crate::delivery::LinkEvent) + Send>;
+
 /// One link as the hub drives it.
 pub(crate) struct Entry {
     endpoint: Endpoint<Heap>,
@@ -85,6 +89,8 @@ pub(crate) struct Entry {
     handler: Option<Handler>,
     /// What its listener's floor hears of it (a shared robot's link).
     pub(crate) notes: Option<crate::sharing::Notes>,
+    /// Sees every event first, if set.
+    tap: Option<Tap>,
 }
 
 /// A link's TCP stream, as the hub reads and writes it.
@@ -203,6 +209,7 @@ impl Entry {
             deadline: None,
             handler: None,
             notes: None,
+            tap: None,
         }
     }
 
@@ -239,6 +246,7 @@ pub(crate) enum Msg {
     /// refusal, [`LinkError::Busy`]).
     Fail(u64, LinkError),
     Handler(u64, Handler),
+    Tap(u64, Tap),
     /// A UDP socket for datagram links, polled under this key.
     Socket(u64, Box<NewSocket>),
     /// The socket's owner (a listener) is gone: it closes with its last link.
@@ -838,6 +846,11 @@ impl Driver {
                         e.handler = Some(handler);
                     }
                 }
+                Ok(Msg::Tap(id, tap)) => {
+                    if let Some(e) = self.entries.get_mut(&id) {
+                        e.tap = Some(tap);
+                    }
+                }
                 Err(mpsc::TryRecvError::Empty) => {
                     self.udp.send_all(&mut self.entries);
                     return true;
@@ -1236,6 +1249,9 @@ fn deliver(e: &mut Entry, ticked: bool, hub: HubFigures) -> bool {
     while let Some(event) = e.endpoint.poll_event() {
         if let Some(notes) = &e.notes {
             notes.note(&event, &e.endpoint);
+        }
+        if let Some(tap) = e.tap.as_mut() {
+            tap(&event);
         }
         let d = match event {
             Event::Released(s) => {

@@ -5,7 +5,8 @@
 //! transport with TLS: [`quic`]) and keeps its release clock. Two optional
 //! features hold tooling a robot does not run: `relay`, the delay relay
 //! (whose delay models are `ndr-netem`'s, the simulator's, without the
-//! simulator), and `keygen`, self-signed identities for a lab pair.
+//! simulator), `keygen`, self-signed identities for a lab pair, and
+//! `record`, MCAP recordings of links ([`record`]).
 //!
 //! # The drive loop
 //!
@@ -58,6 +59,8 @@ pub mod metrics;
 mod pool;
 pub mod quic;
 pub mod realtime;
+#[cfg(feature = "record")]
+pub mod record;
 #[cfg(feature = "relay")]
 pub mod relay;
 mod runtime;
@@ -78,6 +81,8 @@ pub use link::{EVENT_BACKLOG, Link, LinkSender};
 pub use listener::{Listener, ListenerStats};
 pub use pool::{HubChoice, HubPool};
 pub use realtime::{Realtime, RealtimeError, RealtimeMode};
+#[cfg(feature = "record")]
+pub use record::{RecordConfig, RecordError, RecordStats, Recorder};
 #[cfg(feature = "relay")]
 pub use relay::{Relay, RelayConfig, RelayEvent, RelayHandle, RelayStats};
 pub use sharing::SharingStats;

@@ -58,6 +58,7 @@ pub struct Link {
     events_dropped: Arc<AtomicU64>,
     /// Values in each sample this side sends, and in each it receives.
     widths: (usize, usize),
+    role: Role,
     closed: Option<LinkError>,
     shut: bool,
     peer: SocketAddr,
@@ -260,6 +261,7 @@ impl Link {
             events: VecDeque::new(),
             events_dropped: Arc::new(AtomicU64::new(0)),
             widths,
+            role: cfg.role,
             closed: None,
             shut: false,
             peer,
@@ -381,6 +383,26 @@ impl Link {
     #[must_use]
     pub fn widths(&self) -> (usize, usize) {
         self.widths
+    }
+
+    /// This side's role: base or remote.
+    #[must_use]
+    pub fn role(&self) -> Role {
+        self.role
+    }
+
+    /// Has `tap` see every event of the link on its hub's thread, before
+    /// the application (a recorder's: [`Link::record`](crate::Link::record)).
+    #[cfg_attr(not(feature = "record"), allow(dead_code))]
+    pub(crate) fn tap(&self, tap: crate::hub::Tap) -> Result<(), NetError> {
+        if let Some(e) = self.closed {
+            return Err(NetError::Link(e));
+        }
+        if self.hub.send(Msg::Tap(self.id, tap)) {
+            Ok(())
+        } else {
+            Err(NetError::Link(LinkError::Closed))
+        }
     }
 
     /// A handle that sets the samples this link sends and reads its stats,

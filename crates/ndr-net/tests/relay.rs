@@ -198,7 +198,7 @@ async fn constant_delays_each_way_and_bytes_unchanged() {
         assert_eq!(dir.frames_delivered, n);
         assert_eq!(
             dir.bytes_delivered,
-            back.iter().map(|(f, _)| f.len() as u64).sum()
+            back.iter().map(|(f, _)| f.len() as u64).sum::<u64>()
         );
         assert_eq!(dir.held_back, 0);
     }

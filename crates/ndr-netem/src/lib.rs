@@ -136,13 +136,15 @@
 //! **`constant`**: 50 ms each way; `constant:MS` or `constant:FWD,BWD`.
 //!
 //! [`DelayModel::Dist`] replays a netem table ([`DistTable`]) and
-//! [`DelayModel::Trace`] a CSV trace ([`Trace`]).
+//! [`DelayModel::Trace`] a CSV trace ([`Trace`]), or the one-way delays a
+//! link measured sample by sample ([`one_way_trace`]).
 #![forbid(unsafe_code)]
 
 mod events;
 mod loss;
 mod netem;
 mod profiles;
+mod replay;
 mod trace;
 
 use core::fmt;
@@ -162,6 +164,7 @@ pub use profiles::{
     EpisodeParams, FIG6_DURATION, FIG6_STEP_AT_S, JitterParams, LAN_75KM, PARIS_NEW_YORK,
     fig6_truth,
 };
+pub use replay::{OneWay, one_way_trace};
 pub use trace::{
     Column, MAX_TRACE_DELAY_MS, MAX_TRACE_FILE_BYTES, MAX_TRACE_ROWS, MAX_TRACE_TIME_S,
     TRACE_HEADER, Trace, TraceError, TraceRow,

@@ -13,6 +13,7 @@
 
 use std::collections::VecDeque;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
 use std::time::Duration as StdDuration;
@@ -25,8 +26,9 @@ use ndr_core::wire::Role;
 use ndr_net::metrics::{LinkLabels, Metrics};
 use ndr_net::{EVENT_BACKLOG, LinkEvent};
 use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample, Transport};
+use ndr_net::{RecordConfig, RecordError, Recorder};
 use numpy::PyArray1;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
@@ -205,6 +207,9 @@ pub struct PyLink {
     peer: SocketAddr,
     /// Values in each command and in each state.
     widths: (usize, usize),
+    /// The recording it goes to (`record=`), shared with its listener's
+    /// other links; the last holder to let go finishes the file.
+    recorder: Mutex<Option<Arc<Recorder>>>,
 }
 
 fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
@@ -231,7 +236,17 @@ impl PyLink {
             role,
             transport,
             period: period.as_secs_f64(),
+            recorder: Mutex::new(None),
         }
+    }
+
+    /// Records the link into `recorder` from now on.
+    fn recorded(self, recorder: Option<Arc<Recorder>>) -> Result<Self, NetError> {
+        if let Some(r) = &recorder {
+            lock(&self.rx).link.record(r)?;
+        }
+        *self.recorder.lock().unwrap_or_else(PoisonError::into_inner) = recorder;
+        Ok(self)
     }
 
     /// Moves the events the last receive saw to where Python reads them
@@ -280,6 +295,14 @@ impl PyLink {
                 rx.ended = Some(CoreError::Closed);
             }
             self.publish(&mut rx);
+            // The link's end is in the recording: let it go (the last
+            // holder finishes the file).
+            drop(
+                self.recorder
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .take(),
+            );
         });
         log::flush(py);
     }
@@ -392,6 +415,18 @@ impl PyLink {
         let metrics = Metrics::new();
         metrics.watch_link(labels, &self.sender);
         metrics.encode()
+    }
+
+    /// The recording's counts (`record=`): `None` without one, or once
+    /// the link has closed.
+    fn recording<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let stats = self
+            .recorder
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .as_ref()
+            .map(|r| r.stats());
+        stats.map(|s| serialized(py, &s)).transpose()
     }
 
     /// Now on this side's link clock (s): `released_at` and `arrived_at` are on it.
@@ -626,13 +661,14 @@ fn realtime_settings(
 /// Connects to a peer (over mutual TLS with `tls`) and waits for the
 /// handshake.
 #[pyfunction]
-#[pyo3(signature = (address, settings, *, connect_timeout, tls = None))]
+#[pyo3(signature = (address, settings, *, connect_timeout, tls = None, record = None))]
 pub fn connect(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
     settings: &PyLinkSettings,
     connect_timeout: Option<f64>,
     tls: Option<&Bound<'_, PyTlsConfig>>,
+    record: Option<PathBuf>,
 ) -> PyResult<PyLink> {
     let (mut config, role) = (settings.config.clone(), settings.role);
     let (period, transport) = (config.endpoint.period, config.transport);
@@ -649,6 +685,8 @@ pub fn connect(
     if tls.is_none() && !ndr_net::tls::plain_allowed(addr.ip(), config.insecure) {
         return Err(net_error(py, NetError::Insecure(addr)));
     }
+    // Before connecting: a path that cannot be written fails at once.
+    let recorder = recorder(py, record)?;
     let rt = blocking::runtime()?;
     let hub = blocking::hub()?.clone();
     config.tls.clone_from(&tls);
@@ -710,7 +748,25 @@ pub fn connect(
             return Err(interrupted);
         }
     };
-    Ok(PyLink::new(link, role, transport, period))
+    PyLink::new(link, role, transport, period)
+        .recorded(recorder)
+        .map_err(|e| net_error(py, e))
+}
+
+/// The recorder `record=` asks for, if any.
+fn recorder(py: Python<'_>, record: Option<PathBuf>) -> PyResult<Option<Arc<Recorder>>> {
+    let Some(path) = record else {
+        return Ok(None);
+    };
+    match py.detach(|| Recorder::create(&path, RecordConfig::default())) {
+        Ok(r) => Ok(Some(Arc::new(r))),
+        Err(RecordError::Create { error, .. }) => Err(os_error(
+            py,
+            &error,
+            Some(&format!("cannot create the recording {}", path.display())),
+        )),
+        Err(e) => Err(PyRuntimeError::new_err(e.to_string())),
+    }
 }
 
 /// Where a connection attempt stopped.
@@ -746,6 +802,9 @@ pub struct PyListener {
     period: Duration,
     role: Role,
     transport: Transport,
+    /// The recording every accepted link goes to (`record=`), let go
+    /// when the listener closes.
+    recorder: Mutex<Option<Arc<Recorder>>>,
 }
 
 impl Drop for PyListener {
@@ -773,12 +832,13 @@ struct PendingAccept {
 
 /// Listens for peers (over mutual TLS with `tls`).
 #[pyfunction]
-#[pyo3(signature = (address, settings, *, tls = None))]
+#[pyo3(signature = (address, settings, *, tls = None, record = None))]
 pub fn listen(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
     settings: &PyLinkSettings,
     tls: Option<&Bound<'_, PyTlsConfig>>,
+    record: Option<PathBuf>,
 ) -> PyResult<PyListener> {
     let (mut config, role) = (settings.config.clone(), settings.role);
     let period = config.endpoint.period;
@@ -786,6 +846,7 @@ pub fn listen(
     let rt = blocking::runtime()?;
     config.tls = tls.map(|t| t.get().inner.clone());
     settings.check_tls(config.tls.is_some())?;
+    let recorder = recorder(py, record)?;
     let listener = py
         .detach(|| rt.block_on(Listener::listen(addr, config)))
         .map_err(|e| net_error(py, e))?
@@ -798,6 +859,7 @@ pub fn listen(
         period,
         role,
         transport: settings.config.transport,
+        recorder: Mutex::new(recorder),
     })
 }
 
@@ -861,7 +923,16 @@ impl PyListener {
             done => done,
         };
         match got? {
-            Ok(link) => Ok(link.map(|l| PyLink::new(l, self.role, self.transport, self.period))),
+            Ok(Some(l)) => PyLink::new(l, self.role, self.transport, self.period)
+                .recorded(
+                    self.recorder
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .clone(),
+                )
+                .map(Some)
+                .map_err(|e| net_error(py, e)),
+            Ok(None) => Ok(None),
             Err(e) => Err(net_error(py, e)),
         }
     }
@@ -879,6 +950,14 @@ impl PyListener {
             {
                 p.task.abort();
             }
+            // The last of the listener and its links to let go of the
+            // recording finishes it.
+            drop(
+                self.recorder
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .take(),
+            );
             self.listener
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)

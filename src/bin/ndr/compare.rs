@@ -9,7 +9,6 @@ use ndr::core::time::Duration;
 use ndr::sim::compare::{
     self, CompareConfig, CompareReport, Family, Matched, RegulationResult, Stat, TC_DIRS,
 };
-use ndr::sim::delay::Trace;
 
 use crate::args::millis;
 
@@ -60,7 +59,8 @@ rate <= the paper mode's. docs/algorithms.md §9 defines every measure.";
 #[derive(clap::Args)]
 #[command(after_long_help = JSON_HELP)]
 pub struct CompareArgs {
-    /// Delay trace files (CSV `t_s,fwd_ms,bwd_ms`) to compare on, each a
+    /// Delay trace files (CSV `t_s,fwd_ms,bwd_ms`, or links' MCAP
+    /// recordings: their measured one-way delays) to compare on, each a
     /// family of one run, instead of the built-in families.
     #[arg(long, value_name = "FILES", num_args = 1..)]
     pub traces: Vec<PathBuf>,
@@ -131,7 +131,7 @@ fn families(args: &CompareArgs) -> Result<(Vec<Family>, Vec<String>), String> {
     if !args.traces.is_empty() {
         let mut out = Vec::new();
         for path in &args.traces {
-            let t = Trace::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            let t = crate::args::delay::trace(path)?;
             let name = path.file_stem().map_or_else(
                 || path.display().to_string(),
                 |s| s.to_string_lossy().into(),

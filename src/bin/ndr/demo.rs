@@ -13,7 +13,7 @@ use ndr::netem::LossModel;
 use ndr::core::wire::Role;
 use ndr::net::metrics::RelayLabels;
 
-use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RunArgs};
+use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RecordArgs, RunArgs, record};
 use crate::metrics::Served;
 use crate::operator::operator;
 use crate::pauses;
@@ -34,6 +34,8 @@ pub struct DemoArgs {
     pub run: RunArgs,
     #[command(flatten)]
     pub plant: PlantArgs,
+    #[command(flatten)]
+    pub record: RecordArgs,
     /// Datagrams the relay loses each way: none, PERCENT (each
     /// independently, e.g. 1) or ge:PERCENT:BURST (in bursts of BURST
     /// datagrams on average, e.g. ge:2:4). Datagrams (udp, the default,
@@ -74,6 +76,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let model = args.net.model("lan-75km")?;
     let profile = model.name();
     let mut series = Series::create(&args.run.out)?;
+    let recorder = args.record.start(link.axes, &link.state)?;
     if !args.run.json {
         // Said up front: the file lands in the current directory by default.
         eprintln!(
@@ -97,7 +100,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         let upstream = listener.local_addr()?;
         Ok::<_, NetError>((base?, remote?, relay, upstream))
     });
-    let (base, remote, relay, upstream) = match set_up {
+    let (mut base, mut remote, relay, upstream) = match set_up {
         Ok(parts) => parts,
         Err(e) => {
             let (series, error) = series.close();
@@ -110,6 +113,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
                 tracking: None,
                 host: None,
+                recording: record::finish(recorder),
             };
             return finish(link, &args.run, &with_series_error(outcome, error));
         }
@@ -126,6 +130,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         let labels = RelayLabels::new(relay.local_addr().to_string(), upstream.to_string());
         m.watch_relay(labels, &relay.stats_reader());
     }
+    // Both sides into one file: the base's releases are the states, the
+    // remote's the commands.
+    record::attach(recorder.as_ref(), &mut base);
+    record::attach(recorder.as_ref(), &mut remote);
     // The run starts with the link: the set-up waited for its handshake.
     let until = StdInstant::now() + StdDuration::from_secs_f64(args.run.duration_s);
 
@@ -187,6 +195,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         end,
         tracking,
         host,
+        recording: record::finish(recorder),
     };
     finish(link, &args.run, &with_series_error(outcome, error))
 }

@@ -9,7 +9,9 @@ use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 
 use ndr::core::wire::Role;
 
-use crate::args::{LinkArgs, MetricsArgs, PlantArgs, RunArgs, SecurityArgs, resolve};
+use crate::args::{
+    LinkArgs, MetricsArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs, record, resolve,
+};
 use crate::metrics::Served;
 use crate::operator::operator;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
@@ -31,6 +33,8 @@ pub struct BaseArgs {
     pub run: RunArgs,
     #[command(flatten)]
     pub metrics: MetricsArgs,
+    #[command(flatten)]
+    pub record: RecordArgs,
 }
 
 #[derive(clap::Args)]
@@ -44,6 +48,8 @@ pub struct RemoteArgs {
     pub security: SecurityArgs,
     #[command(flatten)]
     pub plant: PlantArgs,
+    #[command(flatten)]
+    pub record: RecordArgs,
     /// Serve one base, then exit: with status 0 if the base closed the link
     /// in order (by default it serves one after another, until SIGINT or
     /// SIGTERM, and exits 0 then; SIGUSR1 prints the listener's counters).
@@ -68,6 +74,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     }
     let mut series = Series::create(&args.run.out)?;
     let served = Served::start(&args.metrics, "base")?;
+    let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
     let until = StdInstant::now() + run_for;
@@ -77,7 +84,8 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     // answers the SYN must not hold the base beyond it.
     let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
     let (stats, end, tracking) = match connected {
-        Ok(Ok(link)) => {
+        Ok(Ok(mut link)) => {
+            record::attach(recorder.as_ref(), &mut link);
             served.watch_link(
                 connect_to,
                 Role::Base,
@@ -124,6 +132,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         end,
         tracking,
         host: None,
+        recording: record::finish(recorder),
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
@@ -135,6 +144,7 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let tls = args.security.apply(&mut config)?;
     crate::transport::check_security(args.link.transport(), tls.is_some())?;
     let max_command = args.plant.max_command()?;
+    let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     config.tls = tls;
     let listener = rt
@@ -161,10 +171,24 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
         &rt,
         &listener,
         &stop,
-        config.endpoint.period,
-        max_command,
+        &DriveSpec {
+            axes: usize::from(args.link.axes),
+            layout: args.link.state.clone(),
+            period: config.endpoint.period,
+            max_command,
+        },
+        recorder.as_ref(),
     );
     eprintln!("ndr remote: {}", counters(&listener.stats()));
+    if let Some(r) = record::finish(recorder) {
+        match r.error {
+            Some(e) => eprintln!("ndr remote: {e}"),
+            None => eprintln!(
+                "ndr remote: recorded {} messages to {} ({} dropped)",
+                r.messages, r.path, r.dropped
+            ),
+        }
+    }
     failure.map_or(Ok(()), Err)
 }
 
@@ -176,8 +200,8 @@ fn serve(
     rt: &tokio::runtime::Runtime,
     listener: &Listener,
     stop: &Stop,
-    period: ndr::core::time::Duration,
-    max_command: f64,
+    spec: &DriveSpec,
+    recorder: Option<&ndr::net::Recorder>,
 ) -> Option<String> {
     // The last base's figures stay on the page until the next one comes.
     let mut watched = None;
@@ -191,7 +215,10 @@ fn serve(
         });
         let link = match accepted {
             None => return None,
-            Some(Ok(link)) => link,
+            Some(Ok(mut link)) => {
+                record::attach(recorder, &mut link);
+                link
+            }
             // Refused peers are logged and counted by the listener, which
             // fails only when its socket does.
             Some(Err(e)) => return Some(format!("the listener stopped: {e}")),
@@ -201,13 +228,7 @@ fn serve(
         served.unwatch(watched.take());
         watched = served.watch_link(peer, Role::Remote, args.link.transport(), &link.sender());
         let stats = Mutex::new(None::<LinkStats>);
-        let spec = DriveSpec {
-            axes: usize::from(args.link.axes),
-            layout: args.link.state.clone(),
-            period,
-            max_command,
-        };
-        let end = robot(link, spec, stop.flag(), &stats, None);
+        let end = robot(link, spec.clone(), stop.flag(), &stats, None);
         let last = *stats
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);

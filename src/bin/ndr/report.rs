@@ -12,6 +12,7 @@ use ndr::net::clock::LatenessStats;
 use ndr::net::{LinkStats, NetError, RelayStats};
 use serde::Serialize;
 
+use crate::args::record::RecordingSummary;
 use crate::args::{LinkArgs, RunArgs};
 use crate::pauses::PauseSummary;
 use crate::tracking::TrackingSummary;
@@ -270,6 +271,8 @@ pub struct Outcome<'a> {
     pub tracking: Option<TrackingSummary>,
     /// The host's pauses and the late ticks they explain (`ndr demo`).
     pub host: Option<PauseSummary>,
+    /// The recording (`--record`).
+    pub recording: Option<RecordingSummary>,
 }
 
 /// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
@@ -395,6 +398,9 @@ struct DemoReport {
     /// for is the latter's.
     #[serde(flatten)]
     host: Option<PauseSummary>,
+    /// `--record`: the file, the messages and chunks written, the events
+    /// dropped (the writer fell behind) and the error that stopped it.
+    recording: Option<RecordingSummary>,
 }
 
 /// A run that completed but whose series could not be written failed.
@@ -514,6 +520,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         controller: run.controller.name(),
         tracking: o.tracking,
         host: o.host,
+        recording: o.recording.clone(),
     }
 }
 
@@ -640,6 +647,18 @@ fn print_table(r: &DemoReport) {
         );
     }
     println!("  series     {} ({} rows)", r.csv, r.csv_rows);
+    if let Some(rec) = &r.recording {
+        println!(
+            "  recording  {} ({} messages, {} chunks, {} dropped){}",
+            rec.path,
+            rec.messages,
+            rec.chunks,
+            rec.dropped,
+            rec.error
+                .as_ref()
+                .map_or_else(String::new, |e| format!(": {e}"))
+        );
+    }
 }
 
 /// A datagram link's counts, for the remote's line on each base: `None` on

@@ -125,15 +125,24 @@ impl StateLayout {
         if self.0 == [Quantity::Positions] {
             return 0;
         }
-        let commands: Vec<String> = (0..axes).map(|a| format!("command{a}")).collect();
-        let states: Vec<String> = self
+        let (commands, states) = self.channel_names(axes);
+        let commands: Vec<&str> = commands.iter().map(String::as_str).collect();
+        let states: Vec<&str> = states.iter().map(String::as_str).collect();
+        ndr::core::fingerprint(&commands, &states)
+    }
+}
+
+impl StateLayout {
+    /// The names of a command's values and of a state's, in their order
+    /// (`command0…`; `positions0…`, then the next quantity's).
+    pub fn channel_names(&self, axes: u16) -> (Vec<String>, Vec<String>) {
+        let commands = (0..axes).map(|a| format!("command{a}")).collect();
+        let states = self
             .0
             .iter()
             .flat_map(|q| (0..axes).map(move |a| format!("{}{a}", q.name())))
             .collect();
-        let commands: Vec<&str> = commands.iter().map(String::as_str).collect();
-        let states: Vec<&str> = states.iter().map(String::as_str).collect();
-        ndr::core::fingerprint(&commands, &states)
+        (commands, states)
     }
 }
 
@@ -260,6 +269,7 @@ impl Drive {
 
 /// The simulated drive a remote runs: its axes, what its state holds, the
 /// period it starts at, and the largest command it takes.
+#[derive(Clone)]
 pub struct DriveSpec {
     pub axes: usize,
     pub layout: StateLayout,

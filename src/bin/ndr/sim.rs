@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use ndr::core::Regulation;
 use ndr::core::endpoint::{Transport, Underflow};
 use ndr::core::time::Duration;
-use ndr::sim::delay::LossModel;
+use ndr::sim::delay::{DelayModel, LossModel};
 use ndr::sim::signal::Signal;
 use ndr::sim::{self, Report, Row, SimConfig};
 
@@ -54,9 +54,10 @@ pub struct SimArgs {
     /// Sampling period, in ms (the paper's 200).
     #[arg(long, default_value_t = 200.0)]
     pub period_ms: f64,
-    /// Simulated time, in seconds.
-    #[arg(long, default_value_t = 600.0)]
-    pub duration_s: f64,
+    /// Simulated time, in seconds (default 600; a recording given to
+    /// --trace: its length).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
     /// Seed of every random draw: the same seed gives the same run.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -83,14 +84,22 @@ impl SimArgs {
         if period.is_zero() {
             return Err("--period-ms must be positive".into());
         }
-        let duration = Duration::from_secs_f64(self.duration_s);
-        if !(self.duration_s.is_finite() && self.duration_s > 0.0) {
+        let model = self.net.model("lan-75km")?;
+        let duration_s = match (self.duration_s, &model) {
+            (Some(s), _) => s,
+            // A recording replays for as long as it lasted.
+            (None, DelayModel::Trace(t)) if self.net.is_recording() => {
+                t.duration().as_secs_f64().max(1.0)
+            }
+            (None, _) => 600.0,
+        };
+        let duration = Duration::from_secs_f64(duration_s);
+        if !(duration_s.is_finite() && duration_s > 0.0) {
             return Err(format!(
-                "--duration-s must be a positive number of seconds, got {}",
-                self.duration_s
+                "--duration-s must be a positive number of seconds, got {duration_s}"
             ));
         }
-        let mut cfg = SimConfig::paper(self.net.model("lan-75km")?);
+        let mut cfg = SimConfig::paper(model);
         let regulation = self.regulation.unwrap_or(Regulation::PaperStatic);
         cfg.mode = regulation.mode();
         cfg.playout = regulation.playout();

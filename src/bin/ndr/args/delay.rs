@@ -3,7 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ndr::sim::delay::{DelayModel, DistTable, Trace};
+use ndr::core::time::{Duration, Instant};
+use ndr::sim::delay::{DelayModel, DistTable, OneWay, Trace, one_way_trace};
 
 use super::time::millis;
 
@@ -13,7 +14,10 @@ pub struct DelayArgs {
     /// A built-in delay profile: paris-newyork, lan-75km, paper-fig6, constant[:MS].
     #[arg(long)]
     pub profile: Option<String>,
-    /// Replay a delay trace: CSV with header `t_s,fwd_ms,bwd_ms`.
+    /// Replay a delay trace: CSV with header `t_s,fwd_ms,bwd_ms`, or a
+    /// link's MCAP recording (`--record`): the one-way delays it measured,
+    /// sample by sample, each way (a recording of one side gives its
+    /// direction to both).
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,
     /// Draw delays from an iproute2 netem distribution table (`*.dist`),
@@ -29,6 +33,11 @@ pub struct DelayArgs {
 }
 
 impl DelayArgs {
+    /// Whether --trace names a recording (MCAP) rather than a CSV trace.
+    pub fn is_recording(&self) -> bool {
+        self.trace.as_deref().is_some_and(is_mcap)
+    }
+
     /// The delay model these arguments describe; `default` when none is given.
     pub fn model(&self, default: &str) -> Result<DelayModel, String> {
         let given = [
@@ -40,8 +49,7 @@ impl DelayArgs {
             return Err("give one of --profile, --trace and --dist, not several".into());
         }
         if let Some(path) = &self.trace {
-            let trace = Trace::from_path(path).map_err(|e| with_path(path, &e))?;
-            return Ok(DelayModel::Trace(Arc::new(trace)));
+            return Ok(DelayModel::Trace(Arc::new(trace(path)?)));
         }
         if let Some(path) = &self.dist {
             let table = DistTable::from_path(path).map_err(|e| with_path(path, &e))?;
@@ -56,6 +64,58 @@ impl DelayArgs {
         let name = self.profile.as_deref().unwrap_or(default);
         DelayModel::profile(name).map_err(|e| e.to_string())
     }
+}
+
+/// A delay trace from its file: a CSV trace, or an MCAP recording's
+/// one-way delays (told apart by the file's first bytes).
+pub fn trace(path: &Path) -> Result<Trace, String> {
+    if !is_mcap(path) {
+        return Trace::from_path(path).map_err(|e| with_path(path, &e));
+    }
+    let net = ndr::net::record::read_network(path).map_err(|e| e.to_string())?;
+    if net.truncated {
+        eprintln!(
+            "ndr: {} ends inside a record (its writer was killed): replaying what came before",
+            path.display()
+        );
+    }
+    // The replay starts a round trip before the recording did (just
+    // after the recorded handshake), so that the simulated handshake ends
+    // about when the recorded one did and its initialization pattern and
+    // first samples meet the delays the recorded ones met. The round trip
+    // is the first measured delays' sum.
+    let first = |w: &[ndr::net::record::Crossing]| w.iter().find_map(|c| c.one_way_s);
+    let handshake = first(&net.forward).or(first(&net.backward)).unwrap_or(0.0)
+        + first(&net.backward).or(first(&net.forward)).unwrap_or(0.0);
+    let start = net
+        .forward
+        .iter()
+        .chain(&net.backward)
+        .map(|c| c.sent_unix_ns)
+        .chain(net.attached_unix_ns)
+        .min()
+        .unwrap_or(0);
+    let origin = start.saturating_sub((handshake.max(0.0) * 1e9) as u64);
+    let way = |crossings: &[ndr::net::record::Crossing]| -> Vec<OneWay> {
+        crossings
+            .iter()
+            .map(|c| OneWay {
+                sent: Instant::from_nanos(c.sent_unix_ns - origin),
+                // A delay measured below zero (the clock estimate's error)
+                // is none at all.
+                delay: c.one_way_s.map(|s| Duration::from_secs_f64(s.max(0.0))),
+            })
+            .collect()
+    };
+    one_way_trace(&way(&net.forward), &way(&net.backward)).map_err(|e| with_path(path, &e))
+}
+
+fn is_mcap(path: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut magic))
+        .is_ok_and(|()| magic == *b"\x89MCAP0\r\n")
 }
 
 /// An error about a file, naming the file once.

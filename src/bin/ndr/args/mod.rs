@@ -1,11 +1,12 @@
 //! Argument groups and flag readers shared by several subcommands.
 
 mod address;
-mod delay;
+pub mod delay;
 mod link;
 mod metrics;
 mod plant;
 mod realtime;
+pub mod record;
 mod run;
 mod security;
 mod time;
@@ -16,6 +17,7 @@ pub use link::LinkArgs;
 pub use metrics::MetricsArgs;
 pub use plant::PlantArgs;
 pub use realtime::RealtimeArgs;
+pub use record::RecordArgs;
 pub use run::RunArgs;
 pub use security::SecurityArgs;
 pub use time::millis;

@@ -1,0 +1,165 @@
+//! A [`Trace`] from one-way delays measured sample by sample (a link's
+//! recording, `/ndr/network`): the network of a session from the field,
+//! for the simulator to replay.
+
+use std::vec::Vec;
+
+use ndr_core::time::{Duration, Instant};
+
+use super::{Trace, TraceError, TraceRow};
+
+/// One sample's crossing: when it was sent (from the replay's origin) and
+/// its one-way delay, `None` if it never came in time (lost, or released
+/// late).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OneWay {
+    /// The send time, from the origin the two directions share.
+    pub sent: Instant,
+    /// The delay; `None` for a sample that never came in time.
+    pub delay: Option<Duration>,
+}
+
+/// The delays of `way` (in send order) with each missing one filled: the
+/// sample came no earlier than the next one that arrived, as in-order
+/// delivery has it (the last ones missing take the last delay known).
+fn filled(way: &[OneWay]) -> Vec<(Instant, Duration)> {
+    let mut out = Vec::with_capacity(way.len());
+    let mut next_arrival: Option<Instant> = None;
+    for w in way.iter().rev() {
+        let delay = match w.delay {
+            Some(d) => {
+                next_arrival = w.sent.checked_add(d);
+                d
+            }
+            None => match next_arrival {
+                Some(a) => a.checked_duration_since(w.sent).unwrap_or(Duration::ZERO),
+                // Filled from the last delay known, below.
+                None => Duration::MAX,
+            },
+        };
+        out.push((w.sent, delay));
+    }
+    out.reverse();
+    let last_known = way.iter().rev().find_map(|w| w.delay);
+    for (_, d) in &mut out {
+        if *d == Duration::MAX {
+            *d = last_known.unwrap_or(Duration::ZERO);
+        }
+    }
+    out
+}
+
+/// The trace that gives a frame sent at `t` the delay of the last sample
+/// sent at or before `t` in its direction: one row per sample, both
+/// directions on one time line. A direction with no sample takes the
+/// other's delays (a recording made on one side only measured its own).
+///
+/// # Errors
+///
+/// [`TraceError::NoRows`] when neither direction has a sample;
+/// [`TraceError::TooManyRows`] past [`MAX_TRACE_ROWS`](super::MAX_TRACE_ROWS).
+pub fn one_way_trace(forward: &[OneWay], backward: &[OneWay]) -> Result<Trace, TraceError> {
+    let (mut fwd, mut bwd) = (filled(forward), filled(backward));
+    fwd.sort_by_key(|r| r.0);
+    bwd.sort_by_key(|r| r.0);
+    if fwd.is_empty() {
+        fwd.clone_from(&bwd);
+    }
+    if bwd.is_empty() {
+        bwd.clone_from(&fwd);
+    }
+    let (Some(&(_, mut f)), Some(&(_, mut b))) = (fwd.first(), bwd.first()) else {
+        return Err(TraceError::NoRows);
+    };
+    let mut rows = Vec::with_capacity(fwd.len() + bwd.len());
+    let (mut i, mut j) = (0, 0);
+    while i < fwd.len() || j < bwd.len() {
+        let take_fwd = match (fwd.get(i), bwd.get(j)) {
+            (Some(x), Some(y)) => x.0 <= y.0,
+            (Some(_), None) => true,
+            _ => false,
+        };
+        let at = if take_fwd {
+            let (at, d) = fwd[i];
+            f = d;
+            i += 1;
+            at
+        } else {
+            let (at, d) = bwd[j];
+            b = d;
+            j += 1;
+            at
+        };
+        rows.push(TraceRow { at, fwd: f, bwd: b });
+    }
+    Trace::from_rows(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(v: u64) -> Duration {
+        Duration::from_millis(v)
+    }
+
+    fn at(v: u64) -> Instant {
+        Instant::from_millis(v)
+    }
+
+    #[test]
+    fn each_frame_takes_the_delay_of_the_last_sample_sent_before_it() {
+        let fwd = [
+            OneWay {
+                sent: at(0),
+                delay: Some(ms(10)),
+            },
+            OneWay {
+                sent: at(100),
+                delay: Some(ms(30)),
+            },
+        ];
+        let bwd = [OneWay {
+            sent: at(50),
+            delay: Some(ms(20)),
+        }];
+        let t = one_way_trace(&fwd, &bwd).unwrap();
+        use crate::Direction::{Backward, Forward};
+        assert_eq!(t.delay(Forward, at(0)), ms(10));
+        assert_eq!(t.delay(Forward, at(99)), ms(10));
+        assert_eq!(t.delay(Forward, at(100)), ms(30));
+        // Before the first backward sample, its first delay.
+        assert_eq!(t.delay(Backward, at(0)), ms(20));
+        assert_eq!(t.delay(Backward, at(120)), ms(20));
+    }
+
+    #[test]
+    fn a_missing_sample_came_no_earlier_than_the_next_and_one_side_mirrors() {
+        let fwd = [
+            OneWay {
+                sent: at(0),
+                delay: Some(ms(10)),
+            },
+            OneWay {
+                sent: at(10),
+                delay: None,
+            },
+            OneWay {
+                sent: at(20),
+                delay: Some(ms(50)),
+            },
+            OneWay {
+                sent: at(30),
+                delay: None,
+            },
+        ];
+        let t = one_way_trace(&fwd, &[]).unwrap();
+        use crate::Direction::{Backward, Forward};
+        // Arrived with the next, at 70 ms: 60 ms after its send.
+        assert_eq!(t.delay(Forward, at(10)), ms(60));
+        // The last, with nothing after it: the last delay known.
+        assert_eq!(t.delay(Forward, at(30)), ms(50));
+        assert_eq!(t.delay(Backward, at(20)), ms(50));
+        assert_eq!(one_way_trace(&[], &[]), Err(TraceError::NoRows));
+    }
+}
