@@ -101,4 +101,6 @@ mod docs {
     struct Realtime;
     #[doc = include_str!("../docs/guide/metrics.md")]
     struct Metrics;
+    #[doc = include_str!("../docs/guide/sharing.md")]
+    struct Sharing;
 }
