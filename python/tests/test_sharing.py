@@ -84,8 +84,10 @@ class Base:
                 while time.monotonic() - start < run:
                     if yield_at is not None and self.yielded_at is None \
                             and time.monotonic() - start >= yield_at:
-                        link.yield_control()
+                        # (Stamped first: the grant may reach the other
+                        # base before this thread runs again.)
                         self.yielded_at = time.monotonic()
+                        link.yield_control()
                     try:
                         tick = link.recv(timeout=0.1)
                     except TimeoutError:
