@@ -152,7 +152,10 @@ def test_control_passes_to_the_waiting_base_when_the_controller_yields():
     assert all(y > x for x, y in zip(seqs, seqs[1:]))
     assert {t for _, t in o.states} >= {1, 2}
     assert {t for t, _ in o.applied} >= {1, 2}
-    assert all(1000.0 <= v < 3000.0 for _, v in o.applied)
+    # (A base's sample is zeros until its application sets one: a
+    # controller's first commands may be, and be applied.)
+    odd = [v for _, v in o.applied if v != 0.0 and not 1000.0 <= v < 3000.0]
+    assert not odd, odd
     assert o.first("control_granted") is None
     assert o.stats["role"] == "observer" and o.stats["applied_received"] > 50
     # The listener counted one hand-over and both observers at once.
