@@ -103,4 +103,6 @@ mod docs {
     struct Metrics;
     #[doc = include_str!("../docs/guide/recording.md")]
     struct Recording;
+    #[doc = include_str!("../docs/guide/sharing.md")]
+    struct Sharing;
 }

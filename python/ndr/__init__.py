@@ -91,6 +91,7 @@ from ._native import (
 from . import sim
 from .link import (
     Event,
+    FloorStats,
     LatenessStats,
     Link,
     LinkStats,
@@ -101,6 +102,7 @@ from .link import (
     RelayDirectionStats,
     RelayStats,
     RunningStats,
+    SharingStats,
 )
 from .recording import Recording, read_recording
 
@@ -116,6 +118,7 @@ __all__ = [
     "Envelope",
     "Estimator",
     "Event",
+    "FloorStats",
     "HandshakeError",
     "Kalman3",
     "LatenessStats",
@@ -141,6 +144,7 @@ __all__ = [
     "RelayStats",
     "Rls",
     "RunningStats",
+    "SharingStats",
     "Signal",
     "SmithPredictor",
     "Tf2",

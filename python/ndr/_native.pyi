@@ -13,7 +13,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, final, ove
 import numpy as np
 import numpy.typing as npt
 
-from .link import LinkStats, ListenerStats, RelayStats
+from .link import LinkStats, ListenerStats, RelayStats, SharingStats
 
 _Floats = npt.NDArray[np.float64]
 _ArrayLike = npt.ArrayLike
@@ -854,6 +854,10 @@ class Tick:
     @property
     def added_delay(self) -> float:
         """``released_at - arrived_at``."""
+    @property
+    def term(self) -> int:
+        """The control term its frame carried (0 outside a shared robot's
+        terms)."""
 
 @final
 class _Link:
@@ -861,6 +865,15 @@ class _Link:
     def try_recv(self) -> Optional[Tick]: ...
     def unrecv(self, tick: Tick) -> None: ...
     def send(self, sample: Union[_ArrayLike, float]) -> None: ...
+    def yield_control(self) -> None:
+        """Base: gives control up; a ``control_lost`` event follows."""
+    @property
+    def is_observer(self) -> bool:
+        """Whether this link observes now."""
+    @property
+    def peer_seat(self) -> Optional[str]:
+        """The seat the peer's Hello named: ``"control"``, ``"observe"``
+        or ``"wait_for_control"``."""
     def abort(self) -> None: ...
     def events(self) -> List[Tuple[str, Dict[str, Any]]]:
         """The events ``new_events`` has returned, oldest first, as
@@ -901,6 +914,8 @@ class _Listener:
     def refused(self) -> int: ...
     @property
     def stats(self) -> ListenerStats: ...
+    @property
+    def sharing(self) -> Optional[SharingStats]: ...
 
 @final
 class _LinkSettings:
@@ -925,6 +940,9 @@ class _LinkSettings:
         realtime: str,
         rt_priority: int,
         rt_cpu: Optional[int],
+        observers: Optional[int] = None,
+        observe: bool = False,
+        wait_for_control: Optional[float] = None,
     ) -> "_LinkSettings": ...
 
 @final
@@ -933,8 +951,11 @@ class TlsConfig:
     files), and whom it trusts: exactly one of ``peer_cert`` (the peer's
     certificate, pinned by fingerprint), ``pins`` (SHA-256 fingerprints, a
     list, or one as a str) or ``ca`` (a CA certificate; the server's
-    certificate must name ``server_name``). ``ValueError`` names a file or
-    value it cannot use."""
+    certificate must name ``server_name``). A robot that shares itself
+    (``Link.listen(observers=N)``) may also trust peers who may only
+    observe: ``observer_pins`` (fingerprints) and ``observer_certs``
+    (certificate files, each pinned); one of them that asks for control is
+    refused. ``ValueError`` names a file or value it cannot use."""
 
     def __new__(
         cls,
@@ -946,6 +967,10 @@ class TlsConfig:
         ca: Optional[Union[str, "os.PathLike[str]"]] = None,
         server_name: Optional[str] = None,
         handshake_timeout: Optional[float] = None,
+        observer_pins: Union[str, Sequence[str], None] = None,
+        observer_certs: Union[
+            str, "os.PathLike[str]", Sequence[Union[str, "os.PathLike[str]"]], None
+        ] = None,
     ) -> "TlsConfig": ...
     @property
     def fingerprint(self) -> str:

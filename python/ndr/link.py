@@ -27,6 +27,13 @@ asyncio. Events (the link connected, started, paused, its delay changed,
 it lost its peer, it closed: the Rust link's events) are logged to the
 ``ndr.link`` logger and kept for :meth:`Link.events`; Rust's own log records
 reach the ``ndr.*`` loggers.
+
+A robot may be shared: ``Link.listen(..., observers=N)`` serves one
+controlling base and up to ``N`` observers, which connect with
+``observe=True``; a base that connects with ``wait_for_control=SECONDS``
+observes until control frees and is then granted it (``control_granted``),
+and a controller gives control up with :meth:`Link.yield_control`. See
+``docs/guide/sharing.md``.
 """
 
 from __future__ import annotations
@@ -59,6 +66,7 @@ from ._native import LinkClosedError, PeerClosedError, Tick, TlsConfig
 
 __all__ = [
     "Event",
+    "FloorStats",
     "LatenessStats",
     "Link",
     "LinkStats",
@@ -69,6 +77,7 @@ __all__ = [
     "RelayDirectionStats",
     "RelayStats",
     "RunningStats",
+    "SharingStats",
     "Tick",
     "TlsConfig",
 ]
@@ -116,6 +125,31 @@ class Event:
     - ``"closed"``: the link ended (``error`` says why; ``details["normal"]``
       is true when either side closed it in order).
 
+    On a shared robot (``Link.listen(observers=N)``):
+
+    - ``"control_granted"``: this link holds control from now, in control
+      term ``term`` (a base's commands apply from its first of this term;
+      on the remote, the link's base was granted it). A base given control
+      at once gets it right after ``"connected"``;
+    - ``"control_lost"``: a base lost control (``term``: the term it held),
+      taken for another base or yielded: it observes from now, its commands
+      are no longer sent;
+    - ``"control_requested"``: a base that holds control: another base waits
+      for it (:meth:`Link.yield_control` gives it up);
+    - ``"control_yielded"``: on the remote, the link's base gave control up
+      (``term``: the term it held);
+    - ``"applied"``: an observer's link: the robot applied a command. ``term``
+      and ``details``: ``seq`` (on its controller's link), ``sent_at`` and
+      ``applied_at`` (when its controller sent it and when the robot applied
+      it, both on the remote's clock), ``arrived_at`` (here, on this side's
+      clock), and ``values`` (``Event.values``, a float64 array). They come
+      at the controller's rate: read them with :meth:`Link.events` (or
+      ``on_event``) often, or the oldest beyond 256 are dropped and
+      counted (``events_dropped``).
+
+    ``"connected"``'s ``details["seat"]`` is the seat the peer's Hello named
+    (as :attr:`Link.peer_seat`).
+
     An underflow (the sample due at a tick had not arrived, the last one is
     repeated) is no event: the tick says it (``tick.status == "held"``) and
     the stats count it (``stats["underflows"]``, ``stats["released_held"]``).
@@ -129,6 +163,10 @@ class Event:
     ticks: Optional[int] = None
     grtt: Optional[float] = None
     error: Optional[str] = None
+    term: Optional[int] = None
+    """The control term of a ``control_*`` or ``applied`` event."""
+    values: Optional[np.ndarray] = field(default=None, compare=False)
+    """An ``applied`` event's command, float64 of shape ``(command_width,)``."""
     details: Dict[str, Any] = field(default_factory=dict)
 
 
@@ -151,6 +189,9 @@ _SETTINGS = {
     "realtime": "realtime",
     "rt_priority": "rt_priority",
     "rt_cpu": "rt_cpu",
+    "observers": "observers",
+    "observe": "observe",
+    "wait_for_control": "wait_for_control",
 }
 
 
@@ -273,7 +314,13 @@ class ListenerStats(TypedDict):
     Close 14). Over QUIC: the newer connection is closed at once instead."""
     refused_busy: int
     """Peers refused as busy after their handshake: the listener served as
-    many links as it may."""
+    many links as it may, or (a shared robot) another base holds control."""
+    refused_observer_only: int
+    """A shared robot: bases that asked for control with an identity the
+    TLS observers' allow-list names only (``TlsConfig(observer_pins=…)``)."""
+    refused_observers_full: int
+    """A shared robot: bases that asked to observe (or to wait for control)
+    while every observer's seat was taken."""
     unclaimed: int
     """Links whose handshake was done but that the application did not
     take (the accept queue was full, or the link ended while it waited)."""
@@ -287,6 +334,34 @@ class ListenerStats(TypedDict):
     """QUIC: new connections asked to prove their address first (a
     stateless Retry) because half the handshake slots or more were
     taken; a spoofed source never answers and takes no slot."""
+
+
+class FloorStats(TypedDict):
+    """The counters of a shared robot's floor (who holds control)."""
+
+    handovers: int
+    """Terms granted after the first: control changing hands."""
+    observers_max: int
+    """The most observers served at once."""
+    refused_busy: int
+    """Bases refused control because another held it."""
+    refused_observer_only: int
+    """Bases refused control because their identity may only observe."""
+    refused_full: int
+    """Bases refused because every observer's seat was taken."""
+    actions_dropped: int
+    """Decisions the listener did not carry out in time, given up."""
+
+
+class SharingStats(TypedDict):
+    """What a shared robot's listener counted (:attr:`Listener.sharing`)."""
+
+    floor: FloorStats
+    notes_dropped: int
+    """Notes from the links to the floor it had no room for (applied
+    commands not told to the observers, mostly)."""
+    applied_forwarded: int
+    """Applied commands told to observers."""
 
 
 class LinkStats(TypedDict):
@@ -396,6 +471,26 @@ class LinkStats(TypedDict):
     """How late each release was stamped."""
     spin_margin: float
     """How long before a deadline the hub spins, learned from its timer."""
+    role: str
+    """``"controller"`` or ``"observer"``: whether this link observes now
+    (:attr:`Link.is_observer`); a link of an unshared robot controls."""
+    commands_refused_stale_term: int
+    """Remote: commands of a control term this link no longer holds, never
+    handed to the application (fencing after a hand-over)."""
+    commands_refused_observer: int
+    """Remote: commands from a base that holds no control, refused."""
+    commands_before_grant: int
+    """Remote: commands of a base given control that came before the grant,
+    refused."""
+    grants: int
+    """Terms of control granted on this link."""
+    applied_sent: int
+    """Remote: applied commands sent to this link's observer."""
+    applied_dropped: int
+    """Remote: applied commands this link's observer was too slow for,
+    dropped (the oldest first)."""
+    applied_received: int
+    """Base (an observer): applied commands received."""
     endpoint_events_dropped: int
     """Events the endpoint itself dropped (none from the hub, which takes
     the events of a long catch-up as the endpoint's queue fills)."""
@@ -415,7 +510,9 @@ class LinkStats(TypedDict):
 
 def _settings(args: Dict[str, Any]) -> "_native._LinkSettings":
     """The link settings among a call's arguments, checked once in Rust."""
-    return _native._LinkSettings(**{native: args[name] for name, native in _SETTINGS.items()})
+    return _native._LinkSettings(
+        **{native: args[name] for name, native in _SETTINGS.items() if name in args}
+    )
 
 
 def _check_timeout(timeout: Optional[float]) -> None:
@@ -477,6 +574,8 @@ class Link:
         realtime: str = "try",
         rt_priority: int = 49,
         rt_cpu: Optional[int] = None,
+        observe: bool = False,
+        wait_for_control: Optional[float] = None,
         on_event: Optional[Callable[[Event], Any]] = None,
         record: Optional[Union[str, "os.PathLike[str]"]] = None,
     ) -> "Link":
@@ -569,6 +668,18 @@ class Link:
                 (docs/guide/realtime.md).
             rt_priority: the hub thread's ``SCHED_FIFO`` priority, 1 to 99.
             rt_cpu: pin the hub thread to this CPU (``None``: any).
+            observe: a base that watches a shared robot
+                (``Link.listen(observers=N)``): it receives the states, at
+                its own constant delay, and the commands the robot applied
+                (``"applied"`` events), and sends none (what it sends is
+                not applied). A robot that shares nothing refuses it.
+            wait_for_control: a base that asks for control and, while
+                another base holds it, observes until control frees (the
+                controller closes, yields or is dropped by the liveness
+                rule) and is granted it: a ``"control_granted"`` event, then
+                its commands apply. Seconds it waits at most: past them
+                without a grant, the link is closed and receiving raises
+                :class:`LinkError` saying so. Not with ``observe``.
             on_event: called with each :class:`Event`, on the thread that
                 receives.
             record: an MCAP file to record the link to (created, or
@@ -584,8 +695,13 @@ class Link:
             ConnectionRefusedError: nothing listens at ``address``.
             HandshakeError: the peer has other settings, or did not answer.
             TimeoutError: no connection within ``connect_timeout``.
-            ValueError: a setting is invalid (the message says which), or a
-                plain link off loopback without ``insecure=True``.
+            ValueError: a setting is invalid (the message says which), a
+                plain link off loopback without ``insecure=True``, or
+                ``observe=True`` with ``wait_for_control``.
+            PeerClosedError: the robot refused the seat asked for: control
+                held by another base (``reason_name`` ``"busy"``; connect
+                with ``wait_for_control``), every observer's seat taken, or
+                an identity that may only observe asking for control.
             PermissionError: ``realtime="enforce"`` and the host refused
                 real-time scheduling (the message says what to grant).
         """
@@ -620,6 +736,7 @@ class Link:
         realtime: str = "try",
         rt_priority: int = 49,
         rt_cpu: Optional[int] = None,
+        observers: Optional[int] = None,
         on_event: Optional[Callable[[Event], Any]] = None,
         record: Optional[Union[str, "os.PathLike[str]"]] = None,
     ) -> "Listener":
@@ -628,7 +745,18 @@ class Link:
         peer. The keyword arguments are those of :meth:`connect`; ``role``
         defaults to ``"remote"``; with ``record``, every link it accepts is
         recorded into that one file, finished when the listener and its
-        links are closed."""
+        links are closed.
+
+        ``observers=N`` (0 to 64; ``ndr remote`` shares with 4) shares one
+        robot: one base controls, up to ``N`` observe (``observe=True``, and
+        bases waiting for control), control changes hands safely (each term
+        numbered; no command of an earlier term applies after a hand-over;
+        between terms the robot gets no command and holds). The application
+        accepts every link, sends its state on each, and applies what any of
+        them releases (only the controller's commands are released; each
+        :class:`Tick` carries its ``term``). ``None`` (the default): every
+        link is its own, each base commanding on its own link (a server of
+        many robots)."""
         native = _native.listen(
             address,
             _settings(locals()),
@@ -636,6 +764,36 @@ class Link:
             record=None if record is None else os.fspath(record),
         )
         return Listener(native, on_event=on_event)
+
+    # -- sharing ----------------------------------------------------------
+
+    def yield_control(self) -> None:
+        """A base that holds control on a shared robot gives it up: the link
+        goes on as an observer's, and the robot hands control to a base
+        waiting for it (its ``"control_granted"``). A ``"control_lost"``
+        event follows here; a base that holds no control gets none.
+
+        Raises:
+            ValueError: on the remote's side.
+            LinkError: the link has ended.
+        """
+        self._native.yield_control()
+
+    @property
+    def is_observer(self) -> bool:
+        """Whether this link observes now: a base without control (it asked
+        to observe, waits for control, or lost or yielded it), or a
+        remote's link to such a base. ``stats["role"]`` says the same as
+        ``"observer"`` or ``"controller"``."""
+        return self._native.is_observer
+
+    @property
+    def peer_seat(self) -> Optional[str]:
+        """The seat the peer's Hello named: at the remote, the one its base
+        asked for (``"control"``, ``"observe"``, ``"wait_for_control"``);
+        at the base, the one the robot gave (``"observe"`` to a base
+        waiting for control). Later changes come as events."""
+        return self._native.peer_seat
 
     # -- samples ----------------------------------------------------------
 
@@ -930,6 +1088,9 @@ class Link:
 
 
 def _event(kind: str, fields: Dict[str, Any]) -> Event:
+    # An applied command's values are the event's own field (an array in
+    # ``details`` would make events uncomparable).
+    values = fields.pop("values", None)
     return Event(
         kind,
         period=fields.get("period"),
@@ -939,6 +1100,8 @@ def _event(kind: str, fields: Dict[str, Any]) -> Event:
         ticks=fields.get("ticks"),
         grtt=fields.get("grtt"),
         error=fields.get("error"),
+        term=fields.get("term"),
+        values=values,
         details=fields,
     )
 
@@ -953,6 +1116,10 @@ def _log_event(link: Link, e: Event) -> None:
         _log.info("%s: delay now %.6g s (%s periods)", who, e.delay, e.ticks)
     elif e.kind == "round_trip_changed":
         _log.debug("%s: round trip now %s periods (GRTT %.6g s)", who, e.ticks, e.grtt)
+    elif e.kind == "applied":
+        _log.debug("%s: applied a command of term %s", who, e.term)
+    elif e.kind in ("control_granted", "control_lost", "control_yielded"):
+        _log.info("%s: %s, term %s", who, e.kind.replace("_", " "), e.term)
     elif e.kind in ("started", "paused"):
         _log.info("%s: %s, period %.6g s, ns %s", who, e.kind, e.period, e.ns)
     else:
@@ -1056,7 +1223,8 @@ class Listener:
         """Peers refused: a failed TLS handshake (unknown or missing
         certificate, old TLS, timeout), a failed ndr handshake (other
         settings), or turned away by the listener (evicted, too many from
-        one source, busy, never taken)."""
+        one source, busy, never taken, an observer's identity asking for
+        control, every observer's seat taken)."""
         return self._native.refused
 
     @property
@@ -1071,8 +1239,18 @@ class Listener:
         authenticated or after: ``evicted``, ``refused_per_source``,
         ``refused_busy``, ``unclaimed``; ``accept_errors``; over QUIC,
         ``retried``. Connections are accepted and handshaken in the
-        background, also while the application is busy with a link."""
+        background, also while the application is busy with a link. A
+        shared robot counts ``refused_observer_only`` and
+        ``refused_observers_full`` too."""
         return self._native.stats
+
+    @property
+    def sharing(self) -> Optional[SharingStats]:
+        """A listener that shares its robot (``observers=``): its
+        :class:`SharingStats`, ``floor["handovers"]`` (control changing
+        hands), ``floor["observers_max"]``, the refusals, and the applied
+        commands told to observers; ``None`` otherwise."""
+        return self._native.sharing
 
     def close(self) -> None:
         """Stops listening; links already accepted go on."""

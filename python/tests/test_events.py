@@ -100,7 +100,10 @@ def test_a_live_links_events_are_rust_kinds_and_none_were_dropped():
         with ndr.Link.connect(listener.address, period=0.02, on_event=seen.append) as base:
             base.recv(timeout=3)
             events = base.events()
-            assert [e.kind for e in events][:2] == ["connected", "started"]
+            # A base the robot gives control at once is told so before
+            # the samples flow.
+            assert [e.kind for e in events][:3] == ["connected", "control_granted", "started"]
+            assert events[1].term == 1 and events[0].details["seat"] == "control"
             assert events == seen
             assert {e.kind for e in events} <= rust_kinds()
             assert base.events_dropped == 0 == base.stats["events_dropped"]

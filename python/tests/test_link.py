@@ -481,8 +481,9 @@ def test_events_are_logged_and_rust_logs_reach_logging(caplog):
         events = []
         with ndr.Link.connect(relay.address, period=0.02, on_event=events.append) as base:
             base.recv(timeout=3)
-            assert [e.kind for e in events][:2] == ["connected", "started"]
-            assert events[1].ns >= 2 and events[1].period == pytest.approx(0.02)
+            kinds = [e.kind for e in events]
+            assert kinds[:3] == ["connected", "control_granted", "started"]
+            assert events[2].ns >= 2 and events[2].period == pytest.approx(0.02)
         assert relay.stats["connections"] == 1
         # Exactly the keys ndr.RelayStats declares, nested ones too.
         rs = relay.stats

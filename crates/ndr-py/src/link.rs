@@ -14,15 +14,16 @@
 use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, mpsc};
-use std::time::Duration as StdDuration;
+use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use ndr_core::Regulation;
 use ndr_core::endpoint::{Config, Event, LinkError as CoreError, Mode, Underflow};
+use ndr_core::floor::MAX_OBSERVERS;
 use ndr_core::time::Duration;
 use ndr_core::wire::MAX_CHANNELS;
-use ndr_core::wire::Role;
+use ndr_core::wire::{Role, Seat};
 use ndr_net::metrics::{LinkLabels, Metrics};
 use ndr_net::{EVENT_BACKLOG, LinkEvent};
 use ndr_net::{Link, LinkConfig, LinkSender, Listener, NetError, Sample, Transport};
@@ -34,7 +35,7 @@ use pyo3::types::{PyDict, PyList};
 
 use crate::blocking::{self, timed_out, wait};
 use crate::convert::{count, int_in, period as positive, sample as to_sample, serialized};
-use crate::errors::{link_error, net_error, os_error, transport_error};
+use crate::errors::{net_error, os_error, transport_error};
 use crate::log;
 use crate::regulation;
 use crate::tls::PyTlsConfig;
@@ -101,6 +102,13 @@ impl PyTick {
         self.release.grtt.map(Duration::as_secs_f64)
     }
 
+    /// The control term its frame carried (0 outside a shared robot's
+    /// terms): on a base, the term under which the robot sent this state.
+    #[getter]
+    fn term(&self) -> u16 {
+        self.release.term
+    }
+
     /// Time the sample waited in the regulator: `released_at - arrived_at` (s).
     #[getter]
     fn added_delay(&self) -> f64 {
@@ -124,6 +132,9 @@ struct Rx {
     /// Samples handed back by an interrupted asynchronous receive; served first.
     stash: VecDeque<Sample>,
     ended: Option<CoreError>,
+    /// A base that asked to wait for control and observes meanwhile: until
+    /// when it waits, and the seconds it was given (`wait_for_control=`).
+    waiting: Option<(StdInstant, f64)>,
 }
 
 impl Rx {
@@ -210,6 +221,14 @@ pub struct PyLink {
     /// The recording it goes to (`record=`), shared with its listener's
     /// other links; the last holder to let go finishes the file.
     recorder: Mutex<Option<Arc<Recorder>>>,
+    /// Whether this link observes now (a base without control, a remote's
+    /// link to such a base), as the link's events tell it.
+    observer: AtomicBool,
+    /// The seat the peer's Hello named (`Link::peer_seat`).
+    peer_seat: Option<Seat>,
+    /// The link was closed because control was not granted within
+    /// `wait_for_control` seconds: the seconds.
+    gave_up: Mutex<Option<f64>>,
 }
 
 fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
@@ -219,7 +238,17 @@ fn lock(rx: &Mutex<Rx>) -> MutexGuard<'_, Rx> {
 impl PyLink {
     fn new(link: Link, role: Role, transport: Transport, period: Duration) -> Self {
         let (sent, received) = link.widths();
+        let peer_seat = link.peer_seat();
+        // A base observes unless the remote's Hello gave it control; a
+        // remote's link, if its listener says so.
+        let observer = match role {
+            Role::Base => peer_seat.is_some_and(|s| s != Seat::Control),
+            Role::Remote => link.is_observer(),
+        };
         PyLink {
+            observer: AtomicBool::new(observer),
+            peer_seat,
+            gave_up: Mutex::new(None),
             widths: match role {
                 Role::Base => (sent, received),
                 Role::Remote => (received, sent),
@@ -230,6 +259,7 @@ impl PyLink {
                 link,
                 stash: VecDeque::new(),
                 ended: None,
+                waiting: None,
             }),
             kept: Mutex::new(Kept::default()),
             unseen: AtomicUsize::new(0),
@@ -252,8 +282,21 @@ impl PyLink {
     /// Moves the events the last receive saw to where Python reads them
     /// (at most [`EVENT_BACKLOG`]; the oldest go first, as in the Rust link).
     fn publish(&self, rx: &mut Rx) {
+        let came: Vec<LinkEvent> = rx.link.drain_events().collect();
+        for e in &came {
+            match e {
+                Event::ControlGranted { .. } => {
+                    self.observer.store(false, Ordering::Relaxed);
+                    rx.waiting = None;
+                }
+                Event::ControlLost { .. } | Event::ControlYielded { .. } => {
+                    self.observer.store(true, Ordering::Relaxed);
+                }
+                _ => {}
+            }
+        }
         let mut kept = self.kept();
-        let unseen = kept.extend(rx.link.drain_events());
+        let unseen = kept.extend(came);
         // Under the lock, so that it cannot undo `new_events`' zero.
         self.unseen.store(unseen, Ordering::Release);
     }
@@ -273,12 +316,35 @@ impl PyLink {
         Ok(list)
     }
 
-    /// [`Rx::take`], then [`publish`](Self::publish).
+    /// [`Rx::take`], then [`publish`](Self::publish); a base whose wait
+    /// for control ran out is closed here.
     fn take(&self, slice: StdDuration) -> Result<Option<Sample>, NetError> {
         let mut rx = lock(&self.rx);
         let got = rx.take(slice);
         self.publish(&mut rx);
-        got
+        match rx.waiting {
+            Some((until, secs)) if rx.ended.is_none() && StdInstant::now() >= until => {
+                rx.waiting = None;
+                *self.gave_up.lock().unwrap_or_else(PoisonError::into_inner) = Some(secs);
+                rx.link.shutdown();
+                rx.ended = Some(CoreError::Closed);
+                self.publish(&mut rx);
+                Err(NetError::Link(CoreError::Closed))
+            }
+            _ => got,
+        }
+    }
+
+    /// The exception for `e`: a link closed because control was not granted
+    /// in time says so.
+    fn error(&self, py: Python<'_>, e: NetError) -> PyErr {
+        match *self.gave_up.lock().unwrap_or_else(PoisonError::into_inner) {
+            Some(secs) => crate::errors::LinkError::new_err(format!(
+                "control was not granted within wait_for_control={secs} s (another base held \
+                 it): the link was closed; connect again, or wait longer"
+            )),
+            None => net_error(py, e),
+        }
     }
 
     fn ended(&self, py: Python<'_>) -> Option<CoreError> {
@@ -334,7 +400,7 @@ impl PyLink {
         match got? {
             Ok(Some(release)) => Ok(PyTick { release }),
             Ok(None) => Err(net_error(py, NetError::Timeout)),
-            Err(e) => Err(net_error(py, e)),
+            Err(e) => Err(self.error(py, e)),
         }
     }
 
@@ -343,7 +409,7 @@ impl PyLink {
         let got = py.detach(|| self.take(StdDuration::ZERO));
         log::flush(py);
         got.map(|s| s.map(|release| PyTick { release }))
-            .map_err(|e| net_error(py, e))
+            .map_err(|e| self.error(py, e))
     }
 
     /// Puts a tick back in front of the queue (an asynchronous receive that
@@ -358,9 +424,39 @@ impl PyLink {
     fn send(&self, py: Python<'_>, sample: &Bound<'_, PyAny>) -> PyResult<()> {
         let values = to_sample("sample", sample, self.sender.width())?;
         if let Some(e) = self.ended(py) {
-            return Err(link_error(py, e));
+            return Err(self.error(py, NetError::Link(e)));
         }
-        self.sender.send(&values).map_err(|e| net_error(py, e))
+        self.sender.send(&values).map_err(|e| self.error(py, e))
+    }
+
+    /// Base: gives control up; the link goes on as an observer's (the
+    /// remote hands control to a base waiting for it). A `control_lost`
+    /// event follows; a base that holds no control gets none.
+    fn yield_control(&self, py: Python<'_>) -> PyResult<()> {
+        if self.role != Role::Base {
+            return Err(PyValueError::new_err(
+                "yield_control() is a base's: the remote's side does not hold control",
+            ));
+        }
+        let done = py.detach(|| lock(&self.rx).link.yield_control());
+        done.map_err(|e| self.error(py, e))
+    }
+
+    /// Whether this link observes now: a base without control (it asked to
+    /// observe, waits for control, or lost or yielded it), or a remote's
+    /// link to such a base.
+    #[getter]
+    fn is_observer(&self) -> bool {
+        self.observer.load(Ordering::Relaxed)
+    }
+
+    /// The seat the peer's Hello named: at the remote, the one its base
+    /// asked for; at the base, the one the remote gave (`"observe"` to a
+    /// base waiting for control): `"control"`, `"observe"` or
+    /// `"wait_for_control"`.
+    #[getter]
+    fn peer_seat(&self) -> Option<&'static str> {
+        self.peer_seat.map(Seat::name)
     }
 
     /// The events `new_events()` has returned, oldest first, as
@@ -404,7 +500,14 @@ impl PyLink {
             return Ok(None);
         };
         s.events_dropped += self.kept().dropped;
-        serialized(py, &s).map(Some)
+        let stats = serialized(py, &s)?;
+        let role = if self.is_observer() {
+            "observer"
+        } else {
+            "controller"
+        };
+        stats.set_item("role", role)?;
+        Ok(Some(stats))
     }
 
     /// The link's figures as Prometheus text (version 0.0.4), the page
@@ -507,6 +610,18 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
             fields.set_item("layout", peer.layout)?;
             fields.set_item("period", peer.period.as_secs_f64())?;
             fields.set_item("mode", Mode::try_from(peer.mode).ok().map(Mode::name))?;
+            fields.set_item("seat", peer.seat.name())?;
+        }
+        Event::ControlGranted { term }
+        | Event::ControlLost { term }
+        | Event::ControlYielded { term } => fields.set_item("term", term)?,
+        Event::Applied(a) => {
+            fields.set_item("term", a.term)?;
+            fields.set_item("seq", a.seq)?;
+            fields.set_item("sent_at", a.sent_at.as_secs_f64())?;
+            fields.set_item("applied_at", a.applied_at.as_secs_f64())?;
+            fields.set_item("arrived_at", a.arrived_at.as_secs_f64())?;
+            fields.set_item("values", PyArray1::from_slice(py, a.values()))?;
         }
         Event::Started { period, ns } | Event::Paused { period, ns } => {
             fields.set_item("period", period.as_secs_f64())?;
@@ -549,6 +664,8 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
 pub struct PyLinkSettings {
     config: LinkConfig,
     role: Role,
+    /// `wait_for_control=`: how long a base observes, waiting for control.
+    wait_for_control: Option<f64>,
 }
 
 impl PyLinkSettings {
@@ -565,7 +682,7 @@ impl PyLinkSettings {
 #[pymethods]
 impl PyLinkSettings {
     #[new]
-    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport, realtime, rt_priority, rt_cpu))]
+    #[pyo3(signature = (*, role, axes, command_width, state_width, period, regulation, underflow, watchdog, liveness, handshake_timeout, app_queue, insecure, transport, realtime, rt_priority, rt_cpu, observers = None, observe = false, wait_for_control = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         role: &str,
@@ -584,6 +701,9 @@ impl PyLinkSettings {
         realtime: &str,
         rt_priority: &Bound<'_, PyAny>,
         rt_cpu: &Bound<'_, PyAny>,
+        observers: Option<&Bound<'_, PyAny>>,
+        observe: bool,
+        wait_for_control: Option<f64>,
     ) -> PyResult<Self> {
         let role = match role {
             "base" => Role::Base,
@@ -630,7 +750,44 @@ impl PyLinkSettings {
         config.app_queue = app_queue;
         config.insecure = insecure;
         config.realtime = realtime_settings(realtime, rt_priority, rt_cpu)?;
-        Ok(PyLinkSettings { config, role })
+        config.endpoint.seat = seat(role, observe, wait_for_control)?;
+        config.admission.observers = observers
+            .map(|n| {
+                if role != Role::Remote {
+                    return Err(PyValueError::new_err(
+                        "observers= is a remote's: the robot's listener serves one \
+                         controller and up to that many observers",
+                    ));
+                }
+                count("observers", n, 0, MAX_OBSERVERS)
+            })
+            .transpose()?;
+        Ok(PyLinkSettings {
+            config,
+            role,
+            wait_for_control,
+        })
+    }
+}
+
+/// `observe=`, `wait_for_control=` as the seat a base asks for.
+fn seat(role: Role, observe: bool, wait_for_control: Option<f64>) -> PyResult<Seat> {
+    if let Some(s) = wait_for_control {
+        positive("wait_for_control", s)?;
+    }
+    match (observe, wait_for_control) {
+        (false, None) => Ok(Seat::Control),
+        _ if role != Role::Base => Err(PyValueError::new_err(
+            "observe= and wait_for_control= are a base's: a remote serves control, \
+             it does not ask for it",
+        )),
+        (true, Some(_)) => Err(PyValueError::new_err(
+            "observe=True and wait_for_control= ask for two seats: give observe=True to \
+             watch and never control, or wait_for_control=SECONDS to watch until control \
+             frees and then take it",
+        )),
+        (true, None) => Ok(Seat::Observe),
+        (false, Some(_)) => Ok(Seat::WaitForControl),
     }
 }
 
@@ -672,6 +829,7 @@ pub fn connect(
 ) -> PyResult<PyLink> {
     let (mut config, role) = (settings.config.clone(), settings.role);
     let (period, transport) = (config.endpoint.period, config.transport);
+    let wait_for_control = settings.wait_for_control;
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
     let tls = tls.map(|t| t.get().inner.clone());
@@ -748,9 +906,16 @@ pub fn connect(
             return Err(interrupted);
         }
     };
-    PyLink::new(link, role, transport, period)
+    let py_link = PyLink::new(link, role, transport, period)
         .recorded(recorder)
-        .map_err(|e| net_error(py, e))
+        .map_err(|e| net_error(py, e))?;
+    if let Some(secs) = wait_for_control
+        && py_link.is_observer()
+    {
+        let until = StdInstant::now() + StdDuration::from_secs_f64(secs);
+        lock(&py_link.rx).waiting = Some((until, secs));
+    }
+    Ok(py_link)
 }
 
 /// The recorder `record=` asks for, if any.
@@ -992,7 +1157,24 @@ impl PyListener {
             + s.evicted
             + s.refused_per_source
             + s.refused_busy
+            + s.refused_observer_only
+            + s.refused_observers_full
             + s.unclaimed
+    }
+
+    /// A listener that shares its robot (`observers=`): the floor's
+    /// counters, the notes it dropped, the applied commands it forwarded
+    /// (`SharingStats` serialized); `None` otherwise.
+    #[getter]
+    fn sharing<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let stats = py.detach(|| {
+            self.listener
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .as_ref()
+                .and_then(|l| l.sharing())
+        });
+        stats.map(|s| serialized(py, &s)).transpose()
     }
 
     /// What the listener counted, by reason (`ListenerStats` serialized).

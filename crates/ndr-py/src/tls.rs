@@ -12,6 +12,13 @@ use pyo3::types::PyString;
 /// lab setup of `ndr keygen`), `pins` (SHA-256 fingerprints, hex) or `ca`
 /// (a CA certificate file; the server's certificate must then name
 /// `server_name`). A single fingerprint may be given as a str.
+///
+/// A robot's listener that shares its robot (`Link.listen(observers=N)`)
+/// may also trust observers: `observer_pins` (fingerprints) and
+/// `observer_certs` (certificate files, each pinned) name peers who may
+/// only observe; one of them that asks for control is refused (Close
+/// `observer only`, `listener.stats["refused_observer_only"]`). An
+/// identity that `peer_cert`/`pins`/`ca` trusts as well may control.
 #[pyclass(frozen, module = "ndr", name = "TlsConfig")]
 pub struct PyTlsConfig {
     pub(crate) inner: TlsConfig,
@@ -20,7 +27,7 @@ pub struct PyTlsConfig {
 #[pymethods]
 impl PyTlsConfig {
     #[new]
-    #[pyo3(signature = (cert, key, *, peer_cert = None, pins = None, ca = None, server_name = None, handshake_timeout = None))]
+    #[pyo3(signature = (cert, key, *, peer_cert = None, pins = None, ca = None, server_name = None, handshake_timeout = None, observer_pins = None, observer_certs = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         cert: std::path::PathBuf,
@@ -30,6 +37,8 @@ impl PyTlsConfig {
         ca: Option<std::path::PathBuf>,
         server_name: Option<&str>,
         handshake_timeout: Option<f64>,
+        observer_pins: Option<&Bound<'_, PyAny>>,
+        observer_certs: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let err = |e: TlsError| tls_error(&e);
         let pins = pins.map(pin_list).transpose()?;
@@ -58,6 +67,12 @@ impl PyTlsConfig {
                 ));
             }
         };
+        let observers = observer_trust(observer_pins, observer_certs)?;
+        if let Some(observers) = observers {
+            inner = inner
+                .with_observers(ndr_net::Trust::Pinned(observers))
+                .map_err(|e| PyValueError::new_err(format!("observers: TLS: {}", words(&e))))?;
+        }
         if let Some(t) = handshake_timeout {
             inner.handshake_timeout = crate::convert::period("handshake_timeout", t)?.into();
         }
@@ -73,6 +88,55 @@ impl PyTlsConfig {
     fn __repr__(&self) -> String {
         format!("TlsConfig(fingerprint={:?})", self.fingerprint())
     }
+}
+
+/// The observers' fingerprints from `observer_pins` and `observer_certs`
+/// (`None`: neither given).
+fn observer_trust(
+    pins: Option<&Bound<'_, PyAny>>,
+    certs: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Option<Vec<Fingerprint>>> {
+    if pins.is_none() && certs.is_none() {
+        return Ok(None);
+    }
+    let mut all = Vec::new();
+    for p in pins.map(pin_list).transpose()?.unwrap_or_default() {
+        all.push(
+            p.parse::<Fingerprint>()
+                .map_err(|e| PyValueError::new_err(format!("observer_pins: {}", words(&e))))?,
+        );
+    }
+    for path in certs.map(path_list).transpose()?.unwrap_or_default() {
+        let found = ndr_net::tls::read_fingerprints(&path)
+            .map_err(|e| PyValueError::new_err(format!("observer_certs: {}", words(&e))))?;
+        all.extend(found);
+    }
+    if all.is_empty() {
+        return Err(PyValueError::new_err(
+            "observer_pins and observer_certs name no observer: give at least one \
+             fingerprint or certificate file, or neither",
+        ));
+    }
+    Ok(Some(all))
+}
+
+/// `observer_certs`: a path, or a list (any iterable) of them.
+fn path_list(obj: &Bound<'_, PyAny>) -> PyResult<Vec<std::path::PathBuf>> {
+    if let Ok(p) = obj.extract::<std::path::PathBuf>() {
+        return Ok(vec![p]);
+    }
+    let items = obj.try_iter().map_err(|_| {
+        PyTypeError::new_err("observer_certs must be a certificate file's path or a list of them")
+    })?;
+    items
+        .map(|item| {
+            item?.extract::<std::path::PathBuf>().map_err(|_| {
+                PyTypeError::new_err(
+                    "observer_certs must be a certificate file's path or a list of them",
+                )
+            })
+        })
+        .collect()
 }
 
 /// `pins`: a list (any iterable) of fingerprints, or one as a str.
