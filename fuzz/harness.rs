@@ -1133,10 +1133,15 @@ impl DgramLink {
                         _ => 0,
                     };
                     assert_eq!(grew(|s| s.samples_lost), lost, "the gap, less the copies");
+                    // A command of a term this remote does not hold is
+                    // fenced on arrival: refused, counted, not taken.
+                    let fenced = grew(|s| s.commands_refused_stale_term)
+                        + grew(|s| s.commands_refused_observer)
+                        + grew(|s| s.commands_before_grant);
                     assert_eq!(
-                        grew(|s| s.samples_received) + grew(|s| s.probes_received),
+                        grew(|s| s.samples_received) + grew(|s| s.probes_received) + fenced,
                         copies + 1,
-                        "each sample of the bundle taken once"
+                        "each sample of the bundle taken or fenced once"
                     );
                 }
             }
