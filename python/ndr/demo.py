@@ -268,10 +268,7 @@ def run(
     default is ``"tcp"``)."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
-    name, mode, playout = _native._regulation(regulation=regulation, default="adaptive")
-    # The report's `mode`, as the Rust CLI gives it: `adaptive` for the
-    # adaptive playout over the static handshake.
-    legacy_mode = "adaptive" if (mode, playout) == ("paper-static", "adaptive") else mode
+    name, _, playout = _native._regulation(regulation=regulation, default="adaptive")
     sig = Signal(signal)
     settings = _Settings(
         axes=axes,
@@ -318,7 +315,6 @@ def run(
     report = _report(
         profile=relay.model,
         regulation=name,
-        mode=legacy_mode,
         playout=playout,
         underflow=underflow,
         transport=transport,
@@ -357,7 +353,6 @@ def _report(
     *,
     profile: str,
     regulation: str,
-    mode: str,
     playout: str,
     underflow: str,
     transport: str,
@@ -381,7 +376,6 @@ def _report(
         "command": "python demo",
         "profile": profile,
         "regulation": regulation,
-        "mode": mode,
         "playout": playout,
         "underflow": underflow,
         "transport": transport,

@@ -25,8 +25,8 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["grtt_count"] > 20
     # The default: the adaptive playout, each side's delay announced.
     assert report["regulation"] == report["playout"] == "adaptive"
-    # The deprecated `mode` as the Rust CLI's report has it (not paper-static).
-    assert report["mode"] == "adaptive"
+    # `regulation` names it alone, as in the Rust CLI's report.
+    assert "mode" not in report
     assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)

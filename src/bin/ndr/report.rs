@@ -287,8 +287,6 @@ struct DemoReport {
     profile: String,
     /// How the delay was regulated (`--regulation`'s name).
     regulation: String,
-    /// Deprecated, goes in the next release: `regulation` says it.
-    mode: &'static str,
     /// This side's playout, a part of `regulation` (`fifo` for the paper's).
     playout: String,
     underflow: &'static str,
@@ -446,7 +444,6 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         },
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
-        mode: link.mode_name(),
         playout: link.playout_name(),
         underflow: link.underflow.name(),
         // The link's (a dynamic mode may change it), else the one asked for.
