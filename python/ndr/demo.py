@@ -214,7 +214,9 @@ def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> Dic
 
 @dataclass
 class DemoResult:
-    """The demo's report (``report``, what ``--json`` prints) and both logs."""
+    """The demo's report (``report``, what ``--json`` prints, its keys
+    those of ``ndr demo --json``: ``ticks_missed``, for one, the ticks both
+    hubs served a whole period late or more) and both logs."""
 
     report: Dict[str, Any]
     operator: OperatorLog
@@ -411,6 +413,10 @@ def _report(
         "clock_remote_max_s": r.get("lateness", {}).get("max", math.nan),
         "spin_margin_base_s": b.get("spin_margin", math.nan),
         "spin_margin_remote_s": r.get("spin_margin", math.nan),
+        # Ticks the hubs served a whole period late or more, both sides: the
+        # host's doing, as `ndr demo --json` counts them.
+        "ticks_missed": b.get("lateness", {}).get("missed", 0)
+        + r.get("lateness", {}).get("missed", 0),
         # What a target-delay playout holds, and the clock estimate under it
         # (the names of `ndr demo --json`).
         "playout_delay_fwd_s": r.get("playout_delay", math.nan),
