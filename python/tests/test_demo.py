@@ -30,7 +30,7 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
-    # The ticks the host made the hubs miss, as `ndr demo --json` has them.
+    # The deadlines the host made the hubs miss, as `ndr demo --json` has them.
     assert isinstance(report["ticks_missed"], int) and report["ticks_missed"] >= 0
     # Each hub's spin margin, learned from its timer, within its bounds.
     for side in ("base", "remote"):
@@ -80,8 +80,8 @@ def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
 
 
 def test_the_reports_ticks_missed_are_both_hubs_counts():
-    # Not a number the binding makes up: each side's hub counts the ticks it
-    # served a period late or more (its `lateness`), and the report adds them.
+    # Not a number the binding makes up: each side's hub counts the
+    # deadlines it woke for late (its `lateness.missed`); the report adds them.
     result = demo.run(duration=1.0, period=0.02, out=None)
     sides = (result.operator.stats, result.robot.stats)
     assert all(s is not None for s in sides)

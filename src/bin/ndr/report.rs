@@ -362,9 +362,10 @@ struct DemoReport {
     /// shows here first.
     clock_base_max_s: f64,
     clock_remote_max_s: f64,
-    /// Ticks the hubs served a whole period late or more, both sides: the
-    /// host's doing (a hub held), each of which may cost a sample or move
-    /// the FIFO's delay a period.
+    /// Deadlines (ticks, repeats, timers) the hubs woke for 1 ms late or
+    /// more, both sides (their `lateness.missed`): the host's doing, a hub
+    /// held. One held past a period may make a sample late or move the
+    /// FIFO's delay a period.
     ticks_missed: u64,
     /// How long before a deadline each side's hub spins, as learned from
     /// its timer at the end.
