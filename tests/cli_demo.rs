@@ -37,7 +37,7 @@ fn demo(extra: &[&str], csv: &Path) -> serde_json::Value {
 }
 
 /// The ticks a host's pauses may have cost the demo that reported `r`:
-/// those its hubs served a whole period late or more, and those its
+/// the deadlines its hubs woke for 1 ms late or more, and those its
 /// watcher saw the whole process held for. Floors on volume give way by
 /// two for each.
 fn held_ticks(r: &serde_json::Value) -> u64 {
