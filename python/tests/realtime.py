@@ -90,7 +90,10 @@ def assert_constant(
     assert d.size > 100, f"{d.size} {what}s"
     if released_at is not None and period is not None:
         d = on_schedule(d, released_at, period)
-    median = float(np.median(d))
+    # One of the delays, as the Rust judge takes it: the mean of the two
+    # middle ones falls between two levels when half the delays sit on
+    # each, and every delay is then off it by half a period.
+    median = float(np.sort(d)[d.size // 2])
     brief = np.zeros(d.size, dtype=bool)
     if period is not None:
         level = np.round((d - median) / period)

@@ -121,9 +121,13 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
     if transport in ("udp", "quic"):
         # Every sample came by datagram, through the relay: one for each of
         # the robot's 400 ticks, but those its hub, held by the host past its
-        # transmit queue, never sent (`tx_dropped`); none lost but those.
+        # transmit queue, never sent (`tx_dropped`); none lost but those,
+        # and over QUIC those of a burst a held hub sent reordered (at most
+        # the ticks it served late: the Rust tests' `served_late`).
         for receiver, sender in ((op.stats, rb.stats), (rb.stats, op.stats)):
-            assert receiver["samples_lost"] <= sender["tx_dropped"], (receiver, sender)
+            late = sender["release_lateness"]
+            burst = int(late["mean"] * late["count"] / sender["period"]) if transport == "quic" else 0
+            assert receiver["samples_lost"] <= sender["tx_dropped"] + burst, (receiver, sender)
         assert op.stats["datagrams_received"] + rb.stats["tx_dropped"] > 300, op.stats
     if transport == "udp":
         # The base sent to the relay's port all along.
