@@ -131,11 +131,18 @@ pub fn send_to_both_sides(
     for bytes in junk {
         stranger.send_to(bytes, port).unwrap();
     }
-    std::thread::sleep(Duration::from_millis(200));
-    let base_at = remote
-        .stats()
-        .and_then(|s| s.datagram_peer)
-        .expect("the base's address");
+    // The remote learns the base's address from the base's first datagram,
+    // which a busy host may hold back: waited for, within a bound.
+    let since = std::time::Instant::now();
+    let base_at = loop {
+        match remote.stats().and_then(|s| s.datagram_peer) {
+            Some(at) => break at,
+            None if since.elapsed() < Duration::from_secs(5) => {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            None => panic!("the base's address: none after 5 s"),
+        }
+    };
     for bytes in junk {
         stranger.send_to(bytes, base_at).unwrap();
     }
