@@ -75,6 +75,17 @@ fn accept_and_connect(
     (remote.unwrap(), base.unwrap())
 }
 
+/// The ticks `sender`'s hub may have sent together, at most: a hub a
+/// period late or more at a release runs the ticks it missed at once, as
+/// many as periods in its lateness. QUIC may put them in one packet, which
+/// one loss takes whole, and the hub's batched send may reorder that burst
+/// (its packets by length), which makes the older ones stale past the
+/// copies' reach.
+fn served_late(sender: &ndr::net::LinkStats) -> u64 {
+    let late = sender.release_lateness;
+    late.mean.as_nanos() * late.count / sender.period.as_nanos().max(1)
+}
+
 #[test]
 fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     let _serial = common::serial();
@@ -91,18 +102,23 @@ fn quic_on_loopback_delivers_every_sample_once_in_order_with_a_constant_grtt() {
     });
     let remote = run.remote.expect("the remote's stats");
     for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
-        let e = &s.endpoint;
+        let (e, dropped) = (&s.endpoint, peer.endpoint.tx_dropped);
         // Every sample went as a QUIC datagram, and quinn took them all:
-        // none lost on a quiet host; a host that holds a hub tens of
-        // milliseconds makes a few miss their tick, or the hub drop them
-        // (counted). That the copies make good every loss they can is
-        // judged in simulated time (crates/ndr-core/tests/endpoint_datagram.rs).
-        let missed = s.lateness.missed + peer.lateness.missed;
-        assert!(e.datagrams_received + 2 * missed > 250, "{side}: {s:?}");
-        let budget = peer.endpoint.samples_sent / 50 + missed;
+        // one for each of the peer's 300 ticks and more, but those its hub,
+        // held by the host past its transmit queue, never sent
+        // (`tx_dropped`). Loopback loses none: a sample is lost only among
+        // those, or in a burst the held hub sent reordered. That the copies
+        // make good every loss they can is judged in simulated time
+        // (crates/ndr-core/tests/endpoint_datagram.rs).
         assert!(
-            e.samples_lost <= budget + peer.endpoint.tx_dropped,
+            e.datagrams_received + dropped > 250,
             "{side}: {s:?}; peer {peer:?}"
+        );
+        let late = served_late(peer);
+        assert!(
+            e.samples_lost <= dropped + late,
+            "{side}: {} lost, {dropped} dropped, {late} served late: {s:?}; peer {peer:?}",
+            e.samples_lost
         );
         assert_eq!(s.datagrams_unsent, 0, "{side}: {s:?}");
     }
@@ -205,18 +221,23 @@ fn through_a_lossy_relay_quic_keeps_its_rate_and_redundancy_makes_good_the_losse
         );
         assert!(bundles > 300, "{side}: {s:?}");
     }
-    // The copies made good what the loss took: of the tenth lost, at most
-    // 2 % of the samples, besides those a hub the host held past its
-    // transmit queue dropped (counted); a host that holds a hub tens of
-    // milliseconds makes a few copies miss their tick. (That the copies
-    // make good every loss they can is judged in simulated time:
-    // crates/ndr-core/tests/endpoint_datagram.rs.)
+    // The copies made good what the loss took. A sample is lost for good
+    // only if its datagram, its repeats and the next three datagrams (its
+    // copies) all are: never, at a tenth lost each, but where the host held
+    // the sender's hub. Its transmit queue then drops what it cannot hold
+    // (`tx_dropped`), and the ticks it serves late go out together
+    // (`served_late`).
+    // (That the copies make good every loss they can is judged in
+    // simulated time: crates/ndr-core/tests/endpoint_datagram.rs.)
     let e = &remote.endpoint;
     assert!(e.samples_recovered + e.datagrams_received > 250, "{e:?}");
     for (side, s, peer) in [("base", &run.base, &remote), ("remote", &remote, &run.base)] {
         let (lost, dropped) = (s.endpoint.samples_lost, peer.endpoint.tx_dropped);
-        let budget = peer.endpoint.samples_sent / 50 + s.lateness.missed + peer.lateness.missed;
-        assert!(lost <= budget + dropped, "{side}: {s:?}; peer {peer:?}");
+        let late = served_late(peer);
+        assert!(
+            lost <= dropped + late,
+            "{side}: {lost} lost, {dropped} dropped, {late} served late: {s:?}; peer {peer:?}"
+        );
     }
 }
 
@@ -352,9 +373,13 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     let (seqs, peers, remote_stats) = robot.join().unwrap();
     // The link went on across the move, the remote answering to the new
     // address, and the samples around it were made good by their copies.
+    // An answer comes a round trip after its command: a queue the host's
+    // pauses sized long (its `ns`) leaves fewer of the 140 releases after
+    // the move with one, as many fewer as round-trip ticks past 10.
+    let round_trip = (base_stats.endpoint.grtt.mean() / 0.01).ceil() as u64;
     assert!(
-        answered > 100,
-        "{answered} answers after the move; {base_stats:?}"
+        answered + round_trip.saturating_sub(10) > 100,
+        "{answered} answers after the move, round trip {round_trip} ticks; {base_stats:?}"
     );
     assert!(
         peers.contains(&Some(path.sides[0])) && peers.contains(&Some(path.sides[1])),
@@ -365,21 +390,19 @@ fn a_base_that_moves_to_another_address_keeps_its_link() {
     let remote_stats = remote_stats.unwrap();
     assert_eq!(remote_stats.datagram_path_changes, 1, "{remote_stats:?}");
     assert_eq!(base_stats.datagram_path_changes, 0, "{base_stats:?}");
-    // At most two lost around the move (2 % of them where the host held a
-    // hub tens of milliseconds), besides those a hub the host held past its
-    // transmit queue dropped, and counted.
+    // At most two lost around the move, besides those a hub the host held
+    // past its transmit queue dropped (counted) or sent in a burst
+    // (`served_late`).
     let (base_dropped, remote_dropped) = (
-        base_stats.endpoint.tx_dropped,
-        remote_stats.endpoint.tx_dropped,
+        base_stats.endpoint.tx_dropped + served_late(&base_stats),
+        remote_stats.endpoint.tx_dropped + served_late(&remote_stats),
     );
     assert!(
-        remote_stats.endpoint.samples_lost
-            <= 2.max(base_stats.endpoint.samples_sent / 50) + base_dropped,
+        remote_stats.endpoint.samples_lost <= 2 + base_dropped,
         "{remote_stats:?}; base {base_stats:?}"
     );
     assert!(
-        base_stats.endpoint.samples_lost
-            <= 2.max(remote_stats.endpoint.samples_sent / 50) + remote_dropped,
+        base_stats.endpoint.samples_lost <= 2 + remote_dropped,
         "{base_stats:?}; remote {remote_stats:?}"
     );
 }
@@ -727,14 +750,13 @@ fn garbage_datagrams_are_counted_as_strays_and_the_link_carries_on() {
     let run = common::echo_run(base, remote);
     common::assert_every_sample_once_in_order(&run);
     let remote = run.remote.expect("the remote's stats");
-    // The strays cost no sample: none lost but what the host made lost (a
-    // hub held past a sample's slot or its transmit queue), two for each
-    // tick a hub missed.
-    let held = run.base.lateness.missed + remote.lateness.missed;
+    // The strays cost no sample: none lost but those the peer's hub, held
+    // by the host, never sent (`tx_dropped`) or sent in a burst
+    // (`served_late`).
     for (s, peer) in [(&run.base, &remote), (&remote, &run.base)] {
         assert!(
-            s.endpoint.samples_lost <= peer.endpoint.tx_dropped + 2 * held,
-            "{s:?}"
+            s.endpoint.samples_lost <= peer.endpoint.tx_dropped + served_late(peer),
+            "{s:?}; peer {peer:?}"
         );
         assert_ne!(s.datagram_peer, Some(stranger.local_addr().unwrap()));
     }

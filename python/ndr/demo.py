@@ -214,7 +214,9 @@ def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> Dic
 
 @dataclass
 class DemoResult:
-    """The demo's report (``report``, what ``--json`` prints) and both logs."""
+    """The demo's report (``report``, what ``--json`` prints, its keys
+    those of ``ndr demo --json``: ``ticks_missed``, for one, the deadlines
+    both hubs woke for 1 ms late or more) and both logs."""
 
     report: Dict[str, Any]
     operator: OperatorLog
@@ -268,10 +270,7 @@ def run(
     default is ``"tcp"``)."""
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration}")
-    name, mode, playout = _native._regulation(regulation=regulation, default="adaptive")
-    # The report's `mode`, as the Rust CLI gives it: `adaptive` for the
-    # adaptive playout over the static handshake.
-    legacy_mode = "adaptive" if (mode, playout) == ("paper-static", "adaptive") else mode
+    name, _, playout = _native._regulation(regulation=regulation, default="adaptive")
     sig = Signal(signal)
     settings = _Settings(
         axes=axes,
@@ -318,7 +317,6 @@ def run(
     report = _report(
         profile=relay.model,
         regulation=name,
-        mode=legacy_mode,
         playout=playout,
         underflow=underflow,
         transport=transport,
@@ -357,7 +355,6 @@ def _report(
     *,
     profile: str,
     regulation: str,
-    mode: str,
     playout: str,
     underflow: str,
     transport: str,
@@ -381,7 +378,6 @@ def _report(
         "command": "python demo",
         "profile": profile,
         "regulation": regulation,
-        "mode": mode,
         "playout": playout,
         "underflow": underflow,
         "transport": transport,
@@ -417,6 +413,10 @@ def _report(
         "clock_remote_max_s": r.get("lateness", {}).get("max", math.nan),
         "spin_margin_base_s": b.get("spin_margin", math.nan),
         "spin_margin_remote_s": r.get("spin_margin", math.nan),
+        # The deadlines both hubs woke for 1 ms late or more (their
+        # `lateness.missed`): the host's doing, as `ndr demo --json` has it.
+        "ticks_missed": b.get("lateness", {}).get("missed", 0)
+        + r.get("lateness", {}).get("missed", 0),
         # What a target-delay playout holds, and the clock estimate under it
         # (the names of `ndr demo --json`).
         "playout_delay_fwd_s": r.get("playout_delay", math.nan),

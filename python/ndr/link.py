@@ -210,7 +210,9 @@ class LatenessStats(TypedDict):
 
     count: int
     missed: int
-    """Deadlines met a whole period late or more."""
+    """Deadlines met a whole period late or more; a hub's (``lateness``,
+    ``release_lateness``) counts those 1 ms late or more, whatever its links'
+    periods."""
     min: float
     p50: float
     p99: float

@@ -25,11 +25,13 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["grtt_count"] > 20
     # The default: the adaptive playout, each side's delay announced.
     assert report["regulation"] == report["playout"] == "adaptive"
-    # The deprecated `mode` as the Rust CLI's report has it (not paper-static).
-    assert report["mode"] == "adaptive"
+    # `regulation` names it alone, as in the Rust CLI's report.
+    assert "mode" not in report
     assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
+    # The deadlines the host made the hubs miss, as `ndr demo --json` has them.
+    assert isinstance(report["ticks_missed"], int) and report["ticks_missed"] >= 0
     # Each hub's spin margin, learned from its timer, within its bounds.
     for side in ("base", "remote"):
         assert 20e-6 <= report[f"spin_margin_{side}_s"] <= 200e-6
@@ -75,6 +77,16 @@ def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):
     line = next(l for l in proc.stdout.splitlines() if l.strip().startswith("playout"))
     assert "forward" in line and "back" in line and "ppm" in line, line
     assert "delays announced" in line, line
+
+
+def test_the_reports_ticks_missed_are_both_hubs_counts():
+    # Not a number the binding makes up: each side's hub counts the
+    # deadlines it woke for late (its `lateness.missed`); the report adds them.
+    result = demo.run(duration=1.0, period=0.02, out=None)
+    sides = (result.operator.stats, result.robot.stats)
+    assert all(s is not None for s in sides)
+    counted = sum(s["lateness"]["missed"] for s in sides if s is not None)
+    assert result.report["ticks_missed"] == counted, result.report
 
 
 def test_bad_options_exit_with_a_message():

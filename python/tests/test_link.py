@@ -18,6 +18,7 @@ import pytest
 import ndr
 from realtime import (
     assert_constant,
+    assert_round_trips,
     counted_gaps,
     echo,
     missing_but_counted,
@@ -95,13 +96,16 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
 
     result, stalls = regulated(run, missing)
     r = result.report
+    op, rb = result.operator, result.robot
     if not stalls:
-        # Every tick measured a round trip. A host that held a hub leaves
-        # ticks without one; assert_constant still wants over a hundred.
         assert r["underflows"] == 0 and r["late_samples"] == 0
-        assert r["grtt_count"] > 250
+    # Every release after the first round trip measured one, but those a
+    # counter accounts for (see `assert_round_trips`).
+    accounted = (op.stats["underflows"] + rb.stats["underflows"] + rb.stats["samples_repeated"]
+                 + counted_gaps(op.stats, rb.stats) + counted_gaps(rb.stats, op.stats))
+    assert_round_trips(op.grtt, accounted)
+    assert r["grtt_count"] + accounted > 250, (r, accounted)
     # Constant delay: the round trip the controller sees does not move.
-    op = result.operator
     measured = [i for i, g in enumerate(op.grtt) if not np.isnan(g)]
     assert_constant(
         [op.grtt[i] for i in measured], stalls, "GRTT",
@@ -114,18 +118,22 @@ def test_two_python_controllers_see_a_constant_delay_and_the_estimator_follows_t
     # ticks (test_demo.py's estimator test, for each transport).
     assert r["compared"] > 100
     assert np.isfinite(r["x3e_rms_error"])
+    if transport in ("udp", "quic"):
+        # Every sample came by datagram, through the relay: one for each of
+        # the robot's 400 ticks, but those its hub, held by the host past its
+        # transmit queue, never sent (`tx_dropped`); none lost but those,
+        # and over QUIC those of a burst a held hub sent reordered (at most
+        # the ticks it served late: the Rust tests' `served_late`).
+        for receiver, sender in ((op.stats, rb.stats), (rb.stats, op.stats)):
+            late = sender["release_lateness"]
+            burst = int(late["mean"] * late["count"] / sender["period"]) if transport == "quic" else 0
+            assert receiver["samples_lost"] <= sender["tx_dropped"] + burst, (receiver, sender)
+        assert op.stats["datagrams_received"] + rb.stats["tx_dropped"] > 300, op.stats
     if transport == "udp":
-        # Every sample came by datagram, through the relay, none lost (on a
-        # run the host did not stall).
-        assert r["samples_lost"] == 0 or stalls
-        assert op.stats["datagrams_received"] > 300 or stalls
         # The base sent to the relay's port all along.
         assert op.stats["datagram_path_changes"] == 0
     if transport == "quic":
-        # Every sample came by QUIC datagram, through the relay, none lost,
-        # and QUIC took every one.
-        assert r["samples_lost"] == 0 or stalls
-        assert op.stats["datagrams_received"] > 300 or stalls
+        # QUIC took every one.
         assert op.stats["datagrams_unsent"] == 0
 
 

@@ -290,8 +290,6 @@ struct DemoReport {
     profile: String,
     /// How the delay was regulated (`--regulation`'s name).
     regulation: String,
-    /// Deprecated, goes in the next release: `regulation` says it.
-    mode: &'static str,
     /// This side's playout, a part of `regulation` (`fifo` for the paper's).
     playout: String,
     underflow: &'static str,
@@ -367,9 +365,10 @@ struct DemoReport {
     /// shows here first.
     clock_base_max_s: f64,
     clock_remote_max_s: f64,
-    /// Ticks the hubs served a whole period late or more, both sides: the
-    /// host's doing (a hub held), each of which may cost a sample or move
-    /// the FIFO's delay a period.
+    /// Deadlines (ticks, repeats, timers) the hubs woke for 1 ms late or
+    /// more, both sides (their `lateness.missed`): the host's doing, a hub
+    /// held. One held past a period may make a sample late or move the
+    /// FIFO's delay a period.
     ticks_missed: u64,
     /// How long before a deadline each side's hub spins, as learned from
     /// its timer at the end.
@@ -452,7 +451,6 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         },
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
-        mode: link.mode_name(),
         playout: link.playout_name(),
         underflow: link.underflow.name(),
         // The link's (a dynamic mode may change it), else the one asked for.

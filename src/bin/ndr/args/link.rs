@@ -1,8 +1,7 @@
 //! The link's settings on the command line.
 
 use ndr::core::Regulation;
-use ndr::core::endpoint::{Config, Mode, Underflow};
-use ndr::core::playout::Playout;
+use ndr::core::endpoint::{Config, Underflow};
 use ndr::core::wire::Role;
 use ndr::net::LinkConfig;
 
@@ -103,16 +102,6 @@ impl LinkArgs {
     pub fn playout_name(&self) -> String {
         self.regulation().playout().to_string()
     }
-
-    /// The report's `mode`: `adaptive` for the adaptive playout over the
-    /// static handshake, else the mode's name.
-    pub fn mode_name(&self) -> &'static str {
-        let r = self.regulation();
-        match (r.mode(), r.playout()) {
-            (Mode::PaperStatic, Playout::Adaptive { .. }) => "adaptive",
-            (mode, _) => mode.name(),
-        }
-    }
 }
 
 #[cfg(test)]
@@ -137,19 +126,12 @@ mod tests {
 
     #[test]
     fn the_regulation_sets_the_mode_and_the_playout() {
-        let cases: [(&[&str], Mode, Playout, &str, &str); 4] = [
-            (
-                &[],
-                Mode::PaperStatic,
-                Playout::ADAPTIVE,
-                "adaptive",
-                "adaptive",
-            ),
+        let cases: [(&[&str], Mode, Playout, &str); 4] = [
+            (&[], Mode::PaperStatic, Playout::ADAPTIVE, "adaptive"),
             (
                 &["--regulation", "paper-static"],
                 Mode::PaperStatic,
                 Playout::Fifo,
-                "paper-static",
                 "paper-static",
             ),
             (
@@ -157,22 +139,19 @@ mod tests {
                 Mode::PaperDynamic,
                 Playout::Fifo,
                 "paper-dynamic",
-                "paper-dynamic",
             ),
             (
                 &["--regulation", "neteq"],
                 Mode::PaperStatic,
                 Playout::NetEq,
                 "neteq",
-                "paper-static",
             ),
         ];
-        for (args, mode, playout, name, mode_name) in cases {
+        for (args, mode, playout, name) in cases {
             let l = link(args);
             let c = l.config().expect("a valid configuration").endpoint;
             assert_eq!((c.mode, c.playout), (mode, playout), "{args:?}");
             assert_eq!(l.regulation_name(), name, "{args:?}");
-            assert_eq!(l.mode_name(), mode_name, "{args:?}");
         }
         // Base and remote run the paper's stream unless told otherwise.
         assert_eq!(link(&[]).transport().to_string(), "tcp");
