@@ -15,7 +15,7 @@ use ndr::net::metrics::RelayLabels;
 
 use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RunArgs};
 use crate::metrics::Served;
-use crate::operator::operator;
+use crate::operator::{Kept, operator};
 use crate::pauses;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
 use crate::robot::{DriveSpec, robot};
@@ -109,6 +109,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 series,
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
                 tracking: None,
+                seating: None,
                 host: None,
             };
             return finish(link, &args.run, &with_series_error(outcome, error));
@@ -155,7 +156,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         until,
         Some(&remote_stats),
         &mut series,
-        Some(&base_late),
+        Kept {
+            late: Some(&base_late),
+            seating: None,
+        },
     );
     stop.store(true, Ordering::Relaxed);
     match robot.join() {
@@ -187,6 +191,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         end,
         tracking,
         host,
+        seating: None,
     };
     finish(link, &args.run, &with_series_error(outcome, error))
 }
