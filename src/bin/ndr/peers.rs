@@ -427,9 +427,7 @@ fn serve_each(
             )
         });
         eprintln!("ndr remote: base {peer}: {end}{counted}");
-        sessions
-            .sessions
-            .push(crate::shared::Session::alone(peer, &end, last));
+        sessions.push(crate::shared::Session::alone(peer, &end, last));
         if args.once {
             return (!end.ok()).then(|| format!("base {peer}: {end}"));
         }

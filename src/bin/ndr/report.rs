@@ -317,7 +317,8 @@ struct DemoReport {
     /// was granted; null otherwise, or when it was not granted.
     waited_for_control_s: Option<f64>,
     /// `ndr base`: the control terms of the states released to it, in the
-    /// order first seen (an observer across a hand-over sees two).
+    /// order first seen (an observer across a hand-over sees two; 0 is
+    /// before any base held control).
     terms_seen: Option<Vec<u16>>,
     profile: String,
     /// How the delay was regulated (`--regulation`'s name).

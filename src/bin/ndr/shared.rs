@@ -40,10 +40,18 @@ pub struct Session {
     pub end: String,
 }
 
+/// Sessions a report keeps: a remote that serves for days keeps the last.
+const SESSIONS_KEPT: usize = 256;
+
 /// What the robot did over every session.
 #[derive(Default)]
 pub struct Served {
-    pub sessions: Vec<Session>,
+    /// The last [`SESSIONS_KEPT`] sessions, oldest first.
+    pub sessions: std::collections::VecDeque<Session>,
+    /// Sessions left out of `sessions` (the oldest).
+    pub sessions_dropped: u64,
+    /// Over every session, kept or not: [`Session`]'s counters.
+    totals: Totals,
     /// Commands applied in each term.
     pub applied_by_term: BTreeMap<u16, u64>,
     /// Commands of a term other than the robot's latest: never applied.
@@ -70,6 +78,29 @@ impl Live {
             after_term: 0,
             early: 0,
         }
+    }
+}
+
+#[derive(Default, Clone, Copy)]
+struct Totals {
+    applied: u64,
+    refused_stale_term: u64,
+    refused_observer: u64,
+    before_grant: u64,
+}
+
+impl Served {
+    /// Keeps `session`, leaving the oldest out past [`SESSIONS_KEPT`].
+    pub fn push(&mut self, session: Session) {
+        self.totals.applied += session.commands_applied;
+        self.totals.refused_stale_term += session.commands_refused_stale_term;
+        self.totals.refused_observer += session.commands_refused_observer;
+        self.totals.before_grant += session.commands_before_grant;
+        if self.sessions.len() == SESSIONS_KEPT {
+            self.sessions.pop_front();
+            self.sessions_dropped += 1;
+        }
+        self.sessions.push_back(session);
     }
 }
 
@@ -226,11 +257,11 @@ pub fn robot(
             if controller == Some(l.peer) {
                 controller = None;
             }
-            served.sessions.push(close(l, end));
+            served.push(close(l, end));
         }
     }
     for l in live {
-        served.sessions.push(close(l, SessionEnd::Stopped));
+        served.push(close(l, SessionEnd::Stopped));
     }
     Ok(served)
 }
@@ -345,7 +376,9 @@ pub struct RemoteReport {
     /// dropped for want of room.
     applied_forwarded: u64,
     notes_dropped: u64,
-    sessions: Vec<Session>,
+    /// Each base's session, the last 256; `sessions_dropped` the older.
+    sessions: std::collections::VecDeque<Session>,
+    sessions_dropped: u64,
 }
 
 impl RemoteReport {
@@ -356,7 +389,7 @@ impl RemoteReport {
         served: Served,
         error: Option<&str>,
     ) -> RemoteReport {
-        let sum = |f: fn(&Session) -> u64| served.sessions.iter().map(f).sum::<u64>();
+        let t = served.totals;
         let floor = sharing.map(|s| s.floor).unwrap_or_default();
         RemoteReport {
             command: "remote",
@@ -369,15 +402,16 @@ impl RemoteReport {
             refused_busy: listener.refused_busy,
             refused_observer_only: listener.refused_observer_only,
             refused_observers_full: listener.refused_observers_full,
-            commands_refused_stale_term: sum(|s| s.commands_refused_stale_term),
-            commands_refused_observer: sum(|s| s.commands_refused_observer),
-            commands_before_grant: sum(|s| s.commands_before_grant),
-            commands_applied: sum(|s| s.commands_applied),
+            commands_refused_stale_term: t.refused_stale_term,
+            commands_refused_observer: t.refused_observer,
+            commands_before_grant: t.before_grant,
+            commands_applied: t.applied,
             commands_applied_by_term: served.applied_by_term.into_iter().collect(),
             commands_after_term: served.commands_after_term,
             applied_forwarded: sharing.map_or(0, |s| s.applied_forwarded),
             notes_dropped: sharing.map_or(0, |s| s.notes_dropped),
             sessions: served.sessions,
+            sessions_dropped: served.sessions_dropped,
         }
     }
 }
