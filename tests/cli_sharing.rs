@@ -208,10 +208,12 @@ fn session<'a>(remote: &'a Value, terms: &Value) -> &'a Value {
 #[test]
 fn a_waiting_base_is_handed_control_when_the_controller_leaves() {
     let _serial = serial();
-    let (remote, addr) = remote();
+    let (mut remote, addr) = remote();
     let (csv_a, csv_o, csv_b) = (csv_path("a"), csv_path("o"), csv_path("b"));
     let a = base(&addr, "6", &csv_a, &[]);
     let o = base(&addr, "14", &csv_o, &["--observe"]);
+    // B comes once A holds control (a loaded host may start A late).
+    remote.line_with("holds control (term 1)", Duration::from_secs(20));
     std::thread::sleep(Duration::from_secs(1));
     let b_started = Instant::now();
     let b = base(&addr, "4", &csv_b, &["--wait-for-control", "20"]);
@@ -296,10 +298,10 @@ const LIVENESS_S: f64 = 10.0;
 #[test]
 fn a_hung_controller_is_replaced_by_the_waiting_base_within_the_liveness_time() {
     let _serial = serial();
-    let (remote, addr) = remote();
+    let (mut remote, addr) = remote();
     let (csv_a, csv_b) = (csv_path("hung-a"), csv_path("hung-b"));
     let a = base(&addr, "60", &csv_a, &[]);
-    std::thread::sleep(Duration::from_millis(500));
+    remote.line_with("holds control (term 1)", Duration::from_secs(20));
     let b_started = Instant::now();
     let b = base(&addr, "2", &csv_b, &["--wait-for-control", "30"]);
     std::thread::sleep(Duration::from_secs(2));
