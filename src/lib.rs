@@ -87,6 +87,8 @@ mod docs {
     struct Security;
     #[doc = include_str!("../docs/guide/two-hosts.md")]
     struct TwoHosts;
+    #[doc = include_str!("../docs/guide/sharing.md")]
+    struct Sharing;
     #[doc = include_str!("../docs/guide/tuning.md")]
     struct Tuning;
     #[doc = include_str!("../docs/guide/simulator.md")]
@@ -103,6 +105,4 @@ mod docs {
     struct Metrics;
     #[doc = include_str!("../docs/guide/recording.md")]
     struct Recording;
-    #[doc = include_str!("../docs/guide/sharing.md")]
-    struct Sharing;
 }

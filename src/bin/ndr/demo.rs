@@ -15,7 +15,7 @@ use ndr::net::metrics::RelayLabels;
 
 use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RecordArgs, RunArgs, record};
 use crate::metrics::Served;
-use crate::operator::operator;
+use crate::operator::{Kept, operator};
 use crate::pauses;
 use crate::report::{End, Outcome, Series, finish, with_series_error};
 use crate::robot::{DriveSpec, robot};
@@ -112,6 +112,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 series,
                 end: End::NeverConnected(format!("cannot set the demo up: {e}")),
                 tracking: None,
+                seating: None,
                 host: None,
                 recording: record::finish(recorder),
             };
@@ -163,7 +164,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         until,
         Some(&remote_stats),
         &mut series,
-        Some(&base_late),
+        Kept {
+            late: Some(&base_late),
+            seating: None,
+        },
     );
     stop.store(true, Ordering::Relaxed);
     match robot.join() {
@@ -196,6 +200,7 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         tracking,
         host,
         recording: record::finish(recorder),
+        seating: None,
     };
     finish(link, &args.run, &with_series_error(outcome, error))
 }

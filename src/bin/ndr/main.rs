@@ -18,6 +18,7 @@ mod relay;
 mod report;
 mod robot;
 mod runtime;
+mod shared;
 mod signals;
 mod sim;
 mod size;

@@ -12,8 +12,16 @@ use ndr::net::{Link, LinkStats, NetError};
 
 use crate::args::RunArgs;
 use crate::pauses::{self, LateTicks};
-use crate::report::{End, Row, Series, link_ended};
+use crate::report::{End, Row, Seating, Series, link_ended};
 use crate::tracking::{ControllerKind, Tracker, TrackingSummary};
+
+/// What the operator keeps beside the series, if asked: the late ticks
+/// (`ndr demo`), the base's seat at the robot (`ndr base`).
+#[derive(Default)]
+pub struct Kept<'a> {
+    pub late: Option<&'a Mutex<LateTicks>>,
+    pub seating: Option<&'a mut Seating>,
+}
 
 /// The base: the operator follows the signal until `until`; one row per
 /// released state goes to `series`. Returns the base's final counters and
@@ -25,8 +33,9 @@ pub fn operator(
     until: StdInstant,
     remote_stats: Option<&Mutex<Option<LinkStats>>>,
     series: &mut Series,
-    late: Option<&Mutex<LateTicks>>,
+    kept: Kept<'_>,
 ) -> (Option<LinkStats>, End, Option<TrackingSummary>) {
+    let Kept { late, mut seating } = kept;
     let start = StdInstant::now();
     // Made at the first release, at the period the link runs at.
     let mut tracker: Option<Tracker> = None;
@@ -68,6 +77,9 @@ pub fn operator(
         match link.recv_timeout(wait) {
             Ok(s) => {
                 released += 1;
+                if let Some(seating) = seating.as_deref_mut() {
+                    seating.saw(s.term);
+                }
                 if let Some(g) = s.grtt {
                     last_grtt = g.as_secs_f64();
                 }

@@ -7,14 +7,15 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::net::metrics::LinkLabels;
 use ndr::net::{Link, LinkStats, Listener, NetError, tls};
 
-use ndr::core::wire::Role;
+use ndr::core::endpoint::Event;
+use ndr::core::wire::{Role, Seat};
 
 use crate::args::{
     LinkArgs, MetricsArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs, record, resolve,
 };
 use crate::metrics::Served;
-use crate::operator::operator;
-use crate::report::{End, Outcome, Series, finish, with_series_error};
+use crate::operator::{Kept, operator};
+use crate::report::{End, Outcome, Seating, Series, finish, with_series_error};
 use crate::robot::{DriveSpec, robot};
 use crate::runtime::runtime;
 use crate::signals::{self, Stop, counters};
@@ -35,6 +36,17 @@ pub struct BaseArgs {
     pub metrics: MetricsArgs,
     #[command(flatten)]
     pub record: RecordArgs,
+    /// Watch the robot without commanding it: the remote (started with
+    /// --observers) sends its state and the commands it applied; this
+    /// base sends none. The report's role is `observer`.
+    #[arg(long, conflicts_with = "wait_for_control")]
+    pub observe: bool,
+    /// If another base holds control, watch as an observer until it is
+    /// handed over (that base leaves, yields or goes silent), for at most
+    /// SECS; --duration-s then counts from the grant. Fails if control was
+    /// not granted in time. The report gives `waited_for_control_s`.
+    #[arg(long, value_name = "SECS")]
+    pub wait_for_control: Option<f64>,
 }
 
 #[derive(clap::Args)]
@@ -57,6 +69,19 @@ pub struct RemoteArgs {
     pub once: bool,
     #[command(flatten)]
     pub metrics: MetricsArgs,
+    /// Share the robot: serve one controlling base and up to N observers
+    /// at once (4 if N is not given, at most 64); a base that asks for
+    /// control while another holds it is refused, or waits as an observer
+    /// (`ndr base --wait-for-control`) and is handed control when it
+    /// frees. Without it, one base at a time, the next told "busy". With
+    /// --once, it stops when the last base has left.
+    #[arg(long, value_name = "N", num_args = 0..=1, default_missing_value = "4")]
+    pub observers: Option<usize>,
+    /// When it stops, print one JSON object on stdout: the listener's
+    /// counters, the hand-overs of control, the commands refused, and each
+    /// base's session.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// The operator's side: runs `--duration-s` over the link, then reports how
@@ -72,17 +97,30 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     if tls.is_none() && !tls::plain_allowed(connect_to.ip(), config.insecure) {
         return Err(NetError::Insecure(connect_to).to_string());
     }
+    let seat = seat(args)?;
+    config.endpoint.seat = seat;
     let mut series = Series::create(&args.run.out)?;
     let served = Served::start(&args.metrics, "base")?;
     let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
+    let started = StdInstant::now();
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
-    let until = StdInstant::now() + run_for;
+    let wait_for = StdDuration::from_secs_f64(args.wait_for_control.unwrap_or(0.0));
     config.tls.clone_from(&tls);
     let connect = Link::connect(connect_to, config.clone());
-    // The connection counts in the run's duration: a peer that never
-    // answers the SYN must not hold the base beyond it.
-    let connected = rt.block_on(async { tokio::time::timeout(run_for, connect).await });
+    // The connection counts in the run's duration (and the wait for
+    // control): a peer that never answers the SYN must not hold the base
+    // beyond it.
+    let connected = rt.block_on(async { tokio::time::timeout(run_for + wait_for, connect).await });
+    let mut seating = Seating {
+        role: if seat == Seat::Control {
+            "controller"
+        } else {
+            "observer"
+        },
+        waited_for_control_s: None,
+        terms_seen: Vec::new(),
+    };
     let (stats, end, tracking) = match connected {
         Ok(Ok(mut link)) => {
             record::attach(recorder.as_ref(), &mut link);
@@ -92,15 +130,37 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
                 args.link.transport(),
                 &link.sender(),
             );
-            operator(
-                link,
-                &args.run,
-                args.link.axes,
-                until,
-                None,
-                &mut series,
-                None,
-            )
+            let granted = match args.wait_for_control {
+                Some(secs) => wait_for_control(&mut link, started + wait_for, secs),
+                None => Ok(()),
+            };
+            match granted {
+                Ok(()) => {
+                    if seat == Seat::WaitForControl {
+                        seating.role = "controller";
+                        seating.waited_for_control_s = Some(started.elapsed().as_secs_f64());
+                    }
+                    // A waiting base runs its duration from the grant.
+                    let until = if seat == Seat::WaitForControl {
+                        StdInstant::now() + run_for
+                    } else {
+                        started + run_for
+                    };
+                    operator(
+                        link,
+                        &args.run,
+                        args.link.axes,
+                        until,
+                        None,
+                        &mut series,
+                        Kept {
+                            late: None,
+                            seating: Some(&mut seating),
+                        },
+                    )
+                }
+                Err(end) => (link.close(), end, None),
+            }
         }
         Ok(Err(e)) => (
             None,
@@ -133,25 +193,88 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         tracking,
         host: None,
         recording: record::finish(recorder),
+        seating: Some(seating),
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
 
+/// The seat `ndr base` asks for.
+fn seat(args: &BaseArgs) -> Result<Seat, String> {
+    match args.wait_for_control {
+        Some(secs) if !(secs.is_finite() && secs > 0.0) => Err(format!(
+            "--wait-for-control must be a positive number of seconds, got {secs}"
+        )),
+        Some(_) => Ok(Seat::WaitForControl),
+        None if args.observe => Ok(Seat::Observe),
+        None => Ok(Seat::Control),
+    }
+}
+
+/// A base waiting for control: watches (states released, events) until
+/// the remote grants control, or fails at `deadline`.
+fn wait_for_control(link: &mut Link, deadline: StdInstant, secs: f64) -> Result<(), End> {
+    let mut released = 0_u64;
+    loop {
+        for event in link.drain_events() {
+            crate::logging::event("base", &event);
+            if let Event::ControlGranted { term } = event {
+                tracing::info!("base: control granted (term {term})");
+                return Ok(());
+            }
+        }
+        let left = deadline.saturating_duration_since(StdInstant::now());
+        if left.is_zero() {
+            return Err(End::NotGranted(format!(
+                "control was not granted within --wait-for-control {secs} s: another base \
+                 held it throughout; wait longer, or ask its operator to yield"
+            )));
+        }
+        match link.recv_timeout(left.min(StdDuration::from_millis(50))) {
+            Ok(_) => released += 1,
+            Err(NetError::Timeout) => {}
+            Err(e) => return Err(crate::report::link_ended(&e, released)),
+        }
+    }
+}
+
 /// The robot's side: serves bases one after another (or one with
-/// `--once`), a line for each base's end, the listener's counters at exit.
+/// `--once`), or several at once with `--observers`; a line for each
+/// base's end, the listener's counters at exit (and, with `--json`, the
+/// report on stdout).
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
     crate::transport::check_security(args.link.transport(), tls.is_some())?;
     let max_command = args.plant.max_command()?;
+    if let Some(n) = args.observers
+        && n > ndr::core::floor::MAX_OBSERVERS
+    {
+        return Err(format!(
+            "--observers {n}: a remote serves at most {} observers",
+            ndr::core::floor::MAX_OBSERVERS
+        ));
+    }
+    config.admission.observers = args.observers;
+    if args.observers.is_some() && args.record.record.is_some() {
+        return Err(
+            "--record with --observers: a shared remote is not recorded yet; \
+                    record on the bases (ndr base --record)"
+                .to_string(),
+        );
+    }
     let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     config.tls = tls;
     let listener = rt
         .block_on(Listener::listen(args.listen, config.clone()))
-        .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?
-        // One base at a time: the next one is told the robot is busy.
-        .with_max_links(1);
+        .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?;
+    // Alone, one base at a time: the next one is told the robot is busy.
+    // Shared, the floor admits one controller and the observers.
+    let listener = if args.observers.is_some() {
+        listener
+    } else {
+        listener.with_max_links(1)
+    };
     let listener = Arc::new(listener);
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
     let served = Served::start(&args.metrics, "remote")?;
@@ -161,25 +284,38 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     }
     let stop = Arc::new(Stop::default());
     signals::watch(&rt, Arc::clone(&listener), Arc::clone(&stop))?;
-    eprintln!(
-        "ndr remote: waiting for a base on {addr} (SIGUSR1: print the counters; \
-         SIGINT or SIGTERM: stop)"
-    );
-    let failure = serve(
-        args,
-        &served,
-        &rt,
-        &listener,
-        &stop,
-        &DriveSpec {
-            axes: usize::from(args.link.axes),
-            layout: args.link.state.clone(),
-            period: config.endpoint.period,
-            max_command,
-        },
-        recorder.as_ref(),
-    );
-    eprintln!("ndr remote: {}", counters(&listener.stats()));
+    let spec = DriveSpec {
+        axes: usize::from(args.link.axes),
+        layout: args.link.state.clone(),
+        period: config.endpoint.period,
+        max_command,
+    };
+    let (sessions, failure) = match args.observers {
+        Some(n) => {
+            eprintln!(
+                "ndr remote: waiting for bases on {addr} (a controller and up to {n} observers; \
+                 SIGUSR1: print the counters; SIGINT or SIGTERM: stop)"
+            );
+            serve_shared(args, &rt, &listener, &stop, spec)
+        }
+        None => {
+            eprintln!(
+                "ndr remote: waiting for a base on {addr} (SIGUSR1: print the counters; \
+                 SIGINT or SIGTERM: stop)"
+            );
+            serve(
+                args,
+                &served,
+                &rt,
+                &listener,
+                &stop,
+                spec,
+                recorder.as_ref(),
+            )
+        }
+    };
+    let stats = listener.stats();
+    eprintln!("ndr remote: {}", counters(&stats));
     if let Some(r) = record::finish(recorder) {
         match r.error {
             Some(e) => eprintln!("ndr remote: {e}"),
@@ -189,7 +325,74 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
             ),
         }
     }
+    if args.json {
+        let report = crate::shared::RemoteReport::new(
+            addr,
+            &stats,
+            listener.sharing(),
+            sessions,
+            failure.as_deref(),
+        );
+        println!(
+            "{}",
+            serde_json::to_string(&report).map_err(|e| e.to_string())?
+        );
+    }
     failure.map_or(Ok(()), Err)
+}
+
+/// Serves bases at once, sharing the robot, until stopped (or, with
+/// `--once`, until the last has left): the sessions, and the failure that
+/// makes the exit status non-zero, if any.
+fn serve_shared(
+    args: &RemoteArgs,
+    rt: &tokio::runtime::Runtime,
+    listener: &Arc<Listener>,
+    stop: &Arc<Stop>,
+    spec: DriveSpec,
+) -> (crate::shared::Served, Option<String>) {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let (l, st) = (Arc::clone(listener), Arc::clone(stop));
+    let accepting = rt.spawn(async move {
+        loop {
+            tokio::select! {
+                biased;
+                () = st.wait() => return None,
+                accepted = l.accept() => match accepted {
+                    Ok(link) => {
+                        if tx.send(link).is_err() {
+                            return None;
+                        }
+                    }
+                    // Refused peers are logged and counted by the
+                    // listener, which fails only when its socket does.
+                    Err(e) => return Some(format!("the listener stopped: {e}")),
+                },
+            }
+        }
+    });
+    let served = crate::shared::robot(&rx, spec, stop, args.once);
+    let stopped = if accepting.is_finished() {
+        rt.block_on(accepting).ok().flatten()
+    } else {
+        accepting.abort();
+        None
+    };
+    match served {
+        Ok(served) => {
+            let failed = served
+                .sessions
+                .iter()
+                .find(|s| !s.ok)
+                .map(|s| format!("base {}: {}", s.peer, s.end));
+            let failure = stopped.or(if args.once { failed } else { None });
+            (served, failure)
+        }
+        Err(why) => (
+            crate::shared::Served::default(),
+            Some(stopped.unwrap_or(why)),
+        ),
+    }
 }
 
 /// Serves bases until stopped (or after one with `--once`); the failure
@@ -200,8 +403,31 @@ fn serve(
     rt: &tokio::runtime::Runtime,
     listener: &Listener,
     stop: &Stop,
-    spec: &DriveSpec,
+    spec: DriveSpec,
     recorder: Option<&ndr::net::Recorder>,
+) -> (crate::shared::Served, Option<String>) {
+    let mut sessions = crate::shared::Served::default();
+    let failure = serve_each(
+        args,
+        served,
+        rt,
+        listener,
+        stop,
+        (&spec, recorder),
+        &mut sessions,
+    );
+    (sessions, failure)
+}
+
+/// [`serve`]'s loop: each base's session goes to `sessions`.
+fn serve_each(
+    args: &RemoteArgs,
+    served: &Served,
+    rt: &tokio::runtime::Runtime,
+    listener: &Listener,
+    stop: &Stop,
+    (spec, recorder): (&DriveSpec, Option<&ndr::net::Recorder>),
+    sessions: &mut crate::shared::Served,
 ) -> Option<String> {
     // The last base's figures stay on the page until the next one comes.
     let mut watched = None;
@@ -241,6 +467,7 @@ fn serve(
             )
         });
         eprintln!("ndr remote: base {peer}: {end}{counted}");
+        sessions.push(crate::shared::Session::alone(peer, &end, last));
         if args.once {
             return (!end.ok()).then(|| format!("base {peer}: {end}"));
         }

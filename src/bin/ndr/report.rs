@@ -31,6 +31,9 @@ pub enum End {
     /// This side failed (its command refused, its series unwritable): the
     /// link was ended as an application failure.
     AppFailure(String),
+    /// It waited for control (`--wait-for-control`) and was not granted it
+    /// in time; the link was closed in order.
+    NotGranted(String),
 }
 
 impl End {
@@ -101,6 +104,7 @@ impl fmt::Display for End {
             }
             End::LinkFailed(why) => write!(f, "link failed: {why}"),
             End::AppFailure(why) => write!(f, "application failure: {why}"),
+            End::NotGranted(why) => write!(f, "not granted control: {why}"),
         }
     }
 }
@@ -253,6 +257,26 @@ impl LogHistogram {
     }
 }
 
+/// A base's seat at the remote's robot, for its report.
+pub struct Seating {
+    /// `controller` or `observer`: what the base was when its run began.
+    pub role: &'static str,
+    /// With `--wait-for-control`: from the start until control was granted.
+    pub waited_for_control_s: Option<f64>,
+    /// The control terms of the states released to it, each once, in the
+    /// order first seen.
+    pub terms_seen: Vec<u16>,
+}
+
+impl Seating {
+    /// Notes the term of a state released.
+    pub fn saw(&mut self, term: u16) {
+        if self.terms_seen.last() != Some(&term) && !self.terms_seen.contains(&term) {
+            self.terms_seen.push(term);
+        }
+    }
+}
+
 /// What a run of the operator ended with.
 pub struct Outcome<'a> {
     /// Where the delays came from (a profile) or whom the base talked to.
@@ -273,6 +297,8 @@ pub struct Outcome<'a> {
     pub host: Option<PauseSummary>,
     /// The recording (`--record`).
     pub recording: Option<RecordingSummary>,
+    /// `ndr base`: its seat at the robot.
+    pub seating: Option<Seating>,
 }
 
 /// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
@@ -287,6 +313,16 @@ struct DemoReport {
     /// Why the peer refused the link, if it did (see [`refusal`]): `busy`,
     /// `per_source`, `evicted`, `version`, …; null otherwise.
     refused: Option<&'static str>,
+    /// `ndr base`: `controller` or `observer` (a base that waited for
+    /// control and got it is a controller); null for the demo.
+    role: Option<&'static str>,
+    /// `ndr base --wait-for-control`: seconds from its start until control
+    /// was granted; null otherwise, or when it was not granted.
+    waited_for_control_s: Option<f64>,
+    /// `ndr base`: the control terms of the states released to it, in the
+    /// order first seen (an observer across a hand-over sees two; 0 is
+    /// before any base held control).
+    terms_seen: Option<Vec<u16>>,
     profile: String,
     /// How the delay was regulated (`--regulation`'s name).
     regulation: String,
@@ -449,6 +485,9 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
             End::Refused { reason, .. } => Some(reason),
             _ => None,
         },
+        role: o.seating.as_ref().map(|s| s.role),
+        waited_for_control_s: o.seating.as_ref().and_then(|s| s.waited_for_control_s),
+        terms_seen: o.seating.as_ref().map(|s| s.terms_seen.clone()),
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
         playout: link.playout_name(),
@@ -538,6 +577,12 @@ fn print_table(r: &DemoReport) {
         r.state_width
     );
     println!("  end        {}", r.end);
+    if let (Some(role), Some(terms)) = (r.role, &r.terms_seen) {
+        let waited = r
+            .waited_for_control_s
+            .map_or_else(String::new, |w| format!(" · waited {w:.2} s for control"));
+        println!("  seat       {role}{waited} · terms seen {terms:?}");
+    }
     println!("                     mean          std");
     println!(
         "  NRTT       {:>12} {:>12}   (the network, both ways)",

@@ -186,7 +186,7 @@ impl std::str::FromStr for StateLayout {
 
 /// One second-order drive per axis, with its command saturated and its
 /// state checked.
-struct Drive {
+pub struct Drive {
     plants: Vec<Tf2State>,
     /// Each axis's position, and the one before (for its velocity).
     position: Vec<f64>,
@@ -198,9 +198,10 @@ struct Drive {
     layout: StateLayout,
     period_s: f64,
     max_command: f64,
-    /// After a `LinkLost`, until `LinkRestored`: the commands are stale, so
-    /// each axis is held where it is instead of following them.
-    holding: bool,
+    /// After a `LinkLost`, until `LinkRestored` (or, on a shared robot,
+    /// while no base holds control): the commands are stale, so each axis
+    /// is held where it is instead of following them.
+    pub holding: bool,
 }
 
 /// The simulated plant (the simulator's default axis) at `period`: the
@@ -217,9 +218,44 @@ pub fn plant_model(period: Duration) -> Result<Tf2, String> {
 }
 
 impl Drive {
+    /// The drive `spec` describes, at rest.
+    pub fn new(spec: DriveSpec) -> Result<Drive, String> {
+        let DriveSpec {
+            axes,
+            layout,
+            period,
+            max_command,
+        } = spec;
+        let model = plant_model(period)?;
+        Ok(Drive {
+            plants: (0..axes).map(|_| Tf2State::new(model)).collect(),
+            position: vec![0.0; axes],
+            previous: vec![0.0; axes],
+            effort: vec![0.0; axes],
+            state: vec![0.0; axes * layout.0.len()],
+            layout,
+            period_s: period.as_secs_f64(),
+            max_command,
+            holding: false,
+        })
+    }
+
+    /// Its axes: values in a command.
+    pub fn axes(&self) -> usize {
+        self.plants.len()
+    }
+
+    /// Runs the drive at `period` from now on.
+    pub fn set_period(&mut self, period: Duration) -> Result<(), String> {
+        let m = plant_model(period)?;
+        self.plants.iter_mut().for_each(|p| p.set_model(m));
+        self.period_s = period.as_secs_f64();
+        Ok(())
+    }
+
     /// One step on the released `commands`; the new state, or why it must
     /// not be sent.
-    fn step(&mut self, commands: &[f64]) -> Result<&[f64], String> {
+    pub fn step(&mut self, commands: &[f64]) -> Result<&[f64], String> {
         self.previous.clone_from(&self.position);
         let axes = self
             .plants
@@ -288,29 +324,13 @@ pub fn robot(
     stats: &Mutex<Option<LinkStats>>,
     late: Option<&Mutex<LateTicks>>,
 ) -> SessionEnd {
-    let DriveSpec {
-        axes,
-        layout,
-        period,
-        max_command,
-    } = spec;
     let set_stats = |s: Option<LinkStats>| {
         *stats
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner) = s;
     };
-    let mut drive = match plant_model(period) {
-        Ok(model) => Drive {
-            plants: (0..axes).map(|_| Tf2State::new(model)).collect(),
-            position: vec![0.0; axes],
-            previous: vec![0.0; axes],
-            effort: vec![0.0; axes],
-            state: vec![0.0; axes * layout.0.len()],
-            layout,
-            period_s: period.as_secs_f64(),
-            max_command,
-            holding: false,
-        },
+    let mut drive = match Drive::new(spec) {
+        Ok(d) => d,
         Err(why) => return fail(link, why, set_stats),
     };
     let end = loop {
@@ -323,13 +343,11 @@ pub fn robot(
         for event in link.drain_events() {
             crate::logging::event("remote", &event);
             match event {
-                Event::Started { period, .. } => match plant_model(period) {
-                    Ok(m) => {
-                        drive.plants.iter_mut().for_each(|p| p.set_model(m));
-                        drive.period_s = period.as_secs_f64();
+                Event::Started { period, .. } => {
+                    if let Err(why) = drive.set_period(period) {
+                        failed = Some(why);
                     }
-                    Err(why) => failed = Some(why),
-                },
+                }
                 Event::LinkLost { .. } => drive.holding = true,
                 Event::LinkRestored => drive.holding = false,
                 _ => {}

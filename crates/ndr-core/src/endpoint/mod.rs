@@ -703,7 +703,13 @@ impl<S: Storage> Endpoint<S> {
                 {
                     self.regime.grid_settled = true;
                 }
-                if self.regime.grid_settled && self.sends_samples() {
+                // A remote's link whose base holds no control (an observer,
+                // a base waiting for it) answers no command: its states
+                // wait for no grid.
+                let answers_none = self.config.role == Role::Remote
+                    && self.seating.held.is_none()
+                    && self.seating.asked != crate::wire::Seat::Control;
+                if (self.regime.grid_settled || answers_none) && self.sends_samples() {
                     self.queue_tx(Tx::Sample { seq });
                 } else {
                     self.queue_tx(Tx::Probe { seq });

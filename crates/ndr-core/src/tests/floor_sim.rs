@@ -260,6 +260,8 @@ struct Site0 {
     /// Whether the observers are told what the robot applied.
     forward: bool,
     transport: Transport,
+    /// The links' regulation, if not the paper's.
+    regulation: Option<crate::Regulation>,
 }
 
 impl Site0 {
@@ -276,6 +278,7 @@ impl Site0 {
             forwarded: 0,
             forward: true,
             transport,
+            regulation: None,
         }
     }
 
@@ -285,12 +288,19 @@ impl Site0 {
         let link = self.pairs.len() as LinkId;
         let mut site = Site::new(link, &self.robot, join_ms);
         tune(&mut site);
+        let regulated = |mut c: Config| {
+            if let Some(r) = self.regulation {
+                c.mode = r.mode();
+                c.playout = r.playout();
+            }
+            c
+        };
         let base = Endpoint::new(
-            config(Role::Base, seat, self.transport, link),
+            regulated(config(Role::Base, seat, self.transport, link)),
             Instant::ZERO,
         );
         let remote = Endpoint::new(
-            config(Role::Remote, Seat::Control, self.transport, link),
+            regulated(config(Role::Remote, Seat::Control, self.transport, link)),
             Instant::ZERO,
         );
         self.pairs
@@ -441,6 +451,13 @@ fn control_passes_to_the_waiting_base_when_the_controller_closes() {
     assert!(so.granted.is_empty());
     let fresh: Vec<_> = so.states.iter().filter(|s| s.3 == Status::Fresh).collect();
     assert!(fresh.len() > 900, "{}", fresh.len());
+    // From its start: its link's first states answer no command, so they
+    // wait for no grid to settle.
+    assert!(
+        fresh[0].0 < Instant::from_millis(100 + 300),
+        "the observer's first state at {:?}",
+        fresh[0].0
+    );
     assert!(
         fresh
             .windows(2)
@@ -476,6 +493,38 @@ fn control_passes_to_the_waiting_base_when_the_controller_closes() {
     assert_eq!(ep.remote.stats().applied_dropped, 0);
     assert_eq!(ep.base.stats().samples_sent, 0);
     assert_eq!(ep.remote.stats().commands_refused_observer, 0);
+}
+
+/// Under the adaptive playout a remote's link waits for its ticks to fall
+/// on its releases before it sends states; an observer's link releases
+/// nothing, so its states must not wait for that.
+#[test]
+fn an_observer_sees_states_from_its_start_under_the_adaptive_playout() {
+    let mut site = Site0::new(2, Transport::Stream);
+    site.regulation = Some(crate::Regulation::ADAPTIVE);
+    let a = site.base(Seat::Control, 0, |_| {});
+    let o = site.base(Seat::Observe, 100, |_| {});
+    let b = site.base(Seat::WaitForControl, 200, |_| {});
+    site.run_until(3_000);
+    assert_eq!(site.robot.borrow().floor.controller(), Some((a, 1)));
+    for watcher in [o, b] {
+        let fresh: Vec<_> = site
+            .site(watcher)
+            .states
+            .iter()
+            .filter(|s| s.3 == Status::Fresh)
+            .collect();
+        let first = fresh.first().map(|s| s.0);
+        assert!(
+            first.is_some_and(|t| t < Instant::from_millis(200 + 300)),
+            "link {watcher}: first state at {first:?}"
+        );
+        assert!(
+            fresh
+                .windows(2)
+                .all(|w| w[1].1 > w[0].1 && w[1].0 - w[0].0 <= T * 3)
+        );
+    }
 }
 
 #[test]
