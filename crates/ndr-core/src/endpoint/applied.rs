@@ -107,15 +107,7 @@ impl<S: Storage> Endpoint<S> {
             return Err(LinkError::NotController);
         }
         let width = self.config.command_width;
-        if values.len() != usize::from(width) {
-            return Err(LinkError::SampleShape {
-                expected: width,
-                got: values.len(),
-            });
-        }
-        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
-            return Err(LinkError::NonFinite { index });
-        }
+        super::check_sample(values, width)?;
         let out = &mut self.applied;
         if out.queue.is_full() {
             let _ = out.queue.pop_front();

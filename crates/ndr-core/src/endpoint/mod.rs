@@ -459,15 +459,7 @@ impl<S: Storage> Endpoint<S> {
     /// frame's `released` names that one, and the peer's GRTT runs from it.
     pub fn set_sample(&mut self, values: &[f64]) -> Result<(), LinkError> {
         let width = self.config.sent_width();
-        if values.len() != usize::from(width) {
-            return Err(LinkError::SampleShape {
-                expected: width,
-                got: values.len(),
-            });
-        }
-        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
-            return Err(LinkError::NonFinite { index });
-        }
+        check_sample(values, width)?;
         if let Some(dst) = self.out.sample.as_mut().get_mut(..usize::from(width)) {
             dst.copy_from_slice(values);
         }
@@ -779,5 +771,19 @@ impl<S: Storage> Endpoint<S> {
     #[cfg(test)]
     fn last_tick(&self) -> Option<Instant> {
         Some(self.next_tick? - self.period)
+    }
+}
+
+/// An application's sample of `width` finite values, or why not.
+pub(super) fn check_sample(values: &[f64], width: u16) -> Result<(), LinkError> {
+    if values.len() != usize::from(width) {
+        return Err(LinkError::SampleShape {
+            expected: width,
+            got: values.len(),
+        });
+    }
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(LinkError::NonFinite { index }),
+        None => Ok(()),
     }
 }
