@@ -7,6 +7,7 @@ mod control;
 mod demo;
 #[cfg(test)]
 mod doc_commands;
+mod explain;
 mod keygen;
 mod logging;
 mod metrics;

@@ -69,7 +69,10 @@ struct Live {
 
 impl Live {
     fn new(link: Link) -> Live {
-        eprintln!("ndr remote: base {} connected", link.peer_addr());
+        eprintln!(
+            "ndr remote: base {}: handshake done, running the initialization pattern",
+            link.peer_addr()
+        );
         Live {
             peer: link.peer_addr(),
             link,
