@@ -541,7 +541,7 @@ impl HandshakeError {
         HandshakeError::from_rustls(err)
     }
 
-    fn from_rustls(err: &rustls::Error) -> HandshakeError {
+    pub(crate) fn from_rustls(err: &rustls::Error) -> HandshakeError {
         match err {
             rustls::Error::InvalidCertificate(c) => {
                 HandshakeError::UnknownCertificate(refused_here(c))

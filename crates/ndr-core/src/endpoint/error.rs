@@ -538,9 +538,167 @@ impl core::error::Error for LinkError {
 
 #[cfg(test)]
 mod tests {
-    use std::string::ToString;
+    use std::string::{String, ToString};
+    use std::vec::Vec;
 
     use super::*;
+
+    /// One error of each variant, and of each message a variant words
+    /// apart (the Close reasons with words of their own).
+    fn every_message() -> Vec<LinkError> {
+        let t = Duration::from_millis(20);
+        let at = Instant::from_millis(5);
+        let tls = u32::from_le_bytes([0x16, 0x03, 0x01, 0x02]);
+        let mut errors = std::vec![
+            LinkError::Wire(WireError::LengthOutOfRange(tls)),
+            LinkError::Wire(WireError::LengthOutOfRange(9)),
+            LinkError::VersionMismatch { peer: 9 },
+            LinkError::RoleMismatch { role: Role::Base },
+            LinkError::WidthMismatch {
+                which: "state",
+                ours: 1,
+                theirs: 2,
+            },
+            LinkError::TransportMismatch {
+                ours: "stream",
+                theirs: "datagram",
+            },
+            LinkError::LayoutMismatch { ours: 0, theirs: 7 },
+            LinkError::PeriodMismatch { ours: t, theirs: t },
+            LinkError::ModeMismatch {
+                ours: Mode::PaperDynamic,
+                theirs: ModeCode::PaperStatic,
+            },
+            LinkError::Unexpected {
+                kind: Kind::Data,
+                phase: "the handshake",
+            },
+            LinkError::ChannelCount {
+                expected: 2,
+                got: 3,
+            },
+            LinkError::BadParameters { ns: 9, period: t },
+            LinkError::Timeout,
+            LinkError::PeerSilent { silent_for: t },
+            LinkError::Busy,
+            LinkError::ObserverOnly,
+            LinkError::ObserversFull,
+            LinkError::NotController,
+            LinkError::Evicted { per_source: true },
+            LinkError::Evicted { per_source: false },
+            LinkError::OutOfSequence {
+                expected: 2,
+                got: 3,
+            },
+            LinkError::StampBehind {
+                earliest: at,
+                got: at,
+            },
+            LinkError::StampAhead { ahead: t },
+            LinkError::StampOutOfRange { got: at },
+            LinkError::Disconnected,
+            LinkError::Closed,
+            LinkError::HandlerPanicked,
+            LinkError::Abandoned,
+            LinkError::CertificateRefused,
+            LinkError::PeerCertificateRefused,
+            LinkError::SampleShape {
+                expected: 2,
+                got: 3,
+            },
+            LinkError::NonFinite { index: 1 },
+            LinkError::BufferTooSmall { needed: 9, got: 3 },
+        ];
+        errors.extend((0..=u16::from(CloseReason::ObserversFull) + 1).map(|code| {
+            LinkError::PeerClosed {
+                reason: CloseReason::from(code),
+            }
+        }));
+        for e in &errors {
+            // No wildcard: a new variant fails to compile here until it
+            // has its sample above (and its entry in the page).
+            match e {
+                LinkError::Wire(_)
+                | LinkError::VersionMismatch { .. }
+                | LinkError::RoleMismatch { .. }
+                | LinkError::WidthMismatch { .. }
+                | LinkError::TransportMismatch { .. }
+                | LinkError::LayoutMismatch { .. }
+                | LinkError::PeriodMismatch { .. }
+                | LinkError::ModeMismatch { .. }
+                | LinkError::Unexpected { .. }
+                | LinkError::ChannelCount { .. }
+                | LinkError::BadParameters { .. }
+                | LinkError::Timeout
+                | LinkError::PeerSilent { .. }
+                | LinkError::Busy
+                | LinkError::ObserverOnly
+                | LinkError::ObserversFull
+                | LinkError::NotController
+                | LinkError::Evicted { .. }
+                | LinkError::OutOfSequence { .. }
+                | LinkError::StampBehind { .. }
+                | LinkError::StampAhead { .. }
+                | LinkError::StampOutOfRange { .. }
+                | LinkError::PeerClosed { .. }
+                | LinkError::Disconnected
+                | LinkError::Closed
+                | LinkError::HandlerPanicked
+                | LinkError::Abandoned
+                | LinkError::CertificateRefused
+                | LinkError::PeerCertificateRefused
+                | LinkError::SampleShape { .. }
+                | LinkError::NonFinite { .. }
+                | LinkError::BufferTooSmall { .. } => {}
+            }
+        }
+        errors
+    }
+
+    /// The starts of the messages docs/guide/troubleshooting.md lists:
+    /// each backticked pattern of a table row's first cell, split at `…`.
+    fn page_patterns() -> Vec<Vec<String>> {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../docs/guide/troubleshooting.md"
+        );
+        let page = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+        page.lines()
+            .filter(|l| l.starts_with("| `"))
+            .filter_map(|l| l.split('|').nth(1))
+            .flat_map(|cell| cell.split('`').skip(1).step_by(2))
+            .map(|p| p.split('…').map(|s| s.trim().to_string()).collect())
+            .collect()
+    }
+
+    /// Whether `msg` starts with the pattern's first piece (unless it is
+    /// empty) and holds the others in order.
+    fn fits(msg: &str, pieces: &[String]) -> bool {
+        let mut at = 0;
+        for (i, piece) in pieces.iter().enumerate() {
+            if piece.is_empty() {
+                continue;
+            }
+            match msg[at..].find(piece.as_str()) {
+                Some(j) if i > 0 || j == 0 => at += j + piece.len(),
+                _ => return false,
+            }
+        }
+        true
+    }
+
+    #[test]
+    fn every_message_is_in_the_troubleshooting_page() {
+        let patterns = page_patterns();
+        assert!(patterns.len() > 30, "{patterns:?}");
+        for e in every_message() {
+            let msg = e.to_string();
+            assert!(
+                patterns.iter().any(|p| fits(&msg, p)),
+                "not in docs/guide/troubleshooting.md: {msg}"
+            );
+        }
+    }
 
     #[test]
     fn a_peer_that_closes_in_order_is_not_a_failure() {
