@@ -401,11 +401,12 @@ struct DemoReport {
     /// shows here first.
     clock_base_max_s: f64,
     clock_remote_max_s: f64,
-    /// Deadlines (ticks, repeats, timers) the hubs woke for 1 ms late or
-    /// more, both sides (their `lateness.missed`): the host's doing, a hub
-    /// held. One held past a period may make a sample late or move the
-    /// FIFO's delay a period.
-    ticks_missed: u64,
+    /// Wakes of the hubs for a deadline (a tick, a repeat, a timer) 1 ms
+    /// late or more, both sides (their `lateness.missed`): the host's
+    /// doing, a hub held. Not ticks: one wake may serve several ticks of
+    /// several links. One held past a period may make a sample late or move
+    /// the FIFO's delay a period.
+    wakes_late: u64,
     /// How long before a deadline each side's hub spins, as learned from
     /// its timer at the end.
     spin_margin_base_s: f64,
@@ -544,7 +545,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         clock_remote_p99_s: clock(remote, |l| l.p99),
         clock_base_max_s: clock(b, |l| l.max),
         clock_remote_max_s: clock(remote, |l| l.max),
-        ticks_missed: b.map_or(0, |s| s.lateness.missed) + remote.map_or(0, |s| s.lateness.missed),
+        wakes_late: b.map_or(0, |s| s.lateness.missed) + remote.map_or(0, |s| s.lateness.missed),
         spin_margin_base_s: b.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
