@@ -87,9 +87,11 @@ impl SimArgs {
         let model = self.net.model("lan-75km")?;
         let duration_s = match (self.duration_s, &model) {
             (Some(s), _) => s,
-            // A recording replays for as long as it lasted.
+            // A recording replays for as long as it lasted from its first
+            // command (the simulator stops there), after a set-up that may
+            // take longer than the recorded one.
             (None, DelayModel::Trace(t)) if self.net.is_recording() => {
-                t.duration().as_secs_f64().max(1.0)
+                2.0 * t.duration().as_secs_f64().max(1.0)
             }
             (None, _) => 600.0,
         };
@@ -119,6 +121,9 @@ impl SimArgs {
         cfg.axes = self.axes;
         cfg.signal = self.signal.clone();
         cfg.record_series = self.out.is_some();
+        if let Some(answer) = self.net.recorded_answer()? {
+            cfg.answer = answer;
+        }
         Ok(cfg)
     }
 }
