@@ -55,7 +55,7 @@ pub struct SimArgs {
     #[arg(long, default_value_t = 200.0)]
     pub period_ms: f64,
     /// Simulated time, in seconds (default 600; a recording given to
-    /// --trace: its length).
+    /// --trace: until its last sample).
     #[arg(long)]
     pub duration_s: Option<f64>,
     /// Seed of every random draw: the same seed gives the same run.
