@@ -312,7 +312,10 @@ fn a_hung_controller_is_replaced_by_the_waiting_base_within_the_liveness_time() 
     // A finds its link gone, and says so.
     let (status_a, _, _) = a.wait(Duration::from_secs(60));
     let (_, stdout_r, stderr_r) = remote.wait(Duration::from_secs(60));
-    assert!(status_b.success(), "{report_b}");
+    assert!(
+        status_b.success(),
+        "{report_b}\nthe remote: {stdout_r}\n{stderr_r}"
+    );
     assert!(!status_a.success());
     assert_eq!(report_b["role"], "controller", "{report_b}");
     let waited = report_b["waited_for_control_s"].as_f64().expect("B waited");
@@ -376,5 +379,106 @@ fn the_demo_runs_with_observers_watching() {
             "{r}"
         );
     }
+    let _ = std::fs::remove_file(csv);
+}
+
+/// A raw frame of the wire (docs/wire.md, sections 2 and 7): no echo,
+/// nothing released, term 0.
+fn raw_frame(kind: u8, payload: &[u8], seq: u64, sent_at: u64) -> Vec<u8> {
+    let mut f = Vec::with_capacity(48 + payload.len());
+    f.extend_from_slice(&u32::try_from(48 + payload.len()).unwrap().to_le_bytes());
+    f.extend_from_slice(&[4, kind, 0, 0]);
+    for field in [seq, sent_at, u64::MAX, 0, u64::MAX] {
+        f.extend_from_slice(&field.to_le_bytes());
+    }
+    f.extend_from_slice(payload);
+    f
+}
+
+/// An observer on a raw socket that floods its session: its Hello (seat
+/// observe), a probe a period, RESUME after ten, and between them Control
+/// `yield` frames (an observer's is a no-op to the remote) as fast as the
+/// socket takes them, until `until`. The frames it sent.
+fn flood(addr: &str, period_ns: u64, until: Instant) -> u64 {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).expect("the flooder connects");
+    s.set_nodelay(true).unwrap();
+    let mut hello = vec![0, 0, 0, 1];
+    hello.extend_from_slice(&1_u16.to_le_bytes());
+    hello.extend_from_slice(&1_u16.to_le_bytes());
+    hello.extend_from_slice(&period_ns.to_le_bytes());
+    hello.extend_from_slice(&[0; 16]);
+    s.write_all(&raw_frame(2, &hello, 0, 0)).unwrap();
+    let mut reader = s.try_clone().unwrap();
+    std::thread::spawn(move || {
+        let mut buf = [0; 65536];
+        while reader.read(&mut buf).is_ok_and(|n| n > 0) {}
+    });
+    let control = |op: u8, ns: u16, period: u64, seq: u64, at: u64| {
+        let mut p = vec![op, 0];
+        p.extend_from_slice(&ns.to_le_bytes());
+        p.extend_from_slice(&[0; 4]);
+        p.extend_from_slice(&period.to_le_bytes());
+        raw_frame(3, &p, seq, at)
+    };
+    let origin = Instant::now();
+    let (mut tick, mut sent) = (None::<u64>, 0_u64);
+    while Instant::now() < until {
+        let now = u64::try_from(origin.elapsed().as_nanos()).unwrap();
+        let k = now / period_ns;
+        if tick.is_none_or(|t| k > t) {
+            tick = Some(k);
+            let mut out = raw_frame(1, &[], k, k * period_ns);
+            if k == 10 {
+                out.extend(control(3, 2, period_ns, k + 1, now));
+            }
+            if s.write_all(&out).is_err() {
+                break;
+            }
+            continue;
+        }
+        let burst = control(6, 0, 0, k + 1, now).repeat(64);
+        if s.write_all(&burst).is_err() {
+            break;
+        }
+        sent += 64;
+    }
+    // (The reader's clone of the socket would hold it open.)
+    let _ = s.shutdown(std::net::Shutdown::Both);
+    sent
+}
+
+/// An observer that floods the remote with frames costs the controller
+/// nothing: the remote reads a link no further than a few frames a tick,
+/// whatever its peer sends.
+#[test]
+fn an_observer_flooding_the_remote_leaves_the_controller_alone() {
+    let _serial = serial();
+    let (mut remote, addr) = remote(&[]);
+    let csv = csv_path("flooded");
+    let a = base(&addr, "5", &csv, &[]);
+    remote.line_with("holds control (term 1)", Duration::from_secs(20));
+    let flooded = flood(&addr, 20_000_000, Instant::now() + Duration::from_secs(4));
+    let (status_a, report_a, _) = report(a, Duration::from_secs(60));
+    let (_, stdout_r, _) = remote.wait(Duration::from_secs(60));
+    assert!(status_a.success(), "{report_a}");
+    // The remote reads a link a few frames a tick: TCP's flow control
+    // holds the flood back (unbounded, the remote took millions of
+    // frames in the 4 s).
+    assert!(
+        flooded > 1000 && flooded < 1_000_000,
+        "the remote took {flooded} frames"
+    );
+    // The controller: its round trip as steady as unflooded (flooded
+    // unbounded, it swung by a few periods), no tick without its sample.
+    let released = report_a["samples_released"].as_u64().unwrap();
+    let missed =
+        report_a["underflows"].as_u64().unwrap() + report_a["late_samples"].as_u64().unwrap();
+    assert!(released > 100, "{report_a}");
+    assert!(missed * 20 < released, "{missed} of {released}: {report_a}");
+    let std = report_a["grtt_std_s"].as_f64().unwrap();
+    assert!(std < 0.020, "GRTT std {std} s: {report_a}");
+    let r: Value = serde_json::from_str(&stdout_r).unwrap();
+    assert_eq!(r["handovers"], 0, "{r}");
     let _ = std::fs::remove_file(csv);
 }
