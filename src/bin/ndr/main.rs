@@ -26,6 +26,7 @@ mod soak;
 mod throwaway;
 mod tracking;
 mod transport;
+mod watchers;
 
 use std::process::ExitCode;
 

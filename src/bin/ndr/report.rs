@@ -47,7 +47,9 @@ impl End {
 /// `refused` names it: `busy` (it serves another base), `per_source` (too
 /// many handshakes pending from this side's address), `evicted` (every
 /// handshake slot taken), `version`, `role`, `width`, `layout`, `period`,
-/// `mode`, `transport` (the peers' settings differ); `None` for any other
+/// `mode`, `transport` (the peers' settings differ), `observer_only` (this
+/// side's identity may only observe a shared robot), `observers_full`
+/// (every observer's seat taken); `None` for any other
 /// end.
 pub fn refusal(e: &NetError) -> Option<&'static str> {
     use ndr::core::wire::CloseReason;
@@ -76,6 +78,8 @@ pub fn refusal(e: &NetError) -> Option<&'static str> {
         CloseReason::PeriodMismatch => "period",
         CloseReason::ModeMismatch => "mode",
         CloseReason::TransportMismatch => "transport",
+        CloseReason::ObserverOnly => "observer_only",
+        CloseReason::ObserversFull => "observers_full",
         _ => return None,
     })
 }
@@ -299,6 +303,8 @@ pub struct Outcome<'a> {
     pub recording: Option<RecordingSummary>,
     /// `ndr base`: its seat at the robot.
     pub seating: Option<Seating>,
+    /// `ndr demo --observers`: what each observer saw.
+    pub observers: Vec<crate::watchers::Watched>,
 }
 
 /// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
@@ -437,6 +443,9 @@ struct DemoReport {
     /// `--record`: the file, the messages and chunks written, the events
     /// dropped (the writer fell behind) and the error that stopped it.
     recording: Option<RecordingSummary>,
+    /// `ndr demo --observers`: what each observer saw.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    observers: Vec<crate::watchers::Watched>,
 }
 
 /// A run that completed but whose series could not be written failed.
@@ -559,6 +568,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         tracking: o.tracking,
         host: o.host,
         recording: o.recording.clone(),
+        observers: o.observers.clone(),
     }
 }
 
@@ -702,6 +712,9 @@ fn print_table(r: &DemoReport) {
                 .as_ref()
                 .map_or_else(String::new, |e| format!(": {e}"))
         );
+    }
+    for o in &r.observers {
+        println!("  watching   {o}");
     }
 }
 
