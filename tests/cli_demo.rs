@@ -43,7 +43,7 @@ fn demo(extra: &[&str], csv: &Path) -> serde_json::Value {
 fn held_ticks(r: &serde_json::Value) -> u64 {
     let period = r["period_s"].as_f64().unwrap();
     let paused = r["host_paused_s"].as_f64().unwrap();
-    r["ticks_missed"].as_u64().unwrap()
+    r["wakes_late"].as_u64().unwrap()
         + (paused / period).ceil() as u64
         + r["host_pauses"].as_u64().unwrap()
 }
@@ -116,7 +116,7 @@ fn demo_runs_and_reports_in_json() {
         "host_pauses",
         "host_paused_s",
         "host_pause_max_s",
-        "ticks_missed",
+        "wakes_late",
     ] {
         assert!(r[key].is_number(), "missing {key}: {r}");
     }

@@ -215,8 +215,8 @@ def tracking_errors(op: OperatorLog, rb: RobotLog, *, after: float = 0.5) -> Dic
 @dataclass
 class DemoResult:
     """The demo's report (``report``, what ``--json`` prints, its keys
-    those of ``ndr demo --json``: ``ticks_missed``, for one, the deadlines
-    both hubs woke for 1 ms late or more) and both logs."""
+    those of ``ndr demo --json``: ``wakes_late``, for one, the wakes of
+    both hubs for a deadline 1 ms late or more) and both logs."""
 
     report: Dict[str, Any]
     operator: OperatorLog
@@ -413,9 +413,9 @@ def _report(
         "clock_remote_max_s": r.get("lateness", {}).get("max", math.nan),
         "spin_margin_base_s": b.get("spin_margin", math.nan),
         "spin_margin_remote_s": r.get("spin_margin", math.nan),
-        # The deadlines both hubs woke for 1 ms late or more (their
+        # The wakes of both hubs for a deadline 1 ms late or more (their
         # `lateness.missed`): the host's doing, as `ndr demo --json` has it.
-        "ticks_missed": b.get("lateness", {}).get("missed", 0)
+        "wakes_late": b.get("lateness", {}).get("missed", 0)
         + r.get("lateness", {}).get("missed", 0),
         # What a target-delay playout holds, and the clock estimate under it
         # (the names of `ndr demo --json`).

@@ -50,6 +50,19 @@ const WAKER: Token = Token(usize::MAX);
 const TIMER: Token = Token(usize::MAX - 1);
 /// Bytes a link may have waiting for a slow socket before it is cut off.
 const MAX_PENDING: usize = 1 << 20;
+/// Frames of its largest size a link's socket is read for between two of
+/// its deadlines, at most (and at least 4 KiB): a peer that sends faster
+/// than that (a flood) is read no further until its link's next deadline,
+/// so that it holds neither the hub from its other links' deadlines nor
+/// its CPU; TCP's flow control then slows the peer. An honest peer sends a
+/// frame or two a tick, and catches up a backlog at several a tick.
+const READ_FRAMES_PER_DEADLINE: usize = 8;
+
+/// What a link with frames of at most `max_frame` bytes may read between
+/// two of its deadlines.
+fn read_budget(max_frame: usize) -> usize {
+    (READ_FRAMES_PER_DEADLINE * max_frame).max(4096)
+}
 
 /// State a link's handle and the hub share.
 pub(crate) struct Shared {
@@ -91,6 +104,12 @@ pub(crate) struct Entry {
     pub(crate) notes: Option<crate::sharing::Notes>,
     /// Sees every event first, if set.
     tap: Option<Tap>,
+    /// Bytes its socket may still be read for before its next deadline
+    /// (see [`READ_FRAMES_PER_DEADLINE`]), and whether it was left unread
+    /// for want of them.
+    read_left: usize,
+    read_budget: usize,
+    throttled: bool,
 }
 
 /// A link's TCP stream, as the hub reads and writes it.
@@ -210,7 +229,19 @@ impl Entry {
             handler: None,
             notes: None,
             tap: None,
+            read_left: read_budget(max_frame),
+            read_budget: read_budget(max_frame),
+            throttled: false,
         }
+    }
+
+    /// Takes `n` bytes read from its socket off what it may read before
+    /// its next deadline; `true` if it may read no more (unless `drain`:
+    /// a closing socket is read to its end).
+    fn spend_read(&mut self, n: usize, drain: bool) -> bool {
+        self.read_left = self.read_left.saturating_sub(n);
+        self.throttled = self.read_left == 0 && !drain;
+        self.throttled
     }
 
     /// Writes a plain base's Hello now, from the connecting task, rather
@@ -923,6 +954,11 @@ impl Driver {
                     if e.endpoint.is_closed() || (n < room && !drain) {
                         return;
                     }
+                    // The rest waits for its next deadline (no new edge
+                    // will say it is there: the deadline reads it).
+                    if e.spend_read(n, drain) {
+                        return;
+                    }
                 }
                 Err(err) if err.kind() == io::ErrorKind::WouldBlock => return,
                 Err(err) if err.kind() == io::ErrorKind::Interrupted => {}
@@ -1022,6 +1058,16 @@ impl Driver {
                 take_sample(e);
                 quic::on_timeout(e, StdInstant::now());
                 run_due(e, now, self.figures);
+                e.read_left = e.read_budget;
+                if std::mem::take(&mut e.throttled) {
+                    // Read after this tick's releases and frames.
+                    self.backlog.push_back(Ready {
+                        id,
+                        readable: true,
+                        closing: false,
+                        writable: false,
+                    });
+                }
                 if e.endpoint.is_closed() {
                     // Its last stats go out with its Closed event (below).
                     self.figures = figures(&self.lateness, &self.releases, self.spin);

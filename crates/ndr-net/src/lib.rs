@@ -57,6 +57,7 @@ mod listener;
 #[cfg(feature = "metrics")]
 pub mod metrics;
 mod pool;
+mod ports;
 pub mod quic;
 pub mod realtime;
 #[cfg(feature = "record")]

@@ -57,6 +57,7 @@ use crate::error::NetError;
 use crate::hub::{Hub, Msg, NewEndpoint, NewSocket, QuicPath, QuicServer, bind_datagram_socket};
 use crate::link::Link;
 use crate::pool::{HubChoice, HubPool};
+use crate::ports;
 use crate::runtime::{not_in_a_runtime, own_runtime, plain_allowed};
 use crate::tls::TlsConfig;
 
@@ -312,22 +313,14 @@ fn stop_listening(fd: &std::os::fd::OwnedFd) {
 #[cfg(not(target_os = "linux"))]
 fn stop_listening(_: &std::os::fd::OwnedFd) {}
 
-/// A listening socket with `backlog`, reusing the address as
-/// [`TcpListener::bind`] does (a restarted robot binds its port at once).
-/// The UDP socket of a datagram listener bound at `local`, handed to the
-/// hub that will drive its links (a pool's least loaded: datagrams reach
-/// one socket, so its links share that hub).
-fn datagram_socket(local: SocketAddr, hubs: &Hubs) -> Result<DatagramSocket, NetError> {
+/// The UDP socket of a datagram listener, handed to the hub that will
+/// drive its links (a pool's least loaded: datagrams reach one socket, so
+/// its links share that hub).
+fn datagram_socket(socket: std::net::UdpSocket, hubs: &Hubs) -> Result<DatagramSocket, NetError> {
     let hub = match hubs {
         Hubs::One(hub) => hub.clone(),
         Hubs::Pool(pool) => pool.least_loaded().clone(),
     };
-    let socket = bind_datagram_socket(local).map_err(|e| {
-        io::Error::new(
-            e.kind(),
-            format!("the link's datagrams need UDP port {local} beside the TCP one: {e}"),
-        )
-    })?;
     let stray = Arc::new(AtomicU64::new(0));
     let key = hub.next_id();
     let new = NewSocket {
@@ -348,6 +341,8 @@ fn datagram_socket(local: SocketAddr, hubs: &Hubs) -> Result<DatagramSocket, Net
     })
 }
 
+/// A listening socket with `backlog`, reusing the address as
+/// [`TcpListener::bind`] does (a restarted robot binds its port at once).
 fn tcp_listener(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
     let socket = if addr.is_ipv4() {
         TcpSocket::new_v4()?
@@ -358,6 +353,29 @@ fn tcp_listener(addr: SocketAddr, backlog: u32) -> io::Result<TcpListener> {
     socket.set_reuseaddr(true)?;
     socket.bind(addr)?;
     socket.listen(backlog.max(1))
+}
+
+/// A datagram listener's sockets: UDP, bound by `udp`, and TCP listening
+/// with `backlog`, at one port number (the links' datagrams go to the TCP
+/// port's number). At port 0 a number another program holds over TCP
+/// draws another ([`ports::bind_pair`]).
+fn bind_both(
+    addr: SocketAddr,
+    backlog: u32,
+    udp: impl FnMut(SocketAddr) -> io::Result<(std::net::UdpSocket, SocketAddr)>,
+) -> io::Result<(TcpListener, std::net::UdpSocket)> {
+    let (datagrams, listener, _) =
+        ports::bind_pair(addr, ports::BIND_ATTEMPTS, "listener", udp, |at| {
+            tcp_listener(at, backlog)
+        })?;
+    Ok((listener, datagrams))
+}
+
+/// Binds a hub's UDP socket at `at`, and the address it got.
+fn bind_udp(at: SocketAddr) -> io::Result<(std::net::UdpSocket, SocketAddr)> {
+    let socket = bind_datagram_socket(at)?;
+    let local = socket.local_addr()?;
+    Ok((socket, local))
 }
 
 impl Listener {
@@ -391,14 +409,15 @@ impl Listener {
         if let (true, Some(tls)) = (transport.is_quic(), tls.as_ref()) {
             return Listener::listen_quic(addr, config.clone(), tls, hubs);
         }
-        let socket = tcp_listener(addr, config.admission.backlog)?;
+        let backlog = config.admission.backlog;
+        let (socket, udp) = if datagrams {
+            let (socket, udp) = bind_both(addr, backlog, bind_udp)?;
+            (socket, Some(datagram_socket(udp, &hubs)?))
+        } else {
+            (tcp_listener(addr, backlog)?, None)
+        };
         let accept_queue = config.admission.accept_queue.max(1);
         let local = socket.local_addr()?;
-        let udp = if datagrams {
-            Some(datagram_socket(local, &hubs)?)
-        } else {
-            None
-        };
         let listening = std::os::fd::AsFd::as_fd(&socket).try_clone_to_owned().ok();
         let slots = tls
             .as_ref()
@@ -734,5 +753,56 @@ impl Listener {
                  this one runs on the caller's tokio runtime: use accept().await",
             ))),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn runtime() -> tokio::runtime::Runtime {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("a runtime")
+    }
+
+    #[test]
+    fn a_port_another_program_takes_over_tcp_between_the_binds_draws_another() {
+        let rt = runtime();
+        let _in = rt.enter();
+        let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
+        // Another program takes TCP at the first number UDP got, in the
+        // moment between the two binds, as the listener would (if it cannot,
+        // a socket there already keeps the listener off that number too).
+        let mut squatted = None;
+        let udp = |at| {
+            let (socket, local) = bind_udp(at)?;
+            if squatted.is_none() {
+                squatted = Some((local.port(), tcp_listener(local, 1).ok()));
+            }
+            Ok((socket, local))
+        };
+        let (tcp, udp) = bind_both(loopback, 8, udp).expect("binds at another number");
+        let taken = squatted.map(|(port, _)| port);
+        let port = tcp.local_addr().expect("bound").port();
+        assert!(taken.is_some());
+        assert_ne!(Some(port), taken);
+        assert_eq!(udp.local_addr().expect("bound").port(), port);
+    }
+
+    #[test]
+    fn a_given_port_taken_over_udp_is_a_clear_error() {
+        let rt = runtime();
+        let _in = rt.enter();
+        let other = std::net::UdpSocket::bind("127.0.0.1:0").expect("binds");
+        let at = other.local_addr().expect("bound");
+        let e = bind_both(at, 8, bind_udp).expect_err("the port is taken");
+        assert_eq!(e.kind(), io::ErrorKind::AddrInUse);
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("listener: cannot listen on {at} over UDP")),
+            "{msg}"
+        );
     }
 }

@@ -458,8 +458,8 @@ impl Collector for Metrics {
         )?;
         counter(
             &mut enc,
-            "ndr_ticks_missed",
-            "Deadlines of the link's hub (all its links) served a whole period late or more.",
+            "ndr_deadlines_late",
+            "Deadlines of the link's hub (all its links) served 1 ms late or more.",
             &per_link(links, |s| s.release_lateness.missed),
         )?;
 

@@ -156,7 +156,6 @@
 mod blocking;
 mod conn;
 mod datagram;
-mod ports;
 mod stats;
 
 use core::fmt;
@@ -166,6 +165,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration as StdDuration;
 
+use crate::ports;
 use ndr_core::time::Instant;
 use ndr_core::wire::WireError;
 use ndr_netem::{DelayModel, Direction, LossModel};
@@ -683,6 +683,7 @@ fn bind_both(listen: SocketAddr) -> io::Result<(TcpListener, UdpSocket, SocketAd
     let (datagrams, listener, local_addr) = ports::bind_pair(
         listen,
         ports::BIND_ATTEMPTS,
+        "relay",
         |at| {
             let socket = std::net::UdpSocket::bind(at)?;
             let local = socket.local_addr()?;

@@ -121,6 +121,13 @@ pub enum Trust {
     Pinned(Vec<Fingerprint>),
 }
 
+impl Trust {
+    /// Any peer whose chain leads to a root in the PEM file `ca`.
+    pub fn ca_file(ca: impl AsRef<Path>) -> Result<Trust, TlsError> {
+        read_certs(ca.as_ref()).map(Trust::Ca)
+    }
+}
+
 /// Why TLS could not be set up from the given files or values.
 #[non_exhaustive]
 pub enum TlsError {

@@ -49,10 +49,26 @@ fn filled(way: &[OneWay]) -> Vec<(Instant, Duration)> {
     out
 }
 
-/// The trace that gives a frame sent at `t` the delay of the last sample
-/// sent at or before `t` in its direction: one row per sample, both
-/// directions on one time line. A direction with no sample takes the
-/// other's delays (a recording made on one side only measured its own).
+/// Each sample's row of `way` (in send order): from halfway between the
+/// send before it and its own on, so that a frame takes the delay of the
+/// sample sent nearest to it. A replay's sends fall near the recorded
+/// ones, a little before or after (clock estimates, a playout's choices):
+/// each still meets its own sample's delay, not its neighbour's.
+fn nearest(way: Vec<(Instant, Duration)>) -> Vec<(Instant, Duration)> {
+    let mut before: Option<Instant> = None;
+    way.into_iter()
+        .map(|(sent, d)| {
+            let from = before.map_or(sent, |b| b + (sent - b) / 2);
+            before = Some(sent);
+            (from, d)
+        })
+        .collect()
+}
+
+/// The trace that gives a frame sent at `t` the delay of the sample sent
+/// nearest to `t` in its direction: one row per sample, both directions
+/// on one time line. A direction with no sample takes the other's delays
+/// (a recording made on one side only measured its own).
 ///
 /// # Errors
 ///
@@ -62,6 +78,7 @@ pub fn one_way_trace(forward: &[OneWay], backward: &[OneWay]) -> Result<Trace, T
     let (mut fwd, mut bwd) = (filled(forward), filled(backward));
     fwd.sort_by_key(|r| r.0);
     bwd.sort_by_key(|r| r.0);
+    let (mut fwd, mut bwd) = (nearest(fwd), nearest(bwd));
     if fwd.is_empty() {
         fwd.clone_from(&bwd);
     }
@@ -108,7 +125,7 @@ mod tests {
     }
 
     #[test]
-    fn each_frame_takes_the_delay_of_the_last_sample_sent_before_it() {
+    fn each_frame_takes_the_delay_of_the_sample_sent_nearest_to_it() {
         let fwd = [
             OneWay {
                 sent: at(0),
@@ -126,7 +143,10 @@ mod tests {
         let t = one_way_trace(&fwd, &bwd).unwrap();
         use crate::Direction::{Backward, Forward};
         assert_eq!(t.delay(Forward, at(0)), ms(10));
-        assert_eq!(t.delay(Forward, at(99)), ms(10));
+        assert_eq!(t.delay(Forward, at(49)), ms(10));
+        // A frame sent a little before the second sample is that sample.
+        assert_eq!(t.delay(Forward, at(50)), ms(30));
+        assert_eq!(t.delay(Forward, at(99)), ms(30));
         assert_eq!(t.delay(Forward, at(100)), ms(30));
         // Before the first backward sample, its first delay.
         assert_eq!(t.delay(Backward, at(0)), ms(20));
@@ -157,6 +177,7 @@ mod tests {
         use crate::Direction::{Backward, Forward};
         // Arrived with the next, at 70 ms: 60 ms after its send.
         assert_eq!(t.delay(Forward, at(10)), ms(60));
+        assert_eq!(t.delay(Forward, at(6)), ms(60));
         // The last, with nothing after it: the last delay known.
         assert_eq!(t.delay(Forward, at(30)), ms(50));
         assert_eq!(t.delay(Backward, at(20)), ms(50));

@@ -48,6 +48,8 @@ pub struct TraceRow {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Trace {
     rows: Vec<TraceRow>,
+    /// A replayed recording's: when its link sent its first command.
+    anchor: Option<Instant>,
 }
 
 /// Which column of a trace row.
@@ -301,7 +303,26 @@ impl Trace {
         if rows.is_empty() {
             return Err(TraceError::NoRows);
         }
-        Ok(Trace { rows })
+        Ok(Trace { rows, anchor: None })
+    }
+
+    /// This trace, its time line tied to a link's: `at` is when the
+    /// recorded link sent its first command, and a simulator replaying it
+    /// shifts the trace so that its own link's first command goes out
+    /// then, the handshake and initialization before it taking the first
+    /// rows' delays. A recording's samples then meet the delays they met,
+    /// however long the simulated set-up takes.
+    #[must_use]
+    pub fn with_anchor(mut self, at: Instant) -> Self {
+        self.anchor = Some(at);
+        self
+    }
+
+    /// When the recorded link sent its first command, if this trace is a
+    /// recording's ([`Trace::with_anchor`]).
+    #[must_use]
+    pub fn anchor(&self) -> Option<Instant> {
+        self.anchor
     }
 
     /// Reads and parses a trace file (at most [`MAX_TRACE_FILE_BYTES`]).
@@ -348,7 +369,7 @@ impl Trace {
                 previous_s: rows[i].at.as_secs_f64(),
             });
         }
-        Ok(Trace { rows })
+        Ok(Trace { rows, anchor: None })
     }
 
     /// The rows, in time order.

@@ -2,6 +2,7 @@
 //! operator and a plant. Time jumps from one deadline or arrival to the next.
 
 use std::boxed::Box;
+use std::collections::VecDeque;
 use std::fmt;
 use std::vec::Vec;
 
@@ -66,6 +67,27 @@ impl PlantConfig {
     }
 }
 
+/// When the simulated remote's application answers a command its link
+/// released: its state, sent back, names that command as the one it
+/// answers, and the base's GRTT runs from it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Answer {
+    /// In the tick that released it: an application run in its driver's
+    /// loop (the drive contract), whose state goes out in that tick's frame.
+    #[default]
+    SameTick,
+    /// At the next tick: an application on a thread of its own (`ndr
+    /// demo`'s robot), whose state reaches its driver after the tick's
+    /// frame went out, so that the next tick's frame carries it.
+    NextTick,
+}
+
+/// How long after a release the remote's application of
+/// [`Answer::NextTick`] hands its state over: a thread's wake-up, well
+/// within a period.
+const THREAD_ANSWER: Duration = Duration::from_micros(1);
+
 /// One simulation run.
 #[derive(Clone, Debug)]
 #[non_exhaustive]
@@ -108,6 +130,8 @@ pub struct SimConfig {
     pub signal: Signal,
     /// The remote's plant.
     pub plant: PlantConfig,
+    /// When the remote's application answers a released command.
+    pub answer: Answer,
     /// Keep one [`Row`] per base tick.
     pub record_series: bool,
     /// Keep every command's timing at the remote ([`SimOutput::forward`]).
@@ -134,6 +158,7 @@ impl SimConfig {
             axes: 1,
             signal: Signal::default(),
             plant: PlantConfig::default(),
+            answer: Answer::SameTick,
             record_series: false,
             record_forward: false,
         }
@@ -281,6 +306,13 @@ pub(crate) struct Network {
     /// The period the link runs at: one frame each way per period.
     pub(crate) period: Duration,
     remote_clock: SkewedClock,
+    /// A replayed recording's anchor ([`Trace::anchor`](super::delay::Trace::anchor)),
+    /// and when this link sent its first command: the trace's time is the
+    /// anchor plus the time since then.
+    anchor: Option<Instant>,
+    first_command: Option<Instant>,
+    /// An anchored trace's length from its anchor to its last row.
+    replay_len: Duration,
 }
 
 impl Network {
@@ -292,18 +324,70 @@ impl Network {
             datagram_paths: [InOrderPath::new(), InOrderPath::new()],
             period: cfg.period,
             remote_clock: SkewedClock::new(cfg.remote_skew_ppm),
+            anchor: match &cfg.model {
+                DelayModel::Trace(t) => t.anchor(),
+                _ => None,
+            },
+            first_command: None,
+            replay_len: match &cfg.model {
+                DelayModel::Trace(t) => t
+                    .anchor()
+                    .and_then(|a| (Instant::ZERO + t.duration()).checked_duration_since(a))
+                    .unwrap_or(Duration::ZERO),
+                _ => Duration::ZERO,
+            },
+        }
+    }
+
+    /// Whether the run waits for its first command to tie the trace's
+    /// time line to its own.
+    fn awaits_first_command(&self) -> bool {
+        self.anchor.is_some() && self.first_command.is_none()
+    }
+
+    /// When an anchored trace's last row comes on this run's time line:
+    /// the recording ends there, and so does its replay.
+    fn replay_end(&self) -> Option<Instant> {
+        self.anchor?;
+        Some(self.first_command? + self.replay_len)
+    }
+
+    /// The time on the delay model's line of a frame `from` sends at
+    /// `sent`: the simulation's, or for an anchored trace the anchor plus
+    /// the time since the first command (before it, the anchor: the
+    /// set-up meets the delays the recorded link's first samples met).
+    fn model_time(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Instant {
+        let Some(anchor) = self.anchor else {
+            return sent;
+        };
+        if self.first_command.is_none() && from == Role::Base && carries_sample(frame) {
+            self.first_command = Some(sent);
+        }
+        match self.first_command {
+            Some(first) => anchor + sent.checked_duration_since(first).unwrap_or(Duration::ZERO),
+            None => anchor,
         }
     }
 
     /// When what `from` sends at `sent` reaches its peer (a datagram, or a
     /// frame of the TCP stream), or `None` if a datagram is lost.
     pub(crate) fn deliver(&mut self, from: Role, sent: Instant, datagram: bool) -> Option<Instant> {
+        self.deliver_at(from, sent, sent, datagram)
+    }
+
+    /// [`Network::deliver`], the delay the model's at `model_time`.
+    fn deliver_at(
+        &mut self,
+        from: Role,
+        sent: Instant,
+        model_time: Instant,
+        datagram: bool,
+    ) -> Option<Instant> {
         let (dir, direction) = match from {
             Role::Base => (0, Direction::Forward),
             Role::Remote => (1, Direction::Backward),
         };
-        // The network runs on simulation time.
-        let delay = self.sampler.delay(direction, sent);
+        let delay = self.sampler.delay(direction, model_time);
         // A datagram: lost for good, or through the path's queues, which
         // keep their order (the delay models' jitter is queueing, not
         // reordering; a lost datagram holds nothing back).
@@ -326,7 +410,8 @@ impl Network {
     /// [`Network::deliver`] for an endpoint's frame.
     pub(crate) fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
         let datagram = frame.get(5) == Some(&(Kind::Bundle as u8));
-        self.deliver(from, sent, datagram)
+        let model_time = self.model_time(from, sent, frame);
+        self.deliver_at(from, sent, model_time, datagram)
     }
 
     /// `side`'s clock at simulation time `t`.
@@ -344,6 +429,15 @@ impl Network {
             Role::Remote => self.remote_clock.global(t),
         }
     }
+}
+
+/// Whether `frame` carries a sample (not a probe or a control frame).
+fn carries_sample(frame: &[u8]) -> bool {
+    Frame::new_checked(frame).is_ok_and(|f| match f.payload() {
+        Payload::Data(channels) => !channels.is_empty(),
+        Payload::Bundle(b) => b.width() > 0,
+        _ => false,
+    })
 }
 
 /// The [`World`] methods of a simulated world that holds its [`Network`]
@@ -386,6 +480,9 @@ struct SimWorld<'a> {
     forward: Option<ForwardLog>,
     /// Whether the last command frame to reach the remote carried a sample.
     last_was_sample: bool,
+    /// The remote's states not handed to its endpoint yet
+    /// ([`Answer::NextTick`]): when (simulation time) and what.
+    answers: VecDeque<(Instant, Vec<f64>)>,
 }
 
 /// The two endpoints of a run of `cfg`, `width` values each way.
@@ -431,12 +528,55 @@ pub fn run(cfg: &SimConfig) -> Result<SimOutput, SimError> {
         collect: Collector::new(cfg),
         forward: cfg.record_forward.then(ForwardLog::default),
         last_was_sample: false,
+        answers: VecDeque::new(),
     };
     let (base, remote) = endpoints(cfg, cfg.axes)?;
     let mut pair = Pair::new(base, remote, world);
-    pair.run_until(Instant::ZERO + cfg.duration)?;
+    let end = Instant::ZERO + cfg.duration;
+    let stop = |w: &SimWorld<'_>| w.net.replay_end().map_or(end, |e| e.min(end));
+    let mut cursor = Instant::ZERO;
+    loop {
+        let limit = stop(&pair.world);
+        // The remote's answers are given between its ticks, as a thread of
+        // its own gives them: run to its next deadline (a release gives an
+        // answer), to each answer, and hand it over. A replay runs a period
+        // at a time until its first command ties the trace to it.
+        let step = Duration::from_nanos(1);
+        let until = match pair.world.answers.front() {
+            Some(&(at, _)) if at <= limit => at,
+            _ if cfg.answer == Answer::NextTick => pair
+                .remote
+                .poll_timeout()
+                .map_or(limit, |d| pair.world.net.global(Role::Remote, d))
+                .min(cursor + cfg.period)
+                .max(cursor + step)
+                .min(limit),
+            _ if pair.world.net.awaits_first_command() => (cursor + cfg.period).min(limit),
+            _ => limit,
+        };
+        pair.run_until(until)?;
+        cursor = cursor.max(until);
+        while pair.world.answers.front().is_some_and(|a| a.0 <= until) {
+            let Some((_, state)) = pair.world.answers.pop_front() else {
+                break;
+            };
+            let now = pair.world.net.local(Role::Remote, until);
+            pair.world
+                .set_sample(Role::Remote, &mut pair.remote, now, &state)?;
+        }
+        if cursor >= stop(&pair.world) {
+            break;
+        }
+    }
     let (base, remote, world) = pair.into_parts();
-    let mut out = world.collect.finish(cfg, &base, &remote);
+    // A replay that ended with its recording ran that long.
+    let ran = world.net.replay_end().map(|_| SimConfig {
+        duration: cursor - Instant::ZERO,
+        ..cfg.clone()
+    });
+    let mut out = world
+        .collect
+        .finish(ran.as_ref().unwrap_or(cfg), &base, &remote);
     out.forward = world.forward.unwrap_or_default();
     Ok(out)
 }
@@ -477,7 +617,13 @@ impl World<Heap> for SimWorld<'_> {
                         *out = plant.step(u);
                     }
                     let out = self.plant_out.clone();
-                    self.set_sample(side, ep, now, &out)?;
+                    match self.cfg.answer {
+                        Answer::SameTick => self.set_sample(side, ep, now, &out)?,
+                        Answer::NextTick => {
+                            let at = self.global(side, now) + THREAD_ANSWER;
+                            self.answers.push_back((at, out));
+                        }
+                    }
                 }
             }
             Event::Started { period, ns } => {
@@ -666,5 +812,32 @@ mod tests {
             cfg.axes = axes;
             assert!(matches!(run(&cfg), Err(SimError::Axes(a)) if a == axes));
         }
+    }
+}
+
+#[cfg(test)]
+mod answer_tests {
+    use super::*;
+
+    #[test]
+    fn a_remote_that_answers_at_the_next_tick_adds_a_period_to_each_round_trip() {
+        let grtt = |answer| {
+            let mut cfg = SimConfig::paper(DelayModel::Constant {
+                fwd: Duration::from_millis(100),
+                bwd: Duration::from_millis(100),
+            })
+            .with_regulation("constant:200".parse().unwrap());
+            cfg.period = Duration::from_millis(50);
+            cfg.duration = Duration::from_secs(10);
+            cfg.answer = answer;
+            let r = run(&cfg).unwrap().report;
+            assert!(r.grtt_count > 150, "{} round trips", r.grtt_count);
+            assert!(r.grtt_std_s < 1e-9, "GRTT std {}", r.grtt_std_s);
+            r.grtt_mean_s
+        };
+        // 200 ms of playout each way, and the state sent at the release's
+        // tick or at the next one.
+        assert!((grtt(Answer::SameTick) - 0.400).abs() < 1e-9);
+        assert!((grtt(Answer::NextTick) - 0.450).abs() < 1e-9);
     }
 }

@@ -49,7 +49,7 @@ mod report;
 pub mod signal;
 
 pub use engine::{
-    CommandTiming, ForwardLog, MAX_SIM_AXES, PlantConfig, SIM_QUEUE, SimConfig, SimError,
+    Answer, CommandTiming, ForwardLog, MAX_SIM_AXES, PlantConfig, SIM_QUEUE, SimConfig, SimError,
     SimOutput, run,
 };
 pub use report::{Report, Row, percentile};

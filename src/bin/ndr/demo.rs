@@ -10,7 +10,7 @@ use std::time::{Duration as StdDuration, Instant as StdInstant};
 use ndr::net::{Link, LinkStats, Listener, NetError, Relay, RelayConfig, TlsConfig};
 use ndr::netem::LossModel;
 
-use ndr::core::wire::Role;
+use ndr::core::wire::{Role, Seat};
 use ndr::net::metrics::RelayLabels;
 
 use crate::args::{DelayArgs, LinkArgs, MetricsArgs, PlantArgs, RecordArgs, RunArgs, record};
@@ -23,6 +23,7 @@ use crate::runtime::runtime;
 use crate::throwaway::Throwaway;
 use crate::tracking::check_layout;
 use crate::transport::{LinkTransport, check_loss};
+use crate::watchers::Watcher;
 
 #[derive(clap::Args)]
 pub struct DemoArgs {
@@ -47,6 +48,12 @@ pub struct DemoArgs {
     pub seed: u64,
     #[command(flatten)]
     pub metrics: MetricsArgs,
+    /// Observers watching beside the operator: N more bases, each on a
+    /// link of its own through the relay, that receive the robot's state
+    /// at their own constant delay and the commands it applied, and send
+    /// none (at most 64). The report gives what each saw.
+    #[arg(long, value_name = "N")]
+    pub observers: Option<usize>,
 }
 
 pub fn run(args: &DemoArgs) -> Result<(), String> {
@@ -57,7 +64,11 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         transport: Some(args.link.transport.unwrap_or(LinkTransport::UDP)),
         ..args.link.clone()
     };
-    let config = link.config()?;
+    let mut config = link.config()?;
+    let observers = observers(args.observers)?;
+    if observers > 0 {
+        config.admission.observers = Some(observers);
+    }
     check_loss(
         link.transport().carriage(),
         &args.loss,
@@ -97,10 +108,24 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
             listener.accept(),
             Link::connect(relay.local_addr(), base_config.clone())
         );
+        let (remote, base) = (remote?, base?);
+        // The observers come once the operator's base holds control.
+        let mut watching = Vec::with_capacity(observers);
+        let mut watched = base_config.clone();
+        watched.endpoint.seat = Seat::Observe;
+        for _ in 0..observers {
+            let (r, o) = tokio::join!(
+                listener.accept(),
+                Link::connect(relay.local_addr(), watched.clone())
+            );
+            watching.push((r?, o?));
+        }
         let upstream = listener.local_addr()?;
-        Ok::<_, NetError>((base?, remote?, relay, upstream))
+        Ok::<_, NetError>((base, remote, watching, relay, upstream, listener))
     });
-    let (mut base, mut remote, relay, upstream) = match set_up {
+    // (The listener lives as long as the links: a shared robot's floor,
+    // which grants control, is its.)
+    let (mut base, mut remote, watching, relay, upstream, _listener) = match set_up {
         Ok(parts) => parts,
         Err(e) => {
             let (series, error) = series.close();
@@ -115,17 +140,21 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
                 seating: None,
                 host: None,
                 recording: record::finish(recorder),
+                observers: Vec::new(),
             };
             return finish(link, &args.run, &with_series_error(outcome, error));
         }
     };
     let transport = link.transport();
-    served.watch_link(
-        remote.peer_addr(),
-        Role::Remote,
-        transport,
-        &remote.sender(),
-    );
+    // A shared robot shows each of its links itself.
+    if observers == 0 {
+        served.watch_link(
+            remote.peer_addr(),
+            Role::Remote,
+            transport,
+            &remote.sender(),
+        );
+    }
     served.watch_link(base.peer_addr(), Role::Base, transport, &base.sender());
     if let Some(m) = served.metrics() {
         let labels = RelayLabels::new(relay.local_addr().to_string(), upstream.to_string());
@@ -134,7 +163,10 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     // Both sides into one file: the base's releases are the states, the
     // remote's the commands.
     record::attach(recorder.as_ref(), &mut base);
-    record::attach(recorder.as_ref(), &mut remote);
+    // A shared robot records each of its links itself.
+    if observers == 0 {
+        record::attach(recorder.as_ref(), &mut remote);
+    }
     // The run starts with the link: the set-up waited for its handshake.
     let until = StdInstant::now() + StdDuration::from_secs_f64(args.run.duration_s);
 
@@ -142,39 +174,82 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
     let remote_stats = Arc::new(Mutex::new(None::<LinkStats>));
     let (base_late, remote_late) = (Mutex::default(), Arc::new(Mutex::default()));
     let watch = pauses::Watch::start();
-    let robot = {
-        let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
-        let late = Arc::clone(&remote_late);
-        let spec = DriveSpec {
-            axes: usize::from(link.axes),
-            layout: link.state.clone(),
-            period: config.endpoint.period,
-            max_command,
-        };
-        std::thread::Builder::new()
-            .name("ndr-demo-robot".into())
-            .spawn(move || robot(remote, spec, &stop, &remote_stats, Some(&late)))
-            .map_err(|e| e.to_string())?
+    let spec = DriveSpec {
+        axes: usize::from(link.axes),
+        layout: link.state.clone(),
+        period: config.endpoint.period,
+        max_command,
     };
-
-    let (base_stats, end, tracking) = operator(
-        base,
-        &args.run,
-        link.axes,
-        until,
-        Some(&remote_stats),
-        &mut series,
-        Kept {
-            late: Some(&base_late),
-            seating: None,
-        },
-    );
-    stop.store(true, Ordering::Relaxed);
-    match robot.join() {
-        Ok(session) if session.ok() => tracing::info!("remote: {session}"),
-        Ok(session) => tracing::warn!("remote: {session}"),
-        Err(_) => tracing::error!("remote: the robot's thread panicked"),
-    }
+    let shared_stop = crate::signals::Stop::default();
+    let (base_stats, end, tracking, watched) = std::thread::scope(|scope| {
+        let robot = if observers == 0 {
+            let (stop, remote_stats) = (Arc::clone(&stop), Arc::clone(&remote_stats));
+            let late = Arc::clone(&remote_late);
+            std::thread::Builder::new()
+                .name("ndr-demo-robot".into())
+                .spawn_scoped(scope, move || {
+                    let session = robot(remote, spec, &stop, &remote_stats, Some(&late));
+                    if session.ok() {
+                        tracing::info!("remote: {session}");
+                    } else {
+                        tracing::warn!("remote: {session}");
+                    }
+                    Vec::new()
+                })
+                .map_err(|e| e.to_string())?
+        } else {
+            let (tx, rx) = std::sync::mpsc::channel();
+            let mut watchers = Vec::with_capacity(observers);
+            let _ = tx.send(remote);
+            for (n, (r, o)) in watching.into_iter().enumerate() {
+                let _ = tx.send(r);
+                watchers.push(Watcher::start(n + 1, o, until, Arc::clone(&stop))?);
+            }
+            drop(tx);
+            let (served, remote_stats, shared_stop) = (&served, &remote_stats, &shared_stop);
+            let recorder = recorder.as_ref();
+            std::thread::Builder::new()
+                .name("ndr-demo-robot".into())
+                .spawn_scoped(scope, move || {
+                    let figures = crate::shared::Figures {
+                        served,
+                        transport,
+                        recorder,
+                        controller_stats: Some(remote_stats),
+                    };
+                    if let Err(why) = crate::shared::robot(&rx, spec, shared_stop, false, &figures)
+                    {
+                        tracing::error!("remote: {why}");
+                    }
+                    // (The watchers go back with the robot's thread.)
+                    watchers
+                })
+                .map_err(|e| e.to_string())?
+        };
+        let (base_stats, end, tracking) = operator(
+            base,
+            &args.run,
+            link.axes,
+            until,
+            Some(&remote_stats),
+            &mut series,
+            Kept {
+                late: Some(&base_late),
+                seating: None,
+            },
+        );
+        stop.store(true, Ordering::Relaxed);
+        shared_stop.set();
+        let watchers = robot.join().unwrap_or_else(|_| {
+            tracing::error!("remote: the robot's thread panicked");
+            Vec::new()
+        });
+        let mut watched = Vec::with_capacity(watchers.len());
+        for w in watchers {
+            watched.push(w.join()?);
+        }
+        Ok::<_, String>((base_stats, end, tracking, watched))
+    })?;
     let relay_stats = rt.block_on(relay.shutdown());
     let remote_final = *remote_stats
         .lock()
@@ -201,8 +276,21 @@ pub fn run(args: &DemoArgs) -> Result<(), String> {
         host,
         recording: record::finish(recorder),
         seating: None,
+        observers: watched,
     };
     finish(link, &args.run, &with_series_error(outcome, error))
+}
+
+/// `--observers`: how many, checked.
+fn observers(n: Option<usize>) -> Result<usize, String> {
+    match n {
+        Some(0) => Err("--observers 0: give at least one observer, or leave it out".into()),
+        Some(n) if n > ndr::core::floor::MAX_OBSERVERS => Err(format!(
+            "--observers {n}: a remote serves at most {} observers",
+            ndr::core::floor::MAX_OBSERVERS
+        )),
+        n => Ok(n.unwrap_or(0)),
+    }
 }
 
 /// How long after a host pause its late ticks may still come: the samples

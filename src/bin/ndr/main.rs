@@ -29,6 +29,7 @@ mod soak;
 mod throwaway;
 mod tracking;
 mod transport;
+mod watchers;
 
 use std::process::ExitCode;
 

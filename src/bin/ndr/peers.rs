@@ -11,7 +11,8 @@ use ndr::core::endpoint::Event;
 use ndr::core::wire::{Role, Seat};
 
 use crate::args::{
-    LinkArgs, MetricsArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs, record, resolve,
+    LinkArgs, MetricsArgs, ObserverTrustArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs, record,
+    resolve,
 };
 use crate::metrics::Served;
 use crate::operator::{Kept, operator};
@@ -77,6 +78,8 @@ pub struct RemoteArgs {
     /// --once, it stops when the last base has left.
     #[arg(long, value_name = "N", num_args = 0..=1, default_missing_value = "4")]
     pub observers: Option<usize>,
+    #[command(flatten)]
+    pub observer_trust: ObserverTrustArgs,
     /// When it stops, print one JSON object on stdout: the listener's
     /// counters, the hand-overs of control, the commands refused, and each
     /// base's session.
@@ -199,6 +202,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
         host: None,
         recording: record::finish(recorder),
         seating: Some(seating),
+        observers: Vec::new(),
     };
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
@@ -249,6 +253,7 @@ fn wait_for_control(link: &mut Link, deadline: StdInstant, secs: f64) -> Result<
 pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let mut config = args.link.config()?;
     let tls = args.security.apply(&mut config)?;
+    let tls = args.observer_trust.apply(tls)?;
     crate::transport::check_security(args.link.transport(), tls.is_some())?;
     let max_command = args.plant.max_command()?;
     if let Some(n) = args.observers
@@ -260,13 +265,6 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
         ));
     }
     config.admission.observers = args.observers;
-    if args.observers.is_some() && args.record.record.is_some() {
-        return Err(
-            "--record with --observers: a shared remote is not recorded yet; \
-                    record on the bases (ndr base --record)"
-                .to_string(),
-        );
-    }
     let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     config.tls = tls;
@@ -301,7 +299,14 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
                 "ndr remote: waiting for bases on {addr} (a controller and up to {n} observers; \
                  SIGUSR1: print the counters; SIGINT or SIGTERM: stop)"
             );
-            serve_shared(args, &rt, &listener, &stop, spec)
+            serve_shared(
+                args,
+                (&served, recorder.as_ref()),
+                &rt,
+                &listener,
+                &stop,
+                spec,
+            )
         }
         None => {
             eprintln!(
@@ -351,6 +356,7 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
 /// makes the exit status non-zero, if any.
 fn serve_shared(
     args: &RemoteArgs,
+    (served, recorder): (&Served, Option<&ndr::net::Recorder>),
     rt: &tokio::runtime::Runtime,
     listener: &Arc<Listener>,
     stop: &Arc<Stop>,
@@ -376,7 +382,13 @@ fn serve_shared(
             }
         }
     });
-    let served = crate::shared::robot(&rx, spec, stop, args.once);
+    let figures = crate::shared::Figures {
+        served,
+        transport: args.link.transport(),
+        recorder,
+        controller_stats: None,
+    };
+    let served = crate::shared::robot(&rx, spec, stop, args.once, &figures);
     let stopped = if accepting.is_finished() {
         rt.block_on(accepting).ok().flatten()
     } else {

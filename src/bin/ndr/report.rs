@@ -51,7 +51,9 @@ impl End {
 /// `refused` names it: `busy` (it serves another base), `per_source` (too
 /// many handshakes pending from this side's address), `evicted` (every
 /// handshake slot taken), `version`, `role`, `width`, `layout`, `period`,
-/// `mode`, `transport` (the peers' settings differ); `None` for any other
+/// `mode`, `transport` (the peers' settings differ), `observer_only` (this
+/// side's identity may only observe a shared robot), `observers_full`
+/// (every observer's seat taken); `None` for any other
 /// end.
 pub fn refusal(e: &NetError) -> Option<&'static str> {
     use ndr::core::wire::CloseReason;
@@ -80,6 +82,8 @@ pub fn refusal(e: &NetError) -> Option<&'static str> {
         CloseReason::PeriodMismatch => "period",
         CloseReason::ModeMismatch => "mode",
         CloseReason::TransportMismatch => "transport",
+        CloseReason::ObserverOnly => "observer_only",
+        CloseReason::ObserversFull => "observers_full",
         _ => return None,
     })
 }
@@ -311,6 +315,8 @@ pub struct Outcome<'a> {
     pub recording: Option<RecordingSummary>,
     /// `ndr base`: its seat at the robot.
     pub seating: Option<Seating>,
+    /// `ndr demo --observers`: what each observer saw.
+    pub observers: Vec<crate::watchers::Watched>,
 }
 
 /// What `ndr demo --json` and `ndr base --json` print. Times in seconds.
@@ -414,11 +420,12 @@ struct DemoReport {
     /// shows here first.
     clock_base_max_s: f64,
     clock_remote_max_s: f64,
-    /// Deadlines (ticks, repeats, timers) the hubs woke for 1 ms late or
-    /// more, both sides (their `lateness.missed`): the host's doing, a hub
-    /// held. One held past a period may make a sample late or move the
-    /// FIFO's delay a period.
-    ticks_missed: u64,
+    /// Wakes of the hubs for a deadline (a tick, a repeat, a timer) 1 ms
+    /// late or more, both sides (their `lateness.missed`): the host's
+    /// doing, a hub held. Not ticks: one wake may serve several ticks of
+    /// several links. One held past a period may make a sample late or move
+    /// the FIFO's delay a period.
+    wakes_late: u64,
     /// How long before a deadline each side's hub spins, as learned from
     /// its timer at the end.
     spin_margin_base_s: f64,
@@ -449,6 +456,9 @@ struct DemoReport {
     /// `--record`: the file, the messages and chunks written, the events
     /// dropped (the writer fell behind) and the error that stopped it.
     recording: Option<RecordingSummary>,
+    /// `ndr demo --observers`: what each observer saw.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    observers: Vec<crate::watchers::Watched>,
 }
 
 /// A run that completed but whose series could not be written failed.
@@ -557,7 +567,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         clock_remote_p99_s: clock(remote, |l| l.p99),
         clock_base_max_s: clock(b, |l| l.max),
         clock_remote_max_s: clock(remote, |l| l.max),
-        ticks_missed: b.map_or(0, |s| s.lateness.missed) + remote.map_or(0, |s| s.lateness.missed),
+        wakes_late: b.map_or(0, |s| s.lateness.missed) + remote.map_or(0, |s| s.lateness.missed),
         spin_margin_base_s: b.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         spin_margin_remote_s: remote.map_or(0.0, |s| s.spin_margin.as_secs_f64()),
         relay_frames_fwd: relay.map(|r| r.forward.frames_delivered),
@@ -571,6 +581,7 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         tracking: o.tracking,
         host: o.host,
         recording: o.recording.clone(),
+        observers: o.observers.clone(),
     }
 }
 
@@ -714,6 +725,9 @@ fn print_table(r: &DemoReport) {
                 .as_ref()
                 .map_or_else(String::new, |e| format!(": {e}"))
         );
+    }
+    for o in &r.observers {
+        println!("  watching   {o}");
     }
 }
 

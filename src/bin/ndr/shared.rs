@@ -7,11 +7,13 @@
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
+use std::sync::Mutex;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::Duration as StdDuration;
 
 use ndr::core::endpoint::{Event, LinkError};
-use ndr::net::{Link, NetError};
+use ndr::net::metrics::WatchId;
+use ndr::net::{Link, LinkStats, NetError};
 use serde::Serialize;
 
 use crate::robot::{Drive, DriveSpec, SessionEnd};
@@ -61,6 +63,8 @@ pub struct Served {
 struct Live {
     link: Link,
     peer: SocketAddr,
+    /// Its figures on the `--metrics` page, while it lasts.
+    watched: Option<WatchId>,
     terms: Vec<u16>,
     applied: u64,
     after_term: u64,
@@ -68,13 +72,19 @@ struct Live {
 }
 
 impl Live {
-    fn new(link: Link) -> Live {
-        eprintln!(
-            "ndr remote: base {}: handshake done, running the initialization pattern",
-            link.peer_addr()
+    fn new(mut link: Link, figures: &Figures) -> Live {
+        let peer = link.peer_addr();
+        eprintln!("ndr remote: base {peer}: handshake done, running the initialization pattern");
+        crate::args::record::attach(figures.recorder, &mut link);
+        let watched = figures.served.watch_link(
+            peer,
+            ndr::core::wire::Role::Remote,
+            figures.transport,
+            &link.sender(),
         );
         Live {
-            peer: link.peer_addr(),
+            peer,
+            watched,
             link,
             terms: Vec::new(),
             applied: 0,
@@ -107,6 +117,25 @@ impl Served {
     }
 }
 
+/// Where each link's figures go: the `--metrics` page (labelled with the
+/// transport the links run on), the `--record`ing (every link, numbered
+/// in the order the bases came), and (`ndr demo`) the controller's link's
+/// latest counters.
+pub struct Figures<'a> {
+    pub served: &'a crate::metrics::Served,
+    pub transport: ndr::net::Transport,
+    pub recorder: Option<&'a ndr::net::Recorder>,
+    pub controller_stats: Option<&'a Mutex<Option<LinkStats>>>,
+}
+
+impl Figures<'_> {
+    fn publish(&self, stats: Option<LinkStats>) {
+        if let Some(m) = self.controller_stats {
+            *m.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = stats;
+        }
+    }
+}
+
 /// Drives the robot for every link that comes on `links` until `stop`
 /// (or, with `once`, until the last base has gone after at least one
 /// came); what it served.
@@ -115,6 +144,7 @@ pub fn robot(
     spec: DriveSpec,
     stop: &Stop,
     once: bool,
+    figures: &Figures,
 ) -> Result<Served, String> {
     let period = StdDuration::from_secs_f64(spec.period.as_secs_f64());
     let mut drive = Drive::new(spec)?;
@@ -137,9 +167,9 @@ pub fn robot(
         match links.recv_timeout(wait) {
             Ok(link) => {
                 came = true;
-                live.push(Live::new(link));
+                live.push(Live::new(link, figures));
                 while let Ok(link) = links.try_recv() {
-                    live.push(Live::new(link));
+                    live.push(Live::new(link, figures));
                 }
             }
             Err(RecvTimeoutError::Timeout) => {}
@@ -238,6 +268,9 @@ pub fn robot(
                 }
             }
         }
+        if let Some(c) = at {
+            figures.publish(live[c].link.stats());
+        }
         if stepped {
             let state = drive.step(&held_commands)?.to_vec();
             for (i, l) in live.iter().enumerate() {
@@ -260,20 +293,21 @@ pub fn robot(
             if controller == Some(l.peer) {
                 controller = None;
             }
-            served.push(close(l, end));
+            served.push(close(l, end, figures));
         }
     }
     for l in live {
-        served.push(close(l, SessionEnd::Stopped));
+        served.push(close(l, SessionEnd::Stopped, figures));
     }
     Ok(served)
 }
 
 /// Closes a session's link; its line on stderr, its entry in the report.
-fn close(l: Live, end: SessionEnd) -> Session {
+fn close(l: Live, end: SessionEnd, figures: &Figures) -> Session {
     let Live {
         link,
         peer,
+        watched,
         terms,
         applied,
         after_term,
@@ -285,6 +319,10 @@ fn close(l: Live, end: SessionEnd) -> Session {
         link.abort();
     }
     let stats = link.close();
+    figures.served.unwatch(watched);
+    if !terms.is_empty() {
+        figures.publish(stats);
+    }
     let e = stats.map(|s| s.endpoint).unwrap_or_default();
     let role = if terms.is_empty() {
         "observer"

@@ -55,7 +55,7 @@ pub struct SimArgs {
     #[arg(long, default_value_t = 200.0)]
     pub period_ms: f64,
     /// Simulated time, in seconds (default 600; a recording given to
-    /// --trace: its length).
+    /// --trace: until its last sample).
     #[arg(long)]
     pub duration_s: Option<f64>,
     /// Seed of every random draw: the same seed gives the same run.
@@ -87,9 +87,11 @@ impl SimArgs {
         let model = self.net.model("lan-75km")?;
         let duration_s = match (self.duration_s, &model) {
             (Some(s), _) => s,
-            // A recording replays for as long as it lasted.
+            // A recording replays for as long as it lasted from its first
+            // command (the simulator stops there), after a set-up that may
+            // take longer than the recorded one.
             (None, DelayModel::Trace(t)) if self.net.is_recording() => {
-                t.duration().as_secs_f64().max(1.0)
+                2.0 * t.duration().as_secs_f64().max(1.0)
             }
             (None, _) => 600.0,
         };
@@ -119,6 +121,9 @@ impl SimArgs {
         cfg.axes = self.axes;
         cfg.signal = self.signal.clone();
         cfg.record_series = self.out.is_some();
+        if let Some(answer) = self.net.recorded_answer()? {
+            cfg.answer = answer;
+        }
         Ok(cfg)
     }
 }

@@ -66,9 +66,9 @@ pub(crate) fn read(e: &mut Entry, origin: StdInstant, drain: bool) {
             at: None,
             short: false,
         };
-        let eof = match tls.conn.read_tls(&mut src) {
-            Ok(0) => true,
-            Ok(_) => false,
+        let (eof, n) = match tls.conn.read_tls(&mut src) {
+            Ok(0) => (true, 0),
+            Ok(n) => (false, n),
             Err(err) if err.kind() == io::ErrorKind::WouldBlock => return,
             Err(err) if err.kind() == io::ErrorKind::Interrupted => continue,
             Err(_) => {
@@ -92,6 +92,11 @@ pub(crate) fn read(e: &mut Entry, origin: StdInstant, drain: bool) {
             return;
         }
         if e.endpoint.is_closed() || (short && !drain) {
+            return;
+        }
+        // The rest waits for the link's next deadline (see
+        // `READ_FRAMES_PER_DEADLINE`).
+        if e.spend_read(n, drain) {
             return;
         }
     }

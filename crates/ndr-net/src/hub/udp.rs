@@ -8,7 +8,9 @@
 //! system calls, not one per link. On Linux, the datagrams of one length for
 //! one address leave as one message the kernel cuts back into them (UDP
 //! GSO), and a socket takes such runs whole (UDP GRO): the kernel's work per
-//! tick follows the peers' addresses, not the links.
+//! tick follows the peers' addresses, not the links. Batching never
+//! reorders a link's datagrams: a QUIC connection's packets differ in
+//! length, and one sent after a newer one arrives stale.
 //!
 //! A datagram goes to the link whose session token it carries (a Bundle
 //! names its receiver's token). Its endpoint takes samples only from the
@@ -147,8 +149,14 @@ struct Queued {
 pub(super) struct Outgoing {
     arena: Vec<u8>,
     queued: Vec<Queued>,
-    /// `queued`'s indices by socket, length and address (kept for its room).
+    /// `queued`'s indices in sending order (kept for its room).
     order: Vec<usize>,
+    /// Each queued datagram's wave (kept for its room): see
+    /// [`Outgoing::number_waves`].
+    waves: Vec<u32>,
+    /// Per socket and link, its last datagram's wave, length and address
+    /// (kept for its room).
+    last: HashMap<(u64, u64), (u32, usize, SocketAddr)>,
     /// The messages of one socket and length (kept for its room).
     messages: Vec<Message>,
 }
@@ -191,6 +199,29 @@ impl Outgoing {
             to,
             bytes: start..self.arena.len(),
         });
+    }
+}
+
+impl Outgoing {
+    /// Numbers each queued datagram with its wave: a link's datagrams on a
+    /// socket, in the order queued, split where the length or the address
+    /// changes; the first run is wave 0, the next wave 1, and so on. Sent
+    /// wave after wave, and within a wave by length and address, a link's
+    /// datagrams keep their order, while the runs of one length for one
+    /// address of all the links in a wave still leave together.
+    fn number_waves(&mut self) {
+        self.waves.clear();
+        self.last.clear();
+        for q in &self.queued {
+            let (len, to) = (q.bytes.len(), q.to);
+            let wave = match self.last.get(&(q.socket, q.link)) {
+                Some(&(w, l, t)) if (l, t) == (len, to) => w,
+                Some(&(w, _, _)) => w + 1,
+                None => 0,
+            };
+            self.last.insert((q.socket, q.link), (wave, len, to));
+            self.waves.push(wave);
+        }
     }
 }
 
@@ -393,12 +424,16 @@ impl Udp {
     /// Sends every queued datagram, counting those the socket refuses on
     /// their links.
     pub(super) fn send_all(&mut self, entries: &mut HashMap<u64, Entry>) {
+        self.out.number_waves();
         let mut order = std::mem::take(&mut self.out.order);
         order.clear();
         order.extend(0..self.out.queued.len());
-        // Stable: a link's datagrams of one length keep their order.
-        let queued = &self.out.queued;
-        order.sort_by_key(|&i| (queued[i].socket, queued[i].bytes.len(), queued[i].to));
+        // Stable, and a link's waves in order: its datagrams keep theirs.
+        let (queued, waves) = (&self.out.queued, &self.out.waves);
+        order.sort_by_key(|&i| {
+            let q = &queued[i];
+            (q.socket, waves[i], q.bytes.len(), q.to)
+        });
         let mut start = 0;
         while start < order.len() {
             let first = &self.out.queued[order[start]];
@@ -833,6 +868,79 @@ mod tests {
         for (i, d) in got.iter().enumerate() {
             let len = if i < 10 { 100 } else { 60 };
             assert_eq!(d, &vec![i as u8; len]);
+        }
+    }
+
+    /// A hub with socket 1 on loopback, and a peer socket (without GRO)
+    /// that reads what it sends.
+    fn sender_and_peer() -> (mio::Poll, Udp, std::net::UdpSocket) {
+        let poll = mio::Poll::new().expect("a poll");
+        let mut udp = Udp::new();
+        let new = NewSocket {
+            socket: loopback(),
+            stray: Arc::default(),
+            held: true,
+        };
+        udp.add(poll.registry(), 1, new).expect("takes the socket");
+        let peer = std::net::UdpSocket::bind("127.0.0.1:0").expect("binds");
+        peer.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+            .expect("a timeout");
+        (poll, udp, peer)
+    }
+
+    /// The first `n` datagrams `peer` gets, in the order it gets them.
+    fn read_n(peer: &std::net::UdpSocket, n: usize) -> Vec<Vec<u8>> {
+        let mut buf = [0; 256];
+        (0..n)
+            .map(|_| {
+                let got = peer.recv(&mut buf).expect("a datagram");
+                buf[..got].to_vec()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_links_datagrams_of_several_lengths_leave_in_the_order_written() {
+        // As a QUIC connection's packets after a hold: each a length of its
+        // own, the older ones longer or shorter than the newer.
+        let (_poll, mut udp, peer) = sender_and_peer();
+        let to = peer.local_addr().expect("an address");
+        let mut path = DatagramPath::new(1, 1, Some(to));
+        let lengths = [120, 60, 120, 120, 90, 60];
+        for (i, &len) in (0u8..).zip(&lengths) {
+            udp.out.push(7, &mut path, &vec![i; len]);
+        }
+        udp.send_all(&mut HashMap::new());
+        let got = read_n(&peer, lengths.len());
+        let firsts: Vec<u8> = got.iter().map(|d| d[0]).collect();
+        assert_eq!(firsts, [0, 1, 2, 3, 4, 5], "in the order written");
+        // The run of two of one length still left as one message.
+        assert_eq!(udp.sent.datagrams, 6);
+        if cfg!(target_os = "linux") {
+            assert_eq!(udp.sent.messages, 5);
+        }
+    }
+
+    #[test]
+    fn links_keep_their_order_and_their_runs_of_one_length_leave_together() {
+        // Ten links to one peer, each a datagram of 100 bytes then one of
+        // 60: two messages, every link's 100 before its 60.
+        let (_poll, mut udp, peer) = sender_and_peer();
+        let to = peer.local_addr().expect("an address");
+        for link in 0..10u8 {
+            let mut path = DatagramPath::new(1, 1, Some(to));
+            udp.out.push(u64::from(link), &mut path, &[link; 100]);
+            udp.out.push(u64::from(link), &mut path, &[link; 60]);
+        }
+        udp.send_all(&mut HashMap::new());
+        assert_eq!(udp.sent.datagrams, 20);
+        if cfg!(target_os = "linux") {
+            assert_eq!(udp.sent.messages, 2);
+        }
+        let got = read_n(&peer, 20);
+        for link in 0..10u8 {
+            let lengths: Vec<usize> = got.iter().filter(|d| d[0] == link).map(Vec::len).collect();
+            assert_eq!(lengths, [100, 60], "link {link}");
         }
     }
 

@@ -35,6 +35,15 @@ pub struct RecordedNetwork {
     /// event), Unix nanoseconds: just after the handshake, before the
     /// initialization pattern and the first sample.
     pub attached_unix_ns: Option<u64>,
+    /// The period the link started at (its first `started` event), seconds.
+    pub period_s: Option<f64>,
+    /// For each state the base released that closed a round trip, when the
+    /// command it answers is in the recording too (a recording of both
+    /// sides): how long after that command's release the remote sent the
+    /// state, seconds, on the remote's clock. A period for an application
+    /// that answers at the next tick, nothing for one that answers in the
+    /// tick of the release.
+    pub answer_lags_s: Vec<f64>,
     /// The file ended inside a record (its writer was killed): what came
     /// before is here.
     pub truncated: bool,
@@ -43,6 +52,16 @@ pub struct RecordedNetwork {
 #[derive(Deserialize)]
 struct Kind {
     kind: String,
+    period_s: Option<f64>,
+}
+
+/// A release on `/ndr/command` or `/ndr/state`, the fields a replay reads.
+#[derive(Deserialize)]
+struct Release {
+    status: String,
+    sent_ns: u64,
+    released_ns: u64,
+    answers_sent_ns: Option<u64>,
 }
 
 #[derive(Deserialize)]
@@ -78,6 +97,10 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
     let stream = MessageStream::new_with_options(&bytes, Options::IgnoreEndMagic.into())
         .map_err(|e| error(format!("not an MCAP recording: {e}")))?;
     let mut net = RecordedNetwork::default();
+    // Fresh commands' releases by their send time; states' (send, answered
+    // command's send time).
+    let mut commands = std::collections::HashMap::new();
+    let mut states = Vec::new();
     for m in stream {
         let m = match m {
             Ok(m) => m,
@@ -87,11 +110,26 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
             }
         };
         if m.channel.topic == "/ndr/event" {
-            let attached =
-                serde_json::from_slice::<Kind>(&m.data).is_ok_and(|e| e.kind == "attached");
-            if attached {
+            let event = serde_json::from_slice::<Kind>(&m.data).ok();
+            if event.as_ref().is_some_and(|e| e.kind == "attached") {
                 let first = net.attached_unix_ns.get_or_insert(m.log_time);
                 *first = (*first).min(m.log_time);
+            }
+            if let Some(Kind { kind, period_s }) = event
+                && kind == "started"
+                && net.period_s.is_none()
+            {
+                net.period_s = period_s;
+            }
+        }
+        if let topic @ ("/ndr/command" | "/ndr/state") = m.channel.topic.as_str()
+            && let Ok(r) = serde_json::from_slice::<Release>(&m.data)
+            && r.status == "fresh"
+        {
+            if topic == "/ndr/command" {
+                commands.insert(r.sent_ns, r.released_ns);
+            } else if let Some(answers) = r.answers_sent_ns {
+                states.push((r.sent_ns, answers));
             }
         }
         if m.channel.topic != "/ndr/network" {
@@ -109,6 +147,13 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
             other => return Err(error(format!("an arrival's direction is {other:?}"))),
         }
     }
+    net.answer_lags_s = states
+        .iter()
+        .filter_map(|(sent, answers)| {
+            let released = commands.get(answers)?;
+            Some((*sent as f64 - *released as f64) * 1e-9)
+        })
+        .collect();
     for way in [&mut net.forward, &mut net.backward] {
         way.sort_by_key(|c| c.sent_unix_ns);
     }

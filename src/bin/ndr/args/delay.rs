@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ndr::core::time::{Duration, Instant};
+use ndr::sim::Answer;
 use ndr::sim::delay::{DelayModel, DistTable, OneWay, Trace, one_way_trace};
 
 use super::time::millis;
@@ -36,6 +37,15 @@ impl DelayArgs {
     /// Whether --trace names a recording (MCAP) rather than a CSV trace.
     pub fn is_recording(&self) -> bool {
         self.trace.as_deref().is_some_and(is_mcap)
+    }
+
+    /// When the recorded remote answered its commands, if --trace names a
+    /// recording that shows it.
+    pub fn recorded_answer(&self) -> Result<Option<Answer>, String> {
+        match &self.trace {
+            Some(path) if is_mcap(path) => answer(path),
+            _ => Ok(None),
+        }
     }
 
     /// The delay model these arguments describe; `default` when none is given.
@@ -79,15 +89,12 @@ pub fn trace(path: &Path) -> Result<Trace, String> {
             path.display()
         );
     }
-    // The replay starts a round trip before the recording did (just
-    // after the recorded handshake), so that the simulated handshake ends
-    // about when the recorded one did and its initialization pattern and
-    // first samples meet the delays the recorded ones met. The round trip
-    // is the first measured delays' sum.
-    let first = |w: &[ndr::net::record::Crossing]| w.iter().find_map(|c| c.one_way_s);
-    let handshake = first(&net.forward).or(first(&net.backward)).unwrap_or(0.0)
-        + first(&net.backward).or(first(&net.forward)).unwrap_or(0.0);
-    let start = net
+    // The trace starts when the recording did; its anchor is the first
+    // command's send (a recording of the base alone: its first state's),
+    // which the simulated link's first command is put on, so that every
+    // sample meets the delay its recorded twin met however long the
+    // simulated set-up takes (which the recording did not measure).
+    let origin = net
         .forward
         .iter()
         .chain(&net.backward)
@@ -95,7 +102,12 @@ pub fn trace(path: &Path) -> Result<Trace, String> {
         .chain(net.attached_unix_ns)
         .min()
         .unwrap_or(0);
-    let origin = start.saturating_sub((handshake.max(0.0) * 1e9) as u64);
+    let first_sent = net
+        .forward
+        .first()
+        .or(net.backward.first())
+        .map_or(origin, |c| c.sent_unix_ns);
+    let anchor = Instant::from_nanos(first_sent - origin);
     let way = |crossings: &[ndr::net::record::Crossing]| -> Vec<OneWay> {
         crossings
             .iter()
@@ -107,7 +119,30 @@ pub fn trace(path: &Path) -> Result<Trace, String> {
             })
             .collect()
     };
-    one_way_trace(&way(&net.forward), &way(&net.backward)).map_err(|e| with_path(path, &e))
+    one_way_trace(&way(&net.forward), &way(&net.backward))
+        .map(|t| t.with_anchor(anchor))
+        .map_err(|e| with_path(path, &e))
+}
+
+/// When the remote of the recording at `path` answered its commands: at
+/// the next tick if most states went out half a period or more after the
+/// release of the command they answer; `None` if the recording does not
+/// hold both sides.
+pub fn answer(path: &Path) -> Result<Option<Answer>, String> {
+    let net = ndr::net::record::read_network(path).map_err(|e| e.to_string())?;
+    let (Some(period), false) = (net.period_s, net.answer_lags_s.is_empty()) else {
+        return Ok(None);
+    };
+    let later = net
+        .answer_lags_s
+        .iter()
+        .filter(|&&lag| lag >= period / 2.0)
+        .count();
+    Ok(Some(if 2 * later > net.answer_lags_s.len() {
+        Answer::NextTick
+    } else {
+        Answer::SameTick
+    }))
 }
 
 fn is_mcap(path: &Path) -> bool {

@@ -1,24 +1,28 @@
-//! One port number over UDP and TCP for the relay's listening address.
+//! One port number over UDP and TCP for a listening address.
 //!
-//! Given port 0, the relay needs a number free over both protocols, and
-//! another program may take it over one while the relay binds the other.
-//! UDP goes first (an ephemeral port), then TCP at the same number; when
-//! that number is taken over TCP, another UDP port is drawn, the ones tried
-//! held until the end so that the kernel does not hand one out again.
+//! A datagram listener takes its links' datagrams at its TCP port's number,
+//! and the relay listens on one number over both. Given port 0, either needs
+//! a number free over both protocols, and another program may take it over
+//! one while the other is bound. UDP goes first (an ephemeral port), then
+//! TCP at the same number; when that number is taken over TCP, another UDP
+//! port is drawn, the ones tried held until the end so that the kernel does
+//! not hand one out again.
 
 use std::io;
 use std::net::SocketAddr;
 
 /// UDP ports drawn when given port 0 and TCP is taken at each.
-pub(super) const BIND_ATTEMPTS: usize = 8;
+pub(crate) const BIND_ATTEMPTS: usize = 8;
 
 /// Binds `udp` at `listen`, then `tcp` at the address and port UDP got;
 /// the sockets and that address. With port 0, a TCP bind refused because
 /// the number is in use draws another UDP port, `attempts` times in all;
-/// a port the caller gave that is taken is an error at once.
-pub(super) fn bind_pair<U, T>(
+/// a port the caller gave that is taken is an error at once. `who` names
+/// the listening side in the errors ("relay", "listener").
+pub(crate) fn bind_pair<U, T>(
     listen: SocketAddr,
     attempts: usize,
+    who: &str,
     mut udp: impl FnMut(SocketAddr) -> io::Result<(U, SocketAddr)>,
     mut tcp: impl FnMut(SocketAddr) -> io::Result<T>,
 ) -> io::Result<(U, T, SocketAddr)> {
@@ -33,7 +37,7 @@ pub(super) fn bind_pair<U, T>(
         let (datagrams, local) = udp(listen).map_err(|e| {
             io::Error::new(
                 e.kind(),
-                format!("relay: cannot listen on {listen} over UDP (the datagrams): {e}"),
+                format!("{who}: cannot listen on {listen} over UDP (the datagrams): {e}"),
             )
         })?;
         match tcp(local) {
@@ -54,7 +58,7 @@ pub(super) fn bind_pair<U, T>(
                 return Err(io::Error::new(
                     e.kind(),
                     format!(
-                        "relay: cannot listen on {local} over TCP{picked}: {e}; the relay \
+                        "{who}: cannot listen on {local} over TCP{picked}: {e}; the {who} \
                          listens on one port number over TCP and UDP: give a port free for \
                          both, or 0"
                     ),
@@ -94,15 +98,16 @@ mod tests {
     fn a_port_taken_over_tcp_draws_another_udp_port_holding_the_first() {
         let mut given = Vec::new();
         let mut tcp_tried = Vec::new();
-        let (udp, tcp, at) = bind_pair(addr(0), BIND_ATTEMPTS, udp_from(&mut given), |a| {
-            tcp_tried.push(a.port());
-            if tcp_tried.len() < 3 {
-                Err(in_use())
-            } else {
-                Ok(a.port())
-            }
-        })
-        .unwrap();
+        let (udp, tcp, at) =
+            bind_pair(addr(0), BIND_ATTEMPTS, "relay", udp_from(&mut given), |a| {
+                tcp_tried.push(a.port());
+                if tcp_tried.len() < 3 {
+                    Err(in_use())
+                } else {
+                    Ok(a.port())
+                }
+            })
+            .unwrap();
         assert_eq!((udp, tcp, at), (40_002, 40_002, addr(40_002)));
         assert_eq!(tcp_tried, [40_000, 40_001, 40_002]);
         assert_eq!(given, [40_000, 40_001, 40_002]);
@@ -111,12 +116,9 @@ mod tests {
     #[test]
     fn a_port_taken_at_every_attempt_is_a_clear_error_after_the_bound() {
         let mut given = Vec::new();
-        let e = bind_pair(
-            addr(0),
-            4,
-            udp_from(&mut given),
-            |_| Err::<u16, _>(in_use()),
-        )
+        let e = bind_pair(addr(0), 4, "relay", udp_from(&mut given), |_| {
+            Err::<u16, _>(in_use())
+        })
         .unwrap_err();
         assert_eq!(given.len(), 4);
         assert_eq!(e.kind(), io::ErrorKind::AddrInUse);
@@ -130,9 +132,13 @@ mod tests {
     #[test]
     fn a_port_the_user_gave_is_not_traded_for_another() {
         let mut given = Vec::new();
-        let e = bind_pair(addr(7000), BIND_ATTEMPTS, udp_from(&mut given), |_| {
-            Err::<u16, _>(in_use())
-        })
+        let e = bind_pair(
+            addr(7000),
+            BIND_ATTEMPTS,
+            "relay",
+            udp_from(&mut given),
+            |_| Err::<u16, _>(in_use()),
+        )
         .unwrap_err();
         assert_eq!(given, [7000]);
         assert!(e.to_string().contains("127.0.0.1:7000 over TCP"), "{e}");
@@ -144,6 +150,7 @@ mod tests {
         let e = bind_pair(
             addr(0),
             BIND_ATTEMPTS,
+            "relay",
             |_| Err::<(u16, SocketAddr), _>(io::Error::from(io::ErrorKind::PermissionDenied)),
             |_| {
                 tcp_calls += 1;
@@ -157,6 +164,7 @@ mod tests {
         let e = bind_pair(
             addr(0),
             BIND_ATTEMPTS,
+            "relay",
             |a| Ok((0u16, a)),
             |_| Err::<u16, _>(io::Error::from(io::ErrorKind::PermissionDenied)),
         )
@@ -169,6 +177,7 @@ mod tests {
         let (udp, tcp, at) = bind_pair(
             addr(0),
             BIND_ATTEMPTS,
+            "relay",
             |a| {
                 let s = std::net::UdpSocket::bind(a)?;
                 let local = s.local_addr()?;
