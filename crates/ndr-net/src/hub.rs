@@ -1403,6 +1403,8 @@ fn publish(e: &Entry, hub: HubFigures) {
         app_dropped: e.app_dropped,
         // Filled in by `LinkSender::stats`: the link counts them.
         events_dropped: 0,
+        waited: ndr_core::time::Duration::ZERO,
+        reconnect: ndr_core::reconnect::ReconnectStats::default(),
         endpoint_events_dropped: ep.events_dropped(),
         rx_lag: e.rx_lag,
         datagram_peer: e

@@ -59,6 +59,7 @@ pub mod metrics;
 mod pool;
 pub mod quic;
 pub mod realtime;
+mod reconnect;
 #[cfg(feature = "record")]
 pub mod record;
 #[cfg(feature = "relay")]

@@ -630,6 +630,9 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
         Event::LinkLost { silent_for } => {
             fields.set_item("silent_for", silent_for.as_secs_f64())?;
         }
+        Event::LinkRestored { outage } => {
+            fields.set_item("outage", outage.as_secs_f64())?;
+        }
         Event::DelayChanged { delay, ticks } => {
             fields.set_item("delay", delay.as_secs_f64())?;
             fields.set_item("ticks", ticks)?;
