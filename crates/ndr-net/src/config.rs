@@ -2,7 +2,7 @@
 //! the hub that drives it, and how a listener admits connections.
 
 use std::fmt;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 use ndr_core::endpoint::Config;
 use ndr_core::reconnect::Backoff;
@@ -113,14 +113,42 @@ pub struct LinkConfig {
     pub(crate) rejoin: Rejoin,
 }
 
-/// The state a reconnecting link's handle shares with its hub, which a
-/// new session takes over so that the handle and its senders go on.
+/// What a reconnecting link's new session takes over from the old: the
+/// state its handle shares with the hub (so that the handle and its
+/// senders go on), its release handler and its tap.
 #[derive(Clone, Default)]
-pub(crate) struct Rejoin(pub(crate) Option<Arc<crate::hub::Shared>>);
+pub(crate) struct Rejoin {
+    pub(crate) shared: Option<Arc<crate::hub::Shared>>,
+    pub(crate) handler: Option<Arc<Mutex<crate::hub::Handler>>>,
+    pub(crate) tap: Option<Arc<Mutex<crate::hub::Tap>>>,
+}
+
+impl Rejoin {
+    /// The handler for a session's hub entry: the link's one, shared by
+    /// its sessions.
+    pub(crate) fn handler(&self) -> Option<crate::hub::Handler> {
+        let h = Arc::clone(self.handler.as_ref()?);
+        Some(Box::new(move |s| {
+            (h.lock().unwrap_or_else(PoisonError::into_inner))(s);
+        }))
+    }
+
+    /// The tap for a session's hub entry, shared likewise.
+    pub(crate) fn tap(&self) -> Option<crate::hub::Tap> {
+        let t = Arc::clone(self.tap.as_ref()?);
+        Some(Box::new(move |e| {
+            (t.lock().unwrap_or_else(PoisonError::into_inner))(e);
+        }))
+    }
+}
 
 impl fmt::Debug for Rejoin {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(if self.0.is_some() { "Rejoin" } else { "None" })
+        f.write_str(if self.shared.is_some() {
+            "Rejoin"
+        } else {
+            "None"
+        })
     }
 }
 

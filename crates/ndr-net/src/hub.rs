@@ -86,11 +86,11 @@ pub(crate) struct Entry {
     /// The deadline this entry holds in the hub's index.
     deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
-    handler: Option<Handler>,
+    pub(crate) handler: Option<Handler>,
     /// What its listener's floor hears of it (a shared robot's link).
     pub(crate) notes: Option<crate::sharing::Notes>,
     /// Sees every event first, if set.
-    tap: Option<Tap>,
+    pub(crate) tap: Option<Tap>,
 }
 
 /// A link's TCP stream, as the hub reads and writes it.

@@ -238,7 +238,7 @@ impl Link {
             peer_chain: Mutex::new(None),
         });
         // A reconnecting link's new session takes over its handle's state.
-        let shared = config.rejoin.0.clone().unwrap_or(shared);
+        let shared = config.rejoin.shared.clone().unwrap_or(shared);
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());
         let mut endpoint = Endpoint::<Heap>::with_capacity(cfg, now, config.queue_capacity)
@@ -255,6 +255,8 @@ impl Link {
         let applied = ndr_core::wire::Applied::FIXED_LEN + 8 * usize::from(cfg.command_width);
         let max_frame = HEADER_LEN + (8 * widths.1).max(applied);
         let mut entry = Entry::new(endpoint, Arc::clone(&shared), del_tx, path, max_frame);
+        entry.handler = config.rejoin.handler();
+        entry.tap = config.rejoin.tap();
         let sharing = notes.map(|(offered, notes)| {
             let key = notes.link();
             entry.notes = Some(notes);
@@ -407,10 +409,15 @@ impl Link {
     /// Has `tap` see every event of the link on its hub's thread, before
     /// the application (a recorder's: [`Link::record`](crate::Link::record)).
     #[cfg_attr(not(feature = "record"), allow(dead_code))]
-    pub(crate) fn tap(&self, tap: crate::hub::Tap) -> Result<(), NetError> {
+    pub(crate) fn tap(&mut self, tap: crate::hub::Tap) -> Result<(), NetError> {
         if let Some(e) = self.closed {
             return Err(NetError::Link(e));
         }
+        // A reconnecting link's sessions share it.
+        let tap = match self.redial.as_deref_mut() {
+            Some(r) => r.keep_tap(tap),
+            None => tap,
+        };
         if self.hub.send(Msg::Tap(self.id, tap)) {
             Ok(())
         } else {
@@ -716,6 +723,11 @@ impl Link {
     /// over are still there to read. Python has no handler: its code would
     /// hold the GIL on the hub's thread.
     ///
+    /// A link that reconnects ([`LinkConfig::reconnect`]) keeps its
+    /// handler for its new sessions; the handler sees each session's own
+    /// sequence numbers (from 0 again), not the rising ones of
+    /// [`recv`](Self::recv).
+    ///
     /// ```no_run
     /// # async fn robot(mut link: ndr_net::Link) -> Result<(), ndr_net::NetError> {
     /// let tx = link.sender();
@@ -741,7 +753,12 @@ impl Link {
         if let Some(e) = self.closed {
             return Err(NetError::Link(e));
         }
-        if self.hub.send(Msg::Handler(self.id, Box::new(handler))) {
+        // A reconnecting link's sessions share it.
+        let handler: crate::hub::Handler = match self.redial.as_deref_mut() {
+            Some(r) => r.keep_handler(Box::new(handler)),
+            None => Box::new(handler),
+        };
+        if self.hub.send(Msg::Handler(self.id, handler)) {
             Ok(())
         } else {
             Err(NetError::Link(LinkError::Closed))

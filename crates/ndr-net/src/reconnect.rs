@@ -199,7 +199,10 @@ impl Redial {
         shared: &Arc<Shared>,
     ) -> Self {
         config.hub = HubChoice::Shared(hub.clone());
-        config.rejoin = Rejoin(Some(Arc::clone(shared)));
+        config.rejoin = Rejoin {
+            shared: Some(Arc::clone(shared)),
+            ..Rejoin::default()
+        };
         Redial {
             addr,
             config,
@@ -208,6 +211,21 @@ impl Redial {
             silent_since: None,
             last_fresh: None,
         }
+    }
+
+    /// Keeps `handler` for the sessions to come; the one for this session.
+    pub(crate) fn keep_handler(&mut self, handler: crate::hub::Handler) -> crate::hub::Handler {
+        self.config.rejoin.handler = Some(Arc::new(std::sync::Mutex::new(handler)));
+        self.config
+            .rejoin
+            .handler()
+            .unwrap_or_else(|| Box::new(|_| {}))
+    }
+
+    /// Keeps `tap` for the sessions to come; the one for this session.
+    pub(crate) fn keep_tap(&mut self, tap: crate::hub::Tap) -> crate::hub::Tap {
+        self.config.rejoin.tap = Some(Arc::new(std::sync::Mutex::new(tap)));
+        self.config.rejoin.tap().unwrap_or_else(|| Box::new(|_| {}))
     }
 
     /// Whether the link is down, a search running.
