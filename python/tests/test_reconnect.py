@@ -106,9 +106,13 @@ def test_a_base_comes_back_after_its_remote_is_killed_and_restarted():
         seqs = []  # (seq, held)
         events = []
         killed_at = restarted_at = None
+        # Fresh states released before the kill, and after the restore.
+        before = after = 0
         start = time.monotonic()
         with link:
-            while time.monotonic() - start < 9.0:
+            # Long enough for a restarted remote whose start a loaded host
+            # delays by seconds.
+            while time.monotonic() - start < 14.0:
                 now = time.monotonic() - start
                 if killed_at is None and now > 1.5:
                     first.send_signal(signal.SIGKILL)
@@ -124,6 +128,11 @@ def test_a_base_comes_back_after_its_remote_is_killed_and_restarted():
                 else:
                     seqs.append((tick.seq, tick.status == "held"))
                     link.send(tick.sample)
+                    fresh = tick.status == "fresh"
+                    if killed_at is None:
+                        before += fresh
+                    elif any(e.kind == "link_restored" for e in events):
+                        after += fresh
                 events.extend(link.events())
             stats = link.stats
         kinds = [e.kind for e in events]
@@ -132,14 +141,14 @@ def test_a_base_comes_back_after_its_remote_is_killed_and_restarted():
         assert len(restored) == 1, restored
         # Two seconds away, then the new session's start.
         outage = restored[0].outage
-        assert 1.9 <= outage < 7.0, outage
+        assert 1.9 <= outage < 12.0, outage
         assert stats["reconnects"] == 1, stats
         assert stats["outage_total"] == pytest.approx(outage), stats
         assert stats["stale"] == 0, stats
         # The new session ran its initialization pattern and announced its
         # round trip after the restore.
-        after = kinds[kinds.index("link_restored") :]
-        assert "round_trip_changed" in after, kinds
+        since_restore = kinds[kinds.index("link_restored") :]
+        assert "round_trip_changed" in since_restore, kinds
         # One rising sequence across the sessions: nothing twice, nothing
         # out of order; states on both sides of the outage.
         last = None
@@ -148,7 +157,7 @@ def test_a_base_comes_back_after_its_remote_is_killed_and_restarted():
                 assert seq == last if held else seq > last, (seq, held, last)
             if not held:
                 last = seq
-        assert len(seqs) > 100, len(seqs)
+        assert before >= 10 and after >= 10, (before, after)
     finally:
         _stop(first)
         if second is not None:
