@@ -105,4 +105,6 @@ mod docs {
     struct Metrics;
     #[doc = include_str!("../docs/guide/recording.md")]
     struct Recording;
+    #[doc = include_str!("../docs/guide/reconnecting.md")]
+    struct Reconnecting;
 }

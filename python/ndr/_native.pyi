@@ -985,6 +985,7 @@ def connect(
     settings: _LinkSettings,
     *,
     connect_timeout: Optional[float],
+    reconnect: bool = False,
     tls: Optional[TlsConfig] = None,
     record: Optional[str] = None,
 ) -> _Link: ...

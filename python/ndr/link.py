@@ -121,7 +121,10 @@ class Event:
       stretches it. A Smith predictor follows it (``set_round_trip``);
     - ``"link_lost"``: no fresh sample for the watchdog time
       (``silent_for``): hold the robot safely;
-    - ``"link_restored"``: fresh samples flow again after ``"link_lost"``;
+    - ``"link_restored"``: fresh samples flow again after ``"link_lost"``,
+      ``outage`` seconds after the last fresh one; with ``reconnect=True``
+      also when a new session's samples flow after the link lost its peer
+      (``outage``: from the loss to the new session's start);
     - ``"closed"``: the link ended (``error`` says why; ``details["normal"]``
       is true when either side closed it in order).
 
@@ -159,6 +162,8 @@ class Event:
     period: Optional[float] = None
     ns: Optional[int] = None
     silent_for: Optional[float] = None
+    outage: Optional[float] = None
+    """A ``link_restored`` event's outage, in seconds."""
     delay: Optional[float] = None
     ticks: Optional[int] = None
     grtt: Optional[float] = None
@@ -508,6 +513,24 @@ class LinkStats(TypedDict):
     datagrams_stray: int
     """Datagram transport: datagrams to this link's UDP socket with no
     token of a link on it (shared by the links on the socket), dropped."""
+    waited: float
+    """Seconds connecting waited for the remote (``connect_timeout``): from
+    the first attempt to the one that reached it; 0 if it was there."""
+    reconnects: int
+    """``reconnect=True``: times the link lost its peer and came back (a
+    new session passed its initialization pattern). The other counters are
+    the current session's."""
+    outage_total: float
+    """``reconnect=True``: seconds the link was down in all, from each loss
+    to the new session's start."""
+    last_outage: Optional[float]
+    """``reconnect=True``: the latest outage in seconds, once one ended."""
+    longest_outage: float
+    """``reconnect=True``: the longest outage in seconds."""
+    stale: int
+    """``reconnect=True``: releases refused because they belonged to a
+    session that was over, or did not come after the last release given
+    (0 unless something went wrong)."""
 
 
 def _settings(args: Dict[str, Any]) -> "_native._LinkSettings":
@@ -569,6 +592,7 @@ class Link:
         liveness: Optional[float] = 10.0,
         handshake_timeout: float = 10.0,
         connect_timeout: Optional[float] = 10.0,
+        reconnect: bool = False,
         queue: int = 1024,
         tls: Optional[TlsConfig] = None,
         insecure: bool = False,
@@ -633,8 +657,26 @@ class Link:
                 pause of the dynamic mode) gets three times what it needs
                 when that is longer (its probes at the period plus the
                 slowest round trip seen).
-            connect_timeout: seconds to wait for the TCP connection
-                (``None``: the operating system's limit).
+            connect_timeout: seconds to wait for the remote: a remote not
+                there yet (the connection refused, the host unreachable, no
+                answer) is tried again, 0.1 s, 0.2 s, … up to 1 s apart,
+                until it is reached or this time is over
+                (``stats["waited"]`` says how long it took). ``None`` or 0:
+                one attempt (``None``: within the operating system's limit).
+            reconnect: a base whose link loses its peer (the connection
+                dropped or reset, a restarted remote, the peer silent past
+                ``liveness``, a remote that ended the link in order)
+                connects again by itself, until it is back or the link is
+                closed: receiving waits meanwhile (the robot holds on its
+                watchdog), ``"link_lost"`` then ``"link_restored"`` (with
+                the ``outage``) are raised, the new session runs its
+                initialization pattern and announces its round trip
+                (``"round_trip_changed"``), and the sequence numbers of
+                its releases carry on after the last one given: nothing of
+                the old session comes after them. A peer that refuses the
+                link (other settings, a certificate) ends it as without
+                this. ``stats`` counts ``reconnects`` and
+                ``outage_total``.
             queue: released samples and events that may wait for the
                 application (1 to 2**20); beyond it the newest are dropped
                 and counted (``stats["app_dropped"]``).
@@ -696,7 +738,10 @@ class Link:
         Raises:
             ConnectionRefusedError: nothing listens at ``address``.
             HandshakeError: the peer has other settings, or did not answer.
-            TimeoutError: no connection within ``connect_timeout``.
+            TimeoutError: no connection within ``connect_timeout`` (a
+                remote that never answered).
+            ConnectionRefusedError: still refused when ``connect_timeout``
+                was over (nothing listens at ``address``).
             ValueError: a setting is invalid (the message says which), a
                 plain link off loopback without ``insecure=True``, or
                 ``observe=True`` with ``wait_for_control``.
@@ -711,6 +756,7 @@ class Link:
             address,
             _settings(locals()),
             connect_timeout=connect_timeout,
+            reconnect=reconnect,
             tls=tls,
             record=None if record is None else os.fspath(record),
         )
@@ -1098,6 +1144,7 @@ def _event(kind: str, fields: Dict[str, Any]) -> Event:
         period=fields.get("period"),
         ns=fields.get("ns"),
         silent_for=fields.get("silent_for"),
+        outage=fields.get("outage"),
         delay=fields.get("delay"),
         ticks=fields.get("ticks"),
         grtt=fields.get("grtt"),

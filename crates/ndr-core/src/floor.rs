@@ -330,7 +330,7 @@ impl Floor {
 
     /// The link that holds control now, and its term.
     #[must_use]
-    pub fn controller(&self) -> Option<(LinkId, u16)> {
+    pub(crate) fn controller(&self) -> Option<(LinkId, u16)> {
         match self.controller? {
             Controller {
                 link,

@@ -203,6 +203,7 @@ mod layout;
 pub mod pair;
 pub mod playout;
 mod predictor;
+pub mod reconnect;
 mod regulation;
 pub mod regulator;
 mod rls;

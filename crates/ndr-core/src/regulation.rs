@@ -153,7 +153,7 @@ impl Regulation {
     /// playout (a [`Config`](crate::Config) can still be given it field by
     /// field).
     #[must_use]
-    pub const fn of(mode: Mode, playout: Playout) -> Option<Regulation> {
+    pub(crate) const fn of(mode: Mode, playout: Playout) -> Option<Regulation> {
         match (mode, playout) {
             (Mode::PaperStatic, Playout::Fifo) => Some(Regulation::PaperStatic),
             (Mode::PaperDynamic, Playout::Fifo) => Some(Regulation::PaperDynamic),

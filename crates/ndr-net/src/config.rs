@@ -1,7 +1,11 @@
 //! What a link is configured with: the endpoint, its transport's security,
 //! the hub that drives it, and how a listener admits connections.
 
+use std::fmt;
+use std::sync::{Arc, Mutex, PoisonError};
+
 use ndr_core::endpoint::Config;
+use ndr_core::reconnect::Backoff;
 use ndr_core::time::Duration;
 
 use crate::hub::Hub;
@@ -77,6 +81,75 @@ pub struct LinkConfig {
     /// [`on_hub`](Self::on_hub) or [`on_pool`](Self::on_pool) keeps what it
     /// was started with.
     pub realtime: Realtime,
+    /// A base: how long [`Link::connect`](crate::Link::connect) keeps
+    /// trying a remote that is not there yet (the connection refused, the
+    /// host or network unreachable, no answer), its attempts spaced by
+    /// [`backoff`](Self::backoff); past it, the last attempt's error. Zero
+    /// (the default): one attempt. [`LinkStats::waited`](crate::LinkStats::waited)
+    /// says how long the link waited.
+    pub wait_for_remote: Duration,
+    /// A base: a link that loses its peer (the connection dropped or reset,
+    /// the peer silent past its liveness, a remote that ended the link in
+    /// order) connects again by itself, at once and then spaced by
+    /// [`backoff`](Self::backoff), until it is back or the application
+    /// closes it. Meanwhile receiving waits and sends are kept for the new
+    /// session; the application sees [`Event::LinkLost`](ndr_core::endpoint::Event::LinkLost),
+    /// then, once the new session passed its initialization pattern,
+    /// [`Event::LinkRestored`](ndr_core::endpoint::Event::LinkRestored) with
+    /// the outage; the new session announces its round trip
+    /// ([`Event::RoundTripChanged`](ndr_core::endpoint::Event::RoundTripChanged))
+    /// and its releases' sequence numbers carry on from the last one given,
+    /// nothing of the old session after them
+    /// ([`ndr_core::reconnect::Sessions`]). A peer that refuses the link
+    /// (other settings, a certificate) ends it as without this. Off by
+    /// default. A listener ignores it: it serves the next base that comes.
+    pub reconnect: bool,
+    /// The waits between attempts to reach the remote
+    /// ([`wait_for_remote`](Self::wait_for_remote), [`reconnect`](Self::reconnect)):
+    /// 100 ms doubling to 1 s by default.
+    pub backoff: Backoff,
+    /// A reconnecting link's new session: the application's handle it
+    /// takes over.
+    pub(crate) rejoin: Rejoin,
+}
+
+/// What a reconnecting link's new session takes over from the old: the
+/// state its handle shares with the hub (so that the handle and its
+/// senders go on), its release handler and its tap.
+#[derive(Clone, Default)]
+pub(crate) struct Rejoin {
+    pub(crate) shared: Option<Arc<crate::hub::Shared>>,
+    pub(crate) handler: Option<Arc<Mutex<crate::hub::Handler>>>,
+    pub(crate) tap: Option<Arc<Mutex<crate::hub::Tap>>>,
+}
+
+impl Rejoin {
+    /// The handler for a session's hub entry: the link's one, shared by
+    /// its sessions.
+    pub(crate) fn handler(&self) -> Option<crate::hub::Handler> {
+        let h = Arc::clone(self.handler.as_ref()?);
+        Some(Box::new(move |s| {
+            (h.lock().unwrap_or_else(PoisonError::into_inner))(s);
+        }))
+    }
+
+    /// The tap for a session's hub entry, shared likewise.
+    pub(crate) fn tap(&self) -> Option<crate::hub::Tap> {
+        let t = Arc::clone(self.tap.as_ref()?);
+        Some(Box::new(move |e| {
+            (t.lock().unwrap_or_else(PoisonError::into_inner))(e);
+        }))
+    }
+}
+
+impl fmt::Debug for Rejoin {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(if self.shared.is_some() {
+            "Rejoin"
+        } else {
+            "None"
+        })
+    }
 }
 
 impl LinkConfig {
@@ -95,6 +168,10 @@ impl LinkConfig {
             insecure: false,
             admission: Admission::default(),
             realtime: Realtime::default(),
+            wait_for_remote: Duration::ZERO,
+            reconnect: false,
+            backoff: Backoff::default(),
+            rejoin: Rejoin::default(),
         }
     }
 

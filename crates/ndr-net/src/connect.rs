@@ -29,9 +29,13 @@ impl Link {
     /// and the Hello are done), else plain, refused with
     /// [`NetError::Insecure`] before connecting unless `addr` is loopback or
     /// [`LinkConfig::insecure`]; driven by the hub [`LinkConfig::hub`] names.
+    ///
+    /// A remote not there yet is waited for up to
+    /// [`LinkConfig::wait_for_remote`]; with [`LinkConfig::reconnect`] the
+    /// link connects again by itself when it loses its peer.
     pub async fn connect(addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
         let hub = config.hub.pick(config.spin_margin, config.realtime)?;
-        dial(&hub, addr, config).await
+        connect_on(&hub, addr, config).await
     }
 
     /// [`connect`](Self::connect) for programs without a tokio runtime: a
@@ -43,12 +47,29 @@ impl Link {
         let hub = config.hub.pick(config.spin_margin, config.realtime)?;
         // Only the connection and the handshakes need the runtime: its hub
         // drives the link, and its thread ends here.
-        rt.block_on(dial(&hub, addr, config))
+        rt.block_on(connect_on(&hub, addr, config))
     }
 }
 
-/// Connects as `config` says, and drives the link on `hub`.
-async fn dial(hub: &Hub, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+/// Connects on `hub`, waiting for the remote as `config` says, and makes
+/// the link one that reconnects if it asks.
+async fn connect_on(hub: &Hub, addr: SocketAddr, config: LinkConfig) -> Result<Link, NetError> {
+    let wait: std::time::Duration = config.wait_for_remote.into();
+    let (mut link, waited) =
+        crate::reconnect::dial_waiting(hub, addr, &config, Some(wait), None).await?;
+    link.waited(waited);
+    if config.reconnect {
+        link.redial_to(addr, config);
+    }
+    Ok(link)
+}
+
+/// Connects as `config` says, and drives the link on `hub`: one attempt.
+pub(crate) async fn dial(
+    hub: &Hub,
+    addr: SocketAddr,
+    config: LinkConfig,
+) -> Result<Link, NetError> {
     let transport = config.checked_transport(config.tls.is_some())?;
     let Some(tls) = config.tls.clone() else {
         plain_allowed(addr, &config)?;
@@ -96,7 +117,7 @@ async fn quic(
         (std::net::Ipv4Addr::UNSPECIFIED, 0).into()
     };
     let socket = bind_datagram_socket(any)?;
-    let mut endpoint = crate::quic::endpoint(None);
+    let mut endpoint = crate::quic::endpoint(None, tls);
     let (handle, conn) = endpoint
         .connect(StdInstant::now(), client, addr, &tls.server_name())
         .map_err(|e| NetError::Io(io::Error::other(format!("QUIC connect to {addr}: {e}"))))?;

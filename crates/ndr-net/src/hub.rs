@@ -99,11 +99,11 @@ pub(crate) struct Entry {
     /// The deadline this entry holds in the hub's index.
     deadline: Option<Instant>,
     /// Takes the releases instead of the application's queue, if set.
-    handler: Option<Handler>,
+    pub(crate) handler: Option<Handler>,
     /// What its listener's floor hears of it (a shared robot's link).
     pub(crate) notes: Option<crate::sharing::Notes>,
     /// Sees every event first, if set.
-    tap: Option<Tap>,
+    pub(crate) tap: Option<Tap>,
     /// Bytes its socket may still be read for before its next deadline
     /// (see [`READ_FRAMES_PER_DEADLINE`]), and whether it was left unread
     /// for want of them.
@@ -1449,6 +1449,8 @@ fn publish(e: &Entry, hub: HubFigures) {
         app_dropped: e.app_dropped,
         // Filled in by `LinkSender::stats`: the link counts them.
         events_dropped: 0,
+        waited: ndr_core::time::Duration::ZERO,
+        reconnect: ndr_core::reconnect::ReconnectStats::default(),
         endpoint_events_dropped: ep.events_dropped(),
         rx_lag: e.rx_lag,
         datagram_peer: e

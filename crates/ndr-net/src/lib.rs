@@ -60,6 +60,7 @@ mod pool;
 mod ports;
 pub mod quic;
 pub mod realtime;
+mod reconnect;
 #[cfg(feature = "record")]
 pub mod record;
 #[cfg(feature = "relay")]

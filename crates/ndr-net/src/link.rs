@@ -23,9 +23,10 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant as StdInstant;
 
-use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError};
+use ndr_core::endpoint::{DEFAULT_LIVENESS, Endpoint, Event, LinkError, Status};
+use ndr_core::reconnect::ReconnectStats;
 use ndr_core::storage::Heap;
-use ndr_core::time::Instant;
+use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{HEADER_LEN, Role};
 use tokio::net::TcpStream;
 use tokio::runtime::Handle;
@@ -36,6 +37,7 @@ use crate::delivery::{self, Delivery, Inbox};
 use crate::hub::{
     DatagramPath, Entry, Hub, Msg, Path, QuicMove, QuicPath, Session, Shared, Stream,
 };
+use crate::reconnect::{Redial, Resumed, recoverable};
 use crate::seats::Seat;
 use crate::transport::{Transport, TransportError};
 
@@ -70,7 +72,14 @@ pub struct Link {
     /// A shared robot's link: its key, the seat its endpoint offered, and
     /// where its listener's floor reaches it.
     sharing: Option<Sharing>,
+    /// How long connecting waited for the remote, and the reconnects.
+    reach: Arc<Mutex<Reach>>,
+    /// A base that reconnects ([`LinkConfig::reconnect`]).
+    redial: Option<Box<Redial>>,
 }
+
+/// What [`LinkStats::waited`] and [`LinkStats::reconnect`] report.
+type Reach = (Duration, ReconnectStats);
 
 /// What a listener gives the links it starts: its datagram socket (over
 /// `udp`), and its robot's floor if it shares one.
@@ -228,6 +237,8 @@ impl Link {
             notify: Notify::new(),
             peer_chain: Mutex::new(None),
         });
+        // A reconnecting link's new session takes over its handle's state.
+        let shared = config.rejoin.shared.clone().unwrap_or(shared);
         // The endpoint's clock is the hub's: links on one hub share a tick grid.
         let now = Instant::from_std(hub.origin(), StdInstant::now());
         let mut endpoint = Endpoint::<Heap>::with_capacity(cfg, now, config.queue_capacity)
@@ -244,6 +255,8 @@ impl Link {
         let applied = ndr_core::wire::Applied::FIXED_LEN + 8 * usize::from(cfg.command_width);
         let max_frame = HEADER_LEN + (8 * widths.1).max(applied);
         let mut entry = Entry::new(endpoint, Arc::clone(&shared), del_tx, path, max_frame);
+        entry.handler = config.rejoin.handler();
+        entry.tap = config.rejoin.tap();
         let sharing = notes.map(|(offered, notes)| {
             let key = notes.link();
             entry.notes = Some(notes);
@@ -268,6 +281,8 @@ impl Link {
             hub: hub.clone(),
             seat: None,
             sharing,
+            reach: Arc::default(),
+            redial: None,
         };
         Ok((id, entry, link))
     }
@@ -394,10 +409,15 @@ impl Link {
     /// Has `tap` see every event of the link on its hub's thread, before
     /// the application (a recorder's: [`Link::record`](crate::Link::record)).
     #[cfg_attr(not(feature = "record"), allow(dead_code))]
-    pub(crate) fn tap(&self, tap: crate::hub::Tap) -> Result<(), NetError> {
+    pub(crate) fn tap(&mut self, tap: crate::hub::Tap) -> Result<(), NetError> {
         if let Some(e) = self.closed {
             return Err(NetError::Link(e));
         }
+        // A reconnecting link's sessions share it.
+        let tap = match self.redial.as_deref_mut() {
+            Some(r) => r.keep_tap(tap),
+            None => tap,
+        };
         if self.hub.send(Msg::Tap(self.id, tap)) {
             Ok(())
         } else {
@@ -412,6 +432,7 @@ impl Link {
         LinkSender {
             shared: Arc::clone(&self.shared),
             events_dropped: Arc::clone(&self.events_dropped),
+            reach: Arc::clone(&self.reach),
             width: self.widths.0,
             origin: self.hub.origin(),
         }
@@ -428,6 +449,10 @@ impl Link {
     /// the link has ended.
     pub fn recv(&mut self) -> Result<Sample, NetError> {
         loop {
+            if self.is_down() {
+                self.rejoin(None)?;
+                continue;
+            }
             let d = self.deliveries.recv().map_err(|_| self.ended())?;
             if let Some(s) = self.accept(d)? {
                 return Ok(s);
@@ -440,6 +465,12 @@ impl Link {
     /// from one thread.
     pub fn try_recv(&mut self) -> Result<Option<Sample>, NetError> {
         loop {
+            if self.is_down() {
+                if self.rejoin(Some(StdInstant::now()))? {
+                    continue;
+                }
+                return Ok(None);
+            }
             let d = match self.deliveries.try_recv() {
                 Ok(d) => d,
                 Err(mpsc::TryRecvError::Empty) => return Ok(None),
@@ -455,6 +486,12 @@ impl Link {
     pub fn recv_timeout(&mut self, timeout: std::time::Duration) -> Result<Sample, NetError> {
         let end = StdInstant::now() + timeout;
         loop {
+            if self.is_down() {
+                if self.rejoin(Some(end))? {
+                    continue;
+                }
+                return Err(NetError::Timeout);
+            }
             let left = end.saturating_duration_since(StdInstant::now());
             let d = match self.deliveries.recv_timeout(left) {
                 Ok(d) => d,
@@ -471,6 +508,14 @@ impl Link {
     pub async fn recv_async(&mut self) -> Result<Sample, NetError> {
         let shared = Arc::clone(&self.shared);
         loop {
+            if let Some(found) = self.redial.as_ref().and_then(|r| r.notify()) {
+                // The search's wake-up is kept until awaited: none is lost
+                // between the look and the wait.
+                if !self.rejoin(Some(StdInstant::now()))? {
+                    found.notified().await;
+                }
+                continue;
+            }
             let notified = shared.notify.notified();
             match self.deliveries.try_recv() {
                 Ok(d) => {
@@ -516,17 +561,127 @@ impl Link {
 
     fn accept(&mut self, d: Delivery) -> Result<Option<Sample>, NetError> {
         match d {
-            Delivery::Sample(s) => Ok(Some(s)),
+            Delivery::Sample(mut s) => {
+                let Some(r) = self.redial.as_deref_mut() else {
+                    return Ok(Some(s));
+                };
+                let fresh = s.status == Status::Fresh;
+                let session = r.sessions.session();
+                let Some(seq) = r.sessions.admit(session, s.seq, fresh) else {
+                    self.publish_reach();
+                    return Ok(None);
+                };
+                s.seq = seq;
+                if fresh {
+                    r.last_fresh = Some(s.released_at);
+                }
+                Ok(Some(s))
+            }
             Delivery::Event(Event::Closed { error }) => {
                 let e = error.unwrap_or(LinkError::Closed);
+                if !self.shut && error.is_some_and(|e| recoverable(&e)) && self.redial.is_some() {
+                    let now = self.now();
+                    let hub = self.hub.clone();
+                    if let Some(r) = self.redial.as_deref_mut() {
+                        match r.lost(now, &hub) {
+                            Ok(announce) => {
+                                tracing::warn!(
+                                    "the link to {} was lost ({e}); reconnecting",
+                                    self.peer
+                                );
+                                if let Some(silent_for) = announce {
+                                    self.push_event(Event::LinkLost { silent_for });
+                                }
+                                return Ok(None);
+                            }
+                            Err(why) => tracing::error!("cannot reconnect the link: {why}"),
+                        }
+                    }
+                }
                 self.closed = Some(e);
                 self.push_event(Event::Closed { error });
                 Err(NetError::Link(e))
             }
             Delivery::Event(e) => {
+                let now = self.now();
+                if let Some(r) = self.redial.as_deref_mut() {
+                    match e {
+                        Event::LinkLost { silent_for } => r.silent_since = Some(now - silent_for),
+                        Event::LinkRestored { .. } => r.silent_since = None,
+                        Event::Started { .. } => {
+                            if let Some(outage) = r.sessions.restored(now) {
+                                tracing::warn!("the link to {} is back after {outage}", self.peer);
+                                self.push_event(e);
+                                self.push_event(Event::LinkRestored { outage });
+                                self.publish_reach();
+                                return Ok(None);
+                            }
+                        }
+                        _ => {}
+                    }
+                }
                 self.push_event(e);
                 Ok(None)
             }
+        }
+    }
+
+    /// Whether the link is down, looking for its peer again.
+    fn is_down(&self) -> bool {
+        self.redial.as_ref().is_some_and(|r| r.down())
+    }
+
+    /// While the link is down: waits for its new session until `until`
+    /// (`None`: as long as it takes); `Ok(true)` once it is here, an error
+    /// if there will be none.
+    fn rejoin(&mut self, until: Option<StdInstant>) -> Result<bool, NetError> {
+        let Some(r) = self.redial.as_deref_mut() else {
+            return Err(self.ended());
+        };
+        match r.resume(until) {
+            Resumed::NotYet => Ok(false),
+            Resumed::Link(new) => {
+                self.adopt(*new);
+                Ok(true)
+            }
+            Resumed::Failed(e) => {
+                let error = match &e {
+                    NetError::Link(l) => *l,
+                    _ => LinkError::Disconnected,
+                };
+                self.closed = Some(error);
+                self.push_event(Event::Closed { error: Some(error) });
+                Err(e)
+            }
+        }
+    }
+
+    /// Takes over `new`, a new session of this link: its deliveries come
+    /// to this handle from now on; it keeps the old session's parts, over.
+    fn adopt(&mut self, mut new: Link) {
+        std::mem::swap(&mut self.id, &mut new.id);
+        std::mem::swap(&mut self.deliveries, &mut new.deliveries);
+        std::mem::swap(&mut self.hub, &mut new.hub);
+        std::mem::swap(&mut self.peer, &mut new.peer);
+        for e in new.events.drain(..) {
+            keep_event(&mut self.events, &self.events_dropped, e);
+        }
+        new.shut = true;
+    }
+
+    /// How long connecting waited for the remote.
+    pub(crate) fn waited(&mut self, waited: std::time::Duration) {
+        self.reach.lock().unwrap_or_else(PoisonError::into_inner).0 = waited.into();
+    }
+
+    /// Makes the link one that reconnects to `addr` when it loses its peer.
+    pub(crate) fn redial_to(&mut self, addr: SocketAddr, config: LinkConfig) {
+        self.redial = Some(Box::new(Redial::new(addr, config, &self.hub, &self.shared)));
+    }
+
+    fn publish_reach(&self) {
+        if let Some(r) = &self.redial {
+            self.reach.lock().unwrap_or_else(PoisonError::into_inner).1 = r.sessions.stats();
         }
     }
 
@@ -568,6 +723,11 @@ impl Link {
     /// over are still there to read. Python has no handler: its code would
     /// hold the GIL on the hub's thread.
     ///
+    /// A link that reconnects ([`LinkConfig::reconnect`]) keeps its
+    /// handler for its new sessions; the handler sees each session's own
+    /// sequence numbers (from 0 again), not the rising ones of
+    /// [`recv`](Self::recv).
+    ///
     /// ```no_run
     /// # async fn robot(mut link: ndr_net::Link) -> Result<(), ndr_net::NetError> {
     /// let tx = link.sender();
@@ -593,7 +753,12 @@ impl Link {
         if let Some(e) = self.closed {
             return Err(NetError::Link(e));
         }
-        if self.hub.send(Msg::Handler(self.id, Box::new(handler))) {
+        // A reconnecting link's sessions share it.
+        let handler: crate::hub::Handler = match self.redial.as_deref_mut() {
+            Some(r) => r.keep_handler(Box::new(handler)),
+            None => Box::new(handler),
+        };
+        if self.hub.send(Msg::Handler(self.id, handler)) {
             Ok(())
         } else {
             Err(NetError::Link(LinkError::Closed))
@@ -630,6 +795,13 @@ impl Link {
             return;
         }
         self.shut = true;
+        if let Some(r) = self.redial.as_deref_mut()
+            && r.down()
+        {
+            // No session to close: the search stops.
+            r.stop();
+            return;
+        }
         let _ = self.hub.send(how);
         let end = StdInstant::now() + std::time::Duration::from_secs(2);
         loop {
@@ -667,6 +839,7 @@ impl Drop for Link {
 pub struct LinkSender {
     shared: Arc<Shared>,
     events_dropped: Arc<AtomicU64>,
+    reach: Arc<Mutex<Reach>>,
     width: usize,
     origin: StdInstant,
 }
@@ -711,6 +884,8 @@ impl LinkSender {
             .unwrap_or_else(PoisonError::into_inner))?;
         // Counted on the application's side, which the hub does not see.
         stats.events_dropped = self.events_dropped.load(Ordering::Relaxed);
+        (stats.waited, stats.reconnect) =
+            *self.reach.lock().unwrap_or_else(PoisonError::into_inner);
         Some(stats)
     }
 

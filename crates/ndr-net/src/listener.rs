@@ -549,7 +549,7 @@ impl Listener {
         let server = Arc::new(server);
         let point = NewEndpoint {
             socket: Some(send),
-            endpoint: crate::quic::endpoint(Some(Arc::clone(&server))),
+            endpoint: crate::quic::endpoint(Some(Arc::clone(&server)), tls),
             server: Some(QuicServer {
                 config: server,
                 accept: Box::new(accept),

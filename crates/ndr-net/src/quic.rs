@@ -162,12 +162,16 @@ pub(crate) fn server(
 }
 
 /// A QUIC endpoint with quinn's defaults (no path MTU discovery: a
-/// link's datagrams fit the minimum).
-pub(crate) fn endpoint(server: Option<Arc<quinn_proto::ServerConfig>>) -> quinn_proto::Endpoint {
-    quinn_proto::Endpoint::new(
-        Arc::new(quinn_proto::EndpointConfig::default()),
-        server,
-        false,
-        None,
-    )
+/// link's datagrams fit the minimum), its stateless resets and connection
+/// IDs keyed by the side's identity ([`TlsConfig::quic_keys`]): random
+/// keys would make a restarted peer drop the old connection's packets
+/// unanswered, its successor's reset unrecognisable.
+pub(crate) fn endpoint(
+    server: Option<Arc<quinn_proto::ServerConfig>>,
+    tls: &TlsConfig,
+) -> quinn_proto::Endpoint {
+    let (reset, cid) = tls.quic_keys();
+    let mut config = quinn_proto::EndpointConfig::new(Arc::new(reset));
+    config.cid_generator(move || Box::new(quinn_proto::HashedConnectionIdGenerator::from_key(cid)));
+    quinn_proto::Endpoint::new(Arc::new(config), server, false, None)
 }

@@ -302,7 +302,7 @@ impl Recorder {
         Ok(self.stats())
     }
 
-    fn attach(&self, link: &Link) -> Result<(), NetError> {
+    fn attach(&self, link: &mut Link) -> Result<(), NetError> {
         let n = self.links.fetch_add(1, Ordering::Relaxed);
         let sender = link.sender();
         let unix_now = SystemTime::now()

@@ -1,6 +1,7 @@
 //! A snapshot of a link's state and counters.
 
 use ndr_core::endpoint::{Phase, Running, Stats};
+use ndr_core::reconnect::ReconnectStats;
 use ndr_core::time::Duration;
 
 use crate::clock::LatenessStats;
@@ -70,4 +71,13 @@ pub struct LinkStats {
     /// or over QUIC that no connection on it took (garbage, a stranger's
     /// packets, a closed connection's); shared by every link on the socket.
     pub datagrams_stray: u64,
+    /// How long connecting waited for the remote
+    /// ([`LinkConfig::wait_for_remote`](crate::LinkConfig::wait_for_remote)):
+    /// from the first attempt to the one that reached it.
+    pub waited: Duration,
+    /// A reconnecting link ([`LinkConfig::reconnect`](crate::LinkConfig::reconnect)):
+    /// its sessions after the first and their outages. The other counters
+    /// are the current session's.
+    #[cfg_attr(feature = "serde", serde(flatten))]
+    pub reconnect: ReconnectStats,
 }

@@ -461,6 +461,28 @@ impl TlsConfig {
             .map_err(|e| TlsError::Rustls(format!("QUIC server: {e}")))
     }
 
+    /// The keys of QUIC's stateless resets and of the connection IDs this
+    /// side issues, derived from its private key: the same across restarts
+    /// of a peer with one identity, so that a restarted remote still knows
+    /// the IDs its predecessor issued for its own, and its reset to a
+    /// packet of a connection it no longer has carries the token the base
+    /// was given: the base ends that connection at once instead of after
+    /// its idle timeout.
+    pub(crate) fn quic_keys(&self) -> (ring::hmac::Key, u64) {
+        let derive = |label: &[u8]| {
+            let kdf = ring::hmac::Key::new(ring::hmac::HMAC_SHA256, label);
+            ring::hmac::sign(&kdf, self.identity.1.secret_der())
+        };
+        let reset = derive(b"ndr QUIC stateless reset key v1");
+        let cid = derive(b"ndr QUIC connection ID key v1");
+        let mut cid_key = [0; 8];
+        cid_key.copy_from_slice(&cid.as_ref()[..8]);
+        (
+            ring::hmac::Key::new(ring::hmac::HMAC_SHA256, reset.as_ref()),
+            u64::from_le_bytes(cid_key),
+        )
+    }
+
     /// The name the server's certificate must carry under [`Trust::Ca`].
     pub(crate) fn server_name(&self) -> String {
         self.server_name.to_str().into_owned()

@@ -630,6 +630,9 @@ fn event<'py>(py: Python<'py>, e: &LinkEvent) -> PyResult<Option<Bound<'py, PyAn
         Event::LinkLost { silent_for } => {
             fields.set_item("silent_for", silent_for.as_secs_f64())?;
         }
+        Event::LinkRestored { outage } => {
+            fields.set_item("outage", outage.as_secs_f64())?;
+        }
         Event::DelayChanged { delay, ticks } => {
             fields.set_item("delay", delay.as_secs_f64())?;
             fields.set_item("ticks", ticks)?;
@@ -818,12 +821,13 @@ fn realtime_settings(
 /// Connects to a peer (over mutual TLS with `tls`) and waits for the
 /// handshake.
 #[pyfunction]
-#[pyo3(signature = (address, settings, *, connect_timeout, tls = None, record = None))]
+#[pyo3(signature = (address, settings, *, connect_timeout, reconnect = false, tls = None, record = None))]
 pub fn connect(
     py: Python<'_>,
     address: &Bound<'_, PyAny>,
     settings: &PyLinkSettings,
     connect_timeout: Option<f64>,
+    reconnect: bool,
     tls: Option<&Bound<'_, PyTlsConfig>>,
     record: Option<PathBuf>,
 ) -> PyResult<PyLink> {
@@ -832,6 +836,15 @@ pub fn connect(
     let wait_for_control = settings.wait_for_control;
     let addr = blocking::address(py, address)?;
     let limit = blocking::timeout("connect_timeout", connect_timeout)?;
+    if reconnect && role == Role::Remote {
+        return Err(PyValueError::new_err(
+            "reconnect=True is a base's: a remote serves the next base that comes \
+             (Link.listen), or connect as the base",
+        ));
+    }
+    // The library waits for the remote up to the limit, and reconnects.
+    config.wait_for_remote = limit.unwrap_or_default().into();
+    config.reconnect = reconnect;
     let tls = tls.map(|t| t.get().inner.clone());
     settings.check_tls(tls.is_some())?;
     if tls.is_some() && role == Role::Remote {
@@ -861,7 +874,9 @@ pub fn connect(
                 }
             }
         };
-        let mut link = match limit {
+        // A little past the library's own wait, which ends with the last
+        // attempt's error (refused, unreachable) rather than a timeout.
+        let mut link = match limit.map(|l| l + StdDuration::from_secs(1)) {
             Some(l) => tokio::time::timeout(l, connect)
                 .await
                 .map_err(|_| Step::Connect)??,

@@ -17,6 +17,7 @@ use super::engine::{SimConfig, SimOutput};
 /// Summary of one run. Times in seconds; `fwd` is base → remote (commands),
 /// `bwd` remote → base (states).
 #[derive(Clone, Debug, PartialEq, Serialize)]
+#[non_exhaustive]
 pub struct Report {
     /// The delay model's name.
     pub profile: String,

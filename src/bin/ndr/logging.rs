@@ -47,7 +47,9 @@ pub fn event(side: &str, event: &LinkEvent) {
                 ""
             }
         ),
-        Event::LinkRestored => tracing::warn!("{side}: link restored: fresh samples again"),
+        Event::LinkRestored { outage } => {
+            tracing::warn!("{side}: link restored after {outage}: fresh samples again");
+        }
         Event::DelayChanged { delay, ticks } => {
             tracing::debug!("{side}: playout delay now {delay} ({ticks} ticks)");
         }

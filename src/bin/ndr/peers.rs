@@ -48,6 +48,20 @@ pub struct BaseArgs {
     /// not granted in time. The report gives `waited_for_control_s`.
     #[arg(long, value_name = "SECS")]
     pub wait_for_control: Option<f64>,
+    /// Wait up to SECS for a remote that is not there yet (the connection
+    /// refused, the host unreachable, no answer), trying again after
+    /// 0.1 s, 0.2 s, … up to 1 s apart; --duration-s then counts from the
+    /// connection. The report gives `waited_for_remote_s`.
+    #[arg(long, value_name = "SECS")]
+    pub wait_for_remote: Option<f64>,
+    /// When the link loses the remote (it stopped, restarted, or went
+    /// silent past --liveness-s), connect again by itself, until the run's
+    /// duration is over: the robot holds while the link is down, the new
+    /// link runs its initialization pattern, no state of the old link is
+    /// released after the new one's. The report counts the reconnects and
+    /// the time the link was down.
+    #[arg(long)]
+    pub reconnect: bool,
 }
 
 #[derive(clap::Args)]
@@ -102,6 +116,17 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     }
     let seat = seat(args)?;
     config.endpoint.seat = seat;
+    let wait_for_remote = match args.wait_for_remote {
+        Some(secs) if !(secs.is_finite() && secs > 0.0) => {
+            return Err(format!(
+                "--wait-for-remote must be a positive number of seconds, got {secs}"
+            ));
+        }
+        Some(secs) => StdDuration::from_secs_f64(secs),
+        None => StdDuration::ZERO,
+    };
+    config.wait_for_remote = wait_for_remote.into();
+    config.reconnect = args.reconnect;
     let mut series = Series::create(&args.run.out)?;
     let served = Served::start(&args.metrics, "base")?;
     let recorder = args.record.start(args.link.axes, &args.link.state)?;
@@ -111,10 +136,13 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     let wait_for = StdDuration::from_secs_f64(args.wait_for_control.unwrap_or(0.0));
     config.tls.clone_from(&tls);
     let connect = Link::connect(connect_to, config.clone());
-    // The connection counts in the run's duration (and the wait for
-    // control): a peer that never answers the SYN must not hold the base
-    // beyond it.
-    let connected = rt.block_on(async { tokio::time::timeout(run_for + wait_for, connect).await });
+    // The connection counts in the run's duration (and the waits for
+    // control and for the remote): a peer that never answers the SYN must
+    // not hold the base beyond it.
+    let connected = rt.block_on(async {
+        tokio::time::timeout(run_for + wait_for + wait_for_remote, connect).await
+    });
+    let connected_at = StdInstant::now();
     let mut seating = Seating {
         role: if seat == Seat::Control {
             "controller"
@@ -143,9 +171,12 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
                         seating.role = "controller";
                         seating.waited_for_control_s = Some(started.elapsed().as_secs_f64());
                     }
-                    // A waiting base runs its duration from the grant.
+                    // A waiting base runs its duration from the grant, or
+                    // from the connection.
                     let until = if seat == Seat::WaitForControl {
                         StdInstant::now() + run_for
+                    } else if args.wait_for_remote.is_some() {
+                        connected_at + run_for
                     } else {
                         started + run_for
                     };

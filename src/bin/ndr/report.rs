@@ -144,6 +144,9 @@ pub struct Series {
     out: BufWriter<File>,
     rows: u64,
     grtt: LogHistogram,
+    /// The last fresh state's sequence number.
+    last_fresh: Option<u64>,
+    out_of_order: u64,
 }
 
 /// What the series kept of its rows.
@@ -152,6 +155,9 @@ pub struct SeriesSummary {
     pub rows: u64,
     /// The 99th percentile of the rows' GRTTs, seconds (0 for none).
     pub grtt_p99_s: f64,
+    /// Rows whose sequence number does not follow the last fresh one: a
+    /// fresh state not after it, a held one not repeating it.
+    pub out_of_order: u64,
 }
 
 impl Series {
@@ -164,6 +170,8 @@ impl Series {
             out: BufWriter::new(file),
             rows: 0,
             grtt: LogHistogram::new(),
+            last_fresh: None,
+            out_of_order: 0,
         };
         writeln!(series.out, "t_s,seq,status,grtt_s,nrtt_s,command,state")
             .map_err(|e| write_error(path, &e))?;
@@ -189,6 +197,17 @@ impl Series {
         if let Some(g) = r.grtt_s {
             self.grtt.record(g);
         }
+        let follows = match self.last_fresh {
+            Some(last) if r.held => r.seq == last,
+            Some(last) => r.seq > last,
+            None => !r.held,
+        };
+        if !follows {
+            self.out_of_order += 1;
+        }
+        if !r.held {
+            self.last_fresh = Some(r.seq);
+        }
         self.rows += 1;
         Ok(())
     }
@@ -199,6 +218,7 @@ impl Series {
         let summary = SeriesSummary {
             rows: self.rows,
             grtt_p99_s: self.grtt.quantile(0.99),
+            out_of_order: self.out_of_order,
         };
         (summary, error)
     }
@@ -342,6 +362,20 @@ struct DemoReport {
     /// order first seen (an observer across a hand-over sees two; 0 is
     /// before any base held control).
     terms_seen: Option<Vec<u16>>,
+    /// `ndr base`: seconds its connection waited for the remote
+    /// (`--wait-for-remote`); 0 when it was there at once.
+    waited_for_remote_s: f64,
+    /// Times the link lost its peer and came back (`--reconnect`), the
+    /// time it was down in all (from each loss to the new link's start),
+    /// the longest outage, and states of a link that was over refused
+    /// (never released to the operator).
+    reconnects: u64,
+    outage_total_s: f64,
+    outage_longest_s: f64,
+    stale_releases: u64,
+    /// Rows of the series whose sequence number does not follow the last
+    /// fresh one (a state released twice or out of order): 0.
+    seq_out_of_order: u64,
     profile: String,
     /// How the delay was regulated (`--regulation`'s name).
     regulation: String,
@@ -511,6 +545,12 @@ fn report(link: &LinkArgs, run: &RunArgs, o: &Outcome<'_>) -> DemoReport {
         role: o.seating.as_ref().map(|s| s.role),
         waited_for_control_s: o.seating.as_ref().and_then(|s| s.waited_for_control_s),
         terms_seen: o.seating.as_ref().map(|s| s.terms_seen.clone()),
+        waited_for_remote_s: b.map_or(0.0, |s| s.waited.as_secs_f64()),
+        reconnects: b.map_or(0, |s| s.reconnect.reconnects),
+        outage_total_s: b.map_or(0.0, |s| s.reconnect.outage_total.as_secs_f64()),
+        outage_longest_s: b.map_or(0.0, |s| s.reconnect.longest_outage.as_secs_f64()),
+        stale_releases: b.map_or(0, |s| s.reconnect.stale),
+        seq_out_of_order: o.series.out_of_order,
         profile: o.profile.clone(),
         regulation: link.regulation_name(),
         playout: link.playout_name(),
@@ -606,6 +646,15 @@ fn print_table(r: &DemoReport) {
             .waited_for_control_s
             .map_or_else(String::new, |w| format!(" · waited {w:.2} s for control"));
         println!("  seat       {role}{waited} · terms seen {terms:?}");
+    }
+    if r.waited_for_remote_s > 0.0 {
+        println!("  waited     {:.2} s for the remote", r.waited_for_remote_s);
+    }
+    if r.reconnects > 0 {
+        println!(
+            "  reconnect  {} time(s) · down {:.2} s in all, longest {:.2} s · {} stale state(s) refused",
+            r.reconnects, r.outage_total_s, r.outage_longest_s, r.stale_releases
+        );
     }
     println!("                     mean          std");
     println!(

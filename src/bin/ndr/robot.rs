@@ -374,7 +374,7 @@ pub fn robot(
                     }
                 }
                 Event::LinkLost { .. } => drive.holding = true,
-                Event::LinkRestored => drive.holding = false,
+                Event::LinkRestored { .. } => drive.holding = false,
                 _ => {}
             }
         }

@@ -172,8 +172,13 @@ pub enum Event<V> {
         /// ([`round_trip_ticks`](crate::control::round_trip_ticks)).
         ticks: u64,
     },
-    /// Fresh samples flow again after a [`Event::LinkLost`].
-    LinkRestored,
+    /// Fresh samples flow again after a [`Event::LinkLost`]. A driver
+    /// that reconnects raises it too when a new session's samples flow.
+    LinkRestored {
+        /// How long the outage lasted: from the last fresh sample before
+        /// it (for a reconnect: from the loss of the old session) to now.
+        outage: Duration,
+    },
     /// This link holds control from now, in `term`: a base's commands
     /// apply from the first one of this term (on the remote, the link's
     /// base was granted it). Not raised on a link of an observer.
@@ -223,7 +228,7 @@ impl<V> Event<V> {
             Event::LinkLost { .. } => "link_lost",
             Event::DelayChanged { .. } => "delay_changed",
             Event::RoundTripChanged { .. } => "round_trip_changed",
-            Event::LinkRestored => "link_restored",
+            Event::LinkRestored { .. } => "link_restored",
             Event::ControlGranted { .. } => "control_granted",
             Event::ControlLost { .. } => "control_lost",
             Event::ControlRequested => "control_requested",

@@ -148,13 +148,14 @@ impl<S: Storage> Endpoint<S> {
             return;
         };
         let silent_for = t - self.rel.last_fresh;
-        if silent_for >= limit && !self.rel.lost {
-            self.rel.lost = true;
+        if silent_for >= limit && self.rel.lost.is_none() {
+            self.rel.lost = Some(self.rel.last_fresh);
             self.stats.link_lost += 1;
             self.emit(Event::LinkLost { silent_for });
-        } else if silent_for.is_zero() && self.rel.lost {
-            self.rel.lost = false;
-            self.emit(Event::LinkRestored);
+        } else if silent_for.is_zero()
+            && let Some(since) = self.rel.lost.take()
+        {
+            self.emit(Event::LinkRestored { outage: t - since });
         }
     }
 
@@ -189,7 +190,8 @@ pub(super) struct Released<V> {
     pub(super) last: Option<Release<V>>,
     /// Last fresh release, or the start of the running phase, for the watchdog.
     pub(super) last_fresh: Instant,
-    pub(super) lost: bool,
+    /// While the watchdog holds: the last fresh release before the silence.
+    pub(super) lost: Option<Instant>,
     /// The round trip in ticks last announced.
     pub(super) round_trip_ticks: Option<u64>,
 }
@@ -202,7 +204,7 @@ impl<V> Released<V> {
             armed: false,
             last: None,
             last_fresh: now,
-            lost: false,
+            lost: None,
             round_trip_ticks: None,
         }
     }

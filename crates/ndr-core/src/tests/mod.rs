@@ -11,5 +11,6 @@ mod first_stamp;
 mod floor_sim;
 mod identification_estimator;
 mod identification_rls;
+mod reconnect_sim;
 mod regulator_props;
 mod wire_props;

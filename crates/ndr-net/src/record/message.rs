@@ -76,6 +76,8 @@ pub(super) struct EventMsg {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub silent_for_s: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
+    pub outage_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
 

@@ -51,6 +51,7 @@ const EVENT: &str = r#"{"$schema":"https://json-schema.org/draft/2020-12/schema"
 "grtt_s":{"type":"number","description":"round_trip_changed: the GRTT that showed the change"},
 "ticks":{"type":"integer"},
 "silent_for_s":{"type":"number","description":"link_lost: time since the last fresh sample"},
+"outage_s":{"type":"number","description":"link_restored: how long the outage lasted"},
 "error":{"type":"string","description":"closed: why"}
 },"required":["link","side","kind","at_ns"]}"#;
 

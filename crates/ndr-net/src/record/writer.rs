@@ -378,6 +378,7 @@ impl Writer {
                 msg.ticks = Some(ticks);
             }
             Event::LinkLost { silent_for } => msg.silent_for_s = Some(silent_for.as_secs_f64()),
+            Event::LinkRestored { outage } => msg.outage_s = Some(outage.as_secs_f64()),
             Event::Closed { error } => {
                 msg.error = error.map(|e| e.to_string());
                 l.closed = true;

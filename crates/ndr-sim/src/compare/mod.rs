@@ -77,6 +77,7 @@ pub fn default_regulations() -> Vec<Regulation> {
 
 /// What to compare.
 #[derive(Clone, Debug)]
+#[non_exhaustive]
 pub struct CompareConfig {
     /// The families of traces.
     pub families: Vec<Family>,
@@ -517,6 +518,7 @@ pub struct FamilyResult {
 
 /// The whole comparison: what `ndr compare --json` prints.
 #[derive(Clone, Debug, PartialEq, Serialize)]
+#[non_exhaustive]
 pub struct CompareReport {
     /// [`SCHEMA`].
     pub schema: &'static str,

@@ -663,11 +663,24 @@ fn the_watchdog_raises_link_lost_once_and_then_restored() {
     assert!(
         matches!(lost[0], Event::LinkLost { silent_for } if *silent_for >= Duration::from_secs(1))
     );
+    let Event::LinkLost { silent_for } = *lost[0] else {
+        unreachable!()
+    };
+    // The outage runs from the last fresh release to the first after it:
+    // longer than the silence the watchdog saw, within the hold of 2.5 s.
+    let restored: Vec<Duration> = p
+        .world
+        .remote_events
+        .iter()
+        .filter_map(|e| match e {
+            Event::LinkRestored { outage } => Some(*outage),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(restored.len(), 1, "{restored:?}");
     assert!(
-        p.world
-            .remote_events
-            .iter()
-            .any(|e| matches!(e, Event::LinkRestored))
+        restored[0] > silent_for && restored[0] <= Duration::from_millis(2600),
+        "{restored:?} after {silent_for:?}"
     );
     assert_eq!(p.remote.stats().link_lost, 1);
     assert_eq!(p.base.stats().link_lost, 0);
