@@ -109,7 +109,7 @@ def test_ndr_remote_serves_metrics_during_a_run_and_its_count_matches_the_report
              "--json", "--out", str(tmp_path / "base.csv")],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
-        peer = err.wait_for(r"base (\S+) connected", 20).group(1)
+        peer = err.wait_for(r"base (\S+): handshake done", 20).group(1)
         released = []
         running = 0
         while base.poll() is None:

@@ -156,7 +156,16 @@ async fn quic(
         Ok(Ok(())) => Ok(link),
         Ok(Err(NetError::Link(LinkError::CertificateRefused))) => Err(NetError::Handshake(
             crate::tls::HandshakeError::UnknownCertificate(
-                "QUIC: a certificate was refused by this side or the peer".into(),
+                "the peer refused this side's certificate (QUIC): it neither pins it nor \
+                 trusts its CA"
+                    .into(),
+            ),
+        )),
+        Ok(Err(NetError::Link(LinkError::PeerCertificateRefused))) => Err(NetError::Handshake(
+            crate::tls::HandshakeError::UnknownCertificate(
+                "this side refused the peer's certificate (QUIC): it matches no pin or peer \
+                 certificate given here and does not chain to the CA given here"
+                    .into(),
             ),
         )),
         Ok(Err(e)) => Err(e),

@@ -91,3 +91,150 @@ impl From<TransportError> for NetError {
         NetError::Transport(e)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tls::TlsError;
+
+    /// One error of each variant of the driver's errors (the link's are
+    /// ndr-core's), and of each cause a variant words apart.
+    fn every_message() -> Vec<String> {
+        use rustls::{AlertDescription, CertificateError};
+        let handshakes = vec![
+            HandshakeError::from_rustls(&rustls::Error::InvalidCertificate(
+                CertificateError::ApplicationVerificationFailure,
+            )),
+            HandshakeError::from_rustls(&rustls::Error::InvalidCertificate(
+                CertificateError::UnknownIssuer,
+            )),
+            HandshakeError::from_rustls(&rustls::Error::AlertReceived(
+                AlertDescription::AccessDenied,
+            )),
+            HandshakeError::NoCertificate,
+            HandshakeError::Version("ProtocolVersion".into()),
+            HandshakeError::Timeout(std::time::Duration::from_secs(3)),
+            HandshakeError::Other("reset".into()),
+        ];
+        let transports = vec![
+            TransportError::Unknown("sctp".into()),
+            TransportError::QuicWithoutTls,
+            TransportError::UdpWithTls,
+            TransportError::Mismatch {
+                link: crate::Transport::UDP,
+                endpoint: ndr_core::endpoint::Transport::Stream,
+            },
+        ];
+        let tls = vec![
+            TlsError::Read {
+                path: "a.crt".into(),
+                error: "No such file".into(),
+            },
+            TlsError::NoCertificate("a.key".into()),
+            TlsError::Rustls("key mismatch".into()),
+            TlsError::Fingerprint("12".into()),
+            TlsError::NoTrust,
+        ];
+        let nets = vec![
+            NetError::Io(io::ErrorKind::ConnectionRefused.into()),
+            NetError::Config(ConfigError::Width {
+                which: "command",
+                width: 0,
+            }),
+            NetError::Timeout,
+            NetError::Insecure(([192, 0, 2, 7], 7300).into()),
+            NetError::Realtime(RealtimeError::BadPriority(0)),
+        ];
+        // No wildcard: a new variant fails to compile here until it has
+        // its sample above (and its entry in the page).
+        for e in &handshakes {
+            match e {
+                HandshakeError::UnknownCertificate(_)
+                | HandshakeError::NoCertificate
+                | HandshakeError::Version(_)
+                | HandshakeError::Timeout(_)
+                | HandshakeError::Other(_) => {}
+            }
+        }
+        for e in &transports {
+            match e {
+                TransportError::Unknown(_)
+                | TransportError::QuicWithoutTls
+                | TransportError::UdpWithTls
+                | TransportError::Mismatch { .. } => {}
+            }
+        }
+        for e in &tls {
+            match e {
+                TlsError::Read { .. }
+                | TlsError::NoCertificate(_)
+                | TlsError::Rustls(_)
+                | TlsError::Fingerprint(_)
+                | TlsError::NoTrust => {}
+            }
+        }
+        for e in &nets {
+            match e {
+                // The link's and these three wrap the errors above.
+                NetError::Link(_) | NetError::Handshake(_) | NetError::Transport(_) => {}
+                NetError::Io(_)
+                | NetError::Config(_)
+                | NetError::Timeout
+                | NetError::Insecure(_)
+                | NetError::Realtime(_) => {}
+            }
+        }
+        let mut all: Vec<String> = handshakes
+            .into_iter()
+            .map(NetError::Handshake)
+            .chain(transports.into_iter().map(NetError::Transport))
+            .chain(nets)
+            .map(|e| e.to_string())
+            .collect();
+        all.extend(tls.iter().map(ToString::to_string));
+        all
+    }
+
+    /// The starts of the messages docs/guide/troubleshooting.md lists:
+    /// each backticked pattern of a table row's first cell, split at `…`
+    /// (as ndr-core's check reads them).
+    fn page_patterns() -> Vec<Vec<String>> {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../docs/guide/troubleshooting.md"
+        );
+        let page = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+        page.lines()
+            .filter(|l| l.starts_with("| `"))
+            .filter_map(|l| l.split('|').nth(1))
+            .flat_map(|cell| cell.split('`').skip(1).step_by(2))
+            .map(|p| p.split('…').map(|s| s.trim().to_string()).collect())
+            .collect()
+    }
+
+    fn fits(msg: &str, pieces: &[String]) -> bool {
+        let mut at = 0;
+        for (i, piece) in pieces.iter().enumerate() {
+            if piece.is_empty() {
+                continue;
+            }
+            match msg[at..].find(piece.as_str()) {
+                Some(j) if i > 0 || j == 0 => at += j + piece.len(),
+                _ => return false,
+            }
+        }
+        true
+    }
+
+    #[test]
+    fn every_message_is_in_the_troubleshooting_page() {
+        let patterns = page_patterns();
+        assert!(patterns.len() > 30, "{patterns:?}");
+        for msg in every_message() {
+            assert!(
+                patterns.iter().any(|p| fits(&msg, p)),
+                "not in docs/guide/troubleshooting.md: {msg}"
+            );
+        }
+    }
+}

@@ -567,21 +567,33 @@ impl HandshakeError {
         let Some(err) = e.get_ref().and_then(|r| r.downcast_ref::<rustls::Error>()) else {
             return HandshakeError::Other(e.to_string());
         };
+        HandshakeError::from_rustls(err)
+    }
+
+    pub(crate) fn from_rustls(err: &rustls::Error) -> HandshakeError {
         match err {
             rustls::Error::InvalidCertificate(c) => {
-                HandshakeError::UnknownCertificate(format!("{c:?}"))
+                HandshakeError::UnknownCertificate(refused_here(c))
             }
             rustls::Error::NoCertificatesPresented
             | rustls::Error::AlertReceived(AlertDescription::CertificateRequired) => {
                 HandshakeError::NoCertificate
             }
+            // What a peer's TLS sends when its verifier refuses this side's
+            // certificate (a pin that does not match is `AccessDenied`).
             rustls::Error::AlertReceived(
                 a @ (AlertDescription::BadCertificate
                 | AlertDescription::UnknownCA
                 | AlertDescription::CertificateUnknown
                 | AlertDescription::UnsupportedCertificate
+                | AlertDescription::CertificateRevoked
+                | AlertDescription::CertificateExpired
+                | AlertDescription::AccessDenied
                 | AlertDescription::DecryptError),
-            ) => HandshakeError::UnknownCertificate(format!("the peer refused ours ({a:?})")),
+            ) => HandshakeError::UnknownCertificate(format!(
+                "the peer refused this side's certificate ({a:?}): it neither pins it nor \
+                 trusts its CA"
+            )),
             rustls::Error::AlertReceived(
                 a @ (AlertDescription::ProtocolVersion | AlertDescription::HandshakeFailure),
             ) => HandshakeError::Version(format!("{a:?}")),
@@ -594,12 +606,29 @@ impl HandshakeError {
     }
 }
 
+/// Why this side's verifier refused the peer's certificate, in words.
+pub(crate) fn refused_here(c: &CertificateError) -> String {
+    let why = match c {
+        // What [`Pinned`] returns for a certificate it does not pin.
+        CertificateError::ApplicationVerificationFailure => {
+            "its SHA-256 matches no pin or peer certificate given here"
+        }
+        CertificateError::UnknownIssuer => "it does not chain to the CA given here",
+        CertificateError::NotValidForName | CertificateError::NotValidForNameContext { .. } => {
+            "it does not carry the server name expected here"
+        }
+        CertificateError::Expired | CertificateError::ExpiredContext { .. } => "it has expired",
+        _ => "it is not valid",
+    };
+    format!("this side refused the peer's certificate: {why} ({c:?})")
+}
+
 impl fmt::Display for HandshakeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             HandshakeError::UnknownCertificate(why) => write!(
                 f,
-                "TLS handshake refused: unknown certificate ({why}); give each side the \
+                "TLS handshake refused: unknown certificate: {why}; give each side the \
                  other's certificate (--peer-cert) or pin its fingerprint (--pin)"
             ),
             HandshakeError::NoCertificate => f.write_str(
@@ -797,6 +826,33 @@ pub fn plain_allowed(addr: std::net::IpAddr, insecure: bool) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_refused_certificate_names_the_side_that_refused() {
+        // A peer whose pin does not match ours alerts AccessDenied.
+        let theirs = HandshakeError::from_rustls(&rustls::Error::AlertReceived(
+            AlertDescription::AccessDenied,
+        ));
+        assert!(
+            matches!(theirs, HandshakeError::UnknownCertificate(_)),
+            "{theirs:?}"
+        );
+        let msg = theirs.to_string();
+        assert!(
+            msg.contains("the peer refused this side's certificate"),
+            "{msg}"
+        );
+        let ours = HandshakeError::from_rustls(&rustls::Error::InvalidCertificate(
+            CertificateError::ApplicationVerificationFailure,
+        ));
+        let msg = ours.to_string();
+        assert!(
+            msg.contains("this side refused the peer's certificate: its SHA-256 matches no pin"),
+            "{msg}"
+        );
+        let ca = refused_here(&CertificateError::UnknownIssuer);
+        assert!(ca.contains("CA given here"), "{ca}");
+    }
 
     #[test]
     fn missing_files_are_reported_first_one_first_as_a_message() {

@@ -88,7 +88,8 @@ pub fn link_error(py: Python<'_>, e: CoreError) -> PyErr {
         | CoreError::Timeout
         // The peer's TLS refused our certificate after our side's handshake
         // was over (TLS 1.3 checks the client's last): a TLS handshake failure.
-        | CoreError::CertificateRefused => HandshakeError::new_err(msg),
+        | CoreError::CertificateRefused
+        | CoreError::PeerCertificateRefused => HandshakeError::new_err(msg),
         CoreError::Wire(_)
         | CoreError::Unexpected { .. }
         | CoreError::ChannelCount { .. }
@@ -186,7 +187,7 @@ pub fn transport_error(e: &TransportError) -> PyErr {
 fn tls_handshake_message(h: &TlsHandshakeError) -> String {
     match h {
         TlsHandshakeError::UnknownCertificate(why) => format!(
-            "TLS handshake refused: unknown certificate ({why}); give each side's TlsConfig \
+            "TLS handshake refused: unknown certificate: {why}; give each side's TlsConfig \
              the other's certificate (peer_cert=) or its fingerprint (pins=[...])"
         ),
         TlsHandshakeError::NoCertificate => "TLS handshake refused: no client certificate; \

@@ -7,6 +7,9 @@ mod control;
 mod demo;
 #[cfg(test)]
 mod doc_commands;
+#[cfg(test)]
+mod doc_messages;
+mod explain;
 mod keygen;
 mod logging;
 mod metrics;

@@ -203,7 +203,11 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
                     reason,
                     why: format!("cannot connect to {connect_to}: {e}"),
                 },
-                None => End::NeverConnected(format!("cannot connect to {connect_to}: {e}")),
+                None => End::NeverConnected(crate::explain::cannot_connect(
+                    &e,
+                    connect_to,
+                    args.link.transport(),
+                )),
             },
             None,
         ),
@@ -216,9 +220,10 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
             None,
         ),
     };
+    let end = crate::explain::udp_silence(end, args.link.transport(), connect_to, stats.as_ref());
     let (series, error) = series.close();
     let outcome = Outcome {
-        profile: format!("tcp {connect_to}"),
+        profile: crate::report::base_profile(args.link.transport(), connect_to, tls.is_some()),
         base: stats,
         remote: None,
         relay: None,
@@ -493,7 +498,7 @@ fn serve_each(
             Some(Err(e)) => return Some(format!("the listener stopped: {e}")),
         };
         let peer = link.peer_addr();
-        eprintln!("ndr remote: base {peer} connected");
+        eprintln!("ndr remote: base {peer}: handshake done, running the initialization pattern");
         served.unwatch(watched.take());
         watched = served.watch_link(peer, Role::Remote, args.link.transport(), &link.sender());
         let stats = Mutex::new(None::<LinkStats>);
@@ -509,7 +514,13 @@ fn serve_each(
                 s.endpoint.released_fresh, s.endpoint.underflows, s.endpoint.late
             )
         });
-        eprintln!("ndr remote: base {peer}: {end}{counted}");
+        let end_line = crate::robot::session_line(
+            &end,
+            last.as_ref(),
+            args.link.transport(),
+            listener.local_addr().map_or(0, |a| a.port()),
+        );
+        eprintln!("ndr remote: base {peer}: {end_line}{counted}");
         sessions.push(crate::shared::Session::alone(peer, &end, last));
         if args.once {
             return (!end.ok()).then(|| format!("base {peer}: {end}"));

@@ -4,6 +4,7 @@
 use std::fmt;
 use std::fs::File;
 use std::io::{BufWriter, Write};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 use ndr::core::endpoint::LinkError;
@@ -28,6 +29,9 @@ pub enum End {
     Refused { reason: &'static str, why: String },
     /// The link came up, then ended before the run did.
     LinkFailed(String),
+    /// The peer ended the link in order (Close code 0: it was stopped, or
+    /// its run ended) before this side's run was over.
+    PeerEnded(String),
     /// This side failed (its command refused, its series unwritable): the
     /// link was ended as an application failure.
     AppFailure(String),
@@ -87,6 +91,13 @@ pub fn refusal(e: &NetError) -> Option<&'static str> {
 /// How a link that failed after `released` samples ended the run: refused,
 /// never connected, or failed.
 pub fn link_ended(e: &NetError, released: u64) -> End {
+    use ndr::core::wire::CloseReason;
+    if let NetError::Link(LinkError::PeerClosed {
+        reason: CloseReason::Normal,
+    }) = e
+    {
+        return End::PeerEnded(e.to_string());
+    }
     if released > 0 {
         return End::LinkFailed(e.to_string());
     }
@@ -107,6 +118,7 @@ impl fmt::Display for End {
                 write!(f, "never connected: {why}")
             }
             End::LinkFailed(why) => write!(f, "link failed: {why}"),
+            End::PeerEnded(why) => write!(f, "ended early: {why}"),
             End::AppFailure(why) => write!(f, "application failure: {why}"),
             End::NotGranted(why) => write!(f, "not granted control: {why}"),
         }
@@ -333,8 +345,9 @@ struct DemoReport {
     command: &'static str,
     /// Whether the run completed over a link (the exit status is 0 then).
     ok: bool,
-    /// How it ended: `completed`, `never connected: …`, `link failed: …`
-    /// or `application failure: …`.
+    /// How it ended: `completed`, `never connected: …`, `link failed: …`,
+    /// `ended early: …` (the peer ended the link in order) or
+    /// `application failure: …`.
     end: String,
     /// Why the peer refused the link, if it did (see [`refusal`]): `busy`,
     /// `per_source`, `evicted`, `version`, …; null otherwise.
@@ -767,6 +780,25 @@ fn print_table(r: &DemoReport) {
     }
 }
 
+/// How `ndr base` names the link in its report's header and `profile`:
+/// the transport's kind, the address, and whether TLS is on (QUIC always
+/// runs it), e.g. `quic 192.0.2.7:7300 · TLS`.
+pub fn base_profile(
+    transport: crate::transport::LinkTransport,
+    to: SocketAddr,
+    tls: bool,
+) -> String {
+    let kind = if transport.is_quic() {
+        "quic"
+    } else if transport.datagrams() {
+        "udp"
+    } else {
+        "tcp"
+    };
+    let security = if tls { "TLS" } else { "plain" };
+    format!("{kind} {to} · {security}")
+}
+
 /// A datagram link's counts, for the remote's line on each base: `None` on
 /// a stream.
 pub fn datagram_counts(s: &LinkStats) -> Option<String> {
@@ -796,6 +828,35 @@ pub fn datagram_counts(s: &LinkStats) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_profile_names_the_transport_and_tls() {
+        let to: SocketAddr = "192.0.2.7:7300".parse().unwrap();
+        let quic = "quic".parse().unwrap();
+        assert_eq!(base_profile(quic, to, true), "quic 192.0.2.7:7300 · TLS");
+        let tcp = "tcp".parse().unwrap();
+        assert_eq!(base_profile(tcp, to, true), "tcp 192.0.2.7:7300 · TLS");
+        let udp = "udp:2:1".parse().unwrap();
+        assert_eq!(base_profile(udp, to, false), "udp 192.0.2.7:7300 · plain");
+    }
+
+    #[test]
+    fn a_peer_that_ended_the_link_in_order_is_not_a_failure() {
+        use ndr::core::wire::CloseReason;
+        let e = NetError::Link(LinkError::PeerClosed {
+            reason: CloseReason::Normal,
+        });
+        for released in [0, 30] {
+            let end = link_ended(&e, released);
+            assert!(matches!(end, End::PeerEnded(_)), "{end:?}");
+            let msg = end.to_string();
+            assert!(
+                msg.starts_with("ended early: the peer ended the link in order"),
+                "{msg}"
+            );
+            assert!(!msg.contains("failed"), "{msg}");
+        }
+    }
 
     #[test]
     fn the_histogram_quantile_is_within_half_a_bucket_of_the_exact_one() {

@@ -69,6 +69,31 @@ impl fmt::Display for SessionEnd {
     }
 }
 
+/// The remote's line for a session's end: a session that released no
+/// command says it never linked and, over udp, whether any datagram of the
+/// base reached `port`.
+pub fn session_line(
+    end: &SessionEnd,
+    stats: Option<&LinkStats>,
+    transport: ndr::net::Transport,
+    port: u16,
+) -> String {
+    let linked = stats.is_some_and(|s| s.endpoint.released_fresh > 0);
+    if linked || matches!(end, SessionEnd::AppFailure(_)) {
+        return end.to_string();
+    }
+    let heard = stats.is_some_and(|s| s.datagram_peer.is_some());
+    let udp = if transport.datagrams() && !transport.is_quic() && !heard {
+        format!(
+            "; no datagram of the base reached UDP port {port} (a firewall may let TCP \
+             through and drop UDP: open UDP port {port} both ways)"
+        )
+    } else {
+        String::new()
+    };
+    format!("never linked (its initialization pattern did not finish): {end}{udp}")
+}
+
 /// What the robot's state sample holds for each axis, in order
 /// (`--state`): the state is `quantities × axes` values, the first
 /// quantity's value for every axis, then the next's.

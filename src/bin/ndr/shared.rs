@@ -74,7 +74,7 @@ struct Live {
 impl Live {
     fn new(mut link: Link, figures: &Figures) -> Live {
         let peer = link.peer_addr();
-        eprintln!("ndr remote: base {peer} connected");
+        eprintln!("ndr remote: base {peer}: handshake done, running the initialization pattern");
         crate::args::record::attach(figures.recorder, &mut link);
         let watched = figures.served.watch_link(
             peer,

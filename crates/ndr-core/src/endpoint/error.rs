@@ -167,6 +167,11 @@ pub enum LinkError {
     /// handshake, as TLS 1.3 checks the client's last): the peer neither pins
     /// it nor trusts its CA (reported by the driver).
     CertificateRefused,
+    /// This side's TLS refused the peer's certificate (reported by the
+    /// driver where the refusal comes after the link was set up, as over
+    /// QUIC): the peer's certificate matches no pin given here and does not
+    /// chain to the CA.
+    PeerCertificateRefused,
     /// The application's sample does not have this side's width (the call
     /// is refused).
     SampleShape {
@@ -252,6 +257,25 @@ fn role_name(r: Role) -> &'static str {
     }
 }
 
+/// A Hello's mode code in words: what the side does, and the regulations
+/// that send it (the Hello carries the mode, not the playout).
+struct ModeWords(u8);
+
+impl fmt::Display for ModeWords {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match ModeCode::from(self.0) {
+            ModeCode::PaperStatic => f.write_str(
+                "sizes its regulator once, at the handshake (paper-static, adaptive or \
+                 another target-delay playout: they all link with each other)",
+            ),
+            ModeCode::PaperDynamic => f.write_str(
+                "runs paper-dynamic (its FIFO resized, with a pause, as the network changes)",
+            ),
+            _ => f.write_str("runs a regulation mode this build does not know"),
+        }
+    }
+}
+
 /// A layout fingerprint as the errors show it: hexadecimal, or "none".
 struct LayoutName(u64);
 
@@ -267,6 +291,12 @@ impl fmt::Display for LayoutName {
 impl fmt::Display for LinkError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
+            // A plain side's first read of a TLS peer: the fix comes first.
+            LinkError::Wire(e) if e.starts_a_tls_record() => f.write_str(
+                "the peer speaks TLS and this side does not: configure TLS on this side too \
+                 (its certificate and key, and the peer's certificate or pin); the peer's \
+                 first bytes are a TLS record, not an ndr frame",
+            ),
             LinkError::Wire(e) => write!(f, "invalid frame from the peer: {e}"),
             LinkError::VersionMismatch { peer } => write!(
                 f,
@@ -285,7 +315,8 @@ impl fmt::Display for LinkError {
             } => write!(
                 f,
                 "width mismatch: this side's {which}s carry {ours} values, the peer's {theirs}; \
-                 configure both with the same command and state widths"
+                 configure both with the same command and state widths (on the command \
+                 line: the same --axes and --state)"
             ),
             LinkError::TransportMismatch { ours, theirs } => write!(
                 f,
@@ -296,7 +327,8 @@ impl fmt::Display for LinkError {
                 f,
                 "layout mismatch: this side was built for channel layout {}, the peer for {}; \
                  the two ends name their channels differently (another robot, or another \
-                 version of it): give both the same channel names",
+                 version of it): give both the same channel names (on the command line: \
+                 the same --state)",
                 LayoutName(ours),
                 LayoutName(theirs)
             ),
@@ -304,14 +336,15 @@ impl fmt::Display for LinkError {
                 f,
                 "period mismatch: this side runs at {ours}, the peer at {theirs}; configure both with the same period"
             ),
-            LinkError::ModeMismatch { ours, theirs } => {
-                let theirs_name = Mode::try_from(theirs).map_or("an unknown mode", Mode::name);
-                write!(
-                    f,
-                    "mode mismatch: this side runs {ours}, the peer {theirs_name} (code {}); configure both alike",
-                    u8::from(theirs)
-                )
-            }
+            LinkError::ModeMismatch { ours, theirs } => write!(
+                f,
+                "mode mismatch: this side {}, the peer {} (its Hello's mode code {}); \
+                 paper-dynamic links only with paper-dynamic: give both sides the regulation \
+                 paper-dynamic, or neither",
+                ModeWords(u8::from(ModeCode::from(ours))),
+                ModeWords(u8::from(theirs)),
+                u8::from(theirs)
+            ),
             LinkError::Unexpected { kind, phase } => {
                 write!(f, "protocol error: the peer sent a {kind:?} frame during {phase}")
             }
@@ -327,8 +360,10 @@ impl fmt::Display for LinkError {
             LinkError::Timeout => f.write_str(
                 "the handshake or an initialization pattern did not finish in time: check that \
                  the peer is reachable, speaks ndr and takes the other role (one base, one \
-                 remote); on a slow network raise the handshake timeout (a pause of the dynamic \
-                 mode also gets three times its probes and slowest round trip)",
+                 remote); over udp or quic, that UDP to the peer's port passes both ways (a \
+                 firewall may let TCP through and drop UDP); on a slow network raise the \
+                 handshake timeout (a pause of the dynamic mode also gets three times its \
+                 probes and slowest round trip)",
             ),
             LinkError::PeerSilent { silent_for } => write!(
                 f,
@@ -433,6 +468,21 @@ impl fmt::Display for LinkError {
                     reason = u16::from(reason)
                 )
             }
+            LinkError::PeerClosed {
+                reason: CloseReason::Normal,
+            } => f.write_str(
+                "the peer ended the link in order (Close code 0, a normal end): it was \
+                 stopped, or its program closed the link (not a network fault); start it \
+                 again to link again",
+            ),
+            LinkError::PeerClosed {
+                reason: CloseReason::Timeout,
+            } => f.write_str(
+                "the peer gave up on the link (Close code 7, timeout): its handshake or \
+                 initialization pattern did not finish in time, or nothing came from this \
+                 side for its liveness time; check that this side's frames reach it (over \
+                 udp or quic: that UDP to its port passes both ways)",
+            ),
             LinkError::PeerClosed { reason } => write!(
                 f,
                 "the peer closed the link: {} (code {})",
@@ -454,6 +504,12 @@ impl fmt::Display for LinkError {
             LinkError::CertificateRefused => f.write_str(
                 "the peer refused this side's TLS certificate: it neither pins it nor trusts its \
                  CA; give the peer this side's certificate (its peer certificate) or its SHA-256 pin",
+            ),
+            LinkError::PeerCertificateRefused => f.write_str(
+                "this side refused the peer's TLS certificate: it matches no pin or peer \
+                 certificate given here and does not chain to the CA given here; give this \
+                 side the peer's certificate (its peer certificate) or its SHA-256 pin, as \
+                 `ndr keygen` printed it on the peer",
             ),
             LinkError::SampleShape { expected, got } => write!(
                 f,
@@ -477,5 +533,252 @@ impl core::error::Error for LinkError {
             LinkError::Wire(e) => Some(e),
             _ => None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::string::{String, ToString};
+    use std::vec::Vec;
+
+    use super::*;
+
+    /// One error of each variant, and of each message a variant words
+    /// apart (the Close reasons with words of their own).
+    fn every_message() -> Vec<LinkError> {
+        let t = Duration::from_millis(20);
+        let at = Instant::from_millis(5);
+        let tls = u32::from_le_bytes([0x16, 0x03, 0x01, 0x02]);
+        let mut errors = std::vec![
+            LinkError::Wire(WireError::LengthOutOfRange(tls)),
+            LinkError::Wire(WireError::LengthOutOfRange(9)),
+            LinkError::VersionMismatch { peer: 9 },
+            LinkError::RoleMismatch { role: Role::Base },
+            LinkError::WidthMismatch {
+                which: "state",
+                ours: 1,
+                theirs: 2,
+            },
+            LinkError::TransportMismatch {
+                ours: "stream",
+                theirs: "datagram",
+            },
+            LinkError::LayoutMismatch { ours: 0, theirs: 7 },
+            LinkError::PeriodMismatch { ours: t, theirs: t },
+            LinkError::ModeMismatch {
+                ours: Mode::PaperDynamic,
+                theirs: ModeCode::PaperStatic,
+            },
+            LinkError::Unexpected {
+                kind: Kind::Data,
+                phase: "the handshake",
+            },
+            LinkError::ChannelCount {
+                expected: 2,
+                got: 3,
+            },
+            LinkError::BadParameters { ns: 9, period: t },
+            LinkError::Timeout,
+            LinkError::PeerSilent { silent_for: t },
+            LinkError::Busy,
+            LinkError::ObserverOnly,
+            LinkError::ObserversFull,
+            LinkError::NotController,
+            LinkError::Evicted { per_source: true },
+            LinkError::Evicted { per_source: false },
+            LinkError::OutOfSequence {
+                expected: 2,
+                got: 3,
+            },
+            LinkError::StampBehind {
+                earliest: at,
+                got: at,
+            },
+            LinkError::StampAhead { ahead: t },
+            LinkError::StampOutOfRange { got: at },
+            LinkError::Disconnected,
+            LinkError::Closed,
+            LinkError::HandlerPanicked,
+            LinkError::Abandoned,
+            LinkError::CertificateRefused,
+            LinkError::PeerCertificateRefused,
+            LinkError::SampleShape {
+                expected: 2,
+                got: 3,
+            },
+            LinkError::NonFinite { index: 1 },
+            LinkError::BufferTooSmall { needed: 9, got: 3 },
+        ];
+        errors.extend((0..=u16::from(CloseReason::ObserversFull) + 1).map(|code| {
+            LinkError::PeerClosed {
+                reason: CloseReason::from(code),
+            }
+        }));
+        for e in &errors {
+            // No wildcard: a new variant fails to compile here until it
+            // has its sample above (and its entry in the page).
+            match e {
+                LinkError::Wire(_)
+                | LinkError::VersionMismatch { .. }
+                | LinkError::RoleMismatch { .. }
+                | LinkError::WidthMismatch { .. }
+                | LinkError::TransportMismatch { .. }
+                | LinkError::LayoutMismatch { .. }
+                | LinkError::PeriodMismatch { .. }
+                | LinkError::ModeMismatch { .. }
+                | LinkError::Unexpected { .. }
+                | LinkError::ChannelCount { .. }
+                | LinkError::BadParameters { .. }
+                | LinkError::Timeout
+                | LinkError::PeerSilent { .. }
+                | LinkError::Busy
+                | LinkError::ObserverOnly
+                | LinkError::ObserversFull
+                | LinkError::NotController
+                | LinkError::Evicted { .. }
+                | LinkError::OutOfSequence { .. }
+                | LinkError::StampBehind { .. }
+                | LinkError::StampAhead { .. }
+                | LinkError::StampOutOfRange { .. }
+                | LinkError::PeerClosed { .. }
+                | LinkError::Disconnected
+                | LinkError::Closed
+                | LinkError::HandlerPanicked
+                | LinkError::Abandoned
+                | LinkError::CertificateRefused
+                | LinkError::PeerCertificateRefused
+                | LinkError::SampleShape { .. }
+                | LinkError::NonFinite { .. }
+                | LinkError::BufferTooSmall { .. } => {}
+            }
+        }
+        errors
+    }
+
+    /// The starts of the messages docs/guide/troubleshooting.md lists:
+    /// each backticked pattern of a table row's first cell, split at `…`.
+    fn page_patterns() -> Vec<Vec<String>> {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../docs/guide/troubleshooting.md"
+        );
+        let page = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+        page.lines()
+            .filter(|l| l.starts_with("| `"))
+            .filter_map(|l| l.split('|').nth(1))
+            .flat_map(|cell| cell.split('`').skip(1).step_by(2))
+            .map(|p| p.split('…').map(|s| s.trim().to_string()).collect())
+            .collect()
+    }
+
+    /// Whether `msg` starts with the pattern's first piece (unless it is
+    /// empty) and holds the others in order.
+    fn fits(msg: &str, pieces: &[String]) -> bool {
+        let mut at = 0;
+        for (i, piece) in pieces.iter().enumerate() {
+            if piece.is_empty() {
+                continue;
+            }
+            match msg[at..].find(piece.as_str()) {
+                Some(j) if i > 0 || j == 0 => at += j + piece.len(),
+                _ => return false,
+            }
+        }
+        true
+    }
+
+    #[test]
+    fn every_message_is_in_the_troubleshooting_page() {
+        let patterns = page_patterns();
+        assert!(patterns.len() > 30, "{patterns:?}");
+        for e in every_message() {
+            let msg = e.to_string();
+            assert!(
+                patterns.iter().any(|p| fits(&msg, p)),
+                "not in docs/guide/troubleshooting.md: {msg}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_peer_that_closes_in_order_is_not_a_failure() {
+        let msg = LinkError::PeerClosed {
+            reason: CloseReason::Normal,
+        }
+        .to_string();
+        assert!(msg.starts_with("the peer ended the link in order"), "{msg}");
+        assert!(!msg.contains("fail"), "{msg}");
+    }
+
+    #[test]
+    fn a_peer_that_timed_out_names_udp() {
+        for e in [
+            LinkError::PeerClosed {
+                reason: CloseReason::Timeout,
+            },
+            LinkError::Timeout,
+        ] {
+            let msg = e.to_string();
+            assert!(msg.contains("UDP to"), "{msg}");
+        }
+    }
+
+    #[test]
+    fn a_layout_mismatch_names_the_command_lines_option() {
+        let msg = LinkError::LayoutMismatch { ours: 1, theirs: 2 }.to_string();
+        assert!(msg.contains("the same --state"), "{msg}");
+        let msg = LinkError::WidthMismatch {
+            which: "state",
+            ours: 1,
+            theirs: 2,
+        }
+        .to_string();
+        assert!(msg.contains("the same --axes and --state"), "{msg}");
+    }
+
+    #[test]
+    fn a_mode_mismatch_names_what_the_peer_may_run() {
+        // The Hello carries the mode, not the playout: an adaptive peer
+        // sends the static mode's code, and the message says so.
+        let msg = LinkError::ModeMismatch {
+            ours: Mode::PaperDynamic,
+            theirs: ModeCode::PaperStatic,
+        }
+        .to_string();
+        assert!(msg.contains("this side runs paper-dynamic"), "{msg}");
+        assert!(
+            msg.contains("the peer sizes its regulator once") && msg.contains("adaptive"),
+            "{msg}"
+        );
+        assert!(!msg.contains("the peer paper-static"), "{msg}");
+        let msg = LinkError::ModeMismatch {
+            ours: Mode::PaperStatic,
+            theirs: ModeCode::PaperDynamic,
+        }
+        .to_string();
+        assert!(msg.contains("the peer runs paper-dynamic"), "{msg}");
+    }
+
+    #[test]
+    fn a_tls_peer_read_as_frames_says_tls_first() {
+        // A TLS 1.2 record header (handshake, 3.1) read as a length field.
+        let tls = u32::from_le_bytes([0x16, 0x03, 0x01, 0x02]);
+        let msg = LinkError::Wire(WireError::LengthOutOfRange(tls)).to_string();
+        assert!(msg.starts_with("the peer speaks TLS"), "{msg}");
+        let msg = WireError::LengthOutOfRange(tls).to_string();
+        assert!(msg.starts_with("these bytes start a TLS record"), "{msg}");
+        let msg = LinkError::Wire(WireError::LengthOutOfRange(9)).to_string();
+        assert!(msg.starts_with("invalid frame from the peer"), "{msg}");
+    }
+
+    #[test]
+    fn a_certificate_refusal_names_the_side_that_refused() {
+        let ours = LinkError::CertificateRefused.to_string();
+        assert!(ours.starts_with("the peer refused this side's"), "{ours}");
+        let theirs = LinkError::PeerCertificateRefused.to_string();
+        assert!(
+            theirs.starts_with("this side refused the peer's"),
+            "{theirs}"
+        );
     }
 }

@@ -131,18 +131,16 @@ impl fmt::Display for WireError {
                 f,
                 "truncated frame: {got} bytes, the frame needs {needed}; read the rest from the stream before decoding"
             ),
-            WireError::LengthOutOfRange(len) => {
-                write!(
-                    f,
-                    "frame length field is {len}, valid is {HEADER_LEN}..={MAX_FRAME_LEN}; the stream is corrupt or not ndr, close the connection"
-                )?;
-                if looks_like_tls(len) {
-                    f.write_str(
-                        " (these bytes start a TLS record: the peer speaks TLS, configure TLS on this side too)",
-                    )?;
-                }
-                Ok(())
-            }
+            WireError::LengthOutOfRange(len) if looks_like_tls(len) => write!(
+                f,
+                "these bytes start a TLS record, not an ndr frame: the peer speaks TLS, \
+                 configure TLS on this side too (read as a frame, their length field is {len}, \
+                 valid is {HEADER_LEN}..={MAX_FRAME_LEN})"
+            ),
+            WireError::LengthOutOfRange(len) => write!(
+                f,
+                "frame length field is {len}, valid is {HEADER_LEN}..={MAX_FRAME_LEN}; the stream is corrupt or not ndr, close the connection"
+            ),
             WireError::LengthMismatch { field, actual } => write!(
                 f,
                 "frame length field says {field} bytes but the buffer holds {actual}; pass exactly one frame (split the stream with frame_len)"
@@ -241,6 +239,15 @@ impl fmt::Display for WireError {
                 "destination holds {got} values, the frame carries {needed} channels"
             ),
         }
+    }
+}
+
+impl WireError {
+    /// Whether the bytes refused start a TLS record (a TLS peer read by a
+    /// plain side).
+    #[must_use]
+    pub(crate) fn starts_a_tls_record(&self) -> bool {
+        matches!(*self, WireError::LengthOutOfRange(len) if looks_like_tls(len))
     }
 }
 

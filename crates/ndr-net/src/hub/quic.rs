@@ -715,32 +715,38 @@ fn lost(e: &mut Entry, origin: StdInstant, at: StdInstant, reason: &ConnectionEr
 }
 
 /// What a lost connection ends the link with: a TLS alert about a
-/// certificate (ours refused by the peer, or the peer's here) is a refusal.
+/// certificate is a refusal, by the peer (its close) or here (our own
+/// transport error).
 fn ended_by(reason: &ConnectionError) -> LinkError {
-    let code = match reason {
-        ConnectionError::TransportError(t) => Some(t.code),
-        ConnectionError::ConnectionClosed(c) => Some(c.error_code),
+    let (code, here) = match reason {
+        ConnectionError::TransportError(t) => (Some(t.code), true),
+        ConnectionError::ConnectionClosed(c) => (Some(c.error_code), false),
         ConnectionError::TimedOut => return LinkError::Timeout,
-        _ => None,
+        _ => (None, false),
     };
     // TLS alerts are the crypto error codes 0x100 + alert.
     let alert = code
         .map(u64::from)
         .filter(|c| (0x100..0x200).contains(c))
         .map(|c| rustls::AlertDescription::from((c - 0x100) as u8));
-    match alert {
+    let refused = matches!(
+        alert,
         Some(
             rustls::AlertDescription::BadCertificate
-            | rustls::AlertDescription::UnsupportedCertificate
-            | rustls::AlertDescription::CertificateRevoked
-            | rustls::AlertDescription::CertificateExpired
-            | rustls::AlertDescription::CertificateUnknown
-            | rustls::AlertDescription::UnknownCA
-            | rustls::AlertDescription::AccessDenied
-            | rustls::AlertDescription::DecryptError
-            | rustls::AlertDescription::CertificateRequired,
-        ) => LinkError::CertificateRefused,
-        _ => LinkError::Disconnected,
+                | rustls::AlertDescription::UnsupportedCertificate
+                | rustls::AlertDescription::CertificateRevoked
+                | rustls::AlertDescription::CertificateExpired
+                | rustls::AlertDescription::CertificateUnknown
+                | rustls::AlertDescription::UnknownCA
+                | rustls::AlertDescription::AccessDenied
+                | rustls::AlertDescription::DecryptError
+                | rustls::AlertDescription::CertificateRequired,
+        )
+    );
+    match (refused, here) {
+        (true, true) => LinkError::PeerCertificateRefused,
+        (true, false) => LinkError::CertificateRefused,
+        (false, _) => LinkError::Disconnected,
     }
 }
 
@@ -868,4 +874,29 @@ pub(super) fn close(e: &mut Entry, now: StdInstant) {
 /// that moved).
 pub(super) fn peer(e: &Entry) -> Option<SocketAddr> {
     e.path.quic().map(|q| q.peer)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_refused_certificate_is_told_by_the_side_that_refused() {
+        // AccessDenied is what this side's verifier sends for a pin that
+        // does not match.
+        let code =
+            quinn_proto::TransportErrorCode::crypto(rustls::AlertDescription::AccessDenied.into());
+        let here = ConnectionError::TransportError(quinn_proto::TransportError {
+            code,
+            frame: None,
+            reason: String::new(),
+        });
+        assert_eq!(ended_by(&here), LinkError::PeerCertificateRefused);
+        let there = ConnectionError::ConnectionClosed(quinn_proto::ConnectionClose {
+            error_code: code,
+            frame_type: None,
+            reason: Bytes::new(),
+        });
+        assert_eq!(ended_by(&there), LinkError::CertificateRefused);
+    }
 }

@@ -99,7 +99,9 @@ impl Refusal {
                 },
             ) => Refusal::Transport,
             NetError::Link(LinkError::Timeout) | NetError::Timeout => Refusal::Timeout,
-            NetError::Link(LinkError::CertificateRefused) => Refusal::Certificate,
+            NetError::Link(LinkError::CertificateRefused | LinkError::PeerCertificateRefused) => {
+                Refusal::Certificate
+            }
             NetError::Link(LinkError::Busy) => Refusal::Busy,
             NetError::Link(LinkError::ObserverOnly) => Refusal::ObserverOnly,
             NetError::Link(LinkError::ObserversFull) => Refusal::ObserversFull,
