@@ -626,8 +626,9 @@ class Link:
                 target delay above the sample's send time, lower than the
                 paper's FIFO at the same late rate; ``"adaptive"`` holds the
                 smallest constant delay with a late rate of 0.1 %, or
-                ``PERCENT``, in steps of 20 ms or the period when shorter,
-                or ``QUANTUM_MS``: a finer step holds a lower delay that
+                ``PERCENT``, in steps of the period up to 20 ms and of 1 ms
+                at longer periods (within a 20 ms dead band), or
+                ``QUANTUM_MS``: a finer step holds a lower delay that
                 changes more often; a stall of the network is held, its
                 samples released in order, not dropped, while that costs
                 less delay per sample kept than a higher constant delay

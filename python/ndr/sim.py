@@ -49,8 +49,8 @@ PROFILES = ("paris-newyork", "lan-75km", "paper-fig6")
 #: no bare ``"constant"``) and ``"adaptive:PERCENT"`` (a target late rate,
 #: 0 < PERCENT < 100), e.g. ``"fixed:150"``, ``"constant:120"``,
 #: ``"adaptive:0.5"``; ``"adaptive:PERCENT:QUANTUM_MS"`` also sets the step
-#: the delay is held in (1 to 10 000 ms; by default 20 ms, or the period
-#: when shorter), e.g. ``"adaptive:0.1:10"``: a finer step holds a lower
+#: the delay is held in (1 to 10 000 ms; by default the period up to
+#: 20 ms, 1 ms at longer periods within a 20 ms dead band), e.g. ``"adaptive:0.1:10"``: a finer step holds a lower
 #: delay that changes more often.
 REGULATIONS: tuple[str, ...] = _native.REGULATIONS
 #: Underflow policies.

@@ -1,6 +1,7 @@
 //! Delay scenarios with known events, for comparing playout policies: a
-//! step in the base delay, delay spikes, and TCP head-of-line stalls, each on
-//! top of i.i.d. per-frame jitter. Both directions see the same events.
+//! step in the base delay, delay spikes, TCP head-of-line stalls, and a
+//! route that flaps between two levels, each on top of i.i.d. per-frame
+//! jitter. Both directions see the same events.
 
 use std::vec::Vec;
 
@@ -52,6 +53,17 @@ pub enum EventKind {
         /// How long the stalled frame is held.
         stall_s: f64,
     },
+    /// From `first_s` the path flips between two routes every `every_s`:
+    /// `by_s` longer for `every_s`, then back for `every_s`, and so on (a
+    /// route flap). Each flip, up or down, is an onset.
+    Flaps {
+        /// The first flip (up).
+        first_s: f64,
+        /// Time between flips.
+        every_s: f64,
+        /// How much longer the second route is.
+        by_s: f64,
+    },
 }
 
 impl EventParams {
@@ -82,6 +94,9 @@ impl EventParams {
                 first_s, every_s, ..
             }
             | EventKind::Stalls {
+                first_s, every_s, ..
+            }
+            | EventKind::Flaps {
                 first_s, every_s, ..
             } => periodic(first_s, every_s),
         }
@@ -157,6 +172,15 @@ impl Events {
                 }
                 _ => 0.0,
             },
+            EventKind::Flaps {
+                first_s,
+                every_s,
+                by_s,
+            } => match Self::newest(first_s, every_s, t) {
+                // Up after an even number of flips.
+                Some((k, _)) if k % 2 == 0 && by_s.is_finite() => by_s,
+                _ => 0.0,
+            },
         };
         let base = self.jitter.sample(rng).as_secs_f64();
         Duration::from_secs_f64(base + extra)
@@ -217,6 +241,20 @@ mod tests {
         let p = EventParams {
             jitter: FLAT,
             kind: stalls,
+        };
+        assert_eq!(p.onsets(6.0), [1.0, 3.0, 5.0]);
+        let flaps = EventKind::Flaps {
+            first_s: 1.0,
+            every_s: 2.0,
+            by_s: 0.04,
+        };
+        assert_eq!(
+            delays(flaps, &[999, 1000, 2999, 3000, 4999, 5000, 7000]),
+            [50, 90, 90, 50, 50, 90, 50]
+        );
+        let p = EventParams {
+            jitter: FLAT,
+            kind: flaps,
         };
         assert_eq!(p.onsets(6.0), [1.0, 3.0, 5.0]);
     }

@@ -212,36 +212,43 @@ fn the_delay_falls_by_sliding_the_releases_without_skipping_a_sample() {
 /// ticks (400 ms each way for a 12 ms network); the blocks now grow with
 /// the period. Held in whole ticks it then settled at one tick, 200 ms each
 /// way (the paper's dynamic mode got 300 ms of round trip by moving to
-/// `T = 50 ms`). In quanta of 20 ms it settles at 40 ms, released between
-/// the ticks, at the same period.
+/// `T = 50 ms`). In quanta of 20 ms it settled at 40 ms, released between
+/// the ticks; in quanta of 1 ms, at the millisecond over the network's
+/// 22 ms at most.
 #[test]
 fn at_a_long_period_the_delay_settles_between_the_ticks() {
     let t = Duration::from_millis(200);
     let cfg = sim_config(&named("lan-75km", 600), ADAPTIVE, 1, t);
     let out = run(&cfg).expect("the run");
     let r = &out.report;
+    let delay = r.playout_delay_fwd_s;
+    assert!((0.022..=0.025).contains(&delay), "delay {delay} s");
     assert!(
-        (r.playout_delay_fwd_s - 0.04).abs() < 1e-9,
-        "delay {} s",
-        r.playout_delay_fwd_s
+        (delay * 1e3 - (delay * 1e3).round()).abs() < 1e-6,
+        "delay {delay} s"
     );
     // Once the window holds 1/ε delays (200 s at 5 Hz), every command takes
-    // exactly that delay: its release is 40 ms after its send, 160 ms
+    // exactly that delay: its release is 23 ms or so after its send, well
     // before the next tick.
     let settled = command_delays(&out, 300.0..590.0);
     // Exactly, but for the offset estimate's error (a fraction of a
     // millisecond: half the asymmetry of the two paths' fastest frames).
     assert!(settled.len() > 1400, "{} commands", settled.len());
     let (lo, hi) = span(&settled);
-    assert!(lo > 0.039 && hi < 0.041, "commands {lo} to {hi} s late");
+    assert!(
+        lo > delay - 1e-3 && hi < delay + 1e-3,
+        "commands {lo} to {hi} s late"
+    );
     assert!(hi - lo < 5e-4, "commands {lo} to {hi} s late");
     // Both ways (the base's cutoff once ran half a period ahead of the
     // states' arrivals and dropped nearly all of them as late), and its
     // rises of a quantum move the releases later without repeating one.
-    assert_eq!(r.late_samples, 0);
-    assert_eq!(r.underflows, 0);
+    // Without a 20 ms step of margin the warm-up's guess of the tail lets
+    // one sample go, under ε (one in 3 000), and its silence is held.
+    assert!(r.late_samples <= 1, "{} late", r.late_samples);
+    assert!(r.underflows <= 2, "{} underflows", r.underflows);
     assert!(
-        r.e2e_bwd_mean_s < 0.045,
+        r.e2e_bwd_mean_s < 0.03,
         "states {} s late",
         r.e2e_bwd_mean_s
     );
@@ -509,5 +516,37 @@ fn a_drifting_level_is_followed() {
             .metrics;
         assert!(m.late_rate <= 0.003, "seed {seed}: {m:?}");
         assert!(m.oracle_ratio <= 0.96, "seed {seed}: {m:?}");
+    }
+}
+
+#[test]
+fn over_a_route_flap_at_coarse_periods_the_delay_sits_on_the_longer_route() {
+    // route-flap: 21 ms one-way (at most 25), 50 ms more on the other route,
+    // flipping every 4 s. At T = 50 and 200 ms the delay moved in steps of
+    // 16.7 and 20 ms, and sat a step over the longer route (1.19 of the
+    // oracle's delay at 200 ms over 10 seeds). In steps of 1 ms within a
+    // dead band of 20 ms it sits on the longer route, no step above it, and
+    // loses no more samples. Means over seeds, as `ndr compare` reports.
+    const SEEDS: u64 = 5;
+    for period in [50, 200] {
+        let (mut ratio, mut late) = (0.0, 0.0);
+        for seed in 1..=SEEDS {
+            let m = run_one(
+                &named("route-flap", 120),
+                ADAPTIVE,
+                seed,
+                (Duration::from_millis(period), WINDOW),
+            )
+            .expect("the run")
+            .metrics;
+            assert!(
+                m.mean_delay_s <= 0.075 * 1.1,
+                "T = {period} ms, seed {seed}: {m:?}"
+            );
+            ratio += m.oracle_ratio / SEEDS as f64;
+            late += m.late_rate / SEEDS as f64;
+        }
+        assert!(ratio <= 1.10, "T = {period} ms: ratio {ratio}");
+        assert!(late <= 1e-3, "T = {period} ms: late rate {late}");
     }
 }

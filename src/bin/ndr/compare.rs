@@ -66,7 +66,7 @@ pub struct CompareArgs {
     pub traces: Vec<PathBuf>,
     /// Built-in families to run (repeatable; default all): paris-newyork,
     /// lan-75km, paper-fig6, step, spikes, tcp-stall, skew+100ppm,
-    /// skew-100ppm, lan-75km-loss1, lan-75km-loss3, wan-bursts (and the
+    /// skew-100ppm, route-flap, lan-75km-loss1, lan-75km-loss3, wan-bursts (and the
     /// three lossy ones over datagrams: NAME/datagram), netem-normal,
     /// netem-pareto, netem-paretonormal, netem-experimental.
     #[arg(long = "family", value_name = "NAME")]

@@ -12,7 +12,7 @@ use crate::time::{Duration, Instant};
 /// endpoint that never runs that policy and should not carry its histogram.
 pub trait AdaptiveSlot: TargetDelay + Clone + fmt::Debug + Send + 'static {
     /// The state for `period`, late rate `epsilon` and the delay's
-    /// `quantum`; `None` if this slot holds none.
+    /// `quantum`, the dead band of the delay; `None` if this slot holds none.
     fn build(period: Duration, epsilon: f64, quantum: Duration) -> Option<Self>;
     /// The floor the delays are measured above moved by `by` (up if
     /// `rose`): see `Adaptive::rebase`.
@@ -206,8 +206,8 @@ pub(super) fn bucket_upper(b: usize) -> Duration {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Adaptive {
     period: f64,
-    /// The quantum of the delay the endpoint holds (s), the least margin
-    /// of the warm-up.
+    /// The dead band of the delay the endpoint holds (s), the least
+    /// margin of the warm-up.
     quantum: f64,
     pub(super) epsilon: f64,
     /// Counts per block in `u16` (6.5 KiB, not 13: the state is inline in
@@ -239,18 +239,14 @@ pub struct Adaptive {
 
 impl Adaptive {
     /// An empty window for `period` and late rate `epsilon` (clamped to
-    /// 10⁻⁶..0.5), for the default quantum of the delay.
+    /// 10⁻⁶..0.5), for the default dead band of the delay.
     #[must_use]
     pub fn new(period: Duration, epsilon: f64) -> Self {
-        Self::with_quantum(
-            period,
-            epsilon,
-            super::schedule::delay_quantum(period, None),
-        )
+        Self::with_quantum(period, epsilon, super::schedule::dead_band(period, None))
     }
 
-    /// [`Adaptive::new`] for a delay held in steps of `quantum` (the
-    /// warm-up's least margin).
+    /// [`Adaptive::new`] for a delay held within a dead band of `quantum`
+    /// (the warm-up's least margin).
     #[must_use]
     pub(crate) fn with_quantum(period: Duration, epsilon: f64, quantum: Duration) -> Self {
         let epsilon = if epsilon.is_finite() { epsilon } else { 1e-3 };
@@ -378,7 +374,7 @@ impl Adaptive {
     /// largest with odds `1/(n+1)`): the goal extrapolates the tail as an
     /// exponential one, `s·ln(1/(n·ε))` above the maximum with the scale
     /// `s = (max − mean)/ln n`, and at least `(1 − n·ε)·q`, `q` the delay's
-    /// quantum (the period up to 20 ms). Both vanish at `n = 1/ε`. (With a
+    /// dead band (the period up to 20 ms). Both vanish at `n = 1/ε`. (With a
     /// whole period at `T = 200 ms` the warm-up cost up to 200 ms each way
     /// for its 200 s.)
     fn warmup_margin(&self, q: Duration) -> Duration {

@@ -10,7 +10,7 @@ use super::policy::{
     Admit, Announcement, Arrival, Due, NoRoom, Observed, Outcome, Policy, Setup, Stamps, View,
 };
 use super::registry::{Entry, UnknownPlayout, millis, write_decimal, write_millis};
-use super::schedule::{self, Context, Pending, Plan, Queued, Schedule, delay_quantum};
+use super::schedule::{self, Context, Pending, Plan, Queued, Schedule, dead_band, delay_quantum};
 use super::target::Slots;
 use crate::endpoint::Underflow;
 use crate::time::{Duration, Instant};
@@ -87,8 +87,13 @@ impl<A: AdaptiveSlot> Policy for AdaptivePlayout<A> {
     }
 
     fn set_period(&mut self, period: Duration) {
-        self.schedule
-            .set_period(period, delay_quantum(period, self.asked));
+        self.schedule.set_period(
+            period,
+            (
+                delay_quantum(period, self.asked),
+                dead_band(period, self.asked),
+            ),
+        );
     }
 
     fn stop(&mut self) {
@@ -260,7 +265,7 @@ impl<A: AdaptiveSlot> Entry for AdaptivePlayout<A> {
     const NAME: &'static str = "adaptive";
     const SYNTAX: &'static str = "adaptive[:PERCENT[:QUANTUM_MS]]";
     const VALUES: &'static str = "the target late rate, 0 < PERCENT < 100, default 0.1; \
-        the delay's step, 1 to 10000 ms, default 20 ms or the period";
+        the delay's step, 1 to 10000 ms, default the period up to 20 ms, 1 ms beyond";
 
     fn parse(value: Option<&str>) -> Result<Self::Fields, UnknownPlayout> {
         let Some(v) = value else {
@@ -311,11 +316,12 @@ impl<A: AdaptiveSlot> Entry for AdaptivePlayout<A> {
 
     fn build((epsilon_ppm, asked): Self::Fields, setup: &Setup) -> Result<Self, NoRoom> {
         let quantum = delay_quantum(setup.period, asked);
+        let band = dead_band(setup.period, asked);
         let quantile = A::build(setup.period, f64::from(epsilon_ppm) * 1e-6, quantum)
             .ok_or(NoRoom::Adaptive)?;
         Ok(AdaptivePlayout {
             quantile,
-            schedule: Schedule::new(setup.role, setup.period, quantum, setup.watchdog),
+            schedule: Schedule::new(setup.role, setup.period, (quantum, band), setup.watchdog),
             underflow: setup.underflow,
             watchdog: setup.watchdog,
             asked,

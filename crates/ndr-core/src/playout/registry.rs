@@ -273,7 +273,7 @@ registry! {
         /// The target late rate ε, in parts per million (1000 = 0.1 %).
         epsilon_ppm: u32,
         /// The step of the delay asked for, `None` for the default
-        /// quantum (20 ms) (see
+        /// quantum (the period up to 20 ms, 1 ms beyond) (see
         /// [`delay_quantum`](super::delay_quantum)): a finer one
         /// holds a lower delay that changes more often.
         quantum: Option<Duration>,

@@ -8,11 +8,17 @@ use crate::sync::ClockSync;
 use crate::time::{Duration, Instant};
 use crate::wire::Role;
 
-/// The adaptive delay starts to fall only when its need is this many
-/// quanta (`DELAY_QUANTUM`) below the quantum under it: a quantile that
-/// wobbles must not move the delay back and forth (each rise repeats a
-/// sample).
+/// The adaptive delay's dead band, in bands ([`dead_band`]): it rises past
+/// its delay only when the measured need does, or when the need passes it
+/// by this many bands; it falls only when the need is a band and this many
+/// under it, and then to this many bands over the need, so that a quantile
+/// that wobbles does not move the delay back and forth (each rise repeats
+/// a sample or brings a release later).
 pub(crate) const HYSTERESIS: f64 = 0.5;
+
+/// The adaptive delay falls only when its need is this share of it under
+/// it (see `Schedule::fall_band`).
+pub(crate) const FALL_SHARE: f64 = 0.05;
 
 /// The adaptive delay falls by bringing its releases forward by
 /// `T / RELEASE_SLEW_STEPS` per release (releases every 0.9·T while it
@@ -29,27 +35,46 @@ pub(crate) const BINDING: f64 = 0.5;
 /// the releases over several periods, not in one.
 pub(crate) const MAPPING_SLEW: u64 = 20;
 
-/// The adaptive delay is a whole number of quanta `q = T/⌈T/20 ms⌉`: whole
-/// periods up to 20 ms, a fraction of the period beyond (15 ms at
-/// `T = 30 ms`, 20 ms at the paper's 200 ms). The quantum is the policy's
-/// dead band: the delay rises to the quantum over its need and falls a
-/// quantum only when the need is 1.5 quanta under it, so that a quantile
-/// that wobbles by a few milliseconds leaves it constant. At long periods
-/// whole ticks would waste up to a period each way.
-pub(super) const DELAY_QUANTUM: Duration = Duration::from_millis(20);
+/// Over [`DEAD_BAND`] periods the adaptive delay is a whole number of
+/// quanta `q = T/⌈T/1 ms⌉`, the period cut in parts of a millisecond at
+/// most: the releases are at the samples' slots, apart from the ticks, so
+/// the delay need not be a whole number of periods, and a coarser step
+/// wastes up to a step each way (a 20 ms step over a two-level route flap
+/// was up to a fifth of the delay). What keeps a wobbling quantile from
+/// moving the delay is then the dead band, not the step. Up to 20 ms the
+/// quantum is the period, and the dead band too.
+pub(super) const DELAY_QUANTUM: Duration = Duration::from_millis(1);
+
+/// The dead band of the default quantum, `T/⌈T/20 ms⌉`: whole periods up
+/// to 20 ms, a fraction of the period beyond (15 ms at `T = 30 ms`, 20 ms
+/// at the paper's 200 ms). A quantile wobbles by a few milliseconds as its
+/// window's blocks rotate.
+pub(super) const DEAD_BAND: Duration = Duration::from_millis(20);
 
 /// The quantum of the adaptive delay at period `T` when `asked` is asked
 /// for ([`Playout::Adaptive`](super::Playout::Adaptive)'s `quantum`):
 /// `T/⌈T/asked⌉`, the period cut in the fewest equal parts no longer than
 /// `asked` (the period itself when `asked` is longer), so that the
-/// releases keep to a lattice of the ticks. `None` asks for the default,
-/// 20 ms (`T/⌈T/20 ms⌉`, `T` itself up to 20 ms).
+/// releases keep to a lattice of the ticks. `None` asks for the default:
+/// the period up to 20 ms, `T/⌈T/1 ms⌉` beyond.
 #[must_use]
 pub fn delay_quantum(period: Duration, asked: Option<Duration>) -> Duration {
-    let asked = asked.unwrap_or(DELAY_QUANTUM);
+    let asked = asked.unwrap_or(if period > DEAD_BAND {
+        DELAY_QUANTUM
+    } else {
+        DEAD_BAND
+    });
     let per = period.as_nanos().max(1);
     let parts = per.div_ceil(asked.as_nanos().max(1)).max(1);
     Duration::from_nanos(per / parts)
+}
+
+/// The dead band of the adaptive delay at period `T` ([`HYSTERESIS`]): the
+/// quantum asked for, if any (a delay held in whole steps), else
+/// [`DEAD_BAND`]'s `T/⌈T/20 ms⌉`.
+#[must_use]
+pub(super) fn dead_band(period: Duration, asked: Option<Duration>) -> Duration {
+    delay_quantum(period, Some(asked.unwrap_or(DEAD_BAND)))
 }
 
 fn ns_i64(t: Instant) -> i64 {
@@ -138,7 +163,8 @@ const CHANGES: usize = 2;
 ///
 /// [`Playout::Adaptive`](crate::playout::Playout::Adaptive) keeps the end-to-end
 /// delay constant at a whole number of quanta ([`delay_quantum`]) over
-/// the delay its quantile policy ([`Adaptive`](crate::playout::Adaptive)) asks for.
+/// the delay its quantile policy ([`Adaptive`](crate::playout::Adaptive)) asks
+/// for, within a dead band ([`dead_band`]).
 /// A sample sent at stamp `s` (peer clock) has its **slot** at
 /// `s + θ + D` on the local clock (`θ` the clock mapping, `D` the delay),
 /// and is released there, apart from the ticks that send.
@@ -159,22 +185,27 @@ const CHANGES: usize = 2;
 /// - **Rise** at once to the quantum over the need (the quantile's delay
 ///   above the floor of the clock estimate, plus the floor's one-way delay),
 ///   once the measured need passes the delay, or the need passes it by
-///   `HYSTERESIS` (½) quanta. A rise repeats a sample, or brings the release
+///   `HYSTERESIS` (½) bands. A rise repeats a sample, or brings the release
 ///   later when it is small.
 /// - **Hold a silence**: a stall of the path past a slot, while it is cheap
 ///   or the late budget is spent, holds the delay ahead of it, so that its
 ///   burst is released in order rather than dropped as late; the delay then
 ///   falls back to where it was.
-/// - **Fall** a quantum at a time by `T / RELEASE_SLEW_STEPS` per release,
-///   once the need is `HYSTERESIS` quanta under the quantum below: the
-///   releases come that much earlier, and no sample is skipped.
+/// - **Fall** by `T / RELEASE_SLEW_STEPS` per release, once the need is
+///   1 + `HYSTERESIS` bands under the delay, to `HYSTERESIS` bands over
+///   the need (never under it: a fall that went past the need would rise
+///   again): the releases come that much earlier, and no sample is
+///   skipped.
 /// - **Outage**: a silence past the watchdog is not a delay to cover; the
 ///   delay goes back at once to where it was before it.
 #[derive(Clone, Debug)]
 pub(crate) struct Schedule {
     role: Role,
     period: Duration,
+    /// The step of the delay.
     quantum: Duration,
+    /// The dead band ([`dead_band`]).
+    band: Duration,
     watchdog: Option<Duration>,
     /// The end-to-end delay now (while it falls, the step it is at).
     delay: Option<Duration>,
@@ -198,18 +229,20 @@ pub(crate) struct Schedule {
 
 impl Schedule {
     /// The schedule of one side (`role`) at `period`, the delay in quanta of
-    /// `quantum`, outages from `watchdog` of silence.
+    /// `quantum` within a dead band `band`, outages from `watchdog` of
+    /// silence.
     #[must_use]
     pub(crate) fn new(
         role: Role,
         period: Duration,
-        quantum: Duration,
+        (quantum, band): (Duration, Duration),
         watchdog: Option<Duration>,
     ) -> Self {
         Schedule {
             role,
             period,
             quantum,
+            band,
             watchdog,
             delay: None,
             falling_to: None,
@@ -222,10 +255,12 @@ impl Schedule {
         }
     }
 
-    /// The period changed (a pause resizes the link); so did the quantum.
-    pub(crate) fn set_period(&mut self, period: Duration, quantum: Duration) {
+    /// The period changed (a pause resizes the link); so did the quantum
+    /// and the dead band.
+    pub(crate) fn set_period(&mut self, period: Duration, (quantum, band): (Duration, Duration)) {
         self.period = period;
         self.quantum = quantum;
+        self.band = band;
     }
 
     /// A new regime starts: the schedule of the last one is dropped, the
@@ -290,7 +325,7 @@ impl Schedule {
     #[must_use]
     pub(crate) fn on_release_grid(&self, at: Instant) -> bool {
         let close = |a: Instant, b: Instant| {
-            a.signed_nanos_since(b).unsigned_abs() <= (self.quantum / 4).as_nanos()
+            a.signed_nanos_since(b).unsigned_abs() <= (self.band / 4).as_nanos()
         };
         self.last_slot.is_some_and(|(r, _)| r == at)
             && self
@@ -345,7 +380,7 @@ impl Schedule {
 
     /// Frames sent (peer clock) at or before this are due at `t`: their
     /// send stamp mapped to the local clock plus the delay, less half a
-    /// quantum (so that the estimate's noise cannot move a sample across a
+    /// band (so that the estimate's noise cannot move a sample across a
     /// release), is past. Half a period at a sub-tick delay would run ahead
     /// of the arrivals: a release would pass, and so drop as late, samples
     /// still on their way to slots after it. Until the delay and the
@@ -354,7 +389,7 @@ impl Schedule {
     pub(crate) fn release_cutoff(&self, t: Instant, target: Duration, sync: &ClockSync) -> Instant {
         match (self.mapping.or_else(|| mapping_ns(sync, t)), self.delay) {
             (Some(map), Some(d)) => {
-                let d = dur_i64(d) - dur_i64(self.quantum / 2);
+                let d = dur_i64(d) - dur_i64(self.band / 2);
                 let c = ns_i64(t).saturating_sub(map).saturating_sub(d);
                 Instant::from_nanos(u64::try_from(c).unwrap_or(0))
             }
@@ -481,7 +516,8 @@ impl Schedule {
     /// The end-to-end delay the target needs (s): the floor's one-way
     /// delay plus the policy's target above it, steered ahead by the
     /// forecast (at most a quantum: a forecast may move the delay a step
-    /// early, the measured delays decide the rest).
+    /// early, the measured delays decide the rest; a step more, held by
+    /// the dead band, was an overshoot after each rise of a route flap).
     fn need<A: AdaptiveSlot>(&self, t: Instant, cx: &Context<'_, A>) -> Option<f64> {
         let d = cx.policy.target()?;
         let min_one_way = (floor_ns(cx.sync, t)? - mapping_ns(cx.sync, t)?) as f64 * 1e-9;
@@ -531,9 +567,9 @@ impl Schedule {
             .checked_duration_since(sent)?;
         let missed = passed.as_nanos() / self.period.as_nanos().max(1);
         // The delay at which the newest sample's slot would be now (the
-        // cutoff is half a quantum past the slots): the next one's is then
-        // a period ahead.
-        let need = (passed + d).saturating_sub(self.quantum / 2);
+        // cutoff is half a band past the slots): the next one's is then a
+        // period ahead.
+        let need = (passed + d).saturating_sub(self.band / 2);
         // Holding a rise `h` saves `h/T` samples and, as the delay falls
         // back by `T/RELEASE_SLEW_STEPS` per release, costs
         // `h²·RELEASE_SLEW_STEPS/(2T)` of delay summed over the releases:
@@ -647,7 +683,7 @@ impl Schedule {
     /// way is given up): once a delay is set, when what the delays measured
     /// ask for passes it — `need` less the policy's warm-up margin, or the
     /// `silence` followed — or when `need` passes it by [`HYSTERESIS`]
-    /// quanta. A rise repeats a sample, and the margin is a guess: with the
+    /// bands. A rise repeats a sample, and the margin is a guess: with the
     /// need a hair under a quantum boundary, the first estimates of the
     /// clocks must not cross it and repeat a sample no late one called for.
     fn rise_to<A: AdaptiveSlot>(&mut self, need: f64, silence: Option<f64>, cx: &Context<'_, A>) {
@@ -657,7 +693,7 @@ impl Schedule {
             }
             let margin = cx.policy.margin().as_secs_f64();
             let measured = silence.map_or(need - margin, |s| s.max(need - margin));
-            let band = HYSTERESIS * self.quantum.as_secs_f64();
+            let band = HYSTERESIS * self.band.as_secs_f64();
             if measured <= d && need <= d + band {
                 return;
             }
@@ -673,22 +709,19 @@ impl Schedule {
         q * (libm::ceil(need / q.as_secs_f64()).max(1.0) as u64)
     }
 
-    /// The delay falls a quantum at a time, by `T / RELEASE_SLEW_STEPS` per
-    /// release (the releases come that much earlier); a fall starts when
-    /// the need is [`HYSTERESIS`] quanta under the quantum below the delay.
+    /// The delay falls by `T / RELEASE_SLEW_STEPS` per release (the
+    /// releases come that much earlier), from where
+    /// [`fall_start`](Self::fall_start) says.
     fn fall_from(&mut self, need: f64) {
         let Some(d) = self.delay else {
             return;
         };
-        let q = self.quantum;
         let to = match self.falling_to {
             Some(to) => to,
             None => {
-                // The quantum strictly below the delay, at least one.
-                let to = q * (d.as_nanos().saturating_sub(1) / q.as_nanos().max(1));
-                if to < q || need > to.as_secs_f64() - HYSTERESIS * q.as_secs_f64() {
+                let Some(to) = self.fall_start(d, need) else {
                     return;
-                }
+                };
                 self.falling_to = Some(to);
                 to
             }
@@ -699,6 +732,36 @@ impl Schedule {
             self.falling_to = None;
             self.announce();
         }
+    }
+
+    /// Where a fall from `d` ends, if the need calls for one. In quanta
+    /// finer than the dead band: once the need is a fall band
+    /// ([`fall_band`](Self::fall_band)) and [`HYSTERESIS`] of one under
+    /// the delay, to [`HYSTERESIS`] of a fall band over the need, at once
+    /// where the level now is and never under the need (a fall past it
+    /// would rise again). In whole steps of the band (up to 20 ms, or a
+    /// quantum asked for): a quantum at a time, once the need is
+    /// [`HYSTERESIS`] quanta under the quantum below the delay.
+    fn fall_start(&self, d: Duration, need: f64) -> Option<Duration> {
+        let q = self.quantum;
+        if q >= self.band {
+            // The quantum strictly below the delay, at least one.
+            let to = q * (d.as_nanos().saturating_sub(1) / q.as_nanos().max(1));
+            return (to >= q && need <= to.as_secs_f64() - HYSTERESIS * q.as_secs_f64())
+                .then_some(to);
+        }
+        let band = self.fall_band(d);
+        let to = self.quanta_over(need + HYSTERESIS * band.as_secs_f64());
+        (to + band <= d).then_some(to)
+    }
+
+    /// How far under the delay `d` the need must be for it to fall:
+    /// [`FALL_SHARE`] of it, two quanta at least and a band and a half at
+    /// most. A quantile's wobble grows with the delay it measures.
+    fn fall_band(&self, d: Duration) -> Duration {
+        let share = Duration::from_secs_f64(d.as_secs_f64() * FALL_SHARE);
+        let most = self.band + self.band / 2;
+        share.max(self.quantum * 2).min(most.max(self.quantum * 2))
     }
 
     fn set_delay(&mut self, d: Duration) {

@@ -426,10 +426,22 @@ fn adaptive(epsilon_ppm: u32, quantum: Option<Duration>) -> Playout {
 #[test]
 fn the_quantum_asked_for_divides_the_period() {
     use super::schedule::delay_quantum;
-    // Defaults: the period up to 20 ms, then T/⌈T/20 ms⌉.
+    // Defaults: the period up to 20 ms, then T/⌈T/1 ms⌉, within a dead
+    // band of T/⌈T/20 ms⌉.
     assert_eq!(Playout::ADAPTIVE.quantum(ms(20)), Some(ms(20)));
     assert_eq!(Playout::ADAPTIVE.quantum(ms(10)), Some(ms(10)));
-    assert_eq!(Playout::ADAPTIVE.quantum(ms(200)), Some(ms(20)));
+    assert_eq!(Playout::ADAPTIVE.quantum(ms(200)), Some(ms(1)));
+    assert_eq!(
+        Playout::ADAPTIVE.quantum(ms(30)),
+        Some(Duration::from_nanos(1_000_000))
+    );
+    assert_eq!(
+        Playout::ADAPTIVE.quantum(Duration::from_micros(20_500)),
+        Some(Duration::from_micros(976) + Duration::from_nanos(190))
+    );
+    assert_eq!(super::schedule::dead_band(ms(200), None), ms(20));
+    assert_eq!(super::schedule::dead_band(ms(10), None), ms(10));
+    assert_eq!(super::schedule::dead_band(ms(200), Some(ms(5))), ms(5));
     assert_eq!(Playout::Fifo.quantum(ms(20)), None);
     // Asked: the period cut in the fewest equal parts no longer than that.
     assert_eq!(adaptive(1000, Some(ms(10))).quantum(ms(20)), Some(ms(10)));
@@ -439,8 +451,9 @@ fn the_quantum_asked_for_divides_the_period() {
     );
     assert_eq!(adaptive(1000, Some(ms(50))).quantum(ms(20)), Some(ms(20)));
     assert_eq!(delay_quantum(ms(50), Some(ms(10))), ms(10));
+    assert_eq!(delay_quantum(ms(50), None), ms(1));
     assert_eq!(
-        delay_quantum(ms(50), None),
+        delay_quantum(ms(50), Some(ms(20))),
         Duration::from_nanos(16_666_666)
     );
     // The target's warm-up floor is a quantum, the one asked for.

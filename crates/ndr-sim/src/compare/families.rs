@@ -47,6 +47,17 @@ pub const WAN: JitterParams = JitterParams {
     cap_s: 0.2,
 };
 
+/// The jitter of the route-flap family: 20 ms plus a gamma of shape 2 and
+/// mean 1 ms, capped at 5 ms (one-way 21 ms, 0.7 ms std). Two routes of
+/// little jitter are where the delay's step shows: a step of 20 ms over
+/// the longer one's 71 ms was most of the delay's excess.
+const FLAP_JITTER: JitterParams = JitterParams {
+    base_s: 0.020,
+    mean_s: 0.001,
+    shape: 2.0,
+    cap_s: 0.005,
+};
+
 /// Simulated time of most families.
 pub const FAMILY_DURATION: Duration = Duration::from_secs(120);
 /// Simulated time of the skew families: long enough for ±100 ppm to drift
@@ -104,7 +115,17 @@ fn family(name: &str, description: &str, model: DelayModel) -> Family {
 }
 
 fn events(name: &str, description: &str, kind: EventKind, duration: Duration) -> Family {
-    let p = EventParams { jitter: WAN, kind };
+    events_on(WAN, name, description, kind, duration)
+}
+
+fn events_on(
+    jitter: JitterParams,
+    name: &str,
+    description: &str,
+    kind: EventKind,
+    duration: Duration,
+) -> Family {
+    let p = EventParams { jitter, kind };
     Family {
         events_s: p.onsets(duration.as_secs_f64()),
         ..family(name, description, DelayModel::Events(p))
@@ -112,7 +133,7 @@ fn events(name: &str, description: &str, kind: EventKind, duration: Duration) ->
 }
 
 /// The built-in families that need no file: the paper's profiles, a step,
-/// spikes, stalls and clock skew.
+/// spikes, stalls, clock skew, a route flap and packet loss.
 #[must_use]
 pub fn builtin() -> Vec<Family> {
     let wan = DelayModel::Events(EventParams {
@@ -183,6 +204,17 @@ pub fn builtin() -> Vec<Family> {
         ),
         skew(100.0),
         skew(-100.0),
+        events_on(
+            FLAP_JITTER,
+            "route-flap",
+            "21 ms one-way, 0.7 ms std; the route flips to one 50 ms longer and back every 4 s from 20 s",
+            EventKind::Flaps {
+                first_s: 20.0,
+                every_s: 4.0,
+                by_s: 0.050,
+            },
+            FAMILY_DURATION,
+        ),
         lossy(
             "lan-75km-loss1",
             "the paper's LAN, 1 % of packets lost (TCP: each loss holds the stream back until repaired)",

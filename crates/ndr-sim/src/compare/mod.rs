@@ -23,8 +23,9 @@
 //! [`RECOVERY_HORIZON`] (or the next onset), plus one period (0 when none is
 //! lost). The oracle's ratio is the run's mean delay over the
 //! [`Oracle::constant`] mean delay at the run's own late rate, on the run's
-//! own trace; the piecewise ratio the same over [`Oracle::piecewise`], the
-//! hull ratio over [`Oracle::hull`] (two constant targets time-shared).
+//! own trace, on the grid of the steps its delay can take ([`oracle_grid`]);
+//! the piecewise ratio the same over [`Oracle::piecewise`], the hull ratio
+//! over [`Oracle::hull`] (two constant targets time-shared).
 //!
 //! Across seeds: the mean and the half-width of its 95 % confidence interval
 //! (Student's t).
@@ -37,7 +38,7 @@ use std::vec::Vec;
 
 use ndr_core::Regulation;
 use ndr_core::endpoint::{Mode, Underflow};
-use ndr_core::playout::delay_quantum;
+use ndr_core::playout::{Playout, delay_quantum};
 use ndr_core::time::{Duration, Instant};
 use serde::Serialize;
 
@@ -273,13 +274,41 @@ pub struct Measured {
     pub released: usize,
 }
 
-/// Measures a run from its log of commands.
+/// The grid of the target-delay and paper policies' oracle: the period up
+/// to 20 ms, a fraction of it beyond.
+const ORACLE_GRID: Duration = Duration::from_millis(20);
+
+/// The grid the oracle of `regulation`'s runs is computed on: the step its
+/// delay can take. The adaptive playout's quantum (it releases between
+/// ticks, its delay in steps of a millisecond by default), else
+/// `T/⌈T/20 ms⌉`.
+#[must_use]
+pub fn oracle_grid(regulation: Regulation, period: Duration) -> Duration {
+    match regulation.playout() {
+        Playout::Adaptive { quantum, .. } => delay_quantum(period, quantum),
+        _ => delay_quantum(period, Some(ORACLE_GRID)),
+    }
+}
+
+/// Measures a run from its log of commands, the oracle on the grid
+/// `T/⌈T/20 ms⌉` (see [`oracle_grid`]).
 #[must_use]
 pub fn measure(
     log: &ForwardLog,
     end: Instant,
+    times: (Duration, Duration),
+    family: &Family,
+) -> Measured {
+    let grid = delay_quantum(times.0, Some(ORACLE_GRID));
+    measure_on(log, end, times, family, grid)
+}
+
+fn measure_on(
+    log: &ForwardLog,
+    end: Instant,
     (period, window): (Duration, Duration),
     family: &Family,
+    grid: Duration,
 ) -> Measured {
     let until = end - MARGIN;
     let kept: Vec<_> = log.samples.iter().filter(|c| c.sent_at <= until).collect();
@@ -305,9 +334,7 @@ pub fn measure(
             arrived_at: c.arrived_at,
         })
         .collect();
-    // On the grid of the adaptive delay's quantum: the period up to 20 ms,
-    // finer beyond, where the adaptive playout releases between ticks.
-    let oracle = Oracle::new(&arrivals, Instant::ZERO, delay_quantum(period, None));
+    let oracle = Oracle::new(&arrivals, Instant::ZERO, grid);
     m.oracle_ratio = ratio(m.mean_delay_s, oracle.constant(m.late_rate).mean_delay_s);
     m.piecewise_ratio = ratio(
         m.mean_delay_s,
@@ -410,11 +437,12 @@ pub fn run_one_under(
 ) -> Result<Measured, String> {
     let cfg = sim_config_under(family, regulation, seed, period, underflow);
     let out = run(&cfg).map_err(|e| e.to_string())?;
-    Ok(measure(
+    Ok(measure_on(
         &out.forward,
         Instant::ZERO + family.duration,
         (period, window),
         family,
+        oracle_grid(regulation, period),
     ))
 }
 

@@ -95,17 +95,32 @@ fn context<'a>(
 
 impl Bench {
     fn new(target: Duration, budget_used: f64, watchdog: Duration) -> Self {
-        Self::with_quantum(target, budget_used, watchdog, delay_quantum(T, None))
+        Self::with_steps(
+            target,
+            budget_used,
+            watchdog,
+            (delay_quantum(T, None), dead_band(T, None)),
+        )
     }
 
+    /// A delay held in whole quanta of `quantum`, as asked for.
     fn with_quantum(
         target: Duration,
         budget_used: f64,
         watchdog: Duration,
         quantum: Duration,
     ) -> Self {
+        Self::with_steps(target, budget_used, watchdog, (quantum, quantum))
+    }
+
+    fn with_steps(
+        target: Duration,
+        budget_used: f64,
+        watchdog: Duration,
+        steps: (Duration, Duration),
+    ) -> Self {
         Bench {
-            schedule: Schedule::new(Role::Base, T, quantum, Some(watchdog)),
+            schedule: Schedule::new(Role::Base, T, steps, Some(watchdog)),
             policy: Policy {
                 target,
                 budget_used,

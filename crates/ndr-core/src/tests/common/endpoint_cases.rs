@@ -788,15 +788,19 @@ fn an_adaptive_link_takes_a_late_sender_as_delay_not_as_a_ratchet() {
     // A busy hub on the sending side: one send in three leaves 0.6·T late
     // (and is stamped with its tick's time), so its frame takes 130 ms where
     // the others take 10. The delay covers the late sends once, in quanta
-    // of 20 ms (160 ms, under the tick a delay in whole ticks took), and
-    // does not keep rising: before the sends were stamped with their tick's
-    // time it climbed to 460 ticks, a quantum at a time.
+    // of 1 ms (under the tick a delay in whole ticks took), and does not
+    // keep rising: before the sends were stamped with their tick's time it
+    // climbed to 460 ticks, a quantum at a time. On time, it is the 10 ms
+    // and the warm-up's margin in whole milliseconds, not 20 ms steps.
     let on_time = adaptive_with_a_late_driver(Role::Base, 0);
     let late = adaptive_with_a_late_driver(Role::Base, 120);
-    assert!((on_time.playout_delay_s - 0.04).abs() < 1e-9, "{on_time:?}");
+    assert!(on_time.playout_delay_s >= 0.01, "{on_time:?}");
+    assert!(on_time.playout_delay_s <= 0.012 + 1e-9, "{on_time:?}");
     assert!(late.playout_delay_s >= 0.13, "{late:?}");
     assert!(late.playout_delay_s <= 0.13 + 0.04 + 1e-9, "{late:?}");
-    assert!(late.delay_changes <= 12, "{late:?}");
+    // Fine steps settle in a few more changes than 20 ms ones; a ratchet
+    // would be hundreds.
+    assert!(late.delay_changes <= 20, "{late:?}");
     assert_eq!(late.skipped, 0, "{late:?}");
 }
 
