@@ -50,16 +50,20 @@ const WAKER: Token = Token(usize::MAX);
 const TIMER: Token = Token(usize::MAX - 1);
 /// Bytes a link may have waiting for a slow socket before it is cut off.
 const MAX_PENDING: usize = 1 << 20;
-/// Frames of its largest size a link's socket is read for between two of
-/// its deadlines, at most (and at least 4 KiB): a peer that sends faster
+/// Frames of its largest size a link's socket may be read for a period of
+/// its link, on average (and at least 4 KiB): a peer that sends faster
 /// than that (a flood) is read no further until its link's next deadline,
 /// so that it holds neither the hub from its other links' deadlines nor
 /// its CPU; TCP's flow control then slows the peer. An honest peer sends a
-/// frame or two a tick, and catches up a backlog at several a tick.
+/// frame or two a tick.
 const READ_FRAMES_PER_DEADLINE: usize = 8;
+/// What a link's unused read allowance may grow to, in bytes: the backlog
+/// a held process finds on its socket when it resumes (the frames its peer
+/// sent meanwhile) is read at once, so that its endpoint sees them arrive
+/// together, as an outage, rather than spread over ticks as delays.
+const READ_ALLOWANCE_MAX: usize = MAX_PENDING;
 
-/// What a link with frames of at most `max_frame` bytes may read between
-/// two of its deadlines.
+/// What a link with frames of at most `max_frame` bytes may read a period.
 fn read_budget(max_frame: usize) -> usize {
     (READ_FRAMES_PER_DEADLINE * max_frame).max(4096)
 }
@@ -104,11 +108,12 @@ pub(crate) struct Entry {
     pub(crate) notes: Option<crate::sharing::Notes>,
     /// Sees every event first, if set.
     pub(crate) tap: Option<Tap>,
-    /// Bytes its socket may still be read for before its next deadline
-    /// (see [`READ_FRAMES_PER_DEADLINE`]), and whether it was left unread
-    /// for want of them.
+    /// Bytes its socket may still be read for (see
+    /// [`READ_FRAMES_PER_DEADLINE`]), when that was last topped up, and
+    /// whether the socket was left unread for want of them.
     read_left: usize,
     read_budget: usize,
+    read_topped: StdInstant,
     throttled: bool,
 }
 
@@ -231,6 +236,7 @@ impl Entry {
             tap: None,
             read_left: read_budget(max_frame),
             read_budget: read_budget(max_frame),
+            read_topped: StdInstant::now(),
             throttled: false,
         }
     }
@@ -238,6 +244,22 @@ impl Entry {
     /// Takes `n` bytes read from its socket off what it may read before
     /// its next deadline; `true` if it may read no more (unless `drain`:
     /// a closing socket is read to its end).
+    /// Adds to what its socket may be read for, by the periods elapsed
+    /// since the last top-up, up to [`READ_ALLOWANCE_MAX`].
+    fn top_up_read(&mut self, now: StdInstant) {
+        let period = self.endpoint.period().as_secs_f64();
+        let elapsed = now
+            .saturating_duration_since(self.read_topped)
+            .as_secs_f64();
+        let periods = if period > 0.0 { elapsed / period } else { 1.0 };
+        let grant = (periods * self.read_budget as f64).min(READ_ALLOWANCE_MAX as f64) as usize;
+        self.read_left = self
+            .read_left
+            .saturating_add(grant.max(self.read_budget))
+            .min(READ_ALLOWANCE_MAX.max(self.read_budget));
+        self.read_topped = now;
+    }
+
     fn spend_read(&mut self, n: usize, drain: bool) -> bool {
         self.read_left = self.read_left.saturating_sub(n);
         self.throttled = self.read_left == 0 && !drain;
@@ -1058,7 +1080,7 @@ impl Driver {
                 take_sample(e);
                 quic::on_timeout(e, StdInstant::now());
                 run_due(e, now, self.figures);
-                e.read_left = e.read_budget;
+                e.top_up_read(StdInstant::now());
                 if std::mem::take(&mut e.throttled) {
                     // Read after this tick's releases and frames.
                     self.backlog.push_back(Ready {
