@@ -365,16 +365,20 @@ impl Flood {
                 for _ in 0..churn / 200 {
                     let source = Ipv4Addr::new(127, 0, 1, 1 + u8::try_from(k % 200).unwrap());
                     k = k.wrapping_add(1);
-                    // Bounded: a connect the listener's full backlog
-                    // holds would otherwise hold the churn for seconds.
-                    let connect = connect_from(source, to);
-                    if let Ok(Ok(s)) =
-                        tokio::time::timeout(StdDuration::from_millis(50), connect).await
-                    {
-                        // A reset, not a close: no TIME_WAIT left behind.
-                        let _ = s.set_zero_linger();
-                        count.fetch_add(1, Ordering::Relaxed);
-                    }
+                    // Each on a task of its own, bounded: a connect that
+                    // the listener's full backlog holds (a loaded host's
+                    // listener accepts slowly) must not hold the next ones.
+                    let count = Arc::clone(&count);
+                    tokio::spawn(async move {
+                        let connect = connect_from(source, to);
+                        if let Ok(Ok(s)) =
+                            tokio::time::timeout(StdDuration::from_secs(1), connect).await
+                        {
+                            // A reset, not a close: no TIME_WAIT left behind.
+                            let _ = s.set_zero_linger();
+                            count.fetch_add(1, Ordering::Relaxed);
+                        }
+                    });
                 }
             }
         });
