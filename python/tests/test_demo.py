@@ -38,13 +38,15 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
         assert 20e-6 <= report[f"spin_margin_{side}_s"] <= 200e-6
     header = out.read_text().splitlines()[0]
     assert header == "t_s,seq,status,grtt_s,nrtt_s,command,state,x3e"
-    # The delay each side holds: whole ticks, above the one-way delays
-    # measured. How far above is the playout's accuracy, judged in
-    # simulated time (below): while its window warms up it covers the
-    # largest delay seen, which a loaded host makes as long as it likes.
+    # The delay each side holds: at least a tick, above the one-way delays
+    # measured. Whole ticks and how far above are the playout's accuracy,
+    # judged in simulated time (below): it holds whole ticks over its
+    # estimate of the clocks' floor, which a real run only estimates, and
+    # while its window warms up it covers the largest delay seen, which a
+    # loaded host makes as long as it likes.
     for way in ("fwd", "bwd"):
         d = report[f"playout_delay_{way}_s"]
-        assert d >= 0.02 and abs(d / 0.02 - round(d / 0.02)) < 1e-6, report
+        assert d >= 0.02, report
         assert 0.005 < report[f"one_way_{way}_mean_s"] < d, report
         # Its first delay and every change after it, each an event.
         assert report[f"delay_changes_{way}"] >= 1, report
