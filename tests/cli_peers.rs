@@ -533,10 +533,11 @@ fn a_remote_stopped_for_3_s_is_back_on_its_round_trip_within_2_s() {
 
 #[test]
 fn a_hung_base_is_dropped_and_the_next_one_served() {
-    let _serial = serial();
     // A base that completes its handshake and then stops (SIGSTOP): the
     // remote, which serves one base at a time, drops it after its liveness
-    // time (10 s by default) and serves the next base.
+    // time (10 s by default) and serves the next base. Beside the other
+    // tests, not after them: it mostly waits, a stopped process and a
+    // 50 Hz remote beside a build's load.
     let (remote, addr) = remote(&[]);
     let hung = Proc::spawn(&[
         "base",

@@ -29,13 +29,35 @@ fn replay_dir(dir: &Path, run: fn(&[u8]), required: bool) {
         "{} holds no corpus",
         dir.display()
     );
-    for path in &files {
-        let data = fs::read(path).expect("a corpus file");
-        // A failing input names itself: replay it with
-        // `cargo +nightly fuzz run <target> <file>` for a backtrace.
-        let outcome = std::panic::catch_unwind(|| run(&data));
-        assert!(outcome.is_ok(), "{} failed its harness", path.display());
-    }
+    // Every file, on every core: the largest corpora would otherwise hold
+    // the test command for a minute on one.
+    let threads = std::thread::available_parallelism().map_or(1, usize::from);
+    let failed: Vec<&Path> = std::thread::scope(|scope| {
+        let lanes: Vec<_> = (0..threads)
+            .map(|lane| {
+                let files = &files;
+                scope.spawn(move || {
+                    files
+                        .iter()
+                        .skip(lane)
+                        .step_by(threads)
+                        .filter(|path| {
+                            let data = fs::read(path).expect("a corpus file");
+                            std::panic::catch_unwind(|| run(&data)).is_err()
+                        })
+                        .map(|path| path.as_path())
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        lanes
+            .into_iter()
+            .flat_map(|lane| lane.join().expect("a replay thread"))
+            .collect()
+    });
+    // A failing input names itself: replay it with
+    // `cargo +nightly fuzz run <target> <file>` for a backtrace.
+    assert!(failed.is_empty(), "failed their harness: {failed:?}");
 }
 
 #[test]

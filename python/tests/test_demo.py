@@ -13,10 +13,12 @@ from ndr import demo
 
 
 def test_python_m_ndr_demo_runs_and_reports(tmp_path):
+    # One run checked for the report and for the adaptive playout it runs
+    # by default (dropping late samples: the playout's own losses).
     out = tmp_path / "demo.csv"
     proc = subprocess.run(
         [sys.executable, "-m", "ndr", "demo", "--duration-s", "3", "--period-ms", "20",
-         "--json", "--out", str(out)],
+         "--underflow", "drop-late", "--json", "--out", str(out)],
         capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stderr
@@ -27,7 +29,6 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
     assert report["regulation"] == report["playout"] == "adaptive"
     # `regulation` names it alone, as in the Rust CLI's report.
     assert "mode" not in report
-    assert report["delay_changes_fwd"] >= 1 and report["delay_changes_bwd"] >= 1
     assert report["samples_released"] > 100
     assert report["csv"] == str(out)
     # The deadlines the host made the hubs miss, as `ndr demo --json` has them.
@@ -37,27 +38,32 @@ def test_python_m_ndr_demo_runs_and_reports(tmp_path):
         assert 20e-6 <= report[f"spin_margin_{side}_s"] <= 200e-6
     header = out.read_text().splitlines()[0]
     assert header == "t_s,seq,status,grtt_s,nrtt_s,command,state,x3e"
-
-
-def test_the_adaptive_playout_runs_in_the_demo(tmp_path):
-    proc = subprocess.run(
-        [sys.executable, "-m", "ndr", "demo", "--duration-s", "3", "--period-ms", "20",
-         "--regulation", "adaptive", "--underflow", "drop-late", "--json",
-         "--out", str(tmp_path / "d.csv")],
-        capture_output=True, text=True, timeout=60,
-    )
-    assert proc.returncode == 0, proc.stderr
-    report = json.loads(proc.stdout)
-    assert report["playout"] == "adaptive"
-    assert report["samples_released"] > 100
-    # The delay each side holds: whole 20 ms ticks over the relay's 12 ms
-    # or so each way (or more while the window warms up).
+    # The delay each side holds: at least a tick, above the one-way delays
+    # measured. Whole ticks and how far above are the playout's accuracy,
+    # judged in simulated time (below): it holds whole ticks over its
+    # estimate of the clocks' floor, which a real run only estimates, and
+    # while its window warms up it covers the largest delay seen, which a
+    # loaded host makes as long as it likes.
     for way in ("fwd", "bwd"):
         d = report[f"playout_delay_{way}_s"]
-        assert 0.02 <= d <= 0.2 and abs(d / 0.02 - round(d / 0.02)) < 1e-6, report
+        assert d >= 0.02, report
         assert 0.005 < report[f"one_way_{way}_mean_s"] < d, report
         # Its first delay and every change after it, each an event.
         assert report[f"delay_changes_{way}"] >= 1, report
+
+
+def test_the_demos_adaptive_playout_holds_whole_ticks_over_the_relays_delay_in_simulated_time():
+    # The demo's network and playout (lan-75km, 20 ms, dropping late
+    # samples, 3 s) in simulated time: whole 20 ms ticks over the relay's
+    # 12 ms or so each way, or more while the window warms up.
+    r = ndr.sim.run("lan-75km", regulation="adaptive", underflow="drop-late", period=0.02,
+                    duration=3, series=False).summary
+    d = r["playout_delay_fwd_s"]
+    assert 0.02 <= d <= 0.2 and abs(d / 0.02 - round(d / 0.02)) < 1e-6, r
+    assert 0.005 < r["one_way_fwd_mean_s"] < d, r
+    assert r["delay_changes_fwd"] >= 1, r
+    # The way back, as the end-to-end delay of its samples.
+    assert 0.005 < r["one_way_bwd_mean_s"] < r["e2e_bwd_mean_s"] <= 0.2 + 0.02, r
 
 
 def test_the_demo_table_shows_what_the_adaptive_playout_holds(tmp_path):

@@ -152,7 +152,7 @@ def ndr_binary():
 def test_a_recorded_demo_agrees_with_its_report(tmp_path):
     rec, csv = tmp_path / "x.mcap", tmp_path / "x.csv"
     done = subprocess.run(
-        [ndr_binary(), "demo", "--duration-s", "20", "--record", str(rec),
+        [ndr_binary(), "demo", "--duration-s", "10", "--record", str(rec),
          "--out", str(csv), "--json"],
         capture_output=True,
         text=True,
