@@ -177,7 +177,7 @@ impl Kalman3 {
     }
 
     /// [`predict`](Self::predict) then [`update`](Self::update); returns the filtered value.
-    pub(crate) fn step(&mut self, z: f64) -> Result<f64, KalmanError> {
+    pub fn step(&mut self, z: f64) -> Result<f64, KalmanError> {
         if !z.is_finite() {
             return Err(KalmanError::NonFinite(z));
         }
