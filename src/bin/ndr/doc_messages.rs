@@ -95,41 +95,15 @@ fn every_message() -> Vec<String> {
     all
 }
 
-/// The starts of the messages the page lists: each backticked pattern of
-/// a table row's first cell, split at `…` (as ndr-core's check reads them).
-fn page_patterns() -> Vec<Vec<String>> {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/guide/troubleshooting.md");
-    let page = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
-    page.lines()
-        .filter(|l| l.starts_with("| `"))
-        .filter_map(|l| l.split('|').nth(1))
-        .flat_map(|cell| cell.split('`').skip(1).step_by(2))
-        .map(|p| p.split('…').map(|s| s.trim().to_string()).collect())
-        .collect()
-}
-
-fn fits(msg: &str, pieces: &[String]) -> bool {
-    let mut at = 0;
-    for (i, piece) in pieces.iter().enumerate() {
-        if piece.is_empty() {
-            continue;
-        }
-        match msg[at..].find(piece.as_str()) {
-            Some(j) if i > 0 || j == 0 => at += j + piece.len(),
-            _ => return false,
-        }
-    }
-    true
-}
+include!(concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/support/troubleshooting_page.rs"
+));
 
 #[test]
 fn every_message_of_base_and_remote_is_in_the_troubleshooting_page() {
-    let patterns = page_patterns();
-    assert!(patterns.len() > 30, "{patterns:?}");
-    for msg in every_message() {
-        assert!(
-            patterns.iter().any(|p| fits(&msg, p)),
-            "not in docs/guide/troubleshooting.md: {msg}"
-        );
-    }
+    troubleshooting_page::assert_listed(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/docs/guide/troubleshooting.md"),
+        every_message(),
+    );
 }

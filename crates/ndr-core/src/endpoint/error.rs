@@ -538,7 +538,7 @@ impl core::error::Error for LinkError {
 
 #[cfg(test)]
 mod tests {
-    use std::string::{String, ToString};
+    use std::string::ToString;
     use std::vec::Vec;
 
     use super::*;
@@ -655,49 +655,20 @@ mod tests {
         errors
     }
 
-    /// The starts of the messages docs/guide/troubleshooting.md lists:
-    /// each backticked pattern of a table row's first cell, split at `…`.
-    fn page_patterns() -> Vec<Vec<String>> {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../docs/guide/troubleshooting.md"
-        );
-        let page = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
-        page.lines()
-            .filter(|l| l.starts_with("| `"))
-            .filter_map(|l| l.split('|').nth(1))
-            .flat_map(|cell| cell.split('`').skip(1).step_by(2))
-            .map(|p| p.split('…').map(|s| s.trim().to_string()).collect())
-            .collect()
-    }
-
-    /// Whether `msg` starts with the pattern's first piece (unless it is
-    /// empty) and holds the others in order.
-    fn fits(msg: &str, pieces: &[String]) -> bool {
-        let mut at = 0;
-        for (i, piece) in pieces.iter().enumerate() {
-            if piece.is_empty() {
-                continue;
-            }
-            match msg[at..].find(piece.as_str()) {
-                Some(j) if i > 0 || j == 0 => at += j + piece.len(),
-                _ => return false,
-            }
-        }
-        true
-    }
+    include!(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/support/troubleshooting_page.rs"
+    ));
 
     #[test]
     fn every_message_is_in_the_troubleshooting_page() {
-        let patterns = page_patterns();
-        assert!(patterns.len() > 30, "{patterns:?}");
-        for e in every_message() {
-            let msg = e.to_string();
-            assert!(
-                patterns.iter().any(|p| fits(&msg, p)),
-                "not in docs/guide/troubleshooting.md: {msg}"
-            );
-        }
+        troubleshooting_page::assert_listed(
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../../docs/guide/troubleshooting.md"
+            ),
+            every_message().iter().map(ToString::to_string),
+        );
     }
 
     #[test]
