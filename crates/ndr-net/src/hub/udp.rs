@@ -837,15 +837,7 @@ mod tests {
 
     #[test]
     fn datagrams_of_one_length_for_one_address_leave_in_one_message() {
-        let poll = mio::Poll::new().expect("a poll");
-        let mut udp = Udp::new();
-        let new = NewSocket {
-            socket: loopback(),
-            stray: Arc::default(),
-            held: true,
-        };
-        udp.add(poll.registry(), 1, new).expect("takes the socket");
-        let peer = std::net::UdpSocket::bind("127.0.0.1:0").expect("binds");
+        let (_poll, mut udp, peer) = sender_and_peer();
         queue_eleven(&mut udp, 1, peer.local_addr().expect("an address"));
         udp.send_all(&mut HashMap::new());
         assert_eq!(
@@ -856,8 +848,6 @@ mod tests {
             }
         );
         // The peer, without GRO, gets each datagram whole and in order.
-        peer.set_read_timeout(Some(std::time::Duration::from_secs(5)))
-            .expect("a timeout");
         let mut got = Vec::new();
         let mut buf = [0; 256];
         while got.len() < 11 {
