@@ -252,10 +252,11 @@ impl Entry {
             .saturating_duration_since(self.read_topped)
             .as_secs_f64();
         let periods = if period > 0.0 { elapsed / period } else { 1.0 };
-        let grant = (periods * self.read_budget as f64).min(READ_ALLOWANCE_MAX as f64) as usize;
+        // At least a period's worth at each deadline (`as` saturates).
+        let grant = ((periods * self.read_budget as f64) as usize).max(self.read_budget);
         self.read_left = self
             .read_left
-            .saturating_add(grant.max(self.read_budget))
+            .saturating_add(grant)
             .min(READ_ALLOWANCE_MAX.max(self.read_budget));
         self.read_topped = now;
     }
