@@ -238,6 +238,7 @@ pub fn endpoint(data: &[u8]) {
                     },
                     layout: if input.byte() % 8 == 0 { 7 } else { 0 },
                     session: 0,
+                    regulation: ndr_core::wire::RegulationName::NONE,
                 };
                 send(
                     &mut ep,

@@ -182,3 +182,32 @@ fn a_tcp_base_refused_by_a_quic_remote_is_told_of_quic() {
     drop(remote);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn a_mode_mismatch_names_the_peer_s_real_regulation_on_both_sides() {
+    let _serial = serial();
+    let (mut remote, addr) = remote(&["--regulation", "paper-dynamic"]);
+    let (ok, end, stderr) = ended(base(
+        addr,
+        "2",
+        "mode-mismatch",
+        &["--regulation", "fixed:120"],
+    ));
+    assert!(!ok, "{end}");
+    assert!(
+        end.contains(
+            "mode mismatch: the peer runs paper-dynamic (its FIFO resized, with a pause, as \
+             the network changes), this side fixed:120 (its regulator sized once"
+        ) && end.contains("run both with the same --regulation"),
+        "{end}\n{stderr}"
+    );
+    // The remote refused the base in its handshake, and says why.
+    let line = remote.line_with("mode mismatch", Duration::from_secs(10));
+    assert!(
+        line.contains(
+            "mode mismatch: the peer runs fixed:120 (its regulator sized once, at the \
+             handshake), this side paper-dynamic"
+        ),
+        "{line}"
+    );
+}

@@ -346,6 +346,7 @@ fn partial_hello() -> Vec<u8> {
         period: Duration::from_millis(10),
         layout: 0,
         session: 0,
+        regulation: ndr::core::wire::RegulationName::NONE,
     };
     let mut buf = vec![0; MAX_FRAME_LEN];
     let n = wire::encode(

@@ -707,6 +707,7 @@ fn base_hello() -> Vec<u8> {
         period: Duration::from_millis(PERIOD_MS),
         layout: 0,
         session: 0,
+        regulation: ndr::core::wire::RegulationName::NONE,
     };
     let mut buf = vec![0; MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap();

@@ -84,6 +84,7 @@ fn hello_from(version: u8, role: Role, axes: u16) -> Vec<u8> {
         period: Duration::from_millis(10),
         layout: 0,
         session: 0,
+        regulation: ndr::core::wire::RegulationName::NONE,
     };
     let mut buf = vec![0; MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap();

@@ -78,6 +78,7 @@ fn hand_written_base(addr: std::net::SocketAddr) {
         period: PERIOD,
         layout: 0,
         session: 0,
+        regulation: ndr::core::wire::RegulationName::NONE,
     };
     stream
         .write_all(&encode(&Header::new(0, now()), &Message::Hello(hello)))

@@ -78,7 +78,21 @@ impl World<Heap> for Wire {
         _: Instant,
         event: Event<Box<[f64]>>,
     ) -> Result<(), LinkError> {
-        self.seen[side as usize].push(format!("{event:?}"));
+        // The peer's Hello names its playout, which differs from the
+        // twin's by name only.
+        let seen = match &event {
+            Event::Connected { peer } => format!(
+                "{:?}",
+                Event::<Box<[f64]>>::Connected {
+                    peer: ndr_core::wire::Hello {
+                        regulation: ndr_core::wire::RegulationName::NONE,
+                        ..*peer
+                    }
+                }
+            ),
+            other => format!("{other:?}"),
+        };
+        self.seen[side as usize].push(seen);
         if let Event::Released(r) = event {
             let answer: Vec<f64> = r.values().iter().map(|v| v + 1.0).collect();
             ep.set_sample(&answer)?;

@@ -87,6 +87,7 @@ fn hand(ep: &mut Endpoint<Inline<1, 8>>, line: &Line, first: bool) -> String {
         period: T,
         layout: 0,
         session: 0,
+        regulation: ndr_core::wire::RegulationName::NONE,
     };
     let msg = if first {
         Message::Hello(hello)

@@ -4,8 +4,8 @@
 use ndr_core::time::{Duration, Instant};
 use ndr_core::wire::{
     Close, CloseReason, Control, ControlOp, Echo, Frame, Header, Hello, Kind, MAX_FRAME_LEN,
-    Message, ModeCode, OlderSample, Payload, Role, Seat, Token, UnderflowCode, WireError, encode,
-    frame_len,
+    Message, ModeCode, OlderSample, Payload, RegulationName, Role, Seat, Token, UnderflowCode,
+    WireError, encode, frame_len,
 };
 
 const DOC: &str = include_str!("../docs/wire.md");
@@ -108,6 +108,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 period: Duration::from_millis(200),
                 layout: LAYOUT,
                 session: 0,
+                regulation: RegulationName::NONE,
             }),
         ),
         (
@@ -122,6 +123,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 period: Duration::from_millis(200),
                 layout: LAYOUT,
                 session: 0,
+                regulation: RegulationName::NONE,
             }),
         ),
         (
@@ -176,6 +178,7 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 period: Duration::from_millis(200),
                 layout: LAYOUT,
                 session: 0,
+                regulation: RegulationName::NONE,
             }),
         ),
         (
@@ -217,6 +220,21 @@ fn valid() -> Vec<(Header, Message<'static>)> {
                 applied_at: Instant::from_nanos(20_040_000_000),
                 values: &[0.5, -0.5, 2.0],
             },
+        ),
+        (
+            header(0, 1_000, NONE, None),
+            Message::Hello(Hello {
+                seat: Seat::Control,
+                role: Role::Base,
+                mode: ModeCode::PaperStatic,
+                underflow: UnderflowCode::Hold,
+                command_width: 3,
+                state_width: 6,
+                period: Duration::from_millis(200),
+                layout: LAYOUT,
+                session: 0,
+                regulation: RegulationName::new("fixed:120").expect("a valid name"),
+            }),
         ),
     ]
 }
@@ -340,6 +358,10 @@ fn invalid() -> Vec<(Vec<u8>, WireError)> {
             WireError::BundleOrder { index: 1 },
         ),
         (patch(&v[8], 48, &[0; 8]), WireError::ZeroToken),
+        (
+            patch(&v[13], 85, b"\n"),
+            WireError::BadRegulationName { offset: 85 },
+        ),
     ]
 }
 

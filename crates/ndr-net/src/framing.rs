@@ -16,11 +16,12 @@ use ndr_core::wire::{self, Control, Frame, HEADER_LEN, Hello, MAX_FRAME_LEN, Wir
 /// can take when frames wait in the socket).
 pub(crate) const READ_FRAMES: usize = 4;
 
-/// The smallest limit a [`Deframer`] takes: the largest frame of fixed size
-/// (a Hello or a Control; a Close is shorter).
+/// The smallest limit a [`Deframer`] takes: the largest frame whose size
+/// does not follow the link's channels (a Hello naming its regulation at
+/// length, or a Control; a Close is shorter).
 pub(crate) const MIN_MAX_FRAME: usize = HEADER_LEN
-    + if Hello::LEN > Control::LEN {
-        Hello::LEN
+    + if Hello::MAX_LEN > Control::LEN {
+        Hello::MAX_LEN
     } else {
         Control::LEN
     };
@@ -294,13 +295,13 @@ mod tests {
     }
 
     #[test]
-    fn a_deframer_for_five_channels_is_small_and_refuses_a_longer_frame() {
-        let sample = |seq: u64| [seq as f64, 0.0, 1.0, 2.0, 3.0];
-        let five = data_frame(0, &sample(0)).len();
-        assert!(five > MIN_MAX_FRAME);
-        let mut d = Deframer::with_max_frame(five);
-        assert_eq!(d.max_frame(), five);
-        assert_eq!(d.spare().len(), five * READ_FRAMES);
+    fn a_deframer_for_nine_channels_is_small_and_refuses_a_longer_frame() {
+        let sample = |seq: u64| [seq as f64, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+        let nine = data_frame(0, &sample(0)).len();
+        assert!(nine > MIN_MAX_FRAME);
+        let mut d = Deframer::with_max_frame(nine);
+        assert_eq!(d.max_frame(), nine);
+        assert_eq!(d.spare().len(), nine * READ_FRAMES);
         // Frames of the limit, split and merged across reads, still pass.
         let mut stream = Vec::new();
         for seq in 0..20u64 {
@@ -316,20 +317,20 @@ mod tests {
             }
         }
         assert_eq!(seen, 20);
-        d.extend(&data_frame(20, &[1.0; 6])[..8]);
+        d.extend(&data_frame(20, &[1.0; 10])[..8]);
         let err = d.next_frame().unwrap_err();
         assert_eq!(
             err,
             FramingError::TooLong {
-                len: five + 8,
-                max: five
+                len: nine + 8,
+                max: nine
             }
         );
         assert!(err.to_string().contains("more channels"), "{err}");
         // Below the largest fixed-size frame (a Hello), the limit is raised
         // to it: a link of one value each way still reads its peer's Hello.
         assert_eq!(Deframer::with_max_frame(0).max_frame(), MIN_MAX_FRAME);
-        assert_eq!(MIN_MAX_FRAME, HEADER_LEN + Hello::LEN);
+        assert_eq!(MIN_MAX_FRAME, HEADER_LEN + Hello::MAX_LEN);
     }
 
     #[test]

@@ -8,6 +8,13 @@
 //! bytes. TCP keepalive probes an idle connection; `TCP_USER_TIMEOUT` bounds
 //! how long sent data may stay unacknowledged, probes included, before the
 //! kernel resets the connection and the hub reads the error.
+//!
+//! The kernel's bound is the liveness time and half as much again: a hung
+//! peer (its process stopped) whose kernel drops what this side keeps
+//! sending leaves data unacknowledged from the moment it stopped, and a
+//! bound equal to the liveness raced the endpoint's own, whose message
+//! names the silence ("nothing came from the peer for …"), with a reset
+//! that says only that the connection was lost.
 
 use std::io;
 use std::os::fd::AsFd;
@@ -20,15 +27,23 @@ pub(crate) const KEEPALIVE_INTERVAL: StdDuration = StdDuration::from_secs(1);
 /// Probes unanswered before the connection is dropped.
 pub(crate) const KEEPALIVE_PROBES: u32 = 3;
 
-/// Turns keepalive on and bounds unacknowledged data to `user_timeout`
-/// (at least a second: the kernel counts in milliseconds, and shorter
-/// would drop a sound connection in one retransmission).
+/// How long sent data may stay unacknowledged on a link whose endpoint
+/// ends a silent peer after `liveness`: longer, so that the endpoint, not
+/// the kernel, says why a hung peer was dropped.
+pub(crate) fn user_timeout(liveness: StdDuration) -> StdDuration {
+    liveness.saturating_add(liveness / 2)
+}
+
+/// Turns keepalive on and bounds unacknowledged data to
+/// [`user_timeout`] of `liveness` (at least a second: the kernel counts in
+/// milliseconds, and shorter would drop a sound connection in one
+/// retransmission).
 #[cfg(target_os = "linux")]
-pub(crate) fn enable(socket: &impl AsFd, user_timeout: StdDuration) -> io::Result<()> {
+pub(crate) fn enable(socket: &impl AsFd, liveness: StdDuration) -> io::Result<()> {
     use nix::sys::socket::{setsockopt, sockopt};
 
     let secs = |d: StdDuration| u32::try_from(d.as_secs()).unwrap_or(u32::MAX).max(1);
-    let millis = u32::try_from(user_timeout.as_millis())
+    let millis = u32::try_from(user_timeout(liveness).as_millis())
         .unwrap_or(u32::MAX)
         .max(1000);
     setsockopt(socket, sockopt::KeepAlive, &true)?;
@@ -66,9 +81,10 @@ mod tests {
             getsockopt(&socket, sockopt::TcpKeepCount).expect("count"),
             3
         );
+        // Past the endpoint's liveness, whose message names a hung peer.
         assert_eq!(
             getsockopt(&socket, sockopt::TcpUserTimeout).expect("user timeout"),
-            10_000
+            15_000
         );
         // Too short a bound would cut a sound link at its first retransmission.
         enable(&socket, StdDuration::from_millis(10)).expect("options");

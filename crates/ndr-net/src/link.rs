@@ -168,8 +168,8 @@ impl Link {
         cfg.validate().map_err(NetError::Config)?;
         stream.set_nodelay(true)?;
         // Best effort: the endpoint's liveness ends a silent link anyway.
-        let user_timeout = cfg.liveness.unwrap_or(DEFAULT_LIVENESS).into();
-        if let Err(e) = crate::keepalive::enable(&stream, user_timeout) {
+        let liveness = cfg.liveness.unwrap_or(DEFAULT_LIVENESS).into();
+        if let Err(e) = crate::keepalive::enable(&stream, liveness) {
             tracing::debug!("no TCP keepalive on the link's socket: {e}");
         }
         let peer = stream.peer_addr()?;

@@ -3,7 +3,7 @@
 use core::fmt;
 
 use crate::time::{Duration, Instant};
-use crate::wire::{self, CloseReason, Kind, ModeCode, Role, WireError};
+use crate::wire::{self, CloseReason, Kind, ModeCode, RegulationName, Role, WireError};
 
 use super::config::Mode;
 
@@ -61,6 +61,11 @@ pub enum LinkError {
         ours: Mode,
         /// The peer's mode (it may be one this build does not know).
         theirs: ModeCode,
+        /// Our regulation by name.
+        ours_named: RegulationName,
+        /// The peer's regulation as its Hello names it; empty when it
+        /// does not say (the message then names only its mode).
+        theirs_named: RegulationName,
     },
     /// A frame that is valid but makes no sense now (ends the link).
     Unexpected {
@@ -276,6 +281,22 @@ impl fmt::Display for ModeWords {
     }
 }
 
+/// What a Hello's mode code makes a side do, for a regulation named
+/// beside it.
+struct ModeWhat(u8);
+
+impl fmt::Display for ModeWhat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match ModeCode::from(self.0) {
+            ModeCode::PaperStatic => f.write_str("its regulator sized once, at the handshake"),
+            ModeCode::PaperDynamic => {
+                f.write_str("its FIFO resized, with a pause, as the network changes")
+            }
+            _ => write!(f, "mode code {}, which this build does not know", self.0),
+        }
+    }
+}
+
 /// A layout fingerprint as the errors show it: hexadecimal, or "none".
 struct LayoutName(u64);
 
@@ -336,7 +357,25 @@ impl fmt::Display for LinkError {
                 f,
                 "period mismatch: this side runs at {ours}, the peer at {theirs}; configure both with the same period"
             ),
-            LinkError::ModeMismatch { ours, theirs } => write!(
+            LinkError::ModeMismatch {
+                ours,
+                theirs,
+                ours_named,
+                theirs_named,
+            } if !theirs_named.is_empty() => write!(
+                f,
+                "mode mismatch: the peer runs {theirs_named} ({}), this side {} ({}), and \
+                 paper-dynamic links only with paper-dynamic: run both with the same \
+                 --regulation (in Python, regulation=)",
+                ModeWhat(u8::from(theirs)),
+                if ours_named.is_empty() {
+                    ours.name()
+                } else {
+                    ours_named.as_str()
+                },
+                ModeWhat(u8::from(ModeCode::from(ours))),
+            ),
+            LinkError::ModeMismatch { ours, theirs, .. } => write!(
                 f,
                 "mode mismatch: this side {}, the peer {} (its Hello's mode code {}); \
                  paper-dynamic links only with paper-dynamic: give both sides the regulation \
@@ -568,6 +607,14 @@ mod tests {
             LinkError::ModeMismatch {
                 ours: Mode::PaperDynamic,
                 theirs: ModeCode::PaperStatic,
+                ours_named: RegulationName::lossy("paper-dynamic"),
+                theirs_named: RegulationName::NONE,
+            },
+            LinkError::ModeMismatch {
+                ours: Mode::PaperDynamic,
+                theirs: ModeCode::PaperStatic,
+                ours_named: RegulationName::lossy("paper-dynamic"),
+                theirs_named: RegulationName::lossy("adaptive"),
             },
             LinkError::Unexpected {
                 kind: Kind::Data,
@@ -708,12 +755,44 @@ mod tests {
     }
 
     #[test]
-    fn a_mode_mismatch_names_what_the_peer_may_run() {
-        // The Hello carries the mode, not the playout: an adaptive peer
-        // sends the static mode's code, and the message says so.
+    fn a_mode_mismatch_names_the_peer_s_regulation() {
         let msg = LinkError::ModeMismatch {
             ours: Mode::PaperDynamic,
             theirs: ModeCode::PaperStatic,
+            ours_named: RegulationName::lossy("paper-dynamic"),
+            theirs_named: RegulationName::lossy("fixed:200"),
+        }
+        .to_string();
+        assert!(
+            msg.starts_with(
+                "mode mismatch: the peer runs fixed:200 (its regulator sized once, at the \
+                 handshake), this side paper-dynamic (its FIFO resized"
+            ),
+            "{msg}"
+        );
+        assert!(msg.ends_with("run both with the same --regulation (in Python, regulation=)"));
+        let msg = LinkError::ModeMismatch {
+            ours: Mode::PaperStatic,
+            theirs: ModeCode::Unknown(9),
+            ours_named: RegulationName::lossy("adaptive"),
+            theirs_named: RegulationName::lossy("later-one"),
+        }
+        .to_string();
+        assert!(
+            msg.contains("the peer runs later-one (mode code 9, which this build does not know), this side adaptive (its regulator sized once"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn a_mode_mismatch_with_a_peer_that_does_not_name_its_regulation_names_what_it_may_run() {
+        // A Hello without the regulation's name carries the mode alone: an
+        // adaptive peer sends the static mode's code, and the message says so.
+        let msg = LinkError::ModeMismatch {
+            ours: Mode::PaperDynamic,
+            theirs: ModeCode::PaperStatic,
+            ours_named: RegulationName::lossy("paper-dynamic"),
+            theirs_named: RegulationName::NONE,
         }
         .to_string();
         assert!(msg.contains("this side runs paper-dynamic"), "{msg}");
@@ -725,6 +804,8 @@ mod tests {
         let msg = LinkError::ModeMismatch {
             ours: Mode::PaperStatic,
             theirs: ModeCode::PaperDynamic,
+            ours_named: RegulationName::lossy("adaptive"),
+            theirs_named: RegulationName::NONE,
         }
         .to_string();
         assert!(msg.contains("the peer runs paper-dynamic"), "{msg}");

@@ -608,7 +608,16 @@ impl<S: Storage> Endpoint<S> {
                 Transport::Stream => 0,
                 Transport::Datagram { .. } => self.config.session,
             },
+            regulation: self.regulation_name(),
         }
+    }
+
+    /// This side's regulation as its Hello names it.
+    pub(super) fn regulation_name(&self) -> wire::RegulationName {
+        wire::RegulationName::lossy(crate::Regulation::name_of(
+            self.config.mode,
+            self.config.playout,
+        ))
     }
 
     fn queue_tx(&mut self, item: Tx) {

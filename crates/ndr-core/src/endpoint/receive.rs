@@ -309,6 +309,8 @@ impl<S: Storage> Endpoint<S> {
             return Err(LinkError::ModeMismatch {
                 ours: ours.mode,
                 theirs: hello.mode,
+                ours_named: self.regulation_name(),
+                theirs_named: hello.regulation,
             });
         }
         Ok(())

@@ -106,6 +106,7 @@ impl HandBase {
             period: T,
             layout: 0,
             session: 0,
+            regulation: crate::wire::RegulationName::NONE,
         };
         (stamp, frame(&Header::new(0, stamp), &Message::Hello(hello)))
     }

@@ -9,8 +9,8 @@ use std::{eprintln, format, println, vec};
 use crate::time::{Duration, Instant};
 use crate::wire::{
     Close, Control, Echo, Frame, HEADER_LEN, Header, Hello, Kind, MAX_BUNDLE, MAX_CHANNELS,
-    MAX_DATAGRAM_LEN, MAX_FRAME_LEN, Message, OlderSample, Payload, Role, Token, VERSION,
-    WireError, encode, encoded_len, frame_len,
+    MAX_DATAGRAM_LEN, MAX_FRAME_LEN, Message, OlderSample, Payload, RegulationName, Role, Token,
+    VERSION, WireError, encode, encoded_len, frame_len,
 };
 use proptest::prelude::*;
 
@@ -89,9 +89,10 @@ fn message() -> impl Strategy<Value = Owned> {
             (any::<bool>(), any::<u8>(), any::<u8>()),
             (1..=MAX_CHANNELS as u16, 1..=MAX_CHANNELS as u16),
             (1..=u64::MAX, any::<u64>(), any::<u64>()),
+            "[ -~]{0,32}",
         )
             .prop_map(
-                |((remote, mode, underflow), (command_width, state_width), (period, layout, session))| {
+                |((remote, mode, underflow), (command_width, state_width), (period, layout, session), name)| {
                     Owned::Hello(Hello {
                         seat: crate::wire::Seat::Control,
                         role: if remote { Role::Remote } else { Role::Base },
@@ -102,6 +103,7 @@ fn message() -> impl Strategy<Value = Owned> {
                         period: Duration::from_nanos(period),
                         layout,
                         session,
+                        regulation: RegulationName::new(&name).expect("printable ASCII, 32 bytes at most"),
                     })
                 }
             ),
@@ -289,6 +291,7 @@ proptest! {
             seat: crate::wire::Seat::Control,
             role: Role::Base, mode: 0.into(), underflow: 0.into(), command_width: 1, state_width: 1,
             period: Duration::from_nanos(period), layout: 0, session: 0,
+            regulation: RegulationName::lossy("adaptive"),
         };
         let control = Control { op: op.into(), ns: 1, period: Duration::from_nanos(period) };
         let mut buf = vec![0u8; buf_len];

@@ -84,6 +84,12 @@ pub enum WireError {
         /// Offset of the field in the frame.
         offset: usize,
     },
+    /// A Hello's regulation name holds a byte that is not printable ASCII
+    /// (at `offset` in the frame).
+    BadRegulationName {
+        /// Offset of the first such byte.
+        offset: usize,
+    },
     /// A Control frame has op code 0.
     ZeroControlOp,
     /// A Token frame carries the token 0 (a stream's "no datagrams").
@@ -147,7 +153,7 @@ impl fmt::Display for WireError {
             ),
             WireError::UnsupportedVersion(v) => write!(
                 f,
-                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 4 came with observers and control terms)"
+                "peer speaks ndr wire version {v}, this build speaks {VERSION}; upgrade the older side (version 5 came with the regulation's name in the Hello, version 4 with observers and control terms)"
             ),
             WireError::UnknownKind(k) => write!(
                 f,
@@ -169,6 +175,15 @@ impl fmt::Display for WireError {
                     f,
                     "Applied payload is {len} bytes; it must be 24 (seq, sent_at, applied_at) \
                      and a multiple of 8 (one f64 per channel)"
+                ),
+                Kind::Hello => write!(
+                    f,
+                    "Hello payload is {len} bytes; it must be {} to {} ({} fixed, then the \
+                     regulation's name, at most {} bytes)",
+                    super::Hello::LEN,
+                    super::Hello::MAX_LEN,
+                    super::Hello::LEN,
+                    super::RegulationName::MAX_LEN
                 ),
                 _ => write!(
                     f,
@@ -211,6 +226,11 @@ impl fmt::Display for WireError {
                 } else {
                     "state"
                 }
+            ),
+            WireError::BadRegulationName { offset } => write!(
+                f,
+                "Hello regulation name has a byte at offset {offset} that is not printable \
+                 ASCII (0x20 to 0x7e)"
             ),
             WireError::ZeroControlOp => write!(f, "Control op code 0 is invalid"),
             WireError::ZeroToken => write!(

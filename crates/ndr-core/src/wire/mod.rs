@@ -1,4 +1,4 @@
-//! The frame codec: ndr wire format version 4.
+//! The frame codec: ndr wire format version 5.
 //!
 //! A frame is a fixed 48-byte little-endian header followed by a payload whose
 //! layout depends on its [`Kind`]. The byte-exact specification, with test
@@ -46,13 +46,14 @@ pub(crate) use bundle::{OLDER_FIELDS_LEN, bundle_payload_len};
 pub use codes::{CloseReason, ControlOp, ModeCode, UnderflowCode};
 pub use error::WireError;
 pub use payload::{
-    Applied, Channels, ChannelsIter, Close, Control, Hello, Payload, Role, Seat, Token,
+    Applied, Channels, ChannelsIter, Close, Control, Hello, Payload, RegulationName, Role, Seat,
+    Token,
 };
 
 use crate::time::{Duration, Instant};
 
 /// The wire version this build speaks.
-pub const VERSION: u8 = 4;
+pub const VERSION: u8 = 5;
 /// Size of the fixed header, in bytes.
 pub const HEADER_LEN: usize = 48;
 /// Most channels a Data frame carries.
@@ -133,13 +134,12 @@ pub enum Kind {
 }
 
 impl Kind {
-    /// The exact payload size of this kind, `None` for Data and Bundle
-    /// (they follow their values).
+    /// The exact payload size of this kind, `None` for Data, Bundle and
+    /// Applied (they follow their values) and Hello (its regulation's name).
     #[must_use]
     pub(crate) const fn fixed_payload_len(self) -> Option<usize> {
         match self {
-            Kind::Data | Kind::Bundle | Kind::Applied => None,
-            Kind::Hello => Some(Hello::LEN),
+            Kind::Data | Kind::Bundle | Kind::Applied | Kind::Hello => None,
             Kind::Control => Some(Control::LEN),
             Kind::Close => Some(Close::LEN),
             Kind::Token => Some(Token::LEN),
@@ -485,7 +485,7 @@ pub(crate) const fn encoded_len(msg: &Message<'_>) -> usize {
         Message::Bundle { newest, older, .. } => {
             bundle_payload_len(older.len().saturating_add(1), newest.len())
         }
-        Message::Hello(_) => Hello::LEN,
+        Message::Hello(hello) => hello.payload_len(),
         Message::Control(_) => Control::LEN,
         Message::Close(_) => Close::LEN,
         Message::Token(_) => Token::LEN,
@@ -565,7 +565,7 @@ pub fn encode(header: &Header, msg: &Message<'_>, buf: &mut [u8]) -> Result<usiz
             };
             bundle::write(payload, &fixed, newest, older)?;
         }
-        Message::Hello(hello) => put(payload, 0, hello.to_bytes()?),
+        Message::Hello(hello) => hello.write(payload)?,
         Message::Control(control) => put(payload, 0, control.to_bytes()?),
         Message::Close(close) => put(payload, 0, close.to_bytes()),
         Message::Token(token) => put(payload, 0, token.to_bytes()?),

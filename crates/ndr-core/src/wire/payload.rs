@@ -305,6 +305,132 @@ impl TryFrom<u8> for Seat {
     }
 }
 
+/// The name of the sender's regulation (`adaptive`, `paper-static`,
+/// `fixed:200`, …, as `--regulation` spells it), carried by its
+/// [`Hello`] so that a peer that refuses it can say what it runs: the
+/// Hello's mode code says only whether a side resizes its FIFO. Printable
+/// ASCII, at most [`RegulationName::MAX_LEN`] bytes; empty when the sender
+/// does not say.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct RegulationName {
+    len: u8,
+    bytes: [u8; RegulationName::MAX_LEN],
+}
+
+impl RegulationName {
+    /// Most bytes a name takes on the wire.
+    pub const MAX_LEN: usize = 32;
+
+    /// No name: the sender does not say.
+    pub const NONE: RegulationName = RegulationName {
+        len: 0,
+        bytes: [0; RegulationName::MAX_LEN],
+    };
+
+    /// `name` as the wire carries it.
+    ///
+    /// # Errors
+    /// [`WireError::BadRegulationName`] for a byte that is not printable
+    /// ASCII (its offset in a Hello frame), [`WireError::BadPayloadLength`]
+    /// for a name longer than [`RegulationName::MAX_LEN`].
+    pub fn new(name: &str) -> Result<RegulationName, WireError> {
+        Self::from_wire(name.as_bytes())
+    }
+
+    /// The name `name` displays, made fit for the wire: a character that is
+    /// not printable ASCII becomes `?`, and what passes
+    /// [`RegulationName::MAX_LEN`] bytes is cut (an application's own
+    /// playout may name itself anyhow).
+    #[must_use]
+    pub fn lossy(name: impl fmt::Display) -> RegulationName {
+        let mut out = RegulationName::NONE;
+        let _ = fmt::write(&mut out, format_args!("{name}"));
+        out
+    }
+
+    /// The name; empty when the sender does not say.
+    #[must_use]
+    pub fn as_str(&self) -> &str {
+        let bytes = self.bytes.get(..usize::from(self.len)).unwrap_or_default();
+        // Printable ASCII by construction.
+        core::str::from_utf8(bytes).unwrap_or_default()
+    }
+
+    /// Whether the sender does not say.
+    #[must_use]
+    pub const fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Its bytes on the wire.
+    fn as_bytes(&self) -> &[u8] {
+        self.bytes.get(..usize::from(self.len)).unwrap_or_default()
+    }
+
+    fn from_wire(bytes: &[u8]) -> Result<RegulationName, WireError> {
+        if bytes.len() > Self::MAX_LEN {
+            return Err(WireError::BadPayloadLength {
+                kind: Kind::Hello,
+                len: Hello::LEN + bytes.len(),
+            });
+        }
+        if let Some(i) = bytes.iter().position(|b| !printable(*b)) {
+            return Err(WireError::BadRegulationName {
+                offset: HEADER_LEN + Hello::LEN + i,
+            });
+        }
+        let mut out = RegulationName::NONE;
+        if let Some(dst) = out.bytes.get_mut(..bytes.len()) {
+            dst.copy_from_slice(bytes);
+        }
+        // At most MAX_LEN, checked above.
+        out.len = bytes.len() as u8;
+        Ok(out)
+    }
+}
+
+/// A byte a name may hold: printable ASCII, space included (the name goes
+/// into messages and logs as it is).
+const fn printable(b: u8) -> bool {
+    matches!(b, 0x20..=0x7e)
+}
+
+impl Default for RegulationName {
+    /// [`RegulationName::NONE`].
+    fn default() -> Self {
+        RegulationName::NONE
+    }
+}
+
+impl fmt::Write for RegulationName {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        for c in s.chars() {
+            let at = usize::from(self.len);
+            let Some(slot) = self.bytes.get_mut(at) else {
+                return Err(fmt::Error);
+            };
+            *slot = u8::try_from(c)
+                .ok()
+                .filter(|b| printable(*b))
+                .unwrap_or(b'?');
+            self.len += 1;
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Display for RegulationName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl fmt::Debug for RegulationName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(self.as_str(), f)
+    }
+}
+
 /// Handshake: what the sender is and how it wants the link run. Its
 /// `Debug` form leaves the session token out.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
@@ -331,17 +457,34 @@ pub struct Hello {
     pub session: u64,
     /// The seat a base asks for, or the seat the remote gives it.
     pub seat: Seat,
+    /// The sender's regulation by name (its playout and that playout's
+    /// values), for messages only: what must agree is `mode`.
+    /// [`RegulationName::NONE`] when the sender does not say.
+    pub regulation: RegulationName,
 }
 
 impl Hello {
-    /// Payload size in bytes.
+    /// Size in bytes of the payload's fixed part; the regulation's name
+    /// follows it, up to [`Hello::MAX_LEN`] in all.
     pub const LEN: usize = 32;
+    /// Largest payload size in bytes: the fixed part and the longest name.
+    pub const MAX_LEN: usize = Self::LEN + RegulationName::MAX_LEN;
+
+    /// Payload size in bytes of this Hello.
+    #[must_use]
+    pub const fn payload_len(&self) -> usize {
+        Self::LEN + self.regulation.len as usize
+    }
 
     pub(super) fn parse(bytes: &[u8]) -> Result<Hello, WireError> {
-        let b: &[u8; Self::LEN] = bytes.try_into().map_err(|_| WireError::BadPayloadLength {
+        let bad_len = WireError::BadPayloadLength {
             kind: Kind::Hello,
             len: bytes.len(),
-        })?;
+        };
+        if bytes.len() > Self::MAX_LEN {
+            return Err(bad_len);
+        }
+        let (b, name) = bytes.split_first_chunk::<{ Self::LEN }>().ok_or(bad_len)?;
         let [role, mode, underflow, seat, c0, c1, s0, s1, rest @ ..] = *b;
         let role = Role::try_from(role)?;
         let seat = Seat::try_from(seat)?;
@@ -369,10 +512,13 @@ impl Hello {
             layout,
             session,
             seat,
+            regulation: RegulationName::from_wire(name)?,
         })
     }
 
-    pub(super) fn to_bytes(self) -> Result<[u8; Self::LEN], WireError> {
+    /// Writes the payload to the front of `b` (sized by the caller to
+    /// [`Hello::payload_len`]).
+    pub(super) fn write(self, b: &mut [u8]) -> Result<(), WireError> {
         if self.period.is_zero() {
             return Err(WireError::ZeroPeriod);
         }
@@ -384,9 +530,8 @@ impl Hello {
                 });
             }
         }
-        let mut b = [0u8; Self::LEN];
         super::put(
-            &mut b,
+            b,
             0,
             [
                 self.role as u8,
@@ -395,12 +540,16 @@ impl Hello {
                 self.seat as u8,
             ],
         );
-        super::put(&mut b, 4, self.command_width.to_le_bytes());
-        super::put(&mut b, 6, self.state_width.to_le_bytes());
-        super::put(&mut b, 8, self.period.as_nanos().to_le_bytes());
-        super::put(&mut b, 16, self.layout.to_le_bytes());
-        super::put(&mut b, 24, self.session.to_le_bytes());
-        Ok(b)
+        super::put(b, 4, self.command_width.to_le_bytes());
+        super::put(b, 6, self.state_width.to_le_bytes());
+        super::put(b, 8, self.period.as_nanos().to_le_bytes());
+        super::put(b, 16, self.layout.to_le_bytes());
+        super::put(b, 24, self.session.to_le_bytes());
+        let name = self.regulation.as_bytes();
+        if let Some(dst) = b.get_mut(Self::LEN..Self::LEN + name.len()) {
+            dst.copy_from_slice(name);
+        }
+        Ok(())
     }
 }
 
@@ -416,6 +565,7 @@ impl fmt::Debug for Hello {
             .field("layout", &self.layout)
             .field("session", &super::Secret(self.session))
             .field("seat", &self.seat)
+            .field("regulation", &self.regulation)
             .finish()
     }
 }

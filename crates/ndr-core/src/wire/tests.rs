@@ -28,6 +28,7 @@ fn hello() -> Hello {
         period: Duration::from_millis(200),
         layout: 0x0123_4567_89ab_cdef,
         session: 42,
+        regulation: RegulationName::NONE,
     }
 }
 
@@ -180,8 +181,9 @@ fn error_unsupported_version() {
     assert_eq!(err.close_reason(), CloseReason::VersionMismatch);
     assert_eq!(
         err.to_string(),
-        "peer speaks ndr wire version 1, this build speaks 4; upgrade the older side \
-         (version 4 came with observers and control terms)"
+        "peer speaks ndr wire version 1, this build speaks 5; upgrade the older side \
+         (version 5 came with the regulation's name in the Hello, version 4 with observers \
+         and control terms)"
     );
 }
 
@@ -336,9 +338,9 @@ fn error_bad_payload_length() {
             len: 5
         })
     );
-    // Fixed-size kinds: one byte short and one byte long.
+    // Fixed-size kinds: one byte short and one byte long (a Hello's size
+    // is checked in `a_hello_s_regulation_name_is_printable_ascii_and_bounded`).
     for msg in [
-        Message::Hello(hello()),
         Message::Control(control()),
         Message::Close(Close {
             reason: CloseReason::Normal,
@@ -694,6 +696,7 @@ fn every_error_has_a_message() {
         WireError::NonFinite { index: 4 },
         WireError::BadRole(5),
         WireError::ZeroPeriod,
+        WireError::BadRegulationName { offset: 81 },
         WireError::ZeroControlOp,
         WireError::ZeroToken,
         WireError::HoldWithoutEcho,
@@ -715,7 +718,8 @@ fn every_error_has_a_message() {
             len: 3
         }
         .to_string(),
-        "Hello payload is 3 bytes, it must be exactly 32"
+        "Hello payload is 3 bytes; it must be 32 to 64 (32 fixed, then the regulation's \
+         name, at most 32 bytes)"
     );
 }
 
@@ -773,4 +777,107 @@ fn bundle_bytes(session: u64) -> Vec<u8> {
         newest: &[1.0],
         older: &[],
     })
+}
+
+/// `hello()` naming `name`, as a frame.
+fn named_hello(name: &str) -> Vec<u8> {
+    frame_bytes(&Message::Hello(Hello {
+        regulation: RegulationName::new(name).unwrap(),
+        ..hello()
+    }))
+}
+
+/// `bytes` (a Hello frame) with `name` in place of its regulation's name,
+/// the length field set to match.
+fn with_name_bytes(bytes: &[u8], name: &[u8]) -> Vec<u8> {
+    let mut out = bytes[..HEADER_LEN + Hello::LEN].to_vec();
+    out.extend_from_slice(name);
+    let len = u32::try_from(out.len()).unwrap();
+    out[..4].copy_from_slice(&len.to_le_bytes());
+    out
+}
+
+#[test]
+fn a_hello_carries_the_regulation_s_name_after_its_fixed_part() {
+    let bytes = named_hello("adaptive:0.1:1");
+    assert_eq!(bytes.len(), HEADER_LEN + 32 + 14);
+    assert_eq!(&bytes[80..], b"adaptive:0.1:1");
+    let Payload::Hello(h) = Frame::new_checked(&bytes[..]).unwrap().payload() else {
+        panic!("a Hello");
+    };
+    assert_eq!(h.regulation.as_str(), "adaptive:0.1:1");
+    assert_eq!(
+        h,
+        Hello {
+            regulation: h.regulation,
+            ..hello()
+        }
+    );
+    assert!(
+        format!("{h:?}").contains("regulation: \"adaptive:0.1:1\""),
+        "{h:?}"
+    );
+    // A sender that does not say sends the fixed part alone.
+    let bare = frame_bytes(&Message::Hello(hello()));
+    assert_eq!(bare.len(), HEADER_LEN + 32);
+    let Payload::Hello(h) = Frame::new_checked(&bare[..]).unwrap().payload() else {
+        panic!("a Hello");
+    };
+    assert!(h.regulation.is_empty());
+    assert_eq!(h.regulation, RegulationName::NONE);
+    // The longest name fits.
+    let longest = "x".repeat(RegulationName::MAX_LEN);
+    assert_eq!(named_hello(&longest).len(), HEADER_LEN + Hello::MAX_LEN);
+}
+
+#[test]
+fn a_hello_s_regulation_name_is_printable_ascii_and_bounded() {
+    let good = named_hello("fixed:200");
+    for (name, offset) in [(&b"fixed\n200"[..], 85), (b"\x7f", 80), (b"ab\xc3\xa9", 82)] {
+        assert_eq!(
+            decode(&with_name_bytes(&good, name)),
+            Err(WireError::BadRegulationName { offset })
+        );
+    }
+    let long = with_name_bytes(&good, &[b'x'; 33]);
+    assert_eq!(
+        decode(&long),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Hello,
+            len: 65
+        })
+    );
+    let mut short = good[..HEADER_LEN + 31].to_vec();
+    short[..4].copy_from_slice(&79u32.to_le_bytes());
+    assert_eq!(
+        decode(&short),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Hello,
+            len: 31
+        })
+    );
+    // The payload's size is checked before its fields, the name after them.
+    let both = with(with_name_bytes(&good, b"\n"), 48, 7);
+    assert_eq!(decode(&both), Err(WireError::BadRole(7)));
+    assert_eq!(
+        RegulationName::new("tab\there"),
+        Err(WireError::BadRegulationName { offset: 83 })
+    );
+    assert_eq!(
+        RegulationName::new(&"x".repeat(33)),
+        Err(WireError::BadPayloadLength {
+            kind: Kind::Hello,
+            len: 65
+        })
+    );
+}
+
+#[test]
+fn a_regulation_name_made_lossy_fits_the_wire() {
+    // An application's own playout may name itself anyhow.
+    assert_eq!(RegulationName::lossy("mine\u{e9}\n").as_str(), "mine??");
+    let long = "y".repeat(60);
+    assert_eq!(RegulationName::lossy(&long).as_str(), &long[..32]);
+    assert_eq!(RegulationName::lossy("").as_str(), "");
+    assert_eq!(RegulationName::lossy("adaptive").to_string(), "adaptive");
 }

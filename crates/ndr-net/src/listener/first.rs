@@ -151,6 +151,7 @@ pub(super) mod tests {
             period: Duration::from_millis(10),
             layout: 0,
             session: 0,
+            regulation: ndr_core::wire::RegulationName::NONE,
         };
         let mut buf = vec![0; wire::MAX_FRAME_LEN];
         let n = wire::encode(&header, &Message::Hello(hello), &mut buf).expect("encode");

@@ -190,6 +190,7 @@ fn base_hello(period: Duration, session: u64) -> Vec<u8> {
         period,
         layout: 0,
         session,
+        regulation: ndr::core::wire::RegulationName::NONE,
     };
     let mut buf = [0u8; wire::MAX_FRAME_LEN];
     let n = wire::encode(&header, &Message::Hello(hello), &mut buf).unwrap_or(0);

@@ -388,13 +388,12 @@ fn drop_late_keeps_the_delay_and_counts_what_it_discards() {
 fn mismatch(edit: impl FnOnce(&mut Config)) -> (Vec<LinkError>, Vec<LinkError>) {
     let mut remote = config(Role::Remote);
     edit(&mut remote);
+    mismatch_of(config(Role::Base), remote)
+}
+
+fn mismatch_of(base: Config, remote: Config) -> (Vec<LinkError>, Vec<LinkError>) {
     let d = Duration::from_millis(10);
-    let mut p = Pair::new(
-        config(Role::Base),
-        remote,
-        Box::new(move |_| d),
-        Box::new(move |_| d),
-    );
+    let mut p = Pair::new(base, remote, Box::new(move |_| d), Box::new(move |_| d));
     p.run_until(secs(5));
     assert!(p.base.is_closed() && p.remote.is_closed());
     let (_, _, mut net) = p.0.into_parts();
@@ -475,21 +474,67 @@ fn handshake_mismatches_end_the_link_with_their_error() {
         r[0],
         LinkError::ModeMismatch {
             ours: Mode::PaperDynamic,
-            theirs: wire::ModeCode::PaperStatic
+            theirs: wire::ModeCode::PaperStatic,
+            ..
         }
     ));
-    assert_eq!(
-        b,
-        vec![LinkError::ModeMismatch {
+    assert!(matches!(
+        b[..],
+        [LinkError::ModeMismatch {
             ours: Mode::PaperStatic,
-            theirs: Mode::PaperDynamic.into()
+            theirs: wire::ModeCode::PaperDynamic,
+            ..
         }]
-    );
+    ));
 
     let (_, r) = mismatch(|c| c.role = Role::Base);
     assert_eq!(r[0], LinkError::RoleMismatch { role: Role::Base });
     let msg = r[0].to_string();
     assert!(msg.contains("one side must be the base"), "{msg}");
+}
+
+#[test]
+fn a_mode_mismatch_names_each_side_s_regulation_as_the_peer_s_hello_says() {
+    // An adaptive base against a paper-dynamic remote: the Hello's mode
+    // code says only that the base sizes its regulator once; its name says
+    // which regulation it runs, with its values.
+    let mut base = config(Role::Base);
+    base.playout = crate::Playout::ADAPTIVE;
+    let mut remote = config(Role::Remote);
+    remote.mode = Mode::PaperDynamic;
+    let (b, r) = mismatch_of(base, remote);
+    let adaptive = crate::Regulation::ADAPTIVE.to_string();
+    match r[..] {
+        [
+            LinkError::ModeMismatch {
+                ours_named,
+                theirs_named,
+                ..
+            },
+        ] => {
+            assert_eq!(ours_named.as_str(), "paper-dynamic");
+            assert_eq!(theirs_named.as_str(), adaptive);
+        }
+        _ => panic!("{r:?}"),
+    }
+    let msg = r[0].to_string();
+    assert!(
+        msg.starts_with(&format!(
+            "mode mismatch: the peer runs {adaptive} (its regulator sized once, at the \
+             handshake), this side paper-dynamic"
+        )),
+        "{msg}"
+    );
+    assert!(msg.contains("the same --regulation"), "{msg}");
+    let msg = b[0].to_string();
+    assert!(
+        msg.starts_with(&format!(
+            "mode mismatch: the peer runs paper-dynamic (its FIFO resized, with a pause, as \
+             the network changes), this side {adaptive} (its regulator sized once"
+        )),
+        "{msg}"
+    );
+    assert_eq!(r[0].close_reason(), CloseReason::ModeMismatch);
 }
 
 #[test]
