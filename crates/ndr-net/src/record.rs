@@ -52,7 +52,7 @@ use crate::error::NetError;
 use crate::hub::Tapped;
 use crate::link::{Link, LinkSender};
 
-pub use replay::{Crossing, MAX_RECORDING_BYTES, RecordedNetwork, read_network};
+pub use replay::{Crossing, MAX_RECORDING_BYTES, ProbeCrossing, RecordedNetwork, read_network};
 pub use schema::TOPICS;
 
 /// Messages the queue to the writer holds by default: seconds of a 1 kHz
