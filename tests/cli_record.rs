@@ -104,6 +104,7 @@ fn a_recorded_demo_agrees_with_its_report_and_replays_in_the_simulator() {
             "/ndr/command",
             "/ndr/event",
             "/ndr/network",
+            "/ndr/probe",
             "/ndr/state",
             "/ndr/stats"
         ]
@@ -189,6 +190,30 @@ fn a_recorded_demo_agrees_with_its_report_and_replays_in_the_simulator() {
             .count() as u64,
         released
     );
+
+    // The set-up's probes, each way, numbered as sent: before the first
+    // sample that way (probes and samples share the count).
+    for (direction, topic) in [("fwd", "/ndr/command"), ("bwd", "/ndr/state")] {
+        let seqs: Vec<u64> = on(&msgs, "/ndr/probe")
+            .iter()
+            .filter(|m| m.body["direction"] == direction)
+            .map(|m| m.body["seq"].as_u64().unwrap())
+            .collect();
+        assert!(!seqs.is_empty(), "no {direction} probe recorded");
+        assert!(
+            seqs.windows(2).all(|w| w[0] < w[1]),
+            "{direction}: {seqs:?}"
+        );
+        let first_sample = on(&msgs, topic)
+            .iter()
+            .map(|m| m.body["seq"].as_u64().unwrap())
+            .min()
+            .unwrap();
+        assert!(
+            seqs.iter().all(|&s| s < first_sample),
+            "{direction}: {seqs:?}"
+        );
+    }
 
     let sim = cli_common::json(&[
         "sim",

@@ -26,6 +26,25 @@ struct Synthetic {
     samples: u64,
     answer_ticks: u64,
     delay_ms: fn(u64) -> f64,
+    /// The set-up's probes on `/ndr/probe` (none: the channel is left
+    /// out, as in a recording made before it existed): how many each way,
+    /// and the k-th one's delay in a direction (`fwd`, `bwd`), `None` for
+    /// a probe that never arrived.
+    probes: Option<(u64, ProbeDelay)>,
+    /// Samples (by their number) never released, each way: lost.
+    missing: fn(u64) -> bool,
+    /// The clock offset estimate the first 8 probes each way were
+    /// recorded with (the others' and the samples' is 0, as the clocks'):
+    /// a young estimate.
+    probe_offset_s: f64,
+}
+
+/// A probe's delay (ms) by its direction and number; `None`: never came.
+type ProbeDelay = fn(&str, u64) -> Option<f64>;
+
+/// Nothing missing.
+fn none(_: u64) -> bool {
+    false
 }
 
 impl Synthetic {
@@ -39,7 +58,11 @@ impl Synthetic {
             .add_schema("ndr.Any", "jsonschema", br#"{"type":"object"}"#)
             .unwrap();
         let mut channels = BTreeMap::new();
-        for topic in ["/ndr/event", "/ndr/command", "/ndr/state", "/ndr/network"] {
+        let mut topics = vec!["/ndr/event", "/ndr/command", "/ndr/state", "/ndr/network"];
+        if self.probes.is_some() {
+            topics.push("/ndr/probe");
+        }
+        for topic in topics {
             let id = w
                 .add_channel(schema, topic, "json", &BTreeMap::new())
                 .unwrap();
@@ -50,17 +73,41 @@ impl Synthetic {
         messages.push((ORIGIN, "/ndr/event", ORIGIN, event("attached", ORIGIN)));
         let first = ORIGIN + (self.lead_s * 1e9) as u64;
         messages.push((first, "/ndr/event", first, event("started", first)));
+        // The probes go out a period apart from the attachment on, each
+        // side numbering them from 0, and end before the first command.
+        if let Some((count, delay_ms)) = self.probes {
+            for k in 0..count {
+                let sent = ORIGIN + k * PERIOD_NS;
+                for direction in ["fwd", "bwd"] {
+                    let Some(d) = delay_ms(direction, k) else {
+                        continue;
+                    };
+                    let d = (d * 1e6) as u64;
+                    let offset = if k < 8 { self.probe_offset_s } else { 0.0 };
+                    messages.push((
+                        sent + d,
+                        "/ndr/probe",
+                        sent,
+                        json!({"link": 0, "direction": direction, "seq": k, "sent_ns": sent,
+                               "arrived_ns": sent + d, "raw_s": d as f64 * 1e-9,
+                               "one_way_s": d as f64 * 1e-9 - offset,
+                               "clock_offset_s": offset}),
+                    ));
+                }
+            }
+        }
         // The remote releases each command a fixed 200 ms after its send.
         let hold = 200_000_000;
         for k in 0..self.samples {
             let d = ((self.delay_ms)(k) * 1e6) as u64;
+            let status = if (self.missing)(k) { "late" } else { "fresh" };
             let sent = first + k * PERIOD_NS;
             let released = sent + hold;
             messages.push((
                 released,
                 "/ndr/command",
                 sent,
-                json!({"link": 1, "seq": k, "status": "fresh", "sent_ns": sent,
+                json!({"link": 1, "seq": k, "status": status, "sent_ns": sent,
                        "arrived_ns": sent + d, "released_ns": released,
                        "answers_sent_ns": null}),
             ));
@@ -70,11 +117,22 @@ impl Synthetic {
                 state_released,
                 "/ndr/state",
                 state_sent,
-                json!({"link": 0, "seq": k, "status": "fresh", "sent_ns": state_sent,
+                json!({"link": 0, "seq": k, "status": status, "sent_ns": state_sent,
                        "arrived_ns": state_sent + d, "released_ns": state_released,
                        "answers_sent_ns": sent}),
             ));
             for (direction, at) in [("fwd", sent), ("bwd", state_sent)] {
+                if (self.missing)(k) {
+                    messages.push((
+                        at + hold,
+                        "/ndr/network",
+                        at,
+                        json!({"link": 0, "direction": direction, "seq": k, "sent_ns": at,
+                               "arrived_ns": null, "raw_s": null, "one_way_s": null,
+                               "clock_offset_s": 0.0, "missing": true}),
+                    ));
+                    continue;
+                }
                 messages.push((
                     at + d,
                     "/ndr/network",
@@ -102,6 +160,10 @@ impl Synthetic {
 }
 
 fn replay(path: &Path, regulation: &str, underflow: &str) -> Value {
+    replay_over(path, regulation, underflow, "tcp")
+}
+
+fn replay_over(path: &Path, regulation: &str, underflow: &str, transport: &str) -> Value {
     cli_common::json(&[
         "sim",
         "--trace",
@@ -112,6 +174,8 @@ fn replay(path: &Path, regulation: &str, underflow: &str) -> Value {
         underflow,
         "--period-ms",
         "50",
+        "--transport",
+        transport,
         "--json",
     ])
 }
@@ -128,6 +192,9 @@ fn a_replay_answers_when_the_recorded_remote_did() {
             samples: 400,
             answer_ticks,
             delay_ms: |_| 100.0,
+            probes: None,
+            missing: none,
+            probe_offset_s: 0.0,
         }
         .write(&rec);
         let sim = replay(&rec, "constant:200", "hold");
@@ -157,6 +224,9 @@ fn a_replay_puts_the_recorded_samples_on_its_own() {
             40..46 => 400.0 - 50.0 * (k - 39) as f64,
             _ => 100.0,
         },
+        probes: None,
+        missing: none,
+        probe_offset_s: 0.0,
     }
     .write(&rec);
     let sim = replay(&rec, "constant:300", "drop-late");
@@ -175,5 +245,91 @@ fn a_replay_puts_the_recorded_samples_on_its_own() {
         (76..=84).contains(&late),
         "{late} late samples, not about 82"
     );
+    let _ = std::fs::remove_file(&rec);
+}
+
+#[test]
+fn a_replay_sizes_its_queue_from_the_recorded_probes() {
+    let rec = temp("probes.mcap");
+    // Forward probes 40 ms slower each than the one before, backward ones
+    // at 100 ms: each echo closes a round trip 40 ms longer than the last,
+    // so any ten of them span 360 ms, and the queue law sizes the queue at
+    // 2 + floor(1.3 × 0.36 / 0.05) = 11. The samples' delays, a steady
+    // 100 ms, would size it at 2.
+    let recorded = |probes| Synthetic {
+        lead_s: 2.0,
+        samples: 200,
+        answer_ticks: 1,
+        delay_ms: |_| 100.0,
+        probes,
+        missing: none,
+        probe_offset_s: 0.0,
+    };
+    let ramp: ProbeDelay = |direction, k| match direction {
+        "fwd" => Some(100.0 + 40.0 * k as f64),
+        _ => Some(100.0),
+    };
+    for (probes, ns) in [(Some((40, ramp)), 11), (None, 2)] {
+        recorded(probes).write(&rec);
+        for transport in ["tcp", "datagram"] {
+            let sim = replay_over(&rec, "paper-static", "hold", transport);
+            assert_eq!(
+                sim["initial_ns"].as_u64(),
+                Some(ns),
+                "{transport}, probes recorded: {}",
+                probes.is_some()
+            );
+        }
+    }
+    // The first probes never arrived (a datagram path not yet open): the
+    // replay's are lost too, and its round trips come from the later ones.
+    let late_start: ProbeDelay = |direction, k| match (direction, k) {
+        (_, 0..5) => None,
+        ("fwd", _) => Some(100.0 + 40.0 * k as f64),
+        _ => Some(100.0),
+    };
+    recorded(Some((40, late_start))).write(&rec);
+    let sim = replay_over(&rec, "paper-static", "hold", "datagram");
+    assert_eq!(sim["initial_ns"].as_u64(), Some(11));
+    // The first probes' delays recorded through a young clock offset
+    // estimate, 358 ms off both ways (as a stalled handshake's stamps
+    // leave it): the round trips they closed were what they were, and so
+    // is the queue.
+    Synthetic {
+        probe_offset_s: -0.358,
+        ..recorded(Some((40, ramp)))
+    }
+    .write(&rec);
+    for transport in ["tcp", "datagram"] {
+        let sim = replay_over(&rec, "paper-static", "hold", transport);
+        assert_eq!(sim["initial_ns"].as_u64(), Some(11), "{transport}");
+    }
+    let _ = std::fs::remove_file(&rec);
+}
+
+#[test]
+fn a_sample_never_released_is_lost_in_the_replay() {
+    let rec = temp("lost.mcap");
+    // Samples 100 to 129 each way were never released (an outage); the
+    // others came in 100 ms, 200 ms before their release. Replayed as a
+    // loss, the outage's datagrams never come: of the copies the first
+    // datagram after it carries, those of samples 127 to 129 come before
+    // their release (126's at its very release, 300 ms after its send:
+    // missed), and samples 100 to 126 each way are missed at their
+    // release, never late. Replayed as arriving with the sample after them
+    // (a made-up delay), they would come, and be late.
+    Synthetic {
+        lead_s: 1.0,
+        samples: 400,
+        answer_ticks: 1,
+        delay_ms: |_| 100.0,
+        probes: None,
+        missing: |k| (100..130).contains(&k),
+        probe_offset_s: 0.0,
+    }
+    .write(&rec);
+    let sim = replay_over(&rec, "constant:300", "drop-late", "datagram");
+    assert_eq!(sim["late_samples"].as_u64(), Some(0), "{sim}");
+    assert_eq!(sim["underflows"].as_u64(), Some(2 * 27), "{sim}");
     let _ = std::fs::remove_file(&rec);
 }

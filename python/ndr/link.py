@@ -417,6 +417,8 @@ class LinkStats(TypedDict):
     clamped: int
     grtt_unmeasured: int
     probes_received: int
+    probe_arrivals_dropped: int
+    """Probe arrivals kept for a recording that it did not take in time."""
     datagrams_received: int
     """Datagram transport: datagrams of this session taken."""
     samples_recovered: int

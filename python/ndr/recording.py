@@ -12,7 +12,7 @@ extra: ``pip install 'ndr[record]'``).
     positions = state["values"]["positions0"]
 
 Each topic (``/ndr/command``, ``/ndr/state``, ``/ndr/event``,
-``/ndr/stats``, ``/ndr/network``) maps to a dict of equal-length arrays: one
+``/ndr/stats``, ``/ndr/network``, ``/ndr/probe``) maps to a dict of equal-length arrays: one
 per message field (numbers as float64, a missing or null one as NaN; text
 as a numpy string array), ``log_time`` and ``publish_time`` (Unix seconds),
 and for the releases ``values``: one array per value, by name. A file whose
@@ -31,7 +31,14 @@ import numpy as np
 __all__ = ["TOPICS", "Recording", "read_recording"]
 
 #: The topics of a recording.
-TOPICS = ("/ndr/command", "/ndr/state", "/ndr/event", "/ndr/stats", "/ndr/network")
+TOPICS = (
+    "/ndr/command",
+    "/ndr/state",
+    "/ndr/event",
+    "/ndr/stats",
+    "/ndr/network",
+    "/ndr/probe",
+)
 
 
 class Recording(Dict[str, Dict[str, Any]]):

@@ -21,7 +21,14 @@ from mcap.stream_reader import StreamReader  # noqa: E402
 from mcap.records import Message  # noqa: E402
 
 LOOPBACK = ("127.0.0.1", 0)
-TOPICS = {"/ndr/command", "/ndr/state", "/ndr/event", "/ndr/stats", "/ndr/network"}
+TOPICS = {
+    "/ndr/command",
+    "/ndr/state",
+    "/ndr/event",
+    "/ndr/stats",
+    "/ndr/network",
+    "/ndr/probe",
+}
 ROOT = Path(__file__).resolve().parents[2]
 
 

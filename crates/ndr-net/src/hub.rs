@@ -85,7 +85,14 @@ pub(crate) type Handler = Box<dyn FnMut(&Sample) + Send>;
 
 /// What sees every event of a link on the hub's thread before the
 /// application does (a recorder's): it must only copy and hand off.
-pub(crate) type Tap = Box<dyn FnMut(&crate::delivery::LinkEvent) + Send>;
+pub(crate) type Tap = Box<dyn FnMut(Tapped<'_>) + Send>;
+
+/// What a [`Tap`] sees: the link's events, and its probes' arrivals
+/// (which the application never gets).
+pub(crate) enum Tapped<'a> {
+    Event(&'a crate::delivery::LinkEvent),
+    Probe(ndr_core::endpoint::ProbeArrival),
+}
 
 /// One link as the hub drives it.
 pub(crate) struct Entry {
@@ -239,6 +246,13 @@ impl Entry {
             read_topped: StdInstant::now(),
             throttled: false,
         }
+    }
+
+    /// Sets what sees its events first; a tap sees its probes' arrivals
+    /// too, kept by its endpoint from now on.
+    pub(crate) fn set_tap(&mut self, tap: Option<Tap>) {
+        self.endpoint.keep_probe_arrivals(tap.is_some());
+        self.tap = tap;
     }
 
     /// Takes `n` bytes read from its socket off what it may read before
@@ -902,7 +916,7 @@ impl Driver {
                 }
                 Ok(Msg::Tap(id, tap)) => {
                     if let Some(e) = self.entries.get_mut(&id) {
-                        e.tap = Some(tap);
+                        e.set_tap(Some(tap));
                     }
                 }
                 Err(mpsc::TryRecvError::Empty) => {
@@ -1315,12 +1329,17 @@ fn deliver(e: &mut Entry, ticked: bool, hub: HubFigures) -> bool {
     let mut delivered = false;
     let mut published = ticked;
     let mut panicked = false;
+    if let Some(tap) = e.tap.as_mut() {
+        while let Some(probe) = e.endpoint.poll_probe_arrival() {
+            tap(Tapped::Probe(probe));
+        }
+    }
     while let Some(event) = e.endpoint.poll_event() {
         if let Some(notes) = &e.notes {
             notes.note(&event, &e.endpoint);
         }
         if let Some(tap) = e.tap.as_mut() {
-            tap(&event);
+            tap(Tapped::Event(&event));
         }
         let d = match event {
             Event::Released(s) => {

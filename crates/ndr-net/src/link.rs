@@ -256,7 +256,7 @@ impl Link {
         let max_frame = HEADER_LEN + (8 * widths.1).max(applied);
         let mut entry = Entry::new(endpoint, Arc::clone(&shared), del_tx, path, max_frame);
         entry.handler = config.rejoin.handler();
-        entry.tap = config.rejoin.tap();
+        entry.set_tap(config.rejoin.tap());
         let sharing = notes.map(|(offered, notes)| {
             let key = notes.link();
             entry.notes = Some(notes);

@@ -4,10 +4,10 @@
 //! Foxglove, the `mcap` tools and `ndr sim --trace` open.
 //!
 //! A [`Recorder`] owns the file and a writer thread; [`Link::record`]
-//! attaches a link to it. On the link's hub thread, each event is copied
-//! into a bounded queue without waiting (a full queue drops the copy and
-//! counts it in [`RecordStats::dropped`]), so a recording never delays a
-//! release. The writer thread encodes the messages as JSON, ends an MCAP
+//! attaches a link to it. On the link's hub thread, each event and each
+//! probe's arrival is copied into a bounded queue without waiting (a full
+//! queue drops the copy and counts it in [`RecordStats::dropped`]), so a
+//! recording never delays a release. The writer thread encodes the messages as JSON, ends an MCAP
 //! chunk (indexed) at least once a second and writes it out, so that a
 //! process killed without warning leaves a file readable up to its last
 //! chunk; [`Recorder::finish`] writes the summary and the footer.
@@ -21,6 +21,7 @@
 //! | `/ndr/event` | link event (delay and round trip changes, link lost and restored, …) | when the hub emitted it | the same |
 //! | `/ndr/stats` | link, once a second | when read | the same |
 //! | `/ndr/network` | fresh sample's arrival, and sample never released | arrival (release for a missing one) | original send |
+//! | `/ndr/probe` | probe's arrival (the initialization pattern's frames, which size the queue) | arrival | original send |
 //!
 //! Times in messages are on the link's clock (`*_ns`, nanoseconds from its
 //! hub's origin; a send time on the sender's); MCAP's log and publish
@@ -42,15 +43,16 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration as StdDuration, SystemTime, UNIX_EPOCH};
 
-use ndr_core::endpoint::Event;
+use ndr_core::endpoint::{Event, ProbeArrival};
 use ndr_core::time::Instant;
 use ndr_core::wire::Role;
 
 use crate::delivery::{LinkEvent, Sample};
 use crate::error::NetError;
+use crate::hub::Tapped;
 use crate::link::{Link, LinkSender};
 
-pub use replay::{Crossing, MAX_RECORDING_BYTES, RecordedNetwork, read_network};
+pub use replay::{Crossing, MAX_RECORDING_BYTES, ProbeCrossing, RecordedNetwork, read_network};
 pub use schema::TOPICS;
 
 /// Messages the queue to the writer holds by default: seconds of a 1 kHz
@@ -189,6 +191,10 @@ pub(crate) enum Item {
         at: Instant,
         event: LinkEvent,
     },
+    Probe {
+        link: u32,
+        probe: ProbeArrival,
+    },
 }
 
 /// Counters shared by the taps, the writer and the recorder.
@@ -319,17 +325,18 @@ impl Recorder {
             },
         );
         let (tx, counters) = (self.tx.clone(), Arc::clone(&self.counters));
-        link.tap(Box::new(move |event: &LinkEvent| {
-            let item = match event {
-                Event::Released(release) => Item::Release {
+        link.tap(Box::new(move |tapped: Tapped<'_>| {
+            let item = match tapped {
+                Tapped::Event(Event::Released(release)) => Item::Release {
                     link: n,
                     release: release.clone(),
                 },
-                other => Item::Event {
+                Tapped::Event(other) => Item::Event {
                     link: n,
                     at: sender.now(),
                     event: other.clone(),
                 },
+                Tapped::Probe(probe) => Item::Probe { link: n, probe },
             };
             counters.offer(&tx, item);
         }))
@@ -347,7 +354,8 @@ impl Drop for Recorder {
 impl Link {
     /// Records this link into `recorder` from now on: its releases on
     /// `/ndr/command` (a remote's) or `/ndr/state` (a base's), its events,
-    /// its counters once a second and its arrivals (see [`Recorder`]).
+    /// its counters once a second, its samples' arrivals and its probes'
+    /// (see [`Recorder`]).
     /// Several links may share a recorder (a remote serving bases one
     /// after another, or both sides of a link in one process); each
     /// message names its link by number, in the order they were attached.

@@ -167,7 +167,7 @@ pub use profiles::{
 pub use replay::{OneWay, one_way_trace};
 pub use trace::{
     Column, MAX_TRACE_DELAY_MS, MAX_TRACE_FILE_BYTES, MAX_TRACE_ROWS, MAX_TRACE_TIME_S,
-    TRACE_HEADER, Trace, TraceError, TraceRow,
+    RecordedProbe, TRACE_HEADER, Trace, TraceError, TraceRow,
 };
 
 use ndr_core::time::{Duration, Instant};

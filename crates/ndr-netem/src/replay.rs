@@ -6,7 +6,7 @@ use std::vec::Vec;
 
 use ndr_core::time::{Duration, Instant};
 
-use super::{Trace, TraceError, TraceRow};
+use super::{Direction, Trace, TraceError, TraceRow};
 
 /// One sample's crossing: when it was sent (from the replay's origin) and
 /// its one-way delay, `None` if it never came in time (lost, or released
@@ -65,25 +65,44 @@ fn nearest(way: Vec<(Instant, Duration)>) -> Vec<(Instant, Duration)> {
         .collect()
 }
 
+/// The spans of `way` (in send order) in which a frame takes the delay of
+/// a sample that never came in time (`starts`: each sample's row start).
+fn losses(way: &[OneWay], starts: &[(Instant, Duration)]) -> Vec<(Instant, Instant)> {
+    let end = Instant::from_nanos(u64::MAX);
+    way.iter()
+        .zip(starts)
+        .enumerate()
+        .filter(|(_, (w, _))| w.delay.is_none())
+        .map(|(i, (_, &(from, _)))| (from, starts.get(i + 1).map_or(end, |s| s.0)))
+        .collect()
+}
+
 /// The trace that gives a frame sent at `t` the delay of the sample sent
 /// nearest to `t` in its direction: one row per sample, both directions
 /// on one time line. A direction with no sample takes the other's delays
-/// (a recording made on one side only measured its own).
+/// (a recording made on one side only measured its own). A frame nearest
+/// to a sample that never came in time takes, as a stream's frame, the
+/// delay in-order delivery gave it (no earlier than the next one); as a
+/// datagram, it is lost ([`Trace::lost`]).
 ///
 /// # Errors
 ///
 /// [`TraceError::NoRows`] when neither direction has a sample;
 /// [`TraceError::TooManyRows`] past [`MAX_TRACE_ROWS`](super::MAX_TRACE_ROWS).
 pub fn one_way_trace(forward: &[OneWay], backward: &[OneWay]) -> Result<Trace, TraceError> {
-    let (mut fwd, mut bwd) = (filled(forward), filled(backward));
-    fwd.sort_by_key(|r| r.0);
-    bwd.sort_by_key(|r| r.0);
-    let (mut fwd, mut bwd) = (nearest(fwd), nearest(bwd));
+    let mut forward = forward.to_vec();
+    let mut backward = backward.to_vec();
+    forward.sort_by_key(|w| w.sent);
+    backward.sort_by_key(|w| w.sent);
+    let (mut fwd, mut bwd) = (nearest(filled(&forward)), nearest(filled(&backward)));
+    let (mut fwd_lost, mut bwd_lost) = (losses(&forward, &fwd), losses(&backward, &bwd));
     if fwd.is_empty() {
         fwd.clone_from(&bwd);
+        fwd_lost.clone_from(&bwd_lost);
     }
     if bwd.is_empty() {
         bwd.clone_from(&fwd);
+        bwd_lost.clone_from(&fwd_lost);
     }
     let (Some(&(_, mut f)), Some(&(_, mut b))) = (fwd.first(), bwd.first()) else {
         return Err(TraceError::NoRows);
@@ -109,7 +128,9 @@ pub fn one_way_trace(forward: &[OneWay], backward: &[OneWay]) -> Result<Trace, T
         };
         rows.push(TraceRow { at, fwd: f, bwd: b });
     }
-    Trace::from_rows(rows)
+    Ok(Trace::from_rows(rows)?
+        .with_losses(Direction::Forward, fwd_lost)
+        .with_losses(Direction::Backward, bwd_lost))
 }
 
 #[cfg(test)]
@@ -182,5 +203,49 @@ mod tests {
         assert_eq!(t.delay(Forward, at(30)), ms(50));
         assert_eq!(t.delay(Backward, at(20)), ms(50));
         assert_eq!(one_way_trace(&[], &[]), Err(TraceError::NoRows));
+    }
+
+    #[test]
+    fn a_sample_never_released_is_a_loss_for_the_frames_nearest_it() {
+        let at_ms = |v: u64, d: Option<u64>| OneWay {
+            sent: at(v),
+            delay: d.map(ms),
+        };
+        let fwd = [at_ms(0, Some(10)), at_ms(100, None), at_ms(200, Some(10))];
+        let t = one_way_trace(&fwd, &[]).unwrap();
+        use crate::Direction::{Backward, Forward};
+        // The frames nearest the missing sample: from halfway before it to
+        // halfway after it.
+        for (sent, lost) in [
+            (0, false),
+            (49, false),
+            (50, true),
+            (149, true),
+            (150, false),
+        ] {
+            assert_eq!(t.lost(Forward, at(sent)), lost, "{sent} ms");
+            assert_eq!(t.lost(Backward, at(sent)), lost, "{sent} ms, mirrored");
+        }
+    }
+
+    #[test]
+    fn a_probe_is_found_by_its_number_and_one_below_the_last_recorded_was_lost() {
+        use crate::Direction::{Backward, Forward};
+        use crate::RecordedProbe::{Delayed, Lost, Unrecorded};
+        let t = one_way_trace(
+            &[OneWay {
+                sent: at(0),
+                delay: Some(ms(10)),
+            }],
+            &[],
+        )
+        .unwrap()
+        .with_probes(Forward, vec![(7, ms(40)), (5, ms(30)), (5, ms(99))]);
+        assert_eq!(t.probe(Forward, 5), Delayed(ms(30)));
+        assert_eq!(t.probe(Forward, 7), Delayed(ms(40)));
+        assert_eq!(t.probe(Forward, 6), Lost);
+        assert_eq!(t.probe(Forward, 0), Lost);
+        assert_eq!(t.probe(Forward, 8), Unrecorded);
+        assert_eq!(t.probe(Backward, 5), Unrecorded);
     }
 }

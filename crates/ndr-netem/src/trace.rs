@@ -50,6 +50,25 @@ pub struct Trace {
     rows: Vec<TraceRow>,
     /// A replayed recording's: when its link sent its first command.
     anchor: Option<Instant>,
+    /// A replayed recording's probes, each way: their sequence numbers
+    /// (ascending) and delays.
+    probes: [Vec<(u64, Duration)>; 2],
+    /// A replayed recording's samples never released, each way: the spans
+    /// (ascending, disjoint) in which a datagram sent is lost.
+    lost: [Vec<(Instant, Instant)>; 2],
+}
+
+/// What a replayed recording says of a probe ([`Trace::probe`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordedProbe {
+    /// It arrived after this delay.
+    Delayed(Duration),
+    /// It never arrived (or never went out: a datagram before its path
+    /// was open): numbered below the last one that arrived.
+    Lost,
+    /// The recording does not say: numbered past its probes (the replay's
+    /// set-up runs longer than the recorded one), or it holds none.
+    Unrecorded,
 }
 
 /// Which column of a trace row.
@@ -303,7 +322,63 @@ impl Trace {
         if rows.is_empty() {
             return Err(TraceError::NoRows);
         }
-        Ok(Trace { rows, anchor: None })
+        Ok(Trace::of(rows))
+    }
+
+    fn of(rows: Vec<TraceRow>) -> Trace {
+        Trace {
+            rows,
+            anchor: None,
+            probes: [Vec::new(), Vec::new()],
+            lost: [Vec::new(), Vec::new()],
+        }
+    }
+
+    /// This trace with a recorded link's probes in direction `dir`: their
+    /// sequence numbers and the delays they met (a number given twice
+    /// keeps its first delay). A simulator replaying it gives each of its
+    /// own probes the delay of the recorded one of that number, so that
+    /// its initialization pattern measures the round trips the recorded
+    /// one did, and sizes its queue as that one did.
+    #[must_use]
+    pub fn with_probes(mut self, dir: Direction, mut probes: Vec<(u64, Duration)>) -> Self {
+        // Stable: the first of a number stays first.
+        probes.sort_by_key(|p| p.0);
+        probes.dedup_by_key(|p| p.0);
+        self.probes[dir.index()] = probes;
+        self
+    }
+
+    /// What the recording says of the probe numbered `seq` in direction
+    /// `dir` ([`Trace::with_probes`]).
+    #[must_use]
+    pub fn probe(&self, dir: Direction, seq: u64) -> RecordedProbe {
+        let probes = &self.probes[dir.index()];
+        match probes.binary_search_by_key(&seq, |p| p.0) {
+            Ok(i) => RecordedProbe::Delayed(probes[i].1),
+            Err(i) if i < probes.len() => RecordedProbe::Lost,
+            Err(_) => RecordedProbe::Unrecorded,
+        }
+    }
+
+    /// This trace with the spans, in direction `dir`, in which a datagram
+    /// sent is lost: a recorded sample that was never released, replayed
+    /// as a loss rather than as a delay.
+    #[must_use]
+    pub fn with_losses(mut self, dir: Direction, mut spans: Vec<(Instant, Instant)>) -> Self {
+        spans.retain(|s| s.0 < s.1);
+        spans.sort_by_key(|s| s.0);
+        self.lost[dir.index()] = spans;
+        self
+    }
+
+    /// Whether a datagram sent at `sent_at` in direction `dir` is lost
+    /// ([`Trace::with_losses`]).
+    #[must_use]
+    pub fn lost(&self, dir: Direction, sent_at: Instant) -> bool {
+        let spans = &self.lost[dir.index()];
+        let after = spans.partition_point(|s| s.0 <= sent_at);
+        after > 0 && sent_at < spans[after - 1].1
     }
 
     /// This trace, its time line tied to a link's: `at` is when the
@@ -369,7 +444,7 @@ impl Trace {
                 previous_s: rows[i].at.as_secs_f64(),
             });
         }
-        Ok(Trace { rows, anchor: None })
+        Ok(Trace::of(rows))
     }
 
     /// The rows, in time order.

@@ -4,6 +4,7 @@
 use std::boxed::Box;
 use std::collections::VecDeque;
 use std::fmt;
+use std::sync::Arc;
 use std::vec::Vec;
 
 use ndr_core::Regulation;
@@ -18,7 +19,8 @@ use ndr_core::wire::{Frame, Kind, Payload, Role};
 use ndr_core::{ArxError, Tf2, Tf2State};
 
 use super::delay::{
-    DelayModel, DelaySampler, Direction, InOrderPath, LossModel, LossSampler, Recovery, TcpPath,
+    DelayModel, DelaySampler, Direction, InOrderPath, LossModel, LossSampler, RecordedProbe,
+    Recovery, TcpPath, Trace,
 };
 use super::report::{Collector, Report, Row};
 use super::signal::Signal;
@@ -313,6 +315,8 @@ pub(crate) struct Network {
     first_command: Option<Instant>,
     /// An anchored trace's length from its anchor to its last row.
     replay_len: Duration,
+    /// A replayed recording: its probes' delays and its samples' losses.
+    replay: Option<Arc<Trace>>,
 }
 
 impl Network {
@@ -335,6 +339,10 @@ impl Network {
                     .and_then(|a| (Instant::ZERO + t.duration()).checked_duration_since(a))
                     .unwrap_or(Duration::ZERO),
                 _ => Duration::ZERO,
+            },
+            replay: match &cfg.model {
+                DelayModel::Trace(t) if t.anchor().is_some() => Some(Arc::clone(t)),
+                _ => None,
             },
         }
     }
@@ -383,11 +391,20 @@ impl Network {
         model_time: Instant,
         datagram: bool,
     ) -> Option<Instant> {
-        let (dir, direction) = match from {
-            Role::Base => (0, Direction::Forward),
-            Role::Remote => (1, Direction::Backward),
-        };
-        let delay = self.sampler.delay(direction, model_time);
+        let delay = self.sampler.delay(direction_of(from), model_time);
+        self.deliver_after(from, sent, delay, datagram)
+    }
+
+    /// [`Network::deliver`], after `delay`.
+    fn deliver_after(
+        &mut self,
+        from: Role,
+        sent: Instant,
+        delay: Duration,
+        datagram: bool,
+    ) -> Option<Instant> {
+        let direction = direction_of(from);
+        let dir = direction.index();
         // A datagram: lost for good, or through the path's queues, which
         // keep their order (the delay models' jitter is queueing, not
         // reordering; a lost datagram holds nothing back).
@@ -411,6 +428,24 @@ impl Network {
     pub(crate) fn arrival(&mut self, from: Role, sent: Instant, frame: &[u8]) -> Option<Instant> {
         let datagram = frame.get(5) == Some(&(Kind::Bundle as u8));
         let model_time = self.model_time(from, sent, frame);
+        if let Some(replay) = &self.replay {
+            let direction = direction_of(from);
+            // A probe meets the delay of the recorded probe of its number
+            // (the recorded set-up's round trips size the queue); the
+            // other frames, the delay of the recorded sample sent nearest.
+            match probe_seq(frame).map(|seq| replay.probe(direction, seq)) {
+                Some(RecordedProbe::Delayed(delay)) => {
+                    return self.deliver_after(from, sent, delay, datagram);
+                }
+                Some(RecordedProbe::Lost) if datagram => return None,
+                _ => {}
+            }
+            // A sample the recorded link never released: lost (a stream's
+            // frame meets the delay in-order delivery gave it).
+            if datagram && replay.lost(direction, model_time) {
+                return None;
+            }
+        }
         self.deliver_at(from, sent, model_time, datagram)
     }
 
@@ -432,6 +467,24 @@ impl Network {
 }
 
 /// Whether `frame` carries a sample (not a probe or a control frame).
+fn direction_of(from: Role) -> Direction {
+    match from {
+        Role::Base => Direction::Forward,
+        Role::Remote => Direction::Backward,
+    }
+}
+
+/// A probe's sequence number (a Data frame or datagram without values).
+fn probe_seq(frame: &[u8]) -> Option<u64> {
+    let f = Frame::new_checked(frame).ok()?;
+    let probe = match f.payload() {
+        Payload::Data(channels) => channels.is_empty(),
+        Payload::Bundle(b) => b.width() == 0,
+        _ => false,
+    };
+    probe.then(|| f.seq())
+}
+
 fn carries_sample(frame: &[u8]) -> bool {
     Frame::new_checked(frame).is_ok_and(|f| match f.payload() {
         Payload::Data(channels) => !channels.is_empty(),

@@ -36,6 +36,7 @@ mod config;
 mod datagram;
 mod error;
 mod event;
+mod probes;
 mod receive;
 mod regime;
 mod release;
@@ -53,6 +54,7 @@ pub use config::{
 pub use datagram::{DatagramError, Origin, RenewError, Taken};
 pub use error::LinkError;
 pub use event::{Event, Release, Status};
+pub use probes::ProbeArrival;
 pub use stats::{Running, Stats};
 
 use crate::playout::{Policy, Room, Setup};
@@ -190,6 +192,8 @@ pub struct Endpoint<S: Storage> {
     dgram: Option<datagram::Datagrams<S::Values>>,
     events: Deque<Event<S::Values>, EVENT_QUEUE>,
     events_dropped: u64,
+    /// Probe arrivals kept for the driver, if it asked.
+    probes: probes::ProbeLog,
     stats: Stats,
 }
 
@@ -282,6 +286,7 @@ impl<S: Storage> Endpoint<S> {
             dgram,
             events: Deque::new(),
             events_dropped: 0,
+            probes: probes::ProbeLog::default(),
             stats: Stats::default(),
             config,
         };

@@ -148,10 +148,14 @@ impl<S: Storage> Endpoint<S> {
         }
         if channels.is_empty() {
             self.stats.probes_received += 1;
-            return match self.phase {
-                Phase::Handshake => Err(self.unexpected(Kind::Data)),
-                _ => Ok(()),
-            };
+            if self.phase == Phase::Handshake {
+                return Err(self.unexpected(Kind::Data));
+            }
+            // Its own frame's: a copy's arrival says nothing of its delay.
+            if stalled.is_some() {
+                self.log_probe(head.seq, sent_at, now);
+            }
+            return Ok(());
         }
         let width = self.config.received_width();
         let mismatch = LinkError::ChannelCount {

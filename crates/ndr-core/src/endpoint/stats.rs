@@ -126,6 +126,10 @@ pub struct Stats {
     pub skipped: u64,
     /// Probe frames (Data without channels) of the initialization pattern received.
     pub probes_received: u64,
+    /// Probe arrivals kept for the driver
+    /// ([`Endpoint::keep_probe_arrivals`](super::Endpoint::keep_probe_arrivals))
+    /// that it did not take in time.
+    pub probe_arrivals_dropped: u64,
     /// Pauses of the dynamic mode.
     pub pauses: u64,
     /// Parameter changes (starts after a pause).

@@ -53,6 +53,27 @@ pub(super) struct NetworkMsg {
     pub missing: bool,
 }
 
+/// A probe's arrival on `/ndr/probe`: the initialization pattern's
+/// frames, whose round trips size the queue.
+#[derive(Serialize)]
+pub(super) struct ProbeMsg {
+    pub link: u32,
+    /// `fwd` (base → remote, seen by a remote) or `bwd` (remote → base,
+    /// seen by a base).
+    pub direction: &'static str,
+    pub seq: u64,
+    /// On the sender's clock.
+    pub sent_ns: u64,
+    /// On this side's clock.
+    pub arrived_ns: u64,
+    /// Arrival − send, on the two clocks as they are.
+    pub raw_s: f64,
+    /// `raw_s` − the clock offset estimate: the one-way delay.
+    pub one_way_s: f64,
+    /// The clock offset estimate (this side − sender) used.
+    pub clock_offset_s: f64,
+}
+
 /// A link event on `/ndr/event`.
 #[derive(Serialize, Default)]
 pub(super) struct EventMsg {

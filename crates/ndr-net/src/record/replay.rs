@@ -1,5 +1,5 @@
-//! Reading back what a recording measured of the network (`/ndr/network`),
-//! for the simulator to replay it.
+//! Reading back what a recording measured of the network (`/ndr/network`,
+//! `/ndr/probe`), for the simulator to replay it.
 
 use std::path::Path;
 
@@ -23,6 +23,19 @@ pub struct Crossing {
     pub one_way_s: Option<f64>,
 }
 
+/// One probe's crossing of the network (`/ndr/probe`): the frames of the
+/// initialization pattern, whose round trips sized the queue.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct ProbeCrossing {
+    /// Its sequence number, in its sender's count of Data frames.
+    pub seq: u64,
+    /// When it was sent, Unix nanoseconds (as [`Crossing::sent_unix_ns`]).
+    pub sent_unix_ns: u64,
+    /// Its one-way delay, seconds.
+    pub one_way_s: f64,
+}
+
 /// What a recording measured of the network, each way, in send order.
 #[derive(Clone, Debug, Default, PartialEq)]
 #[non_exhaustive]
@@ -31,6 +44,13 @@ pub struct RecordedNetwork {
     pub forward: Vec<Crossing>,
     /// Remote → base: the states' arrivals at the base.
     pub backward: Vec<Crossing>,
+    /// Base → remote: the probes that arrived at the remote before its
+    /// first command (a link's set-up), by sequence number. Empty for a
+    /// recording without `/ndr/probe`.
+    pub forward_probes: Vec<ProbeCrossing>,
+    /// Remote → base: the probes that arrived at the base before its
+    /// first state, likewise.
+    pub backward_probes: Vec<ProbeCrossing>,
     /// When the recording of the link began (its first `attached`
     /// event), Unix nanoseconds: just after the handshake, before the
     /// initialization pattern and the first sample.
@@ -65,9 +85,18 @@ struct Release {
 }
 
 #[derive(Deserialize)]
+struct Probe {
+    direction: String,
+    seq: u64,
+    one_way_s: f64,
+    raw_s: Option<f64>,
+}
+
+#[derive(Deserialize)]
 struct Arrival {
     direction: String,
     one_way_s: Option<f64>,
+    clock_offset_s: Option<f64>,
     missing: bool,
 }
 
@@ -97,6 +126,11 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
     let stream = MessageStream::new_with_options(&bytes, Options::IgnoreEndMagic.into())
         .map_err(|e| error(format!("not an MCAP recording: {e}")))?;
     let mut net = RecordedNetwork::default();
+    // The probes each way with their raw delays (arrival − send, on the
+    // two clocks as they are); each way's first sample's send time and
+    // clock offset estimate.
+    let mut probes: [Vec<(ProbeCrossing, Option<f64>)>; 2] = [Vec::new(), Vec::new()];
+    let mut offsets: [Option<(u64, f64)>; 2] = [None, None];
     // Fresh commands' releases by their send time; states' (send, answered
     // command's send time).
     let mut commands = std::collections::HashMap::new();
@@ -132,6 +166,21 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
                 states.push((r.sent_ns, answers));
             }
         }
+        if m.channel.topic == "/ndr/probe" {
+            let p: Probe = serde_json::from_slice(&m.data)
+                .map_err(|e| error(format!("a /ndr/probe message is not a probe: {e}")))?;
+            let probe = ProbeCrossing {
+                seq: p.seq,
+                sent_unix_ns: m.publish_time,
+                one_way_s: p.one_way_s,
+            };
+            match p.direction.as_str() {
+                "fwd" => probes[0].push((probe, p.raw_s)),
+                "bwd" => probes[1].push((probe, p.raw_s)),
+                other => return Err(error(format!("a probe's direction is {other:?}"))),
+            }
+            continue;
+        }
         if m.channel.topic != "/ndr/network" {
             continue;
         }
@@ -141,6 +190,17 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
             sent_unix_ns: m.publish_time,
             one_way_s: if a.missing { None } else { a.one_way_s },
         };
+        if !a.missing
+            && let Some(offset) = a.clock_offset_s
+        {
+            let first = match a.direction.as_str() {
+                "fwd" => &mut offsets[0],
+                _ => &mut offsets[1],
+            };
+            if first.is_none_or(|(sent, _)| m.publish_time < sent) {
+                *first = Some((m.publish_time, offset));
+            }
+        }
         match a.direction.as_str() {
             "fwd" => net.forward.push(crossing),
             "bwd" => net.backward.push(crossing),
@@ -157,10 +217,44 @@ pub fn read_network(path: impl AsRef<Path>) -> Result<RecordedNetwork, RecordErr
     for way in [&mut net.forward, &mut net.backward] {
         way.sort_by_key(|c| c.sent_unix_ns);
     }
+    // The clock offset estimate is young during the set-up (its first
+    // stamps can be a stalled handshake's): each probe's delay is its raw
+    // one less the estimate its way's first sample was given, so that
+    // the set-up's round trips are what the link measured.
+    let [fwd, bwd] = probes;
+    net.forward_probes = rebased(fwd, offsets[0]);
+    net.backward_probes = rebased(bwd, offsets[1]);
+    // A link's set-up: the probes before its first sample that way (a
+    // later session's, or a dynamic pause's, come after it).
+    for (probes, way) in [
+        (&mut net.forward_probes, &net.forward),
+        (&mut net.backward_probes, &net.backward),
+    ] {
+        if let Some(first) = way.first() {
+            probes.retain(|p| p.sent_unix_ns < first.sent_unix_ns);
+        }
+    }
     if net.forward.is_empty() && net.backward.is_empty() {
         return Err(error(
             "no arrival on /ndr/network: record a link that released samples".into(),
         ));
     }
     Ok(net)
+}
+
+/// The probes, each one's delay its raw one less `offset` (the estimate
+/// its way's first sample was given) when both are known.
+fn rebased(
+    probes: Vec<(ProbeCrossing, Option<f64>)>,
+    offset: Option<(u64, f64)>,
+) -> Vec<ProbeCrossing> {
+    probes
+        .into_iter()
+        .map(|(mut p, raw)| {
+            if let (Some(raw), Some((_, offset))) = (raw, offset) {
+                p.one_way_s = raw - offset;
+            }
+            p
+        })
+        .collect()
 }

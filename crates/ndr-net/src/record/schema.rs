@@ -2,22 +2,24 @@
 //! that Foxglove and other tools know every field to plot.
 
 /// The recording's topics, in the order their channels are written.
-pub const TOPICS: [&str; 5] = [
+pub const TOPICS: [&str; 6] = [
     "/ndr/command",
     "/ndr/state",
     "/ndr/event",
     "/ndr/stats",
     "/ndr/network",
+    "/ndr/probe",
 ];
 
 /// Each topic's schema name and schema.
-pub(super) fn schemas() -> [(&'static str, String); 5] {
+pub(super) fn schemas() -> [(&'static str, String); 6] {
     [
         ("ndr.Release", release("a command released by the remote")),
         ("ndr.Release", release("a state released by the base")),
         ("ndr.Event", EVENT.to_owned()),
         ("ndr.Stats", stats()),
         ("ndr.Arrival", ARRIVAL.to_owned()),
+        ("ndr.Probe", PROBE.to_owned()),
     ]
 }
 
@@ -66,6 +68,17 @@ const ARRIVAL: &str = r#"{"$schema":"https://json-schema.org/draft/2020-12/schem
 "clock_offset_s":{"type":"number","description":"the clock offset estimate, this side - sender"},
 "missing":{"type":"boolean","description":"never released: lost, or came after its release time"}
 },"required":["link","direction","seq","sent_ns","missing"]}"#;
+
+const PROBE: &str = r#"{"$schema":"https://json-schema.org/draft/2020-12/schema","title":"ndr.Probe","description":"A probe's arrival (log time) and its send (publish time): the initialization pattern's frames, whose round trips size the queue","type":"object","properties":{
+"link":{"type":"integer"},
+"direction":{"type":"string","enum":["fwd","bwd"],"description":"fwd: base to remote; bwd: remote to base"},
+"seq":{"type":"integer","description":"the probe's sequence number (probes and samples share the count)"},
+"sent_ns":{"type":"integer","description":"ns on the sender's clock"},
+"arrived_ns":{"type":"integer","description":"ns on this side's clock"},
+"raw_s":{"type":"number","description":"arrival - send, the two clocks as they are"},
+"one_way_s":{"type":"number","description":"the one-way delay: raw_s - clock_offset_s"},
+"clock_offset_s":{"type":"number","description":"the clock offset estimate, this side - sender"}
+},"required":["link","direction","seq","sent_ns","arrived_ns","one_way_s"]}"#;
 
 fn stats() -> String {
     const FIELDS: [(&str, &str); 32] = [

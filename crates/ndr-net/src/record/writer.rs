@@ -11,13 +11,13 @@ use std::sync::mpsc::Receiver;
 use std::time::{Duration as StdDuration, Instant as StdInstant};
 
 use mcap::records::MessageHeader;
-use ndr_core::endpoint::{Event, Status};
+use ndr_core::endpoint::{Event, ProbeArrival, Status};
 use ndr_core::time::Instant;
 use ndr_core::wire::Role;
 use serde::Serialize;
 use serde_json::{Map, Value};
 
-use super::message::{EventMsg, NetworkMsg, ReleaseMsg, StatsMsg};
+use super::message::{EventMsg, NetworkMsg, ProbeMsg, ReleaseMsg, StatsMsg};
 use super::schema::{TOPICS, schemas};
 use super::{Counters, Item, RecordConfig, RecordError};
 use crate::delivery::{LinkEvent, Sample};
@@ -37,6 +37,7 @@ enum Topic {
     Event = 2,
     Stats = 3,
     Network = 4,
+    Probe = 5,
 }
 
 struct LinkState {
@@ -89,7 +90,7 @@ pub(super) struct Writer {
     /// `None` once finished.
     out: Option<mcap::Writer<BufWriter<File>>>,
     path: PathBuf,
-    channels: [u16; 5],
+    channels: [u16; 6],
     config: RecordConfig,
     counters: Arc<Counters>,
     links: HashMap<u32, LinkState>,
@@ -116,7 +117,7 @@ impl Writer {
             .profile("")
             .chunk_size(Some(mcap::WriteOptions::DEFAULT_CHUNK_SIZE));
         let mut out = options.create(BufWriter::new(file)).map_err(&error)?;
-        let mut channels = [0; 5];
+        let mut channels = [0; 6];
         for ((name, schema), (topic, id)) in schemas()
             .into_iter()
             .zip(TOPICS.iter().zip(channels.iter_mut()))
@@ -227,7 +228,33 @@ impl Writer {
             }
             Item::Release { link, release } => self.release(link, &release),
             Item::Event { link, at, event } => self.event(link, at, &event),
+            Item::Probe { link, probe } => self.probe(link, &probe),
         }
+    }
+
+    fn probe(&mut self, link: u32, p: &ProbeArrival) -> Result<(), RecordError> {
+        let Some(l) = self.links.get(&link) else {
+            return Ok(());
+        };
+        let direction = match l.role {
+            Role::Base => "bwd",
+            _ => "fwd",
+        };
+        let offset_s = l.clock.0;
+        let (sent, arrived) = (p.sent_at.as_nanos(), p.arrived_at.as_nanos());
+        let raw = secs_between(sent, arrived);
+        let (log, publish) = (l.unix(arrived), l.unix_of_peer(sent, offset_s));
+        let msg = ProbeMsg {
+            link,
+            direction,
+            seq: p.seq,
+            sent_ns: sent,
+            arrived_ns: arrived,
+            raw_s: raw,
+            one_way_s: raw - offset_s,
+            clock_offset_s: offset_s,
+        };
+        self.write(Topic::Probe, log, publish, &msg)
     }
 
     fn release(&mut self, link: u32, r: &Sample) -> Result<(), RecordError> {

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use ndr::core::time::{Duration, Instant};
 use ndr::sim::Answer;
-use ndr::sim::delay::{DelayModel, DistTable, OneWay, Trace, one_way_trace};
+use ndr::sim::delay::{DelayModel, Direction, DistTable, OneWay, Trace, one_way_trace};
 
 use super::time::millis;
 
@@ -119,8 +119,26 @@ pub fn trace(path: &Path) -> Result<Trace, String> {
             })
             .collect()
     };
+    // The set-up's probes, by number: the simulated link's probes meet
+    // their delays, so that its initialization pattern measures the
+    // recorded round trips and sizes its queue as the recorded one did.
+    let probes = |probes: &[ndr::net::record::ProbeCrossing]| -> Vec<(u64, Duration)> {
+        probes
+            .iter()
+            .map(|p| (p.seq, Duration::from_secs_f64(p.one_way_s.max(0.0))))
+            .collect()
+    };
+    // A recording of one side measured its own way: both take it.
+    let (fwd, bwd) = match (&net.forward_probes[..], &net.backward_probes[..]) {
+        ([], one) | (one, []) => (probes(one), probes(one)),
+        (fwd, bwd) => (probes(fwd), probes(bwd)),
+    };
     one_way_trace(&way(&net.forward), &way(&net.backward))
-        .map(|t| t.with_anchor(anchor))
+        .map(|t| {
+            t.with_anchor(anchor)
+                .with_probes(Direction::Forward, fwd)
+                .with_probes(Direction::Backward, bwd)
+        })
         .map_err(|e| with_path(path, &e))
 }
 
