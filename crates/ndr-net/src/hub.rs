@@ -693,7 +693,7 @@ impl Driver {
             let now = StdInstant::now();
             if self.readers_woken != Some(d) && now + READER_LEAD >= d {
                 self.readers_woken = Some(d);
-                self.wake_readers_ahead(now, d);
+                self.wake_readers_ahead(d);
             }
             // Serve what woke us while a service fits before the spin should
             // start (the tick serves the rest as it fits): a burst of frames
@@ -1069,7 +1069,7 @@ impl Driver {
             }
             if self.readers_woken != Some(d) && now + READER_LEAD >= d {
                 self.readers_woken = Some(d);
-                self.wake_readers_ahead(now, d);
+                self.wake_readers_ahead(d);
                 continue;
             }
             if let Some(&r) = self.backlog.front() {
@@ -1163,15 +1163,11 @@ impl Driver {
     /// Wakes the application threads blocked in `recv` on the links whose
     /// endpoints are due at `d`, to spin for their releases; only while
     /// the wake-ups fit before `d`, so the releases are never later.
-    fn wake_readers_ahead(&mut self, now: StdInstant, d: StdInstant) {
-        if !self.waking.fits(now, d) {
-            return;
-        }
+    fn wake_readers_ahead(&mut self, d: StdInstant) {
         let at = Instant::from_std(self.origin, d);
-        let start = StdInstant::now();
-        let mut woke = false;
         for &(_, id) in self.timers.iter().take_while(|&&(t, _)| t <= at) {
-            if woke && !self.waking.fits(StdInstant::now(), d) {
+            let start = StdInstant::now();
+            if !self.waking.fits(start, d) {
                 break;
             }
             let Some(e) = self.entries.get(&id) else {
@@ -1179,12 +1175,12 @@ impl Driver {
             };
             // A link with a handler has no reader; a QUIC timer alone
             // releases nothing.
-            if e.handler.is_none() && e.endpoint.poll_timeout().is_some_and(|t| t <= at) {
-                woke |= e.deliveries.wake_ahead(d, READER_SPIN_PAST);
+            if e.handler.is_none()
+                && e.endpoint.poll_timeout().is_some_and(|t| t <= at)
+                && e.deliveries.wake_ahead(d, READER_SPIN_PAST)
+            {
+                self.waking.record(start.elapsed(), self.spin.max().into());
             }
-        }
-        if woke {
-            self.waking.record(start.elapsed(), self.spin.max().into());
         }
     }
 
