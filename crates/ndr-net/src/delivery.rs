@@ -8,11 +8,19 @@
 //! with a counter that bounds it. The hub wakes a blocked reader only when
 //! there is one: a condition variable's notify is a syscall even when
 //! nobody waits, and the hub delivers to every link at every tick.
+//!
+//! Releases come at deadlines the hub knows. A reader blocked when its
+//! hub wakes for one (a spin margin early) is woken then
+//! ([`Outbox::wake_ahead`]) and spins on a counter until the release is
+//! queued, so the release reaches it without a kernel wake-up at that
+//! instant; the spin ends a bounded while past the deadline, and the
+//! reader then blocks again as before.
 
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{RecvError, RecvTimeoutError, TryRecvError};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use ndr_core::endpoint::{Event, Release};
 
@@ -37,12 +45,20 @@ struct State {
     receiver_gone: bool,
     /// Readers blocked on the condition variable.
     blocked: usize,
+    /// Set by [`Outbox::wake_ahead`]: the reader it woke spins until a
+    /// delivery or this instant, whichever comes first.
+    spin_until: Option<Instant>,
 }
 
 struct Queue {
     state: Mutex<State>,
     ready: Condvar,
     capacity: usize,
+    /// Bumped after each delivery queued and when the hub's end goes: a
+    /// spinning reader watches it without taking the lock the hub needs.
+    changes: AtomicU64,
+    /// A reader spins now: a delivery reaches it without a syscall.
+    spinning: AtomicBool,
 }
 
 impl Queue {
@@ -60,9 +76,12 @@ pub(crate) fn queue(capacity: usize) -> (Outbox, Inbox) {
             sender_gone: false,
             receiver_gone: false,
             blocked: 0,
+            spin_until: None,
         }),
         ready: Condvar::new(),
         capacity: capacity.max(1),
+        changes: AtomicU64::new(0),
+        spinning: AtomicBool::new(false),
     });
     (Outbox { q: Arc::clone(&q) }, Inbox { q })
 }
@@ -94,10 +113,31 @@ impl Outbox {
         s.waiting.push_back(d);
         let wake = s.blocked > 0;
         drop(s);
+        self.q.changes.fetch_add(1, Ordering::Release);
         if wake {
             self.q.ready.notify_one();
         }
         Ok(())
+    }
+
+    /// Whether the reader spins now, so that queueing a delivery costs no
+    /// wake-up.
+    pub(crate) fn reader_spinning(&self) -> bool {
+        self.q.spinning.load(Ordering::Acquire)
+    }
+
+    /// A delivery is due at `deadline`: wakes a reader blocked now, which
+    /// then spins until something is queued or `spin` past the deadline.
+    /// `true` if a reader was woken (a syscall).
+    pub(crate) fn wake_ahead(&self, deadline: Instant, spin: Duration) -> bool {
+        let mut s = self.q.lock();
+        if s.blocked == 0 || s.spin_until.is_some() {
+            return false;
+        }
+        s.spin_until = Some(deadline + spin);
+        drop(s);
+        self.q.ready.notify_one();
+        true
     }
 }
 
@@ -107,6 +147,7 @@ impl Drop for Outbox {
         s.sender_gone = true;
         let wake = s.blocked > 0;
         drop(s);
+        self.q.changes.fetch_add(1, Ordering::Release);
         if wake {
             self.q.ready.notify_all();
         }
@@ -166,7 +207,31 @@ impl Inbox {
                 }
             };
             s.blocked -= 1;
+            if let Some(until) = s.spin_until.take()
+                && s.waiting.is_empty()
+            {
+                let until = end.map_or(until, |end| end.min(until));
+                let seen = self.q.changes.load(Ordering::Acquire);
+                drop(s);
+                self.q.spinning.store(true, Ordering::Release);
+                spin(&self.q.changes, seen, until);
+                self.q.spinning.store(false, Ordering::Release);
+                s = self.q.lock();
+            }
         }
+    }
+}
+
+/// Spins until `changes` moves past `seen` or `until` has passed.
+fn spin(changes: &AtomicU64, seen: u64, until: Instant) {
+    let mut n = 0u32;
+    while changes.load(Ordering::Acquire) == seen {
+        n = n.wrapping_add(1);
+        // A clock read costs tens of nanoseconds: one every few dozen turns.
+        if n.is_multiple_of(32) && Instant::now() >= until {
+            return;
+        }
+        std::hint::spin_loop();
     }
 }
 
@@ -229,6 +294,54 @@ mod tests {
         std::thread::sleep(std::time::Duration::from_millis(20));
         drop(out);
         assert_eq!(reader.join().unwrap(), (true, true));
+    }
+
+    /// Waits (at most 10 s) until the queue's state is as `wanted` says.
+    fn until(q: &Arc<Queue>, wanted: impl Fn(&State) -> bool) {
+        let end = Instant::now() + Duration::from_secs(10);
+        while !wanted(&q.lock()) {
+            assert!(Instant::now() < end, "the reader never got there");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// Waits until the reader is blocked on the condition variable (`true`)
+    /// or not (`false`).
+    fn until_blocked(q: &Arc<Queue>, blocked: bool) {
+        until(q, |s| (s.blocked > 0) == blocked);
+    }
+
+    #[test]
+    fn a_reader_woken_ahead_takes_the_delivery_without_a_wake_up() {
+        let (out, inbox) = queue(4);
+        let q = Arc::clone(&out.q);
+        let reader = std::thread::spawn(move || inbox.recv_timeout(Duration::from_secs(60)));
+        until_blocked(&q, true);
+        // Nobody is woken for nothing: only a reader blocked now.
+        let (empty_out, _empty_inbox) = queue(4);
+        assert!(!empty_out.wake_ahead(Instant::now(), Duration::from_secs(1)));
+        assert!(out.wake_ahead(Instant::now() + Duration::from_secs(30), Duration::ZERO));
+        // Woken, it spins instead of blocking again: the delivery finds
+        // no reader to notify, and reaches it anyway.
+        until_blocked(&q, false);
+        until(&q, |_| out.reader_spinning());
+        assert!(out.try_send(event()).is_ok());
+        assert!(reader.join().unwrap().is_ok());
+        assert!(!out.reader_spinning());
+    }
+
+    #[test]
+    fn a_reader_woken_ahead_for_nothing_blocks_again_after_its_spin() {
+        let (out, inbox) = queue(4);
+        let q = Arc::clone(&out.q);
+        let reader = std::thread::spawn(move || inbox.recv_timeout(Duration::from_secs(60)));
+        until_blocked(&q, true);
+        assert!(out.wake_ahead(Instant::now(), Duration::from_millis(1)));
+        // The spin is bounded: the reader took its wake-up and blocks
+        // again (and a delivery then wakes it as before).
+        until(&q, |s| s.spin_until.is_none() && s.blocked > 0);
+        assert!(out.try_send(event()).is_ok());
+        assert!(reader.join().unwrap().is_ok());
     }
 
     #[test]

@@ -57,6 +57,17 @@ const MAX_PENDING: usize = 1 << 20;
 /// its CPU; TCP's flow control then slows the peer. An honest peer sends a
 /// frame or two a tick.
 const READ_FRAMES_PER_DEADLINE: usize = 8;
+
+/// How long before a release the hub wakes an application thread blocked
+/// in `recv` (when its own wake-up came earlier), so that the thread is
+/// running, spinning, when the release is queued: a thread's wake-up
+/// takes tens of microseconds, which would otherwise follow the release.
+const READER_LEAD: std::time::Duration = std::time::Duration::from_micros(100);
+
+/// How long past the deadline a reader woken ahead spins for its release
+/// before it blocks again (the release came late, or the deadline released
+/// nothing).
+const READER_SPIN_PAST: std::time::Duration = std::time::Duration::from_micros(100);
 /// What a link's unused read allowance may grow to, in bytes: the backlog
 /// a held process finds on its socket when it resumes (the frames its peer
 /// sent meanwhile) is read at once, so that its endpoint sees them arrive
@@ -421,6 +432,7 @@ impl Hub {
             origin,
             spin,
             armed: None,
+            readers_woken: None,
             input: rx,
             entries: HashMap::new(),
             timers: BTreeSet::new(),
@@ -441,6 +453,7 @@ impl Hub {
             touched: Vec::new(),
             service: Cost::new(),
             polling: Cost::new(),
+            waking: Cost::new(),
             // A datagram's Bundle may be longer than any frame of a stream.
             buf: vec![0; MAX_FRAME_LEN.max(MAX_DATAGRAM_LEN)],
             links: Arc::clone(&links),
@@ -602,6 +615,8 @@ struct Driver {
     spin: SpinMargin,
     /// When the timer was armed to end, while the thread waits in the poll.
     armed: Option<StdInstant>,
+    /// The deadline whose links' blocked readers were woken ahead.
+    readers_woken: Option<StdInstant>,
     input: Receiver<Msg>,
     entries: HashMap<u64, Entry>,
     timers: BTreeSet<(Instant, u64)>,
@@ -621,6 +636,8 @@ struct Driver {
     /// How long serving one socket takes, and one look at the poll set.
     service: Cost,
     polling: Cost,
+    /// How long waking the links' blocked readers ahead of a deadline takes.
+    waking: Cost,
     buf: Vec<u8>,
     /// The datagram sockets, and the datagrams waiting to be sent.
     udp: udp::Udp,
@@ -646,7 +663,15 @@ impl Driver {
                 .and_then(|&(t, _)| t.to_std(self.origin));
             let margin = std::time::Duration::from(self.spin.current());
             let now = StdInstant::now();
-            let wait = deadline.map(|d| d.saturating_duration_since(now).saturating_sub(margin));
+            // Blocked readers to wake ahead of the deadline end the sleep
+            // earlier than the spin would.
+            let lead = match deadline {
+                Some(d) if self.readers_woken != Some(d) && self.readers_due(d) => {
+                    margin.max(READER_LEAD)
+                }
+                _ => margin,
+            };
+            let wait = deadline.map(|d| d.saturating_duration_since(now).saturating_sub(lead));
             let timeout = match (&self.timer, wait) {
                 // The timer wakes the poll to the nanosecond.
                 (Some(timer), Some(w)) => {
@@ -679,6 +704,11 @@ impl Driver {
                 self.serve_backlog();
                 continue;
             };
+            let now = StdInstant::now();
+            if self.readers_woken != Some(d) && now + READER_LEAD >= d {
+                self.readers_woken = Some(d);
+                self.wake_readers_ahead(d);
+            }
             // Serve what woke us while a service fits before the spin should
             // start (the tick serves the rest as it fits): a burst of frames
             // just before a deadline must not make it late, however short
@@ -1051,6 +1081,11 @@ impl Driver {
             if now >= d {
                 break;
             }
+            if self.readers_woken != Some(d) && now + READER_LEAD >= d {
+                self.readers_woken = Some(d);
+                self.wake_readers_ahead(d);
+                continue;
+            }
             if let Some(&r) = self.backlog.front() {
                 if self.service.fits(now, d) {
                     self.backlog.pop_front();
@@ -1129,6 +1164,40 @@ impl Driver {
         true
     }
 
+    /// Whether a link due at `d` may have a reader to wake ahead of it (it
+    /// has no handler).
+    fn readers_due(&self, d: StdInstant) -> bool {
+        let at = Instant::from_std(self.origin, d);
+        self.timers
+            .iter()
+            .take_while(|&&(t, _)| t <= at)
+            .any(|(_, id)| self.entries.get(id).is_some_and(|e| e.handler.is_none()))
+    }
+
+    /// Wakes the application threads blocked in `recv` on the links whose
+    /// endpoints are due at `d`, to spin for their releases; only while
+    /// the wake-ups fit before `d`, so the releases are never later.
+    fn wake_readers_ahead(&mut self, d: StdInstant) {
+        let at = Instant::from_std(self.origin, d);
+        for &(_, id) in self.timers.iter().take_while(|&&(t, _)| t <= at) {
+            let start = StdInstant::now();
+            if !self.waking.fits(start, d) {
+                break;
+            }
+            let Some(e) = self.entries.get(&id) else {
+                continue;
+            };
+            // A link with a handler has no reader; a QUIC timer alone
+            // releases nothing.
+            if e.handler.is_none()
+                && e.endpoint.poll_timeout().is_some_and(|t| t <= at)
+                && e.deliveries.wake_ahead(d, READER_SPIN_PAST)
+            {
+                self.waking.record(start.elapsed(), self.spin.max().into());
+            }
+        }
+    }
+
     /// Frames to the socket, events to the application, the deadline to the
     /// index; a closed link leaves the hub. The link's stats are published
     /// after a tick (before its releases reach the application, so the
@@ -1154,6 +1223,14 @@ impl Driver {
             let _ = deliver(e, ticked, self.figures);
             take_sample(e);
             wants_write = transmit(e, id, now, &mut self.buf, &mut self.udp.out);
+        } else if ticked && e.deliveries.reader_spinning() {
+            // A reader woken ahead spins for its release: handing it over
+            // costs no syscall, so it goes before the frame's write.
+            if e.endpoint.is_closed() {
+                self.figures = figures(&self.lateness, &self.releases, self.spin);
+            }
+            let _ = deliver(e, ticked, self.figures);
+            wants_write |= transmit(e, id, now, &mut self.buf, &mut self.udp.out);
         } else {
             // Frames first: an application on a thread of its own answers
             // at the next tick, and waking it first would delay the frame

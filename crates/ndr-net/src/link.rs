@@ -13,6 +13,8 @@
 //! The application holds a [`Link`]: [`Link::send`] sets the sample sent at
 //! the next tick, [`Link::recv`] / [`Link::recv_async`] give the next released
 //! sample, [`Link::stats`] a snapshot of everything counted.
+//! A thread blocked in [`Link::recv`] is woken by the hub shortly before
+//! each release and spins for it, a bounded while (`delivery`).
 
 use std::collections::VecDeque;
 use std::fmt;
