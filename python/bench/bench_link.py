@@ -1,7 +1,7 @@
 """A 1 kHz Python control loop over a loopback link: how late does the
 controller see each tick?
 
-    python python/bench/bench_link.py [--seconds 10] [--period-ms 1]
+    python python/bench/bench_link.py [--seconds 10] [--period-ms 1] [--loop-priority 40]
 
 The remote runs in a second Python process (an echo controller), so the
 base's loop has its interpreter to itself, as it would on a real robot
@@ -16,6 +16,14 @@ holding the sample (release clock + hand-over + thread wake-up + GIL).
 Baseline, in the same run: the same loop paced by ``time.sleep`` to the
 next ``k·T`` (what a Python controller without ndr would do), lateness
 measured the same way against its own grid.
+
+Each loop runs twice, side by side: without real-time scheduling (the
+link's ``realtime="off"``, every thread ``SCHED_OTHER``) and with it (the
+link's default ``realtime="try"``: its hub thread ``SCHED_FIFO`` 49 with
+locked memory; and the Python loop thread itself, in both processes,
+``SCHED_FIFO`` at ``--loop-priority``, under the hub's). Where the host
+refuses ``SCHED_FIFO`` (not root, no ``CAP_SYS_NICE``) the second run says
+so and runs as the first.
 """
 
 from __future__ import annotations
@@ -33,9 +41,13 @@ import numpy as np
 import ndr
 
 REMOTE = r"""
-import sys, ndr
+import os, sys, ndr
 period, seconds = float(sys.argv[1]), float(sys.argv[2])
-with ndr.Link.listen(("127.0.0.1", 0), period=period, axes=2, watchdog=None) as lst:
+realtime, priority = sys.argv[3], int(sys.argv[4])
+if priority > 0:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+with ndr.Link.listen(("127.0.0.1", 0), period=period, axes=2, watchdog=None,
+                     realtime=realtime) as lst:
     print(lst.address[1], flush=True)
     with lst.accept(timeout=10) as link:
         for tick in link.ticks(timeout=5):
@@ -54,15 +66,26 @@ def percentiles(x: np.ndarray) -> dict:
     }
 
 
-def ndr_loop(period: float, seconds: float) -> dict:
+def loop_priority(priority: int) -> None:
+    """This thread ``SCHED_FIFO`` at ``priority``, or back to ``SCHED_OTHER``
+    for 0; threads it starts (a link's hub) inherit it."""
+    if priority > 0:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    else:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+def ndr_loop(period: float, seconds: float, realtime: str, priority: int) -> dict:
     remote = subprocess.Popen(
-        [sys.executable, "-c", REMOTE, str(period), str(seconds)],
+        [sys.executable, "-c", REMOTE, str(period), str(seconds), realtime, str(priority)],
         stdout=subprocess.PIPE,
         text=True,
     )
     try:
         port = int(remote.stdout.readline())
-        with ndr.Link.connect(("127.0.0.1", port), period=period, axes=2) as link:
+        with ndr.Link.connect(
+            ("127.0.0.1", port), period=period, axes=2, realtime=realtime
+        ) as link:
             n = int(seconds / period)
             late = np.empty(n)
             grtt = []
@@ -94,6 +117,16 @@ def ndr_loop(period: float, seconds: float) -> dict:
     return out
 
 
+def granted(priority: int) -> bool:
+    """Whether this process may ask for ``SCHED_FIFO`` at ``priority``."""
+    try:
+        loop_priority(priority)
+    except PermissionError:
+        return False
+    loop_priority(0)
+    return True
+
+
 def sleep_loop(period: float, seconds: float) -> dict:
     n = int(seconds / period)
     late = np.empty(n)
@@ -112,32 +145,56 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--period-ms", type=float, default=1.0)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument(
+        "--loop-priority",
+        type=int,
+        default=40,
+        help="the Python loop thread's SCHED_FIFO priority in the real-time runs "
+        "(under the hub's 49)",
+    )
     args = ap.parse_args()
     period = args.period_ms / 1e3
-    cpu = os.cpu_count()
+    rt = granted(args.loop_priority)
+    if not rt:
+        print(
+            "bench_link: SCHED_FIFO refused (run as root or grant CAP_SYS_NICE): "
+            "the real-time runs run without it",
+            file=sys.stderr,
+        )
+    prio = args.loop_priority if rt else 0
     results = {
         "period_ms": args.period_ms,
         "seconds": args.seconds,
-        "cpus": cpu,
-        "ndr": ndr_loop(period, args.seconds),
+        "cpus": os.cpu_count(),
+        "realtime_granted": rt,
+        "ndr": ndr_loop(period, args.seconds, "off", 0),
         "time.sleep": sleep_loop(period, args.seconds),
     }
+    loop_priority(prio)
+    try:
+        results["ndr, real-time"] = ndr_loop(period, args.seconds, "try", prio)
+        results["time.sleep, real-time"] = sleep_loop(period, args.seconds)
+    finally:
+        loop_priority(0)
     if args.json:
         print(json.dumps(results))
         return
     print(f"1/T = {1 / period:.0f} Hz for {args.seconds:.0f} s, lateness of the Python loop:")
-    print(f"{'loop':<12}{'p50':>9}{'p99':>9}{'p99.9':>9}{'max':>10}{'mean':>9}  ticks")
-    for name in ("ndr", "time.sleep"):
+    print(f"{'loop':<24}{'p50':>9}{'p99':>9}{'p99.9':>9}{'max':>10}{'mean':>9}  ticks")
+    names = ("ndr", "ndr, real-time", "time.sleep", "time.sleep, real-time")
+    for name in names:
         r = results[name]
         print(
-            f"{name:<12}{r['p50_us']:>7.0f}µs{r['p99_us']:>7.0f}µs{r['p999_us']:>7.0f}µs"
+            f"{name:<24}{r['p50_us']:>7.0f}µs{r['p99_us']:>7.0f}µs{r['p999_us']:>7.0f}µs"
             f"{r['max_us']:>8.0f}µs{r['mean_us']:>7.0f}µs  {r['ticks']}"
         )
-    r = results["ndr"]
-    print(
-        f"ndr link: GRTT {r['grtt_mean_ms']:.3f} ms ± {r['grtt_std_ms']:.3f} ms, "
-        f"{r['held']} held ticks, hub release lateness p99 {r['hub_lateness_p99_us']:.0f} µs"
-    )
+    for name in names[:2]:
+        r = results[name]
+        print(
+            f"{name}: GRTT {r['grtt_mean_ms']:.3f} ms ± {r['grtt_std_ms']:.3f} ms, "
+            f"{r['held']} held ticks, hub release lateness p99 "
+            f"{r['hub_lateness_p99_us']:.0f} µs"
+        )
 
 
 if __name__ == "__main__":

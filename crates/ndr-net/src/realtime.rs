@@ -164,6 +164,21 @@ impl Realtime {
         }
     }
 
+    /// Asks for the same for the calling thread: an application's control
+    /// loop, which otherwise wakes from `recv` behind every other runnable
+    /// thread of a loaded host. Give it a priority under the hubs'
+    /// ([`DEFAULT_RT_PRIORITY`]) so that it never holds a hub back.
+    /// Granted or not, the thread runs on under [`RealtimeMode::Try`] (a
+    /// refusal logged once per process); whether `SCHED_FIFO` was granted.
+    ///
+    /// # Errors
+    ///
+    /// Under [`RealtimeMode::Enforce`], what the host refused, naming the
+    /// privilege to grant.
+    pub fn enter_current_thread(self) -> Result<bool, RealtimeError> {
+        enter(self).map(|g| g.fifo)
+    }
+
     /// The same, pinned `n` CPUs after its own (a pool's `n`-th hub).
     #[must_use]
     pub(crate) fn shifted(self, n: usize) -> Self {

@@ -31,11 +31,12 @@ pub enum Transport {
         /// (fewer when they would not fit 1200 bytes).
         redundancy: u8,
         /// Times each sample's datagram is sent again, 1 ms
-        /// apart, 0 to 4, while the path loses datagrams: a
+        /// apart (half a period apart where the period is 2 ms or less), 0
+        /// to 4, while the path loses datagrams: a
         /// lost datagram is then made good within a millisecond or two
         /// rather than by the next period's copies (which a slow link waits
         /// a whole period for). Only as many as fit in the period before the
-        /// next sample go, and only for [`REPEAT_HOLD`] after the first
+        /// next sample go (one at 1 kHz), and only for [`REPEAT_HOLD`] after the first
         /// sample and after each time the peer reports one of this side's
         /// samples missed (every datagram carries the count): a link that
         /// loses nothing sends one datagram a sample.
@@ -59,6 +60,7 @@ pub const REPEAT_HOLD: Duration = Duration::from_secs(10);
 /// Between a sample's datagram and its repeats: long enough apart not to
 /// share one burst of a queue overflowing, short enough that the delay a
 /// repeat adds stays a small part of the round trip.
+/// Half a period where that is shorter (`datagram::repeat_spacing`).
 pub(crate) const REPEAT_SPACING: Duration = Duration::from_millis(1);
 
 impl Transport {
