@@ -93,9 +93,12 @@ pub(crate) type Tap = Box<dyn FnMut(&crate::delivery::LinkEvent) + Send>;
 pub(crate) struct Entry {
     endpoint: Endpoint<Heap>,
     shared: Arc<Shared>,
-    deliveries: Outbox,
-    /// How its frames reach the peer: the link's transport.
+    /// How its frames reach the peer: the link's transport. Dropped
+    /// before `deliveries`, whose end tells the application the link is
+    /// gone: a zenoh session closes (sending what it queued, the Close)
+    /// before the application may exit.
     path: Path,
+    deliveries: Outbox,
     deframer: Deframer,
     /// Bytes the TCP stream would not take yet, in order.
     pending: Vec<u8>,
