@@ -71,6 +71,9 @@ pub(crate) async fn dial(
     config: LinkConfig,
 ) -> Result<Link, NetError> {
     let transport = config.checked_transport(config.tls.is_some())?;
+    if transport.is_zenoh() {
+        return Err(NetError::Transport(crate::TransportError::ZenohByName));
+    }
     let Some(tls) = config.tls.clone() else {
         plain_allowed(addr, &config)?;
         let stream = TcpStream::connect(addr).await?;

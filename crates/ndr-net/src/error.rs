@@ -120,6 +120,9 @@ mod tests {
             TransportError::Unknown("sctp".into()),
             TransportError::QuicWithoutTls,
             TransportError::UdpWithTls,
+            TransportError::ZenohWithTls,
+            TransportError::ZenohNotBuilt,
+            TransportError::ZenohByName,
             TransportError::Mismatch {
                 link: crate::Transport::UDP,
                 endpoint: ndr_core::endpoint::Transport::Stream,
@@ -161,6 +164,9 @@ mod tests {
                 TransportError::Unknown(_)
                 | TransportError::QuicWithoutTls
                 | TransportError::UdpWithTls
+                | TransportError::ZenohWithTls
+                | TransportError::ZenohNotBuilt
+                | TransportError::ZenohByName
                 | TransportError::Mismatch { .. } => {}
             }
         }

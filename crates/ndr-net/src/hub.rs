@@ -15,6 +15,8 @@
 mod quic;
 mod tls_io;
 mod udp;
+#[cfg(feature = "zenoh")]
+pub(crate) mod zenoh;
 
 pub(crate) use quic::{Move as QuicMove, NewEndpoint, QuicPath, Server as QuicServer};
 pub(crate) use tls_io::Session;
@@ -109,9 +111,12 @@ pub(crate) enum Tapped<'a> {
 pub(crate) struct Entry {
     endpoint: Endpoint<Heap>,
     shared: Arc<Shared>,
-    deliveries: Outbox,
-    /// How its frames reach the peer: the link's transport.
+    /// How its frames reach the peer: the link's transport. Dropped
+    /// before `deliveries`, whose end tells the application the link is
+    /// gone: a zenoh session closes (sending what it queued, the Close)
+    /// before the application may exit.
     path: Path,
+    deliveries: Outbox,
     deframer: Deframer,
     /// Bytes the TCP stream would not take yet, in order.
     pending: Vec<u8>,
@@ -162,13 +167,16 @@ pub(crate) enum Path {
     Udp(Stream, DatagramPath),
     /// Every frame on a QUIC connection: the samples as its datagrams.
     Quic(Box<QuicPath>),
+    /// Every frame as a zenoh publication.
+    #[cfg(feature = "zenoh")]
+    Zenoh(Box<zenoh::ZenohPath>),
 }
 
 impl Path {
     fn stream(&self) -> Option<&Stream> {
         match self {
             Path::Tcp(s) | Path::Tls(s, _) | Path::Udp(s, _) => Some(s),
-            Path::Quic(_) => None,
+            _ => None,
         }
     }
 
@@ -179,7 +187,7 @@ impl Path {
     fn socket_mut(&mut self) -> Option<&mut MioStream> {
         match self {
             Path::Tcp(s) | Path::Tls(s, _) | Path::Udp(s, _) => Some(&mut s.socket),
-            Path::Quic(_) => None,
+            _ => None,
         }
     }
 
@@ -189,6 +197,25 @@ impl Path {
 
     fn has_tls(&self) -> bool {
         matches!(self, Path::Tls(..))
+    }
+
+    fn is_zenoh(&self) -> bool {
+        #[cfg(feature = "zenoh")]
+        return matches!(self, Path::Zenoh(_));
+        #[cfg(not(feature = "zenoh"))]
+        false
+    }
+
+    /// What a zenoh link counted: frames dropped on arrival, not sent.
+    fn zenoh_counts(&self) -> (u64, u64) {
+        #[cfg(feature = "zenoh")]
+        if let Path::Zenoh(z) = self {
+            return (
+                z.counters.dropped.load(AtomicOrdering::Relaxed),
+                z.counters.unsent.load(AtomicOrdering::Relaxed),
+            );
+        }
+        (0, 0)
     }
 
     /// The TLS session and its stream.
@@ -875,9 +902,20 @@ impl Driver {
             tracing::warn!("a QUIC link could not take its endpoint");
             entry.endpoint.abort(LinkError::Disconnected);
         }
-        let tls = entry.path.has_tls();
+        #[cfg(feature = "zenoh")]
+        if let Path::Zenoh(z) = &mut entry.path
+            && self
+                .poll
+                .registry()
+                .register(&mut z.wake, token, Interest::READABLE)
+                .is_err()
+        {
+            entry.endpoint.abort(LinkError::Disconnected);
+        }
+        let tls = entry.path.has_tls() || entry.path.is_zenoh();
         self.entries.insert(id, entry);
         if tls {
+            // (A zenoh link's inbox may hold frames already.)
             // The handshake may have read records past its end:
             // rustls holds them, and no new edge will say so.
             self.read(id, false);
@@ -997,6 +1035,11 @@ impl Driver {
         };
         if e.path.has_tls() {
             tls_io::read(e, origin, drain);
+            return;
+        }
+        #[cfg(feature = "zenoh")]
+        if e.path.is_zenoh() {
+            zenoh::receive(e, origin);
             return;
         }
         loop {
@@ -1387,6 +1430,8 @@ fn transmit(e: &mut Entry, id: u64, now: Instant, buf: &mut [u8], out: &mut udp:
         match &mut e.path {
             Path::Udp(_, path) if ndr_core::wire::is_bundle(frame) => out.push(id, path, frame),
             Path::Quic(_) => quic::send(e, frame),
+            #[cfg(feature = "zenoh")]
+            Path::Zenoh(z) => zenoh::send(z, frame),
             _ => wants_write |= send_frame(e, frame),
         }
     }
@@ -1578,7 +1623,9 @@ fn publish(e: &Entry, hub: HubFigures) {
             .and_then(|p| p.peer)
             .or_else(|| quic::peer(e)),
         datagrams_unsent: e.path.datagram().map_or(0, |p| p.unsent)
-            + e.path.quic().map_or(0, |q| q.dropped),
+            + e.path.quic().map_or(0, |q| q.dropped)
+            + e.path.zenoh_counts().1,
+        zenoh_dropped: e.path.zenoh_counts().0,
         datagram_path_changes: e.path.datagram().map_or(0, |p| p.path_changes)
             + e.path.quic().map_or(0, |q| q.path_changes),
         datagrams_stray: e

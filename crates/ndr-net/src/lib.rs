@@ -6,7 +6,9 @@
 //! features hold tooling a robot does not run: `relay`, the delay relay
 //! (whose delay models are `ndr-netem`'s, the simulator's, without the
 //! simulator), `keygen`, self-signed identities for a lab pair, and
-//! `record`, MCAP recordings of links ([`record`]).
+//! `record`, MCAP recordings of links ([`record`]). Feature `zenoh` adds
+//! links through a zenoh router or zenoh peers (`Transport::Zenoh`,
+//! `Link::connect_zenoh`, `Listener::listen_zenoh`).
 //!
 //! # The drive loop
 //!
@@ -72,6 +74,8 @@ pub mod spin;
 mod stats;
 pub mod tls;
 mod transport;
+#[cfg(feature = "zenoh")]
+mod zenoh_link;
 
 pub use clock::LatenessStats;
 pub use config::{Admission, LinkConfig, QUEUE};
@@ -91,3 +95,5 @@ pub use sharing::SharingStats;
 pub use stats::LinkStats;
 pub use tls::{Fingerprint, HandshakeError, TlsConfig, TlsError, Trust};
 pub use transport::{Transport, TransportError};
+#[cfg(feature = "zenoh")]
+pub use zenoh_link::{ZenohOptions, ZenohRouter};

@@ -163,6 +163,9 @@ impl Link {
                 })
             }
             Transport::Tcp => None,
+            Transport::Zenoh { .. } => {
+                return Err(NetError::Transport(TransportError::ZenohByName));
+            }
             // Not reached: a QUIC link starts in `start_quic` (`dial`,
             // `listen_quic`), and one without TLS is refused above.
             _ => return Err(NetError::Transport(TransportError::QuicWithoutTls)),
@@ -216,6 +219,27 @@ impl Link {
         cfg.validate().map_err(NetError::Config)?;
         let peer = path.conn.remote_address();
         Link::assemble(cfg, config, hub, Path::Quic(Box::new(path)), peer, sharing)
+    }
+
+    /// A zenoh link over `path` on `hub`, in `role`: its id, its entry
+    /// for the hub, its handle.
+    #[cfg(feature = "zenoh")]
+    pub(crate) fn start_zenoh(
+        config: &LinkConfig,
+        role: Role,
+        hub: &Hub,
+        path: crate::hub::zenoh::ZenohPath,
+        sharing: Option<&Arc<crate::sharing::Sharing>>,
+    ) -> Result<(u64, Entry, Link), NetError> {
+        let mut cfg = config.endpoint;
+        cfg.role = role;
+        cfg.tick_origin = Instant::ZERO;
+        // The keys route the datagrams; the token is one the endpoint checks.
+        cfg.session = session_token()?;
+        cfg.validate().map_err(NetError::Config)?;
+        // A zenoh peer has no address this side knows.
+        let peer = SocketAddr::from((std::net::Ipv4Addr::UNSPECIFIED, 0));
+        Link::assemble(cfg, config, hub, Path::Zenoh(Box::new(path)), peer, sharing)
     }
 
     /// The endpoint, the entry its hub drives and the application's handle.
@@ -916,7 +940,7 @@ fn keep_event(events: &mut VecDeque<LinkEvent>, dropped: &AtomicU64, e: LinkEven
 }
 
 /// A link's datagram session token.
-fn session_token() -> Result<u64, NetError> {
+pub(crate) fn session_token() -> Result<u64, NetError> {
     Ok(crate::hub::session_token()?)
 }
 

@@ -39,6 +39,8 @@ mod ledger;
 mod probation;
 mod quic_slots;
 mod source;
+#[cfg(feature = "zenoh")]
+mod zenoh;
 
 use std::fmt;
 use std::io;
@@ -400,6 +402,9 @@ impl Listener {
     async fn listen_with(addr: SocketAddr, config: LinkConfig) -> Result<Listener, NetError> {
         let tls = config.tls.clone();
         let transport = config.checked_transport(tls.is_some())?;
+        if transport.is_zenoh() {
+            return Err(NetError::Transport(crate::TransportError::ZenohByName));
+        }
         let datagrams = transport.datagrams();
         let hubs = match &config.hub {
             HubChoice::Own => Hubs::One(Hub::with_realtime(config.spin_margin, config.realtime)?),

@@ -266,6 +266,7 @@ fn transport_name(t: Transport) -> &'static str {
         Transport::Tcp => "tcp",
         Transport::Udp { .. } => "udp",
         Transport::Quic { .. } => "quic",
+        Transport::Zenoh { .. } => "zenoh",
     }
 }
 

@@ -71,6 +71,9 @@ pub struct LinkStats {
     /// or over QUIC that no connection on it took (garbage, a stranger's
     /// packets, a closed connection's); shared by every link on the socket.
     pub datagrams_stray: u64,
+    /// Zenoh transport: frames that reached the link while its inbox was
+    /// full (its hub behind by hundreds of frames), dropped.
+    pub zenoh_dropped: u64,
     /// How long connecting waited for the remote
     /// ([`LinkConfig::wait_for_remote`](crate::LinkConfig::wait_for_remote)):
     /// from the first attempt to the one that reached it.

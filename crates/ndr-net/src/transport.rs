@@ -7,7 +7,8 @@ use std::str::FromStr;
 
 use ndr_core::endpoint::Transport as Carriage;
 
-/// A link's transport: `tcp`, `udp[:K[:R]]` or `quic[:K[:R]]`.
+/// A link's transport: `tcp`, `udp[:K[:R]]`, `quic[:K[:R]]` or
+/// `zenoh[:K[:R]]`.
 ///
 /// `K` is the samples each datagram carries (1 to 8, default 4) and `R`
 /// the times each is sent again while the path loses datagrams (0 to 4,
@@ -45,6 +46,15 @@ pub enum Transport {
         /// Times each sample's datagram is sent again, 0 to 4.
         repeats: u8,
     },
+    /// Every frame as a zenoh publication (through a zenoh router or
+    /// between zenoh peers, feature `zenoh`): the samples' datagrams
+    /// best-effort and express, the rest reliable. Carries no ndr TLS.
+    Zenoh {
+        /// Samples per datagram, 1 to 8.
+        redundancy: u8,
+        /// Times each sample's datagram is sent again, 0 to 4.
+        repeats: u8,
+    },
 }
 
 impl Transport {
@@ -60,8 +70,14 @@ impl Transport {
         repeats: 3,
     };
 
+    /// `zenoh`: zenoh publications with the default copies and repeats.
+    pub const ZENOH: Transport = Transport::Zenoh {
+        redundancy: 4,
+        repeats: 3,
+    };
+
     /// What the endpoint does with its samples: a stream, or datagrams
-    /// (UDP and QUIC alike).
+    /// (UDP, QUIC and zenoh alike).
     #[must_use]
     pub fn carriage(self) -> Carriage {
         match self {
@@ -71,6 +87,10 @@ impl Transport {
                 repeats,
             }
             | Transport::Quic {
+                redundancy,
+                repeats,
+            }
+            | Transport::Zenoh {
                 redundancy,
                 repeats,
             } => Carriage::Datagram {
@@ -95,7 +115,7 @@ impl Transport {
         }
     }
 
-    /// Whether the samples go as datagrams (UDP or QUIC).
+    /// Whether the samples go as datagrams (UDP, QUIC or zenoh).
     #[must_use]
     pub fn datagrams(self) -> bool {
         !matches!(self, Transport::Tcp)
@@ -107,12 +127,22 @@ impl Transport {
         matches!(self, Transport::Quic { .. })
     }
 
+    /// Whether the link runs over zenoh.
+    #[must_use]
+    pub fn is_zenoh(self) -> bool {
+        matches!(self, Transport::Zenoh { .. })
+    }
+
     /// Whether a link with (`tls`) or without TLS can run this transport:
-    /// QUIC needs TLS, and plain UDP cannot carry it.
+    /// QUIC needs TLS, and plain UDP and zenoh cannot carry it.
     pub fn check_security(self, tls: bool) -> Result<(), TransportError> {
         match (self, tls) {
             (Transport::Quic { .. }, false) => Err(TransportError::QuicWithoutTls),
             (Transport::Udp { .. }, true) => Err(TransportError::UdpWithTls),
+            (Transport::Zenoh { .. }, _) if !cfg!(feature = "zenoh") => {
+                Err(TransportError::ZenohNotBuilt)
+            }
+            (Transport::Zenoh { .. }, true) => Err(TransportError::ZenohWithTls),
             _ => Ok(()),
         }
     }
@@ -121,29 +151,34 @@ impl Transport {
 impl FromStr for Transport {
     type Err = TransportError;
 
-    /// `tcp`, `udp`, `udp:K`, `udp:K:R`, `quic`, `quic:K`, `quic:K:R`; the
-    /// endpoint's names `stream` and `datagram[:K[:R]]` read as `tcp` and
-    /// `udp[:K[:R]]`.
+    /// `tcp`, `udp`, `udp:K`, `udp:K:R`, `quic`, `quic:K`, `quic:K:R`,
+    /// `zenoh`, `zenoh:K`, `zenoh:K:R`; the endpoint's names `stream` and
+    /// `datagram[:K[:R]]` read as `tcp` and `udp[:K[:R]]`.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let unknown = || TransportError::Unknown(s.to_owned());
-        match s.strip_prefix("quic") {
-            Some(rest) if rest.is_empty() || rest.starts_with(':') => {
-                match format!("datagram{rest}").parse::<Carriage>() {
-                    Ok(Carriage::Datagram {
-                        redundancy,
-                        repeats,
-                    }) => Ok(Transport::Quic {
-                        redundancy,
-                        repeats,
-                    }),
-                    _ => Err(unknown()),
-                }
-            }
-            _ => s
-                .parse::<Carriage>()
-                .map(Transport::plain)
-                .map_err(|_| unknown()),
+        // `quic` and `zenoh` take the datagram transport's `:K:R`.
+        let datagrams = |rest: &str| match format!("datagram{rest}").parse::<Carriage>() {
+            Ok(Carriage::Datagram {
+                redundancy,
+                repeats,
+            }) if rest.is_empty() || rest.starts_with(':') => Ok((redundancy, repeats)),
+            _ => Err(unknown()),
+        };
+        if let Some(rest) = s.strip_prefix("quic") {
+            return datagrams(rest).map(|(redundancy, repeats)| Transport::Quic {
+                redundancy,
+                repeats,
+            });
         }
+        if let Some(rest) = s.strip_prefix("zenoh") {
+            return datagrams(rest).map(|(redundancy, repeats)| Transport::Zenoh {
+                redundancy,
+                repeats,
+            });
+        }
+        s.parse::<Carriage>()
+            .map(Transport::plain)
+            .map_err(|_| unknown())
     }
 }
 
@@ -161,6 +196,10 @@ impl fmt::Display for Transport {
                 redundancy,
                 repeats,
             } => write!(f, "quic:{redundancy}:{repeats}"),
+            Transport::Zenoh {
+                redundancy,
+                repeats,
+            } => write!(f, "zenoh:{redundancy}:{repeats}"),
         }
     }
 }
@@ -175,6 +214,13 @@ pub enum TransportError {
     QuicWithoutTls,
     /// Plain UDP with TLS identities: its datagrams would go unencrypted.
     UdpWithTls,
+    /// Zenoh with TLS identities: ndr's TLS does not run over zenoh.
+    ZenohWithTls,
+    /// Zenoh without the `zenoh` feature built in.
+    ZenohNotBuilt,
+    /// A zenoh link asked of a call that takes a socket address: zenoh
+    /// links find their peer by the robot's name.
+    ZenohByName,
     /// [`LinkConfig::transport`](crate::LinkConfig::transport) and its
     /// endpoint's `transport` disagree (one was changed without the other).
     Mismatch {
@@ -192,7 +238,8 @@ impl fmt::Display for TransportError {
                 f,
                 "unknown transport {name:?}: tcp; udp, udp:K or udp:K:R (K samples per \
                  datagram, 1 to 8; R repeats, 0 to 4); quic, quic:K or quic:K:R (the same \
-                 over QUIC, with TLS)"
+                 over QUIC, with TLS); zenoh, zenoh:K or zenoh:K:R (the same as zenoh \
+                 publications)"
             ),
             TransportError::QuicWithoutTls => {
                 f.write_str("the quic transport runs mutual TLS 1.3: give the link TLS identities")
@@ -200,6 +247,19 @@ impl fmt::Display for TransportError {
             TransportError::UdpWithTls => f.write_str(
                 "the udp transport is plain UDP and carries no TLS: with TLS, use quic \
                  (datagrams over QUIC) or tcp",
+            ),
+            TransportError::ZenohWithTls => f.write_str(
+                "the zenoh transport carries no ndr TLS: run it on a network you trust \
+                 (zenoh's access control in its configuration, --zenoh-config), or use quic \
+                 or tcp with TLS",
+            ),
+            TransportError::ZenohNotBuilt => f.write_str(
+                "this build has no zenoh transport: build ndr-net (or ndr-link) with the \
+                 `zenoh` feature",
+            ),
+            TransportError::ZenohByName => f.write_str(
+                "a zenoh link finds its robot by name, not by address: use \
+                 Link::connect_zenoh or Listener::listen_zenoh",
             ),
             TransportError::Mismatch { link, endpoint } => write!(
                 f,
@@ -226,12 +286,16 @@ mod tests {
             ("udp:2:0", "udp:2:0"),
             ("quic", "quic:4:3"),
             ("quic:2:1", "quic:2:1"),
+            ("zenoh", "zenoh:4:3"),
+            ("zenoh:2", "zenoh:2:3"),
         ] {
             let t: Transport = name.parse().unwrap();
             assert_eq!(t.to_string(), shown, "{name}");
             assert_eq!(shown.parse::<Transport>().unwrap(), t);
         }
-        for bad in ["quic:9", "quicx", "quic:", "udp:0", "udp:2:5", "sctp", ""] {
+        for bad in [
+            "quic:9", "quicx", "quic:", "udp:0", "udp:2:5", "sctp", "", "zenohx", "zenoh:9",
+        ] {
             assert_eq!(
                 bad.parse::<Transport>(),
                 Err(TransportError::Unknown(bad.into())),
@@ -252,6 +316,17 @@ mod tests {
         assert_eq!(Transport::UDP.check_security(false), Ok(()));
         assert_eq!(Transport::Tcp.check_security(true), Ok(()));
         assert_eq!(Transport::Tcp.check_security(false), Ok(()));
+        #[cfg(feature = "zenoh")]
+        assert_eq!(
+            Transport::ZENOH.check_security(true),
+            Err(TransportError::ZenohWithTls)
+        );
+        let plain = if cfg!(feature = "zenoh") {
+            Ok(())
+        } else {
+            Err(TransportError::ZenohNotBuilt)
+        };
+        assert_eq!(Transport::ZENOH.check_security(false), plain);
     }
 
     #[test]

@@ -23,6 +23,8 @@ pub fn cannot_connect(e: &NetError, to: SocketAddr, transport: LinkTransport) ->
                  the TLS options too"
             )
         }
+        // A zenoh link has no address: its error names the robot.
+        e if transport.is_zenoh() => e.to_string(),
         e => format!("cannot connect to {to}: {e}"),
     }
 }
@@ -37,7 +39,7 @@ pub fn udp_silence(
     stats: Option<&LinkStats>,
 ) -> End {
     let heard = stats.is_some_and(|s| s.endpoint.datagrams_received > 0);
-    if !transport.datagrams() || transport.is_quic() || heard {
+    if !transport.datagrams() || transport.is_quic() || transport.is_zenoh() || heard {
         return end;
     }
     let hint = format!(

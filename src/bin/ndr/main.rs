@@ -20,6 +20,7 @@ mod peers;
 mod relay;
 mod report;
 mod robot;
+mod router;
 mod runtime;
 mod shared;
 mod signals;
@@ -89,6 +90,10 @@ enum Command {
     /// stays flat. Ctrl-C (or SIGTERM) stops it in order: it reports the
     /// time so far, exits non-zero, and leaves no remote or keys behind.
     Soak(soak::SoakArgs),
+    /// Route zenoh links (`--transport zenoh`): zenoh's own router, in
+    /// this process, listening on --listen; robots and bases dial it.
+    /// (Built with the `zenoh` feature.)
+    Router(router::RouterArgs),
     /// Make a self-signed certificate and key (PEM) for a lab setup, and
     /// print its SHA-256 fingerprint (what the peer pins).
     Keygen(keygen::KeygenArgs),
@@ -115,6 +120,7 @@ fn main() -> ExitCode {
         Command::Control(args) => control::run(args),
         Command::Soak(args) => soak::run(args),
         Command::Keygen(args) => keygen::run(args),
+        Command::Router(args) => router::run(args),
         Command::Completions { shell } => {
             let mut cmd = <Cli as clap::CommandFactory>::command();
             clap_complete::generate(*shell, &mut cmd, "ndr", &mut std::io::stdout());

@@ -11,8 +11,8 @@ use ndr::core::endpoint::Event;
 use ndr::core::wire::{Role, Seat};
 
 use crate::args::{
-    LinkArgs, MetricsArgs, ObserverTrustArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs, record,
-    resolve,
+    LinkArgs, MetricsArgs, ObserverTrustArgs, PlantArgs, RecordArgs, RunArgs, SecurityArgs,
+    ZenohArgs, record, resolve,
 };
 use crate::metrics::Served;
 use crate::operator::{Kept, operator};
@@ -25,8 +25,14 @@ use crate::signals::{self, Stop, counters};
 pub struct BaseArgs {
     /// The remote (or a relay in front of it) to connect to: HOST:PORT, a
     /// name or an address (the first address the name resolves to).
-    #[arg(long, value_name = "HOST:PORT")]
-    pub connect: String,
+    #[arg(long, value_name = "HOST:PORT", required_unless_present = "robot")]
+    pub connect: Option<String>,
+    /// With --transport zenoh: the name of the robot to connect to (its
+    /// remote's --name), found through zenoh instead of --connect.
+    #[arg(long, value_name = "NAME", conflicts_with = "connect")]
+    pub robot: Option<String>,
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
     #[command(flatten)]
     pub link: LinkArgs,
     #[command(flatten)]
@@ -67,8 +73,14 @@ pub struct BaseArgs {
 #[derive(clap::Args)]
 pub struct RemoteArgs {
     /// Where to wait for bases.
-    #[arg(long, value_name = "ADDR")]
-    pub listen: SocketAddr,
+    #[arg(long, value_name = "ADDR", required_unless_present = "name")]
+    pub listen: Option<SocketAddr>,
+    /// With --transport zenoh: the robot's name, by which bases find it
+    /// through zenoh (`ndr base --robot NAME`), instead of --listen.
+    #[arg(long, value_name = "NAME", conflicts_with = "listen")]
+    pub name: Option<String>,
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
     #[command(flatten)]
     pub link: LinkArgs,
     #[command(flatten)]
@@ -109,9 +121,19 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     crate::transport::check_security(args.link.transport(), tls.is_some())?;
     args.run.check_duration()?;
     crate::tracking::check_layout(args.run.controller, &args.link.state)?;
-    let connect_to = resolve("--connect", &args.connect)?;
+    let zenoh = by_name(
+        args.link.transport(),
+        args.robot.as_deref(),
+        &args.zenoh,
+        "--robot",
+    )?;
+    let connect_to = match &args.connect {
+        Some(connect) => resolve("--connect", connect)?,
+        // A zenoh link has no address.
+        None => SocketAddr::from((std::net::Ipv4Addr::UNSPECIFIED, 0)),
+    };
     // Refused as the link would refuse it, before the series is created.
-    if tls.is_none() && !tls::plain_allowed(connect_to.ip(), config.insecure) {
+    if !zenoh && tls.is_none() && !tls::plain_allowed(connect_to.ip(), config.insecure) {
         return Err(NetError::Insecure(connect_to).to_string());
     }
     let seat = seat(args)?;
@@ -135,7 +157,7 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     let run_for = StdDuration::from_secs_f64(args.run.duration_s);
     let wait_for = StdDuration::from_secs_f64(args.wait_for_control.unwrap_or(0.0));
     config.tls.clone_from(&tls);
-    let connect = Link::connect(connect_to, config.clone());
+    let connect = dial(args, connect_to, config.clone());
     // The connection counts in the run's duration (and the waits for
     // control and for the remote): a peer that never answers the SYN must
     // not hold the base beyond it.
@@ -238,6 +260,58 @@ pub fn base(args: &BaseArgs) -> Result<(), String> {
     finish(&args.link, &args.run, &with_series_error(outcome, error))
 }
 
+/// Whether the link runs over zenoh, found by `name` (`flag`); refuses
+/// the name or zenoh's options without `--transport zenoh`, and zenoh
+/// without a name.
+fn by_name(
+    transport: ndr::net::Transport,
+    name: Option<&str>,
+    zenoh: &ZenohArgs,
+    flag: &str,
+) -> Result<bool, String> {
+    match (transport.is_zenoh(), name) {
+        (true, Some(_)) => Ok(true),
+        (true, None) => Err(format!(
+            "--transport zenoh finds the robot by its name: give {flag} NAME (and \
+             --zenoh-connect tcp/HOST:7447 for a router)"
+        )),
+        (false, Some(_)) => Err(format!(
+            "{flag} names a robot over zenoh: give --transport zenoh too"
+        )),
+        (false, None) if zenoh.given() => {
+            Err("--zenoh-connect and --zenoh-config apply to --transport zenoh: give it too".into())
+        }
+        (false, None) => Ok(false),
+    }
+}
+
+/// Connects as `ndr base` says: to `addr`, or over zenoh by the robot's name.
+async fn dial(
+    args: &BaseArgs,
+    addr: SocketAddr,
+    config: ndr::net::LinkConfig,
+) -> Result<Link, NetError> {
+    #[cfg(feature = "zenoh")]
+    if let (true, Some(robot)) = (args.link.transport().is_zenoh(), &args.robot) {
+        return Link::connect_zenoh(robot, &args.zenoh.options(&[]), config).await;
+    }
+    #[cfg(not(feature = "zenoh"))]
+    let _ = args;
+    Link::connect(addr, config).await
+}
+
+/// Listens as `ndr remote` says: on its address, or over zenoh by its name.
+async fn listen(args: &RemoteArgs, config: ndr::net::LinkConfig) -> Result<Listener, NetError> {
+    #[cfg(feature = "zenoh")]
+    if let (true, Some(name)) = (args.link.transport().is_zenoh(), &args.name) {
+        return Listener::listen_zenoh(name, &args.zenoh.options(&[]), config).await;
+    }
+    let addr = args
+        .listen
+        .unwrap_or_else(|| SocketAddr::from((std::net::Ipv4Addr::UNSPECIFIED, 0)));
+    Listener::listen(addr, config).await
+}
+
 /// The seat `ndr base` asks for.
 fn seat(args: &BaseArgs) -> Result<Seat, String> {
     match args.wait_for_control {
@@ -286,6 +360,12 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let tls = args.security.apply(&mut config)?;
     let tls = args.observer_trust.apply(tls)?;
     crate::transport::check_security(args.link.transport(), tls.is_some())?;
+    let zenoh = by_name(
+        args.link.transport(),
+        args.name.as_deref(),
+        &args.zenoh,
+        "--name",
+    )?;
     let max_command = args.plant.max_command()?;
     if let Some(n) = args.observers
         && n > ndr::core::floor::MAX_OBSERVERS
@@ -299,9 +379,14 @@ pub fn remote(args: &RemoteArgs) -> Result<(), String> {
     let recorder = args.record.start(args.link.axes, &args.link.state)?;
     let rt = runtime()?;
     config.tls = tls;
+    let place = match (&args.name, args.listen) {
+        (Some(name), _) if zenoh => format!("zenoh as {name:?}"),
+        (_, Some(addr)) => addr.to_string(),
+        _ => String::new(),
+    };
     let listener = rt
-        .block_on(Listener::listen(args.listen, config.clone()))
-        .map_err(|e| format!("cannot listen on {}: {e}", args.listen))?;
+        .block_on(listen(args, config.clone()))
+        .map_err(|e| format!("cannot listen on {place}: {e}"))?;
     // Alone, one base at a time: the next one is told the robot is busy.
     // Shared, the floor admits one controller and the observers.
     let listener = if args.observers.is_some() {

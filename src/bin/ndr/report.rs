@@ -788,6 +788,11 @@ pub fn base_profile(
     to: SocketAddr,
     tls: bool,
 ) -> String {
+    let security = if tls { "TLS" } else { "plain" };
+    if transport.is_zenoh() {
+        // A zenoh link has no address: the robot is found by name.
+        return format!("zenoh · {security}");
+    }
     let kind = if transport.is_quic() {
         "quic"
     } else if transport.datagrams() {
@@ -795,7 +800,6 @@ pub fn base_profile(
     } else {
         "tcp"
     };
-    let security = if tls { "TLS" } else { "plain" };
     format!("{kind} {to} · {security}")
 }
 

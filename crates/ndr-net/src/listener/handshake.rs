@@ -209,7 +209,7 @@ async fn within<F: std::future::Future>(
 }
 
 /// Why a handshake failed: the counter, and what the log says.
-type Failed = (Refusal, String);
+pub(super) type Failed = (Refusal, String);
 
 /// One connection's handshakes, then its place in the accept queue.
 pub(super) async fn handshake(
@@ -362,7 +362,7 @@ pub(super) async fn quic(common: Arc<Common>, link: Link, slot: Slot, ready: mps
 }
 
 /// ndr's Hello on a link its hub drives, within `deadline`.
-async fn hello(
+pub(super) async fn hello(
     link: Link,
     deadline: Option<TokioInstant>,
     late: impl Fn() -> Failed,
@@ -393,7 +393,12 @@ async fn hello(
 
 /// A link whose handshake is done: to the accept queue if a seat is free
 /// and the queue has room, else ended as busy.
-fn enqueue(common: &Common, mut link: Link, peer: SocketAddr, ready: &mpsc::Sender<Link>) {
+pub(super) fn enqueue(
+    common: &Common,
+    mut link: Link,
+    peer: SocketAddr,
+    ready: &mpsc::Sender<Link>,
+) {
     let asked = link.peer_seat();
     let may_control = match &common.tls {
         Some(tls) => {

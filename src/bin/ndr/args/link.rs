@@ -52,8 +52,11 @@ pub struct LinkArgs {
     /// default of the demo, which runs on loopback) or quic[:K[:R]] (the
     /// same datagrams as QUIC DATAGRAM frames, the handshake on a QUIC
     /// stream, all under mutual TLS 1.3: base and remote need the TLS
-    /// options; the demo makes a throwaway pair). UDP is plain: loopback,
-    /// or --insecure, and not with TLS.
+    /// options; the demo makes a throwaway pair) or zenoh[:K[:R]] (the same
+    /// datagrams as zenoh publications, through a zenoh router or between
+    /// zenoh peers, the robot found by its name: --name, --robot,
+    /// --zenoh-connect; in a build with the zenoh feature). UDP is plain:
+    /// loopback, or --insecure, and not with TLS.
     #[arg(long)]
     pub transport: Option<LinkTransport>,
     #[command(flatten)]

@@ -11,6 +11,7 @@ pub mod record;
 mod run;
 mod security;
 mod time;
+mod zenoh;
 
 pub use address::resolve;
 pub use delay::DelayArgs;
@@ -23,3 +24,4 @@ pub use record::RecordArgs;
 pub use run::RunArgs;
 pub use security::SecurityArgs;
 pub use time::millis;
+pub use zenoh::ZenohArgs;
