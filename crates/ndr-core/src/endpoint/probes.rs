@@ -35,7 +35,7 @@ pub(super) struct ProbeLog {
 impl<S: Storage> Endpoint<S> {
     /// Keeps each probe's arrival from now on (or no longer) for
     /// [`poll_probe_arrival`](Self::poll_probe_arrival). Off by default;
-    /// past [`PROBE_LOG`] waiting, arrivals are dropped and counted in
+    /// past 64 waiting, arrivals are dropped and counted in
     /// [`Stats::probe_arrivals_dropped`](super::Stats::probe_arrivals_dropped).
     pub fn keep_probe_arrivals(&mut self, on: bool) {
         self.probes.on = on;
