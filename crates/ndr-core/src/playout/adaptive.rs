@@ -136,16 +136,6 @@ impl AdaptiveSlot for NoAdaptive {
     }
 }
 
-/// The share of the exponential extrapolation of the tail the warm-up
-/// margin holds (see `Adaptive::warmup_margin`). Fitted to the spread of
-/// the whole sample, the extrapolation is that of the longest tail the
-/// sample allows: the delays of a bounded or normal path pass their
-/// maximum by much less, and a whole one held the delay a fifth or more
-/// over the best constant at long periods, whose runs of minutes are all
-/// warm-up, with no sample late. A quarter keeps the late rate under ε
-/// through the warm-ups of every `ndr compare` family.
-pub(super) const WARMUP_TAIL: f64 = 0.25;
-
 /// Buckets of the adaptive policy's histogram (log-linear, module docs):
 /// delays above the floor up to 13.1 s, the last bucket holding any
 /// longer one (a path that slow is an outage to report, not a delay to
@@ -216,8 +206,8 @@ pub(super) fn bucket_upper(b: usize) -> Duration {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Adaptive {
     period: f64,
-    /// The step of the delay the endpoint holds (s), the least margin of
-    /// the warm-up.
+    /// The dead band of the delay the endpoint holds (s), the least
+    /// margin of the warm-up.
     quantum: f64,
     pub(super) epsilon: f64,
     /// Counts per block in `u16` (6.5 KiB, not 13: the state is inline in
@@ -382,9 +372,11 @@ impl Adaptive {
     /// While the window holds fewer than `1/ε` delays its quantile is only
     /// their maximum, which later delays pass (the next of `n` draws is the
     /// largest with odds `1/(n+1)`): the goal extrapolates the tail as an
-    /// exponential one, [`WARMUP_TAIL`] of `s·ln(1/(n·ε))` above the maximum
-    /// with the scale `s = (max − mean)/ln n`, and at least `(1 − n·ε)·q`,
-    /// `q` the delay's quantum. Both vanish at `n = 1/ε`.
+    /// exponential one, `s·ln(1/(n·ε))` above the maximum with the scale
+    /// `s = (max − mean)/ln n`, and at least `(1 − n·ε)·q`, `q` the delay's
+    /// dead band (the period up to 20 ms). Both vanish at `n = 1/ε`. (With a
+    /// whole period at `T = 200 ms` the warm-up cost up to 200 ms each way
+    /// for its 200 s.)
     fn warmup_margin(&self, q: Duration) -> Duration {
         let n = self.count as f64;
         let filled = self.epsilon * n;
@@ -393,7 +385,7 @@ impl Adaptive {
         }
         let mean = self.sum / n;
         let scale = (q.as_secs_f64() - mean).max(0.0) / libm::log(n.max(2.0));
-        let tail = WARMUP_TAIL * scale * libm::log(1.0 / filled);
+        let tail = scale * libm::log(1.0 / filled);
         Duration::from_secs_f64(tail.max((1.0 - filled) * self.quantum))
     }
 

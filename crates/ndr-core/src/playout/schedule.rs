@@ -566,14 +566,10 @@ impl Schedule {
             .release_cutoff(t, d, cx.sync)
             .checked_duration_since(sent)?;
         let missed = passed.as_nanos() / self.period.as_nanos().max(1);
-        // The delay that puts the first missing sample's slot a band ahead
-        // (the cutoff is half a band past the slots): a period ahead up to
-        // 20 ms, where a release repeats the last sample; over 20 ms the
-        // release just comes later, and comes later again while the
-        // silence lasts. (A period ahead at `T = 200 ms`, a sample a
-        // fraction of a millisecond late held the delay 200 ms up for ten
-        // releases.)
-        let need = (passed + d + self.band / 2).saturating_sub(self.period);
+        // The delay at which the newest sample's slot would be now (the
+        // cutoff is half a band past the slots): the next one's is then a
+        // period ahead.
+        let need = (passed + d).saturating_sub(self.band / 2);
         // Holding a rise `h` saves `h/T` samples and, as the delay falls
         // back by `T/RELEASE_SLEW_STEPS` per release, costs
         // `h²·RELEASE_SLEW_STEPS/(2T)` of delay summed over the releases:
