@@ -107,4 +107,6 @@ mod docs {
     struct Recording;
     #[doc = include_str!("../docs/guide/reconnecting.md")]
     struct Reconnecting;
+    #[doc = include_str!("../docs/guide/zenoh.md")]
+    struct Zenoh;
 }
