@@ -515,6 +515,9 @@ class LinkStats(TypedDict):
     datagrams_stray: int
     """Datagram transport: datagrams to this link's UDP socket with no
     token of a link on it (shared by the links on the socket), dropped."""
+    zenoh_dropped: int
+    """Zenoh transport: frames that reached the link while its inbox was
+    full (its hub behind by hundreds of frames), dropped; 0 on the others."""
     waited: float
     """Seconds connecting waited for the remote (``connect_timeout``): from
     the first attempt to the one that reached it; 0 if it was there."""

@@ -582,14 +582,14 @@ def test_stats_and_properties():
 
 
 def _base_hello(period: float, axes: int = 1) -> bytes:
-    """A base's Hello frame (wire version 4), encoded as docs/wire.md §2 and
+    """A base's Hello frame (wire version 5), encoded as docs/wire.md §2 and
     §3.2 say: `axes` values each way, no layout, no session, asking for
-    control."""
+    control, no regulation name."""
     import struct
 
     none = 0xFFFF_FFFF_FFFF_FFFF
     payload = struct.pack("<BBBBHHQQQ", 0, 0, 0, 0, axes, axes, round(period * 1e9), 0, 0)
-    header = struct.pack("<IBBHQQQQQ", 48 + len(payload), 4, 2, 0, 0, 0, none, 0, none)
+    header = struct.pack("<IBBHQQQQQ", 48 + len(payload), 5, 2, 0, 0, 0, none, 0, none)
     return header + payload
 
 
