@@ -102,6 +102,8 @@ pub(crate) type Tap = Box<dyn FnMut(Tapped<'_>) + Send>;
 
 /// What a [`Tap`] sees: the link's events, and its probes' arrivals
 /// (which the application never gets).
+// Only a recorder reads them: without `record` the hub still builds them.
+#[cfg_attr(not(feature = "record"), allow(dead_code))]
 pub(crate) enum Tapped<'a> {
     Event(&'a crate::delivery::LinkEvent),
     Probe(ndr_core::endpoint::ProbeArrival),
