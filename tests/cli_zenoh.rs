@@ -11,18 +11,7 @@ mod cli_proc;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use cli_proc::{Proc, serial};
-
-/// A port free on loopback for TCP and UDP when asked.
-fn free_port() -> u16 {
-    loop {
-        let tcp = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let port = tcp.local_addr().unwrap().port();
-        if std::net::UdpSocket::bind(("127.0.0.1", port)).is_ok() {
-            return port;
-        }
-    }
-}
+use cli_proc::{Proc, free_port, serial};
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("ndr-zenoh-{name}-{}", std::process::id()));

@@ -201,6 +201,20 @@ impl Link {
         Ok(link)
     }
 
+    /// The endpoint's configuration for a link whose transport routes its
+    /// datagrams (QUIC, zenoh): `role`, time from zero, a fresh token.
+    fn routed_endpoint(
+        config: &LinkConfig,
+        role: Role,
+    ) -> Result<ndr_core::endpoint::Config, NetError> {
+        let mut cfg = config.endpoint;
+        cfg.role = role;
+        cfg.tick_origin = Instant::ZERO;
+        cfg.session = session_token()?;
+        cfg.validate().map_err(NetError::Config)?;
+        Ok(cfg)
+    }
+
     /// A QUIC link over the connection `conn` (`handle` on the endpoint
     /// `key` of `hub`), in `role`: its id, its entry for the hub, its handle.
     pub(crate) fn start_quic(
@@ -210,13 +224,9 @@ impl Link {
         path: QuicPath,
         sharing: Option<&Arc<crate::sharing::Sharing>>,
     ) -> Result<(u64, Entry, Link), NetError> {
-        let mut cfg = config.endpoint;
-        cfg.role = role;
-        cfg.tick_origin = Instant::ZERO;
         // QUIC routes the datagrams and authenticates them: the token only
         // has to be one the endpoint checks, as on UDP.
-        cfg.session = session_token()?;
-        cfg.validate().map_err(NetError::Config)?;
+        let cfg = Self::routed_endpoint(config, role)?;
         let peer = path.conn.remote_address();
         Link::assemble(cfg, config, hub, Path::Quic(Box::new(path)), peer, sharing)
     }
@@ -231,12 +241,8 @@ impl Link {
         path: crate::hub::zenoh::ZenohPath,
         sharing: Option<&Arc<crate::sharing::Sharing>>,
     ) -> Result<(u64, Entry, Link), NetError> {
-        let mut cfg = config.endpoint;
-        cfg.role = role;
-        cfg.tick_origin = Instant::ZERO;
         // The keys route the datagrams; the token is one the endpoint checks.
-        cfg.session = session_token()?;
-        cfg.validate().map_err(NetError::Config)?;
+        let cfg = Self::routed_endpoint(config, role)?;
         // A zenoh peer has no address this side knows.
         let peer = SocketAddr::from((std::net::Ipv4Addr::UNSPECIFIED, 0));
         Link::assemble(cfg, config, hub, Path::Zenoh(Box::new(path)), peer, sharing)
